@@ -1,0 +1,83 @@
+"""Sources of physical-twin samples, and the one place that wires them.
+
+Every entity has a ``physical_sample`` input ``[t, valid, *fields]``. What
+feeds it decides whether the entity can shadow a physical twin:
+
+* ``NoPhysicalTwin``: a constant "no sample"; an entity in shadow or twin mode
+  then reads its physical link as stale and fails safe.
+* ``BlackBoxReplay``: replays channels of a recorded black box as the physical
+  twin's samples (a recorded real cell, or another simulated run).
+* the bridge daemon (CAN, Zenoh) provides network-fed sources.
+
+``connect_physical_twins`` is the single place where a diagram's entities are
+connected to their sources.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import ConstantVectorSource
+
+from cellsim.channels import ChannelType
+from cellsim.services.blackbox import BlackBox
+
+
+def no_physical_twin(size: int) -> ConstantVectorSource:
+    """A source saying "no sample" (valid = 0) on a physical_sample port of ``size``."""
+    value = np.zeros(size)
+    value[0] = -np.inf
+    return ConstantVectorSource(value)
+
+
+class BlackBoxReplay(LeafSystem):
+    """Replays recorded channels as an entity's physical samples.
+
+    ``fields`` lists, for each sample field of the entity, ``(channel, element,
+    type)``: the recorded channel, the element of its vector (0 for scalars), and
+    its ChannelType (to encode enum names back into codes). Output
+    ``physical_sample`` is ``[t_sample, 1, *fields]`` where ``t_sample`` is the
+    time of the latest recorded message at or before ``t - time_offset``; before
+    the first message of every field the sample is invalid.
+    """
+
+    def __init__(self, blackbox: BlackBox, fields: list[tuple[str, int, ChannelType]], period: float, time_offset: float = 0.0):
+        super().__init__()
+        self.time_offset = time_offset
+        self._series = []
+        for channel, element, ctype in fields:
+            series = blackbox.series(channel)
+            codes = np.array([ctype.encode(v)[element] for v in series.values], float)
+            self._series.append((series.times, codes))
+        self._state = self.DeclareDiscreteState(2 + len(fields))
+        self.DeclareStateOutputPort("physical_sample", self._state)
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
+
+    def _update(self, context, xd):
+        t = context.get_time() - self.time_offset
+        sample = np.zeros(2 + len(self._series))
+        stamp = -np.inf
+        for i, (times, codes) in enumerate(self._series):
+            k = int(np.searchsorted(times, t, side="right")) - 1
+            if k < 0:
+                xd.get_mutable_vector(self._state).SetFromVector(np.concatenate([[-np.inf, 0.0], sample[2:]]))
+                return
+            sample[2 + i] = codes[k]
+            stamp = max(stamp, times[k])
+        sample[0], sample[1] = t + self.time_offset if stamp > -np.inf else -np.inf, 1.0
+        xd.get_mutable_vector(self._state).SetFromVector(sample)
+
+
+def connect_physical_twins(builder: DiagramBuilder, entities: dict, sources: dict[str, LeafSystem] | None = None) -> None:
+    """Connect each entity's physical_sample input to its source, or to "no sample"."""
+    sources = sources or {}
+    unknown = set(sources) - set(entities)
+    if unknown:
+        raise KeyError(f"physical-twin sources for unknown entities: {', '.join(sorted(unknown))}")
+    for name, entity in entities.items():
+        source = sources.get(name)
+        if source is None:
+            source = builder.AddNamedSystem(f"{name}.no_physical_twin", no_physical_twin(entity.physical_sample_port.size()))
+        elif source not in builder.GetSystems():
+            builder.AddSystem(source)
+        builder.Connect(source.get_output_port(), entity.physical_sample_port)

@@ -1,0 +1,179 @@
+"""Risk models: a safety controller's rules as data.
+
+A risk model names the variables the controller monitors and those it controls,
+and for each hazard a phase machine (``inact``, ``act``, ``mit``, ``res``,
+``mis`` ...) whose transitions are guarded by conditions over the monitored
+variables and all hazards' phases, plus what each phase *demands* of the
+controlled variables. The generic engine (``safety_controller.SafetyController``)
+executes it; a new cell's controller is a new YAML file, not new code.
+
+Semantics, each control period:
+
+1. Every hazard takes at most one transition: the first one listed, leaving its
+   current phase, whose guard holds on the values read this period (all
+   hazards see the same snapshot) and, with ``after: d``, has held for d s.
+2. Each controlled variable is set to the most restrictive value demanded by any
+   hazard in its new phase (``values`` are listed from least to most
+   restrictive), or to its ``default`` when no hazard demands one (no default:
+   "no request", the machine follows its process).
+
+Guards use the condition language (docs/condition-language.md) without temporal
+operators; ``macros`` name sub-conditions (a hazard's detection condition), and
+each hazard's name is a variable holding its phase.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from typing import Any, Callable, Literal
+
+from cellsim.config.typed_yaml import ConfigError, FieldError, Loaded, load_file
+from cellsim.logic.predicates import compile_predicate
+from cellsim.logic.syntax import BoolDomain, EnumDomain, FormulaError, parse
+from cellsim.vocabulary import HazardPhase
+
+PHASES = HazardPhase.names()
+
+
+@dataclass
+class Variable:
+    type: Literal["enum", "bool"] = "enum"
+    values: list[str] = field(default_factory=list)
+    """Enum values; for a controlled variable, from least to most restrictive."""
+    default: Any = None
+    """Controlled variables: the value commanded when no hazard demands one (null: no request)."""
+
+    def __post_init__(self):
+        if self.type == "enum" and not self.values:
+            raise FieldError("values", "an enum variable needs its values")
+        if self.type == "bool" and self.values:
+            raise FieldError("values", "a bool variable has no values list")
+
+    @property
+    def domain(self) -> tuple:
+        return tuple(self.values) if self.type == "enum" else (False, True)
+
+    def logic_domain(self):
+        return EnumDomain(tuple(self.values)) if self.type == "enum" else BoolDomain()
+
+
+@dataclass
+class Transition:
+    phase: str
+    """The phase this transition leaves."""
+    to: str
+    when: str = "true"
+    after: float = 0.0
+    """The guard must have held this long (s) before the transition fires."""
+
+    def __post_init__(self):
+        for key in ("phase", "to"):
+            if getattr(self, key) not in PHASES:
+                raise FieldError(key, f"'{getattr(self, key)}' is not a hazard phase ({', '.join(PHASES)})")
+        if self.after < 0:
+            raise FieldError("after", "must not be negative")
+
+
+@dataclass
+class Hazard:
+    transitions: list[Transition]
+    description: str = ""
+    demands: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Phase -> {controlled variable: value} imposed while the hazard is in that phase."""
+
+
+@dataclass
+class RiskModelFile:
+    name: str
+    monitored: dict[str, Variable]
+    controlled: dict[str, Variable]
+    hazards: dict[str, Hazard]
+    description: str = ""
+    macros: dict[str, str] = field(default_factory=dict)
+
+
+# -- compiled form ----------------------------------------------------------------
+@dataclass(frozen=True)
+class CompiledTransition:
+    phase: str
+    to: str
+    guard: Callable[[dict], bool]
+    after: float
+    text: str
+
+
+@dataclass(frozen=True)
+class CompiledHazard:
+    name: str
+    transitions: tuple[CompiledTransition, ...]
+    demands: dict[str, dict[str, Any]]
+
+
+@dataclass(frozen=True)
+class RiskModel:
+    """A risk model checked and compiled for execution."""
+
+    name: str
+    source: str
+    monitored: dict[str, Variable]
+    controlled: dict[str, Variable]
+    hazards: tuple[CompiledHazard, ...]
+    macros: dict[str, str]
+
+    def vocabulary(self) -> dict:
+        """Variables guards (and safety conditions) may use: monitored ones and phases."""
+        vocab = {name: var.logic_domain() for name, var in self.monitored.items()}
+        vocab.update({h.name: EnumDomain(PHASES) for h in self.hazards})
+        return vocab
+
+    def demand_rank(self, variable: str, value) -> int:
+        return self.controlled[variable].domain.index(value)
+
+
+def load_risk_model(path: str | os.PathLike) -> RiskModel:
+    """Load and compile a risk model; ConfigError (file, line, key) on any problem."""
+    loaded = load_file(RiskModelFile, path)
+    return compile_risk_model(loaded)
+
+
+def compile_risk_model(loaded: Loaded[RiskModelFile]) -> RiskModel:
+    rm = loaded.value
+
+    def error(key: str, problem: str) -> ConfigError:
+        return ConfigError(loaded.source, loaded.line_of(key), key, problem)
+
+    for name, var in rm.controlled.items():
+        if var.default is not None and var.default not in var.domain:
+            raise error(f"controlled.{name}.default", f"{var.default!r} is not a value of {name}")
+    hazard_names = set(rm.hazards)
+    clash = hazard_names & (set(rm.monitored) | set(rm.macros))
+    if clash:
+        raise error("hazards", f"hazard names must differ from variables and macros: {', '.join(sorted(clash))}")
+    vocabulary = {name: var.logic_domain() for name, var in rm.monitored.items()}
+    vocabulary.update({h: EnumDomain(PHASES) for h in rm.hazards})
+
+    hazards = []
+    for hname, hazard in rm.hazards.items():
+        transitions = []
+        for i, tr in enumerate(hazard.transitions):
+            key = f"hazards.{hname}.transitions.{i}.when"
+            try:
+                formula = parse(
+                    tr.when, vocabulary, rm.macros, source=loaded.source,
+                    line_offset=(loaded.line_of(key) or 1) - 1, allow_temporal=False,
+                )
+            except FormulaError as e:
+                raise error(key, e.message) from None
+            transitions.append(CompiledTransition(tr.phase, tr.to, compile_predicate(formula, vocabulary), tr.after, tr.when))
+        for phase, demands in hazard.demands.items():
+            if phase not in PHASES:
+                raise error(f"hazards.{hname}.demands.{phase}", f"'{phase}' is not a hazard phase")
+            for var, value in demands.items():
+                key = f"hazards.{hname}.demands.{phase}.{var}"
+                if var not in rm.controlled:
+                    raise error(key, f"'{var}' is not a controlled variable ({', '.join(rm.controlled)})")
+                if value not in rm.controlled[var].domain:
+                    raise error(key, f"{value!r} is not a value of {var} ({', '.join(map(str, rm.controlled[var].domain))})")
+        hazards.append(CompiledHazard(hname, tuple(transitions), hazard.demands))
+    return RiskModel(rm.name, loaded.source, rm.monitored, rm.controlled, tuple(hazards), rm.macros)

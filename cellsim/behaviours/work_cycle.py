@@ -1,0 +1,105 @@
+"""The process controller: the cell's work cycle, as a list of steps.
+
+Each step is a move to a named pose, a dwell, or a weld of a given duration,
+and names the robot activity it represents. The cycle repeats; completing its
+last step counts one work cycle.
+
+It advances only while the robot's safety mode permits motion (not srmst or
+stopped), and it obeys the safety controller's robot activity requests as the
+robot's activity state machine (paper, Fig. 6): ``off`` and ``idle`` pause the
+cycle and are what the robot reports; a *new* request listed in
+``restart_on_request`` restarts the cycle from the step it names (``exchWrkp``:
+bring the work-piece back; ``welding``: continue the unfinished weld).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cellsim.channels import enum_type, number_type
+from cellsim.entities.robot import HOLD
+from cellsim.entities.welder import NO_REQUEST
+from cellsim.scenario import WorkCycleConfig
+from cellsim.systems import CellSystem, read_scalar, write_scalar
+from cellsim.vocabulary import CodedEnum, RobotActivity, SafetyMode, WelderActivity
+
+_PAUSING = {RobotActivity.OFF.code: RobotActivity.OFF, RobotActivity.IDLE.code: RobotActivity.IDLE}
+_STANDSTILL = {SafetyMode.MONITORED_STOP.code, SafetyMode.STOPPED.code}
+
+
+class WorkCycle(CellSystem):
+    """The robot's process controller.
+
+    Ports:
+      activity_request (input): RobotActivity code requested by the safety controller, -1 for none.
+      robot_safety_mode (input): the robot's SafetyMode code.
+      robot_reached_pose (input): the robot's reached-pose code (0 moving, i + 1 for named pose i).
+      welder_activity (input): the welder's WelderActivity code.
+      target_pose (output): index of the robot's named pose to move to, -1 to hold.
+      robot_activity (output): the RobotActivity code the robot is carrying out.
+      weld_command (output): 1 while a weld is wanted.
+      step (channel): the current step's name.
+      cycles_completed (channel): work cycles completed so far.
+    """
+
+    def __init__(self, module: str, cfg: WorkCycleConfig, pose_names: list[str]):
+        super().__init__(module, cfg.period)
+        self.cfg = cfg
+        self.steps = cfg.steps
+        self.targets = [HOLD if s.move_to is None else float(pose_names.index(s.move_to)) for s in self.steps]
+        self.restart = {RobotActivity(a).code: [s.name for s in self.steps].index(step) for a, step in cfg.restart_on_request.items()}
+        self.step_names = CodedEnum(f"{module}_step", [(s.name.upper(), s.name) for s in self.steps])
+
+        self.activity_request_port = self.declare_input("activity_request", ctype=enum_type(RobotActivity), default=NO_REQUEST)
+        self.robot_mode_port = self.declare_input("robot_safety_mode")
+        self.reached_pose_port = self.declare_input("robot_reached_pose")
+        self.welder_activity_port = self.declare_input("welder_activity")
+        # [step progress (s dwelled or welded), last activity request]
+        self._progress = self.declare_state("progress", [0.0, NO_REQUEST])
+        first = self.steps[0]
+        self._target = self.declare_state("target_pose", [self.targets[0]])
+        self._activity = self.declare_state("robot_activity", [first.activity.code])
+        self._weld = self.declare_state("weld_command", [0.0])
+        self.target_pose_port = self.DeclareStateOutputPort("target_pose", self._target)
+        self.robot_activity_port = self.DeclareStateOutputPort("robot_activity", self._activity)
+        self.weld_command_port = self.DeclareStateOutputPort("weld_command", self._weld)
+        self._step = self.declare_channel("step", enum_type(self.step_names), first.name)
+        self._cycles = self.declare_channel("cycles_completed", number_type(None), 0.0)
+
+    def update(self, context, xd):
+        request = self.activity_request_port.Eval(context)[0]
+        progress, last_request = context.get_discrete_state(self._progress).get_value()
+        index = int(read_scalar(context, self._step))
+        cycles = read_scalar(context, self._cycles)
+        if request != last_request and request in self.restart:
+            index, progress = self.restart[request], 0.0
+        step = self.steps[index]
+        target, weld, activity = self.targets[index], 0.0, step.activity.code
+
+        if request in _PAUSING:
+            target, activity = HOLD, request
+        elif self.robot_mode_port.Eval(context)[0] not in _STANDSTILL:
+            done = False
+            if step.move_to is not None:
+                done = self.reached_pose_port.Eval(context)[0] == target + 1.0
+            elif step.dwell > 0:
+                progress += self.period
+                done = progress >= step.dwell - 1e-9
+            else:
+                weld = 1.0
+                if self.welder_activity_port.Eval(context)[0] == WelderActivity.WELDING.code:
+                    progress += self.period
+                done = progress >= step.weld - 1e-9
+            if done:
+                weld, progress = 0.0, 0.0
+                index = (index + 1) % len(self.steps)
+                if index == 0:
+                    cycles += 1
+                step = self.steps[index]
+                target, activity = self.targets[index], step.activity.code
+        xd.get_mutable_vector(self._progress).SetFromVector(np.array([progress, request]))
+        write_scalar(xd, self._target, target)
+        write_scalar(xd, self._activity, activity)
+        write_scalar(xd, self._weld, weld)
+        write_scalar(xd, self._step, index)
+        write_scalar(xd, self._cycles, cycles)

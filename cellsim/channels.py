@@ -1,0 +1,119 @@
+"""Named channels: the typed messages modules publish.
+
+In the paper's framework, modules talk over publish-subscribe channels. Here the
+wiring is a Drake Diagram's ports, and a *channel* is an output port that carries
+one typed signal of the cell, named ``<module>.<signal>`` (``robot.safety_mode``,
+``light_barrier.broken``). A message is published on a channel whenever the
+publishing module's periodic update changes it (or, for sampled quantities, at
+every update); the black-box recorder taps every channel and stores each message
+with the simulated time, the channel, the source module and a JSON payload.
+
+On its port, every channel is a float vector: an enum is its integer code, a
+boolean is 0 or 1, a number is in SI units (see ``ChannelType.unit``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from cellsim.vocabulary import CodedEnum
+
+Kind = Literal["enum", "bool", "number", "vector"]
+NO_VALUE = -1.0
+"""The code of "no value" on an optional channel (e.g. no activity request)."""
+RecordPolicy = Literal["on_change", "every_sample"]
+
+
+@dataclass(frozen=True)
+class ChannelType:
+    """What a channel carries and how its port vector reads as a message payload."""
+
+    kind: Kind
+    enum: type[CodedEnum] | None = None
+    size: int = 1
+    unit: str | None = None
+    optional: bool = False
+    """Code -1 means "no value" (a command that is not requested); its payload is null."""
+
+    def decode(self, vector: np.ndarray):
+        """The payload value (JSON-ready) of a port vector of this type."""
+        if self.optional and vector[0] == NO_VALUE:
+            return None
+        if self.kind == "enum":
+            return self.enum.from_code(vector[0]).value
+        if self.kind == "bool":
+            return bool(vector[0] > 0.5)
+        if self.kind == "number":
+            return _json_number(vector[0])
+        return [_json_number(x) for x in vector]
+
+    def encode(self, value) -> np.ndarray:
+        """The port vector for a payload value (inverse of ``decode``)."""
+        if value is None and self.optional:
+            return np.array([NO_VALUE])
+        if self.kind == "enum":
+            member = value if isinstance(value, CodedEnum) else self.enum(value)
+            return np.array([float(member.code)])
+        if self.kind == "bool":
+            return np.array([1.0 if value else 0.0])
+        return np.asarray(value, dtype=float).reshape(self.size)
+
+    def domain(self):
+        """The value set, as written in risk models and safety conditions."""
+        if self.kind == "enum":
+            return list(self.enum.names())
+        return self.kind
+
+
+def _json_number(x: float):
+    x = float(x)
+    if not math.isfinite(x):
+        return None
+    return round(x, 6)
+
+
+def enum_type(enum: type[CodedEnum]) -> ChannelType:
+    return ChannelType("enum", enum=enum)
+
+
+BOOL = ChannelType("bool")
+
+
+def number_type(unit: str | None) -> ChannelType:
+    return ChannelType("number", unit=unit)
+
+
+def vector_type(size: int, unit: str | None) -> ChannelType:
+    return ChannelType("vector", size=size, unit=unit)
+
+
+@dataclass(frozen=True)
+class ChannelSpec:
+    """A channel's identity and contract.
+
+    ``period`` is the publisher's update period in seconds: the value can only
+    change at multiples of it. ``record`` says when the recorder writes a
+    message: ``on_change`` (checked at every update) or ``every_sample``, one
+    message every ``record_period`` (a multiple of ``period``; default: every update).
+    """
+
+    module: str
+    signal: str
+    type: ChannelType
+    period: float
+    record: RecordPolicy = "on_change"
+    description: str = ""
+    record_period: float | None = None
+
+    @property
+    def sample_period(self) -> float:
+        """How often the recorder looks at this channel (s)."""
+        return self.record_period or self.period
+
+    @property
+    def name(self) -> str:
+        return f"{self.module}.{self.signal}"

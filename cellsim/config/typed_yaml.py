@@ -1,0 +1,629 @@
+"""Load YAML into typed dataclasses, with errors that name the file, line and key.
+
+Scenario files follow Drake's "typed dataclass config" idiom: a tree of plain
+``@dataclass`` classes is the schema, and a YAML document fills it in.  Drake's
+own ``yaml_load_typed`` converts the data without keeping where it came from, so
+when something is wrong the user learns *what* but not *where* (no line
+numbers).  This module does the same job with the position kept: it composes
+the YAML node tree itself (which also lets it reject duplicate keys, which
+PyYAML silently accepts), records the line of every key and list item, and
+converts the data field by field.  Every problem becomes one :class:`ConfigError` whose text is a single actionable line::
+
+    scenarios/x.yaml:12: entities.operator.waypoints.cell.wait: expected a number, got 'abc'
+
+The module is generic: it knows dataclasses, ``float``/``int``/``bool``/``str``,
+``X | None``, ``list``/``dict``/``tuple``, string enums, ``Literal`` and
+unions of dataclasses told apart by a ``kind: Literal["..."]`` field.  It knows
+nothing about scenarios.  ``__post_init__`` checks may raise :class:`FieldError`
+(reported at the field's line) or any ``ValueError`` (reported at the mapping).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import enum
+import functools
+import os
+import types
+import typing
+from dataclasses import dataclass
+from typing import Any, Callable, Generic, TypeVar
+
+import yaml
+
+__all__ = [
+    "ConfigError",
+    "FieldError",
+    "Loaded",
+    "apply_override",
+    "dump_yaml",
+    "from_data",
+    "load_file",
+    "load_text",
+    "to_data",
+]
+
+T = TypeVar("T")
+
+# The C loader is much faster and reports the same marks (0-based line numbers).
+_BaseLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+class _Loader(_BaseLoader):
+    """SafeLoader with YAML 1.2 booleans: only true/false are booleans.
+
+    YAML 1.1 also reads on/off/yes/no as booleans, which would turn the activity
+    value ``off`` (and a key ``on:``) into ``False``; cell vocabularies need them as words.
+    """
+
+
+_Loader.yaml_implicit_resolvers = {
+    first: [(tag, regex) for tag, regex in resolvers if tag != "tag:yaml.org,2002:bool"]
+    for first, resolvers in _BaseLoader.yaml_implicit_resolvers.items()
+}
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:bool",
+    __import__("re").compile(r"^(?:true|True|TRUE|false|False|FALSE)$"),
+    list("tTfF"),
+)
+_MERGE_TAG = "tag:yaml.org,2002:merge"
+_NoneType = type(None)
+
+
+class FieldError(ValueError):
+    """Raised by a dataclass ``__post_init__`` to blame one of its fields.
+
+    ``field`` is relative to the dataclass and may be dotted (``"waypoints.bench"``).
+    """
+
+    def __init__(self, field: str, message: str):
+        super().__init__(f"{field}: {message}")
+        self.field = field
+        self.message = message
+
+
+class ConfigError(Exception):
+    """One configuration problem: ``source:line: key: problem``."""
+
+    def __init__(self, source: str, line: int | None, key: str, problem: str):
+        super().__init__(source, line, key, problem)  # args kept for pickling
+        self.source = source
+        self.line = line
+        self.key = key
+        self.problem = problem
+
+    def __str__(self) -> str:
+        where = self.source if self.line is None else f"{self.source}:{self.line}"
+        text = f"{where}: {self.key}: {self.problem}" if self.key else f"{where}: {self.problem}"
+        return text.replace("\r", "\\r").replace("\n", "\\n")  # always one line
+
+
+@dataclass
+class Loaded(Generic[T]):
+    """A typed value together with where each of its keys was written."""
+
+    value: T
+    source: str
+    lines: dict[str, int]
+
+    def line_of(self, key: str) -> int | None:
+        """Line of ``key``, or of its nearest written ancestor (``None`` if none)."""
+        return _line_of(self.lines, key)
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _join(path: str, key: Any) -> str:
+    return f"{path}.{key}" if path else str(key)
+
+
+def _line_of(lines: dict[str, int], key: str) -> int | None:
+    while True:
+        if key in lines:
+            return lines[key]
+        if not key:
+            return None
+        key = key.rpartition(".")[0]
+
+
+@functools.lru_cache(maxsize=None)
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def _init_fields(cls: type) -> dict[str, dataclasses.Field]:
+    return {f.name: f for f in dataclasses.fields(cls) if f.init}
+
+
+def _is_dataclass_type(tp: Any) -> bool:
+    return isinstance(tp, type) and dataclasses.is_dataclass(tp)
+
+
+def _union_args(tp: Any) -> tuple[Any, ...] | None:
+    """Members of a ``Union``/``X | Y`` type, or ``None`` if ``tp`` is not one."""
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        return typing.get_args(tp)
+    return None
+
+
+def _kind_of(cls: type) -> Any:
+    """The single ``Literal`` value of a dataclass's ``kind`` field, or ``None``."""
+    tp = _hints(cls).get("kind")
+    if typing.get_origin(tp) is typing.Literal and len(typing.get_args(tp)) == 1:
+        return typing.get_args(tp)[0]
+    return None
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equality that does not confuse ``True`` with ``1``."""
+    return type(a) is type(b) and a == b
+
+
+def _suggest(word: str, options: list[str]) -> str:
+    match = difflib.get_close_matches(word, options, n=1)
+    return f"; did you mean '{match[0]}'?" if match else ""
+
+
+def _type_name(tp: Any) -> str:
+    names = {float: "a number", int: "an integer", bool: "true or false", str: "a string",
+             _NoneType: "null", list: "a list", tuple: "a list", dict: "a mapping"}
+    if tp in names:
+        return names[tp]
+    origin = typing.get_origin(tp)
+    if origin in names:
+        return names[origin]
+    if _is_dataclass_type(tp):
+        return "a mapping"
+    if isinstance(tp, type) and issubclass(tp, enum.Enum):
+        return "one of: " + ", ".join(str(m.value) for m in tp)
+    if origin is typing.Literal:
+        return "one of: " + ", ".join(str(v) for v in typing.get_args(tp))
+    return getattr(tp, "__name__", str(tp))
+
+
+# --------------------------------------------------------------------------- YAML -> data
+
+
+class _Composer:
+    """Turns a composed YAML node tree into plain data, recording lines and texts."""
+
+    def __init__(self, loader: Any, source: str):
+        self.loader = loader
+        self.source = source
+        self.lines: dict[str, int] = {}
+        self.texts: dict[str, str] = {}  # source text of scalars, for error messages
+        self.done: dict[int, Any] = {}   # aliases: a node is converted once
+        self.active: set[int] = set()    # nodes being converted: detects recursive aliases
+
+    def error(self, node: yaml.Node, key: str, problem: str) -> ConfigError:
+        return ConfigError(self.source, node.start_mark.line + 1, key, problem)
+
+    def build(self, node: yaml.Node, path: str) -> Any:
+        if id(node) in self.done:
+            return self.done[id(node)]
+        if id(node) in self.active:
+            raise self.error(node, path, "recursive YAML alias")
+        self.active.add(id(node))
+        if isinstance(node, yaml.ScalarNode):
+            result = self.scalar(node, path)
+            self.texts[path] = node.value
+        elif isinstance(node, yaml.SequenceNode):
+            result = []
+            for i, item in enumerate(node.value):
+                self.lines[_join(path, i)] = item.start_mark.line + 1
+                result.append(self.build(item, _join(path, i)))
+        else:
+            result = self.mapping(node, path)
+        self.active.discard(id(node))
+        self.done[id(node)] = result
+        return result
+
+    def scalar(self, node: yaml.ScalarNode, path: str) -> Any:
+        try:
+            return self.loader.construct_object(node, deep=True)
+        except yaml.MarkedYAMLError as e:
+            raise self.error(node, path, f"malformed YAML: {e.problem or e}") from None
+        except Exception as e:  # e.g. an impossible date such as 2001-02-30
+            raise self.error(node, path, f"malformed YAML: {e}") from None
+
+    def mapping(self, node: yaml.MappingNode, path: str) -> dict[Any, Any]:
+        merged: dict[Any, Any] = {}
+        explicit: dict[Any, Any] = {}
+        # Merge keys ("<<: *base") first, so that explicit keys and their lines win.
+        for knode, vnode in node.value:
+            if knode.tag != _MERGE_TAG:
+                continue
+            bases = vnode.value if isinstance(vnode, yaml.SequenceNode) else [vnode]
+            for base in bases:
+                if not isinstance(base, yaml.MappingNode):
+                    raise self.error(base, path, "malformed YAML: '<<' merges only mappings")
+                for k, v in self.build(base, path).items():
+                    merged.setdefault(k, v)
+        first_line: dict[Any, int] = {}
+        for knode, vnode in node.value:
+            if knode.tag == _MERGE_TAG:
+                continue
+            if not isinstance(knode, yaml.ScalarNode):
+                raise self.error(knode, path, "mapping keys must be plain values")
+            key = self.scalar(knode, path)
+            kpath = _join(path, key)
+            line = knode.start_mark.line + 1
+            if key in first_line:
+                raise ConfigError(self.source, line, kpath,
+                                  f"duplicate key '{key}' (first given on line {first_line[key]})")
+            first_line[key] = line
+            self.lines[kpath] = line
+            explicit[key] = self.build(vnode, kpath)
+        merged.update(explicit)
+        return merged
+
+
+def _parse(text: str, source: str) -> tuple[Any, dict[str, int], dict[str, str]]:
+    loader = _Loader(text)
+    try:
+        try:
+            node = loader.get_single_node()
+        except yaml.MarkedYAMLError as e:
+            mark = e.problem_mark or e.context_mark
+            what = "; ".join(p for p in (e.context, e.problem) if p) or str(e)
+            raise ConfigError(source, mark.line + 1 if mark else None, "",
+                              f"malformed YAML: {what}") from None
+        except yaml.reader.ReaderError as e:  # e.g. a control character; no mark, a position
+            line = text.count("\n", 0, e.position) + 1 if isinstance(e.position, int) else None
+            raise ConfigError(source, line, "", f"malformed YAML: unacceptable character "
+                              f"#x{ord(e.character) if isinstance(e.character, str) else e.character:04x}: "
+                              f"{e.reason}") from None
+        except yaml.YAMLError as e:
+            raise ConfigError(source, None, "", f"malformed YAML: {e}") from None
+        if node is None:
+            raise ConfigError(source, 1, "", "empty document (expected a mapping)")
+        if not isinstance(node, yaml.MappingNode):
+            kind = "a list" if isinstance(node, yaml.SequenceNode) else f"'{node.value}'"
+            raise ConfigError(source, node.start_mark.line + 1, "",
+                              f"expected a mapping at the top level, got {kind}")
+        composer = _Composer(loader, source)
+        composer.lines[""] = node.start_mark.line + 1
+        data = composer.build(node, "")
+        return data, composer.lines, composer.texts
+    finally:
+        loader.dispose()
+
+
+# --------------------------------------------------------------------------- data -> typed
+
+
+class _Converter:
+    """Converts plain data to a type, raising :class:`ConfigError` at the right line."""
+
+    def __init__(self, source: str, lines: dict[str, int] | None = None,
+                 texts: dict[str, str] | None = None):
+        self.source = source
+        self.lines = lines or {}
+        self.texts = texts or {}
+
+    def error(self, path: str, problem: str) -> ConfigError:
+        return ConfigError(self.source, _line_of(self.lines, path), path, problem)
+
+    def describe(self, data: Any, path: str) -> str:
+        if isinstance(data, dict):
+            return "a mapping"
+        if isinstance(data, (list, tuple)):
+            return "a list"
+        if data is None:
+            return "null"
+        if path in self.texts and not isinstance(data, str):
+            text = self.texts[path]  # what the user wrote, e.g. 'no' rather than false
+        elif isinstance(data, bool):
+            text = str(data).lower()
+        else:
+            text = str(data.value if isinstance(data, enum.Enum) else data)
+        text = text.replace("\r", "\\r").replace("\n", "\\n")
+        return f"'{text[:60]}...'" if len(text) > 60 else f"'{text}'"
+
+    def expected(self, tp: Any, data: Any, path: str, hint: str = "") -> ConfigError:
+        return self.error(path, f"expected {_type_name(tp)}, got {self.describe(data, path)}{hint}")
+
+    def convert(self, tp: Any, data: Any, path: str) -> Any:
+        if tp is Any or tp is object:
+            return data
+        members = _union_args(tp)
+        if members is not None:
+            return self.union(members, data, path)
+        origin = typing.get_origin(tp)
+        if origin is typing.Literal:
+            choices = typing.get_args(tp)
+            for choice in choices:
+                if _same(choice, data):
+                    return choice
+            raise self.error(path, f"{self.describe(data, path)} is not one of: "
+                             + ", ".join(str(c) for c in choices))
+        if isinstance(tp, type) and issubclass(tp, enum.Enum):
+            return self.enum(tp, data, path)
+        if _is_dataclass_type(tp):
+            return self.dataclass(tp, data, path)
+        if tp in (list, tuple, dict) or origin in (list, tuple, dict):
+            return self.container(tp, origin or tp, data, path)
+        return self.scalar(tp, data, path)
+
+    def scalar(self, tp: Any, data: Any, path: str) -> Any:
+        if tp is bool:
+            if isinstance(data, bool):
+                return data
+        elif tp is int:
+            if isinstance(data, int) and not isinstance(data, bool):
+                return data
+        elif tp is float:
+            if isinstance(data, (int, float)) and not isinstance(data, bool):
+                try:
+                    return float(data)
+                except OverflowError:
+                    raise self.error(path, f"number too large: {self.describe(data, path)}") from None
+            if isinstance(data, str) and "e" in data.lower():
+                try:
+                    float(data)
+                except ValueError:
+                    pass
+                else:  # PyYAML (YAML 1.1) wants a dot and a signed exponent
+                    raise self.expected(tp, data, path, " (YAML reads it as text; write e.g. 1.0e+3)")
+        elif tp is str:
+            if isinstance(data, str):
+                return data
+            if data is not None and not isinstance(data, (dict, list, tuple)):
+                raise self.expected(tp, data, path, " (put it in quotes)")
+        elif tp is _NoneType:
+            if data is None:
+                return None
+        elif isinstance(tp, type) and isinstance(data, tp):
+            return data
+        elif not isinstance(tp, type):
+            raise TypeError(f"typed_yaml: unsupported type {tp!r} at '{path}'")
+        raise self.expected(tp, data, path)
+
+    def enum(self, tp: type[enum.Enum], data: Any, path: str) -> enum.Enum:
+        if isinstance(data, tp):
+            return data
+        for member in tp:
+            if _same(member.value, data):
+                return member
+        raise self.error(path, f"{self.describe(data, path)} is not one of: "
+                         + ", ".join(str(m.value) for m in tp))
+
+    def container(self, tp: Any, origin: type, data: Any, path: str) -> Any:
+        args = typing.get_args(tp)
+        if origin is dict:
+            if not isinstance(data, dict):
+                raise self.expected(dict, data, path)
+            ktype, vtype = args or (Any, Any)
+            out = {}
+            for key, value in data.items():
+                kpath = _join(path, key)
+                if ktype is str and not isinstance(key, str):
+                    raise self.error(kpath, f"keys must be strings, got {self.describe(key, '')}"
+                                     " (put it in quotes)")
+                out[self.convert(ktype, key, kpath)] = self.convert(vtype, value, kpath)
+            return out
+        if not isinstance(data, (list, tuple)):
+            raise self.expected(list, data, path)
+        if origin is list:
+            item = args[0] if args else Any
+            return [self.convert(item, x, _join(path, i)) for i, x in enumerate(data)]
+        if not args:
+            return tuple(data)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(self.convert(args[0], x, _join(path, i)) for i, x in enumerate(data))
+        if len(data) != len(args):
+            raise self.error(path, f"expected a list of {len(args)} items, got {len(data)}")
+        return tuple(self.convert(a, x, _join(path, i)) for i, (a, x) in enumerate(zip(args, data)))
+
+    def union(self, members: tuple[Any, ...], data: Any, path: str) -> Any:
+        if data is None and _NoneType in members:
+            return None
+        arms = [m for m in members if m is not _NoneType]
+        if len(arms) == 1:
+            return self.convert(arms[0], data, path)
+        if all(_is_dataclass_type(a) and _kind_of(a) is not None for a in arms):
+            return self.by_kind(arms, data, path)
+        for arm in arms:  # general union: first member that accepts the value wins
+            try:
+                return self.convert(arm, data, path)
+            except ConfigError:
+                pass
+        names = " or ".join(_type_name(m) for m in members)
+        raise self.error(path, f"expected {names}, got {self.describe(data, path)}")
+
+    def by_kind(self, arms: list[type], data: Any, path: str) -> Any:
+        kinds = {_kind_of(a): a for a in arms}
+        known = ", ".join(str(k) for k in kinds)
+        if isinstance(data, tuple(arms)):  # an instance inside plain data
+            return self.dataclass(type(data), data, path)
+        if not isinstance(data, dict):
+            raise self.expected(dict, data, path)
+        if "kind" not in data:
+            raise self.error(path, f"missing required key 'kind' (one of: {known})")
+        kind = data["kind"]
+        for value, cls in kinds.items():
+            if _same(value, kind):
+                return self.dataclass(cls, data, path)
+        kpath = _join(path, "kind")
+        hint = _suggest(kind, [str(k) for k in kinds]) if isinstance(kind, str) else ""
+        raise self.error(kpath, f"unknown kind {self.describe(kind, kpath)} "
+                         f"(expected one of: {known}){hint}")
+
+    def dataclass(self, cls: type, data: Any, path: str) -> Any:
+        if isinstance(data, cls):
+            data = to_data(data)  # re-check an instance given in plain data
+        if not isinstance(data, dict):
+            raise self.expected(cls, data, path)
+        fields, hints = _init_fields(cls), _hints(cls)
+        kwargs = {}
+        for key, value in data.items():
+            kpath = _join(path, key)
+            if key not in fields:
+                names = list(fields)
+                raise self.error(kpath, f"unknown key '{key}' (expected one of: {', '.join(names)})"
+                                 + _suggest(str(key), names))
+            kwargs[key] = self.convert(hints[key], value, kpath)
+        for name, f in fields.items():
+            if (name not in kwargs and f.default is dataclasses.MISSING
+                    and f.default_factory is dataclasses.MISSING):
+                raise self.error(path, f"missing required key '{name}'")
+        try:
+            return cls(**kwargs)
+        except FieldError as e:
+            raise self.error(_join(path, e.field), e.message) from None
+        except ValueError as e:
+            raise self.error(path, str(e)) from None
+
+
+# --------------------------------------------------------------------------- public API
+
+
+def load_text(schema: type[T], text: str, source: str = "<text>") -> Loaded[T]:
+    """Parse ``text`` as YAML and convert it to ``schema``; raises :class:`ConfigError`."""
+    try:
+        data, lines, texts = _parse(text, source)
+        value = _Converter(source, lines, texts).convert(schema, data, "")
+    except RecursionError:
+        raise ConfigError(source, None, "", "malformed YAML: nested too deeply") from None
+    return Loaded(value=value, source=source, lines=lines)
+
+
+def load_file(schema: type[T], path: str | os.PathLike) -> Loaded[T]:
+    """Read a UTF-8 YAML file and convert it to ``schema``; raises :class:`ConfigError`."""
+    source = os.fspath(path)
+    try:
+        with open(source, encoding="utf-8") as f:
+            text = f.read()
+    except (OSError, UnicodeDecodeError) as e:
+        reason = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
+        raise ConfigError(source, None, "", f"cannot read file: {reason}") from None
+    return load_text(schema, text, source)
+
+
+def from_data(schema: type[T], data: Any, source: str = "<data>") -> T:
+    """Convert plain Python data (dicts, lists, scalars) to ``schema``; errors carry no line."""
+    return _Converter(source).convert(schema, data, "")
+
+
+def to_data(value: Any) -> Any:
+    """Plain data for ``value``: dataclasses become dicts of all their ``init`` fields in
+    declaration order (defaults included), enums their value, tuples lists."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: to_data(getattr(value, f.name))
+                for f in dataclasses.fields(value) if f.init}
+    if isinstance(value, enum.Enum):
+        return to_data(value.value)
+    if isinstance(value, dict):
+        return {to_data(k): to_data(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [to_data(v) for v in value]
+    for plain in (bool, int, float, str):  # e.g. numpy scalars, which safe_dump rejects
+        if isinstance(value, plain):
+            return plain(value)
+    return value
+
+
+def dump_yaml(value: Any, header: str | None = None) -> str:
+    """The fully resolved YAML for ``value``, optionally preceded by ``# `` comment lines."""
+    text = yaml.safe_dump(to_data(value), sort_keys=False, default_flow_style=None)
+    if header is None:
+        return text
+    comment = "".join(f"# {line}".rstrip() + "\n" for line in header.splitlines())
+    return comment + text
+
+
+def _element_type(tp: Any, key: Any) -> Any:
+    """Declared type of ``tp``'s element ``key`` (dict value, list item, tuple slot)."""
+    members = _union_args(tp)
+    if members is not None:
+        arms = [m for m in members if m is not _NoneType]
+        tp = arms[0] if len(arms) == 1 else Any
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is dict and args:
+        return args[1]
+    if origin is list and args:
+        return args[0]
+    if origin is tuple and args:
+        return args[0] if len(args) == 2 and args[1] is Ellipsis else args[key]
+    return Any
+
+
+def _locate(root: Any, parts: list[str]) -> tuple[list[Any], Any]:
+    """Resolve ``parts`` through the typed ``root``: the real keys and the target's type."""
+    value, tp, keys = root, type(root), []
+    for i, part in enumerate(parts):
+        here = ".".join(parts[:i])
+        full = ".".join(parts)
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            options = list(_init_fields(type(value)))
+            key = part if part in options else None
+            if key is not None:
+                tp, value = _hints(type(value))[key], getattr(value, key)
+        elif isinstance(value, dict):
+            options = [str(k) for k in value]
+            key = next((k for k in value if str(k) == part), None)
+            if key is not None:
+                tp, value = _element_type(tp, key), value[key]
+        elif isinstance(value, (list, tuple)):
+            options = []
+            key = int(part) if part.isascii() and part.isdigit() and int(part) < len(value) else None
+            if key is None:
+                raise ConfigError("--set", None, full, "no such configuration point "
+                                  f"('{here}' is a list of {len(value)} items, indexed from 0)")
+            tp, value = _element_type(tp, key), value[key]
+        else:
+            what = "not set (null)" if value is None else "a single value, not a mapping"
+            raise ConfigError("--set", None, full, f"no such configuration point ('{here}' is {what})")
+        if key is None:  # suggest by leaf name: shared prefixes would make everything "close"
+            match = difflib.get_close_matches(part, options, n=1)
+            hint = f"; did you mean '{_join(here, match[0])}'?" if match else ""
+            if not hint:
+                hint = f" (options at '{here or 'top level'}': {', '.join(options[:12]) or 'none'})"
+            raise ConfigError("--set", None, full, "no such configuration point" + hint)
+        keys.append(key)
+    return keys, tp
+
+
+def apply_override(loaded: Loaded[T], assignment: str,
+                   resolve: Callable[[list[str]], list[str]] | None = None) -> None:
+    """Apply ``"dotted.path=value"`` (value parsed as YAML) to ``loaded.value``.
+
+    ``resolve`` may rewrite the path components first (shortcuts).  The whole value
+    is then rebuilt so that every ``__post_init__`` check runs again.  On any error a
+    :class:`ConfigError` with source ``"--set"`` is raised and ``loaded.value`` is
+    left unchanged.
+    """
+    path_text, sep, value_text = assignment.partition("=")
+    parts = [p.strip() for p in path_text.split(".")]
+    if not sep or not all(parts):
+        raise ConfigError("--set", None, path_text.strip(),
+                          f"malformed override '{assignment}' (expected dotted.path=value)")
+    if resolve is not None:
+        parts = list(resolve(parts))
+    full = ".".join(str(p) for p in parts)
+    if not parts:
+        raise ConfigError("--set", None, "", f"malformed override '{assignment}' (empty path)")
+    try:
+        raw = yaml.safe_load(value_text)
+    except RecursionError:
+        raise ConfigError("--set", None, full, "malformed value: nested too deeply") from None
+    except yaml.YAMLError as e:
+        problem = getattr(e, "problem", None) or e
+        raise ConfigError("--set", None, full,
+                          f"malformed value '{value_text.strip()}': {problem}") from None
+    keys, tp = _locate(loaded.value, [str(p) for p in parts])
+    new_value = _Converter("--set").convert(tp, raw, full)
+
+    data = to_data(loaded.value)
+    target = data
+    for key in keys[:-1]:
+        target = target[to_data(key)]
+    target[to_data(keys[-1])] = to_data(new_value)
+    try:
+        rebuilt = from_data(type(loaded.value), data, source="--set")
+    except ConfigError as e:  # a check elsewhere in the tree now fails
+        problem = e.problem if e.key == full else f"{e.problem} (at {e.key or 'top level'})"
+        raise ConfigError("--set", None, full, problem) from None
+    loaded.value = rebuilt

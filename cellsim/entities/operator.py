@@ -1,0 +1,213 @@
+"""The human operator: walks waypoints, reaches for things, and has geometry.
+
+The operator is its own SceneGraph geometry source with two frames: the body
+(a capsule torso and a sphere head) and one arm (a capsule from the shoulder).
+The digital behaviour walks the scenario's waypoints in order at a walking speed
+drawn per leg from the run's seed, waits at each, and while waiting at a
+waypoint with a ``reach`` point swings the arm towards that point (0.5 s to
+extend and 0.5 s to withdraw). The whole walk is planned when the system is
+built, so the operator's pose is a pure function of time.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import (
+    Capsule,
+    FramePoseVector,
+    GeometryFrame,
+    GeometryInstance,
+    MakePhongIllustrationProperties,
+    ProximityProperties,
+    Sphere,
+)
+from pydrake.math import RigidTransform, RotationMatrix
+
+from cellsim.channels import BOOL, enum_type, vector_type
+from cellsim.entities.twin import EntitySystem
+from cellsim.scenario import Layout, OperatorConfig
+from cellsim.systems import write_scalar
+from cellsim.vocabulary import CodedEnum, Notification, OperatorLocation, TwinMode
+
+REACH_TIME = 0.5  # s to extend or withdraw the arm
+SKIN = (0.85, 0.65, 0.5, 1.0)
+CLOTHES = (0.1, 0.35, 0.8, 1.0)
+
+
+@dataclass(frozen=True)
+class Leg:
+    """Walk from ``start`` to waypoint ``index`` during [depart, arrive], then wait until ``leave``."""
+
+    index: int
+    start: np.ndarray
+    end: np.ndarray
+    depart: float
+    arrive: float
+    leave: float
+    reach: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class OperatorPose:
+    xy: np.ndarray
+    yaw: float
+    reach_fraction: float
+    reach_target: np.ndarray  # meaningful when reach_fraction > 0
+    waypoint: int  # index of the waypoint walked to or waited at; -1 before setting off
+
+
+def plan_walk(cfg: OperatorConfig, seed: int, salt: int = 0) -> list[Leg]:
+    """The legs of the operator's walk, with per-leg speeds drawn from ``seed``."""
+    rng = np.random.default_rng([seed, 0x0BE7, salt])
+    legs, here, t = [], np.array(cfg.start, float), cfg.start_delay
+    for index, wp in enumerate(cfg.waypoints.values()):
+        speed = cfg.walking_speed * (1.0 + cfg.speed_jitter * rng.uniform(-1.0, 1.0))
+        end = np.array(wp.position, float)
+        arrive = t + float(np.linalg.norm(end - here)) / speed
+        reach = None if wp.reach is None else np.array(wp.reach, float)
+        legs.append(Leg(index, here, end, t, arrive, arrive + wp.wait, reach))
+        here, t = end, arrive + wp.wait
+    return legs
+
+
+def pose_at(legs: list[Leg], start_yaw: float, t: float, shoulder) -> OperatorPose:
+    """Where the operator is at time ``t`` (``shoulder`` maps (xy, yaw) to the shoulder point)."""
+    yaw, xy = start_yaw, legs[0].start if legs else np.zeros(2)
+    waypoint = -1
+    for leg in legs:
+        if t < leg.depart:
+            break
+        heading = leg.end - leg.start
+        if np.linalg.norm(heading) > 1e-9:
+            yaw = float(np.arctan2(heading[1], heading[0]))
+        waypoint = leg.index
+        if t < leg.arrive:
+            s = (t - leg.depart) / (leg.arrive - leg.depart)
+            return OperatorPose(leg.start + s * heading, yaw, 0.0, np.zeros(3), waypoint)
+        xy = leg.end
+        if leg.reach is not None and t < leg.leave:
+            towards = leg.reach[:2] - xy
+            yaw = float(np.arctan2(towards[1], towards[0]))
+            fraction = min((t - leg.arrive) / REACH_TIME, (leg.leave - t) / REACH_TIME, 1.0)
+            return OperatorPose(xy, yaw, max(fraction, 0.0), leg.reach, waypoint)
+    return OperatorPose(np.asarray(xy, float), yaw, 0.0, np.zeros(3), waypoint)
+
+
+class Operator(EntitySystem):
+    """A person in the cell.
+
+    Ports:
+      notification, leave_workbench (inputs): the safety controller's notifications
+        to this person (Notification code; 0/1), forwarded to the physical twin's
+        wearable in twin mode.
+      physical_sample (input): [t, valid, x, y, yaw, reach_fraction, reach_x, reach_y, reach_z].
+      geometry_pose (output): FramePoseVector of the body and arm frames, for SceneGraph.
+      location (channel, inCell/none): whether the body stands in the cell (oloc).
+      at_table (channel, bool): whether the body stands in the shared-table zone (otab).
+      waypoint (channel): the waypoint walked to or waited at.
+      position (channel, m): [x, y] of the body, every 0.1 s.
+    """
+
+    POSE_FIELDS = ("x", "y", "yaw", "reach_fraction", "reach_x", "reach_y", "reach_z")
+
+    def __init__(self, module: str, cfg: OperatorConfig, layout: Layout, seed: int, salt: int = 0):
+        super().__init__(module, cfg.period, cfg.twin, self.POSE_FIELDS, ("notification", "leave_workbench"))
+        self.cfg = cfg
+        self.layout = layout
+        self.legs = plan_walk(cfg, seed, salt)
+        first = self.legs[0].end - np.array(cfg.start) if self.legs else np.array([1.0, 0.0])
+        self.start_yaw = float(np.arctan2(first[1], first[0]))
+        self.waypoints = CodedEnum(
+            f"{module}_waypoint", [("START", "start")] + [(n.upper(), n) for n in cfg.waypoints]
+        )
+        self.notification_port = self.declare_input("notification", ctype=enum_type(Notification), default=Notification.OK.code)
+        self.leave_workbench_port = self.declare_input("leave_workbench", ctype=BOOL, default=0.0)
+        initial = pose_at(self.legs, self.start_yaw, 0.0, self._shoulder)
+        self._pose = self.declare_state("pose", self._pose_vector(initial))
+        self._location = self.declare_channel(
+            "location", enum_type(OperatorLocation), OperatorLocation.NONE, description="Operator location (oloc)"
+        )
+        self._at_table = self.declare_channel("at_table", BOOL, False, description="Operator at the shared table (otab)")
+        self._waypoint = self.declare_channel("waypoint", enum_type(self.waypoints), "start")
+        self._position = self.declare_channel(
+            "position", vector_type(2, "m"), initial.xy, record="every_sample", record_period=0.1
+        )
+        self.body_frame = self.arm_frame = None
+        self.geometry_ids: list = []
+        self.geometry_pose_port = None
+
+    # -- geometry --------------------------------------------------------------
+    def register_geometry(self, scene_graph) -> list:
+        """Register the body and arm; returns the proximity geometries (for sensors)."""
+        cfg = self.cfg
+        self.source_id = scene_graph.RegisterSource(self.module)
+        self.body_frame = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"{self.module}/body"))
+        self.arm_frame = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"{self.module}/arm"))
+        torso_top = cfg.height - 0.25
+        torso = Capsule(cfg.body_radius, max(torso_top - 2 * cfg.body_radius, 0.01))
+        parts = [
+            (self.body_frame, RigidTransform([0, 0, torso_top / 2]), torso, "torso", CLOTHES),
+            (self.body_frame, RigidTransform([0, 0, cfg.height - 0.12]), Sphere(0.11), "head", SKIN),
+            (self.arm_frame, RigidTransform([0, 0, -cfg.arm_length / 2]), Capsule(0.05, cfg.arm_length - 0.1), "arm", SKIN),
+        ]
+        for frame, pose, shape, name, color in parts:
+            instance = GeometryInstance(pose, shape, f"{self.module}/{name}")
+            instance.set_proximity_properties(ProximityProperties())
+            instance.set_illustration_properties(MakePhongIllustrationProperties(list(color)))
+            self.geometry_ids.append(scene_graph.RegisterGeometry(self.source_id, frame, instance))
+        self.geometry_pose_port = self.DeclareAbstractOutputPort(
+            "geometry_pose",
+            lambda: AbstractValue.Make(FramePoseVector()),
+            self._calc_geometry_pose,
+            prerequisites_of_calc={self.discrete_state_ticket(self._pose)},
+        )
+        return list(self.geometry_ids)
+
+    def _shoulder(self, xy, yaw) -> np.ndarray:
+        side = -(self.cfg.body_radius + 0.06)
+        c, s = np.cos(yaw), np.sin(yaw)
+        return np.array([xy[0] - s * side, xy[1] + c * side, self.cfg.height - 0.33])
+
+    def _calc_geometry_pose(self, context, output):
+        x, y, yaw, fraction, rx, ry, rz = context.get_discrete_state(self._pose).get_value()
+        poses = FramePoseVector()
+        poses.set_value(self.body_frame, RigidTransform(RotationMatrix.MakeZRotation(yaw), [x, y, 0.0]))
+        shoulder = self._shoulder((x, y), yaw)
+        down = np.array([0.0, 0.0, -1.0])
+        direction = down
+        if fraction > 0:
+            towards = np.array([rx, ry, rz]) - shoulder
+            direction = (1 - fraction) * down + fraction * towards / np.linalg.norm(towards)
+            direction /= np.linalg.norm(direction)
+        poses.set_value(self.arm_frame, RigidTransform(RotationMatrix.MakeFromOneVector(-direction, 2), shoulder))
+        output.set_value(poses)
+
+    # -- behaviour ---------------------------------------------------------------
+    @staticmethod
+    def _pose_vector(pose: OperatorPose) -> np.ndarray:
+        return np.array([*pose.xy, pose.yaw, pose.reach_fraction, *pose.reach_target])
+
+    def update(self, context, xd):
+        view = self.consult_physical(context, xd)
+        if view.mode is TwinMode.MODEL:
+            pose = pose_at(self.legs, self.start_yaw, context.get_time(), self._shoulder)
+            vector, waypoint = self._pose_vector(pose), pose.waypoint
+        elif view.sample is None:  # stale or corrupt: hold the last known pose
+            vector, waypoint = context.get_discrete_state(self._pose).get_value(), None
+        else:
+            vector, waypoint = view.sample, None
+        xd.get_mutable_vector(self._pose).SetFromVector(vector)
+        xy = vector[:2]
+        standing = (xy[0], xy[1], 1.0)
+        write_scalar(xd, self._location, (OperatorLocation.IN_CELL if self.layout.cell.contains(standing) else OperatorLocation.NONE).code)
+        write_scalar(xd, self._at_table, 1.0 if self.layout.shared_table_zone.contains(standing) else 0.0)
+        if waypoint is not None:
+            write_scalar(xd, self._waypoint, waypoint + 1)
+        xd.get_mutable_vector(self._position).SetFromVector(xy)
+        self.write_command(
+            xd, view.mode, (self.notification_port.Eval(context)[0], self.leave_workbench_port.Eval(context)[0])
+        )

@@ -1,0 +1,224 @@
+"""The collaborative robot arm: joint-space motion between named poses, its safety
+state machine, and where its tool is.
+
+The arm itself is a MultibodyPlant model driven by an InverseDynamicsController
+(both in Drake's C++, stepping every ``time_step``). This module is the arm's
+*controller side*: at 100 Hz it turns the process controller's target pose and
+the safety controller's mode request into a desired joint state, and reports
+the robot's safety mode, activity, location and tool speed measured on the plant.
+
+Motion: a straight line in joint space from the current desired position to the
+target pose, timed by a path parameter s in [0, 1]. Its rate ds/dt is capped by
+the joint velocity limits and by the tool speed cap of the current safety mode
+(``speed_limits``: pflim 0.25 m/s), using the largest tool displacement per unit
+of s along the segment; it changes at most at the rate that brings the robot
+from full speed to standstill within ``braking_time`` (s), which is how srmst
+and stopped bring it to rest.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.math import RigidTransform, RollPitchYaw
+
+from cellsim.channels import enum_type, number_type, vector_type
+from cellsim.entities.twin import EntitySystem, valid_code
+from cellsim.scenario import Layout, RobotConfig
+from cellsim.systems import read_scalar, write_scalar
+from cellsim.vocabulary import CodedEnum, RobotActivity, RobotLocation, SafetyMode, TwinMode
+
+HOLD = -1.0
+"""Target-pose code meaning "stay where you are"."""
+
+STANDSTILL_MODES = frozenset({SafetyMode.MONITORED_STOP, SafetyMode.STOPPED})
+_SEGMENT_SAMPLES = 24
+
+
+def robot_base_pose(cfg: RobotConfig) -> RigidTransform:
+    return RigidTransform(RollPitchYaw(0.0, 0.0, np.radians(cfg.base_yaw_deg)), list(cfg.base_position))
+
+
+class ArmKinematics:
+    """A private, continuous copy of the arm for forward kinematics of the tool."""
+
+    def __init__(self, model_path: str, cfg: RobotConfig):
+        self.plant = MultibodyPlant(0.0)
+        (instance,) = Parser(self.plant).AddModels(str(model_path))
+        base = self.plant.GetBodyByName("base_link", instance).body_frame()
+        self.plant.WeldFrames(self.plant.world_frame(), base, robot_base_pose(cfg))
+        self.plant.Finalize()
+        self.context = self.plant.CreateDefaultContext()
+        self.tool = self.plant.GetFrameByName(cfg.tool_frame, instance)
+        self.velocity_limits = self.plant.GetVelocityUpperLimits()
+        self.num_joints = self.plant.num_positions()
+
+    def tool_position(self, q) -> np.ndarray:
+        self.plant.SetPositions(self.context, q)
+        return self.tool.CalcPoseInWorld(self.context).translation()
+
+    def tool_position_and_speed(self, x) -> tuple[np.ndarray, float]:
+        """Tool position (m) and translational speed (m/s) for the state x = [q, v]."""
+        self.plant.SetPositionsAndVelocities(self.context, x)
+        position = self.tool.CalcPoseInWorld(self.context).translation()
+        speed = float(np.linalg.norm(self.tool.CalcSpatialVelocityInWorld(self.context).translational()))
+        return position, speed
+
+
+class Robot(EntitySystem):
+    """The robot arm's controller side.
+
+    Ports:
+      safety_mode_request (input): SafetyMode code from the safety controller.
+      target_pose (input): index of the named pose to move to, or -1 to hold.
+      activity (input): RobotActivity code the process controller is carrying out.
+      measured_state (input): the plant's joint state [q (rad), v (rad/s)].
+      physical_sample (input): [t, valid, q (6, rad), safety_mode code, activity code, reached_pose code].
+      desired_state (output): [q (rad), v (rad/s)] for the joint controller.
+      safety_mode (channel): the robot's current safety mode (safmod).
+      activity (channel): idle / exchWrkp / welding / off (ract).
+      location (channel): atTable / sharedTbl / inCell / atWeldSpot from the tool's position (rloc).
+      reached_pose (channel): the named pose the arm rests at, or ``moving``.
+      joint_positions (channel, rad): measured q, every 0.1 s.
+      tool_speed (channel, m/s): measured tool speed, every 0.1 s.
+    """
+
+    def __init__(self, module: str, cfg: RobotConfig, model_path: str, layout: Layout):
+        n = 6
+        super().__init__(
+            module,
+            cfg.period,
+            cfg.twin,
+            tuple(f"q{i}" for i in range(n)) + ("safety_mode", "activity", "reached_pose"),
+            ("safety_mode_request", "activity", "target_pose") + tuple(f"q{i}" for i in range(n)),
+        )
+        self.cfg = cfg
+        self.kinematics = ArmKinematics(model_path, cfg)
+        if self.kinematics.num_joints != n:
+            raise ValueError(f"{module}: the arm model has {self.kinematics.num_joints} joints, expected {n}")
+        self.pose_names = list(cfg.named_poses)
+        self.poses = np.array([cfg.named_poses[p] for p in self.pose_names], float)
+        self.regions = [(RobotLocation(name), region) for name, region in layout.robot_regions.items()]
+        self.speed_caps = {
+            SafetyMode.NORMAL: cfg.speed_limits.normal,
+            SafetyMode.HAND_GUIDED: cfg.speed_limits.hguid,
+            SafetyMode.SPEED_SEPARATION: cfg.speed_limits.ssmon,
+            SafetyMode.POWER_FORCE_LIMITING: cfg.speed_limits.pflim,
+        }
+        initial = self.pose_names.index(cfg.initial_pose)
+        q0 = self.poses[initial]
+        self.initial_positions = q0
+
+        self.mode_request_port = self.declare_input("safety_mode_request", ctype=enum_type(SafetyMode), default=SafetyMode.NORMAL.code)
+        self.target_port = self.declare_input("target_pose", default=HOLD)
+        self.activity_port = self.declare_input("activity", default=RobotActivity.IDLE.code)
+        self.measured_state_port = self.declare_input("measured_state", 2 * n)
+        # motion state: [segment target, s, ds/dt, q_start (6), q_goal (6)]
+        self._motion = self.declare_state("motion", np.concatenate([[initial, 1.0, 0.0], q0, q0]))
+        self._desired = self.declare_state("desired_state", np.concatenate([q0, np.zeros(n)]))
+        self.desired_state_port = self.DeclareStateOutputPort("desired_state", self._desired)
+
+        self._mode = self.declare_channel("safety_mode", enum_type(SafetyMode), SafetyMode.NORMAL, description="safmod")
+        self._activity = self.declare_channel("activity", enum_type(RobotActivity), RobotActivity.IDLE, description="ract")
+        self._location = self.declare_channel(
+            "location", enum_type(RobotLocation), self.locate(self.kinematics.tool_position(q0)), description="rloc"
+        )
+        self.reached_poses = CodedEnum(f"{module}_pose", [("MOVING", "moving")] + [(p.upper(), p) for p in self.pose_names])
+        self._reached = self.declare_channel("reached_pose", enum_type(self.reached_poses), cfg.initial_pose)
+        self._q = self.declare_channel(
+            "joint_positions", vector_type(n, "rad"), q0, record="every_sample", record_period=0.1
+        )
+        self._tool_speed = self.declare_channel(
+            "tool_speed", number_type("m/s"), 0.0, record="every_sample", record_period=0.1
+        )
+
+    # -- helpers ------------------------------------------------------------------
+    def locate(self, tool_position) -> RobotLocation:
+        for location, region in self.regions:
+            if region.contains(tool_position):
+                return location
+        return RobotLocation.IN_CELL
+
+    @lru_cache(maxsize=256)
+    def _segment_rates(self, start: tuple, goal: tuple) -> tuple[float, float]:
+        """(tool metres per unit s, joint-limited max ds/dt) of a joint-space segment."""
+        start, goal = np.array(start), np.array(goal)
+        delta = goal - start
+        with np.errstate(divide="ignore"):
+            joint_rate = float(np.min(self.kinematics.velocity_limits / np.abs(delta)))
+        points = [self.kinematics.tool_position(start + k / _SEGMENT_SAMPLES * delta) for k in range(_SEGMENT_SAMPLES + 1)]
+        chords = np.linalg.norm(np.diff(points, axis=0), axis=1)
+        return 1.05 * float(chords.max()) * _SEGMENT_SAMPLES, joint_rate
+
+    def sample_is_valid(self, sample) -> bool:
+        return (
+            valid_code(sample[6], SafetyMode)
+            and valid_code(sample[7], RobotActivity)
+            and valid_code(sample[8], self.reached_poses)
+        )
+
+    # -- update ---------------------------------------------------------------------
+    def update(self, context, xd):
+        view = self.consult_physical(context, xd)
+        mode = SafetyMode.from_code(self.mode_request_port.Eval(context)[0])
+        target = self.target_port.Eval(context)[0]
+        activity_code = self.activity_port.Eval(context)[0]
+        motion = context.get_discrete_state(self._motion).get_value()
+        self.write_command(xd, view.mode, (mode.code, activity_code, target, *motion[3:9]))
+
+        if view.mode is TwinMode.MODEL:
+            motion, desired, reached = self._advance(motion, mode, target)
+            activity = activity_code
+        elif view.sample is not None:
+            q = view.sample[:6]
+            motion = np.concatenate([[HOLD, 1.0, 0.0], q, q])
+            desired = np.concatenate([q, np.zeros(6)])
+            mode = SafetyMode.from_code(view.sample[6])
+            activity, reached = view.sample[7], view.sample[8]
+        else:  # stale or corrupt: the hologram holds its last known state
+            desired = context.get_discrete_state(self._desired).get_value()
+            mode = SafetyMode.from_code(read_scalar(context, self._mode))
+            activity, reached = read_scalar(context, self._activity), read_scalar(context, self._reached)
+        xd.get_mutable_vector(self._motion).SetFromVector(motion)
+        xd.get_mutable_vector(self._desired).SetFromVector(desired)
+
+        measured = self.measured_state_port.Eval(context)
+        tool, speed = self.kinematics.tool_position_and_speed(measured)
+        write_scalar(xd, self._mode, mode.code)
+        write_scalar(xd, self._activity, activity)
+        write_scalar(xd, self._location, self.locate(tool).code)
+        write_scalar(xd, self._reached, reached)
+        xd.get_mutable_vector(self._q).SetFromVector(measured[:6])
+        write_scalar(xd, self._tool_speed, speed)
+
+    def _advance(self, motion: np.ndarray, mode: SafetyMode, target: float):
+        """One period of the joint-space motion: (motion state, desired state, reached-pose code)."""
+        dt = self.period
+        segment, s, rate = motion[0], motion[1], motion[2]
+        start, goal = motion[3:9], motion[9:15]
+        if target != HOLD and target != segment and rate <= 1e-12:
+            # standing: start a new segment from where the arm is commanded to be
+            start = start + s * (goal - start)
+            goal = self.poses[int(target)]
+            segment, s = target, 0.0
+        delta = goal - start
+        if not np.any(delta) or s >= 1.0:
+            s, rate = 1.0, 0.0
+        else:
+            tool_per_s, joint_rate = self._segment_rates(tuple(start), tuple(goal))
+            full = min(joint_rate, self.speed_caps[SafetyMode.NORMAL] / tool_per_s)
+            accel = full / self.cfg.braking_time
+            if mode in STANDSTILL_MODES or target != segment:
+                cap = 0.0  # brake: a mode that stands still, or a new target to replan for
+            else:
+                cap = min(joint_rate, self.speed_caps[mode] / tool_per_s, np.sqrt(2.0 * accel * (1.0 - s)))
+            rate = min(cap, rate + accel * dt) if rate < cap else max(cap, rate - accel * dt)
+            s = min(1.0, s + rate * dt)
+            if s >= 1.0:
+                rate = 0.0
+        desired = np.concatenate([start + s * delta, rate * delta])
+        reached = segment + 1.0 if s >= 1.0 and segment != HOLD else 0.0
+        return np.concatenate([[segment, s, rate], start, goal]), desired, reached

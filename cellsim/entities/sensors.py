@@ -1,0 +1,158 @@
+"""The cell's safety sensors, measuring geometry through SceneGraph queries.
+
+Both sensors see the geometries listed by ``set_targets`` (the builder passes
+every operator's body), so the twin reports what the geometry says, including
+situations nobody scripted (a second operator, a reach from behind).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from pydrake.geometry import (
+    Box,
+    GeometryInstance,
+    MakePhongIllustrationProperties,
+    ProximityProperties,
+    QueryObject,
+    Sphere,
+)
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+
+from cellsim.channels import BOOL, enum_type, number_type
+from cellsim.entities.twin import EntitySystem, valid_code
+from cellsim.scenario import LightBarrierConfig, RangeDetectorConfig
+from cellsim.systems import write_scalar
+from cellsim.vocabulary import Range, TwinMode
+
+
+class _GeometrySensor(EntitySystem):
+    """An entity reading the SceneGraph query port to measure target geometries."""
+
+    def __init__(self, module, period, twin, sample_fields):
+        super().__init__(module, period, twin, sample_fields)
+        self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
+        self.targets: tuple = ()
+
+    def set_targets(self, geometry_ids) -> None:
+        """The geometries this sensor detects (people)."""
+        self.targets = tuple(geometry_ids)
+
+
+class LightBarrier(_GeometrySensor):
+    """A light curtain whose beams fill a box.
+
+    Ports:
+      geometry_query (input): SceneGraph QueryObject.
+      physical_sample (input): [t, valid, broken (0/1)].
+      broken (channel, bool): true while any target geometry intersects the beams.
+    Fails safe (reads broken) when its physical sample is stale or corrupt.
+    """
+
+    def __init__(self, module: str, cfg: LightBarrierConfig):
+        super().__init__(module, cfg.period, cfg.twin, ("broken",))
+        self.cfg = cfg
+        self.beam_id = None
+        self._broken = self.declare_channel(
+            "broken", BOOL, False, description="Light barrier interrupted (lgtBar)"
+        )
+
+    def register_geometry(self, scene_graph) -> list:
+        source = scene_graph.RegisterSource(self.module)
+        beams = GeometryInstance(RigidTransform(list(self.cfg.center)), Box(*self.cfg.size), f"{self.module}/beams")
+        beams.set_proximity_properties(ProximityProperties())
+        beams.set_illustration_properties(MakePhongIllustrationProperties([1.0, 0.15, 0.1, 0.25]))
+        self.beam_id = scene_graph.RegisterAnchoredGeometry(source, beams)
+        return [self.beam_id]
+
+    def measure(self, context) -> bool:
+        query = self.query_port.Eval(context)
+        return any(
+            query.ComputeSignedDistancePairClosestPoints(self.beam_id, target).distance <= 0.0
+            for target in self.targets
+        )
+
+    def update(self, context, xd):
+        view = self.consult_physical(context, xd)
+        if view.mode is TwinMode.MODEL:
+            broken = self.measure(context)
+        elif view.sample is None:
+            broken = True
+        else:
+            broken = view.sample[0] > 0.5
+        write_scalar(xd, self._broken, 1.0 if broken else 0.0)
+
+
+class RangeDetector(_GeometrySensor):
+    """A safety scanner at a point, classifying the nearest person's distance.
+
+    Ports:
+      geometry_query (input): SceneGraph QueryObject.
+      physical_sample (input): [t, valid, range code, distance (m)].
+      range (channel, far/near/close): close below ``close_below`` m, near below
+        ``near_below`` m, else far (rngDet).
+      distance (channel, m): the measured signed distance from the sensor to the
+        nearest target surface (``near_below`` + 1 m when nobody is nearer).
+    Fails safe (reads close) when its physical sample is stale or corrupt.
+    """
+
+    def __init__(self, module: str, cfg: RangeDetectorConfig, seed: int, duration: float):
+        super().__init__(module, cfg.period, cfg.twin, ("range", "distance"))
+        self.cfg = cfg
+        self.reach = cfg.near_below + 1.0
+        self.position = np.array(cfg.position, float)
+        # measurement noise as a pure function of (seed, tick): a table drawn once
+        ticks = int(math.ceil(duration / cfg.period)) + 2
+        rng = np.random.default_rng([seed, 0x5CA7])
+        self._noise = rng.normal(0.0, cfg.noise_std, ticks) if cfg.noise_std > 0 else None
+        self._range = self.declare_channel("range", enum_type(Range), Range.FAR, description="Range detector (rngDet)")
+        self._distance = self.declare_channel(
+            "distance",
+            number_type("m"),
+            self.reach,
+            record="every_sample",
+            record_period=max(0.1, cfg.period),
+            description="Measured distance to the nearest person",
+        )
+
+    def register_geometry(self, scene_graph) -> list:
+        source = scene_graph.RegisterSource(self.module)
+        head = GeometryInstance(RigidTransform(self.position), Sphere(0.05), f"{self.module}/head")
+        head.set_illustration_properties(MakePhongIllustrationProperties([0.9, 0.9, 0.1, 1.0]))
+        scene_graph.RegisterAnchoredGeometry(source, head)
+        return []
+
+    def classify(self, distance: float) -> Range:
+        if distance < self.cfg.close_below:
+            return Range.CLOSE
+        if distance < self.cfg.near_below:
+            return Range.NEAR
+        return Range.FAR
+
+    def measure(self, context) -> float:
+        query = self.query_port.Eval(context)
+        targets = self.targets
+        nearest = self.reach
+        for result in query.ComputeSignedDistanceToPoint(self.position, self.reach):
+            if result.id_G in targets and result.distance < nearest:
+                nearest = result.distance
+        if self._noise is not None:
+            nearest += self._noise[int(round(context.get_time() / self.period))]
+        return nearest
+
+    def sample_is_valid(self, sample) -> bool:
+        return valid_code(sample[0], Range)
+
+    def update(self, context, xd):
+        view = self.consult_physical(context, xd)
+        if view.mode is TwinMode.MODEL:
+            distance = self.measure(context)
+            reading = self.classify(distance)
+        elif view.sample is None:
+            distance, reading = 0.0, Range.CLOSE
+        else:
+            reading, distance = Range.from_code(view.sample[0]), view.sample[1]
+        write_scalar(xd, self._range, reading.code)
+        write_scalar(xd, self._distance, distance)

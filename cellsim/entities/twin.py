@@ -1,0 +1,141 @@
+"""Twin modes: what drives an entity's outputs, and what it sends to its physical twin.
+
+Every entity is an ``EntitySystem``. Besides its digital behaviour it has
+
+* input ``physical_sample``: the latest sample from its physical twin, a vector
+  ``[timestamp (s, simulation clock), valid (0/1), *sample_fields]``. In
+  simulation nothing is connected to it but a source that says "no sample"
+  (``bridges.physical.NoPhysicalTwin``); beside the real cell the bridge daemon
+  feeds it; tests replay a black box into it.
+* output ``physical_command``: ``[active (0/1), *command_fields]``, the commands
+  addressed to this entity; ``active`` is 1 only in ``twin`` mode, so a
+  network bridge forwards them to the physical twin only then.
+* channels ``<entity>.twin_mode`` and ``<entity>.physical_link``.
+
+In ``model`` mode the digital behaviour drives the outputs. In ``shadow`` and
+``twin`` mode the outputs follow the physical sample; when that sample is older
+than ``stale_after`` or malformed, the entity *fails safe* (each entity says
+what that means: a light barrier reads broken, a range detector reads close).
+
+The mode changes at the times in the scenario's ``twin.changes`` or when a
+script calls ``set_twin_mode``; every change is a message on ``twin_mode``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from cellsim.channels import enum_type
+from cellsim.scenario import TwinSettings
+from cellsim.systems import CellSystem, read_scalar, write_scalar
+from cellsim.vocabulary import PhysicalLink, TwinMode
+
+_MODES = tuple(TwinMode)
+
+
+@dataclass(frozen=True)
+class PhysicalView:
+    """The outcome of consulting the physical twin in one update."""
+
+    mode: TwinMode
+    link: PhysicalLink
+    sample: np.ndarray | None  # the sample fields when link is OK, else None
+
+    @property
+    def follows_physical(self) -> bool:
+        return self.mode is not TwinMode.MODEL
+
+
+class EntitySystem(CellSystem):
+    """A cell entity with a digital behaviour and a link to a physical twin."""
+
+    def __init__(
+        self,
+        module: str,
+        period: float,
+        twin: TwinSettings,
+        sample_fields: tuple[str, ...],
+        command_fields: tuple[str, ...] = (),
+    ):
+        super().__init__(module, period)
+        self.twin = twin
+        self.sample_fields = sample_fields
+        self.command_fields = command_fields
+        self._mode_group = self.declare_channel(
+            "twin_mode", enum_type(TwinMode), twin.mode, description="How this entity relates to its physical twin"
+        )
+        self._link_group = self.declare_channel(
+            "physical_link",
+            enum_type(PhysicalLink),
+            PhysicalLink.UNUSED,
+            description="Freshness and validity of the physical twin's samples",
+        )
+        self._next_change_group = self.declare_state("next_twin_change", [0.0])
+        self.physical_sample_port = self.declare_input("physical_sample", 2 + len(sample_fields))
+        self._command_group = self.declare_state("physical_command", np.zeros(1 + len(command_fields)))
+        self.physical_command_port = self.DeclareStateOutputPort("physical_command", self._command_group)
+
+    # -- scripts --------------------------------------------------------------
+    def set_twin_mode(self, context, mode: TwinMode | str) -> None:
+        """Switch this entity's twin mode in ``context`` (this system's or the root's)."""
+        mode = TwinMode(mode)
+        own = self.GetMyMutableContextFromRoot(context) if context.get_system_id() != self.get_system_id() else context
+        own.get_mutable_discrete_state(self._mode_group).SetAtIndex(0, float(mode.code))
+
+    def twin_mode(self, context) -> TwinMode:
+        own = self.GetMyContextFromRoot(context) if context.get_system_id() != self.get_system_id() else context
+        return _MODES[int(read_scalar(own, self._mode_group))]
+
+    # -- update helpers ---------------------------------------------------------
+    def consult_physical(self, context, xd) -> PhysicalView:
+        """Apply scheduled mode changes and judge the physical sample; writes mode and link."""
+        t = context.get_time()
+        mode = _MODES[int(read_scalar(context, self._mode_group))]
+        changes = self.twin.changes
+        nxt = int(read_scalar(context, self._next_change_group))
+        while nxt < len(changes) and changes[nxt].at <= t + 1e-9:
+            mode = changes[nxt].mode
+            nxt += 1
+        if nxt != read_scalar(context, self._next_change_group):
+            write_scalar(xd, self._next_change_group, nxt)
+        write_scalar(xd, self._mode_group, mode.code)
+
+        if mode is TwinMode.MODEL:
+            link, sample = PhysicalLink.UNUSED, None
+        else:
+            raw = self.physical_sample_port.Eval(context)
+            link, sample = self._judge(raw, t)
+        write_scalar(xd, self._link_group, link.code)
+        return PhysicalView(mode, link, sample)
+
+    def _judge(self, raw: np.ndarray, t: float) -> tuple[PhysicalLink, np.ndarray | None]:
+        stamp, valid = raw[0], raw[1]
+        if not valid > 0.5 or not math.isfinite(stamp) or t - stamp > self.twin.stale_after:
+            return PhysicalLink.STALE, None
+        sample = raw[2:]
+        if not np.all(np.isfinite(sample)) or not self.sample_is_valid(sample):
+            return PhysicalLink.CORRUPT, None
+        return PhysicalLink.OK, sample
+
+    def sample_is_valid(self, sample: np.ndarray) -> bool:
+        """Entity-specific check of a finite sample (enum codes in range...)."""
+        return True
+
+    def write_command(self, xd, mode: TwinMode, values) -> None:
+        """Publish the commands addressed to this entity; active only in twin mode."""
+        vec = xd.get_mutable_vector(self._command_group)
+        vec.SetAtIndex(0, 1.0 if mode is TwinMode.TWIN else 0.0)
+        for i, v in enumerate(values, start=1):
+            vec.SetAtIndex(i, float(v))
+
+
+def valid_code(value: float, enum) -> bool:
+    """Whether a float carries a valid code of a CodedEnum."""
+    try:
+        enum.from_code(value)
+    except ValueError:
+        return False
+    return True

@@ -1,0 +1,482 @@
+"""The scenario digital twin: one YAML file, loaded into typed dataclasses.
+
+A scenario names the cell's layout (fixtures and regions), its entities with
+their kind, parameters and twin mode, its behaviours (process controller, safety
+controller, analyses), its services (recorder) and its configuration points.
+All lengths are metres, times seconds, speeds m/s, angles radians unless a field
+name says ``_deg``.
+
+``load_scenario`` reads a file, applies ``--set`` overrides and checks
+everything that can be checked without building the diagram; every problem is a
+``ConfigError`` naming file, line and key. ``export_scenario`` writes the fully
+resolved scenario, which loads back to an equal one.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from cellsim.config.typed_yaml import (
+    ConfigError,
+    FieldError,
+    Loaded,
+    apply_override,
+    dump_yaml,
+    from_data,
+    load_file,
+    to_data,
+)
+from cellsim.vocabulary import RobotActivity, RobotLocation, TwinMode
+
+Vec2 = tuple[float, float]
+Vec3 = tuple[float, float, float]
+Rgba = tuple[float, float, float, float]
+
+
+# -- layout -------------------------------------------------------------------
+@dataclass
+class Fixture:
+    """A static box in the cell (table, bench, fence panel, machine body)."""
+
+    size: Vec3
+    center: Vec3
+    yaw_deg: float = 0.0
+    color: Rgba = (0.55, 0.55, 0.58, 1.0)
+
+    def __post_init__(self):
+        if min(self.size) <= 0:
+            raise FieldError("size", "every dimension must be positive")
+
+
+@dataclass
+class Region:
+    """An axis-aligned box of space, [min, max] per axis."""
+
+    min: Vec3
+    max: Vec3
+
+    def __post_init__(self):
+        if any(lo >= hi for lo, hi in zip(self.min, self.max)):
+            raise FieldError("max", "each coordinate of max must exceed min")
+
+    def contains(self, p) -> bool:
+        return all(lo <= x <= hi for lo, x, hi in zip(self.min, p, self.max))
+
+
+@dataclass
+class Layout:
+    fixtures: dict[str, Fixture] = field(default_factory=dict)
+    robot_regions: dict[str, Region] = field(default_factory=dict)
+    """Where the robot's tool counts as atTable, sharedTbl or atWeldSpot; elsewhere inCell."""
+    cell: Region = field(default_factory=lambda: Region((-1.3, -1.6, 0.0), (2.0, 1.6, 2.5)))
+    """The safeguarded cell: an operator standing in it is ``inCell``."""
+    shared_table_zone: Region = field(default_factory=lambda: Region((-2.0, -0.5, 0.0), (-1.3, 0.5, 2.5)))
+    """Where an operator standing counts as at the shared table (``otab``)."""
+
+    def __post_init__(self):
+        allowed = {m.value for m in RobotLocation} - {RobotLocation.IN_CELL.value}
+        for name in self.robot_regions:
+            if name not in allowed:
+                raise FieldError(
+                    f"robot_regions.{name}",
+                    f"'{name}' is not a robot location with a region (one of: {', '.join(sorted(allowed))})",
+                )
+
+
+# -- entities -----------------------------------------------------------------
+@dataclass
+class TwinModeChange:
+    at: float
+    mode: TwinMode
+
+
+@dataclass
+class TwinSettings:
+    """How an entity relates to its physical twin, and when that changes."""
+
+    mode: TwinMode = TwinMode.MODEL
+    changes: list[TwinModeChange] = field(default_factory=list)
+    stale_after: float = 0.5
+    """A physical sample older than this (s) is stale: the entity fails safe."""
+
+    def __post_init__(self):
+        times = [c.at for c in self.changes]
+        if times != sorted(times):
+            raise FieldError("changes", "twin-mode changes must be in time order")
+        if self.stale_after <= 0:
+            raise FieldError("stale_after", "must be positive")
+
+
+@dataclass
+class SpeedLimits:
+    """Cap on the tool's speed (m/s) in each moving safety mode; srmst and stopped are standstill."""
+
+    normal: float = 1.0
+    hguid: float = 0.25
+    ssmon: float = 0.5
+    pflim: float = 0.25
+
+
+@dataclass
+class RobotConfig:
+    kind: Literal["robot"]
+    model: str
+    """URDF of the arm, relative to the scenario file."""
+    named_poses: dict[str, list[float]]
+    """Joint positions (rad) of the poses the process moves between."""
+    base_position: Vec3 = (0.0, 0.0, 0.0)
+    base_yaw_deg: float = 0.0
+    tool_frame: str = "tcp"
+    initial_pose: str = "home"
+    speed_limits: SpeedLimits = field(default_factory=SpeedLimits)
+    braking_time: float = 0.5
+    """Time to standstill from full speed on srmst or stopped (s)."""
+    period: float = 0.01
+    twin: TwinSettings = field(default_factory=TwinSettings)
+
+    def __post_init__(self):
+        if self.initial_pose not in self.named_poses:
+            raise FieldError("initial_pose", f"'{self.initial_pose}' is not one of the named_poses")
+        for name, q in self.named_poses.items():
+            if len(q) != 6:
+                raise FieldError(f"named_poses.{name}", f"needs 6 joint positions, got {len(q)}")
+        if self.braking_time <= 0:
+            raise FieldError("braking_time", "must be positive")
+
+
+@dataclass
+class WelderConfig:
+    kind: Literal["welder"]
+    period: float = 0.02
+    twin: TwinSettings = field(default_factory=TwinSettings)
+
+
+@dataclass
+class LightBarrierConfig:
+    """A light curtain; its beams fill a box, broken while a person's geometry is in it."""
+
+    kind: Literal["light_barrier"]
+    center: Vec3
+    size: Vec3
+    period: float = 0.02
+    twin: TwinSettings = field(default_factory=TwinSettings)
+
+
+@dataclass
+class RangeDetectorConfig:
+    """A safety scanner: far / near / close from the nearest person's distance to it."""
+
+    kind: Literal["range_detector"]
+    position: Vec3
+    near_below: float = 2.0
+    close_below: float = 1.0
+    noise_std: float = 0.0
+    """Standard deviation of the measured distance (m); drawn from the run's seed."""
+    period: float = 0.04
+    twin: TwinSettings = field(default_factory=TwinSettings)
+
+    def __post_init__(self):
+        if not 0 < self.close_below < self.near_below:
+            raise FieldError("close_below", "needs 0 < close_below < near_below")
+        if self.noise_std < 0:
+            raise FieldError("noise_std", "must not be negative")
+
+
+@dataclass
+class Waypoint:
+    position: Vec2
+    wait: float = 0.0
+    """Seconds spent at the waypoint."""
+    reach: Vec3 | None = None
+    """A point the operator reaches for with one hand while waiting here."""
+
+    def __post_init__(self):
+        if self.wait < 0:
+            raise FieldError("wait", "must not be negative")
+
+
+@dataclass
+class OperatorConfig:
+    """A person walking an ordered list of waypoints, with body geometry."""
+
+    kind: Literal["operator"]
+    start: Vec2
+    waypoints: dict[str, Waypoint]
+    start_delay: float = 0.0
+    walking_speed: float = 1.2
+    speed_jitter: float = 0.1
+    """Each leg's speed is drawn uniformly within +-this fraction, from the run's seed."""
+    height: float = 1.75
+    body_radius: float = 0.2
+    arm_length: float = 0.7
+    period: float = 0.02
+    twin: TwinSettings = field(default_factory=TwinSettings)
+
+    def __post_init__(self):
+        if self.walking_speed <= 0:
+            raise FieldError("walking_speed", "must be positive")
+        if not 0 <= self.speed_jitter < 1:
+            raise FieldError("speed_jitter", "must be in [0, 1)")
+
+
+EntityConfig = RobotConfig | WelderConfig | LightBarrierConfig | RangeDetectorConfig | OperatorConfig
+
+
+# -- behaviours ---------------------------------------------------------------
+@dataclass
+class WorkStep:
+    """One step of the work cycle: a move, a dwell or a weld, with the robot's activity."""
+
+    name: str
+    move_to: str | None = None
+    dwell: float = 0.0
+    weld: float = 0.0
+    activity: RobotActivity = RobotActivity.EXCHANGE_WORKPIECE
+
+    def __post_init__(self):
+        if sum(x is not None and x != 0 for x in (self.move_to, self.dwell or None, self.weld or None)) != 1:
+            raise FieldError("name", f"step '{self.name}' must have exactly one of move_to, dwell, weld")
+
+
+@dataclass
+class WorkCycleConfig:
+    """The process controller: repeats its steps while the safety mode permits."""
+
+    kind: Literal["work_cycle"]
+    steps: list[WorkStep]
+    robot: str = "robot"
+    welder: str = "welder"
+    restart_on_request: dict[str, str] = field(default_factory=dict)
+    """Robot activity requested by the safety controller -> step the cycle restarts from."""
+    period: float = 0.02
+
+    def __post_init__(self):
+        names = [s.name for s in self.steps]
+        if not names:
+            raise FieldError("steps", "needs at least one step")
+        for activity, step in self.restart_on_request.items():
+            if activity not in RobotActivity.names():
+                raise FieldError(f"restart_on_request.{activity}", f"'{activity}' is not a robot activity")
+            if step not in names:
+                raise FieldError(f"restart_on_request.{activity}", f"'{step}' is not a step of the cycle")
+
+
+@dataclass
+class SafetyControllerConfig:
+    """The risk-model safety controller: a generic engine executing a risk model file."""
+
+    kind: Literal["safety_controller"]
+    risk_model: str
+    """Risk model YAML, relative to the scenario file."""
+    monitors: dict[str, str]
+    """Risk-model variable -> channel it reads (``module.signal``)."""
+    commands: dict[str, list[str]]
+    """Controlled variable -> command inputs it drives (``module.input``)."""
+    period: float = 0.02
+
+
+@dataclass
+class GroundTruthConfig:
+    """Measures what no sensor reports: the true operator-robot separation."""
+
+    kind: Literal["ground_truth"]
+    period: float = 0.05
+
+
+BehaviourConfig = WorkCycleConfig | SafetyControllerConfig | GroundTruthConfig
+
+
+# -- services -----------------------------------------------------------------
+@dataclass
+class RecorderConfig:
+    """The message snooper: writes every message to the black box (SQLite)."""
+
+    kind: Literal["blackbox"]
+    batch_size: int = 5000
+
+
+ServiceConfig = RecorderConfig
+
+
+@dataclass
+class ConfigurationPoint:
+    """A named, documented value of the scenario that runs may vary."""
+
+    paths: list[str]
+    description: str = ""
+
+
+@dataclass
+class Scenario:
+    name: str
+    layout: Layout
+    entities: dict[str, EntityConfig]
+    behaviours: dict[str, BehaviourConfig] = field(default_factory=dict)
+    services: dict[str, ServiceConfig] = field(default_factory=dict)
+    configuration_points: dict[str, ConfigurationPoint] = field(default_factory=dict)
+    description: str = ""
+    duration: float = 30.0
+    seed: int = 0
+    time_step: float = 0.002
+    """The robot plant's discrete step (s)."""
+
+    def __post_init__(self):
+        seen: dict[str, str] = {}
+        for section in ("entities", "behaviours", "services"):
+            for name in getattr(self, section):
+                if name in seen:
+                    raise FieldError(f"{section}.{name}", f"module name '{name}' is already used in {seen[name]}")
+                if not name.isidentifier():
+                    raise FieldError(f"{section}.{name}", "module names must be identifiers (letters, digits, _)")
+                seen[name] = section
+        if self.duration <= 0:
+            raise FieldError("duration", "must be positive")
+        if not 0 < self.time_step <= 0.01:
+            raise FieldError("time_step", "must be in (0, 0.01] s")
+
+    def modules_of_kind(self, kind: str) -> dict[str, object]:
+        found = {}
+        for section in (self.entities, self.behaviours, self.services):
+            found.update({n: c for n, c in section.items() if c.kind == kind})
+        return found
+
+
+# -- files ----------------------------------------------------------------------
+@dataclass
+class ScenarioFile:
+    """A loaded scenario with where it came from, for resolving paths and naming lines."""
+
+    loaded: Loaded[Scenario]
+    overrides: list[str] = field(default_factory=list)
+
+    @property
+    def scenario(self) -> Scenario:
+        return self.loaded.value
+
+    @property
+    def source(self) -> str:
+        return self.loaded.source
+
+    @property
+    def base_dir(self) -> Path:
+        return Path(self.loaded.source).resolve().parent
+
+    def error(self, key: str, problem: str) -> ConfigError:
+        """A ConfigError at ``key`` (dotted path), naming the file and line."""
+        return ConfigError(self.source, self.loaded.line_of(key), key, problem)
+
+    def resolve_path(self, key: str, relative: str) -> Path:
+        """An existing file named at ``key``, relative to the scenario file."""
+        path = Path(relative)
+        if not path.is_absolute():
+            path = self.base_dir / path
+        if not path.is_file():
+            raise self.error(key, f"file not found: {relative} (looked for {path})")
+        return path
+
+    def module_path(self, name: str) -> str:
+        """The dotted key of a module's configuration (``entities.robot``)."""
+        for section in ("entities", "behaviours", "services"):
+            if name in getattr(self.scenario, section):
+                return f"{section}.{name}"
+        raise KeyError(name)
+
+
+def _shortcut(scenario: Scenario):
+    """``--set operator.wait=...`` means ``entities.operator.wait``: module names are roots."""
+
+    def resolve(parts: list[str]) -> list[str]:
+        if parts and not hasattr(scenario, parts[0]):
+            for section in ("entities", "behaviours", "services"):
+                if parts[0] in getattr(scenario, section):
+                    return [section, *parts]
+        return parts
+
+    return resolve
+
+
+def load_scenario(path: str | os.PathLike, overrides: list[str] | tuple[str, ...] = ()) -> ScenarioFile:
+    """Load, override and check a scenario; raises ConfigError on any bad input."""
+    loaded = load_file(Scenario, path)
+    for assignment in overrides:
+        apply_override(loaded, assignment, resolve=_shortcut(loaded.value))
+    sf = ScenarioFile(loaded, list(overrides))
+    check_scenario(sf)
+    return sf
+
+
+def check_scenario(sf: ScenarioFile) -> None:
+    """Cross-references a dataclass cannot check alone: files, poses, modules."""
+    sc = sf.scenario
+    for name, cfg in sc.entities.items():
+        if isinstance(cfg, RobotConfig):
+            sf.resolve_path(f"entities.{name}.model", cfg.model)
+    robots = sc.modules_of_kind("robot")
+    for name, cfg in sc.behaviours.items():
+        key = f"behaviours.{name}"
+        if isinstance(cfg, SafetyControllerConfig):
+            sf.resolve_path(f"{key}.risk_model", cfg.risk_model)
+        if isinstance(cfg, WorkCycleConfig):
+            if cfg.robot not in robots:
+                raise sf.error(f"{key}.robot", f"no robot entity named '{cfg.robot}'")
+            if cfg.welder not in sc.modules_of_kind("welder"):
+                raise sf.error(f"{key}.welder", f"no welder entity named '{cfg.welder}'")
+            poses = robots[cfg.robot].named_poses
+            for i, step in enumerate(cfg.steps):
+                if step.move_to is not None and step.move_to not in poses:
+                    raise sf.error(
+                        f"{key}.steps.{i}.move_to",
+                        f"'{step.move_to}' is not a named pose of {cfg.robot} ({', '.join(poses)})",
+                    )
+    for name, point in sc.configuration_points.items():
+        for i, dotted in enumerate(point.paths):
+            try:
+                value_at(sc, dotted)
+            except KeyError:
+                raise sf.error(f"configuration_points.{name}.paths.{i}", f"no such configuration point: {dotted}") from None
+
+
+def value_at(scenario: Scenario, dotted: str):
+    """The value at a dotted path (module names may stand for their section); KeyError if none."""
+    node = to_data(scenario)
+    for part in _shortcut(scenario)(dotted.split(".")):
+        if isinstance(node, dict) and part in node:
+            node = node[part]
+        elif isinstance(node, list) and part.isdigit() and int(part) < len(node):
+            node = node[int(part)]
+        else:
+            raise KeyError(dotted)
+    return node
+
+
+def export_scenario(sf: ScenarioFile, destination_dir: str | os.PathLike | None = None) -> str:
+    """The fully resolved scenario as YAML (every default written out).
+
+    File references are relative to the scenario file; when the export is to be
+    stored in ``destination_dir`` they are rewritten relative to it, so the
+    exported file loads from where it is kept.
+    """
+    scenario = sf.scenario
+    if destination_dir is not None:
+        scenario = rebase_file_references(scenario, sf.base_dir, Path(destination_dir))
+    header = f"Resolved scenario exported by cellsim from {sf.source}"
+    if sf.overrides:
+        header += "\nwith overrides: " + " ".join(sf.overrides)
+    return dump_yaml(scenario, header=header)
+
+
+FILE_FIELDS = {RobotConfig: ("model",), SafetyControllerConfig: ("risk_model",)}
+
+
+def rebase_file_references(scenario: Scenario, from_dir: Path, to_dir: Path) -> Scenario:
+    """A copy of ``scenario`` whose file references are relative to ``to_dir``."""
+    copy = from_data(Scenario, to_data(scenario))
+    for section in (copy.entities, copy.behaviours):
+        for cfg in section.values():
+            for name in FILE_FIELDS.get(type(cfg), ()):
+                target = (from_dir / getattr(cfg, name)).resolve()
+                setattr(cfg, name, os.path.relpath(target, to_dir.resolve()))
+    return copy

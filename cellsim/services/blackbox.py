@@ -1,0 +1,191 @@
+"""The black box: every message of a run, in SQLite.
+
+Schema (an open format: any SQLite client reads it):
+
+* ``messages(t REAL, channel TEXT, source TEXT, payload TEXT)``: one row per
+  published message, in publication order; ``t`` is simulated seconds, the
+  payload is JSON ``{"value": ...}`` (an enum's name, a boolean, a number in
+  the channel's unit, a list, or null for "no value").
+* ``channels(name, source, kind, domain, unit, period, record, description)``:
+  what each channel carries (``domain`` is JSON: the enum's values, or the kind).
+* ``metadata(key, value)``: run metadata as JSON values: the resolved scenario,
+  seed, package versions, status (``running``, ``completed``, ``interrupted``,
+  ``failed``).
+
+Rows are written in batches inside transactions, so a crash loses at most the
+unflushed batch and what was committed stays readable.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sqlite3
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from cellsim.channels import ChannelSpec
+
+SCHEMA = """
+CREATE TABLE messages (t REAL NOT NULL, channel TEXT NOT NULL, source TEXT NOT NULL, payload TEXT NOT NULL);
+CREATE TABLE channels (
+    name TEXT PRIMARY KEY, source TEXT NOT NULL, kind TEXT NOT NULL, domain TEXT NOT NULL,
+    unit TEXT, period REAL NOT NULL, record TEXT NOT NULL, description TEXT NOT NULL);
+CREATE TABLE metadata (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+"""
+
+
+class BlackBoxError(Exception):
+    """A file that is not a readable cellsim black box."""
+
+
+class BlackBoxWriter:
+    """Writes one run's black box; rows are buffered and flushed in batches."""
+
+    def __init__(self, path: str | os.PathLike, batch_size: int = 5000):
+        self.path = Path(path)
+        if self.path.exists():
+            raise FileExistsError(f"{self.path} already exists")
+        self.batch_size = batch_size
+        self._rows: list[tuple] = []
+        self._db = sqlite3.connect(self.path)
+        self._db.executescript("PRAGMA journal_mode=WAL; PRAGMA synchronous=NORMAL;" + SCHEMA)
+        self.rows_written = 0
+
+    def set_metadata(self, **values) -> None:
+        with self._db:
+            self._db.executemany(
+                "INSERT OR REPLACE INTO metadata VALUES (?, ?)", [(k, json.dumps(v)) for k, v in values.items()]
+            )
+
+    def add_channels(self, specs: list[ChannelSpec]) -> None:
+        with self._db:
+            self._db.executemany(
+                "INSERT INTO channels VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                [
+                    (s.name, s.module, s.type.kind, json.dumps(s.type.domain()), s.type.unit, s.sample_period, s.record, s.description)
+                    for s in specs
+                ],
+            )
+
+    def append(self, row: tuple) -> None:
+        """Buffer one message row ``(t, channel, source, payload_json)``."""
+        self._rows.append(row)
+        if len(self._rows) >= self.batch_size:
+            self.flush()
+
+    def flush(self) -> None:
+        if self._rows:
+            with self._db:
+                self._db.executemany("INSERT INTO messages VALUES (?, ?, ?, ?)", self._rows)
+            self.rows_written += len(self._rows)
+            self._rows.clear()
+
+    def close(self, status: str) -> None:
+        """Flush, record the final status, index, and leave a single self-contained file."""
+        self.flush()
+        self.set_metadata(status=status)
+        with self._db:
+            self._db.execute("CREATE INDEX IF NOT EXISTS messages_by_channel ON messages(channel, t)")
+        self._db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        self._db.execute("PRAGMA journal_mode=DELETE")
+        self._db.close()
+
+
+@dataclass(frozen=True)
+class Message:
+    t: float
+    channel: str
+    source: str
+    value: object
+
+
+@dataclass(frozen=True)
+class Series:
+    """A channel's values over time: ``values[i]`` holds from ``times[i]`` on."""
+
+    channel: str
+    times: np.ndarray
+    values: list
+
+    def value_at(self, t: float):
+        i = int(np.searchsorted(self.times, t, side="right")) - 1
+        return None if i < 0 else self.values[i]
+
+    def __len__(self) -> int:
+        return len(self.values)
+
+
+@dataclass(frozen=True)
+class ChannelInfo:
+    name: str
+    source: str
+    kind: str
+    domain: object
+    unit: str | None
+    period: float
+    record: str
+    description: str
+
+
+class BlackBox:
+    """Reads a black box: metadata, channels, messages and per-channel time series."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise BlackBoxError(f"{self.path}: no such black box")
+        try:
+            self._db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
+            tables = {r[0] for r in self._db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        except sqlite3.DatabaseError as e:
+            raise BlackBoxError(f"{self.path}: not a SQLite database ({e})") from None
+        missing = {"messages", "channels", "metadata"} - tables
+        if missing:
+            raise BlackBoxError(f"{self.path}: not a cellsim black box (missing tables: {', '.join(sorted(missing))})")
+
+    def close(self) -> None:
+        self._db.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def metadata(self) -> dict:
+        return {k: json.loads(v) for k, v in self._db.execute("SELECT key, value FROM metadata")}
+
+    def channels(self) -> dict[str, ChannelInfo]:
+        rows = self._db.execute("SELECT name, source, kind, domain, unit, period, record, description FROM channels")
+        return {r[0]: ChannelInfo(r[0], r[1], r[2], json.loads(r[3]), *r[4:]) for r in rows}
+
+    def messages(self, channel: str | None = None) -> list[Message]:
+        if channel is None:
+            rows = self._db.execute("SELECT t, channel, source, payload FROM messages ORDER BY rowid")
+        else:
+            rows = self._db.execute(
+                "SELECT t, channel, source, payload FROM messages WHERE channel = ? ORDER BY rowid", (channel,)
+            )
+        return [Message(t, c, s, json.loads(p)["value"]) for t, c, s, p in rows]
+
+    def rows(self) -> list[tuple]:
+        """The raw ``messages`` rows in publication order (for comparing runs)."""
+        return self._db.execute("SELECT t, channel, source, payload FROM messages ORDER BY rowid").fetchall()
+
+    def series(self, channel: str) -> Series:
+        """The time series of one channel (KeyError if the run has no such channel)."""
+        if channel not in self.channels():
+            raise KeyError(f"{self.path} has no channel '{channel}'")
+        messages = self.messages(channel)
+        return Series(channel, np.array([m.t for m in messages], float), [m.value for m in messages])
+
+    def all_series(self) -> dict[str, Series]:
+        grouped: dict[str, tuple[list, list]] = {name: ([], []) for name in self.channels()}
+        for t, c, _, p in self._db.execute("SELECT t, channel, source, payload FROM messages ORDER BY rowid"):
+            times, values = grouped.setdefault(c, ([], []))
+            times.append(t)
+            values.append(json.loads(p)["value"])
+        return {c: Series(c, np.array(ts, float), vs) for c, (ts, vs) in grouped.items()}

@@ -1,0 +1,102 @@
+"""The base of cellsim's modules: a periodic LeafSystem whose outputs are channels.
+
+Every module (entity, behaviour, service) is a small Drake LeafSystem that updates
+its discrete state in one periodic event. Each channel it publishes is a
+discrete-state group exposed through ``DeclareStateOutputPort``, so reading it
+costs no Python at all: the 500 Hz robot plant never calls back into the
+module, and the module's cost scales with its own update rate.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.systems.framework import BasicVector, InputPort, LeafSystem, OutputPort
+
+from cellsim.channels import ChannelSpec, ChannelType, RecordPolicy
+
+
+class CellSystem(LeafSystem):
+    """A module of the cell, updated every ``period`` seconds from t = 0.
+
+    Subclasses declare channels, inputs and internal state in ``__init__`` and
+    implement ``update(context, xd)``, reading inputs and their own current state
+    from ``context`` and writing the next state into ``xd`` (DiscreteValues).
+    Groups not written keep their value.
+    """
+
+    def __init__(self, module: str, period: float):
+        super().__init__()
+        if period <= 0:
+            raise ValueError(f"{module}: update period must be positive, got {period}")
+        self.set_name(module)
+        self.module = module
+        self.period = float(period)
+        self.channels: list[tuple[ChannelSpec, OutputPort]] = []
+        self.input_types: dict[str, ChannelType] = {}
+        self.input_defaults: dict[str, float] = {}
+        self._groups: dict[str, int] = {}
+        self.DeclarePeriodicDiscreteUpdateEvent(self.period, 0.0, self._on_update)
+
+    # -- declarations -------------------------------------------------------
+    def declare_channel(
+        self,
+        signal: str,
+        ctype: ChannelType,
+        initial,
+        *,
+        record: RecordPolicy = "on_change",
+        record_period: float | None = None,
+        description: str = "",
+    ) -> int:
+        """Declare a published channel ``<module>.<signal>``; returns its state group."""
+        group = self.declare_state(signal, ctype.encode(initial))
+        port = self.DeclareStateOutputPort(signal, group)
+        spec = ChannelSpec(self.module, signal, ctype, self.period, record, description, record_period)
+        self.channels.append((spec, port))
+        return group
+
+    def declare_state(self, name: str, initial):
+        """Declare an internal discrete-state group (not published)."""
+        if name in self._groups:
+            raise ValueError(f"{self.module}: state '{name}' declared twice")
+        group = self.DeclareDiscreteState(BasicVector(np.atleast_1d(np.asarray(initial, float))))
+        self._groups[name] = group
+        return group
+
+    def declare_input(
+        self, name: str, size: int = 1, ctype: ChannelType | None = None, default: float | None = None
+    ) -> InputPort:
+        """A vector input.
+
+        ``ctype`` says what it expects, so the builder can check what is wired to
+        it; ``default`` is the value it gets when the scenario wires nothing to it.
+        """
+        if ctype is not None:
+            self.input_types[name] = ctype
+        if default is not None:
+            self.input_defaults[name] = default
+        return self.DeclareVectorInputPort(name, size)
+
+    def group(self, name: str) -> int:
+        return self._groups[name]
+
+    def channel_spec(self, signal: str) -> ChannelSpec:
+        for spec, _ in self.channels:
+            if spec.signal == signal:
+                return spec
+        raise KeyError(f"{self.module} has no channel '{signal}'")
+
+    # -- update -------------------------------------------------------------
+    def _on_update(self, context, xd):
+        self.update(context, xd)
+
+    def update(self, context, xd) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+def read_scalar(context, group: int) -> float:
+    return context.get_discrete_state(group).GetAtIndex(0)
+
+
+def write_scalar(xd, group: int, value: float) -> None:
+    xd.get_mutable_vector(group).SetAtIndex(0, value)
