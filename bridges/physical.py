@@ -3,8 +3,8 @@
 Every entity has a ``physical_sample`` input ``[t, valid, *fields]``. What
 feeds it decides whether the entity can shadow a physical twin:
 
-* ``NoPhysicalTwin``: a constant "no sample"; an entity in shadow or twin mode
-  then reads its physical link as stale and fails safe.
+* nothing: the input is fixed to "no sample" (``NO_SAMPLE``); an entity in
+  shadow or twin mode then reads its physical link as stale and fails safe.
 * ``BlackBoxReplay``: replays channels of a recorded black box as the physical
   twin's samples (a recorded real cell, or another simulated run).
 * the bridge daemon (CAN, Zenoh) provides network-fed sources.
@@ -17,17 +17,16 @@ from __future__ import annotations
 
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import ConstantVectorSource
 
 from cellsim.channels import ChannelType
 from cellsim.services.blackbox import BlackBox
 
 
-def no_physical_twin(size: int) -> ConstantVectorSource:
-    """A source saying "no sample" (valid = 0) on a physical_sample port of ``size``."""
+def no_sample(size: int) -> np.ndarray:
+    """The value of a physical_sample port of ``size`` that says "no sample" (valid = 0)."""
     value = np.zeros(size)
     value[0] = -np.inf
-    return ConstantVectorSource(value)
+    return value
 
 
 class BlackBoxReplay(LeafSystem):
@@ -68,16 +67,26 @@ class BlackBoxReplay(LeafSystem):
         xd.get_mutable_vector(self._state).SetFromVector(sample)
 
 
-def connect_physical_twins(builder: DiagramBuilder, entities: dict, sources: dict[str, LeafSystem] | None = None) -> None:
-    """Connect each entity's physical_sample input to its source, or to "no sample"."""
+def connect_physical_twins(
+    builder: DiagramBuilder, entities: dict, sources: dict[str, LeafSystem] | None = None
+) -> list[tuple]:
+    """Connect each entity's physical_sample input to its source.
+
+    Returns ``(port, value)`` pairs for the inputs with no source: the caller
+    fixes them to "no sample" in the context (a fixed input costs nothing per
+    step, a source system would).
+    """
     sources = sources or {}
     unknown = set(sources) - set(entities)
     if unknown:
         raise KeyError(f"physical-twin sources for unknown entities: {', '.join(sorted(unknown))}")
+    fixed = []
     for name, entity in entities.items():
         source = sources.get(name)
         if source is None:
-            source = builder.AddNamedSystem(f"{name}.no_physical_twin", no_physical_twin(entity.physical_sample_port.size()))
-        elif source not in builder.GetSystems():
+            fixed.append((entity.physical_sample_port, no_sample(entity.physical_sample_port.size())))
+            continue
+        if source not in builder.GetSystems():
             builder.AddSystem(source)
         builder.Connect(source.get_output_port(), entity.physical_sample_port)
+    return fixed

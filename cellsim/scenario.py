@@ -134,7 +134,7 @@ class RobotConfig:
     speed_limits: SpeedLimits = field(default_factory=SpeedLimits)
     braking_time: float = 0.5
     """Time to standstill from full speed on srmst or stopped (s)."""
-    period: float = 0.01
+    period: float = 0.02
     twin: TwinSettings = field(default_factory=TwinSettings)
 
     def __post_init__(self):
@@ -150,7 +150,7 @@ class RobotConfig:
 @dataclass
 class WelderConfig:
     kind: Literal["welder"]
-    period: float = 0.02
+    period: float = 0.04
     twin: TwinSettings = field(default_factory=TwinSettings)
 
 
@@ -212,7 +212,7 @@ class OperatorConfig:
     height: float = 1.75
     body_radius: float = 0.2
     arm_length: float = 0.7
-    period: float = 0.02
+    period: float = 0.04
     twin: TwinSettings = field(default_factory=TwinSettings)
 
     def __post_init__(self):
@@ -251,7 +251,7 @@ class WorkCycleConfig:
     welder: str = "welder"
     restart_on_request: dict[str, str] = field(default_factory=dict)
     """Robot activity requested by the safety controller -> step the cycle restarts from."""
-    period: float = 0.02
+    period: float = 0.04
 
     def __post_init__(self):
         names = [s.name for s in self.steps]
@@ -283,7 +283,7 @@ class GroundTruthConfig:
     """Measures what no sensor reports: the true operator-robot separation."""
 
     kind: Literal["ground_truth"]
-    period: float = 0.05
+    period: float = 0.1
 
 
 BehaviourConfig = WorkCycleConfig | SafetyControllerConfig | GroundTruthConfig

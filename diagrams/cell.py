@@ -35,7 +35,6 @@ from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, Multibod
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.controllers import InverseDynamicsController
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, OutputPort
-from pydrake.systems.primitives import ConstantVectorSource
 
 from bridges.physical import connect_physical_twins
 from cellsim.behaviours.ground_truth import GroundTruth
@@ -78,12 +77,16 @@ class CellDiagram:
     robots: dict[str, object] = field(default_factory=dict)  # name -> ModelInstanceIndex
     recorder: Recorder | None = None
     meshcat_visualizer: MeshcatVisualizer | None = None
+    fixed_inputs: list[tuple] = field(default_factory=list)
+    """(input port, value) of inputs nothing drives; ``set_initial_state`` fixes them."""
 
     def entity(self, name: str) -> EntitySystem:
         return self.modules[name]
 
     def set_initial_state(self, context) -> None:
-        """Put each arm at its initial pose in a (root) context."""
+        """Fix undriven inputs and put each arm at its initial pose in a (root) context."""
+        for port, value in self.fixed_inputs:
+            port.FixValue(port.get_system().GetMyMutableContextFromRoot(context), value)
         plant_context = self.plant.GetMyMutableContextFromRoot(context)
         for name, instance in self.robots.items():
             self.plant.SetPositions(plant_context, instance, self.modules[name].initial_positions)
@@ -190,8 +193,8 @@ def build_cell(
             modules[name] = system
             channels.update(_channels({name: system}))
 
-    _feed_unconnected_inputs(builder, modules)
-    connect_physical_twins(builder, entities, physical_sources)
+    fixed_inputs = _unconnected_command_inputs(builder, modules)
+    fixed_inputs += connect_physical_twins(builder, entities, physical_sources)
 
     recorder = None
     for name, cfg in sc.services.items():
@@ -209,7 +212,7 @@ def build_cell(
         )
     diagram = builder.Build()
     diagram.set_name(sc.name)
-    return CellDiagram(diagram, plant, scene_graph, modules, channels, instances, recorder, visualizer)
+    return CellDiagram(diagram, plant, scene_graph, modules, channels, instances, recorder, visualizer, fixed_inputs)
 
 
 def _add_fixtures(plant: MultibodyPlant, sf: ScenarioFile) -> None:
@@ -313,11 +316,12 @@ def _check_domain(sf, where: str, var: str, values: tuple, ctype: ChannelType) -
         raise sf.error(where, f"{var} takes {list(values)} but the channel carries {ctype.domain()}")
 
 
-def _feed_unconnected_inputs(builder: DiagramBuilder, modules: dict[str, LeafSystem]) -> None:
-    """Command inputs nobody drives get their declared default (no request, normal...)."""
+def _unconnected_command_inputs(builder: DiagramBuilder, modules: dict[str, LeafSystem]) -> list[tuple]:
+    """Command inputs nobody drives, with their declared default (no request, normal...)."""
+    fixed = []
     for system in modules.values():
         for port_name, default in getattr(system, "input_defaults", {}).items():
             port = system.GetInputPort(port_name)
             if not builder.IsConnectedOrExported(port):
-                source = builder.AddNamedSystem(f"{system.get_name()}.{port_name}.default", ConstantVectorSource([default]))
-                builder.Connect(source.get_output_port(), port)
+                fixed.append((port, np.array([default])))
+    return fixed

@@ -66,7 +66,6 @@ class SafetyController(CellSystem):
         return lambda v: NO_REQUEST if v is None else codes[v]
 
     def update(self, context, xd):
-        t = context.get_time()
         values = {}
         for name, port, decode in self._inputs:
             code = port.Eval(context)[0]
@@ -74,7 +73,22 @@ class SafetyController(CellSystem):
         phases = [_PHASES[int(context.get_discrete_state(g).GetAtIndex(0))] for g in self._phase_groups]
         for hazard, phase in zip(self.hazards, phases):
             values[hazard.name] = phase
+        held = self._timers(context, xd, values, phases) if self._timed else {}
 
+        new_phases = []
+        for hi, (hazard, phase) in enumerate(zip(self.hazards, phases)):
+            for ti, tr in enumerate(hazard.transitions):
+                if tr.phase == phase and (held.get((hi, ti), False) if tr.after > 0 else tr.guard(values)):
+                    phase = tr.to
+                    write_scalar(xd, self._phase_groups[hi], _PHASES.index(phase))
+                    break
+            new_phases.append(phase)
+        if new_phases != phases:
+            self._write_commands(xd, new_phases)
+
+    def _timers(self, context, xd, values: dict, phases: list[str]) -> dict:
+        """Track how long the guards of ``after`` transitions have held; which have held long enough."""
+        t = context.get_time()
         since = context.get_discrete_state(self._since).get_value().copy()
         held = {}
         for k, (hi, ti) in enumerate(self._timed):
@@ -84,25 +98,15 @@ class SafetyController(CellSystem):
                 held[(hi, ti)] = t - since[k] >= tr.after - 1e-9
             else:
                 since[k] = np.nan
-        if self._timed:
-            xd.get_mutable_vector(self._since).SetFromVector(since)
+        xd.get_mutable_vector(self._since).SetFromVector(since)
+        return held
 
-        new_phases = []
-        for hi, (hazard, phase) in enumerate(zip(self.hazards, phases)):
-            for ti, tr in enumerate(hazard.transitions):
-                if tr.phase != phase:
-                    continue
-                fires = held.get((hi, ti), False) if tr.after > 0 else tr.guard(values)
-                if fires:
-                    phase = tr.to
-                    break
-            new_phases.append(phase)
-            write_scalar(xd, self._phase_groups[hi], _PHASES.index(phase))
-
+    def _write_commands(self, xd, phases: list[str]) -> None:
+        """Commands are a function of the phases alone: the most restrictive demand, or the default."""
         for name, var, group, encode in self._commands:
             demanded = None
-            for hazard, phase in zip(self.hazards, new_phases):
-                value = hazard.demands.get(phase, {}).get(name, None) if phase in hazard.demands else None
+            for hazard, phase in zip(self.hazards, phases):
+                value = hazard.demands.get(phase, {}).get(name)
                 if value is not None and (demanded is None or var.domain.index(value) > var.domain.index(demanded)):
                     demanded = value
             write_scalar(xd, group, encode(var.default if demanded is None else demanded))

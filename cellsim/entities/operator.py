@@ -11,7 +11,6 @@ built, so the operator's pose is a pure function of time.
 
 from __future__ import annotations
 
-import enum
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,7 +29,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from cellsim.channels import BOOL, enum_type, vector_type
 from cellsim.entities.twin import EntitySystem
 from cellsim.scenario import Layout, OperatorConfig
-from cellsim.systems import write_scalar
+from cellsim.systems import read_scalar, write_scalar
 from cellsim.vocabulary import CodedEnum, Notification, OperatorLocation, TwinMode
 
 REACH_TIME = 0.5  # s to extend or withdraw the arm
@@ -74,8 +73,8 @@ def plan_walk(cfg: OperatorConfig, seed: int, salt: int = 0) -> list[Leg]:
     return legs
 
 
-def pose_at(legs: list[Leg], start_yaw: float, t: float, shoulder) -> OperatorPose:
-    """Where the operator is at time ``t`` (``shoulder`` maps (xy, yaw) to the shoulder point)."""
+def pose_at(legs: list[Leg], start_yaw: float, t: float) -> OperatorPose:
+    """Where the operator is at time ``t``."""
     yaw, xy = start_yaw, legs[0].start if legs else np.zeros(2)
     waypoint = -1
     for leg in legs:
@@ -126,7 +125,7 @@ class Operator(EntitySystem):
         )
         self.notification_port = self.declare_input("notification", ctype=enum_type(Notification), default=Notification.OK.code)
         self.leave_workbench_port = self.declare_input("leave_workbench", ctype=BOOL, default=0.0)
-        initial = pose_at(self.legs, self.start_yaw, 0.0, self._shoulder)
+        initial = pose_at(self.legs, self.start_yaw, 0.0)
         self._pose = self.declare_state("pose", self._pose_vector(initial))
         self._location = self.declare_channel(
             "location", enum_type(OperatorLocation), OperatorLocation.NONE, description="Operator location (oloc)"
@@ -193,21 +192,25 @@ class Operator(EntitySystem):
 
     def update(self, context, xd):
         view = self.consult_physical(context, xd)
+        current = context.get_discrete_state(self._pose).get_value()
         if view.mode is TwinMode.MODEL:
-            pose = pose_at(self.legs, self.start_yaw, context.get_time(), self._shoulder)
+            pose = pose_at(self.legs, self.start_yaw, context.get_time())
             vector, waypoint = self._pose_vector(pose), pose.waypoint
         elif view.sample is None:  # stale or corrupt: hold the last known pose
-            vector, waypoint = context.get_discrete_state(self._pose).get_value(), None
+            vector, waypoint = current, None
         else:
             vector, waypoint = view.sample, None
-        xd.get_mutable_vector(self._pose).SetFromVector(vector)
-        xy = vector[:2]
-        standing = (xy[0], xy[1], 1.0)
-        write_scalar(xd, self._location, (OperatorLocation.IN_CELL if self.layout.cell.contains(standing) else OperatorLocation.NONE).code)
-        write_scalar(xd, self._at_table, 1.0 if self.layout.shared_table_zone.contains(standing) else 0.0)
-        if waypoint is not None:
-            write_scalar(xd, self._waypoint, waypoint + 1)
-        xd.get_mutable_vector(self._position).SetFromVector(xy)
         self.write_command(
-            xd, view.mode, (self.notification_port.Eval(context)[0], self.leave_workbench_port.Eval(context)[0])
+            context, xd, view.mode,
+            lambda: (self.notification_port.Eval(context)[0], self.leave_workbench_port.Eval(context)[0]),
         )
+        if waypoint is not None and waypoint + 1 != read_scalar(context, self._waypoint):
+            write_scalar(xd, self._waypoint, waypoint + 1)
+        if np.array_equal(vector, current):
+            return  # standing still: nothing derived from the pose changes
+        xd.get_mutable_vector(self._pose).SetFromVector(vector)
+        x, y = vector[0], vector[1]
+        location = OperatorLocation.IN_CELL if self.layout.cell.contains((x, y, 1.0)) else OperatorLocation.NONE
+        write_scalar(xd, self._location, location.code)
+        write_scalar(xd, self._at_table, 1.0 if self.layout.shared_table_zone.contains((x, y, 1.0)) else 0.0)
+        xd.get_mutable_vector(self._position).SetFromVector(vector[:2])

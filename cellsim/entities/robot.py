@@ -18,7 +18,7 @@ and stopped bring it to rest.
 
 from __future__ import annotations
 
-from functools import lru_cache
+import math
 
 import numpy as np
 from pydrake.multibody.parsing import Parser
@@ -35,6 +35,7 @@ HOLD = -1.0
 """Target-pose code meaning "stay where you are"."""
 
 STANDSTILL_MODES = frozenset({SafetyMode.MONITORED_STOP, SafetyMode.STOPPED})
+_MODES = tuple(SafetyMode)
 _SEGMENT_SAMPLES = 24
 
 
@@ -93,7 +94,7 @@ class Robot(EntitySystem):
             cfg.period,
             cfg.twin,
             tuple(f"q{i}" for i in range(n)) + ("safety_mode", "activity", "reached_pose"),
-            ("safety_mode_request", "activity", "target_pose") + tuple(f"q{i}" for i in range(n)),
+            ("safety_mode_request", "activity", "target_pose"),
         )
         self.cfg = cfg
         self.kinematics = ArmKinematics(model_path, cfg)
@@ -101,7 +102,7 @@ class Robot(EntitySystem):
             raise ValueError(f"{module}: the arm model has {self.kinematics.num_joints} joints, expected {n}")
         self.pose_names = list(cfg.named_poses)
         self.poses = np.array([cfg.named_poses[p] for p in self.pose_names], float)
-        self.regions = [(RobotLocation(name), region) for name, region in layout.robot_regions.items()]
+        self.regions = [(RobotLocation(name), r.min, r.max) for name, r in layout.robot_regions.items()]
         self.speed_caps = {
             SafetyMode.NORMAL: cfg.speed_limits.normal,
             SafetyMode.HAND_GUIDED: cfg.speed_limits.hguid,
@@ -116,8 +117,8 @@ class Robot(EntitySystem):
         self.target_port = self.declare_input("target_pose", default=HOLD)
         self.activity_port = self.declare_input("activity", default=RobotActivity.IDLE.code)
         self.measured_state_port = self.declare_input("measured_state", 2 * n)
-        # motion state: [segment target, s, ds/dt, q_start (6), q_goal (6)]
-        self._motion = self.declare_state("motion", np.concatenate([[initial, 1.0, 0.0], q0, q0]))
+        # motion state: see _advance
+        self._motion = self.declare_state("motion", np.concatenate([[initial, 1.0, 0.0, 0.0, 0.0], q0, q0]))
         self._desired = self.declare_state("desired_state", np.concatenate([q0, np.zeros(n)]))
         self.desired_state_port = self.DeclareStateOutputPort("desired_state", self._desired)
 
@@ -137,21 +138,11 @@ class Robot(EntitySystem):
 
     # -- helpers ------------------------------------------------------------------
     def locate(self, tool_position) -> RobotLocation:
-        for location, region in self.regions:
-            if region.contains(tool_position):
+        x, y, z = tool_position
+        for location, (x0, y0, z0), (x1, y1, z1) in self.regions:
+            if x0 <= x <= x1 and y0 <= y <= y1 and z0 <= z <= z1:
                 return location
         return RobotLocation.IN_CELL
-
-    @lru_cache(maxsize=256)
-    def _segment_rates(self, start: tuple, goal: tuple) -> tuple[float, float]:
-        """(tool metres per unit s, joint-limited max ds/dt) of a joint-space segment."""
-        start, goal = np.array(start), np.array(goal)
-        delta = goal - start
-        with np.errstate(divide="ignore"):
-            joint_rate = float(np.min(self.kinematics.velocity_limits / np.abs(delta)))
-        points = [self.kinematics.tool_position(start + k / _SEGMENT_SAMPLES * delta) for k in range(_SEGMENT_SAMPLES + 1)]
-        chords = np.linalg.norm(np.diff(points, axis=0), axis=1)
-        return 1.05 * float(chords.max()) * _SEGMENT_SAMPLES, joint_rate
 
     def sample_is_valid(self, sample) -> bool:
         return (
@@ -163,62 +154,83 @@ class Robot(EntitySystem):
     # -- update ---------------------------------------------------------------------
     def update(self, context, xd):
         view = self.consult_physical(context, xd)
-        mode = SafetyMode.from_code(self.mode_request_port.Eval(context)[0])
+        mode = _MODES[int(self.mode_request_port.Eval(context)[0])]
         target = self.target_port.Eval(context)[0]
-        activity_code = self.activity_port.Eval(context)[0]
+        activity = self.activity_port.Eval(context)[0]
         motion = context.get_discrete_state(self._motion).get_value()
-        self.write_command(xd, view.mode, (mode.code, activity_code, target, *motion[3:9]))
+        self.write_command(context, xd, view.mode, lambda: (mode.code, activity, target))
 
         if view.mode is TwinMode.MODEL:
             motion, desired, reached = self._advance(motion, mode, target)
-            activity = activity_code
         elif view.sample is not None:
             q = view.sample[:6]
-            motion = np.concatenate([[HOLD, 1.0, 0.0], q, q])
+            motion = self._rest_at(q)
             desired = np.concatenate([q, np.zeros(6)])
             mode = SafetyMode.from_code(view.sample[6])
             activity, reached = view.sample[7], view.sample[8]
         else:  # stale or corrupt: the hologram holds its last known state
-            desired = context.get_discrete_state(self._desired).get_value()
+            motion, desired = None, None
             mode = SafetyMode.from_code(read_scalar(context, self._mode))
             activity, reached = read_scalar(context, self._activity), read_scalar(context, self._reached)
-        xd.get_mutable_vector(self._motion).SetFromVector(motion)
-        xd.get_mutable_vector(self._desired).SetFromVector(desired)
+        if motion is not None:
+            xd.get_mutable_vector(self._motion).SetFromVector(motion)
+            xd.get_mutable_vector(self._desired).SetFromVector(desired)
 
         measured = self.measured_state_port.Eval(context)
-        tool, speed = self.kinematics.tool_position_and_speed(measured)
+        kin = self.kinematics
+        kin.plant.SetPositionsAndVelocities(kin.context, measured)
+        x, y, z = kin.tool.CalcPoseInWorld(kin.context).translation()
+        vx, vy, vz = kin.tool.CalcSpatialVelocityInWorld(kin.context).translational()
         write_scalar(xd, self._mode, mode.code)
         write_scalar(xd, self._activity, activity)
-        write_scalar(xd, self._location, self.locate(tool).code)
+        write_scalar(xd, self._location, self.locate((x, y, z)).code)
         write_scalar(xd, self._reached, reached)
         xd.get_mutable_vector(self._q).SetFromVector(measured[:6])
-        write_scalar(xd, self._tool_speed, speed)
+        write_scalar(xd, self._tool_speed, math.sqrt(vx * vx + vy * vy + vz * vz))
+
+    def _rest_at(self, q) -> np.ndarray:
+        """Motion state of an arm standing at q (no segment)."""
+        return np.concatenate([[HOLD, 1.0, 0.0, 0.0, 0.0], q, q])
+
+    def _start_segment(self, start: np.ndarray, target: int) -> np.ndarray:
+        """Motion state at the start of a segment to named pose ``target``, with its rate limits."""
+        goal = self.poses[target]
+        delta = goal - start
+        if not np.any(delta):
+            return np.concatenate([[target, 1.0, 0.0, 0.0, 0.0], start, goal])
+        joint_rate = float(np.min(self.kinematics.velocity_limits / np.maximum(np.abs(delta), 1e-12)))
+        points = [self.kinematics.tool_position(start + k / _SEGMENT_SAMPLES * delta) for k in range(_SEGMENT_SAMPLES + 1)]
+        tool_per_s = 1.05 * float(np.linalg.norm(np.diff(points, axis=0), axis=1).max()) * _SEGMENT_SAMPLES
+        return np.concatenate([[target, 0.0, 0.0, max(tool_per_s, 1e-9), joint_rate], start, goal])
 
     def _advance(self, motion: np.ndarray, mode: SafetyMode, target: float):
-        """One period of the joint-space motion: (motion state, desired state, reached-pose code)."""
+        """One period of the joint-space motion: (motion state, desired state, reached-pose code).
+
+        Motion state: [segment target, s, ds/dt, tool metres per unit s, joint-limited
+        max ds/dt, start (6), goal (6)].
+        """
         dt = self.period
-        segment, s, rate = motion[0], motion[1], motion[2]
-        start, goal = motion[3:9], motion[9:15]
-        if target != HOLD and target != segment and rate <= 1e-12:
-            # standing: start a new segment from where the arm is commanded to be
-            start = start + s * (goal - start)
-            goal = self.poses[int(target)]
-            segment, s = target, 0.0
-        delta = goal - start
-        if not np.any(delta) or s >= 1.0:
-            s, rate = 1.0, 0.0
-        else:
-            tool_per_s, joint_rate = self._segment_rates(tuple(start), tuple(goal))
+        segment, s, rate, tool_per_s, joint_rate = motion[:5].tolist()
+        if target != HOLD and target != segment and rate == 0.0:
+            # standing: a new segment from where the arm is commanded to be
+            start, goal = motion[5:11], motion[11:17]
+            motion = self._start_segment(start + s * (goal - start), int(target))
+            segment, s, rate, tool_per_s, joint_rate = motion[:5].tolist()
+        if s < 1.0:
             full = min(joint_rate, self.speed_caps[SafetyMode.NORMAL] / tool_per_s)
             accel = full / self.cfg.braking_time
             if mode in STANDSTILL_MODES or target != segment:
                 cap = 0.0  # brake: a mode that stands still, or a new target to replan for
             else:
-                cap = min(joint_rate, self.speed_caps[mode] / tool_per_s, np.sqrt(2.0 * accel * (1.0 - s)))
+                cap = min(joint_rate, self.speed_caps[mode] / tool_per_s, math.sqrt(2.0 * accel * (1.0 - s)))
             rate = min(cap, rate + accel * dt) if rate < cap else max(cap, rate - accel * dt)
             s = min(1.0, s + rate * dt)
             if s >= 1.0:
                 rate = 0.0
+            motion = motion.copy()
+            motion[1], motion[2] = s, rate
+        start, goal = motion[5:11], motion[11:17]
+        delta = goal - start
         desired = np.concatenate([start + s * delta, rate * delta])
         reached = segment + 1.0 if s >= 1.0 and segment != HOLD else 0.0
-        return np.concatenate([[segment, s, rate], start, goal]), desired, reached
+        return motion, desired, reached

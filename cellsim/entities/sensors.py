@@ -28,6 +28,9 @@ from cellsim.systems import write_scalar
 from cellsim.vocabulary import Range, TwinMode
 
 
+_HEAD_RADIUS = 0.05  # m, the scanner head's sphere
+
+
 class _GeometrySensor(EntitySystem):
     """An entity reading the SceneGraph query port to measure target geometries."""
 
@@ -119,10 +122,11 @@ class RangeDetector(_GeometrySensor):
 
     def register_geometry(self, scene_graph) -> list:
         source = scene_graph.RegisterSource(self.module)
-        head = GeometryInstance(RigidTransform(self.position), Sphere(0.05), f"{self.module}/head")
+        head = GeometryInstance(RigidTransform(self.position), Sphere(_HEAD_RADIUS), f"{self.module}/head")
+        head.set_proximity_properties(ProximityProperties())
         head.set_illustration_properties(MakePhongIllustrationProperties([0.9, 0.9, 0.1, 1.0]))
-        scene_graph.RegisterAnchoredGeometry(source, head)
-        return []
+        self.head_id = scene_graph.RegisterAnchoredGeometry(source, head)
+        return [self.head_id]
 
     def classify(self, distance: float) -> Range:
         if distance < self.cfg.close_below:
@@ -132,12 +136,14 @@ class RangeDetector(_GeometrySensor):
         return Range.FAR
 
     def measure(self, context) -> float:
+        # The distance from the sensor's point to a target is the distance from the
+        # sensor head (a sphere around that point) plus its radius.
         query = self.query_port.Eval(context)
-        targets = self.targets
         nearest = self.reach
-        for result in query.ComputeSignedDistanceToPoint(self.position, self.reach):
-            if result.id_G in targets and result.distance < nearest:
-                nearest = result.distance
+        for target in self.targets:
+            distance = query.ComputeSignedDistancePairClosestPoints(self.head_id, target).distance + _HEAD_RADIUS
+            if distance < nearest:
+                nearest = distance
         if self._noise is not None:
             nearest += self._noise[int(round(context.get_time() / self.period))]
         return nearest

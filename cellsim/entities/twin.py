@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -92,23 +93,26 @@ class EntitySystem(CellSystem):
     # -- update helpers ---------------------------------------------------------
     def consult_physical(self, context, xd) -> PhysicalView:
         """Apply scheduled mode changes and judge the physical sample; writes mode and link."""
-        t = context.get_time()
-        mode = _MODES[int(read_scalar(context, self._mode_group))]
+        mode_code = read_scalar(context, self._mode_group)
         changes = self.twin.changes
-        nxt = int(read_scalar(context, self._next_change_group))
-        while nxt < len(changes) and changes[nxt].at <= t + 1e-9:
-            mode = changes[nxt].mode
-            nxt += 1
-        if nxt != read_scalar(context, self._next_change_group):
-            write_scalar(xd, self._next_change_group, nxt)
-        write_scalar(xd, self._mode_group, mode.code)
-
+        if mode_code == 0.0 and not changes:  # model mode for good: the common case, kept cheap
+            return _MODEL_VIEW
+        t = context.get_time()
+        mode = _MODES[int(mode_code)]
+        if changes:
+            nxt = start = int(read_scalar(context, self._next_change_group))
+            while nxt < len(changes) and changes[nxt].at <= t + 1e-9:
+                mode = changes[nxt].mode
+                nxt += 1
+            if nxt != start:
+                write_scalar(xd, self._next_change_group, nxt)
+                write_scalar(xd, self._mode_group, mode.code)
         if mode is TwinMode.MODEL:
             link, sample = PhysicalLink.UNUSED, None
         else:
-            raw = self.physical_sample_port.Eval(context)
-            link, sample = self._judge(raw, t)
-        write_scalar(xd, self._link_group, link.code)
+            link, sample = self._judge(self.physical_sample_port.Eval(context), t)
+        if link.code != read_scalar(context, self._link_group):
+            write_scalar(xd, self._link_group, link.code)
         return PhysicalView(mode, link, sample)
 
     def _judge(self, raw: np.ndarray, t: float) -> tuple[PhysicalLink, np.ndarray | None]:
@@ -124,12 +128,15 @@ class EntitySystem(CellSystem):
         """Entity-specific check of a finite sample (enum codes in range...)."""
         return True
 
-    def write_command(self, xd, mode: TwinMode, values) -> None:
-        """Publish the commands addressed to this entity; active only in twin mode."""
-        vec = xd.get_mutable_vector(self._command_group)
-        vec.SetAtIndex(0, 1.0 if mode is TwinMode.TWIN else 0.0)
-        for i, v in enumerate(values, start=1):
-            vec.SetAtIndex(i, float(v))
+    def write_command(self, context, xd, mode: TwinMode, values: Callable[[], tuple]) -> None:
+        """Publish the commands addressed to this entity (``values()``): active only in twin mode."""
+        if mode is TwinMode.TWIN:
+            xd.get_mutable_vector(self._command_group).SetFromVector(np.array([1.0, *values()], float))
+        elif read_scalar(context, self._command_group) != 0.0:
+            write_scalar(xd, self._command_group, 0.0)
+
+
+_MODEL_VIEW = PhysicalView(TwinMode.MODEL, PhysicalLink.UNUSED, None)
 
 
 def valid_code(value: float, enum) -> bool:

@@ -1,0 +1,276 @@
+"""Offline evaluation of metric temporal logic conditions on recorded runs.
+
+The semantics (continuous time, finite trace, end-of-trace rules) are specified in
+``docs/condition-language.md``; in short, on the observed domain ``D = [start, end)``:
+
+* ``F[a,b] p`` at t: some t' in [t+a, t+b] ∩ D has p.  If b is finite and the window
+  is cut by the end of the trace (t+b >= end), it is *not* counted as violated.
+  ``F p`` (b = inf) is strong: a witness must be recorded.
+* ``G[a,b] p`` at t: p on all of [t+a, t+b] ∩ D (vacuous beyond the end).
+* ``p U[a,b] q`` at t: some t' in [t+a, t+b] ∩ D has q, p holds on [t, t') and, if
+  a > 0, p also holds at t+a.  If b is finite and t+b >= end, it also holds when p
+  holds on all of [t, end) (no violation observed yet).  ``U`` with b = inf is strong.
+* ``p W[a,b] q`` = ``(p U[a,b] q) or G[0,b] p``.
+
+Everything is computed exactly, by interval arithmetic on satisfaction sets (finite
+unions of half-open intervals, :class:`~cellsim.logic.intervals.IntervalSet`), not
+by sampling.  Each operator is linear in the number of intervals of its operands.
+"""
+
+from __future__ import annotations
+
+import math
+import operator
+from dataclasses import dataclass
+
+from .intervals import (
+    Flat,
+    IntervalSet,
+    always_flat,
+    complement_flat,
+    eventually_flat,
+    intersection_flat,
+    union_flat,
+    until0_flat,
+)
+from .syntax import (
+    Always,
+    And,
+    BoolVar,
+    Compare,
+    Const,
+    Eventually,
+    Formula,
+    Implies,
+    InSet,
+    Not,
+    Or,
+    Until,
+)
+from .trace import Trace
+
+__all__ = ["Verdict", "IntervalSet", "TraceEvaluator", "satisfaction", "evaluate"]
+
+_ORDER = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge}
+_ALL = {"==": operator.eq, "!=": operator.ne, **_ORDER}
+
+
+@dataclass
+class Verdict:
+    """The verdict of a condition on a trace.
+
+    ``holds`` is the truth value at the start of the trace.  ``violated_at`` is
+    ``None`` when the condition holds.  Otherwise, for a condition of the form
+    ``G[a,b] p`` (in particular ``G p``) it is the earliest instant of
+    ``[start+a, start+b] ∩ [start, end)`` at which ``p`` is false - the first
+    violation; for any other condition it is ``start``.
+    """
+
+    holds: bool
+    violated_at: float | None
+
+
+def _collect(los: list[float], his: list[float], truth) -> Flat:
+    """Merge the pieces ``[los[i], his[i])`` whose ``truth[i]`` is true."""
+    out: Flat = []
+    for lo, hi, ok in zip(los, his, truth):
+        if ok:
+            if out and out[-1] == lo:
+                out[-1] = hi
+            else:
+                out.append(lo)
+                out.append(hi)
+    return out
+
+
+class TraceEvaluator:
+    """Evaluates formulas on one trace, sharing the satisfaction sets of sub-formulas.
+
+    Sub-formulas are memoised by value (ASTs are hashable), so a macro used twice in
+    a condition, or an atom shared by several conditions evaluated with the same
+    evaluator, is computed once.
+    """
+
+    def __init__(self, trace: Trace) -> None:
+        self.trace = trace
+        self.start = trace.start
+        self.end = trace.end
+        self._memo: dict[Formula, Flat] = {}
+
+    # ----- public
+
+    def satisfaction(self, formula: Formula) -> IntervalSet:
+        """The instants of ``[start, end)`` at which ``formula`` holds."""
+        return IntervalSet.from_flat(self.start, self.end, list(self._sat(formula)))
+
+    def evaluate(self, formula: Formula) -> Verdict:
+        """The :class:`Verdict` of ``formula`` at the start of the trace."""
+        s = self.start
+        if isinstance(formula, Always):
+            # First violation of G[a,b] p: the earliest instant of the window
+            # [s+a, s+b] where p is false (same arithmetic as always_flat).
+            bad = complement_flat(self._sat(formula.arg), s, self.end)
+            lo, hi = formula.lo, formula.hi
+            for k in range(0, len(bad), 2):
+                if bad[k + 1] - lo > s:
+                    if bad[k] - hi <= s:
+                        return Verdict(False, max(bad[k], s + lo))
+                    break
+            return Verdict(True, None)
+        flat = self._sat(formula)
+        holds = bool(flat) and flat[0] == s
+        return Verdict(holds, None if holds else s)
+
+    # ----- recursion
+
+    def _sat(self, node: Formula) -> Flat:
+        """Canonical flat list of ``node``'s satisfaction set (memoised; do not mutate)."""
+        memo = self._memo
+        result = memo.get(node)
+        if result is None:
+            method = self._DISPATCH.get(type(node))
+            if method is None:
+                raise TypeError(f"not a formula: {node!r}")
+            result = method(self, node)
+            memo[node] = result
+        return result
+
+    def _const(self, node: Const) -> Flat:
+        return [self.start, self.end] if node.value else []
+
+    def _boolvar(self, node: BoolVar) -> Flat:
+        los, his, vals = self.trace.segments(node.name)
+        return _collect(los, his, [v is not None and bool(v) for v in vals])
+
+    def _compare(self, node: Compare) -> Flat:
+        if node.other is not None:
+            return self._compare_vars(node)
+        los, his, vals = self.trace.segments(node.var)
+        op, c = node.op, node.value
+        if op == "==":
+            truth = [v == c for v in vals]  # None == c is false
+        elif op == "!=":
+            truth = [v is not None and v != c for v in vals]
+        else:
+            f = _ORDER[op]
+            truth = [v is not None and f(v, c) for v in vals]
+        return _collect(los, his, truth)
+
+    def _compare_vars(self, node: Compare) -> Flat:
+        los1, his1, vals1 = self.trace.segments(node.var)
+        los2, his2, vals2 = self.trace.segments(node.other)  # type: ignore[arg-type]
+        f = _ALL[node.op]
+        out: Flat = []
+        i = j = 0
+        n1, n2 = len(los1), len(los2)
+        while i < n1 and j < n2:
+            lo = los1[i] if los1[i] > los2[j] else los2[j]
+            h1, h2 = his1[i], his2[j]
+            hi = h1 if h1 < h2 else h2
+            v1, v2 = vals1[i], vals2[j]
+            if lo < hi and v1 is not None and v2 is not None and f(v1, v2):
+                if out and out[-1] == lo:
+                    out[-1] = hi
+                else:
+                    out.append(lo)
+                    out.append(hi)
+            if h1 <= h2:
+                i += 1
+            if h2 <= h1:
+                j += 1
+        return out
+
+    def _inset(self, node: InSet) -> Flat:
+        los, his, vals = self.trace.segments(node.var)
+        values = node.values
+        return _collect(los, his, [v in values for v in vals])
+
+    def _not(self, node: Not) -> Flat:
+        return complement_flat(self._sat(node.arg), self.start, self.end)
+
+    def _and(self, node: And) -> Flat:
+        args = node.args
+        acc = self._sat(args[0])
+        for arg in args[1:]:
+            if not acc:
+                break
+            acc = intersection_flat(acc, self._sat(arg))
+        return acc
+
+    def _or(self, node: Or) -> Flat:
+        full = [self.start, self.end]
+        acc = self._sat(node.args[0])
+        for arg in node.args[1:]:
+            if acc == full:
+                break
+            acc = union_flat(acc, self._sat(arg))
+        return acc
+
+    def _implies(self, node: Implies) -> Flat:
+        lhs = self._sat(node.lhs)
+        if not lhs:
+            return [self.start, self.end]
+        return union_flat(complement_flat(lhs, self.start, self.end), self._sat(node.rhs))
+
+    def _eventually(self, node: Eventually) -> Flat:
+        s, e = self.start, self.end
+        result = eventually_flat(self._sat(node.arg), node.lo, node.hi, s)
+        if node.hi < math.inf:
+            # Windows reaching the end of the trace (t + hi >= end) are not judged.
+            cut = e - node.hi
+            if cut < e:
+                result = union_flat(result, [cut if cut > s else s, e])
+        return result
+
+    def _always(self, node: Always) -> Flat:
+        return always_flat(self._sat(node.arg), node.lo, node.hi, self.start, self.end)
+
+    def _until(self, node: Until) -> Flat:
+        s, e = self.start, self.end
+        lo, hi = node.lo, node.hi
+        phi = self._sat(node.lhs)
+        psi = self._sat(node.rhs)
+        if lo == 0.0:
+            result = until0_flat(phi, psi, hi)
+        else:
+            # p U[a,b] q  =  G[0,a] p  and  (p U[0,b-a] q) at t+a      (a > 0)
+            later = until0_flat(phi, psi, hi - lo)
+            result = intersection_flat(
+                always_flat(phi, 0.0, lo, s, e), eventually_flat(later, lo, lo, s)
+            )
+        if node.weak:
+            result = union_flat(result, always_flat(phi, 0.0, hi, s, e))
+        elif hi < math.inf:
+            # Deadline after the end of the trace: not violated while p has held
+            # throughout [t, end).
+            cut = e - hi
+            if cut < e and phi and phi[-1] == e:
+                tail = phi[-2] if phi[-2] > cut else cut
+                if tail < s:
+                    tail = s
+                result = union_flat(result, [tail, e])
+        return result
+
+    _DISPATCH = {
+        Const: _const,
+        BoolVar: _boolvar,
+        Compare: _compare,
+        InSet: _inset,
+        Not: _not,
+        And: _and,
+        Or: _or,
+        Implies: _implies,
+        Eventually: _eventually,
+        Always: _always,
+        Until: _until,
+    }
+
+
+def satisfaction(formula: Formula, trace: Trace) -> IntervalSet:
+    """The set of instants of ``[trace.start, trace.end)`` at which ``formula`` holds."""
+    return TraceEvaluator(trace).satisfaction(formula)
+
+
+def evaluate(formula: Formula, trace: Trace) -> Verdict:
+    """The :class:`Verdict` of ``formula`` on ``trace`` (see :class:`Verdict`)."""
+    return TraceEvaluator(trace).evaluate(formula)

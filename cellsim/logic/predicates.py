@@ -1,0 +1,169 @@
+"""Compilation of propositional formulas (risk-model guards) to fast Python callables.
+
+A guard is evaluated every control step (50 Hz) on the current valuation of the
+variables, for tens of guards, so the AST is compiled once into a tree of nested
+closures: a call does no dispatch on node types, only the comparisons themselves.
+
+    >>> from cellsim.logic.syntax import EnumDomain, BoolDomain, parse
+    >>> voc = {"safmod": EnumDomain(("normal", "stopped")), "lgtBar": BoolDomain()}
+    >>> guard = compile_predicate(parse("safmod == normal and not lgtBar", voc), voc)
+    >>> guard({"safmod": "normal", "lgtBar": False})
+    True
+
+Valuations map variable names to values: enumeration values as ``str``, booleans as
+``bool``, numbers as ``float``.  A variable missing from the valuation raises
+``KeyError(name)`` when it is read; ``and``/``or``/``->`` short-circuit left to right,
+so a variable that is not needed for the verdict may not be read.  The returned
+function carries ``.variables`` (all variables it may read, to validate a valuation
+once up-front) and ``.formula``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+
+from .syntax import (
+    And,
+    BoolVar,
+    Compare,
+    Const,
+    Formula,
+    FormulaError,
+    Implies,
+    InSet,
+    Not,
+    Or,
+    Vocabulary,
+    check,
+    is_temporal,
+    variables_of,
+)
+
+__all__ = ["compile_predicate", "Predicate"]
+
+Valuation = Mapping[str, object]
+Predicate = Callable[[Valuation], bool]
+
+
+def compile_predicate(formula: Formula, vocabulary: Vocabulary) -> Predicate:
+    """Compile a propositional formula into ``valuation -> bool``.
+
+    Raises :class:`FormulaError` if the formula is temporal or does not type-check
+    against ``vocabulary``.
+    """
+    if is_temporal(formula):
+        raise FormulaError("temporal operators cannot be evaluated on a single valuation")
+    check(formula, vocabulary, allow_temporal=False)
+    fn = _compile(formula)  # always a fresh function object: safe to annotate
+    fn.variables = variables_of(formula)  # type: ignore[attr-defined]
+    fn.formula = formula  # type: ignore[attr-defined]
+    return fn
+
+
+# Closure factories.  Each call creates a *fresh* function object, so the attributes
+# set by compile_predicate never leak between predicates.
+
+
+def _compare_const(name: str, op: str, c: object) -> Predicate:
+    if op == "==":
+        return lambda v: v[name] == c
+    if op == "!=":
+        return lambda v: v[name] != c
+    if op == "<":
+        return lambda v: v[name] < c
+    if op == "<=":
+        return lambda v: v[name] <= c
+    if op == ">":
+        return lambda v: v[name] > c
+    if op == ">=":
+        return lambda v: v[name] >= c
+    raise AssertionError(op)
+
+
+def _compare_vars(name: str, op: str, other: str) -> Predicate:
+    if op == "==":
+        return lambda v: v[name] == v[other]
+    if op == "!=":
+        return lambda v: v[name] != v[other]
+    if op == "<":
+        return lambda v: v[name] < v[other]
+    if op == "<=":
+        return lambda v: v[name] <= v[other]
+    if op == ">":
+        return lambda v: v[name] > v[other]
+    if op == ">=":
+        return lambda v: v[name] >= v[other]
+    raise AssertionError(op)
+
+
+def _compile(node: Formula) -> Predicate:
+    if isinstance(node, Compare):
+        if node.other is not None:
+            return _compare_vars(node.var, node.op, node.other)
+        return _compare_const(node.var, node.op, node.value)
+    if isinstance(node, InSet):
+        name, values = node.var, frozenset(node.values)
+        if len(values) == 1:
+            (c,) = values
+            return lambda v: v[name] == c
+        return lambda v: v[name] in values
+    if isinstance(node, BoolVar):
+        name = node.name
+        return lambda v: True if v[name] else False
+    if isinstance(node, Const):
+        if node.value:
+            return lambda v: True
+        return lambda v: False
+    if isinstance(node, Not):
+        arg = node.arg
+        # Peephole: negated leaves become a single comparison.
+        if isinstance(arg, InSet) and len(arg.values) > 1:
+            name, values = arg.var, frozenset(arg.values)
+            return lambda v: v[name] not in values
+        if isinstance(arg, BoolVar):
+            name = arg.name
+            return lambda v: False if v[name] else True
+        f = _compile(arg)
+        return lambda v: not f(v)
+    if isinstance(node, And):
+        fs = tuple(_compile(a) for a in node.args)
+        if len(fs) == 2:
+            a, b = fs
+            return lambda v: a(v) and b(v)
+        if len(fs) == 3:
+            a, b, c = fs
+            return lambda v: a(v) and b(v) and c(v)
+        if len(fs) == 4:
+            a, b, c, d = fs
+            return lambda v: a(v) and b(v) and c(v) and d(v)
+
+        def conj(v: Valuation) -> bool:
+            for f in fs:
+                if not f(v):
+                    return False
+            return True
+
+        return conj
+    if isinstance(node, Or):
+        fs = tuple(_compile(a) for a in node.args)
+        if len(fs) == 2:
+            a, b = fs
+            return lambda v: a(v) or b(v)
+        if len(fs) == 3:
+            a, b, c = fs
+            return lambda v: a(v) or b(v) or c(v)
+        if len(fs) == 4:
+            a, b, c, d = fs
+            return lambda v: a(v) or b(v) or c(v) or d(v)
+
+        def disj(v: Valuation) -> bool:
+            for f in fs:
+                if f(v):
+                    return True
+            return False
+
+        return disj
+    if isinstance(node, Implies):
+        a, b = _compile(node.lhs), _compile(node.rhs)
+        return lambda v: (not a(v)) or b(v)
+    raise FormulaError(f"not a propositional formula: {node!r}")
