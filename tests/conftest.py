@@ -1,0 +1,54 @@
+"""Shared helpers: load the welding cell, run it, read its black box."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cellsim.scenario import Waypoint, load_scenario
+from cellsim.services.blackbox import BlackBox
+from cellsim.simulation import BLACKBOX, simulate
+
+ROOT = Path(__file__).resolve().parents[1]
+WELDING_CELL = ROOT / "scenarios" / "welding_cell.yaml"
+
+
+def welding_cell(*overrides: str):
+    return load_scenario(WELDING_CELL, list(overrides))
+
+
+def place_operator(sf, start, waypoints: dict[str, Waypoint] | None = None, start_delay: float = 0.0):
+    """Give the operator a scripted walk (no speed jitter, so timings are exact)."""
+    op = sf.scenario.entities["operator"]
+    op.start = tuple(start)
+    op.waypoints = waypoints if waypoints is not None else {"stay": Waypoint(tuple(start), 1000.0)}
+    op.start_delay = start_delay
+    op.speed_jitter = 0.0
+    return sf
+
+
+def run(sf, out: Path, duration: float = 30.0, seed: int = 1, **kwargs) -> BlackBox:
+    simulate(sf, out, seed=seed, duration=duration, **kwargs)
+    return BlackBox(out / BLACKBOX)
+
+
+def first_time(series, predicate, after: float = -1.0):
+    """The first message time at or after ``after`` whose value satisfies ``predicate``."""
+    for t, v in zip(series.times, series.values):
+        if t >= after and predicate(v):
+            return float(t)
+    return None
+
+
+def values_between(series, t0: float, t1: float) -> list:
+    """Values holding at any time in [t0, t1]."""
+    out = [series.value_at(t0)]
+    out += [v for t, v in zip(series.times, series.values) if t0 < t <= t1]
+    return out
+
+
+@pytest.fixture
+def tmp_run(tmp_path):
+    return tmp_path / "run"

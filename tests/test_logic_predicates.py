@@ -1,0 +1,193 @@
+"""Tests for cellsim.logic.predicates: compiled guards vs a direct recursive evaluator."""
+
+from __future__ import annotations
+
+import operator
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from cellsim.logic.predicates import compile_predicate
+from cellsim.logic.syntax import (
+    Always,
+    And,
+    BoolDomain,
+    BoolVar,
+    Compare,
+    Const,
+    EnumDomain,
+    Eventually,
+    FormulaError,
+    Implies,
+    InSet,
+    Not,
+    NumberDomain,
+    Or,
+    Until,
+    parse,
+)
+
+HAZARD = EnumDomain(("inact", "act", "mit", "mis"))
+VOC = {
+    "safmod": EnumDomain(("normal", "hguid", "ssmon", "pflim", "srmst", "stopped")),
+    "rloc": EnumDomain(("sharedTbl", "welder", "home")),
+    "HS": HAZARD,
+    "HRW": HAZARD,
+    "lgtBar": BoolDomain(),
+    "otab": BoolDomain(),
+    "speed": NumberDomain("m/s"),
+    "limit": NumberDomain("m/s"),
+}
+OPS = {
+    "==": operator.eq,
+    "!=": operator.ne,
+    "<": operator.lt,
+    "<=": operator.le,
+    ">": operator.gt,
+    ">=": operator.ge,
+}
+
+
+def reference(f, v) -> bool:
+    """Direct recursive evaluation of a propositional AST."""
+    if isinstance(f, Const):
+        return f.value
+    if isinstance(f, BoolVar):
+        return bool(v[f.name])
+    if isinstance(f, Compare):
+        rhs = v[f.other] if f.other is not None else f.value
+        return OPS[f.op](v[f.var], rhs)
+    if isinstance(f, InSet):
+        return v[f.var] in f.values
+    if isinstance(f, Not):
+        return not reference(f.arg, v)
+    if isinstance(f, And):
+        return all([reference(a, v) for a in f.args])
+    if isinstance(f, Or):
+        return any([reference(a, v) for a in f.args])
+    if isinstance(f, Implies):
+        return (not reference(f.lhs, v)) or reference(f.rhs, v)
+    raise AssertionError(f)
+
+
+# --------------------------------------------------------------------------- strategies
+
+NUMS = [-1.0, 0.0, 0.5, 1.0, 2.0]
+
+
+def _values(var):
+    domain = VOC[var]
+    if isinstance(domain, EnumDomain):
+        return st.sampled_from(domain.values)
+    if isinstance(domain, BoolDomain):
+        return st.booleans()
+    return st.sampled_from(NUMS)
+
+
+@st.composite
+def atoms(draw):
+    var = draw(st.sampled_from(sorted(VOC)))
+    domain = VOC[var]
+    kind = draw(st.sampled_from(["cmp", "var", "set", "bare"]))
+    if isinstance(domain, BoolDomain) and kind == "bare":
+        return BoolVar(var)
+    ops = ["==", "!=", "<", "<=", ">", ">="] if isinstance(domain, NumberDomain) else ["==", "!="]
+    op = draw(st.sampled_from(ops))
+    if kind == "var":
+        others = [w for w in VOC if VOC[w] == domain]
+        return Compare(var, op, None, draw(st.sampled_from(others)))
+    if kind == "set":
+        return InSet(var, frozenset(draw(st.lists(_values(var), min_size=1, max_size=3))))
+    return Compare(var, op, draw(_values(var)))
+
+
+leaves = st.one_of(atoms(), st.builds(Const, st.booleans()))
+formulas = st.recursive(
+    leaves,
+    lambda children: st.one_of(
+        children.map(Not),
+        st.lists(children, min_size=2, max_size=6).map(tuple).map(And),
+        st.lists(children, min_size=2, max_size=6).map(tuple).map(Or),
+        st.builds(Implies, children, children),
+    ),
+    max_leaves=16,
+)
+valuations = st.fixed_dictionaries({var: _values(var) for var in VOC})
+
+
+@settings(max_examples=500, deadline=None)
+@given(formulas, st.lists(valuations, min_size=1, max_size=5))
+def test_compiled_predicate_agrees_with_reference(f, vals):
+    pred = compile_predicate(f, VOC)
+    for v in vals:
+        result = pred(v)
+        assert type(result) is bool
+        assert result == reference(f, v)
+
+
+# --------------------------------------------------------------------------- examples
+
+
+def test_guard_from_the_risk_model():
+    text = "safmod in {normal, hguid, ssmon, pflim} and lgtBar and rloc == sharedTbl and HRW == inact"
+    guard = compile_predicate(parse(text, VOC, allow_temporal=False), VOC)
+    v = {"safmod": "hguid", "lgtBar": True, "rloc": "sharedTbl", "HRW": "inact"}
+    assert guard(v) is True
+    assert guard({**v, "safmod": "stopped"}) is False
+    assert guard({**v, "lgtBar": False}) is False
+    assert guard.variables == {"safmod", "lgtBar", "rloc", "HRW"}
+    assert guard.formula == parse(text, VOC)
+
+
+def test_numeric_and_variable_comparisons():
+    guard = compile_predicate(parse("speed <= limit and speed > -0.5", VOC), VOC)
+    assert guard({"speed": 0.2, "limit": 0.25})
+    assert not guard({"speed": 0.3, "limit": 0.25})
+    assert not guard({"speed": -1.0, "limit": 0.25})
+
+
+def test_missing_variable_raises_key_error_naming_it():
+    guard = compile_predicate(parse("lgtBar and HS == act", VOC), VOC)
+    with pytest.raises(KeyError) as info:
+        guard({"lgtBar": True})
+    assert info.value.args == ("HS",)
+
+
+@pytest.mark.parametrize(
+    "formula",
+    [
+        Always(BoolVar("lgtBar")),
+        Eventually(BoolVar("lgtBar"), 0.0, 1.0),
+        And((BoolVar("otab"), Until(BoolVar("otab"), BoolVar("lgtBar")))),
+        Not(Until(BoolVar("otab"), BoolVar("lgtBar"), weak=True)),
+    ],
+)
+def test_temporal_formulas_are_rejected(formula):
+    with pytest.raises(FormulaError, match="temporal"):
+        compile_predicate(formula, VOC)
+
+
+def test_ill_typed_asts_are_rejected():
+    with pytest.raises(FormulaError, match="not a value of safmod"):
+        compile_predicate(Compare("safmod", "==", "pflm"), VOC)
+    with pytest.raises(FormulaError, match="unknown variable"):
+        compile_predicate(BoolVar("lgtbar"), VOC)
+
+
+def test_each_compiled_predicate_is_a_distinct_function():
+    f1 = compile_predicate(Const(True), VOC)
+    f2 = compile_predicate(Const(True), VOC)
+    assert f1 is not f2 and f1({}) is True
+    assert compile_predicate(Const(False), VOC)({}) is False
+
+
+def test_speed():
+    """A typical guard must cost a few microseconds at most (called 50 Hz x tens)."""
+    import timeit
+
+    text = "safmod in {normal, hguid, ssmon, pflim} and lgtBar and rloc == sharedTbl and HRW == inact"
+    guard = compile_predicate(parse(text, VOC), VOC)
+    v = {"safmod": "hguid", "lgtBar": True, "rloc": "sharedTbl", "HRW": "inact"}
+    per_call = min(timeit.repeat(lambda: guard(v), number=2000, repeat=5)) / 2000
+    assert per_call < 20e-6

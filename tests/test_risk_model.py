@@ -1,0 +1,177 @@
+"""The welding cell's risk model, executed by the generic engine on hand-made inputs."""
+
+from __future__ import annotations
+
+import pytest
+
+from cellsim.behaviours.risk_model import load_risk_model
+from cellsim.behaviours.safety_controller import SafetyController
+from cellsim.channels import BOOL, enum_type
+from cellsim.config.typed_yaml import ConfigError
+from cellsim.vocabulary import (
+    Notification,
+    Range,
+    RobotActivity,
+    RobotLocation,
+    SafetyMode,
+    WelderActivity,
+)
+
+from conftest import ROOT
+
+RISK_MODEL = ROOT / "scenarios" / "welding_cell_risk_model.yaml"
+TYPES = {
+    "safmod": enum_type(SafetyMode),
+    "rloc": enum_type(RobotLocation),
+    "wact": enum_type(WelderActivity),
+    "ract": enum_type(RobotActivity),
+    "rngDet": enum_type(Range),
+    "lgtBar": BOOL,
+    "notif": enum_type(Notification),
+    "notif_leaveWrkb": BOOL,
+}
+COMMANDS = {k: TYPES[k] for k in ("safmod", "ract", "wact", "notif", "notif_leaveWrkb")}
+# the cell working normally, nobody around
+QUIET = dict(safmod="normal", rloc="inCell", wact="idle", ract="exchWrkp", rngDet="far", lgtBar=False, notif="ok", notif_leaveWrkb=False)
+
+
+class Harness:
+    """Steps the safety controller alone: set inputs, apply one periodic update."""
+
+    def __init__(self, period=0.02):
+        self.system = SafetyController("safety_controller", period, load_risk_model(RISK_MODEL), TYPES, COMMANDS)
+        self.context = self.system.CreateDefaultContext()
+        self.t = 0.0
+        self.inputs = dict(QUIET)
+
+    def step(self, **changes):
+        self.inputs.update(changes)
+        for name, value in self.inputs.items():
+            self.system.GetInputPort(name).FixValue(self.context, TYPES[name].encode(value))
+        self.context.SetTime(self.t)
+        state = self.system.EvalUniquePeriodicDiscreteUpdate(self.context)
+        self.context.SetDiscreteState(state)
+        self.t += self.system.period
+        return self
+
+    def phase(self, hazard):
+        return self.system.GetOutputPort(hazard).Eval(self.context)[0]
+
+    def phases(self):
+        from cellsim.vocabulary import HazardPhase
+
+        return {h: HazardPhase.from_code(self.phase(h)).value for h in ("HRW", "HS", "HC")}
+
+    def command(self, name):
+        value = self.system.GetOutputPort(name).Eval(self.context)
+        return COMMANDS[name].decode(value) if value[0] != -1 else None
+
+
+def test_quiet_cell_raises_nothing():
+    h = Harness()
+    for _ in range(10):
+        h.step()
+    assert h.phases() == {"HRW": "inact", "HS": "inact", "HC": "inact"}
+    assert h.command("safmod") == "normal" and h.command("ract") is None
+
+
+def test_HRW_detect_mitigate_resume():
+    h = Harness().step()
+    h.step(rloc="sharedTbl")  # robot at the table, barrier intact: nothing
+    assert h.phases()["HRW"] == "inact"
+    h.step(lgtBar=True)  # operator's arm over the table
+    assert h.phases()["HRW"] == "act"
+    h.step()
+    assert h.phases()["HRW"] == "mit"
+    assert h.command("safmod") == "pflim" and h.command("notif_leaveWrkb") is True
+    h.step(safmod="pflim")  # still on the table: stays mitigated
+    assert h.phases()["HRW"] == "mit"
+    h.step(lgtBar=False)
+    assert h.phases()["HRW"] == "res"
+    assert h.command("safmod") == "normal" and h.command("notif_leaveWrkb") is False
+    h.step()
+    assert h.phases()["HRW"] == "inact"
+
+
+def test_HRW_needs_the_robot_at_the_table_and_the_cell_working():
+    h = Harness().step(lgtBar=True, rloc="inCell")
+    assert h.phases()["HRW"] == "inact"
+    h.step(rloc="sharedTbl", ract="idle", wact="idle")
+    assert h.phases()["HRW"] == "inact"
+    h.step(ract="exchWrkp")
+    assert h.phases()["HRW"] == "act"
+
+
+def test_HS_detect_mitigate_resume():
+    h = Harness().step(rngDet="near")
+    assert h.phases()["HS"] == "act"
+    h.step()
+    assert h.phases()["HS"] == "mit"
+    assert h.command("safmod") == "ssmon" and h.command("notif") == "leaveArea"
+    h.step(safmod="ssmon", rngDet="close")  # closer, but the robot does not weld: still HS only
+    assert h.phases() == {"HRW": "inact", "HS": "mit", "HC": "inact"}
+    h.step(rngDet="near")
+    assert h.phases()["HS"] == "mit"
+    h.step(rngDet="far")
+    assert h.phases()["HS"] == "res"
+    assert h.command("safmod") == "normal" and h.command("notif") == "ok"
+    h.step()
+    assert h.phases()["HS"] == "inact"
+
+
+def test_HC_stop_then_start_over_by_exchanging_the_workpiece():
+    h = Harness().step(ract="welding", wact="welding", rngDet="close")
+    assert h.phases()["HC"] == "act"
+    h.step()
+    assert h.phases()["HC"] == "mit"
+    assert (h.command("safmod"), h.command("ract"), h.command("wact"), h.command("notif")) == ("stopped", "off", "off", "leaveArea")
+    h.step(safmod="stopped", ract="off", wact="off")
+    assert h.phases()["HC"] == "mit"
+    h.step(rngDet="far")
+    assert h.phases()["HC"] == "res"
+    assert h.command("ract") == "exchWrkp" and h.command("safmod") == "normal" and h.command("wact") is None
+    h.step(safmod="normal")  # the robot has not restarted yet
+    assert h.phases()["HC"] == "res"
+    h.step(ract="exchWrkp")
+    assert h.phases()["HC"] == "inact"
+    assert h.command("ract") is None
+
+
+def test_most_restrictive_demand_wins():
+    h = Harness().step(rngDet="near", ract="welding", wact="welding")  # HS
+    h.step()
+    h.step(safmod="ssmon", rngDet="close")  # HC while HS is mitigated
+    h.step()
+    assert h.phases()["HS"] == "mit" and h.phases()["HC"] == "mit"
+    assert h.command("safmod") == "stopped"
+
+
+def test_HC_mishap_when_the_welder_ignores_the_stop():
+    h = Harness().step(ract="welding", wact="welding", rngDet="close")
+    h.step()  # mit: wact off demanded, but the welder keeps welding
+    steps = 0
+    while h.phases()["HC"] != "mis" and steps < 100:
+        h.step(safmod="stopped")
+        steps += 1
+    assert h.phases()["HC"] == "mis"
+    assert 0.5 <= steps * h.system.period <= 0.5 + 2 * h.system.period
+
+
+def test_single_operator_assumption_is_encoded():
+    """While HRW is handled, an operator near the welder is not detected (the misuse gap)."""
+    h = Harness().step(rloc="sharedTbl", lgtBar=True)
+    h.step()
+    assert h.phases()["HRW"] == "mit"
+    h.step(safmod="pflim", rngDet="near")
+    h.step()
+    assert h.phases()["HS"] == "inact"
+
+
+def test_risk_model_errors_name_file_line_and_key(tmp_path):
+    text = RISK_MODEL.read_text().replace("when: not lgtBar", "when: not lgtbar")
+    bad = tmp_path / "rm.yaml"
+    bad.write_text(text)
+    with pytest.raises(ConfigError) as e:
+        load_risk_model(bad)
+    line = next(i for i, l in enumerate(text.splitlines(), 1) if "not lgtbar" in l)
+    assert e.value.line == line and "lgtbar" in e.value.problem and "hazards.HRW.transitions" in e.value.key

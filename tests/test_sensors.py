@@ -1,0 +1,114 @@
+"""Each sensor's truth table, measured from geometry (SceneGraph queries)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+
+from cellsim.vocabulary import Range
+from diagrams.cell import build_cell
+
+from conftest import welding_cell
+
+
+@pytest.fixture(scope="module")
+def cell():
+    sf = welding_cell()
+    built = build_cell(sf, seed=0, duration=1.0, record=False)
+    sim = Simulator(built.diagram)
+    built.set_initial_state(sim.get_mutable_context())
+    return built, sim.get_mutable_context()
+
+
+def put_operator(cell, context, x, y, yaw=0.0, reach_fraction=0.0, reach=(0.0, 0.0, 0.0)):
+    op = cell.modules["operator"]
+    own = op.GetMyMutableContextFromRoot(context)
+    own.get_mutable_discrete_state(op.group("pose")).SetFromVector(np.array([x, y, yaw, reach_fraction, *reach]))
+
+
+def barrier_broken(cell, context) -> bool:
+    lb = cell.modules["light_barrier"]
+    return lb.measure(lb.GetMyContextFromRoot(context))
+
+
+def range_distance(cell, context) -> float:
+    rd = cell.modules["range_detector"]
+    return rd.measure(rd.GetMyContextFromRoot(context))
+
+
+TABLE = (-1.05, 0.0, 1.0)  # over the shared table's centre
+
+
+@pytest.mark.parametrize(
+    "pose, broken",
+    [
+        (dict(x=-1.7, y=0.0), False),  # standing at the bench, arms down
+        (dict(x=-1.7, y=0.0, reach_fraction=1.0, reach=TABLE), True),  # reaching across the table
+        (dict(x=-1.7, y=0.0, reach_fraction=0.1, reach=TABLE), False),  # arm barely lifted
+        (dict(x=-1.37, y=0.6), True),  # body in the curtain's plane, at its edge
+        (dict(x=-1.37, y=0.9), False),  # beside the curtain
+        (dict(x=-3.0, y=-2.0), False),  # far away
+        # reaching the table from inside the cell, behind the curtain: not seen
+        (dict(x=-0.45, y=0.6, yaw=np.pi, reach_fraction=1.0, reach=(-0.9, 0.2, 1.0)), False),
+    ],
+)
+def test_light_barrier_truth_table(cell, pose, broken):
+    built, context = cell
+    put_operator(built, context, **pose)
+    assert barrier_broken(built, context) is broken
+
+
+def test_range_detector_measures_distance_to_the_body(cell):
+    built, context = cell
+    sensor = np.array(built.modules["range_detector"].cfg.position[:2])
+    body_radius = built.modules["operator"].cfg.body_radius
+    for surface_distance in (0.3, 0.9, 1.5, 2.4):
+        x, y = sensor - [surface_distance + body_radius, 0.0]
+        put_operator(built, context, x, y)
+        assert range_distance(built, context) == pytest.approx(surface_distance, abs=1e-6)
+
+
+@pytest.mark.parametrize(
+    "distance, reading",
+    [
+        (0.2, Range.CLOSE),
+        (1.0 - 1e-4, Range.CLOSE),
+        (1.0 + 1e-4, Range.NEAR),  # close below 1.0 m
+        (1.5, Range.NEAR),
+        (2.0 - 1e-4, Range.NEAR),
+        (2.0 + 1e-4, Range.FAR),  # near below 2.0 m
+        (2.6, Range.FAR),
+    ],
+)
+def test_range_detector_truth_table_from_geometry(cell, distance, reading):
+    built, context = cell
+    rd = built.modules["range_detector"]
+    x, y = np.array(rd.cfg.position[:2]) - [distance + 0.2, 0.0]
+    put_operator(built, context, x, y)
+    assert rd.classify(range_distance(built, context)) is reading
+
+
+def test_range_thresholds_are_exclusive_upper_bounds(cell):
+    rd = cell[0].modules["range_detector"]
+    assert rd.classify(1.0) is Range.NEAR
+    assert rd.classify(2.0) is Range.FAR
+
+
+def test_range_detector_sees_the_nearest_of_two_operators():
+    import copy
+
+    sf = welding_cell()
+    second = copy.deepcopy(sf.scenario.entities["operator"])
+    sf.scenario.entities["operator_2"] = second
+    built = build_cell(sf, seed=0, duration=1.0, record=False)
+    context = Simulator(built.diagram).get_mutable_context()
+    built.set_initial_state(context)
+    sensor = np.array(built.modules["range_detector"].cfg.position[:2])
+    for name, gap in (("operator", 1.8), ("operator_2", 0.6)):
+        op = built.modules[name]
+        x, y = sensor - [gap + 0.2, 0.0]
+        op.GetMyMutableContextFromRoot(context).get_mutable_discrete_state(op.group("pose")).SetFromVector(
+            np.array([x, y, 0, 0, 0, 0, 0])
+        )
+    assert range_distance(built, context) == pytest.approx(0.6, abs=1e-6)
