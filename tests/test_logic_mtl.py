@@ -263,6 +263,17 @@ def test_shared_evaluator_gives_the_same_results(fs, trace_cells):
         assert shared.evaluate(f) == evaluate(f, trace)
 
 
+@settings(max_examples=100, deadline=None)
+@given(formulas, formulas, grid_intervals(), grid_traces())
+def test_documented_identities(f, g, interval, trace_cells):
+    trace = trace_cells[0]
+    lo, hi = interval
+    sat = lambda x: satisfaction(x, trace)  # noqa: E731
+    assert sat(Eventually(f, lo, hi)) == sat(Until(Const(True), f, lo, hi))
+    assert sat(Always(f, lo)) == sat(Not(Eventually(Not(f), lo)))
+    assert sat(Until(f, g, lo, hi, weak=True)) == sat(Or((Until(f, g, lo, hi), Always(f, 0, hi))))
+
+
 # --------------------------------------------------------------------------- hand-written cases
 
 HAZ = EnumDomain(("inact", "act", "mit", "mis"))

@@ -80,15 +80,14 @@ class EntitySystem(CellSystem):
         self.physical_command_port = self.DeclareStateOutputPort("physical_command", self._command_group)
 
     # -- scripts --------------------------------------------------------------
-    def set_twin_mode(self, context, mode: TwinMode | str) -> None:
-        """Switch this entity's twin mode in ``context`` (this system's or the root's)."""
+    def set_twin_mode(self, root_context, mode: TwinMode | str) -> None:
+        """Switch this entity's twin mode in a diagram's (root) context, e.g. between AdvanceTo calls."""
         mode = TwinMode(mode)
-        own = self.GetMyMutableContextFromRoot(context) if context.get_system_id() != self.get_system_id() else context
+        own = self.GetMyMutableContextFromRoot(root_context)
         own.get_mutable_discrete_state(self._mode_group).SetAtIndex(0, float(mode.code))
 
-    def twin_mode(self, context) -> TwinMode:
-        own = self.GetMyContextFromRoot(context) if context.get_system_id() != self.get_system_id() else context
-        return _MODES[int(read_scalar(own, self._mode_group))]
+    def twin_mode(self, root_context) -> TwinMode:
+        return _MODES[int(read_scalar(self.GetMyContextFromRoot(root_context), self._mode_group))]
 
     # -- update helpers ---------------------------------------------------------
     def consult_physical(self, context, xd) -> PhysicalView:

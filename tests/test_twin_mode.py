@@ -1,0 +1,118 @@
+"""Twin modes: what drives an entity's outputs, recorded; fail-safe on stale or corrupt data."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bridges.physical import BlackBoxReplay
+from cellsim.channels import enum_type, vector_type
+from cellsim.scenario import TwinModeChange
+from cellsim.vocabulary import RobotActivity, SafetyMode, TwinMode
+
+from conftest import first_time, place_operator, run, welding_cell
+
+
+def robot_replay(recorded, robot, time_offset):
+    """The recorded robot as a physical twin: its joint positions, mode, activity, pose reached."""
+    fields = [("robot.joint_positions", i, vector_type(6, "rad")) for i in range(6)]
+    fields += [
+        ("robot.safety_mode", 0, enum_type(SafetyMode)),
+        ("robot.activity", 0, enum_type(RobotActivity)),
+        ("robot.reached_pose", 0, enum_type(robot.reached_poses)),
+    ]
+    return BlackBoxReplay(recorded, fields, period=0.02, time_offset=time_offset)
+
+
+
+
+def test_switch_model_to_shadow_mid_run_follows_the_physical_twin(tmp_path):
+    recorded = run(place_operator(welding_cell(), start=(-4.0, -3.0)), tmp_path / "physical", duration=10.0)
+
+    sf = place_operator(welding_cell(), start=(-4.0, -3.0))
+    sf.scenario.entities["robot"].twin.changes = [TwinModeChange(4.0, TwinMode.SHADOW)]
+    from diagrams.cell import build_cell
+
+    probe = build_cell(sf, seed=1, duration=10.0, record=False)
+    replay = robot_replay(recorded, probe.modules["robot"], time_offset=2.0)
+    bb = run(sf, tmp_path / "shadowed", duration=10.0, physical_sources={"robot": replay})
+
+    mode = bb.series("robot.twin_mode")
+    assert mode.values == ["model", "shadow"] and mode.times[1] == 4.0
+    assert bb.series("robot.physical_link").value_at(5.0) == "ok"
+    own, physical = bb.series("robot.joint_positions"), recorded.series("robot.joint_positions")
+    for t in (1.0, 3.0):  # model mode: the digital behaviour, identical to the recorded run
+        assert np.allclose(own.value_at(t), physical.value_at(t), atol=1e-6)
+    # shadow mode: the hologram follows the physical twin (replayed two seconds late), within
+    # a latency of at most 0.2 s (one update, 10 Hz samples, joint tracking) ...
+    def error(t, physical_time):
+        return np.max(np.abs(np.subtract(own.value_at(t), physical.value_at(physical_time))))
+
+    for t in np.arange(6.0, 10.0, 0.25):
+        assert min(error(t, t - 2.0 - latency) for latency in np.arange(0.0, 0.21, 0.02)) < 0.05
+    # ... and no longer what its own digital behaviour does
+    assert max(error(t, t) for t in np.arange(6.0, 10.0, 0.25)) > 1.0
+
+
+def test_shadow_without_a_physical_twin_fails_safe(tmp_path):
+    sf = place_operator(welding_cell(), start=(-4.0, -3.0))
+    sf.scenario.entities["light_barrier"].twin.changes = [TwinModeChange(2.0, TwinMode.SHADOW)]
+    sf.scenario.entities["range_detector"].twin.changes = [TwinModeChange(2.0, TwinMode.SHADOW)]
+    bb = run(sf, tmp_path / "run", duration=4.0)
+    assert bb.series("light_barrier.broken").value_at(1.9) is False
+    assert bb.series("light_barrier.broken").value_at(2.1) is True
+    assert bb.series("range_detector.range").value_at(2.1) == "close"
+    assert bb.series("light_barrier.physical_link").value_at(2.1) == "stale"
+
+
+def test_corrupt_samples_fail_safe():
+    from diagrams.cell import build_cell
+    from pydrake.systems.analysis import Simulator
+
+    sf = welding_cell()
+    sf.scenario.entities["range_detector"].twin.mode = TwinMode.SHADOW
+    built = build_cell(sf, seed=0, duration=1.0, record=False)
+    sim = Simulator(built.diagram)
+    context = sim.get_mutable_context()
+    built.set_initial_state(context)
+    rd = built.modules["range_detector"]
+    own = rd.GetMyMutableContextFromRoot(context)
+    readings = {}
+    for label, sample in {"ok": [0.0, 1.0, 0.0, 2.5], "bad enum": [0.0, 1.0, 7.0, 2.5], "nan": [0.0, 1.0, 0.0, np.nan]}.items():
+        rd.physical_sample_port.FixValue(own, np.array(sample))
+        state = rd.EvalUniquePeriodicDiscreteUpdate(own)
+        readings[label] = (state.get_vector(rd.group("range")).GetAtIndex(0), state.get_vector(rd.group("physical_link")).GetAtIndex(0))
+    assert readings["ok"] == (0.0, 1.0)  # far, link ok
+    assert readings["bad enum"] == (2.0, 3.0)  # close, link corrupt
+    assert readings["nan"] == (2.0, 3.0)
+
+
+def test_commands_go_out_only_in_twin_mode(tmp_path):
+    from diagrams.cell import build_cell
+    from pydrake.systems.analysis import Simulator
+
+    sf = welding_cell()
+    sf.scenario.entities["welder"].twin.changes = [TwinModeChange(1.0, TwinMode.TWIN), TwinModeChange(2.0, TwinMode.SHADOW)]
+    built = build_cell(sf, seed=0, duration=3.0, record=False)
+    sim = Simulator(built.diagram)
+    built.set_initial_state(sim.get_mutable_context())
+    welder = built.modules["welder"]
+    active = []
+    for t in (0.5, 1.5, 2.5):
+        sim.AdvanceTo(t)
+        active.append(welder.physical_command_port.Eval(welder.GetMyContextFromRoot(sim.get_context()))[0])
+    assert active == [0.0, 1.0, 0.0]
+
+
+def test_set_twin_mode_from_a_script():
+    from diagrams.cell import build_cell
+    from pydrake.systems.analysis import Simulator
+
+    built = build_cell(welding_cell(), seed=0, duration=2.0, record=False)
+    sim = Simulator(built.diagram)
+    built.set_initial_state(sim.get_mutable_context())
+    sim.AdvanceTo(0.5)
+    built.entity("light_barrier").set_twin_mode(sim.get_mutable_context(), "shadow")
+    sim.AdvanceTo(1.0)
+    lb = built.entity("light_barrier")
+    assert lb.twin_mode(sim.get_context()) is TwinMode.SHADOW
+    assert lb.GetOutputPort("broken").Eval(lb.GetMyContextFromRoot(sim.get_context()))[0] == 1.0  # no sample: fails safe
