@@ -375,7 +375,7 @@ class ScenarioFile:
             path = self.base_dir / path
         if not path.is_file():
             raise self.error(key, f"file not found: {relative} (looked for {path})")
-        return path
+        return path.resolve()
 
     def module_path(self, name: str) -> str:
         """The dotted key of a module's configuration (``entities.robot``)."""

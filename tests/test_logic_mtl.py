@@ -327,11 +327,12 @@ def test_until_with_positive_lower_bound_needs_phi_up_to_t_plus_a():
     # p on [0, 2), q on [2, 3): p U[1, 2] q holds on [0, 1) - not at t = 1, where
     # p would only hold on [1, 2) and the sole witness t' = 2 = t + a.
     voc = {"p": BoolDomain(), "q": BoolDomain()}
-    trace = Trace({"p": sig((0, True), (2, False)), "q": sig((0, False), (2, True), (3, False))}, 0, 10)
+    q = sig((0, False), (2, True), (3, False))
+    trace = Trace({"p": sig((0, True), (2, False)), "q": q}, 0, 10)
     assert satisfaction(parse("p U[1, 2] q", voc), trace) == IntervalSet(0, 10, [(0, 1)])
     assert satisfaction(parse("p U[0, 2] q", voc), trace) == IntervalSet(0, 10, [(0, 3)])
     # overlapping p [0, 2.5) and q [2, 3): t = 1.5 is excluded for the same reason
-    trace = Trace({"p": sig((0, True), (2.5, False)), "q": sig((0, False), (2, True), (3, False))}, 0, 10)
+    trace = Trace({"p": sig((0, True), (2.5, False)), "q": q}, 0, 10)
     assert satisfaction(parse("p U[1, 2] q", voc), trace) == IntervalSet(0, 10, [(0, 1.5)])
 
 
@@ -463,7 +464,8 @@ def test_interval_set_boolean_ops_match_cell_sets(xs, ys):
 
     a, b = make(xs), make(ys)
     ca, cb = cells_of(xs), cells_of(ys)
-    for got, want in [(a | b, ca | cb), (a & b, ca & cb), (~a, set(range(80)) - ca), (a - b, ca - cb)]:
+    everything = set(range(80))
+    for got, want in [(a | b, ca | cb), (a & b, ca & cb), (~a, everything - ca), (a - b, ca - cb)]:
         assert {k for k in range(80) if k * D in got} == want
         assert all(a_ < b_ for a_, b_ in got) and all(
             x[1] < y[0] for x, y in zip(got.intervals, got.intervals[1:])

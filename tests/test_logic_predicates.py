@@ -130,7 +130,9 @@ def test_compiled_predicate_agrees_with_reference(f, vals):
 
 
 def test_guard_from_the_risk_model():
-    text = "safmod in {normal, hguid, ssmon, pflim} and lgtBar and rloc == sharedTbl and HRW == inact"
+    text = (
+        "safmod in {normal, hguid, ssmon, pflim} and lgtBar and rloc == sharedTbl and HRW == inact"
+    )
     guard = compile_predicate(parse(text, VOC, allow_temporal=False), VOC)
     v = {"safmod": "hguid", "lgtBar": True, "rloc": "sharedTbl", "HRW": "inact"}
     assert guard(v) is True
@@ -186,7 +188,9 @@ def test_speed():
     """A typical guard must cost a few microseconds at most (called 50 Hz x tens)."""
     import timeit
 
-    text = "safmod in {normal, hguid, ssmon, pflim} and lgtBar and rloc == sharedTbl and HRW == inact"
+    text = (
+        "safmod in {normal, hguid, ssmon, pflim} and lgtBar and rloc == sharedTbl and HRW == inact"
+    )
     guard = compile_predicate(parse(text, VOC), VOC)
     v = {"safmod": "hguid", "lgtBar": True, "rloc": "sharedTbl", "HRW": "inact"}
     per_call = min(timeit.repeat(lambda: guard(v), number=2000, repeat=5)) / 2000

@@ -203,7 +203,9 @@ def test_welding_cell_conditions():
     )
     assert p("G(not HC == mis)") == Always(Not(Compare("HC", "==", "mis")))
     assert p("F(not otab)") == Eventually(Not(BoolVar("otab")))
-    guard = "safmod in {normal, hguid, ssmon, pflim} and lgtBar and rloc == sharedTbl and HRW == inact"
+    guard = (
+        "safmod in {normal, hguid, ssmon, pflim} and lgtBar and rloc == sharedTbl and HRW == inact"
+    )
     assert p(guard, allow_temporal=False).args[2] == Compare("rloc", "==", "sharedTbl")
 
 
@@ -472,7 +474,13 @@ def _combine(children):
         st.builds(Implies, children, children),
         st.builds(lambda f, iv: Always(f, *iv), children, intervals()),
         st.builds(lambda f, iv: Eventually(f, *iv), children, intervals()),
-        st.builds(lambda l, r, iv, w: Until(l, r, *iv, weak=w), children, children, intervals(), st.booleans()),
+        st.builds(
+            lambda l, r, iv, w: Until(l, r, *iv, weak=w),
+            children,
+            children,
+            intervals(),
+            st.booleans(),
+        ),
     )
 
 

@@ -486,7 +486,9 @@ class _Parser:
         lo = self.parse_bound(upper=False)
         tok = self.next()
         if not tok.is_op(","):
-            raise self.error(tok, f"expected ',' between the interval bounds, found {tok.describe()}")
+            raise self.error(
+                tok, f"expected ',' between the interval bounds, found {tok.describe()}"
+            )
         hi = self.parse_bound(upper=True)
         tok = self.next()
         if not tok.is_op("]"):
@@ -494,7 +496,8 @@ class _Parser:
         if lo > hi:
             raise self.error(
                 open_tok,
-                f"empty interval: the lower bound {_fmt_num(lo)} s exceeds the upper bound {_fmt_num(hi)} s",
+                f"empty interval: the lower bound {_fmt_num(lo)} s exceeds "
+                f"the upper bound {_fmt_num(hi)} s",
             )
         return lo, hi
 
@@ -646,7 +649,9 @@ class _Parser:
             if tok.is_op(close):
                 return InSet(name, frozenset(values))
             if not tok.is_op(","):
-                raise self.error(tok, f"expected ',' or '{close}' in the set, found {tok.describe()}")
+                raise self.error(
+                    tok, f"expected ',' or '{close}' in the set, found {tok.describe()}"
+                )
             values.append(self.parse_value(name, domain))
 
     def expand_macro(self, name: str, tok: _Token) -> Formula:
@@ -748,7 +753,9 @@ def check(formula: Formula, vocabulary: Vocabulary, *, allow_temporal: bool = Tr
                 )
             if node.other is not None:
                 if not _same_domain(domain, domain_of(node.other)):
-                    raise FormulaError(f"cannot compare {node.var} with {node.other}: the domains differ")
+                    raise FormulaError(
+                        f"cannot compare {node.var} with {node.other}: the domains differ"
+                    )
             else:
                 value_ok(node.var, domain, node.value)
         elif isinstance(node, InSet):

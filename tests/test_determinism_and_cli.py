@@ -1,0 +1,125 @@
+"""Determinism, the scenario round trip, the black box's contract and the CLI's handling of bad input."""
+
+from __future__ import annotations
+
+import sqlite3
+
+import pytest
+
+from cellsim.cli import main
+from cellsim.config.typed_yaml import to_data
+from cellsim.scenario import export_scenario, load_scenario
+from cellsim.services.blackbox import BlackBox
+
+from conftest import WELDING_CELL, run, welding_cell
+
+
+def test_same_scenario_and_seed_give_identical_messages(tmp_path):
+    a = run(welding_cell(), tmp_path / "a", duration=12.0, seed=3).rows()
+    b = run(welding_cell(), tmp_path / "b", duration=12.0, seed=3).rows()
+    c = run(welding_cell(), tmp_path / "c", duration=12.0, seed=4).rows()
+    assert a == b and len(a) > 100
+    assert a != c  # the seed draws the operator's walking speeds
+
+
+def test_black_box_schema_and_metadata(tmp_path):
+    bb = run(welding_cell(), tmp_path / "r", duration=2.0, seed=5)
+    columns = [r[1] for r in sqlite3.connect(bb.path).execute("PRAGMA table_info(messages)")]
+    assert columns == ["t", "channel", "source", "payload"]
+    meta = bb.metadata()
+    assert meta["seed"] == 5 and meta["status"] == "completed" and "drake" in meta["versions"]
+    assert meta["scenario"]["entities"]["robot"]["kind"] == "robot"
+    info = bb.channels()["robot.safety_mode"]
+    assert info.kind == "enum" and "pflim" in info.domain and info.source == "robot"
+    assert bb.series("robot.safety_mode").values[0] == "normal"
+
+
+def test_export_round_trip(tmp_path):
+    sf = welding_cell("operator.waypoints.cell.wait=4", "range_detector.close_below=0.5")
+    out = tmp_path / "elsewhere" / "resolved.yaml"
+    out.parent.mkdir()
+    assert main(["scenario", "export", str(WELDING_CELL), "--set", "operator.waypoints.cell.wait=4",
+                 "--set", "range_detector.close_below=0.5", "--out", str(out)]) == 0
+    again = load_scenario(out)
+    assert again.scenario.entities["operator"].waypoints["cell"].wait == 4.0
+    # equal once file references are read relative to each file
+    assert again.resolve_path("entities.robot.model", again.scenario.entities["robot"].model) == \
+        sf.resolve_path("entities.robot.model", sf.scenario.entities["robot"].model)
+    a, b = to_data(sf.scenario), to_data(again.scenario)
+    for d in (a, b):
+        d["entities"]["robot"]["model"] = d["behaviours"]["safety_controller"]["risk_model"] = None
+    assert a == b
+
+
+def test_export_beside_the_original_loads_to_an_equal_scenario(tmp_path):
+    original = load_scenario(WELDING_CELL)
+    copy = WELDING_CELL.parent / f".roundtrip-{tmp_path.name}.yaml"
+    try:
+        copy.write_text(export_scenario(original))
+        assert load_scenario(copy).scenario == original.scenario
+    finally:
+        copy.unlink()
+
+
+def test_simulate_writes_black_box_and_resolved_scenario(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["simulate", str(WELDING_CELL), "--duration", "3", "--seed", "7", "--out", str(out)]) == 0
+    assert (out / "blackbox.sqlite").is_file() and (out / "scenario.yaml").is_file()
+    printed = capsys.readouterr().out
+    assert "real-time factor" in printed and "work cycles completed" in printed
+    assert load_scenario(out / "scenario.yaml").scenario.name == "welding_cell"
+    assert main(["simulate", str(WELDING_CELL), "--duration", "3", "--out", str(out)]) == 2  # never overwrites silently
+
+
+BAD = {
+    "malformed YAML": ("name: welding_cell\n", "name: [welding_cell\n", "malformed YAML"),
+    "unknown key": ("    braking_time: 0.5\n", "    braking_tme: 0.5\n", "unknown key 'braking_tme'"),
+    "unknown entity kind": ("    kind: welder\n", "    kind: wleder\n", "unknown kind 'wleder'"),
+    "bad twin mode": ("  welder:\n    kind: welder\n    twin: {mode: model}\n",
+                      "  welder:\n    kind: welder\n    twin: {mode: shadw}\n", "'shadw' is not one of: model, shadow, twin"),
+    "wrong value type": ("    near_below: 2.0\n", "    near_below: two\n", "expected a number"),
+    "missing model file": ("    model: models/ur10.urdf\n", "    model: models/ur5.urdf\n", "file not found: models/ur5.urdf"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_scenario_files_one_line_exit_2_nothing_written(case, tmp_path, capsys):
+    old, new, problem = BAD[case]
+    text = WELDING_CELL.read_text()
+    assert old in text
+    bad = WELDING_CELL.parent / f".bad-{tmp_path.name}.yaml"  # beside the original, so models resolve
+    try:
+        bad.write_text(text.replace(old, new, 1))
+        out = tmp_path / "out"
+        assert main(["simulate", str(bad), "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and problem in err and str(bad) in err
+        changed = text.replace(old, new, 1).splitlines()
+        line = next(i for i, l in enumerate(changed, 1) if l == new.splitlines()[-1])
+        if case == "malformed YAML":  # reported where the parser gives up, a line or so later
+            assert any(f":{n}:" in err for n in range(line, line + 3))
+        else:
+            assert f":{line}:" in err
+        assert not out.exists()
+    finally:
+        bad.unlink()
+
+
+@pytest.mark.parametrize(
+    "assignment, problem",
+    [("operator.waypoints.cell.wiat=4", "no such configuration point"), ("operator.waypoints.cell.wait=abc", "expected a number"),
+     ("robot.twin.mode=shadw", "is not one of"), ("nonsense", "expected dotted.path=value")],
+)
+def test_bad_overrides_one_line_exit_2_nothing_written(assignment, problem, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["simulate", str(WELDING_CELL), "--set", assignment, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and problem in err and "--set" in err
+    assert not out.exists()
+
+
+def test_usage_errors_exit_2(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["simulate"])
+    assert e.value.code == 2
+    assert main([]) == 2
