@@ -245,7 +245,7 @@ def test_satisfaction_matches_reference(f, trace_cells):
     assert_matches_reference(f, trace, cells, n)
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(formulas, grid_traces())
 def test_top_level_always_verdicts(f, trace_cells):
     trace, cells, n = trace_cells
@@ -253,7 +253,7 @@ def test_top_level_always_verdicts(f, trace_cells):
         assert_matches_reference(Always(f, lo, hi), trace, cells, n)
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=60, deadline=None)
 @given(st.lists(formulas, min_size=2, max_size=5), grid_traces())
 def test_shared_evaluator_gives_the_same_results(fs, trace_cells):
     trace, _, _ = trace_cells

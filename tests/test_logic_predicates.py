@@ -116,7 +116,7 @@ formulas = st.recursive(
 valuations = st.fixed_dictionaries({var: _values(var) for var in VOC})
 
 
-@settings(max_examples=500, deadline=None)
+@settings(max_examples=300, deadline=None)
 @given(formulas, st.lists(valuations, min_size=1, max_size=5))
 def test_compiled_predicate_agrees_with_reference(f, vals):
     pred = compile_predicate(f, VOC)

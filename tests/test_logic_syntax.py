@@ -487,7 +487,7 @@ def _combine(children):
 formulas = st.recursive(atoms, _combine, max_leaves=12)
 
 
-@settings(max_examples=400, deadline=None)
+@settings(max_examples=300, deadline=None)
 @given(formulas)
 def test_format_round_trip(f):
     text = format_formula(f)

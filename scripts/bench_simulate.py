@@ -1,0 +1,93 @@
+#!/usr/bin/env python3
+"""Benchmark: 30 simulated seconds of the welding cell, headless, with recording,
+against the bare robot plant with its joint controller over the same 30 s, measured
+in the same run. Prints wall times, real-time factors, their ratio and peak memory.
+
+Targets (issue 2): the cell at least 20x real time; at most 2x the bare plant's cost;
+peak memory under 1 GiB.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from pydrake.multibody.parsing import Parser  # noqa: E402
+from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig  # noqa: E402
+from pydrake.systems.analysis import Simulator  # noqa: E402
+from pydrake.systems.controllers import InverseDynamicsController  # noqa: E402
+from pydrake.systems.framework import DiagramBuilder  # noqa: E402
+from pydrake.systems.primitives import TrajectorySource  # noqa: E402
+from pydrake.trajectories import PiecewisePolynomial  # noqa: E402
+
+from cellsim.entities.robot import robot_base_pose  # noqa: E402
+from cellsim.scenario import load_scenario  # noqa: E402
+from cellsim.simulation import simulate  # noqa: E402
+from diagrams.cell import KD, KI, KP  # noqa: E402
+
+SCENARIO = ROOT / "scenarios" / "welding_cell.yaml"
+
+
+def bare_plant_seconds(duration: float) -> float:
+    """The same arm, plant configuration and joint controller, following the cell's poses."""
+    sf = load_scenario(SCENARIO)
+    cfg = sf.scenario.entities["robot"]
+    model = str(sf.resolve_path("entities.robot.model", cfg.model))
+    builder = DiagramBuilder()
+    plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=sf.scenario.time_step, discrete_contact_approximation="sap"), builder)
+    (arm,) = Parser(plant).AddModels(model)
+    plant.WeldFrames(plant.world_frame(), plant.GetBodyByName("base_link", arm).body_frame(), robot_base_pose(cfg))
+    plant.Finalize()
+    control = MultibodyPlant(0.0)
+    (carm,) = Parser(control).AddModels(model)
+    control.WeldFrames(control.world_frame(), control.GetBodyByName("base_link", carm).body_frame(), robot_base_pose(cfg))
+    control.Finalize()
+    poses = [cfg.named_poses[p] for p in ("home", "shared_table", "weld_spot", "shared_table", "home")]
+    times = np.linspace(0.0, duration, len(poses))
+    source = builder.AddSystem(TrajectorySource(PiecewisePolynomial.CubicShapePreserving(times, np.array(poses).T, True), 1))
+    controller = builder.AddSystem(InverseDynamicsController(control, [KP] * 6, [KI] * 6, [KD] * 6, False))
+    builder.Connect(plant.get_state_output_port(arm), controller.get_input_port_estimated_state())
+    builder.Connect(source.get_output_port(), controller.get_input_port_desired_state())
+    builder.Connect(controller.get_output_port_control(), plant.get_actuation_input_port(arm))
+    simulator = Simulator(builder.Build())
+    plant.SetPositions(plant.GetMyMutableContextFromRoot(simulator.get_mutable_context()), arm, poses[0])
+    simulator.Initialize()
+    start = time.perf_counter()
+    simulator.AdvanceTo(duration)
+    return time.perf_counter() - start
+
+
+def cell_seconds(duration: float, seed: int) -> float:
+    sf = load_scenario(SCENARIO)
+    with tempfile.TemporaryDirectory() as tmp:
+        summary = simulate(sf, Path(tmp) / "run", seed=seed, duration=duration)
+    return summary.wall_time
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=30.0)
+    parser.add_argument("--repeats", type=int, default=3, help="median of this many runs of each")
+    args = parser.parse_args()
+    bare = statistics.median(bare_plant_seconds(args.duration) for _ in range(args.repeats))
+    cell = statistics.median(cell_seconds(args.duration, seed) for seed in range(args.repeats))
+    peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"simulated time           {args.duration:.1f} s (median of {args.repeats})")
+    print(f"bare plant + controller  {bare:.3f} s wall  {args.duration / bare:6.1f}x real time")
+    print(f"welding cell, recorded   {cell:.3f} s wall  {args.duration / cell:6.1f}x real time   (target >= 20x)")
+    print(f"cell / bare plant        {cell / bare:.2f}x                               (target <= 2x)")
+    print(f"peak memory              {peak_mib:.0f} MiB                               (target < 1024 MiB)")
+
+
+if __name__ == "__main__":
+    main()
