@@ -53,17 +53,17 @@ class BlackBoxReplay(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
 
     def _update(self, context, xd):
+        # The replayed twin's whole state is known at every instant, so a sample is
+        # fresh (stamped now) once every field has a recorded value.
         t = context.get_time() - self.time_offset
         sample = np.zeros(2 + len(self._series))
-        stamp = -np.inf
+        sample[0], sample[1] = context.get_time(), 1.0
         for i, (times, codes) in enumerate(self._series):
             k = int(np.searchsorted(times, t, side="right")) - 1
             if k < 0:
-                xd.get_mutable_vector(self._state).SetFromVector(np.concatenate([[-np.inf, 0.0], sample[2:]]))
-                return
+                sample[0], sample[1] = -np.inf, 0.0
+                break
             sample[2 + i] = codes[k]
-            stamp = max(stamp, times[k])
-        sample[0], sample[1] = t + self.time_offset if stamp > -np.inf else -np.inf, 1.0
         xd.get_mutable_vector(self._state).SetFromVector(sample)
 
 

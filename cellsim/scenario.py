@@ -377,12 +377,6 @@ class ScenarioFile:
             raise self.error(key, f"file not found: {relative} (looked for {path})")
         return path.resolve()
 
-    def module_path(self, name: str) -> str:
-        """The dotted key of a module's configuration (``entities.robot``)."""
-        for section in ("entities", "behaviours", "services"):
-            if name in getattr(self.scenario, section):
-                return f"{section}.{name}"
-        raise KeyError(name)
 
 
 def _shortcut(scenario: Scenario):

@@ -80,11 +80,6 @@ class CellSystem(LeafSystem):
     def group(self, name: str) -> int:
         return self._groups[name]
 
-    def channel_spec(self, signal: str) -> ChannelSpec:
-        for spec, _ in self.channels:
-            if spec.signal == signal:
-                return spec
-        raise KeyError(f"{self.module} has no channel '{signal}'")
 
     # -- update -------------------------------------------------------------
     def _on_update(self, context, xd):

@@ -174,9 +174,9 @@ def build_cell(
             builder.Connect(system.target_pose_port, robot.target_port)
             builder.Connect(system.robot_activity_port, robot.activity_port)
             builder.Connect(system.weld_command_port, welder.weld_command_port)
-            builder.Connect(_channel_port(robot, "safety_mode"), system.robot_mode_port)
-            builder.Connect(_channel_port(robot, "reached_pose"), system.reached_pose_port)
-            builder.Connect(_channel_port(welder, "activity"), system.welder_activity_port)
+            builder.Connect(robot.GetOutputPort("safety_mode"), system.robot_mode_port)
+            builder.Connect(robot.GetOutputPort("reached_pose"), system.reached_pose_port)
+            builder.Connect(welder.GetOutputPort("activity"), system.welder_activity_port)
         elif isinstance(cfg, GroundTruthConfig):
             system = builder.AddSystem(GroundTruth(name, cfg))
             builder.Connect(scene_graph.get_query_output_port(), system.query_port)
@@ -230,10 +230,6 @@ def _filter_all_contact(plant: MultibodyPlant, scene_graph, foreign_geometry: li
     for i in range(plant.num_bodies()):
         ids += plant.GetCollisionGeometriesForBody(plant.get_body(BodyIndex(i)))
     scene_graph.collision_filter_manager().Apply(CollisionFilterDeclaration().ExcludeWithin(GeometrySet(ids)))
-
-
-def _channel_port(system: LeafSystem, signal: str) -> OutputPort:
-    return system.GetOutputPort(signal)
 
 
 def _channels(modules: dict[str, LeafSystem]) -> dict[str, tuple[ChannelSpec, OutputPort]]:
