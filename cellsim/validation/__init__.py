@@ -1,0 +1,1 @@
+"""Safety evidence: traces, conditions, use cases and coverage of recorded runs."""

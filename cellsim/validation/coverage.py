@@ -1,0 +1,489 @@
+"""Situation coverage: which combinations of variable values the recorded runs exercised.
+
+Each trace variable has a finite *domain* for coverage purposes: the values of an
+enumeration (in declaration order), ``false``/``true`` for a boolean, and the *bins*
+of a number (:class:`NumberBins`).  A *criterion* (:class:`CoverageCriterion`) is a
+list of variables - one for single-variable coverage, several for combinations - and
+its *situations* are the tuples of the Cartesian product of their domains (the first
+variable varies slowest; this "domain order" is used for every list of situations).
+
+What counts as observed.  A run *covers* a situation of a criterion iff
+
+* the run exercised the criterion's ``use_case`` (when one is given), and
+* for a **non-zero duration** of the trace's domain ``[start, end)``, all of the
+  criterion's variables simultaneously had the situation's values (numbers: values in
+  the situation's bins) and the criterion's ``when`` formula held.
+
+Consequently an instant where values merely touch (one variable changes at the very
+instant another one does) covers nothing, and neither does a stretch where a variable
+is undefined (before its first sample, or after a ``None`` sample; also a numeric NaN).
+If a criterion's variable, or a variable its ``when`` formula reads, is missing from
+the trace altogether, the run covers none of that criterion's situations.  A recorded
+value outside the variable's domain is an error (the vocabulary and the recorder
+disagree).
+
+:meth:`CoverageModel.observe` computes a run's covered situations exactly, by a sweep
+over the change points of the involved signals (and of the ``when`` set), without
+sampling; the result is plain JSON data, stored per run.
+:meth:`CoverageModel.merge` takes the union over runs and lists what is missing.
+"""
+
+from __future__ import annotations
+
+import difflib
+import itertools
+import math
+from bisect import bisect_right
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cellsim.logic.mtl import TraceEvaluator
+from cellsim.logic.syntax import (
+    BoolDomain,
+    Domain,
+    EnumDomain,
+    Formula,
+    FormulaError,
+    NumberDomain,
+    parse,
+    variables_of,
+)
+from cellsim.logic.trace import Trace
+
+__all__ = [
+    "CoverageCriterion",
+    "NumberBins",
+    "CoverageModel",
+    "CriterionCoverage",
+    "CoverageSummary",
+    "situation_name",
+]
+
+RunCoverage = dict[str, list[list[str]]]
+"""Per criterion, the situations one run covered (lists of value names, domain order)."""
+
+_UNDEFINED = -1  # value code of an undefined stretch
+
+
+# --------------------------------------------------------------------------- configuration
+
+
+@dataclass
+class CoverageCriterion:
+    """A coverage criterion: the value combinations of ``variables`` that should be seen.
+
+    * ``variables``: the trace variables combined (one variable: single-variable
+      coverage); each must be in the vocabulary, numeric ones need :class:`NumberBins`.
+    * ``description``: free text for reports.
+    * ``when``: a propositional formula (macros allowed); only instants where it holds
+      count as observations.  Empty: all instants count.
+    * ``use_case``: only runs classified with this use case count.  Empty: all runs.
+    """
+
+    variables: list[str]
+    description: str = ""
+    when: str = ""
+    use_case: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.variables:
+            raise ValueError("a coverage criterion needs at least one variable")
+        for name in self.variables:
+            if not isinstance(name, str) or not name:
+                raise ValueError(f"coverage variables must be non-empty names, got {name!r}")
+        repeated = sorted({v for v in self.variables if self.variables.count(v) > 1})
+        if repeated:
+            raise ValueError(f"variables listed twice in a criterion: {', '.join(repeated)}")
+
+
+def _number_text(x: float) -> str:
+    """Shortest exact text of ``x``: ``1.0 -> "1"``, ``0.25 -> "0.25"``."""
+    x += 0.0  # -0.0 -> 0.0
+    if x == int(x) and abs(x) < 1e15:
+        return str(int(x))
+    return repr(x)
+
+
+@dataclass
+class NumberBins:
+    """The bins of a numeric variable: finite, strictly increasing ``edges`` e0 < ... < en.
+
+    Bins are half-open, ``[a, b)``, so a value equal to an edge falls in the bin that
+    *starts* there; ``n + 1`` edges give ``n + 2`` bins, named (edges in their shortest
+    exact form: ``1.0`` is written ``1``)::
+
+        "<e0"        v < e0
+        "e0..e1"     e0 <= v < e1      (one per pair of consecutive edges)
+        ">=en"       v >= en
+
+    e.g. ``edges: [0.5, 1, 2]`` gives ``<0.5``, ``0.5..1``, ``1..2``, ``>=2``.
+    """
+
+    edges: list[float]
+
+    def __post_init__(self) -> None:
+        if not self.edges:
+            raise ValueError("bins need at least one edge")
+        for e in self.edges:
+            if isinstance(e, bool) or not isinstance(e, (int, float)) or not math.isfinite(e):
+                raise ValueError(f"bin edges must be finite numbers, got {e!r}")
+        self.edges = [float(e) for e in self.edges]
+        for a, b in itertools.pairwise(self.edges):
+            if not a < b:
+                raise ValueError(
+                    f"bin edges must be strictly increasing: {_number_text(a)} is followed by "
+                    f"{_number_text(b)}"
+                )
+
+    @property
+    def labels(self) -> tuple[str, ...]:
+        """The bin names, in increasing order."""
+        text = [_number_text(e) for e in self.edges]
+        inner = [f"{a}..{b}" for a, b in itertools.pairwise(text)]
+        return (f"<{text[0]}", *inner, f">={text[-1]}")
+
+    def index(self, value: float) -> int:
+        """The position of ``value``'s bin in :attr:`labels`."""
+        return bisect_right(self.edges, value)
+
+
+def situation_name(
+    variables: list[str] | tuple[str, ...], values: list[str] | tuple[str, ...]
+) -> str:
+    """The name of a situation, e.g. ``"wact=welding, oloc=inCell"``."""
+    if len(variables) != len(values):
+        raise ValueError(f"{len(variables)} variables but {len(values)} values")
+    return ", ".join(f"{var}={value}" for var, value in zip(variables, values))
+
+
+# --------------------------------------------------------------------------- compiled model
+
+
+@dataclass(frozen=True)
+class _Axis:
+    """A variable's coverage domain: value names and the mapping of recorded values."""
+
+    variable: str
+    labels: tuple[str, ...]
+    code: Callable[[object], int]  # recorded value -> index in labels, or _UNDEFINED
+
+    def codes(self, values: list) -> np.ndarray:
+        return np.fromiter((self.code(v) for v in values), dtype=np.int64, count=len(values))
+
+
+def _out_of_domain(variable: str, value: object, labels: tuple[str, ...]) -> ValueError:
+    return ValueError(
+        f"variable {variable!r}: recorded value {value!r} is not in its domain "
+        f"({', '.join(labels)})"
+    )
+
+
+def _axis(variable: str, domain: Domain, bins: NumberBins | None) -> _Axis:
+    if isinstance(domain, NumberDomain):
+        assert bins is not None
+        labels = bins.labels
+
+        def code(value: object) -> int:
+            if value is None:
+                return _UNDEFINED
+            try:
+                x = float(value)  # type: ignore[arg-type]
+            except (TypeError, ValueError):
+                raise _out_of_domain(variable, value, labels) from None
+            return _UNDEFINED if math.isnan(x) else bins.index(x)
+
+        return _Axis(variable, labels, code)
+    if isinstance(domain, BoolDomain):
+        labels, lookup = ("false", "true"), {False: 0, True: 1}
+    elif isinstance(domain, EnumDomain):
+        labels = domain.values
+        lookup = {v: i for i, v in enumerate(labels)}
+    else:
+        raise TypeError(f"not a domain: {domain!r}")
+
+    def code(value: object) -> int:
+        if value is None:
+            return _UNDEFINED
+        try:
+            return lookup[value]  # type: ignore[index]
+        except (KeyError, TypeError):
+            raise _out_of_domain(variable, value, labels) from None
+
+    return _Axis(variable, labels, code)
+
+
+@dataclass(frozen=True)
+class _Criterion:
+    """A criterion checked against the vocabulary, with its ``when`` formula parsed."""
+
+    name: str
+    config: CoverageCriterion
+    axes: tuple[_Axis, ...]
+    when: Formula | None
+    reads: frozenset[str]  # every trace variable needed: the axes' and the when formula's
+
+    @property
+    def total(self) -> int:
+        return math.prod(len(a.labels) for a in self.axes)
+
+    def key(self, codes: tuple[int, ...]) -> int:
+        """Mixed-radix number of a situation (first variable most significant)."""
+        k = 0
+        for axis, c in zip(self.axes, codes):
+            k = k * len(axis.labels) + c
+        return k
+
+    def labels_of(self, key: int) -> list[str]:
+        out: list[str] = []
+        for axis in reversed(self.axes):
+            key, c = divmod(key, len(axis.labels))
+            out.append(axis.labels[c])
+        return out[::-1]
+
+    def key_of_labels(self, values: object) -> int:
+        if not isinstance(values, (list, tuple)) or len(values) != len(self.axes):
+            raise ValueError(
+                f"criterion {self.name!r}: {values!r} is not a situation of "
+                f"({', '.join(self.config.variables)})"
+            )
+        codes = []
+        for axis, value in zip(self.axes, values):
+            if value not in axis.labels:
+                raise ValueError(
+                    f"criterion {self.name!r}: {value!r} is not a value of {axis.variable} "
+                    f"({', '.join(axis.labels)})"
+                )
+            codes.append(axis.labels.index(value))
+        return self.key(tuple(codes))
+
+
+def _suggestion(name: str, candidates: list[str]) -> str:
+    folded = [c for c in candidates if c.lower() == name.lower()]
+    close = folded or difflib.get_close_matches(name, candidates, n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+# --------------------------------------------------------------------------- summary
+
+
+@dataclass
+class CriterionCoverage:
+    """Merged coverage of one criterion: counts and the missing situations' names."""
+
+    variables: list[str]
+    description: str
+    covered: int
+    total: int
+    missing: list[str]
+
+    @property
+    def fraction(self) -> float:
+        return self.covered / self.total
+
+
+@dataclass
+class CoverageSummary:
+    """Coverage of all criteria merged over a set of runs."""
+
+    criteria: dict[str, CriterionCoverage] = field(default_factory=dict)
+
+    @property
+    def covered(self) -> int:
+        return sum(c.covered for c in self.criteria.values())
+
+    @property
+    def total(self) -> int:
+        return sum(c.total for c in self.criteria.values())
+
+    @property
+    def overall(self) -> float:
+        """Covered situations over all situations of all criteria (1.0 with no criteria)."""
+        return self.covered / self.total if self.total else 1.0
+
+    def to_json(self) -> dict:
+        """``{"overall": {covered, total, fraction}, "criteria": {name: {...}}}``."""
+        return {
+            "overall": {"covered": self.covered, "total": self.total, "fraction": self.overall},
+            "criteria": {
+                name: {
+                    "variables": list(c.variables),
+                    "description": c.description,
+                    "covered": c.covered,
+                    "total": c.total,
+                    "fraction": c.fraction,
+                    "missing": list(c.missing),
+                }
+                for name, c in self.criteria.items()
+            },
+        }
+
+
+# --------------------------------------------------------------------------- model
+
+
+class CoverageModel:
+    """Coverage criteria compiled against a vocabulary; see the module docstring."""
+
+    def __init__(self, criteria: dict[str, _Criterion]) -> None:
+        self._criteria = criteria
+
+    @classmethod
+    def compile(
+        cls,
+        criteria: Mapping[str, CoverageCriterion],
+        vocabulary: Mapping[str, Domain],
+        macros: Mapping[str, str] | None = None,
+        bins: Mapping[str, NumberBins] | None = None,
+    ) -> CoverageModel:
+        """Check ``criteria`` against ``vocabulary`` and parse their ``when`` formulas.
+
+        ``bins`` gives the bins of the numeric variables (every numeric variable used by
+        a criterion needs some; bins of other variables are an error).  Raises
+        :class:`ValueError` naming the criterion (or variable) at fault.
+        """
+        bins = dict(bins or {})
+        for var in bins:
+            if not isinstance(vocabulary.get(var), NumberDomain):
+                what = "unknown" if var not in vocabulary else "not numeric"
+                numeric = [v for v, d in vocabulary.items() if isinstance(d, NumberDomain)]
+                raise ValueError(
+                    f"bins given for variable {var!r}, which is {what}"
+                    + _suggestion(var, numeric)
+                )
+        axes: dict[str, _Axis] = {}
+        compiled: dict[str, _Criterion] = {}
+        for name, crit in criteria.items():
+            for var in crit.variables:
+                if var in axes:
+                    continue
+                if var not in vocabulary:
+                    raise ValueError(
+                        f"coverage criterion {name!r}: unknown variable {var!r}"
+                        + _suggestion(var, list(vocabulary))
+                    )
+                domain = vocabulary[var]
+                if isinstance(domain, NumberDomain) and var not in bins:
+                    raise ValueError(
+                        f"coverage criterion {name!r}: numeric variable {var!r} needs bins "
+                        f"(give its bin edges, e.g. {var}: {{edges: [0.5, 1]}})"
+                    )
+                axes[var] = _axis(var, domain, bins.get(var))
+            when: Formula | None = None
+            reads = frozenset(crit.variables)
+            if crit.when.strip():
+                try:
+                    when = parse(crit.when, vocabulary, macros, allow_temporal=False)
+                except FormulaError as e:
+                    raise ValueError(f"coverage criterion {name!r}: when: {e}") from e
+                reads |= variables_of(when)
+            compiled[name] = _Criterion(
+                name, crit, tuple(axes[v] for v in crit.variables), when, reads
+            )
+        return cls(compiled)
+
+    @property
+    def criteria(self) -> dict[str, CoverageCriterion]:
+        """The criteria, by name."""
+        return {name: c.config for name, c in self._criteria.items()}
+
+    def observe(
+        self,
+        trace: Trace,
+        use_cases: set[str],
+        evaluator: TraceEvaluator | None = None,
+    ) -> RunCoverage:
+        """Per criterion, the situations ``trace`` covers, in domain order.
+
+        ``use_cases`` are the use cases the run was classified with; ``evaluator``, if
+        given, must be a :class:`TraceEvaluator` of ``trace`` (to share sub-formulas
+        with other conditions).  Each situation is a list of value names (enumeration
+        value, ``"true"``/``"false"``, bin name).
+        """
+        if evaluator is None:
+            evaluator = TraceEvaluator(trace)
+        elif evaluator.trace is not trace:
+            raise ValueError("the evaluator was made for another trace")
+        pieces: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+        def pieces_of(axis: _Axis) -> tuple[np.ndarray, np.ndarray]:
+            """Start times of ``axis``'s constant pieces and their value codes (cached)."""
+            got = pieces.get(axis.variable)
+            if got is None:
+                los, _, values = trace.segments(axis.variable)
+                got = (np.asarray(los, dtype=np.float64), axis.codes(values))
+                pieces[axis.variable] = got
+            return got
+
+        result: RunCoverage = {}
+        for name, crit in self._criteria.items():
+            if (
+                crit.config.use_case and crit.config.use_case not in use_cases
+            ) or not crit.reads.issubset(trace.signals):
+                result[name] = []
+                continue
+            keys = _covered_keys(crit, trace, evaluator, pieces_of)
+            result[name] = [crit.labels_of(k) for k in keys]
+        return result
+
+    def merge(self, per_run: list[RunCoverage]) -> CoverageSummary:
+        """The union of the runs' coverage, with the missing situations named.
+
+        Every run must have an entry for every criterion (entries for other criteria
+        are ignored); a recorded situation that is not in the criterion's universe is
+        an error - both mean the runs were recorded with a different coverage model.
+        """
+        summary = CoverageSummary()
+        for name, crit in self._criteria.items():
+            covered: set[int] = set()
+            for i, run in enumerate(per_run):
+                if name not in run:
+                    raise ValueError(f"run {i} has no coverage for criterion {name!r}")
+                covered.update(crit.key_of_labels(s) for s in run[name])
+            missing = [
+                situation_name(crit.config.variables, crit.labels_of(k))
+                for k in range(crit.total)
+                if k not in covered
+            ]
+            summary.criteria[name] = CriterionCoverage(
+                variables=list(crit.config.variables),
+                description=crit.config.description,
+                covered=len(covered),
+                total=crit.total,
+                missing=missing,
+            )
+        return summary
+
+
+def _covered_keys(
+    crit: _Criterion,
+    trace: Trace,
+    evaluator: TraceEvaluator,
+    pieces_of: Callable[[_Axis], tuple[np.ndarray, np.ndarray]],
+) -> list[int]:
+    """Sweep: the situation keys that hold on a non-empty piece of ``trace``.
+
+    Between consecutive points of the union of all change points (and of the ``when``
+    boundaries) every variable is constant, so each such elementary piece - of
+    positive length, the points being distinct - is classified by its left end.
+    """
+    columns = [pieces_of(axis) for axis in crit.axes]
+    if any(len(los) == 0 for los, _ in columns):  # a variable never defined in [start, end)
+        return []
+    bounds = [np.array([trace.start, trace.end]), *(los for los, _ in columns)]
+    when_flat = None
+    if crit.when is not None:
+        when_flat = np.asarray(evaluator.satisfaction(crit.when).flat, dtype=np.float64)
+        bounds.append(when_flat)
+    lefts = np.unique(np.concatenate(bounds))[:-1]
+    keep = np.ones(len(lefts), dtype=bool)
+    if when_flat is not None:
+        keep &= np.searchsorted(when_flat, lefts, side="right") % 2 == 1
+    key = np.zeros(len(lefts), dtype=np.int64)
+    for axis, (los, codes) in zip(crit.axes, columns):
+        i = np.searchsorted(los, lefts, side="right") - 1
+        code = np.where(i >= 0, codes[np.maximum(i, 0)], _UNDEFINED)
+        keep &= code != _UNDEFINED
+        key = key * len(axis.labels) + code
+    return np.unique(key[keep]).tolist()
