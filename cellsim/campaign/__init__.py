@@ -1,0 +1,1 @@
+"""Test campaigns: sampled scenario variants simulated and checked in worker processes."""
