@@ -1,0 +1,304 @@
+"""Tests for cellsim.campaign.report: the self-contained HTML campaign report."""
+
+from __future__ import annotations
+
+import copy
+import os
+from html.parser import HTMLParser
+
+import pytest
+
+from cellsim.campaign.report import (
+    PHASE_COLOURS,
+    PLOT_LEFT,
+    PLOT_WIDTH,
+    pieces,
+    render_report,
+    time_to_x,
+    write_report,
+)
+
+DURATION = 30.0
+VOID = {"meta", "br", "hr", "img", "input", "link", "col", "area", "base", "wbr", "source"}
+
+HS_TRACE = [[0.0, "inact"], [4.0, "act"], [4.3, "act"], [4.5, "mit"], [12.0, "res"], [14.0, "inact"]]
+HS_PIECES = 5  # the repeated "act" merges
+
+TIMELINE = {
+    "safmod": [[0.0, "normal"], [4.5, "pflim"], [14.0, "normal"]],
+    "HS": HS_TRACE,
+    "HC": [[0.0, "inact"], [12.0, "act"], [12.34, "mis"]],
+    "lgtBar": [[0.0, False], [10.0, True], [11.0, False], [31.0, True]],  # the last is outside [0, 30)
+    "oloc": [[0.0, None], [2.0, "inCell"], [20.0, "none"]],  # undefined first
+    "speed": [[0.0, 0.0], [3.0, 0.25], [9.0, 1.5]],
+}
+
+RESULTS = {
+    "campaign": {
+        "scenario": "scenarios/welding_cell.yaml",
+        "scenario_name": "welding_cell",
+        "runs": 3,
+        "seed": 1,
+        "duration": DURATION,
+        "created": "2026-11-21T10:00:00Z",
+        "conditions": {
+            "HS:detected": "G((HS_e and HS == inact) -> (HS_e U[0, 0.5s] HS == act))",
+            "HC:not_mis": "G(HC != mis & x < 3)",
+        },
+        "use_cases": {"U1": "F(otab)", "U2": "F(wact == welding)"},
+        "samplers": {"operator_waits": {"kind": "simplex", "total": 20.0, "minimum": 0.0}},
+    },
+    "runs": [
+        {
+            "index": 0, "seed": 111, "status": "completed",
+            "configuration": {"operator.waypoints.bench.wait": 3.2},
+            "verdicts": {"HS:detected": {"holds": True, "violated_at": None},
+                         "HC:not_mis": {"holds": True, "violated_at": None}},
+            "violations": [], "use_cases": ["U1"], "wall_time": 1.1, "out": "runs/0000",
+            "rerun": "cellsim simulate campaigns/c1/runs/0000/scenario.yaml --out rerun0",
+        },
+        {
+            "index": 1, "seed": 222, "status": "completed",
+            "configuration": {"operator.waypoints.bench.wait": 7.5},
+            "verdicts": {"HS:detected": {"holds": True, "violated_at": None},
+                         "HC:not_mis": {"holds": False, "violated_at": 12.34}},
+            "violations": ["HC:not_mis"], "use_cases": ["U1", "U2"], "wall_time": 1.3, "out": "runs/0001",
+            "rerun": "cellsim simulate campaigns/c1/runs/0001/scenario.yaml --out rerun1",
+        },
+        {
+            "index": 2, "seed": 333, "status": "failed", "error": "solver diverged <at> t=3 & beyond",
+            "configuration": {"operator.waypoints.bench.wait": 1.0}, "wall_time": 0.2, "out": "runs/0002",
+        },
+    ],
+    "totals": {
+        "runs": 3, "completed": 2, "failed": 1, "violating_runs": 1,
+        "violations": {"HS:detected": 0, "HC:not_mis": 1},
+        "use_cases": {"U1": 2, "U2": 1},
+        "coverage": {
+            "overall": 0.75,
+            "criteria": {
+                "wact x oloc": {"variables": ["wact", "oloc"], "description": "welder against operator",
+                                "covered": 5, "total": 6, "fraction": 0.833,
+                                "missing": ["wact=off, oloc=inCell"]},
+            },
+        },
+    },
+    "timing": {"simulate": 2.6, "trace": 0.1, "check": 0.04, "coverage": 0.03, "report": 0.01, "wall": 2.0},
+}
+
+
+class Collector(HTMLParser):
+    """Checks that tags balance and collects the elements with their attributes."""
+
+    def __init__(self) -> None:
+        super().__init__(convert_charrefs=True)
+        self.stack: list[str] = []
+        self.errors: list[str] = []
+        self.elements: list[tuple[str, dict, tuple[str, ...]]] = []  # (tag, attrs, ancestors)
+        self.text: list[str] = []
+
+    def handle_starttag(self, tag, attrs):
+        self.elements.append((tag, dict(attrs), tuple(self.stack)))
+        if tag not in VOID:
+            self.stack.append(tag)
+
+    def handle_startendtag(self, tag, attrs):
+        self.elements.append((tag, dict(attrs), tuple(self.stack)))
+
+    def handle_endtag(self, tag):
+        if not self.stack or self.stack[-1] != tag:
+            self.errors.append(f"</{tag}> closes {self.stack[-1:] or 'nothing'}")
+        else:
+            self.stack.pop()
+
+    def handle_data(self, data):
+        self.text.append(data)
+
+
+def parse(page: str) -> Collector:
+    parser = Collector()
+    parser.feed(page)
+    parser.close()
+    return parser
+
+
+@pytest.fixture(scope="module")
+def page() -> str:
+    return render_report(RESULTS, {1: TIMELINE})
+
+
+@pytest.fixture(scope="module")
+def parsed(page) -> Collector:
+    return parse(page)
+
+
+def run_svg_elements(parsed: Collector, index: int) -> list[tuple[str, dict]]:
+    """The elements inside the SVG of the section ``run-<index>``."""
+    inside, out = False, []
+    for tag, attrs, ancestors in parsed.elements:
+        if tag == "section" and attrs.get("id") == f"run-{index}":
+            inside, depth = True, len(ancestors)
+            continue
+        if inside and len(ancestors) <= depth:
+            break
+        if inside and "svg" in ancestors:
+            out.append((tag, attrs))
+    return out
+
+
+def test_page_parses_and_tags_balance(parsed):
+    assert parsed.errors == []
+    assert parsed.stack == []
+    tags = [t for t, _, _ in parsed.elements]
+    for tag in ("html", "head", "body", "main", "table", "svg"):
+        assert tag in tags
+
+
+def test_page_is_self_contained(page):
+    for needle in ("http://", "https://", "src=", "<link", "<script"):
+        assert needle not in page
+
+
+def test_header_badge_and_summary(page):
+    assert "1 run violates 1 condition" in page
+    assert "1 run failed" in page
+    assert "welding_cell" in page and "2026-11-21T10:00:00Z" in page
+    for stage in ("simulate", "trace", "check", "coverage", "wall"):
+        assert f"<th>{stage}</th>" in page
+
+
+def test_no_violations_badge():
+    results = copy.deepcopy(RESULTS)
+    results["runs"] = [results["runs"][0]]
+    page = render_report(results, {})
+    assert "no violations" in page
+    assert 'id="run-' not in page
+    assert parse(page).errors == []
+
+
+def test_violating_run_has_timeline_section(parsed):
+    sections = [a for t, a, _ in parsed.elements if t == "section" and a.get("id", "").startswith("run-")]
+    assert [s["id"] for s in sections] == ["run-1"]
+    elements = run_svg_elements(parsed, 1)
+    assert elements, "no svg in run-1"
+
+
+def test_first_violating_runs_link_to_timelines(page):
+    assert '<a href="#run-1">1</a>' in page
+
+
+def test_pieces_cut_merge_and_clip():
+    assert pieces(HS_TRACE, DURATION) == [
+        (0.0, 4.0, "inact"), (4.0, 4.5, "act"), (4.5, 12.0, "mit"), (12.0, 14.0, "res"), (14.0, 30.0, "inact"),
+    ]
+    assert pieces(TIMELINE["lgtBar"], DURATION)[-1] == (11.0, 30.0, False)
+    assert pieces([[-1.0, "a"], [2.0, "b"]], 10.0) == [(0.0, 2.0, "a"), (2.0, 10.0, "b")]
+    assert pieces([], 10.0) == []
+
+
+@pytest.mark.parametrize("var", ["safmod", "HS", "HC", "lgtBar", "oloc"])
+def test_one_rect_per_defined_piece(parsed, var):
+    rects = [a for t, a in run_svg_elements(parsed, 1) if t == "rect" and a.get("class") == "piece"
+             and a.get("data-var") == var]
+    expected = [p for p in pieces(TIMELINE[var], DURATION) if p[2] is not None]
+    assert len(rects) == len(expected)
+    assert var != "HS" or len(rects) == HS_PIECES
+    for rect, (t0, t1, _) in zip(rects, expected, strict=True):
+        assert float(rect["x"]) == pytest.approx(time_to_x(t0, DURATION), abs=0.01)
+        assert float(rect["width"]) == pytest.approx(time_to_x(t1, DURATION) - time_to_x(t0, DURATION), abs=0.02)
+
+
+def test_piece_colours_and_tooltips(parsed, page):
+    hs = [a for t, a in run_svg_elements(parsed, 1) if t == "rect" and a.get("data-var") == "HS"]
+    assert [r["fill"] for r in hs] == [PHASE_COLOURS[v] for v in ("inact", "act", "mit", "res", "inact")]
+    hc = [a for t, a in run_svg_elements(parsed, 1) if t == "rect" and a.get("data-var") == "HC"]
+    assert hc[-1]["fill"] == PHASE_COLOURS["mis"]
+    lgt = [a["fill"] for t, a in run_svg_elements(parsed, 1) if t == "rect" and a.get("data-var") == "lgtBar"]
+    assert lgt[0] == lgt[2] != lgt[1]
+    assert "<title>HS = mit from 4.5 to 12 s</title>" in page
+
+
+def test_numeric_variable_is_a_step_plot(parsed, page):
+    elements = run_svg_elements(parsed, 1)
+    assert not [a for t, a in elements if t == "rect" and a.get("data-var") == "speed"]
+    lines = [a for t, a in elements if t == "polyline" and a.get("data-var") == "speed"]
+    assert len(lines) == 1
+    assert len(lines[0]["points"].split()) == 2 * 3
+    assert "max 1.5" in page and "min 0" in page
+
+
+def test_violation_marker_at_violation_time(parsed):
+    # Axis mapping (module docstring): x = PLOT_LEFT + PLOT_WIDTH * t / duration.
+    expected = PLOT_LEFT + PLOT_WIDTH * 12.34 / DURATION
+    assert time_to_x(12.34, DURATION) == pytest.approx(expected)
+    markers = [a for t, a in run_svg_elements(parsed, 1) if t == "line" and a.get("class") == "violation"]
+    assert len(markers) == 1
+    assert markers[0]["data-condition"] == "HC:not_mis"
+    assert markers[0]["x1"] == markers[0]["x2"] == f"{expected:.2f}"
+
+
+def test_ticks_every_five_seconds(parsed):
+    ticks = [a for t, a in run_svg_elements(parsed, 1) if t == "line" and a.get("class") == "tick"]
+    assert [float(a["x1"]) for a in ticks] == pytest.approx(
+        [time_to_x(t, DURATION) for t in range(0, 31, 5)], abs=0.01
+    )
+
+
+def test_data_strings_are_escaped(page):
+    assert "HS_e U[0, 0.5s] HS == act" in page
+    assert "(HS_e and HS == inact) -&gt; (HS_e" in page
+    assert "G(HC != mis &amp; x &lt; 3)" in page
+    assert "x < 3" not in page and "-> (" not in page
+
+
+def test_missing_situations_and_coverage(page):
+    assert "<li>wact=off, oloc=inCell</li>" in page
+    assert "5/6" in page and "83.3%" in page
+
+
+def test_failed_run_error_shown(page):
+    assert "solver diverged &lt;at&gt; t=3 &amp; beyond" in page
+
+
+def test_runs_table_rows_and_rerun(parsed, page):
+    rows = [a.get("class") for t, a, _ in parsed.elements if t == "tr" and a.get("class") is not None]
+    assert rows.count("violating") >= 2  # the run row and the condition row
+    assert "failed" in rows and "rerun" in rows
+    assert "runs/0001/scenario.yaml --out rerun1" in page
+    assert "runs/0000/scenario.yaml --out rerun0" not in page  # no rerun shown for a passing run
+
+
+def test_missing_optional_keys_and_string_keys():
+    minimal = {"runs": [{"seed": 5, "status": "completed", "violations": ["c"],
+                         "verdicts": {"c": {"holds": False, "violated_at": 1.0}}}]}
+    page = render_report(minimal, {"0": {"x": [[0, "a"], [0.5, "b"]]}})
+    parsed = parse(page)
+    assert parsed.errors == [] and parsed.stack == []
+    assert 'id="run-0"' in page
+    assert len([a for t, a in run_svg_elements(parsed, 0) if t == "rect" and a.get("class") == "piece"]) == 2
+    assert "No trace available" in render_report(minimal, {})
+
+
+def test_write_report_is_atomic(tmp_path):
+    target = tmp_path / "report.html"
+    target.write_text("old report")
+    write_report(target, RESULTS, {1: TIMELINE})
+    assert target.read_text(encoding="utf-8") == render_report(RESULTS, {1: TIMELINE})
+    assert os.listdir(tmp_path) == ["report.html"]
+    write_report(target, RESULTS, {})
+    assert "No trace available" in target.read_text(encoding="utf-8")
+    assert os.listdir(tmp_path) == ["report.html"]
+
+
+def test_write_report_failure_keeps_old_file(tmp_path, monkeypatch):
+    target = tmp_path / "report.html"
+    target.write_text("old report")
+
+    def boom(*_args):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(os, "replace", boom)
+    with pytest.raises(OSError, match="disk full"):
+        write_report(target, RESULTS, {1: TIMELINE})
+    assert target.read_text() == "old report"
+    assert os.listdir(tmp_path) == ["report.html"]
