@@ -21,7 +21,6 @@ its boundaries must lie on the grid.
 from __future__ import annotations
 
 import math
-import operator
 
 import numpy as np
 import pytest
@@ -49,16 +48,10 @@ from cellsim.logic.syntax import (
 )
 from cellsim.logic.trace import Signal, Trace
 
+from logic_strategies import HAZARD, OPS, connectives, intervals
+
 INF = math.inf
 D = 0.25
-OPS = {
-    "==": operator.eq,
-    "!=": operator.ne,
-    "<": operator.lt,
-    "<=": operator.le,
-    ">": operator.gt,
-    ">=": operator.ge,
-}
 MODES = ("a", "b", "c")
 VOC = {
     "p": BoolDomain(),
@@ -171,11 +164,11 @@ def grid_traces(draw):
     return Trace(signals, start, start + n * D), cells, n
 
 
-@st.composite
-def grid_intervals(draw):
-    lo = draw(st.sampled_from([0, 0, 1, 2, 4])) * D
-    hi = draw(st.one_of(st.just(INF), st.integers(0, 10).map(lambda k: lo + k * D)))
-    return lo, hi
+def grid_intervals():
+    return intervals(
+        st.sampled_from([0, 0, 1, 2, 4]).map(lambda k: k * D),
+        st.integers(0, 10).map(lambda k: k * D),
+    )
 
 
 atoms = st.one_of(
@@ -193,26 +186,9 @@ atoms = st.one_of(
 )
 
 
-def _extend(children):
-    pair = st.lists(children, min_size=2, max_size=3).map(tuple)
-    return st.one_of(
-        children.map(Not),
-        pair.map(And),
-        pair.map(Or),
-        st.builds(Implies, children, children),
-        st.builds(lambda f, iv: Always(f, *iv), children, grid_intervals()),
-        st.builds(lambda f, iv: Eventually(f, *iv), children, grid_intervals()),
-        st.builds(
-            lambda l, r, iv, w: Until(l, r, *iv, weak=w),
-            children,
-            children,
-            grid_intervals(),
-            st.booleans(),
-        ),
-    )
-
-
-formulas = st.recursive(atoms, _extend, max_leaves=7)
+formulas = st.recursive(
+    atoms, lambda children: connectives(children, intervals=grid_intervals()), max_leaves=7
+)
 
 
 def assert_matches_reference(f, trace, cells, n):
@@ -276,8 +252,7 @@ def test_documented_identities(f, g, interval, trace_cells):
 
 # --------------------------------------------------------------------------- hand-written cases
 
-HAZ = EnumDomain(("inact", "act", "mit", "mis"))
-CELL_VOC = {"HS": HAZ, "HC": HAZ, "e": BoolDomain(), "otab": BoolDomain(),
+CELL_VOC = {"HS": HAZARD, "HC": HAZARD, "e": BoolDomain(), "otab": BoolDomain(),
             "oloc": EnumDomain(("none", "table", "door"))}  # fmt: skip
 
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import operator
-
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -28,24 +26,17 @@ from cellsim.logic.syntax import (
     parse,
 )
 
-HAZARD = EnumDomain(("inact", "act", "mit", "mis"))
+from logic_strategies import HAZARD, OPS, RLOC, SAFMOD, connectives
+
 VOC = {
-    "safmod": EnumDomain(("normal", "hguid", "ssmon", "pflim", "srmst", "stopped")),
-    "rloc": EnumDomain(("sharedTbl", "welder", "home")),
+    "safmod": SAFMOD,
+    "rloc": RLOC,
     "HS": HAZARD,
     "HRW": HAZARD,
     "lgtBar": BoolDomain(),
     "otab": BoolDomain(),
     "speed": NumberDomain("m/s"),
     "limit": NumberDomain("m/s"),
-}
-OPS = {
-    "==": operator.eq,
-    "!=": operator.ne,
-    "<": operator.lt,
-    "<=": operator.le,
-    ">": operator.gt,
-    ">=": operator.ge,
 }
 
 
@@ -104,14 +95,7 @@ def atoms(draw):
 
 leaves = st.one_of(atoms(), st.builds(Const, st.booleans()))
 formulas = st.recursive(
-    leaves,
-    lambda children: st.one_of(
-        children.map(Not),
-        st.lists(children, min_size=2, max_size=6).map(tuple).map(And),
-        st.lists(children, min_size=2, max_size=6).map(tuple).map(Or),
-        st.builds(Implies, children, children),
-    ),
-    max_leaves=16,
+    leaves, lambda children: connectives(children, max_args=6), max_leaves=16
 )
 valuations = st.fixed_dictionaries({var: _values(var) for var in VOC})
 

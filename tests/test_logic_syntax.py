@@ -32,12 +32,13 @@ from cellsim.logic.syntax import (
     variables_of,
 )
 
+from logic_strategies import HAZARD, RLOC, SAFMOD, connectives, intervals
+
 INF = math.inf
-HAZARD = EnumDomain(("inact", "act", "mit", "mis"))
 VOC = {
-    "safmod": EnumDomain(("normal", "hguid", "ssmon", "pflim", "srmst", "stopped")),
-    "rloc": EnumDomain(("sharedTbl", "welder", "home")),
-    "home": EnumDomain(("sharedTbl", "welder", "home")),  # a variable named like a value
+    "safmod": SAFMOD,
+    "rloc": RLOC,
+    "home": RLOC,  # a variable named like a value
     "ract": EnumDomain(("idle", "exchWrkp", "welding")),
     "wact": EnumDomain(("idle", "welding")),
     "rngDet": EnumDomain(("far", "near", "close")),
@@ -421,13 +422,6 @@ bounds = st.one_of(
 
 
 @st.composite
-def intervals(draw):
-    lo = draw(bounds)
-    hi = draw(st.one_of(st.just(INF), bounds.map(lambda x: lo + x)))
-    return lo, hi
-
-
-@st.composite
 def enum_atoms(draw):
     var = draw(st.sampled_from(ENUM_VARS))
     values = VOC[var].values
@@ -465,26 +459,10 @@ bool_atoms = st.one_of(
 atoms = st.one_of(bool_atoms, enum_atoms(), num_atoms())
 
 
-def _combine(children):
-    args = st.lists(children, min_size=2, max_size=3).map(tuple)
-    return st.one_of(
-        children.map(Not),
-        args.map(And),
-        args.map(Or),
-        st.builds(Implies, children, children),
-        st.builds(lambda f, iv: Always(f, *iv), children, intervals()),
-        st.builds(lambda f, iv: Eventually(f, *iv), children, intervals()),
-        st.builds(
-            lambda l, r, iv, w: Until(l, r, *iv, weak=w),
-            children,
-            children,
-            intervals(),
-            st.booleans(),
-        ),
-    )
-
-
-formulas = st.recursive(atoms, _combine, max_leaves=12)
+time_intervals = intervals(bounds, bounds)
+formulas = st.recursive(
+    atoms, lambda children: connectives(children, intervals=time_intervals), max_leaves=12
+)
 
 
 @settings(max_examples=300, deadline=None)

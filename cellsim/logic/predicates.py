@@ -96,6 +96,44 @@ def _compare_vars(name: str, op: str, other: str) -> Predicate:
     raise AssertionError(op)
 
 
+# ``and``/``or`` of the usual 2 to 4 operands, unrolled so that a call runs no loop;
+# both short-circuit left to right.
+_AND_OF = {
+    2: lambda a, b: lambda v: a(v) and b(v),
+    3: lambda a, b, c: lambda v: a(v) and b(v) and c(v),
+    4: lambda a, b, c, d: lambda v: a(v) and b(v) and c(v) and d(v),
+}
+_OR_OF = {
+    2: lambda a, b: lambda v: a(v) or b(v),
+    3: lambda a, b, c: lambda v: a(v) or b(v) or c(v),
+    4: lambda a, b, c, d: lambda v: a(v) or b(v) or c(v) or d(v),
+}
+
+
+def _junction(fs: tuple[Predicate, ...], disjunction: bool) -> Predicate:
+    """The conjunction (or, with ``disjunction``, the disjunction) of ``fs``."""
+    unrolled = (_OR_OF if disjunction else _AND_OF).get(len(fs))
+    if unrolled is not None:
+        return unrolled(*fs)
+    if disjunction:
+
+        def disj(v: Valuation) -> bool:
+            for f in fs:
+                if f(v):
+                    return True
+            return False
+
+        return disj
+
+    def conj(v: Valuation) -> bool:
+        for f in fs:
+            if not f(v):
+                return False
+        return True
+
+    return conj
+
+
 def _compile(node: Formula) -> Predicate:
     if isinstance(node, Compare):
         if node.other is not None:
@@ -125,44 +163,8 @@ def _compile(node: Formula) -> Predicate:
             return lambda v: False if v[name] else True
         f = _compile(arg)
         return lambda v: not f(v)
-    if isinstance(node, And):
-        fs = tuple(_compile(a) for a in node.args)
-        if len(fs) == 2:
-            a, b = fs
-            return lambda v: a(v) and b(v)
-        if len(fs) == 3:
-            a, b, c = fs
-            return lambda v: a(v) and b(v) and c(v)
-        if len(fs) == 4:
-            a, b, c, d = fs
-            return lambda v: a(v) and b(v) and c(v) and d(v)
-
-        def conj(v: Valuation) -> bool:
-            for f in fs:
-                if not f(v):
-                    return False
-            return True
-
-        return conj
-    if isinstance(node, Or):
-        fs = tuple(_compile(a) for a in node.args)
-        if len(fs) == 2:
-            a, b = fs
-            return lambda v: a(v) or b(v)
-        if len(fs) == 3:
-            a, b, c = fs
-            return lambda v: a(v) or b(v) or c(v)
-        if len(fs) == 4:
-            a, b, c, d = fs
-            return lambda v: a(v) or b(v) or c(v) or d(v)
-
-        def disj(v: Valuation) -> bool:
-            for f in fs:
-                if f(v):
-                    return True
-            return False
-
-        return disj
+    if isinstance(node, (And, Or)):
+        return _junction(tuple(_compile(a) for a in node.args), isinstance(node, Or))
     if isinstance(node, Implies):
         a, b = _compile(node.lhs), _compile(node.rhs)
         return lambda v: (not a(v)) or b(v)
