@@ -29,6 +29,8 @@ from cellsim.config.typed_yaml import (
     load_file,
     to_data,
 )
+from cellsim.campaign.samplers import Sampler
+from cellsim.validation.config import Validation
 from cellsim.vocabulary import RobotActivity, RobotLocation, TwinMode
 
 Vec2 = tuple[float, float]
@@ -310,6 +312,19 @@ class ConfigurationPoint:
 
 
 @dataclass
+class CampaignConfig:
+    """Defaults of ``cellsim campaign``: how many runs, and how each configuration point is drawn."""
+
+    runs: int = 100
+    samplers: dict[str, Sampler] = field(default_factory=dict)
+    """Configuration point name -> sampler (``uniform``, ``choice`` or ``simplex``)."""
+
+    def __post_init__(self):
+        if self.runs < 1:
+            raise FieldError("runs", "must be at least 1")
+
+
+@dataclass
 class Scenario:
     name: str
     layout: Layout
@@ -317,6 +332,8 @@ class Scenario:
     behaviours: dict[str, BehaviourConfig] = field(default_factory=dict)
     services: dict[str, ServiceConfig] = field(default_factory=dict)
     configuration_points: dict[str, ConfigurationPoint] = field(default_factory=dict)
+    validation: Validation = field(default_factory=Validation)
+    campaign: CampaignConfig = field(default_factory=CampaignConfig)
     description: str = ""
     duration: float = 30.0
     seed: int = 0
@@ -351,6 +368,8 @@ class ScenarioFile:
 
     loaded: Loaded[Scenario]
     overrides: list[str] = field(default_factory=list)
+    validation_file: Loaded[Validation] | None = None
+    """Where ``validation`` was read from, when the scenario names a file for it."""
 
     @property
     def scenario(self) -> Scenario:
@@ -367,6 +386,13 @@ class ScenarioFile:
     def error(self, key: str, problem: str) -> ConfigError:
         """A ConfigError at ``key`` (dotted path), naming the file and line."""
         return ConfigError(self.source, self.loaded.line_of(key), key, problem)
+
+    def locate(self, key: str) -> tuple[str, int | None, str]:
+        """(file, line, key in that file) where the dotted ``key`` is written, following ``validation.file``."""
+        if self.validation_file is not None and key.startswith("validation."):
+            key = key.removeprefix("validation.")
+            return self.validation_file.source, self.validation_file.line_of(key), key
+        return self.source, self.loaded.line_of(key), key
 
     def resolve_path(self, key: str, relative: str) -> Path:
         """An existing file named at ``key``, relative to the scenario file."""
@@ -398,8 +424,23 @@ def load_scenario(path: str | os.PathLike, overrides: list[str] | tuple[str, ...
     for assignment in overrides:
         apply_override(loaded, assignment, resolve=_shortcut(loaded.value))
     sf = ScenarioFile(loaded, list(overrides))
+    _load_validation_file(sf)
     check_scenario(sf)
     return sf
+
+
+def _load_validation_file(sf: ScenarioFile) -> None:
+    """Read the validation section from the file it names; the scenario then holds it inline."""
+    validation = sf.scenario.validation
+    if not validation.file:
+        return
+    if not validation.is_empty:
+        raise sf.error("validation.file", "name a file or write the section inline, not both")
+    path = sf.resolve_path("validation.file", validation.file)
+    sf.validation_file = load_file(Validation, path)
+    if sf.validation_file.value.file:
+        raise ConfigError(str(path), sf.validation_file.line_of("file"), "file", "a validation file cannot name another")
+    sf.scenario.validation = sf.validation_file.value
 
 
 def check_scenario(sf: ScenarioFile) -> None:
@@ -425,6 +466,10 @@ def check_scenario(sf: ScenarioFile) -> None:
                         f"{key}.steps.{i}.move_to",
                         f"'{step.move_to}' is not a named pose of {cfg.robot} ({', '.join(poses)})",
                     )
+    for name in sc.campaign.samplers:
+        if name not in sc.configuration_points:
+            known = ", ".join(sc.configuration_points) or "none"
+            raise sf.error(f"campaign.samplers.{name}", f"no configuration point named '{name}' (known: {known})")
     for name, point in sc.configuration_points.items():
         for i, dotted in enumerate(point.paths):
             try:

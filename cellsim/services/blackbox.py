@@ -171,6 +171,17 @@ class BlackBox:
             )
         return [Message(t, c, s, json.loads(p)["value"]) for t, c, s, p in rows]
 
+    def iter_values(self, channels: list[str]):
+        """``(t, channel, value)`` of the messages of ``channels``, in publication order."""
+        marks = ",".join("?" * len(channels))
+        query = f"SELECT t, channel, payload FROM messages WHERE channel IN ({marks}) ORDER BY rowid"
+        for t, channel, payload in self._db.execute(query, list(channels)):
+            try:
+                value = json.loads(payload)["value"]
+            except (json.JSONDecodeError, KeyError, TypeError) as e:
+                raise BlackBoxError(f"{self.path}: corrupt payload of a '{channel}' message at t = {t} ({e})") from None
+            yield t, channel, value
+
     def rows(self) -> list[tuple]:
         """The raw ``messages`` rows in publication order (for comparing runs)."""
         return self._db.execute("SELECT t, channel, source, payload FROM messages ORDER BY rowid").fetchall()

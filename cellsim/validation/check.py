@@ -1,0 +1,92 @@
+"""Checking runs: a black box and a scenario's validation section in, verdicts out.
+
+``check_run`` works on any black box that has the channels the conditions
+name: a simulated run (whose folder holds the resolved ``scenario.yaml``), or a
+recording made beside the real cell checked against a scenario given
+explicitly.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from cellsim.config.typed_yaml import ConfigError
+from cellsim.scenario import ScenarioFile, load_scenario
+from cellsim.services.blackbox import BlackBox
+from cellsim.validation.conditions import CheckResult, SafetyCase
+from cellsim.validation.traces import (
+    RunTrace,
+    TraceError,
+    blackbox_domains,
+    channel_domains,
+    trace_of_run,
+    with_aliases,
+)
+
+BLACKBOX = "blackbox.sqlite"
+RESOLVED_SCENARIO = "scenario.yaml"
+
+
+class CheckError(Exception):
+    """The run cannot be checked: the path is not a run, or there are no conditions."""
+
+
+@dataclass
+class CheckedRun:
+    trace: RunTrace
+    result: CheckResult
+    case: SafetyCase
+
+
+def safety_case(sf: ScenarioFile, vocabulary_domains: dict, channels) -> SafetyCase:
+    """The scenario's validation compiled against the given channel domains."""
+    aliases = sf.scenario.validation.variables
+    try:
+        vocabulary = with_aliases(vocabulary_domains, aliases, channels)
+    except TraceError as e:
+        raise ConfigError(*sf.locate(f"validation.variables.{e.variable}"), str(e)) from None
+    return SafetyCase.compile(sf.scenario.validation, vocabulary, sf.locate)
+
+
+def scenario_safety_case(sf: ScenarioFile) -> SafetyCase:
+    """The scenario's validation compiled against the channels its diagram publishes.
+
+    Builds the diagram (without recording): this is how a campaign or
+    ``scenario check`` finds a bad formula before any run.
+    """
+    from diagrams.cell import build_cell
+
+    cell = build_cell(sf, seed=sf.scenario.seed, duration=sf.scenario.duration, record=False)
+    specs = [spec for spec, _ in cell.channels.values()]
+    return safety_case(sf, channel_domains(specs), cell.channels)
+
+
+def locate_run(path: str | os.PathLike) -> tuple[Path, Path | None]:
+    """(black box, resolved scenario or None) of a run folder or a black-box file."""
+    path = Path(path)
+    if path.is_dir():
+        blackbox, scenario = path / BLACKBOX, path / RESOLVED_SCENARIO
+        if not blackbox.is_file():
+            raise CheckError(f"{path}: not a run folder (no {BLACKBOX})")
+        return blackbox, scenario if scenario.is_file() else None
+    if path.is_file():
+        scenario = path.parent / RESOLVED_SCENARIO
+        return path, scenario if scenario.is_file() else None
+    raise CheckError(f"{path}: no such run folder or black box")
+
+
+def check_run(path: str | os.PathLike, sf: ScenarioFile | None = None) -> CheckedRun:
+    """Check the run at ``path`` against ``sf``'s validation (default: the run's own scenario)."""
+    blackbox, scenario = locate_run(path)
+    if sf is None:
+        if scenario is None:
+            raise CheckError(f"{path}: no {RESOLVED_SCENARIO} beside the black box; name a scenario with --scenario")
+        sf = load_scenario(scenario)
+    if not sf.scenario.validation.conditions:
+        raise CheckError(f"{sf.source}: the scenario has no safety conditions (validation.conditions) to check")
+    with BlackBox(blackbox) as bb:
+        case = safety_case(sf, blackbox_domains(bb), bb.channels())
+        trace = trace_of_run(bb, sf.scenario.validation.variables)
+    return CheckedRun(trace, case.check(trace.trace), case)

@@ -1,0 +1,50 @@
+"""The scenario's safety evidence section: trace variables, conditions, use cases, coverage.
+
+In a scenario file it is the ``validation:`` mapping, written inline or kept in a
+file of its own that the scenario names (``validation: {file: x.yaml}``)::
+
+    variables:               # trace variable -> recorded channel
+      safmod: robot.safety_mode
+      HS: safety_controller.HS
+    macros:                  # named sub-formulas, usable in every formula below
+      HS_e: safmod in {normal, hguid, ssmon, pflim} and rngDet in {near, close}
+    conditions:              # safety conditions: must hold on every run
+      "HS:detected": G((HS_e and HS == inact) -> (HS_e U[0, 0.5s] HS == act))
+    use_cases:               # classifiers: a run exercises the use case iff it holds
+      U2: F(otab and lgtBar)
+    coverage:                # situation coverage criteria
+      wact x oloc: {variables: [wact, oloc]}
+    bins:                    # domains of numeric variables for coverage
+      sep: {edges: [0.5, 1.0, 2.0]}
+
+Every recorded scalar channel is a trace variable under its own name
+(``robot.safety_mode``) too; ``variables`` adds the short names the formulas use.
+The formula language is documented in ``docs/condition-language.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from cellsim.validation.coverage import CoverageCriterion, NumberBins
+
+
+@dataclass
+class Validation:
+    """Safety conditions, use-case classifiers and coverage criteria of a scenario."""
+
+    file: str = ""
+    """A YAML file (relative to the scenario) holding this section; then leave the rest out."""
+    variables: dict[str, str] = field(default_factory=dict)
+    """Trace variable name -> recorded channel (``<module>.<signal>``)."""
+    macros: dict[str, str] = field(default_factory=dict)
+    conditions: dict[str, str] = field(default_factory=dict)
+    """Condition name -> MTL formula that must hold on every run."""
+    use_cases: dict[str, str] = field(default_factory=dict)
+    """Use-case name -> MTL formula that holds iff a run exercises the use case."""
+    coverage: dict[str, CoverageCriterion] = field(default_factory=dict)
+    bins: dict[str, NumberBins] = field(default_factory=dict)
+
+    @property
+    def is_empty(self) -> bool:
+        return not (self.variables or self.macros or self.conditions or self.use_cases or self.coverage or self.bins)

@@ -1,0 +1,145 @@
+"""A black box as a trace: one piecewise-constant signal per variable.
+
+Every scalar channel of a run (enumerations, booleans, numbers) becomes a
+:class:`~cellsim.logic.trace.Signal` under its channel name; a message's value
+holds from its time stamp until the channel's next message (right-continuous,
+piecewise constant). Vector channels (joint positions, positions) are not trace
+variables. Aliases from the scenario's ``validation.variables`` give the short
+names the conditions use (``safmod`` for ``robot.safety_mode``); an alias shares
+its channel's signal.
+
+The trace's domain is ``[0, end)``: ``end`` is the run's duration when it
+completed, otherwise the time of its last message (an interrupted run, or a
+recording made beside the real cell).
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import os
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from cellsim.logic.syntax import BoolDomain, EnumDomain, NumberDomain
+from cellsim.logic.trace import Signal, Trace
+from cellsim.channels import ChannelSpec
+from cellsim.services.blackbox import BlackBox
+
+Domain = EnumDomain | BoolDomain | NumberDomain
+
+
+class TraceError(Exception):
+    """The black box cannot give the trace asked for (unknown channel, no messages).
+
+    ``variable`` names the alias at fault, when there is one.
+    """
+
+    def __init__(self, message: str, variable: str | None = None):
+        super().__init__(message)
+        self.variable = variable
+
+
+def domain_of(kind: str, domain: object, unit: str | None) -> Domain | None:
+    """The logic domain of a channel (its kind, enum values, unit), or ``None`` for a vector."""
+    if kind == "enum":
+        return EnumDomain(tuple(domain))
+    if kind == "bool":
+        return BoolDomain()
+    if kind == "number":
+        return NumberDomain(unit)
+    return None
+
+
+def blackbox_domains(bb: BlackBox) -> dict[str, Domain]:
+    """Domain of every scalar channel recorded in ``bb``."""
+    domains = {name: domain_of(i.kind, i.domain, i.unit) for name, i in bb.channels().items()}
+    return {name: d for name, d in domains.items() if d is not None}
+
+
+def channel_domains(specs: Iterable[ChannelSpec]) -> dict[str, Domain]:
+    """Domain of every scalar channel a diagram publishes (before anything is recorded)."""
+    domains = {s.name: domain_of(s.type.kind, s.type.domain(), s.type.unit) for s in specs}
+    return {name: d for name, d in domains.items() if d is not None}
+
+
+def with_aliases(domains: dict[str, Domain], aliases: dict[str, str], channels: Iterable[str]) -> dict[str, Domain]:
+    """The vocabulary of a run: its scalar channels plus the aliases (variable -> channel).
+
+    Raises :class:`TraceError` naming the variable when an alias names a channel
+    that does not exist (``channels`` lists them all), a vector channel, or hides
+    another channel's name.
+    """
+    channels = set(channels)
+    vocabulary = dict(domains)
+    for variable, channel in aliases.items():
+        if channel not in channels:
+            close = difflib.get_close_matches(channel, sorted(channels), n=1)
+            hint = f" (did you mean '{close[0]}'?)" if close else ""
+            raise TraceError(f"there is no channel '{channel}'{hint}", variable)
+        if channel not in domains:
+            raise TraceError(f"channel '{channel}' is a vector, not a trace variable", variable)
+        if variable in channels and variable != channel:
+            raise TraceError("the name would hide the channel of the same name", variable)
+        vocabulary[variable] = domains[channel]
+    return vocabulary
+
+
+@dataclass
+class RunTrace:
+    """A run's trace with the vocabulary its formulas are parsed against."""
+
+    trace: Trace
+    vocabulary: dict[str, Domain]
+
+    def to_json(self) -> dict[str, list[list]]:
+        """``{variable: [[t, value], ...]}`` (the ``--export-trace`` format)."""
+        return {
+            name: [[t, v] for t, v in zip(signal.times.tolist(), signal.values)]
+            for name, signal in sorted(self.trace.signals.items())
+        }
+
+
+def trace_of_run(bb: BlackBox, aliases: dict[str, str] | None = None) -> RunTrace:
+    """The trace of the run recorded in ``bb``, with ``aliases`` (variable -> channel) added."""
+    aliases = dict(aliases or {})
+    domains = blackbox_domains(bb)
+    try:
+        vocabulary = with_aliases(domains, aliases, bb.channels())
+    except TraceError as e:
+        raise TraceError(f"{bb.path}: variable '{e.variable}': {e}", e.variable) from None
+
+    samples: dict[str, tuple[list[float], list]] = {name: ([], []) for name in domains}
+    last_t = 0.0
+    for t, channel, value in bb.iter_values(list(samples)):
+        times, values = samples[channel]
+        if times and t <= times[-1]:
+            if t < times[-1]:
+                raise TraceError(f"{bb.path}: channel '{channel}' goes back in time at t = {t}")
+            values[-1] = value  # two messages at one instant: the later one holds
+            continue
+        times.append(t)
+        values.append(value)
+        last_t = max(last_t, t)
+
+    metadata = bb.metadata()
+    end = metadata.get("duration") if metadata.get("status") == "completed" else None
+    end = float(end) if end else last_t
+    if end <= 0.0:
+        raise TraceError(f"{bb.path}: the run recorded no time (no messages after t = 0)")
+    signals = {name: Signal(np.asarray(ts, dtype=np.float64), vs) for name, (ts, vs) in samples.items()}
+    for variable, channel in aliases.items():
+        signals[variable] = signals[channel]
+    return RunTrace(Trace(signals, 0.0, end), vocabulary)
+
+
+def write_trace_json(run_trace: RunTrace, path: str | os.PathLike) -> None:
+    """Write the trace as JSON, atomically (a temporary file replaced in one step)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    lines = [f"  {json.dumps(name)}: {json.dumps(samples)}" for name, samples in run_trace.to_json().items()]
+    tmp.write_text("{\n" + ",\n".join(lines) + "\n}\n")
+    tmp.replace(path)
