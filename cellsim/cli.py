@@ -8,6 +8,7 @@ file, line and key); 130 interrupted.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from datetime import datetime
 from pathlib import Path
@@ -66,6 +67,41 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--quiet", action="store_true", help="print nothing but errors")
     sim.set_defaults(handler=cmd_simulate)
 
+    chk = sub.add_parser(
+        "check",
+        help="check a run's black box against the safety conditions",
+        description="Rebuild a run's trace from its black box and evaluate every safety condition "
+        "and use-case classifier of the scenario's validation section. RUN is a run folder (as written "
+        "by simulate) or a black-box file. Exits 0 if every condition holds, 1 if one is violated.",
+    )
+    chk.add_argument("run", type=Path, help="run folder or blackbox.sqlite")
+    chk.add_argument(
+        "--scenario", type=Path, help="check against this scenario's conditions (default: the run's scenario.yaml)"
+    )
+    chk.add_argument("--json", action="store_true", help="print the verdicts as JSON on standard output")
+    chk.add_argument(
+        "--export-trace", type=Path, metavar="FILE", help="also write the trace as JSON: {variable: [[t, value], ...]}"
+    )
+    chk.set_defaults(handler=cmd_check)
+
+    camp = sub.add_parser(
+        "campaign",
+        help="simulate and check many sampled variants of a scenario",
+        description="Draw --runs variants of the scenario from its samplers (campaign.samplers), simulate "
+        "each in a worker process, check its safety conditions, use cases and coverage, and write "
+        "OUT/results.json and OUT/report.html. Re-running the same command on the same OUT resumes it. "
+        "Exits 1 if any run violates a condition.",
+    )
+    camp.add_argument("scenario", type=Path, help="scenario YAML file")
+    camp.add_argument("--runs", type=int, help="number of runs (default: the scenario's campaign.runs)")
+    camp.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: one per CPU)")
+    camp.add_argument("--seed", type=int, default=0, help="campaign seed: run i is a pure function of it and i (default 0)")
+    camp.add_argument("--out", type=Path, help="campaign folder (default: campaigns/<scenario>-seed<seed>)")
+    camp.add_argument("--duration", type=float, help="simulated seconds per run (default: the scenario's duration)")
+    _add_set(camp)
+    camp.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    camp.set_defaults(handler=cmd_campaign)
+
     scenario = sub.add_parser("scenario", help="inspect scenario files", description="Inspect scenario files.")
     ssub = scenario.add_subparsers(metavar="ACTION")
     export = ssub.add_parser(
@@ -79,7 +115,9 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("--out", type=Path, help="write to this file instead of standard output")
     export.set_defaults(handler=cmd_export)
     check = ssub.add_parser(
-        "check", help="check a scenario without running it", description="Load and wire a scenario; report the first problem."
+        "check",
+        help="check a scenario without running it",
+        description="Load and wire a scenario and compile its safety conditions; report the first problem.",
     )
     check.add_argument("scenario", type=Path)
     _add_set(check)
@@ -196,6 +234,145 @@ def print_summary(summary) -> None:
     console.print(table)
 
 
+def cmd_check(args) -> int:
+    import json
+
+    from cellsim.scenario import load_scenario
+    from cellsim.services.blackbox import BlackBoxError
+    from cellsim.validation.check import CheckError, check_run
+    from cellsim.validation.traces import TraceError, write_trace_json
+
+    try:
+        sf = load_scenario(args.scenario) if args.scenario else None
+        checked = check_run(args.run, sf)
+    except (CheckError, BlackBoxError, TraceError) as e:
+        raise InputError(str(e)) from None
+    result = checked.result
+    if args.export_trace:
+        write_trace_json(checked.trace, args.export_trace)
+    if args.json:
+        json.dump(
+            {
+                "run": str(args.run),
+                "holds": not result.violations,
+                "verdicts": result.verdicts_json(),
+                "violations": result.violations,
+                "use_cases": result.use_cases,
+                "coverage": result.coverage,
+            },
+            sys.stdout,
+            indent=2,
+        )
+        sys.stdout.write("\n")
+    else:
+        print_verdicts(args.run, checked)
+    return EXIT_FINDING if result.violations else EXIT_OK
+
+
+def print_verdicts(run: Path, checked) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    result, conditions = checked.result, checked.case.validation.conditions
+    table = Table(title=f"Safety conditions on {run}", title_justify="left")
+    table.add_column("condition", style="bold")
+    table.add_column("verdict")
+    table.add_column("first violation")
+    table.add_column("formula", style="dim")
+    for name, verdict in result.verdicts.items():
+        mark = "[green]holds[/green]" if verdict.holds else "[red]VIOLATED[/red]"
+        when = "" if verdict.violated_at is None else f"t = {verdict.violated_at:.2f} s"
+        table.add_row(name, mark, when, conditions[name])
+    console = Console()
+    console.print(table)
+    console.print(f"use cases exercised: {', '.join(result.use_cases) or 'none'}")
+    n = len(result.violations)
+    console.print(f"[red]{n} of {len(result.verdicts)} conditions violated[/red]" if n else f"all {len(result.verdicts)} conditions hold")
+
+
+def cmd_campaign(args) -> int:
+    from rich.console import Console
+
+    from cellsim.campaign.runner import CampaignError, CampaignPlan, run_campaign
+
+    for flag in ("runs", "jobs"):
+        if getattr(args, flag) is not None and getattr(args, flag) < 1:
+            raise InputError(f"--{flag} must be at least 1, got {getattr(args, flag)}")
+    if args.seed < 0:
+        raise InputError(f"--seed must be non-negative, got {args.seed}")
+    if args.duration is not None and args.duration <= 0:
+        raise InputError(f"--duration must be positive, got {args.duration}")
+    sf = _load(args)
+    runs = args.runs or sf.scenario.campaign.runs
+    out = args.out or Path("campaigns") / f"{sf.scenario.name}-seed{args.seed}"
+    plan = CampaignPlan(str(args.scenario.resolve()), tuple(args.overrides), args.seed, runs, args.duration)
+    console = Console(stderr=True, quiet=args.quiet)
+    try:
+        with _campaign_progress(console, args.quiet, runs) as report:
+            outcome = run_campaign(plan, out, jobs=args.jobs, on_progress=report)
+    except CampaignError as e:
+        raise InputError(str(e)) from None
+    except KeyboardInterrupt:
+        console.print(f"interrupted: finished runs are kept; run the same command again to resume {out}")
+        raise
+    if not args.quiet:
+        print_campaign(outcome)
+    return EXIT_FINDING if outcome.violating_runs else EXIT_OK
+
+
+class _campaign_progress:
+    """A progress bar of runs done, with violations and coverage so far."""
+
+    def __init__(self, console, quiet: bool, total: int):
+        self.console, self.quiet, self.total = console, quiet, total
+        self.bar = None
+
+    def __enter__(self):
+        if self.quiet:
+            return None
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+        self.bar = Progress(
+            TextColumn("runs"), BarColumn(), MofNCompleteColumn(),
+            TextColumn("violating {task.fields[violating]}  failed {task.fields[failed]}  coverage {task.fields[coverage]:.0%}"),
+            TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(), console=self.console,
+        )
+        self.bar.start()
+        self.task = self.bar.add_task("campaign", total=self.total, violating=0, failed=0, coverage=0.0)
+        return self.report
+
+    def report(self, p) -> None:
+        self.bar.update(self.task, completed=p.done, violating=p.violating_runs, failed=p.failed, coverage=p.coverage)
+
+    def __exit__(self, *exc):
+        if self.bar is not None:
+            self.bar.stop()
+
+
+def print_campaign(outcome) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    totals, timing = outcome.results["totals"], outcome.timing
+    console = Console()
+    table = Table(title="Campaign", show_header=False, title_justify="left")
+    table.add_column(style="bold")
+    table.add_column()
+    table.add_row("runs", f"{totals['runs']} ({outcome.resumed} resumed, {totals['failed']} failed)")
+    bad = {c: n for c, n in totals["violations"].items() if n}
+    table.add_row(
+        "violating runs",
+        f"[red]{totals['violating_runs']}[/red]: " + ", ".join(f"{c} in {n}" for c, n in bad.items())
+        if bad else "none: every condition holds in every run",
+    )
+    table.add_row("use cases", ", ".join(f"{u} {n}" for u, n in totals["use_cases"].items()) or "-")
+    table.add_row("coverage", f"{totals['coverage']['overall']['fraction']:.0%} of situations")
+    table.add_row("time per stage", ", ".join(f"{k} {v:.1f} s" for k, v in timing.items()))
+    table.add_row("results", str(outcome.results_path))
+    table.add_row("report", str(outcome.report_path))
+    console.print(table)
+
+
 def cmd_export(args) -> int:
     from cellsim.scenario import export_scenario
 
@@ -211,11 +388,14 @@ def cmd_export(args) -> int:
 
 
 def cmd_scenario_check(args) -> int:
-    from diagrams.cell import build_cell
+    from cellsim.validation.check import scenario_safety_case
 
     sf = _load(args)
-    build_cell(sf, seed=sf.scenario.seed, duration=sf.scenario.duration, record=False)
-    print(f"{args.scenario}: ok")
+    case = scenario_safety_case(sf)  # builds and wires the diagram, then compiles the formulas
+    print(
+        f"{args.scenario}: ok ({len(case.conditions)} safety conditions, {len(case.use_cases)} use cases, "
+        f"{len(sf.scenario.validation.coverage)} coverage criteria)"
+    )
     return EXIT_OK
 
 

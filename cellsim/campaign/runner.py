@@ -1,0 +1,340 @@
+"""Test campaigns: many sampled variants of a scenario, simulated and checked in parallel.
+
+A campaign is a pure function of the scenario (with its ``--set`` overrides),
+the campaign seed and the number of runs. Run ``i`` draws its configuration
+from the scenario's samplers (``campaign.samplers``) and its simulation seed
+from ``(seed, i)`` (see :mod:`cellsim.campaign.samplers`), so any run can be
+redone alone, in any order, in any process.
+
+The output folder holds::
+
+    OUT/campaign.json        the plan: scenario, overrides, seed, samplers
+    OUT/runs/0007/           one folder per run, as written by ``cellsim simulate``,
+        blackbox.sqlite      ... its black box
+        scenario.yaml        ... the run's resolved scenario, seed included:
+                             ``cellsim simulate OUT/runs/0007/scenario.yaml`` redoes it
+        result.json          ... its verdicts, use cases and covered situations;
+                             written last, so its presence means the run is done
+    OUT/results.json         every run's result and the totals
+    OUT/report.html          the self-contained report
+
+Running the same command again on the same ``OUT`` resumes: finished runs are
+kept, unfinished ones are redone. Asking for more runs extends the campaign.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import shutil
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import asdict, dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Callable
+
+from cellsim.campaign.samplers import draw_configuration, run_seed
+from cellsim.config.typed_yaml import to_data
+
+PLAN = "campaign.json"
+RESULTS = "results.json"
+REPORT = "report.html"
+RESULT = "result.json"
+RUNS = "runs"
+
+
+class CampaignError(Exception):
+    """The campaign cannot start: a different campaign already lives in its folder."""
+
+
+@dataclass(frozen=True)
+class CampaignPlan:
+    """What defines a campaign; runs are numbered 0 .. runs-1."""
+
+    scenario: str
+    """Absolute path of the scenario file."""
+    overrides: tuple[str, ...]
+    seed: int
+    runs: int
+    duration: float | None = None
+
+    def identity(self) -> dict:
+        """Everything that must match for a folder to be resumed (all but the number of runs)."""
+        data = asdict(self)
+        data.pop("runs")
+        data["overrides"] = list(self.overrides)
+        return data
+
+
+def run_dir(out: Path, index: int) -> Path:
+    return out / RUNS / f"{index:04d}"
+
+
+def run_overrides(plan: CampaignPlan, configuration: dict[str, object], seed: int) -> list[str]:
+    """The ``--set`` overrides that make run ``index`` out of the scenario."""
+    sets = list(plan.overrides) + [f"{path}={_yaml_scalar(v)}" for path, v in configuration.items()]
+    sets.append(f"seed={seed}")
+    if plan.duration is not None:
+        sets.append(f"duration={plan.duration}")
+    return sets
+
+
+def _yaml_scalar(value: object) -> str:
+    return json.dumps(value) if isinstance(value, (bool, str)) else repr(value)
+
+
+# --------------------------------------------------------------------------- one run (in a worker)
+
+_case_cache: dict = {}
+
+
+def _safety_case(sf):
+    """The compiled safety case, once per worker (every run of a campaign has the same channels)."""
+    from cellsim.validation.check import scenario_safety_case
+
+    key = (sf.source, tuple(sf.scenario.validation.conditions.items()))
+    case = _case_cache.get(key)
+    if case is None:
+        case = _case_cache[key] = scenario_safety_case(sf)
+    return case
+
+
+def execute_run(plan: CampaignPlan, out: Path, index: int) -> dict:
+    """Simulate and check run ``index``; returns its result (also written to its folder).
+
+    Never raises for a problem of the run itself: a run that fails is reported
+    with ``status: failed`` and the error, and the campaign goes on.
+    """
+    from cellsim.scenario import load_scenario
+    from cellsim.services.blackbox import BlackBox
+    from cellsim.simulation import BLACKBOX, simulate
+    from cellsim.validation.traces import trace_of_run
+
+    sf_base = load_scenario(plan.scenario, plan.overrides)
+    sc = sf_base.scenario
+    points = {name: point.paths for name, point in sc.configuration_points.items()}
+    configuration = draw_configuration(sc.campaign.samplers, points, plan.seed, index)
+    seed = run_seed(plan.seed, index)
+    folder = run_dir(out, index)
+    result: dict = {"index": index, "seed": seed, "configuration": configuration, "out": str(folder.relative_to(out))}
+    timing: dict[str, float] = {}
+    try:
+        started = time.perf_counter()
+        sf = load_scenario(plan.scenario, run_overrides(plan, configuration, seed))
+        case = _safety_case(sf)
+        if folder.exists():
+            shutil.rmtree(folder)  # an unfinished earlier attempt
+        summary = simulate(sf, folder)
+        timing["simulate"] = time.perf_counter() - started
+        t0 = time.perf_counter()
+        with BlackBox(folder / BLACKBOX) as bb:
+            trace = trace_of_run(bb, sc.validation.variables)
+        t1 = time.perf_counter()
+        checked = case.check(trace.trace)
+        timing["trace"], timing["check"] = t1 - t0, time.perf_counter() - t1
+        result.update(
+            status=summary.status,
+            verdicts=checked.verdicts_json(),
+            violations=checked.violations,
+            use_cases=checked.use_cases,
+            coverage=checked.coverage,
+            cycles_completed=summary.cycles_completed,
+            wall_time=time.perf_counter() - started,
+        )
+    except Exception as e:  # noqa: BLE001 - a failed run is a result, not the campaign's end
+        result.update(status="failed", error=f"{type(e).__name__}: {e}", wall_time=time.perf_counter() - started)
+    result["timing"] = timing
+    folder.mkdir(parents=True, exist_ok=True)
+    _write_json(folder / RESULT, result)
+    return result
+
+
+def _write_json(path: Path, data) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=1))
+    tmp.replace(path)
+
+
+# --------------------------------------------------------------------------- the campaign
+
+
+@dataclass
+class Progress:
+    """What the campaign reports after every finished run."""
+
+    done: int
+    total: int
+    violating_runs: int
+    failed: int
+    coverage: float
+
+
+@dataclass
+class CampaignOutcome:
+    results: dict
+    results_path: Path
+    report_path: Path
+    resumed: int = 0
+    timing: dict = field(default_factory=dict)
+
+    @property
+    def violating_runs(self) -> int:
+        return self.results["totals"]["violating_runs"]
+
+
+def prepare(plan: CampaignPlan, out: Path) -> list[dict]:
+    """Create or resume the campaign folder; returns the results of runs already done."""
+    plan_path = out / PLAN
+    if plan_path.exists():
+        try:
+            previous = json.loads(plan_path.read_text())
+        except json.JSONDecodeError as e:
+            raise CampaignError(f"{plan_path}: unreadable ({e}); choose another --out") from None
+        if previous.get("identity") != plan.identity():
+            raise CampaignError(
+                f"{out} holds a different campaign (scenario, overrides, seed or duration differ); choose another --out"
+            )
+    elif out.exists() and any(out.iterdir()):
+        raise CampaignError(f"{out} exists and is not a campaign folder; choose another --out")
+    out.mkdir(parents=True, exist_ok=True)
+    _write_json(plan_path, {"identity": plan.identity(), "runs": plan.runs})
+    done = []
+    for index in range(plan.runs):
+        path = run_dir(out, index) / RESULT
+        if path.is_file():
+            try:
+                done.append(json.loads(path.read_text()))
+            except json.JSONDecodeError:
+                path.unlink()  # a result cut short: redo the run
+    return done
+
+
+def run_campaign(
+    plan: CampaignPlan,
+    out: str | os.PathLike,
+    jobs: int = 1,
+    on_progress: Callable[[Progress], None] | None = None,
+) -> CampaignOutcome:
+    """Run (or resume) the campaign into ``out``; writes results.json and report.html.
+
+    Raises ConfigError for a bad scenario and CampaignError for a bad folder,
+    both before any run starts. KeyboardInterrupt stops the workers; finished
+    runs stay, and running the same campaign again resumes it.
+    """
+    from cellsim.scenario import load_scenario
+
+    out = Path(out)
+    wall_start = time.perf_counter()
+    sf = load_scenario(plan.scenario, plan.overrides)
+    case = _safety_case(sf)  # bad formulas stop the campaign before it starts
+    results = {r["index"]: r for r in prepare(plan, out)}
+    resumed = len(results)
+    todo = [i for i in range(plan.runs) if i not in results]
+
+    def report_progress():
+        if on_progress is not None:
+            runs = list(results.values())
+            coverage = case.coverage.merge([r["coverage"] for r in runs if "coverage" in r]).overall
+            on_progress(
+                Progress(
+                    len(runs),
+                    plan.runs,
+                    sum(1 for r in runs if r.get("violations")),
+                    sum(1 for r in runs if r.get("status") == "failed"),
+                    coverage,
+                )
+            )
+
+    report_progress()
+    if todo:
+        if jobs <= 1:
+            for index in todo:
+                results[index] = execute_run(plan, out, index)
+                report_progress()
+        else:
+            _run_parallel(plan, out, todo, jobs, results, report_progress)
+    return finish(plan, out, sf, case, [results[i] for i in range(plan.runs)], resumed, wall_start)
+
+
+def _run_parallel(plan, out, todo, jobs, results, report_progress) -> None:
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(["cellsim.campaign.runner", "cellsim.simulation", "cellsim.validation.check"])
+    executor = ProcessPoolExecutor(max_workers=jobs, mp_context=context)
+    try:
+        pending = {executor.submit(execute_run, plan, out, i) for i in todo}
+        while pending:
+            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for future in finished:
+                result = future.result()
+                results[result["index"]] = result
+            report_progress()
+    except BaseException:
+        executor.shutdown(wait=True, cancel_futures=True)
+        raise
+    executor.shutdown(wait=True)
+
+
+def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start: float) -> CampaignOutcome:
+    """Totals, results.json and report.html from the runs' results."""
+    from cellsim.campaign.report import write_report
+    from cellsim.services.blackbox import BlackBox
+    from cellsim.simulation import BLACKBOX
+    from cellsim.validation.traces import trace_of_run
+
+    sc = sf.scenario
+    t0 = time.perf_counter()
+    coverage = case.coverage.merge([r["coverage"] for r in runs if "coverage" in r])
+    t_coverage = time.perf_counter() - t0
+    completed = [r for r in runs if r.get("status") != "failed"]
+    conditions = list(sc.validation.conditions)
+    stage = lambda name: sum(r.get("timing", {}).get(name, 0.0) for r in runs)  # noqa: E731
+    results = {
+        "campaign": {
+            "scenario": plan.scenario,
+            "scenario_name": sc.name,
+            "overrides": list(plan.overrides),
+            "runs": plan.runs,
+            "seed": plan.seed,
+            "duration": plan.duration if plan.duration is not None else sc.duration,
+            "created": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "conditions": dict(sc.validation.conditions),
+            "use_cases": dict(sc.validation.use_cases),
+            "samplers": {name: to_data(s) for name, s in sc.campaign.samplers.items()},
+        },
+        "runs": [{**r, "rerun": _rerun_command(out, r)} for r in runs],
+        "totals": {
+            "runs": len(runs),
+            "completed": len(completed),
+            "failed": len(runs) - len(completed),
+            "violating_runs": sum(1 for r in runs if r.get("violations")),
+            "violations": {c: sum(c in r.get("violations", ()) for r in runs) for c in conditions},
+            "use_cases": {u: sum(u in r.get("use_cases", ()) for r in runs) for u in sc.validation.use_cases},
+            "coverage": coverage.to_json(),
+        },
+        "timing": {
+            "simulate": stage("simulate"),
+            "trace": stage("trace"),
+            "check": stage("check"),
+            "coverage": t_coverage,
+        },
+    }
+    t0 = time.perf_counter()
+    timelines = {}
+    for r in runs:
+        if r.get("violations"):
+            with BlackBox(out / r["out"] / BLACKBOX) as bb:
+                timelines[r["index"]] = trace_of_run(bb, sc.validation.variables).to_json()
+    results["timing"]["report"] = time.perf_counter() - t0
+    results["timing"]["wall"] = time.perf_counter() - wall_start
+    write_report(out / REPORT, results, timelines)
+    results["timing"]["report"] = time.perf_counter() - t0
+    results["timing"]["wall"] = time.perf_counter() - wall_start
+    _write_json(out / RESULTS, results)
+    return CampaignOutcome(results, out / RESULTS, out / REPORT, resumed, results["timing"])
+
+
+def _rerun_command(out: Path, run: dict) -> str:
+    folder = out / run["out"]
+    return f"cellsim simulate {folder / 'scenario.yaml'} --out {folder}-rerun"

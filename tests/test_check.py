@@ -1,0 +1,163 @@
+"""Traces from black boxes and the ``cellsim check`` command: verdicts, JSON, exported traces, bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sqlite3
+
+import pytest
+from conftest import WELDING_CELL, run, welding_cell
+
+from cellsim.cli import main
+from cellsim.services.blackbox import BlackBox
+from cellsim.validation.check import check_run
+from cellsim.validation.traces import trace_of_run
+
+ALIASES = {"safmod": "robot.safety_mode", "HS": "safety_controller.HS", "oloc": "operator.location"}
+
+
+@pytest.fixture(scope="module")
+def default_run(tmp_path_factory):
+    """The welding cell as shipped: the operator reaches at the bench, walks into the cell and leaves."""
+    out = tmp_path_factory.mktemp("check") / "run"
+    run(welding_cell(), out).close()
+    return out
+
+
+@pytest.fixture(scope="module")
+def operator_stays_in_cell(tmp_path_factory):
+    """The operator never leaves the cell: Final:Cell is violated."""
+    out = tmp_path_factory.mktemp("check") / "stays"
+    run(welding_cell("operator.waypoints.cell.wait=100"), out, duration=25.0).close()
+    return out
+
+
+def test_trace_has_one_piecewise_constant_signal_per_scalar_channel(default_run):
+    with BlackBox(default_run / "blackbox.sqlite") as bb:
+        rt = trace_of_run(bb, ALIASES)
+        channels = bb.channels()
+        series = {name: bb.series(name) for name in channels}
+    trace = rt.trace
+    assert (trace.start, trace.end) == (0.0, 30.0)
+    scalar = {n for n, c in channels.items() if c.kind != "vector"}
+    assert set(trace.signals) == scalar | set(ALIASES)
+    for name in scalar:
+        # two messages at one instant (the initial value and the first update's): the later holds
+        last = dict(zip(series[name].times.tolist(), series[name].values))
+        assert trace.signals[name].times.tolist() == list(last)
+        assert trace.signals[name].values == list(last.values())
+    # an alias is its channel's signal, and its domain is the channel's
+    assert trace.signals["HS"] is trace.signals["safety_controller.HS"]
+    assert rt.vocabulary["safmod"] == rt.vocabulary["robot.safety_mode"]
+    # the value holds from its message until the next one
+    hs = series["safety_controller.HS"]
+    t_act = hs.times[hs.values.index("act")]
+    assert trace.value_at("HS", t_act) == "act"
+    assert trace.value_at("HS", t_act - 1e-9) == "inact"
+
+
+def test_check_holds_on_the_default_run_and_says_which_use_cases(default_run, capsys):
+    assert main(["check", str(default_run), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["holds"] is True
+    assert len(report["verdicts"]) == 14
+    assert all(v == {"holds": True, "violated_at": None} for v in report["verdicts"].values())
+    assert report["use_cases"] == ["U1", "U2"]  # reaches across the table, walks to the welder
+    assert ["ssmon"] in report["coverage"]["safmod"]  # HS was mitigated by speed and separation monitoring
+
+
+def test_check_exits_1_and_names_the_violated_condition(operator_stays_in_cell, capsys):
+    assert main(["check", str(operator_stays_in_cell), "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert report["holds"] is False
+    assert set(report["violations"]) == {"Final:Cell", "HS:handled", "HC:handled"}
+    assert report["verdicts"]["Final:Cell"] == {"holds": False, "violated_at": 0.0}
+    # HS (and HC) are mitigated when the operator comes near, never handled: the first
+    # violation is the instant the mitigation starts
+    with BlackBox(operator_stays_in_cell / "blackbox.sqlite") as bb:
+        hs = bb.series("safety_controller.HS")
+    assert report["verdicts"]["HS:handled"]["violated_at"] == hs.times[hs.values.index("mit")]
+    assert report["verdicts"]["Final:Tbl"]["holds"] is True
+
+
+def test_check_prints_a_verdict_table(operator_stays_in_cell, capsys):
+    assert main(["check", str(operator_stays_in_cell)]) == 1
+    out = capsys.readouterr().out
+    assert "Final:Cell" in out and "VIOLATED" in out and "F G(oloc == none)" in out
+
+
+def test_export_trace_round_trips(default_run, tmp_path, capsys):
+    target = tmp_path / "trace.json"
+    assert main(["check", str(default_run), "--export-trace", str(target)]) == 0
+    exported = json.loads(target.read_text())
+    checked = check_run(default_run)
+    for name, signal in checked.trace.trace.signals.items():
+        assert exported[name] == [[t, v] for t, v in zip(signal.times.tolist(), signal.values)]
+    assert exported["safmod"][0] == [0.0, "normal"]
+    assert not list(tmp_path.glob("*.tmp"))
+
+
+def test_check_a_black_box_file_against_another_scenario(default_run, tmp_path, capsys):
+    """A recording with no scenario beside it (as made beside the real cell) is checked with --scenario."""
+    lone = tmp_path / "recording.sqlite"
+    shutil.copy(default_run / "blackbox.sqlite", lone)
+    assert main(["check", str(lone), "--json"]) == 2
+    assert "--scenario" in capsys.readouterr().err
+    assert main(["check", str(lone), "--scenario", str(WELDING_CELL), "--json"]) == 0
+
+
+def test_an_interrupted_run_is_checked_up_to_its_last_message(default_run, tmp_path):
+    partial = tmp_path / "partial"
+    shutil.copytree(default_run, partial)
+    with sqlite3.connect(partial / "blackbox.sqlite") as db:
+        db.execute("DELETE FROM messages WHERE t > 12.0")
+        db.execute("UPDATE metadata SET value = '\"interrupted\"' WHERE key = 'status'")
+    checked = check_run(partial)
+    assert checked.trace.trace.end == pytest.approx(12.0, abs=0.11)
+
+
+def _one_error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    return err
+
+
+def test_bad_runs_exit_2_with_one_line(tmp_path, capsys):
+    assert main(["check", str(tmp_path / "nowhere")]) == 2
+    assert "no such run folder" in _one_error_line(capsys)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["check", str(empty)]) == 2
+    assert "not a run folder" in _one_error_line(capsys)
+    junk = tmp_path / "junk.sqlite"
+    junk.write_text("not a database")
+    assert main(["check", str(junk), "--scenario", str(WELDING_CELL)]) == 2
+    assert "junk.sqlite" in _one_error_line(capsys)
+
+
+def _scenario_with_validation(tmp_path, validation_text: str):
+    """A copy of the welding cell whose validation file is ``validation_text``."""
+    folder = tmp_path / "scenario"
+    shutil.copytree(WELDING_CELL.parent, folder)
+    (folder / "welding_cell_validation.yaml").write_text(validation_text)
+    return folder / "welding_cell.yaml"
+
+
+@pytest.mark.parametrize(
+    "edit, expected",
+    [
+        (("HS == act))", "HS == akt))"), "welding_cell_validation.yaml:45: conditions.HS:detected: column 52 of the formula: 'akt' is not a value of HS"),
+        (("HC_e: permissive", "HC_e: permisive"), "welding_cell_validation.yaml:36: macros.HC_e: column 1 of the formula"),
+        (("sep: ground_truth.separation", "sep: ground_truth.distance"), "welding_cell_validation.yaml:28: variables.sep: there is no channel 'ground_truth.distance'"),
+        (("variables: [rloc, rngDet]", "variables: [rloc, rngdet]"), "coverage"),
+    ],
+)
+def test_bad_conditions_are_found_before_anything_runs(default_run, tmp_path, capsys, edit, expected):
+    text = (WELDING_CELL.parent / "welding_cell_validation.yaml").read_text()
+    assert edit[0] in text
+    scenario = _scenario_with_validation(tmp_path, text.replace(edit[0], edit[1]))
+    assert main(["scenario", "check", str(scenario)]) == 2
+    assert expected in _one_error_line(capsys)
+    assert main(["check", str(default_run), "--scenario", str(scenario)]) == 2
+    assert expected in _one_error_line(capsys)
