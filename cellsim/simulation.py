@@ -115,6 +115,7 @@ def simulate(
     writer = BlackBoxWriter(out_dir / BLACKBOX, batch_size=recorder_cfg.batch_size if recorder_cfg else 5000)
     status = "failed"
     started = time.perf_counter()
+    context = simulator.get_mutable_context()
     sim_time = 0.0
     try:
         if cell.recorder is not None:
@@ -133,9 +134,11 @@ def simulate(
         started = time.perf_counter()
         try:
             step = 1.0
-            while simulator.get_context().get_time() < duration - 1e-9:
-                simulator.AdvanceTo(min(duration, simulator.get_context().get_time() + step))
-                sim_time = simulator.get_context().get_time()
+            while context.get_time() < duration - 1e-9:
+                simulator.AdvanceTo(min(duration, context.get_time() + step))
+                sim_time = context.get_time()
+                if cell.recorder is not None:
+                    cell.recorder.drain(context)
                 if on_progress:
                     on_progress(sim_time, duration)
             status = "completed"
@@ -144,6 +147,8 @@ def simulate(
             raise
     finally:
         wall = time.perf_counter() - started
+        if cell.recorder is not None:
+            cell.recorder.drain(context)  # what was logged before an interruption
         writer.close(status)
     return summarise(out_dir, seed, status, sim_time, wall)
 

@@ -105,7 +105,7 @@ def build_cell(
     sc = sf.scenario
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(
-        MultibodyPlantConfig(time_step=sc.time_step, discrete_contact_approximation="sap"), builder
+        MultibodyPlantConfig(time_step=sc.time_step, discrete_contact_approximation="sap", use_sampled_output_ports=False), builder
     )
     plant.set_name("plant")
     _add_fixtures(plant, sf)
@@ -199,11 +199,7 @@ def build_cell(
     recorder = None
     for name, cfg in sc.services.items():
         if isinstance(cfg, RecorderConfig) and record:
-            specs = [spec for spec, _ in channels.values()]
-            recorder = builder.AddSystem(Recorder(name, specs))
-            for spec, port in channels.values():
-                builder.Connect(port, recorder.GetInputPort(spec.name))
-            modules[name] = recorder
+            recorder = Recorder(builder, name, list(channels.values()))
 
     visualizer = None
     if meshcat is not None:

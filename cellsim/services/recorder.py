@@ -1,77 +1,96 @@
-"""The message snooper: a Drake system that writes every channel's messages to the black box.
+"""The message snooper: every channel of the cell, logged in C++ and written to the black box.
 
-It has one input port per channel, named after the channel. Channels are
-grouped by how often they are to be read (their publisher's period, or their
-``record_period``), and each group is read by a periodic publish event at that
-rate, so nothing is read more often than it can change.
+All channels are multiplexed into one vector that a Drake ``VectorLogSink``
+samples at the shortest channel period; no Python runs while the simulator
+steps. ``drain`` (called by the simulation loop after each chunk of simulated
+time, and at the end) turns the new samples into messages:
+
+* a channel is looked at every ``sample_period`` (its publisher's period, or
+  its ``record_period``), so nothing is read more often than it can change;
+* ``on_change`` channels give a message when their value differs from the
+  last one written, ``every_sample`` channels give one every time they are looked at.
 
 Drake dispatches a periodic publish at time t *before* the discrete updates at
-t, so what the recorder reads at t was produced by the publisher's update at
-t - period (its latest). Messages are stamped with that time: the simulated
-time at which the value was published. The initial values are read when the
-simulator initialises, at t = 0.
+t, so a sample taken at t holds what the publisher's update at t - period
+produced. Messages are stamped with that time: the simulated time at which the
+value was published. The initial values are sampled at t = 0.
 """
 
 from __future__ import annotations
 
 import json
-from collections import defaultdict
 
-from pydrake.systems.framework import LeafSystem
+import numpy as np
+from pydrake.systems.framework import DiagramBuilder, OutputPort
+from pydrake.systems.primitives import Multiplexer, VectorLogSink
 
 from cellsim.channels import ChannelSpec
 from cellsim.services.blackbox import BlackBoxWriter
 
 
-class Recorder(LeafSystem):
-    """Input ports: one per channel (``<module>.<signal>``), the channel's vector."""
+class Recorder:
+    """Adds the logging systems for ``channels`` to ``builder``; writes messages on ``drain``."""
 
-    def __init__(self, module: str, channels: list[ChannelSpec]):
-        super().__init__()
-        self.set_name(module)
+    def __init__(self, builder: DiagramBuilder, name: str, channels: list[tuple[ChannelSpec, OutputPort]]):
+        self.name = name
+        self.specs = [spec for spec, _ in channels]
         self.writer: BlackBoxWriter | None = None
-        self.specs = channels
-        groups = defaultdict(list)
-        for spec in channels:
-            port = self.DeclareVectorInputPort(spec.name, spec.type.size)
-            groups[round(spec.sample_period, 9)].append(
-                (spec.name, spec.module, port, spec.type.decode, spec.record == "on_change", spec.period)
+        sizes = [spec.type.size for spec in self.specs]
+        self.base = min(spec.sample_period for spec in self.specs)
+        mux = builder.AddNamedSystem(f"{name}.multiplexer", Multiplexer(sizes))
+        for i, (_, port) in enumerate(channels):
+            builder.Connect(port, mux.get_input_port(i))
+        self.sink = builder.AddNamedSystem(f"{name}.log", VectorLogSink(sum(sizes), self.base))
+        builder.Connect(mux.get_output_port(0), self.sink.get_input_port())
+        offsets = np.cumsum([0] + sizes)
+        # Channels in the order the messages of one instant are written: by
+        # sample period, then as declared.
+        order = sorted(range(len(self.specs)), key=lambda i: (round(self.specs[i].sample_period, 9), i))
+        self._channels = [
+            (
+                self.specs[i],
+                slice(int(offsets[i]), int(offsets[i + 1])),
+                max(1, round(self.specs[i].sample_period / self.base)),
             )
-        self._last: dict[str, tuple] = {}
-        # One publish event at the shortest period reads the groups that are due:
-        # one callback per tick instead of one per group.
-        base = min(groups) if groups else 1.0
-        self._schedule = [(max(1, round(period / base)), self._publisher(members)) for period, members in sorted(groups.items())]
-        self.DeclarePeriodicPublishEvent(base, 0.0, self._publish_due)
-        self._base = base
-
-    def _publish_due(self, context):
-        tick = round(context.get_time() / self._base)
-        for every, publish in self._schedule:
-            if tick % every == 0:
-                publish(context)
+            for i in order
+        ]
+        self._last: dict[str, np.ndarray] = {}
 
     def attach(self, writer: BlackBoxWriter) -> None:
         """Write to ``writer`` from now on (a diagram is built before its output exists)."""
         self.writer = writer
         writer.add_channels(self.specs)
 
-    def _publisher(self, members):
-        last, dumps = self._last, json.dumps
-
-        def publish(context):
-            if self.writer is None:
-                return
-            append = self.writer.append
-            now = context.get_time()
-            for name, source, port, decode, on_change, period in members:
-                vector = port.Eval(context)
-                if on_change:
-                    key = vector[0] if len(vector) == 1 else tuple(vector)
-                    if last.get(name) == key:
-                        continue
-                    last[name] = key
-                t = round(now - period, 9) if now >= period else 0.0
-                append((t, name, source, dumps({"value": decode(vector)})))
-
-        return publish
+    def drain(self, root_context) -> int:
+        """Write the messages of the samples logged since the last drain; returns how many."""
+        log = self.sink.FindMutableLog(root_context)
+        times, data = log.sample_times().copy(), log.data().copy()
+        log.Clear()
+        if self.writer is None or len(times) == 0:
+            return 0
+        ticks = np.rint(times / self.base).astype(np.int64)
+        rows: list[tuple] = []  # (sample index, channel rank, row)
+        dumps = json.dumps
+        for rank, (spec, rows_of, every) in enumerate(self._channels):
+            due = np.flatnonzero(ticks % every == 0)
+            if len(due) == 0:
+                continue
+            values = data[rows_of, :][:, due]
+            if spec.record == "on_change":
+                previous = self._last.get(spec.name)
+                first = previous is None or not np.array_equal(values[:, 0], previous)
+                changed = np.concatenate(([first], np.any(values[:, 1:] != values[:, :-1], axis=0)))
+                self._last[spec.name] = values[:, -1].copy()
+                picked = np.flatnonzero(changed)
+            else:
+                picked = np.arange(len(due))
+            for j in picked:
+                k = int(due[j])
+                t = times[k] - spec.period
+                t = round(float(t), 9) if t > 0 else 0.0
+                payload = dumps({"value": spec.type.decode(values[:, j])})
+                rows.append((k, rank, (t, spec.name, spec.module, payload)))
+        rows.sort(key=lambda r: (r[0], r[1]))
+        for _, _, row in rows:
+            self.writer.append(row)
+        return len(rows)
