@@ -163,7 +163,8 @@ class LightBarrierConfig:
     kind: Literal["light_barrier"]
     center: Vec3
     size: Vec3
-    period: float = 0.02
+    period: float = 0.04
+    """Response time (s). People move every 40 ms in the twin; sampling faster reads the same geometry."""
     twin: TwinSettings = field(default_factory=TwinSettings)
 
 

@@ -44,7 +44,7 @@ def bare_plant_seconds(duration: float) -> float:
     cfg = sf.scenario.entities["robot"]
     model = str(sf.resolve_path("entities.robot.model", cfg.model))
     builder = DiagramBuilder()
-    plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=sf.scenario.time_step, discrete_contact_approximation="sap"), builder)
+    plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=sf.scenario.time_step, discrete_contact_approximation="sap", use_sampled_output_ports=False), builder)
     (arm,) = Parser(plant).AddModels(model)
     plant.WeldFrames(plant.world_frame(), plant.GetBodyByName("base_link", arm).body_frame(), robot_base_pose(cfg))
     plant.Finalize()

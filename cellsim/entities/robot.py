@@ -161,7 +161,13 @@ class Robot(EntitySystem):
         self.write_command(context, xd, view.mode, lambda: (mode.code, activity, target))
 
         if view.mode is TwinMode.MODEL:
-            motion, desired, reached = self._advance(motion, mode, target)
+            segment = motion[0]
+            if motion[1] >= 1.0 and target in (HOLD, segment):
+                # standing at the goal with nothing new to do: the motion state stays
+                motion, desired = None, None
+                reached = segment + 1.0 if segment != HOLD else 0.0
+            else:
+                motion, desired, reached = self._advance(motion, mode, target)
         elif view.sample is not None:
             q = view.sample[:6]
             motion = self._rest_at(q)
