@@ -1,0 +1,86 @@
+#!/usr/bin/env python3
+"""Benchmark: a test campaign of the welding cell, end to end, and the condition check alone.
+
+Runs ``cellsim campaign`` (the library call behind it) for --runs runs of 30
+simulated seconds with --jobs workers into a temporary folder: simulation, trace
+reconstruction, the 14 safety conditions, use cases, coverage and the HTML report.
+Prints the time per stage (summed over the workers for the per-run stages) and
+the wall time, then the time to evaluate the 14 conditions, use cases and
+coverage on one recorded 30-s trace.
+
+Targets (issue 3): 100 runs in at most 60 s wall with --jobs 2; the 14
+conditions on one 30-s trace in at most 10 ms.
+
+    .venv/bin/python scripts/bench_campaign.py [--runs 100] [--jobs 2] [--seed 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from cellsim.campaign.runner import CampaignPlan, run_campaign  # noqa: E402
+from cellsim.logic.mtl import TraceEvaluator  # noqa: E402
+from cellsim.logic.trace import Trace  # noqa: E402
+from cellsim.validation.check import check_run  # noqa: E402
+
+SCENARIO = ROOT / "scenarios" / "welding_cell.yaml"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=100)
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--scenario", type=Path, default=SCENARIO)
+    args = parser.parse_args()
+
+    with tempfile.TemporaryDirectory() as tmp:
+        plan = CampaignPlan(str(args.scenario.resolve()), (), args.seed, args.runs)
+        started = time.perf_counter()
+        outcome = run_campaign(plan, Path(tmp) / "campaign", jobs=args.jobs)
+        wall = time.perf_counter() - started
+        timing = outcome.timing
+        totals = outcome.results["totals"]
+        print(f"campaign: {args.runs} runs x 30 s, --jobs {args.jobs}, {args.scenario.name}")
+        for stage in ("simulate", "trace", "check"):
+            print(f"  {stage:<10} {timing[stage]:7.2f} s  (summed over workers, {timing[stage] / args.runs * 1e3:6.1f} ms per run)")
+        for stage in ("coverage", "report"):
+            print(f"  {stage:<10} {timing[stage]:7.2f} s")
+        print(f"  wall       {wall:7.2f} s  (target <= 60 s for 100 runs)")
+        print(
+            f"  violating runs {totals['violating_runs']}, failed {totals['failed']}, "
+            f"coverage {totals['coverage']['overall']['fraction']:.0%}"
+        )
+
+        # The check alone, on one recorded run.
+        run = Path(tmp) / "campaign" / outcome.results["runs"][0]["out"]
+        checked = check_run(run)
+        recorded, case = checked.trace.trace, checked.case
+        conditions, everything = [], []
+        for _ in range(50):
+            # a fresh trace each time: nothing cached from the previous round
+            trace = Trace(dict(recorded.signals), recorded.start, recorded.end)
+            t0 = time.perf_counter()
+            evaluator = TraceEvaluator(trace)
+            for formula in case.conditions.values():
+                evaluator.evaluate(formula)
+            conditions.append(time.perf_counter() - t0)
+            trace = Trace(dict(recorded.signals), recorded.start, recorded.end)
+            t0 = time.perf_counter()
+            case.check(trace)
+            everything.append(time.perf_counter() - t0)
+        print(f"check of one 30-s trace ({len(case.conditions)} conditions): "
+              f"{statistics.median(conditions) * 1e3:.2f} ms (target <= 10 ms); "
+              f"with use cases and coverage: {statistics.median(everything) * 1e3:.2f} ms")
+
+
+if __name__ == "__main__":
+    main()
