@@ -259,9 +259,9 @@ def run_campaign(
 
 
 def _run_parallel(plan, out, todo, jobs, results, report_progress) -> None:
-    context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload(["cellsim.campaign.runner", "cellsim.simulation", "cellsim.validation.check"])
-    executor = ProcessPoolExecutor(max_workers=jobs, mp_context=context)
+    # Fresh interpreters ("spawn"), not forks of this one: nothing of the parent's
+    # Drake state is shared, and no helper process outlives the campaign.
+    executor = ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn"))
     try:
         pending = {executor.submit(execute_run, plan, out, i) for i in todo}
         while pending:

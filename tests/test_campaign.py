@@ -1,0 +1,120 @@
+"""``cellsim campaign``: sampled runs in workers, results, report, resume, re-running one run, misuse."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+from conftest import ROOT, WELDING_CELL
+
+from cellsim.cli import main
+from cellsim.services.blackbox import BlackBox
+
+TWO_OPERATORS = ROOT / "scenarios" / "two_operators.yaml"
+WAITS = [f"operator.waypoints.{w}.wait" for w in ("bench_entrance", "bench", "cell_entrance", "cell", "exit")]
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    """Three runs of the welding cell, two workers."""
+    out = tmp_path_factory.mktemp("campaign") / "c"
+    code = main(["campaign", str(WELDING_CELL), "--runs", "3", "--jobs", "2", "--seed", "5", "--out", str(out), "--quiet"])
+    return code, out
+
+
+def _results(out):
+    return json.loads((out / "results.json").read_text())
+
+
+def test_campaign_writes_results_and_report(campaign):
+    code, out = campaign
+    assert code == 0
+    results = _results(out)
+    assert [r["index"] for r in results["runs"]] == [0, 1, 2]
+    seeds = {r["seed"] for r in results["runs"]}
+    assert len(seeds) == 3
+    for r in results["runs"]:
+        assert r["status"] == "completed"
+        # the published test vectors: five waits summing to 20 s
+        assert set(r["configuration"]) == set(WAITS)
+        assert sum(r["configuration"].values()) == pytest.approx(20.0, abs=1e-6)
+        assert len(r["verdicts"]) == 14 and r["violations"] == []
+        assert (out / r["out"] / "blackbox.sqlite").is_file()
+    totals = results["totals"]
+    assert totals["runs"] == 3 and totals["violating_runs"] == 0
+    assert totals["use_cases"]["U1"] == sum("U1" in r["use_cases"] for r in results["runs"])
+    coverage = totals["coverage"]["criteria"]["safmod"]
+    assert coverage["total"] == 6 and "safmod=hguid" in coverage["missing"]
+    assert set(results["timing"]) >= {"simulate", "trace", "check", "coverage", "report", "wall"}
+    report = (out / "report.html").read_text()
+    assert "welding_cell" in report and "safmod=hguid" in report
+
+
+def test_runs_differ_and_each_is_a_pure_function_of_seed_and_index(campaign, tmp_path):
+    _, out = campaign
+    configurations = [tuple(r["configuration"].values()) for r in _results(out)["runs"]]
+    assert len(set(configurations)) == 3
+    again = tmp_path / "again"
+    assert main(["campaign", str(WELDING_CELL), "--runs", "2", "--jobs", "1", "--seed", "5", "--out", str(again), "--quiet"]) == 0
+    for first, second in zip(_results(out)["runs"], _results(again)["runs"]):
+        assert (first["seed"], first["configuration"], first["verdicts"]) == (second["seed"], second["configuration"], second["verdicts"])
+
+
+def test_one_run_is_re_simulated_alone_from_its_folder(campaign, tmp_path):
+    _, out = campaign
+    run = out / "runs" / "0001"
+    assert main(["simulate", str(run / "scenario.yaml"), "--out", str(tmp_path / "rerun"), "--quiet"]) == 0
+    with BlackBox(run / "blackbox.sqlite") as original, BlackBox(tmp_path / "rerun" / "blackbox.sqlite") as rerun:
+        assert original.rows() == rerun.rows()
+
+
+def test_an_interrupted_campaign_resumes_and_can_be_extended(campaign, tmp_path):
+    _, finished = campaign
+    out = tmp_path / "c"
+    shutil.copytree(finished, out)
+    # run 1 was cut short: its folder exists but has no result; the totals were never written
+    (out / "runs" / "0001" / "result.json").unlink()
+    (out / "results.json").unlink()
+    kept = (out / "runs" / "0000" / "blackbox.sqlite").stat().st_mtime_ns
+    args = ["campaign", str(WELDING_CELL), "--jobs", "2", "--seed", "5", "--out", str(out), "--quiet"]
+    assert main([*args, "--runs", "4"]) == 0
+    results = _results(out)
+    assert [r["index"] for r in results["runs"]] == [0, 1, 2, 3]
+    assert (out / "runs" / "0000" / "blackbox.sqlite").stat().st_mtime_ns == kept  # not redone
+    before = _results(finished)["runs"]
+    for i in range(3):
+        assert results["runs"][i]["verdicts"] == before[i]["verdicts"]
+        assert results["runs"][i]["configuration"] == before[i]["configuration"]
+
+
+def test_a_different_campaign_is_not_mixed_into_a_folder(campaign, capsys):
+    _, out = campaign
+    assert main(["campaign", str(WELDING_CELL), "--runs", "3", "--seed", "6", "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "different campaign" in err
+
+
+def test_bad_campaign_input_exits_2_and_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "c"
+    assert main(["campaign", str(WELDING_CELL), "--runs", "0", "--out", str(out)]) == 2
+    assert "--runs" in capsys.readouterr().err
+    assert main(["campaign", str(WELDING_CELL), "--set", "campaign.samplers.operator_waits.total=-1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "total" in err
+    assert not out.exists()
+
+
+def test_the_misuse_campaign_reveals_violations(tmp_path):
+    """Two operators break the controller's single-operator assumption: HS goes undetected."""
+    out = tmp_path / "misuse"
+    assert main(["campaign", str(TWO_OPERATORS), "--runs", "3", "--jobs", "2", "--seed", "0", "--out", str(out), "--quiet"]) == 1
+    results = _results(out)
+    violating = [r for r in results["runs"] if r["violations"]]
+    assert violating and results["totals"]["violating_runs"] == len(violating)
+    assert results["totals"]["violations"]["HS:detected"] >= 1
+    report = (out / "report.html").read_text()
+    for r in violating:
+        assert f'id="run-{r["index"]}"' in report  # a timeline of each violating run
+        when = r["verdicts"][r["violations"][0]]["violated_at"]
+        assert when is not None and 0.0 <= when < 30.0
