@@ -338,7 +338,7 @@ class Scenario:
     description: str = ""
     duration: float = 30.0
     seed: int = 0
-    time_step: float = 0.002
+    time_step: float = 0.004
     """The robot plant's discrete step (s)."""
 
     def __post_init__(self):

@@ -3,7 +3,7 @@
 Every module (entity, behaviour, service) is a small Drake LeafSystem that updates
 its discrete state in one periodic event. Each channel it publishes is a
 discrete-state group exposed through ``DeclareStateOutputPort``, so reading it
-costs no Python at all: the 500 Hz robot plant never calls back into the
+costs no Python at all: the robot plant, stepping every few ms, never calls back into the
 module, and the module's cost scales with its own update rate.
 """
 
