@@ -123,3 +123,36 @@ def test_usage_errors_exit_2(capsys):
         main(["simulate"])
     assert e.value.code == 2
     assert main([]) == 2
+
+
+def test_meshcat_serves_the_cell_while_simulating_and_closes_on_exit(tmp_path):
+    """--meshcat serves the cell on localhost while the run goes at real time; the server ends with it.
+
+    Run in a child process: a pydrake diagram holding Python systems is never
+    freed within a process, and with it the Meshcat server it draws on.
+    """
+    import re
+    import socket
+    import subprocess
+    import sys
+    import urllib.request
+
+    command = [sys.executable, "-m", "cellsim.cli", "simulate", str(WELDING_CELL), "--meshcat",
+               "--duration", "1.5", "--out", str(tmp_path / "shown")]
+    child = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        address = None
+        for line in child.stderr:  # the address is printed before the run starts
+            address = re.search(r"(http://localhost:(\d+))", line)
+            if address:
+                break
+        assert address, "no Meshcat address printed"
+        with urllib.request.urlopen(address.group(1), timeout=5) as page:
+            assert page.status == 200 and b"meshcat" in page.read().lower()
+        out, _ = child.communicate(timeout=60)
+    finally:
+        child.kill()
+        child.wait()
+    assert child.returncode == 0 and "real-time factor" in out
+    with pytest.raises(OSError), socket.create_connection(("localhost", int(address.group(2))), timeout=1.0):
+        pass
