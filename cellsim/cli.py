@@ -313,8 +313,8 @@ def cmd_campaign(args) -> int:
     except CampaignError as e:
         raise InputError(str(e)) from None
     except KeyboardInterrupt:
-        console.print(f"interrupted: finished runs are kept; run the same command again to resume {out}")
-        raise
+        print(f"cellsim: interrupted; finished runs are kept in {out}: run the same command again to resume", file=sys.stderr)
+        return EXIT_INTERRUPTED
     if not args.quiet:
         print_campaign(outcome)
     return EXIT_FINDING if outcome.violating_runs else EXIT_OK

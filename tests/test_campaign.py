@@ -3,7 +3,13 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
 from conftest import ROOT, WELDING_CELL
@@ -118,3 +124,43 @@ def test_the_misuse_campaign_reveals_violations(tmp_path):
         assert f'id="run-{r["index"]}"' in report  # a timeline of each violating run
         when = r["verdicts"][r["violations"][0]]["violated_at"]
         assert when is not None and 0.0 <= when < 30.0
+
+
+def _processes_in_group(pgid: int) -> list[int]:
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue  # the process ended while we looked
+        if int(fields[2]) == pgid and fields[0] != "Z":  # after the name: state, ppid, pgrp; Z: ended
+            found.append((int(stat.parent.name), fields[0], (stat.parent / "cmdline").read_bytes()[:120]))
+    return found
+
+
+def test_ctrl_c_keeps_finished_runs_stops_every_worker_and_the_campaign_resumes(tmp_path):
+    out = tmp_path / "c"
+    command = [sys.executable, "-m", "cellsim.cli", "campaign", str(WELDING_CELL), "--runs", "10", "--jobs", "2",
+               "--duration", "10", "--out", str(out), "--quiet"]
+    child = subprocess.Popen(command, stdin=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        # synchronise on the campaign's own progress: two finished runs on disk
+        while len(list(out.glob("runs/*/result.json"))) < 2:
+            assert child.poll() is None, child.stderr.read()
+            time.sleep(0.05)
+        child.send_signal(signal.SIGINT)
+        _, err = child.communicate(timeout=60)
+    finally:
+        if child.poll() is None:
+            os.killpg(child.pid, signal.SIGKILL)
+        child.wait()
+    assert child.returncode == 130 and "resume" in err
+    assert _processes_in_group(child.pid) == []  # no worker outlives the campaign
+    finished = len(list(out.glob("runs/*/result.json")))
+    assert 2 <= finished < 10 and not (out / "results.json").exists()
+    # 10 s runs end while the operator may still be at the table: Final:Tbl, exit 1
+    assert main(["campaign", str(WELDING_CELL), "--runs", "10", "--jobs", "2", "--duration", "10", "--out", str(out), "--quiet"]) == 1
+    results = _results(out)
+    assert results["totals"]["violations"]["Final:Tbl"] == results["totals"]["violating_runs"] > 0
+    assert [r["index"] for r in results["runs"]] == list(range(10))
+    assert all(r["status"] == "completed" for r in results["runs"])

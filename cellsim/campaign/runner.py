@@ -28,6 +28,7 @@ import json
 import multiprocessing
 import os
 import shutil
+import signal
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field
@@ -265,7 +266,10 @@ def _run_parallel(plan, out, todo, jobs, results, report_progress) -> None:
     # pydrake diagram holding Python systems is never freed (about 2.5 MB a
     # run), so workers are replaced now and then to keep memory bounded.
     executor = ProcessPoolExecutor(
-        max_workers=jobs, mp_context=multiprocessing.get_context("spawn"), max_tasks_per_child=RUNS_PER_WORKER
+        max_workers=jobs,
+        mp_context=multiprocessing.get_context("spawn"),
+        max_tasks_per_child=RUNS_PER_WORKER,
+        initializer=_ignore_interrupts,
     )
     try:
         pending = {executor.submit(execute_run, plan, out, i) for i in todo}
@@ -279,6 +283,12 @@ def _run_parallel(plan, out, todo, jobs, results, report_progress) -> None:
         executor.shutdown(wait=True, cancel_futures=True)
         raise
     executor.shutdown(wait=True)
+
+
+def _ignore_interrupts() -> None:
+    """Workers leave Ctrl-C to the campaign, which cancels what has not started and
+    lets running runs finish, so an interruption loses no finished run."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start: float) -> CampaignOutcome:
