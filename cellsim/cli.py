@@ -171,7 +171,7 @@ def cmd_simulate(args) -> int:
                 on_progress=report,
             )
         if not args.quiet:
-            print_summary(summary)
+            print_summary(summary, _verdicts_of(sf, out))
         if meshcat is not None and sys.stdin.isatty():
             input("Press Enter to close Meshcat. ")
     finally:
@@ -210,7 +210,14 @@ class _progress:
             self.bar.stop()
 
 
-def print_summary(summary) -> None:
+def _verdicts_of(sf, out: Path):
+    """The run's check result, or None when the scenario has no safety conditions."""
+    from cellsim.validation.check import check_run
+
+    return check_run(out, sf).result if sf.scenario.validation.conditions else None
+
+
+def print_summary(summary, checked=None) -> None:
     from rich.console import Console
     from rich.table import Table
 
@@ -227,6 +234,14 @@ def print_summary(summary) -> None:
             verdict += f", [red]MISHAPS {counts.mishaps}[/red]"
         table.add_row(f"hazard {name}", verdict)
     table.add_row("final safety mode", summary.final_safety_mode or "-")
+    if checked is not None:
+        bad = checked.violations
+        table.add_row(
+            "safety conditions",
+            f"[red]{len(bad)} of {len(checked.verdicts)} violated: {', '.join(bad)}[/red]" if bad
+            else f"all {len(checked.verdicts)} hold (details: cellsim check {summary.out_dir})",
+        )
+        table.add_row("use cases exercised", ", ".join(checked.use_cases) or "none")
     table.add_row("simulated time", f"{summary.sim_time:.1f} s")
     table.add_row("wall time", f"{summary.wall_time:.2f} s")
     table.add_row("real-time factor", f"{summary.real_time_factor:.1f}x")
