@@ -24,6 +24,7 @@ kept, unfinished ones are redone. Asking for more runs extends the campaign.
 
 from __future__ import annotations
 
+import functools
 import json
 import multiprocessing
 import os
@@ -92,6 +93,14 @@ def _yaml_scalar(value: object) -> str:
 _case_cache: dict = {}
 
 
+@functools.lru_cache(maxsize=4)
+def _base_scenario(plan: CampaignPlan):
+    """The campaign's scenario before a run's configuration, once per worker."""
+    from cellsim.scenario import load_scenario
+
+    return load_scenario(plan.scenario, plan.overrides)
+
+
 def _safety_case(sf):
     """The compiled safety case, once per worker (every run of a campaign has the same channels)."""
     from cellsim.validation.check import scenario_safety_case
@@ -114,8 +123,7 @@ def execute_run(plan: CampaignPlan, out: Path, index: int) -> dict:
     from cellsim.simulation import BLACKBOX, simulate
     from cellsim.validation.traces import trace_of_run
 
-    sf_base = load_scenario(plan.scenario, plan.overrides)
-    sc = sf_base.scenario
+    sc = _base_scenario(plan).scenario
     points = {name: point.paths for name, point in sc.configuration_points.items()}
     configuration = draw_configuration(sc.campaign.samplers, points, plan.seed, index)
     seed = run_seed(plan.seed, index)
@@ -340,7 +348,10 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
     for r in runs:
         if r.get("violations"):
             with BlackBox(out / r["out"] / BLACKBOX) as bb:
-                timelines[r["index"]] = trace_of_run(bb, sc.validation.variables).to_json()
+                signals = trace_of_run(bb, sc.validation.variables).to_json()
+            # the short names of the validation section; all channels when it names none
+            shown = sc.validation.variables or signals
+            timelines[r["index"]] = {name: signals[name] for name in shown}
     results["timing"]["report"] = time.perf_counter() - t0
     results["timing"]["wall"] = time.perf_counter() - wall_start
     write_report(out / REPORT, results, timelines)
