@@ -120,6 +120,10 @@ def test_the_misuse_campaign_reveals_violations(tmp_path):
     assert violating and results["totals"]["violating_runs"] == len(violating)
     assert results["totals"]["violations"]["HS:detected"] >= 1
     report = (out / "report.html").read_text()
+    # timelines of safety mode, hazard phases, sensors and the operator, by their short names
+    for lane in ("safmod", "HS", "HRW", "HC", "lgtBar", "rngDet", "oloc"):
+        assert f'data-var="{lane}"' in report
+    assert 'data-var="robot.twin_mode"' not in report
     for r in violating:
         assert f'id="run-{r["index"]}"' in report  # a timeline of each violating run
         when = r["verdicts"][r["violations"][0]]["violated_at"]
