@@ -23,7 +23,7 @@ from cellsim.config.typed_yaml import (
     ConfigError,
     FieldError,
     Loaded,
-    apply_override,
+    apply_overrides,
     dump_yaml,
     from_data,
     load_file,
@@ -422,8 +422,7 @@ def _shortcut(scenario: Scenario):
 def load_scenario(path: str | os.PathLike, overrides: list[str] | tuple[str, ...] = ()) -> ScenarioFile:
     """Load, override and check a scenario; raises ConfigError on any bad input."""
     loaded = load_file(Scenario, path)
-    for assignment in overrides:
-        apply_override(loaded, assignment, resolve=_shortcut(loaded.value))
+    apply_overrides(loaded, list(overrides), resolve=_shortcut(loaded.value))
     sf = ScenarioFile(loaded, list(overrides))
     _load_validation_file(sf)
     check_scenario(sf)

@@ -40,16 +40,17 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--scenario", type=Path, default=SCENARIO)
+    parser.add_argument("--set", action="append", default=[], metavar="PATH=VALUE", help="scenario override (repeatable)")
     args = parser.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:
-        plan = CampaignPlan(str(args.scenario.resolve()), (), args.seed, args.runs)
+        plan = CampaignPlan(str(args.scenario.resolve()), tuple(args.set), args.seed, args.runs)
         started = time.perf_counter()
         outcome = run_campaign(plan, Path(tmp) / "campaign", jobs=args.jobs)
         wall = time.perf_counter() - started
         timing = outcome.timing
         totals = outcome.results["totals"]
-        print(f"campaign: {args.runs} runs x 30 s, --jobs {args.jobs}, {args.scenario.name}")
+        print(f"campaign: {args.runs} runs x 30 s, --jobs {args.jobs}, {args.scenario.name} {' '.join(args.set)}")
         for stage in ("simulate", "trace", "check"):
             print(f"  {stage:<10} {timing[stage]:7.2f} s  (summed over workers, {timing[stage] / args.runs * 1e3:6.1f} ms per run)")
         for stage in ("coverage", "report"):

@@ -18,6 +18,7 @@ from cellsim.config.typed_yaml import (
     FieldError,
     Loaded,
     apply_override,
+    apply_overrides,
     dump_yaml,
     from_data,
     load_file,
@@ -504,3 +505,26 @@ def test_yaml_12_booleans_keep_on_off_yes_no_as_words():
 
     data, _, _ = _parse("a: off\nb: on\nc: no\nd: yes\ne: true\nf: False\n", "<t>")
     assert data == {"a": "off", "b": "on", "c": "no", "d": "yes", "e": True, "f": False}
+
+
+def test_overrides_at_once_equal_overrides_one_by_one(loaded) -> None:
+    sets = ["entities.operator.waypoints.bench.wait=4.5", "seed=17", "entities.arm.payload=4"]
+    one_by_one = load_text(Scenario, VALID, source="s.yaml")
+    for assignment in sets:
+        apply_override(one_by_one, assignment)
+    apply_overrides(loaded, sets)
+    assert loaded.value == one_by_one.value
+
+
+def test_overrides_at_once_name_the_one_at_fault(loaded) -> None:
+    before = loaded.value
+    # each is fine alone against the file; together the payload exceeds the maximum
+    with pytest.raises(ConfigError) as e:
+        apply_overrides(loaded, ["seed=3", "entities.arm.max_payload=2", "entities.arm.payload=4.5"])
+    assert e.value.key == "entities.arm.max_payload" and "below the payload" in e.value.problem
+    assert loaded.value.entities["arm"].max_payload == before.entities["arm"].max_payload
+
+
+def test_overrides_at_once_see_the_structure_earlier_ones_create(loaded) -> None:
+    apply_overrides(loaded, ["entities.operator.route=[bench, cell, bench]", "entities.operator.route.2=cell"])
+    assert loaded.value.entities["operator"].route == ["bench", "cell", "cell"]

@@ -37,6 +37,7 @@ __all__ = [
     "FieldError",
     "Loaded",
     "apply_override",
+    "apply_overrides",
     "dump_yaml",
     "from_data",
     "load_file",
@@ -48,6 +49,10 @@ T = TypeVar("T")
 
 # The C loader is much faster and reports the same marks (0-based line numbers).
 _BaseLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+# The C emitter writes the same YAML several times faster (a campaign writes one per run).
+_Dumper = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
 
 
 class _Loader(_BaseLoader):
@@ -527,7 +532,7 @@ def to_data(value: Any) -> Any:
 
 def dump_yaml(value: Any, header: str | None = None) -> str:
     """The fully resolved YAML for ``value``, optionally preceded by ``# `` comment lines."""
-    text = yaml.safe_dump(to_data(value), sort_keys=False, default_flow_style=None)
+    text = yaml.dump(to_data(value), Dumper=_Dumper, sort_keys=False, default_flow_style=None)
     if header is None:
         return text
     comment = "".join(f"# {line}".rstrip() + "\n" for line in header.splitlines())
@@ -595,6 +600,47 @@ def apply_override(loaded: Loaded[T], assignment: str,
     :class:`ConfigError` with source ``"--set"`` is raised and ``loaded.value`` is
     left unchanged.
     """
+    apply_overrides(loaded, [assignment], resolve)
+
+
+def apply_overrides(loaded: Loaded[T], assignments: list[str],
+                    resolve: Callable[[list[str]], list[str]] | None = None) -> None:
+    """Apply several overrides, with the result and errors of applying them one by one.
+
+    The value is rebuilt once for all of them (a campaign run sets several); when
+    anything fails, they are applied one at a time, so the error names the one at
+    fault and a path that only exists after an earlier override still resolves.
+    """
+    if len(assignments) > 1:
+        try:
+            data = to_data(loaded.value)
+            for assignment in assignments:
+                keys, new_value, _ = _parse_override(loaded.value, assignment, resolve)
+                _set_in(data, keys, new_value)
+            loaded.value = from_data(type(loaded.value), data, source="--set")
+            return
+        except ConfigError:
+            pass
+    for assignment in assignments:
+        keys, new_value, full = _parse_override(loaded.value, assignment, resolve)
+        data = to_data(loaded.value)
+        _set_in(data, keys, new_value)
+        try:
+            loaded.value = from_data(type(loaded.value), data, source="--set")
+        except ConfigError as e:  # a check elsewhere in the tree now fails
+            problem = e.problem if e.key == full else f"{e.problem} (at {e.key or 'top level'})"
+            raise ConfigError("--set", None, full, problem) from None
+
+
+def _set_in(data: Any, keys: list[Any], value: Any) -> None:
+    target = data
+    for key in keys[:-1]:
+        target = target[to_data(key)]
+    target[to_data(keys[-1])] = to_data(value)
+
+
+def _parse_override(value: Any, assignment: str, resolve) -> tuple[list[Any], Any, str]:
+    """The resolved keys of an override, its value converted to the declared type, its path."""
     path_text, sep, value_text = assignment.partition("=")
     parts = [p.strip() for p in path_text.split(".")]
     if not sep or not all(parts):
@@ -613,17 +659,5 @@ def apply_override(loaded: Loaded[T], assignment: str,
         problem = getattr(e, "problem", None) or e
         raise ConfigError("--set", None, full,
                           f"malformed value '{value_text.strip()}': {problem}") from None
-    keys, tp = _locate(loaded.value, [str(p) for p in parts])
-    new_value = _Converter("--set").convert(tp, raw, full)
-
-    data = to_data(loaded.value)
-    target = data
-    for key in keys[:-1]:
-        target = target[to_data(key)]
-    target[to_data(keys[-1])] = to_data(new_value)
-    try:
-        rebuilt = from_data(type(loaded.value), data, source="--set")
-    except ConfigError as e:  # a check elsewhere in the tree now fails
-        problem = e.problem if e.key == full else f"{e.problem} (at {e.key or 'top level'})"
-        raise ConfigError("--set", None, full, problem) from None
-    loaded.value = rebuilt
+    keys, tp = _locate(value, [str(p) for p in parts])
+    return keys, _Converter("--set").convert(tp, raw, full), full
