@@ -129,6 +129,11 @@ def test_the_misuse_campaign_reveals_violations(tmp_path):
         when = r["verdicts"][r["violations"][0]]["violated_at"]
         assert when is not None and 0.0 <= when < 30.0
 
+    # a finished campaign whose black box was lost still reports, without that timeline
+    (out / violating[0]["out"] / "blackbox.sqlite").unlink()
+    assert main(["campaign", str(TWO_OPERATORS), "--runs", "3", "--seed", "0", "--out", str(out), "--quiet"]) == 1
+    assert "No trace available" in (out / "report.html").read_text()
+
 
 def _processes_in_group(pgid: int) -> list[int]:
     found = []

@@ -302,9 +302,9 @@ def _ignore_interrupts() -> None:
 def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start: float) -> CampaignOutcome:
     """Totals, results.json and report.html from the runs' results."""
     from cellsim.campaign.report import write_report
-    from cellsim.services.blackbox import BlackBox
+    from cellsim.services.blackbox import BlackBox, BlackBoxError
     from cellsim.simulation import BLACKBOX
-    from cellsim.validation.traces import trace_of_run
+    from cellsim.validation.traces import TraceError, trace_of_run
 
     sc = sf.scenario
     t0 = time.perf_counter()
@@ -347,8 +347,11 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
     timelines = {}
     for r in runs:
         if r.get("violations"):
-            with BlackBox(out / r["out"] / BLACKBOX) as bb:
-                signals = trace_of_run(bb, sc.validation.variables).to_json()
+            try:
+                with BlackBox(out / r["out"] / BLACKBOX) as bb:
+                    signals = trace_of_run(bb, sc.validation.variables).to_json()
+            except (BlackBoxError, TraceError):
+                continue  # the run's black box is gone or damaged: the report says it has no trace
             # the short names of the validation section; all channels when it names none
             shown = sc.validation.variables or signals
             timelines[r["index"]] = {name: signals[name] for name in shown}
