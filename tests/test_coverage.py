@@ -175,6 +175,34 @@ def test_value_outside_the_domain_is_an_error():
         m.observe(trace(wact=([0], ["dancing"])), set())
 
 
+def test_a_narrowed_domain_counts_only_its_values():
+    """The designed domain: values left out cover nothing, and are not missing either."""
+    m = CoverageModel.compile(
+        {"c": CoverageCriterion(["wact", "lgtBar"])}, VOC, MACROS, BINS,
+        domains={"wact": ["welding", "idle"], "lgtBar": ["true"]},
+    )
+    tr = trace(wact=([0, 2, 5], ["exchWrkp", "welding", "idle"]), lgtBar=([0, 6], [True, False]))
+    assert covered(m, tr) == [["idle", "true"], ["welding", "true"]]  # domain order, not the listed order
+    summary = m.merge([m.observe(trace(wact=([0], ["welding"]), lgtBar=([0], [True])), set())])
+    assert summary.criteria["c"].total == 2 and summary.criteria["c"].missing == ["wact=idle, lgtBar=true"]
+    with pytest.raises(ValueError, match=r"'dancing' is not in its domain"):
+        m.observe(trace(wact=([0], ["dancing"]), lgtBar=([0], [True])), set())
+
+
+@pytest.mark.parametrize(
+    "domains, message",
+    [
+        ({"wact": ["welding", "dancing"]}, r"domain of 'wact': 'dancing'; choose among idle, welding, exchWrkp"),
+        ({"wact": []}, r"domain of 'wact': no values"),
+        ({"speed": ["fast"]}, r"'speed', which is numeric \(give it bins\)"),
+        ({"wakt": ["idle"]}, r"'wakt', which is unknown \(did you mean 'wact'\?\)"),
+    ],
+)
+def test_narrowed_domain_errors(domains, message):
+    with pytest.raises(ValueError, match=message):
+        CoverageModel.compile({"c": CoverageCriterion(["wact"])}, VOC, MACROS, BINS, domains=domains)
+
+
 # --------------------------------------------------------------------------- merging
 
 

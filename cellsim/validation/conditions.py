@@ -67,7 +67,9 @@ class SafetyCase:
         conditions = {name: formula(f"validation.conditions.{name}", t) for name, t in validation.conditions.items()}
         use_cases = {name: formula(f"validation.use_cases.{name}", t) for name, t in validation.use_cases.items()}
         try:
-            coverage = CoverageModel.compile(validation.coverage, vocabulary, validation.macros, validation.bins)
+            coverage = CoverageModel.compile(
+                validation.coverage, vocabulary, validation.macros, validation.bins, validation.domains
+            )
         except ValueError as e:
             raise ConfigError(*locate("validation.coverage"), str(e)) from None
         return cls(validation, conditions, use_cases, coverage)

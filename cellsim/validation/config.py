@@ -16,6 +16,8 @@ file of its own that the scenario names (``validation: {file: x.yaml}``)::
       wact x oloc: {variables: [wact, oloc]}
     bins:                    # domains of numeric variables for coverage
       sep: {edges: [0.5, 1.0, 2.0]}
+    domains:                 # the values coverage counts, where not all of them
+      safmod: [normal, ssmon, pflim, stopped]
 
 Every recorded scalar channel is a trace variable under its own name
 (``robot.safety_mode``) too; ``variables`` adds the short names the formulas use.
@@ -44,7 +46,12 @@ class Validation:
     """Use-case name -> MTL formula that holds iff a run exercises the use case."""
     coverage: dict[str, CoverageCriterion] = field(default_factory=dict)
     bins: dict[str, NumberBins] = field(default_factory=dict)
+    domains: dict[str, list[str]] = field(default_factory=dict)
+    """Variable -> the values its coverage counts (the designed domain); default: all."""
 
     @property
     def is_empty(self) -> bool:
-        return not (self.variables or self.macros or self.conditions or self.use_cases or self.coverage or self.bins)
+        return not (
+            self.variables or self.macros or self.conditions or self.use_cases or self.coverage or self.bins
+            or self.domains
+        )

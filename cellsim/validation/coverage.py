@@ -2,7 +2,9 @@
 
 Each trace variable has a finite *domain* for coverage purposes: the values of an
 enumeration (in declaration order), ``false``/``true`` for a boolean, and the *bins*
-of a number (:class:`NumberBins`).  A *criterion* (:class:`CoverageCriterion`) is a
+of a number (:class:`NumberBins`), or the values a scenario lists for the variable
+(its designed domain: a cell whose risk model never commands hand guiding leaves
+``hguid`` out of the safety mode's domain).  A *criterion* (:class:`CoverageCriterion`) is a
 list of variables - one for single-variable coverage, several for combinations - and
 its *situations* are the tuples of the Cartesian product of their domains (the first
 variable varies slowest; this "domain order" is used for every list of situations).
@@ -18,9 +20,9 @@ Consequently an instant where values merely touch (one variable changes at the v
 instant another one does) covers nothing, and neither does a stretch where a variable
 is undefined (before its first sample, or after a ``None`` sample; also a numeric NaN).
 If a criterion's variable, or a variable its ``when`` formula reads, is missing from
-the trace altogether, the run covers none of that criterion's situations.  A recorded
-value outside the variable's domain is an error (the vocabulary and the recorder
-disagree).
+the trace altogether, the run covers none of that criterion's situations.  A value
+left out of a narrowed domain covers nothing; any other recorded value outside the
+variable's domain is an error (the vocabulary and the recorder disagree).
 
 :meth:`CoverageModel.observe` computes a run's covered situations exactly, by a sweep
 over the change points of the involved signals (and of the ``when`` set), without
@@ -180,7 +182,7 @@ def _out_of_domain(variable: str, value: object, labels: tuple[str, ...]) -> Val
     )
 
 
-def _axis(variable: str, domain: Domain, bins: NumberBins | None) -> _Axis:
+def _axis(variable: str, domain: Domain, bins: NumberBins | None, only: list[str] | None = None) -> _Axis:
     if isinstance(domain, NumberDomain):
         assert bins is not None
         labels = bins.labels
@@ -196,12 +198,17 @@ def _axis(variable: str, domain: Domain, bins: NumberBins | None) -> _Axis:
 
         return _Axis(variable, labels, code)
     if isinstance(domain, BoolDomain):
-        labels, lookup = ("false", "true"), {False: 0, True: 1}
+        labels, values = ("false", "true"), (False, True)
     elif isinstance(domain, EnumDomain):
-        labels = domain.values
-        lookup = {v: i for i, v in enumerate(labels)}
+        labels = values = domain.values
     else:
         raise TypeError(f"not a domain: {domain!r}")
+    ignored: frozenset = frozenset()
+    if only is not None:
+        kept = [i for i, label in enumerate(labels) if label in only]
+        ignored = frozenset(values[i] for i in range(len(labels)) if i not in kept)
+        labels, values = tuple(labels[i] for i in kept), tuple(values[i] for i in kept)
+    lookup = {v: i for i, v in enumerate(values)}
 
     def code(value: object) -> int:
         if value is None:
@@ -209,6 +216,8 @@ def _axis(variable: str, domain: Domain, bins: NumberBins | None) -> _Axis:
         try:
             return lookup[value]  # type: ignore[index]
         except (KeyError, TypeError):
+            if value in ignored:
+                return _UNDEFINED  # a value left out of the coverage domain
             raise _out_of_domain(variable, value, labels) from None
 
     return _Axis(variable, labels, code)
@@ -336,14 +345,31 @@ class CoverageModel:
         vocabulary: Mapping[str, Domain],
         macros: Mapping[str, str] | None = None,
         bins: Mapping[str, NumberBins] | None = None,
+        domains: Mapping[str, list[str]] | None = None,
     ) -> CoverageModel:
         """Check ``criteria`` against ``vocabulary`` and parse their ``when`` formulas.
 
         ``bins`` gives the bins of the numeric variables (every numeric variable used by
-        a criterion needs some; bins of other variables are an error).  Raises
+        a criterion needs some; bins of other variables are an error).  ``domains``
+        narrows the coverage domain of an enumeration or boolean to the listed values
+        (``true``/``false`` for booleans): the situations a cell is designed to reach.
+        Other recorded values of that variable then cover nothing.  Raises
         :class:`ValueError` naming the criterion (or variable) at fault.
         """
         bins = dict(bins or {})
+        domains = dict(domains or {})
+        for var, only in domains.items():
+            domain = vocabulary.get(var)
+            if not isinstance(domain, (EnumDomain, BoolDomain)):
+                what = "unknown" if domain is None else "numeric (give it bins)"
+                raise ValueError(f"domain given for variable {var!r}, which is {what}" + _suggestion(var, list(vocabulary)))
+            allowed = domain.values if isinstance(domain, EnumDomain) else ("false", "true")
+            wrong = [v for v in only if v not in allowed]
+            if wrong or not only:
+                raise ValueError(
+                    f"domain of {var!r}: {', '.join(map(repr, wrong)) or 'no values'}; "
+                    f"choose among {', '.join(allowed)}"
+                )
         for var in bins:
             if not isinstance(vocabulary.get(var), NumberDomain):
                 what = "unknown" if var not in vocabulary else "not numeric"
@@ -369,7 +395,7 @@ class CoverageModel:
                         f"coverage criterion {name!r}: numeric variable {var!r} needs bins "
                         f"(give its bin edges, e.g. {var}: {{edges: [0.5, 1]}})"
                     )
-                axes[var] = _axis(var, domain, bins.get(var))
+                axes[var] = _axis(var, domain, bins.get(var), domains.get(var))
             when: Formula | None = None
             reads = frozenset(crit.variables)
             if crit.when.strip():
