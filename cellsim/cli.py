@@ -374,10 +374,11 @@ def print_campaign(outcome) -> None:
     table.add_column(style="bold")
     table.add_column()
     table.add_row("runs", f"{totals['runs']} ({outcome.resumed} resumed, {totals['failed']} failed)")
-    bad = {c: n for c, n in totals["violations"].items() if n}
+    runs_of = {c: [r["index"] for r in outcome.results["runs"] if c in r.get("violations", ())] for c in totals["violations"]}
+    bad = {c: runs for c, runs in runs_of.items() if runs}
     table.add_row(
         "violating runs",
-        f"[red]{totals['violating_runs']}[/red]: " + ", ".join(f"{c} in {n}" for c, n in bad.items())
+        f"[red]{totals['violating_runs']}[/red]\n" + "\n".join(f"{c}: {_run_list(runs)}" for c, runs in bad.items())
         if bad else "none: every condition holds in every run",
     )
     table.add_row("use cases", ", ".join(f"{u} {n}" for u, n in totals["use_cases"].items()) or "-")
@@ -386,6 +387,12 @@ def print_campaign(outcome) -> None:
     table.add_row("results", str(outcome.results_path))
     table.add_row("report", str(outcome.report_path))
     console.print(table)
+
+
+def _run_list(indices: list[int], shown: int = 8) -> str:
+    listed = ", ".join(str(i) for i in indices[:shown])
+    more = f" and {len(indices) - shown} more" if len(indices) > shown else ""
+    return f"{len(indices)} run{'s' if len(indices) > 1 else ''} ({listed}{more})"
 
 
 def cmd_export(args) -> int:
