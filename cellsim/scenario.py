@@ -15,7 +15,7 @@ resolved scenario, which loads back to an equal one.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Literal
 
@@ -390,7 +390,8 @@ class ScenarioFile:
 
     def locate(self, key: str) -> tuple[str, int | None, str]:
         """(file, line, key in that file) where the dotted ``key`` is written, following ``validation.file``."""
-        if self.validation_file is not None and key.startswith("validation."):
+        written_inline = any(k == key or k.startswith(key + ".") for k in self.loaded.lines)
+        if self.validation_file is not None and key.startswith("validation.") and not written_inline:
             key = key.removeprefix("validation.")
             return self.validation_file.source, self.validation_file.line_of(key), key
         return self.source, self.loaded.line_of(key), key
@@ -430,17 +431,24 @@ def load_scenario(path: str | os.PathLike, overrides: list[str] | tuple[str, ...
 
 
 def _load_validation_file(sf: ScenarioFile) -> None:
-    """Read the validation section from the file it names; the scenario then holds it inline."""
-    validation = sf.scenario.validation
-    if not validation.file:
+    """Read the validation section from the file it names, adding the entries written inline.
+
+    Inline entries extend the file's (a misuse scenario adds its second person's
+    variables to the welding cell's conditions) and replace entries of the same
+    name. The scenario then holds the merged section inline.
+    """
+    inline = sf.scenario.validation
+    if not inline.file:
         return
-    if not validation.is_empty:
-        raise sf.error("validation.file", "name a file or write the section inline, not both")
-    path = sf.resolve_path("validation.file", validation.file)
+    path = sf.resolve_path("validation.file", inline.file)
     sf.validation_file = load_file(Validation, path)
-    if sf.validation_file.value.file:
+    merged = sf.validation_file.value
+    if merged.file:
         raise ConfigError(str(path), sf.validation_file.line_of("file"), "file", "a validation file cannot name another")
-    sf.scenario.validation = sf.validation_file.value
+    for f in fields(Validation):
+        if f.name != "file":
+            getattr(merged, f.name).update(getattr(inline, f.name))
+    sf.scenario.validation = merged
 
 
 def check_scenario(sf: ScenarioFile) -> None:

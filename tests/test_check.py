@@ -161,3 +161,24 @@ def test_bad_conditions_are_found_before_anything_runs(default_run, tmp_path, ca
     assert expected in _one_error_line(capsys)
     assert main(["check", str(default_run), "--scenario", str(scenario)]) == 2
     assert expected in _one_error_line(capsys)
+
+
+def test_a_scenario_extends_the_validation_file_it_names(tmp_path, capsys):
+    """two_operators adds its visitor to the welding cell's conditions; errors point at the right file."""
+    from cellsim.scenario import load_scenario
+
+    two = WELDING_CELL.parent / "two_operators.yaml"
+    validation = load_scenario(two).scenario.validation
+    base = welding_cell().scenario.validation
+    assert set(validation.conditions) == set(base.conditions) | {"Final:Visitor"}
+    assert validation.variables["vloc"] == "visitor.location" and validation.variables["safmod"] == "robot.safety_mode"
+    assert validation.use_cases["MU"] != base.use_cases["MU"] and "visitor_unseen" in validation.use_cases["MU"]
+
+    folder = tmp_path / "scenario"
+    shutil.copytree(WELDING_CELL.parent, folder)
+    text = (folder / "two_operators.yaml").read_text()
+    line = text.splitlines().index('    "Final:Visitor": F G(vloc == none)') + 1
+    (folder / "two_operators.yaml").write_text(text.replace("F G(vloc == none)", "F G(vloc == nowhere)"))
+    assert main(["scenario", "check", str(folder / "two_operators.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert f"two_operators.yaml:{line}: validation.conditions.Final:Visitor: column" in err

@@ -1,7 +1,8 @@
 """The scenario's safety evidence section: trace variables, conditions, use cases, coverage.
 
 In a scenario file it is the ``validation:`` mapping, written inline or kept in a
-file of its own that the scenario names (``validation: {file: x.yaml}``)::
+file of its own that the scenario names (``validation: {file: x.yaml}``; entries
+written beside ``file`` are added to the file's)::
 
     variables:               # trace variable -> recorded channel
       safmod: robot.safety_mode
@@ -36,7 +37,8 @@ class Validation:
     """Safety conditions, use-case classifiers and coverage criteria of a scenario."""
 
     file: str = ""
-    """A YAML file (relative to the scenario) holding this section; then leave the rest out."""
+    """A YAML file (relative to the scenario) holding this section; entries written
+    beside ``file`` extend the file's and replace those of the same name."""
     variables: dict[str, str] = field(default_factory=dict)
     """Trace variable name -> recorded channel (``<module>.<signal>``)."""
     macros: dict[str, str] = field(default_factory=dict)
