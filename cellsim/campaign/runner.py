@@ -90,26 +90,24 @@ def _yaml_scalar(value: object) -> str:
 
 # --------------------------------------------------------------------------- one run (in a worker)
 
-_case_cache: dict = {}
-
-
 @functools.lru_cache(maxsize=4)
 def _base_scenario(plan: CampaignPlan):
-    """The campaign's scenario before a run's configuration, once per worker."""
+    """The campaign's scenario before a run's configuration, once per worker process."""
     from cellsim.scenario import load_scenario
 
     return load_scenario(plan.scenario, plan.overrides)
 
 
-def _safety_case(sf):
-    """The compiled safety case, once per worker (every run of a campaign has the same channels)."""
+@functools.lru_cache(maxsize=4)
+def _safety_case(plan: CampaignPlan):
+    """The compiled safety case, once per worker process.
+
+    A run's configuration changes values, never which channels exist, so every
+    run of a campaign is checked against the case of the campaign's scenario.
+    """
     from cellsim.validation.check import scenario_safety_case
 
-    key = (sf.source, tuple(sf.scenario.validation.conditions.items()))
-    case = _case_cache.get(key)
-    if case is None:
-        case = _case_cache[key] = scenario_safety_case(sf)
-    return case
+    return scenario_safety_case(_base_scenario(plan))
 
 
 def execute_run(plan: CampaignPlan, out: Path, index: int) -> dict:
@@ -133,7 +131,7 @@ def execute_run(plan: CampaignPlan, out: Path, index: int) -> dict:
     try:
         started = time.perf_counter()
         sf = load_scenario(plan.scenario, run_overrides(plan, configuration, seed))
-        case = _safety_case(sf)
+        case = _safety_case(plan)
         if folder.exists():
             shutil.rmtree(folder)  # an unfinished earlier attempt
         summary = simulate(sf, folder)
@@ -234,11 +232,16 @@ def run_campaign(
     runs stay, and running the same campaign again resumes it.
     """
     from cellsim.scenario import load_scenario
+    from cellsim.validation.check import scenario_safety_case
 
     out = Path(out)
     wall_start = time.perf_counter()
+    # Read afresh: bad input, bad formulas included, stops the campaign before it
+    # starts. The per-process caches serve the runs of this campaign only.
+    _base_scenario.cache_clear()
+    _safety_case.cache_clear()
     sf = load_scenario(plan.scenario, plan.overrides)
-    case = _safety_case(sf)  # bad formulas stop the campaign before it starts
+    case = scenario_safety_case(sf)
     results = {r["index"]: r for r in prepare(plan, out)}
     resumed = len(results)
     todo = [i for i in range(plan.runs) if i not in results]
