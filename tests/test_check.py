@@ -182,3 +182,14 @@ def test_a_scenario_extends_the_validation_file_it_names(tmp_path, capsys):
     assert main(["scenario", "check", str(folder / "two_operators.yaml")]) == 2
     err = capsys.readouterr().err
     assert f"two_operators.yaml:{line}: validation.conditions.Final:Visitor: column" in err
+
+
+def test_a_corrupt_message_is_one_error_line_naming_channel_and_time(default_run, tmp_path, capsys):
+    damaged = tmp_path / "damaged"
+    shutil.copytree(default_run, damaged)
+    with sqlite3.connect(damaged / "blackbox.sqlite") as db:
+        t = db.execute("SELECT t FROM messages WHERE channel = 'robot.safety_mode' ORDER BY rowid LIMIT 1 OFFSET 1").fetchone()[0]
+        db.execute("UPDATE messages SET payload = '{not json' WHERE channel = 'robot.safety_mode' AND t = ?", (t,))
+    assert main(["check", str(damaged)]) == 2
+    err = _one_error_line(capsys)
+    assert "robot.safety_mode" in err and f"t = {t}" in err
