@@ -179,3 +179,17 @@ def test_ctrl_c_keeps_finished_runs_stops_every_worker_and_the_campaign_resumes(
     assert results["totals"]["violations"]["Final:Tbl"] == results["totals"]["violating_runs"] > 0
     assert [r["index"] for r in results["runs"]] == list(range(10))
     assert all(r["status"] == "completed" for r in results["runs"])
+
+
+def _die(*args):
+    os._exit(3)  # a worker killed from outside (out of memory, a crash in native code)
+
+
+def test_a_dead_worker_stops_the_campaign_with_a_clear_error(tmp_path, monkeypatch):
+    import cellsim.campaign.runner as runner
+
+    out = tmp_path / "c"
+    monkeypatch.setattr(runner, "execute_run", _die)  # spawned workers import this module: patch by reference
+    plan = runner.CampaignPlan(str(WELDING_CELL), (), 0, 2, 5.0)
+    with pytest.raises(runner.CampaignError, match="worker process died.*run the same command again"):
+        runner._run_parallel(plan, out, [0, 1], 2, {}, lambda: None)

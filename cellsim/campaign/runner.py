@@ -32,6 +32,7 @@ import shutil
 import signal
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -49,7 +50,7 @@ RUNS_PER_WORKER = 60
 
 
 class CampaignError(Exception):
-    """The campaign cannot start: a different campaign already lives in its folder."""
+    """The campaign cannot go on: its folder holds another campaign, or a worker died."""
 
 
 @dataclass(frozen=True)
@@ -290,6 +291,11 @@ def _run_parallel(plan, out, todo, jobs, results, report_progress) -> None:
                 result = future.result()
                 results[result["index"]] = result
             report_progress()
+    except BrokenProcessPool as e:
+        executor.shutdown(wait=True, cancel_futures=True)
+        raise CampaignError(
+            f"a worker process died ({e}); the finished runs are kept in {out}: run the same command again to resume"
+        ) from None
     except BaseException:
         executor.shutdown(wait=True, cancel_futures=True)
         raise
