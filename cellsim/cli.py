@@ -90,7 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Draw --runs variants of the scenario from its samplers (campaign.samplers), simulate "
         "each in a worker process, check its safety conditions, use cases and coverage, and write "
         "OUT/results.json and OUT/report.html. Re-running the same command on the same OUT resumes it. "
-        "Exits 1 if any run violates a condition.",
+        "Exits 1 if any run violates a condition, 2 if a run could not be simulated (a sampled value out of range).",
     )
     camp.add_argument("scenario", type=Path, help="scenario YAML file")
     camp.add_argument("--runs", type=int, help="number of runs (default: the scenario's campaign.runs)")
@@ -332,6 +332,14 @@ def cmd_campaign(args) -> int:
         return EXIT_INTERRUPTED
     if not args.quiet:
         print_campaign(outcome)
+    failed = [r for r in outcome.results["runs"] if r.get("status") == "failed"]
+    if failed:
+        print(
+            f"cellsim: error: {len(failed)} of {len(outcome.results['runs'])} runs failed, e.g. run {failed[0]['index']}: "
+            f"{failed[0].get('error', '?')} (all in {outcome.results_path})",
+            file=sys.stderr,
+        )
+        return EXIT_INPUT
     return EXIT_FINDING if outcome.violating_runs else EXIT_OK
 
 

@@ -193,3 +193,21 @@ def test_a_dead_worker_stops_the_campaign_with_a_clear_error(tmp_path, monkeypat
     plan = runner.CampaignPlan(str(WELDING_CELL), (), 0, 2, 5.0)
     with pytest.raises(runner.CampaignError, match="worker process died.*run the same command again"):
         runner._run_parallel(plan, out, [0, 1], 2, {}, lambda: None)
+
+
+def test_runs_that_cannot_be_simulated_are_reported_and_the_campaign_exits_2(tmp_path, capsys):
+    """Samplers may draw values the scenario refuses: those runs fail, the others go on."""
+    out = tmp_path / "c"
+    bad_thresholds = "campaign.samplers={range_thresholds: {kind: uniform, low: 0.5, high: 3.0}}"
+    assert main(["campaign", str(WELDING_CELL), "--runs", "4", "--jobs", "2", "--duration", "2", "--set", bad_thresholds,
+                 "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "runs failed" in err and "close_below" in err
+    runs = _results(out)["runs"]
+    failed = [r for r in runs if r["status"] == "failed"]
+    # close_below must stay below near_below: some draws break it, some do not
+    assert failed and len(failed) < len(runs)
+    for r in failed:
+        near, close = r["configuration"]["range_detector.near_below"], r["configuration"]["range_detector.close_below"]
+        assert close >= near and "close_below" in r["error"]
+    assert "close_below" in (out / "report.html").read_text()
