@@ -155,8 +155,10 @@ def test_ctrl_c_keeps_finished_runs_stops_every_worker_and_the_campaign_resumes(
     child = subprocess.Popen(command, stdin=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         # synchronise on the campaign's own progress: two finished runs on disk
+        deadline = time.monotonic() + 120.0
         while len(list(out.glob("runs/*/result.json"))) < 2:
             assert child.poll() is None, child.stderr.read()
+            assert time.monotonic() < deadline, "the campaign finished no run in 120 s"
             time.sleep(0.05)
         child.send_signal(signal.SIGINT)
         _, err = child.communicate(timeout=60)
