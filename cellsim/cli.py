@@ -34,6 +34,10 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, OutputExistsError, InputError) as e:
         print(f"cellsim: error: {e}", file=sys.stderr)
         return EXIT_INPUT
+    except OSError as e:  # an output path that cannot be written, a file that vanished
+        where = f": {e.filename}" if e.filename else ""
+        print(f"cellsim: error: {e.strerror or e}{where}", file=sys.stderr)
+        return EXIT_INPUT
     except KeyboardInterrupt:
         print("cellsim: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
