@@ -35,6 +35,7 @@ from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, Multibod
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.controllers import InverseDynamicsController
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, OutputPort
+from pydrake.systems.primitives import Multiplexer
 
 from bridges.physical import connect_physical_twins
 from cellsim.behaviours.ground_truth import GroundTruth
@@ -288,9 +289,13 @@ def _add_safety_controller(builder, sf, name, cfg, risk_model: RiskModel, module
         monitor_types[var] = ctype
 
     controller = builder.AddSystem(SafetyController(name, cfg.period, risk_model, monitor_types, command_types))
-    for var, channel in cfg.monitors.items():
+    # one vector input: gathering the monitored channels in C++ costs the controller one read per period
+    monitors = builder.AddNamedSystem(f"{name}.monitors", Multiplexer(len(controller.monitored_names)))
+    for i, var in enumerate(controller.monitored_names):
+        channel = cfg.monitors[var]
         port = sources.get(var) or controller.GetOutputPort(channel.partition(".")[2])
-        builder.Connect(port, controller.GetInputPort(var))
+        builder.Connect(port, monitors.get_input_port(i))
+    builder.Connect(monitors.get_output_port(0), controller.monitored_port)
     for var, ports in targets.items():
         for port in ports:
             builder.Connect(controller.GetOutputPort(var), port)

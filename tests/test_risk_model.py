@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import random
+
+import numpy as np
 import pytest
 
 from cellsim.behaviours.risk_model import load_risk_model
@@ -46,8 +49,7 @@ class Harness:
 
     def step(self, **changes):
         self.inputs.update(changes)
-        for name, value in self.inputs.items():
-            self.system.GetInputPort(name).FixValue(self.context, TYPES[name].encode(value))
+        self.system.monitored_port.FixValue(self.context, self.system.encode_monitored(self.inputs))
         self.context.SetTime(self.t)
         state = self.system.EvalUniquePeriodicDiscreteUpdate(self.context)
         self.context.SetDiscreteState(state)
@@ -165,6 +167,34 @@ def test_single_operator_assumption_is_encoded():
     h.step(safmod="pflim", rngDet="near")
     h.step()
     assert h.phases()["HS"] == "inact"
+
+
+def test_skipping_quiet_periods_changes_nothing():
+    """The controller skips a period whose inputs repeat a period that changed nothing.
+
+    A reference controller that never skips (its memory is wiped before every
+    period) must produce the same phases and commands on a long random run in
+    which inputs mostly hold, as they do in a cell.
+    """
+    rng = random.Random(11)
+    domains = {name: (ctype.domain() if ctype.kind == "enum" else [False, True]) for name, ctype in TYPES.items()}
+    fast, reference = Harness(), Harness()
+    memory = reference.system.group("settled_on")
+    evaluations = []
+    timers = fast.system._timers
+    fast.system._timers = lambda *args: evaluations.append(1) or timers(*args)
+    for _ in range(3000):
+        changes = {}
+        if rng.random() < 0.08:
+            name = rng.choice(sorted(domains))
+            changes[name] = rng.choice(domains[name])
+        fast.step(**changes)
+        reference.context.get_mutable_discrete_state(memory).SetFromVector(np.full(len(TYPES) + 1, np.nan))
+        reference.step(**changes)
+        assert fast.phases() == reference.phases()
+        for command in COMMANDS:
+            assert fast.command(command) == reference.command(command)
+    assert len(evaluations) < 1000  # the quiet periods were skipped, not evaluated
 
 
 def test_risk_model_errors_name_file_line_and_key(tmp_path):

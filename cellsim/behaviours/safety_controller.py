@@ -1,12 +1,19 @@
 """The safety controller: a discrete Drake system executing a risk model.
 
-Ports (for each monitored variable ``v`` and controlled variable ``c`` of the
-risk model, and each hazard ``H``):
-  v (input): the monitored channel's code (enum code or 0/1).
+Ports (for each controlled variable ``c`` of the risk model, and each hazard ``H``):
+  monitored (input): the codes (enum code or 0/1) of the risk model's monitored
+    variables, in the order the risk model lists them (``monitored_names``); the
+    builder gathers the monitored channels into it with a Multiplexer.
   c (channel): the commanded value, coded for the machines that receive it
     (-1 when the risk model's default is "no request").
   H (channel): the hazard's phase (inact, act, mit, ..., mis).
 See ``risk_model`` for the semantics of one control period.
+
+A control period whose inputs equal the previous period's, after a period that
+changed nothing and left no ``after`` timer running, cannot change anything
+either (the rules are a function of the inputs, the phases and those timers),
+so the engine skips it: the controller costs almost nothing while the cell is
+quiet, and what it computes is exactly what a full evaluation would.
 """
 
 from __future__ import annotations
@@ -38,12 +45,13 @@ class SafetyController(CellSystem):
         super().__init__(module, period)
         self.risk_model = risk_model
         self.hazards = risk_model.hazards
-        self._inputs = []
-        for name in risk_model.monitored:
-            ctype = monitor_types[name]
-            port = self.declare_input(name, ctype=ctype)
-            decode = ctype.domain() if ctype.kind == "enum" else (False, True)
-            self._inputs.append((name, port, decode))
+        self.monitored_names = list(risk_model.monitored)
+        self.monitored_types = [monitor_types[name] for name in self.monitored_names]
+        self._decoders = [
+            (name, ctype.domain() if ctype.kind == "enum" else (False, True))
+            for name, ctype in zip(self.monitored_names, self.monitored_types)
+        ]
+        self.monitored_port = self.declare_input("monitored", len(self.monitored_names))
         self._phase_groups = [
             self.declare_channel(h.name, enum_type(HazardPhase), HazardPhase.INACTIVE, description=f"Phase of hazard {h.name}")
             for h in self.hazards
@@ -53,10 +61,17 @@ class SafetyController(CellSystem):
             ctype = replace(command_types[name], optional=var.default is None)
             group = self.declare_channel(name, ctype, var.default, description=f"Commanded {name}")
             self._commands.append((name, var, group, self._encoder(ctype)))
+        # each hazard's transitions by the phase they leave, in the order listed
+        self._leaving = [
+            {phase: [(ti, tr) for ti, tr in enumerate(h.transitions) if tr.phase == phase] for phase in _PHASES}
+            for h in self.hazards
+        ]
         self._timed = [
             (hi, ti) for hi, h in enumerate(self.hazards) for ti, tr in enumerate(h.transitions) if tr.after > 0
         ]
         self._since = self.declare_state("guard_since", np.full(max(len(self._timed), 1), np.nan))
+        # [settled (0/1), the inputs it settled on]: see the module docstring
+        self._memory = self.declare_state("settled_on", np.full(1 + len(self.monitored_names), np.nan))
 
     @staticmethod
     def _encoder(ctype: ChannelType):
@@ -65,41 +80,56 @@ class SafetyController(CellSystem):
         codes = {value: float(i) for i, value in enumerate(ctype.domain())}
         return lambda v: NO_REQUEST if v is None else codes[v]
 
+    def encode_monitored(self, values: dict) -> np.ndarray:
+        """The ``monitored`` input vector for named values (tests, replays)."""
+        return np.array([ctype.encode(values[name])[0] for name, ctype in zip(self.monitored_names, self.monitored_types)])
+
     def update(self, context, xd):
+        codes = self.monitored_port.Eval(context).tolist()
+        memory = context.get_discrete_state(self._memory).get_value().tolist()
+        if memory[0] == 1.0 and codes == memory[1:]:
+            return  # the same inputs as a period that changed nothing: nothing changes
         values = {}
-        for name, port, decode in self._inputs:
-            code = port.Eval(context)[0]
+        for (name, decode), code in zip(self._decoders, codes):
             values[name] = decode[int(code)] if 0 <= code < len(decode) else None
-        phases = [_PHASES[int(context.get_discrete_state(g).GetAtIndex(0))] for g in self._phase_groups]
+        phases = [_PHASES[int(context.get_discrete_state(g)[0])] for g in self._phase_groups]
         for hazard, phase in zip(self.hazards, phases):
             values[hazard.name] = phase
-        held = self._timers(context, xd, values, phases) if self._timed else {}
+        held, timing = self._timers(context, xd, values, phases) if self._timed else ({}, False)
 
         new_phases = []
-        for hi, (hazard, phase) in enumerate(zip(self.hazards, phases)):
-            for ti, tr in enumerate(hazard.transitions):
-                if tr.phase == phase and (held.get((hi, ti), False) if tr.after > 0 else tr.guard(values)):
+        for hi, phase in enumerate(phases):
+            for ti, tr in self._leaving[hi][phase]:
+                if held.get((hi, ti), False) if tr.after > 0 else tr.guard(values):
                     phase = tr.to
                     write_scalar(xd, self._phase_groups[hi], _PHASES.index(phase))
                     break
             new_phases.append(phase)
-        if new_phases != phases:
+        changed = new_phases != phases
+        if changed:
             self._write_commands(xd, new_phases)
+        settled = not changed and not timing
+        if settled or memory[0] == 1.0:
+            xd.get_mutable_vector(self._memory).SetFromVector(np.array([1.0 if settled else 0.0, *codes]))
 
-    def _timers(self, context, xd, values: dict, phases: list[str]) -> dict:
-        """Track how long the guards of ``after`` transitions have held; which have held long enough."""
+    def _timers(self, context, xd, values: dict, phases: list[str]) -> tuple[dict, bool]:
+        """Track how long the guards of ``after`` transitions have held.
+
+        Returns which have held long enough, and whether any guard is being timed.
+        """
         t = context.get_time()
         since = context.get_discrete_state(self._since).get_value().copy()
-        held = {}
+        held, timing = {}, False
         for k, (hi, ti) in enumerate(self._timed):
             tr = self.hazards[hi].transitions[ti]
             if phases[hi] == tr.phase and tr.guard(values):
                 since[k] = t if math.isnan(since[k]) else since[k]
                 held[(hi, ti)] = t - since[k] >= tr.after - 1e-9
+                timing = True
             else:
                 since[k] = np.nan
         xd.get_mutable_vector(self._since).SetFromVector(since)
-        return held
+        return held, timing
 
     def _write_commands(self, xd, phases: list[str]) -> None:
         """Commands are a function of the phases alone: the most restrictive demand, or the default."""
