@@ -48,6 +48,10 @@ class Leg:
     arrive: float
     leave: float
     reach: np.ndarray | None
+    heading: float | None = None
+    """Walking direction (rad), None for a leg of zero length."""
+    facing: float | None = None
+    """Direction of the reach point from ``end`` (rad), None without a reach."""
 
 
 @dataclass(frozen=True)
@@ -68,7 +72,10 @@ def plan_walk(cfg: OperatorConfig, seed: int, salt: int = 0) -> list[Leg]:
         end = np.array(wp.position, float)
         arrive = t + float(np.linalg.norm(end - here)) / speed
         reach = None if wp.reach is None else np.array(wp.reach, float)
-        legs.append(Leg(index, here, end, t, arrive, arrive + wp.wait, reach))
+        way = end - here
+        heading = float(np.arctan2(way[1], way[0])) if np.linalg.norm(way) > 1e-9 else None
+        facing = None if reach is None else float(np.arctan2(reach[1] - end[1], reach[0] - end[0]))
+        legs.append(Leg(index, here, end, t, arrive, arrive + wp.wait, reach, heading, facing))
         here, t = end, arrive + wp.wait
     return legs
 
@@ -80,20 +87,20 @@ def pose_at(legs: list[Leg], start_yaw: float, t: float) -> OperatorPose:
     for leg in legs:
         if t < leg.depart:
             break
-        heading = leg.end - leg.start
-        if np.linalg.norm(heading) > 1e-9:
-            yaw = float(np.arctan2(heading[1], heading[0]))
+        if leg.heading is not None:
+            yaw = leg.heading
         waypoint = leg.index
         if t < leg.arrive:
             s = (t - leg.depart) / (leg.arrive - leg.depart)
-            return OperatorPose(leg.start + s * heading, yaw, 0.0, np.zeros(3), waypoint)
+            return OperatorPose(leg.start + s * (leg.end - leg.start), yaw, 0.0, _NO_REACH, waypoint)
         xy = leg.end
         if leg.reach is not None and t < leg.leave:
-            towards = leg.reach[:2] - xy
-            yaw = float(np.arctan2(towards[1], towards[0]))
             fraction = min((t - leg.arrive) / REACH_TIME, (leg.leave - t) / REACH_TIME, 1.0)
-            return OperatorPose(xy, yaw, max(fraction, 0.0), leg.reach, waypoint)
-    return OperatorPose(np.asarray(xy, float), yaw, 0.0, np.zeros(3), waypoint)
+            return OperatorPose(xy, leg.facing, max(fraction, 0.0), leg.reach, waypoint)
+    return OperatorPose(np.asarray(xy, float), yaw, 0.0, _NO_REACH, waypoint)
+
+
+_NO_REACH = np.zeros(3)
 
 
 class Operator(EntitySystem):
@@ -187,30 +194,31 @@ class Operator(EntitySystem):
 
     # -- behaviour ---------------------------------------------------------------
     @staticmethod
-    def _pose_vector(pose: OperatorPose) -> np.ndarray:
-        return np.array([*pose.xy, pose.yaw, pose.reach_fraction, *pose.reach_target])
+    def _pose_vector(pose: OperatorPose) -> list[float]:
+        x, y = pose.xy.tolist()
+        return [x, y, pose.yaw, pose.reach_fraction, *pose.reach_target.tolist()]
 
     def update(self, context, xd):
         view = self.consult_physical(context, xd)
-        current = context.get_discrete_state(self._pose).get_value()
+        current = context.get_discrete_state(self._pose).get_value().tolist()
         if view.mode is TwinMode.MODEL:
             pose = pose_at(self.legs, self.start_yaw, context.get_time())
             vector, waypoint = self._pose_vector(pose), pose.waypoint
         elif view.sample is None:  # stale or corrupt: hold the last known pose
             vector, waypoint = current, None
         else:
-            vector, waypoint = view.sample, None
+            vector, waypoint = view.sample.tolist(), None
         self.write_command(
             context, xd, view.mode,
             lambda: (self.notification_port.Eval(context)[0], self.leave_workbench_port.Eval(context)[0]),
         )
         if waypoint is not None and waypoint + 1 != read_scalar(context, self._waypoint):
             write_scalar(xd, self._waypoint, waypoint + 1)
-        if np.array_equal(vector, current):
+        if vector == current:
             return  # standing still: nothing derived from the pose changes
-        xd.get_mutable_vector(self._pose).SetFromVector(vector)
+        xd.get_mutable_vector(self._pose).SetFromVector(np.array(vector))
         x, y = vector[0], vector[1]
         location = OperatorLocation.IN_CELL if self.layout.cell.contains((x, y, 1.0)) else OperatorLocation.NONE
         write_scalar(xd, self._location, location.code)
         write_scalar(xd, self._at_table, 1.0 if self.layout.shared_table_zone.contains((x, y, 1.0)) else 0.0)
-        xd.get_mutable_vector(self._position).SetFromVector(vector[:2])
+        xd.get_mutable_vector(self._position).SetFromVector(np.array(vector[:2]))
