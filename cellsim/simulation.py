@@ -25,6 +25,7 @@ from pydrake.systems.analysis import Simulator
 from cellsim.config.typed_yaml import to_data
 from cellsim.scenario import ScenarioFile, export_scenario
 from cellsim.services.blackbox import BlackBox, BlackBoxWriter
+from cellsim.services.recorder import DRAIN_SAMPLES
 from diagrams.cell import CellDiagram, build_cell
 
 BLACKBOX = "blackbox.sqlite"
@@ -138,7 +139,7 @@ def simulate(
                 simulator.AdvanceTo(min(duration, context.get_time() + step))
                 sim_time = context.get_time()
                 if cell.recorder is not None:
-                    cell.recorder.drain(context)
+                    cell.recorder.drain(context, min_samples=DRAIN_SAMPLES)
                 if on_progress:
                     on_progress(sim_time, duration)
             status = "completed"

@@ -28,6 +28,11 @@ from cellsim.channels import ChannelSpec
 from cellsim.services.blackbox import BlackBoxWriter
 
 
+DRAIN_SAMPLES = 250
+"""``drain(..., min_samples=DRAIN_SAMPLES)`` waits for this many logged samples
+(5 s of a 20 ms base period): decoding costs per drain, so fewer, larger ones."""
+
+
 class Recorder:
     """Adds the logging systems for ``channels`` to ``builder``; writes messages on ``drain``."""
 
@@ -44,53 +49,86 @@ class Recorder:
         builder.Connect(mux.get_output_port(0), self.sink.get_input_port())
         offsets = np.cumsum([0] + sizes)
         # Channels in the order the messages of one instant are written: by
-        # sample period, then as declared.
+        # sample period, then as declared. Channels looked at equally often and
+        # recorded alike form a group, decoded together.
         order = sorted(range(len(self.specs)), key=lambda i: (round(self.specs[i].sample_period, 9), i))
-        self._channels = [
-            (
-                self.specs[i],
-                slice(int(offsets[i]), int(offsets[i + 1])),
-                max(1, round(self.specs[i].sample_period / self.base)),
-            )
-            for i in order
-        ]
-        self._last: dict[str, np.ndarray] = {}
+        groups: dict[tuple, list[int]] = {}
+        for i in order:
+            spec = self.specs[i]
+            groups.setdefault((max(1, round(spec.sample_period / self.base)), spec.record), []).append(i)
+        self._groups = [_Group(every, record, [(order.index(i), self.specs[i], offsets[i], offsets[i + 1]) for i in members])
+                        for (every, record), members in groups.items()]
 
     def attach(self, writer: BlackBoxWriter) -> None:
         """Write to ``writer`` from now on (a diagram is built before its output exists)."""
         self.writer = writer
         writer.add_channels(self.specs)
 
-    def drain(self, root_context) -> int:
-        """Write the messages of the samples logged since the last drain; returns how many."""
+    def drain(self, root_context, *, min_samples: int = 1) -> int:
+        """Write the messages of the samples logged since the last drain; returns how many.
+
+        Does nothing until at least ``min_samples`` samples are logged (the
+        simulation loop passes ``DRAIN_SAMPLES``, and drains everything at the end).
+        """
         log = self.sink.FindMutableLog(root_context)
+        if log.num_samples() < max(1, min_samples):
+            return 0
         times, data = log.sample_times().copy(), log.data().copy()
         log.Clear()
-        if self.writer is None or len(times) == 0:
+        if self.writer is None:
             return 0
         ticks = np.rint(times / self.base).astype(np.int64)
         rows: list[tuple] = []  # (sample index, channel rank, row)
-        dumps = json.dumps
-        for rank, (spec, rows_of, every) in enumerate(self._channels):
-            due = np.flatnonzero(ticks % every == 0)
-            if len(due) == 0:
-                continue
-            values = data[rows_of, :][:, due]
-            if spec.record == "on_change":
-                previous = self._last.get(spec.name)
-                first = previous is None or not np.array_equal(values[:, 0], previous)
-                changed = np.concatenate(([first], np.any(values[:, 1:] != values[:, :-1], axis=0)))
-                self._last[spec.name] = values[:, -1].copy()
-                picked = np.flatnonzero(changed)
-            else:
-                picked = np.arange(len(due))
-            for j in picked:
-                k = int(due[j])
-                t = times[k] - spec.period
-                t = round(float(t), 9) if t > 0 else 0.0
-                payload = dumps({"value": spec.type.decode(values[:, j])})
-                rows.append((k, rank, (t, spec.name, spec.module, payload)))
+        for group in self._groups:
+            group.decode(ticks, times, data, rows)
         rows.sort(key=lambda r: (r[0], r[1]))
         for _, _, row in rows:
             self.writer.append(row)
         return len(rows)
+
+
+class _Group:
+    """Channels sampled every ``every`` base periods and recorded alike, decoded as one block."""
+
+    def __init__(self, every: int, record: str, channels: list[tuple[int, ChannelSpec, int, int]]):
+        self.every = every
+        self.on_change = record == "on_change"
+        self.channels = channels  # (rank, spec, first row, end row) in the logged vector
+        self.rows = np.concatenate([np.arange(a, b) for _, _, a, b in channels])
+        local = np.cumsum([0] + [b - a for _, _, a, b in channels])
+        self.starts = local[:-1]
+        self.local = [slice(int(a), int(b)) for a, b in zip(local[:-1], local[1:])]
+        self.last = np.full(len(self.rows), np.nan)  # nothing recorded yet: the first sample is a change
+        # coded channels (enum, bool) have few payloads: encode each once
+        self.payloads: list[dict | None] = [{} if spec.type.size == 1 and spec.type.kind in ("enum", "bool") else None
+                                            for _, spec, _, _ in channels]
+
+    def decode(self, ticks: np.ndarray, times: np.ndarray, data: np.ndarray, out: list) -> None:
+        due = np.flatnonzero(ticks % self.every == 0)
+        if len(due) == 0:
+            return
+        block = data[np.ix_(self.rows, due)]
+        if self.on_change:
+            with_last = np.concatenate((self.last[:, None], block), axis=1)
+            differs = with_last[:, 1:] != with_last[:, :-1]
+            changed = np.logical_or.reduceat(differs, self.starts, axis=0)
+            self.last = block[:, -1].copy()
+            channel_of, sample_of = np.nonzero(changed)
+        else:
+            channel_of, sample_of = np.divmod(np.arange(len(self.channels) * len(due)), len(due))
+        dumps = json.dumps
+        for c, j in zip(channel_of.tolist(), sample_of.tolist()):
+            rank, spec, _, _ = self.channels[c]
+            k = int(due[j])
+            t = times[k] - spec.period
+            t = round(float(t), 9) if t > 0 else 0.0
+            values = block[self.local[c], j]
+            cache = self.payloads[c]
+            if cache is None:
+                payload = dumps({"value": spec.type.decode(values)})
+            else:
+                code = float(values[0])
+                payload = cache.get(code)
+                if payload is None:
+                    payload = cache[code] = dumps({"value": spec.type.decode(values)})
+            out.append((k, rank, (t, spec.name, spec.module, payload)))
