@@ -143,6 +143,7 @@ class Operator(EntitySystem):
             "position", vector_type(2, "m"), initial.xy, record="every_sample", record_period=0.1
         )
         self.body_frame = self.arm_frame = None
+        self._last_frame_poses: tuple | None = None  # (pose state, FramePoseVector)
         self.geometry_ids: list = []
         self.geometry_pose_port = None
 
@@ -179,7 +180,17 @@ class Operator(EntitySystem):
         return np.array([xy[0] - s * side, xy[1] + c * side, self.cfg.height - 0.33])
 
     def _calc_geometry_pose(self, context, output):
-        x, y, yaw, fraction, rx, ry, rz = context.get_discrete_state(self._pose).get_value()
+        # Drake recomputes this port after every update of the operator, moved or
+        # not; the frame poses are a function of the pose state alone, so the
+        # last ones are kept and reused while the operator holds still.
+        pose = tuple(context.get_discrete_state(self._pose).get_value().tolist())
+        if self._last_frame_poses is None or self._last_frame_poses[0] != pose:
+            self._last_frame_poses = (pose, self.frame_poses(pose))
+        output.set_value(self._last_frame_poses[1])
+
+    def frame_poses(self, pose: tuple) -> FramePoseVector:
+        """The body and arm frames' poses for a pose state ``(x, y, yaw, reach_fraction, *reach_target)``."""
+        x, y, yaw, fraction, rx, ry, rz = pose
         poses = FramePoseVector()
         poses.set_value(self.body_frame, RigidTransform(RotationMatrix.MakeZRotation(yaw), [x, y, 0.0]))
         shoulder = self._shoulder((x, y), yaw)
@@ -190,7 +201,7 @@ class Operator(EntitySystem):
             direction = (1 - fraction) * down + fraction * towards / np.linalg.norm(towards)
             direction /= np.linalg.norm(direction)
         poses.set_value(self.arm_frame, RigidTransform(RotationMatrix.MakeFromOneVector(-direction, 2), shoulder))
-        output.set_value(poses)
+        return poses
 
     # -- behaviour ---------------------------------------------------------------
     @staticmethod
