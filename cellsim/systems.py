@@ -47,11 +47,17 @@ class CellSystem(LeafSystem):
         record: RecordPolicy = "on_change",
         record_period: float | None = None,
         description: str = "",
+        every: int = 1,
     ) -> int:
-        """Declare a published channel ``<module>.<signal>``; returns its state group."""
+        """Declare a published channel ``<module>.<signal>``; returns its state group.
+
+        ``every``: the module refreshes the channel at every ``every``-th update
+        only (telemetry that nothing needs faster), so its period is that many
+        update periods; ``due(context, every)`` says when.
+        """
         group = self.declare_state(signal, ctype.encode(initial))
         port = self.DeclareStateOutputPort(signal, group)
-        spec = ChannelSpec(self.module, signal, ctype, self.period, record, description, record_period)
+        spec = ChannelSpec(self.module, signal, ctype, self.period * every, record, description, record_period)
         self.channels.append((spec, port))
         return group
 
@@ -79,6 +85,10 @@ class CellSystem(LeafSystem):
 
     def group(self, name: str) -> int:
         return self._groups[name]
+
+    def due(self, context, every: int) -> bool:
+        """Whether the update at the context's time is one of every ``every``-th (from t = 0)."""
+        return every == 1 or round(context.get_time() / self.period) % every == 0
 
 
     # -- update -------------------------------------------------------------

@@ -103,6 +103,27 @@ def test_commands_go_out_only_in_twin_mode(tmp_path):
     assert active == [0.0, 1.0, 0.0]
 
 
+def test_leaving_twin_mode_from_a_script_silences_the_commands():
+    from diagrams.cell import build_cell
+    from pydrake.systems.analysis import Simulator
+
+    built = build_cell(welding_cell(), seed=0, duration=2.0, record=False)
+    sim = Simulator(built.diagram)
+    built.set_initial_state(sim.get_mutable_context())
+    welder = built.entity("welder")
+
+    def active():
+        return welder.physical_command_port.Eval(welder.GetMyContextFromRoot(sim.get_context()))[0]
+
+    welder.set_twin_mode(sim.get_mutable_context(), "twin")
+    sim.AdvanceTo(0.5)
+    assert active() == 1.0
+    welder.set_twin_mode(sim.get_mutable_context(), "model")
+    assert active() == 0.0
+    sim.AdvanceTo(1.0)
+    assert active() == 0.0
+
+
 def test_set_twin_mode_from_a_script():
     from diagrams.cell import build_cell
     from pydrake.systems.analysis import Simulator

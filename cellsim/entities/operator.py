@@ -220,7 +220,7 @@ class Operator(EntitySystem):
         else:
             vector, waypoint = view.sample.tolist(), None
         self.write_command(
-            context, xd, view.mode,
+            xd, view.mode,
             lambda: (self.notification_port.Eval(context)[0], self.leave_workbench_port.Eval(context)[0]),
         )
         if waypoint is not None and waypoint + 1 != read_scalar(context, self._waypoint):

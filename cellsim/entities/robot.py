@@ -3,7 +3,7 @@ state machine, and where its tool is.
 
 The arm itself is a MultibodyPlant model driven by an InverseDynamicsController
 (both in Drake's C++, stepping every ``time_step``). This module is the arm's
-*controller side*: at 100 Hz it turns the process controller's target pose and
+*controller side*: every ``period`` (20 ms) it turns the process controller's target pose and
 the safety controller's mode request into a desired joint state, and reports
 the robot's safety mode, activity, location and tool speed measured on the plant.
 
@@ -28,7 +28,7 @@ from pydrake.math import RigidTransform, RollPitchYaw
 from cellsim.channels import enum_type, number_type, vector_type
 from cellsim.entities.twin import EntitySystem, valid_code
 from cellsim.scenario import Layout, RobotConfig
-from cellsim.systems import read_scalar, write_scalar
+from cellsim.systems import write_scalar
 from cellsim.vocabulary import CodedEnum, RobotActivity, RobotLocation, SafetyMode, TwinMode
 
 HOLD = -1.0
@@ -37,6 +37,8 @@ HOLD = -1.0
 STANDSTILL_MODES = frozenset({SafetyMode.MONITORED_STOP, SafetyMode.STOPPED})
 _MODES = tuple(SafetyMode)
 _SEGMENT_SAMPLES = 24
+TELEMETRY_PERIOD = 0.1
+"""Joint positions and tool speed are published every 0.1 s (s)."""
 
 
 def robot_base_pose(cfg: RobotConfig) -> RigidTransform:
@@ -109,6 +111,7 @@ class Robot(EntitySystem):
             SafetyMode.SPEED_SEPARATION: cfg.speed_limits.ssmon,
             SafetyMode.POWER_FORCE_LIMITING: cfg.speed_limits.pflim,
         }
+        self._normal_cap = self.speed_caps[SafetyMode.NORMAL]
         initial = self.pose_names.index(cfg.initial_pose)
         q0 = self.poses[initial]
         self.initial_positions = q0
@@ -117,23 +120,29 @@ class Robot(EntitySystem):
         self.target_port = self.declare_input("target_pose", default=HOLD)
         self.activity_port = self.declare_input("activity", default=RobotActivity.IDLE.code)
         self.measured_state_port = self.declare_input("measured_state", 2 * n)
-        # motion state: see _advance
-        self._motion = self.declare_state("motion", np.concatenate([[initial, 1.0, 0.0, 0.0, 0.0], q0, q0]))
         self._desired = self.declare_state("desired_state", np.concatenate([q0, np.zeros(n)]))
         self.desired_state_port = self.DeclareStateOutputPort("desired_state", self._desired)
 
-        self._mode = self.declare_channel("safety_mode", enum_type(SafetyMode), SafetyMode.NORMAL, description="safmod")
-        self._activity = self.declare_channel("activity", enum_type(RobotActivity), RobotActivity.IDLE, description="ract")
-        self._location = self.declare_channel(
-            "location", enum_type(RobotLocation), self.locate(self.kinematics.tool_position(q0)), description="rloc"
-        )
+        location = self.locate(self.kinematics.tool_position(q0))
         self.reached_poses = CodedEnum(f"{module}_pose", [("MOVING", "moving")] + [(p.upper(), p) for p in self.pose_names])
-        self._reached = self.declare_channel("reached_pose", enum_type(self.reached_poses), cfg.initial_pose)
+        published = [SafetyMode.NORMAL, RobotActivity.IDLE, location, self.reached_poses(cfg.initial_pose)]
+        # [the four codes below as last published, motion (see _advance)]: one read per update
+        self._state = self.declare_state(
+            "state", np.concatenate([[float(v.code) for v in published], [initial, 1.0, 0.0, 0.0, 0.0], q0, q0])
+        )
+        self._published = [
+            self.declare_channel("safety_mode", enum_type(SafetyMode), published[0], description="safmod"),
+            self.declare_channel("activity", enum_type(RobotActivity), published[1], description="ract"),
+            self.declare_channel("location", enum_type(RobotLocation), published[2], description="rloc"),
+            self.declare_channel("reached_pose", enum_type(self.reached_poses), published[3]),
+        ]
+        self._mode = self._published[0]
+        self._telemetry_every = max(1, round(TELEMETRY_PERIOD / self.period))
         self._q = self.declare_channel(
-            "joint_positions", vector_type(n, "rad"), q0, record="every_sample", record_period=0.1
+            "joint_positions", vector_type(n, "rad"), q0, record="every_sample", every=self._telemetry_every
         )
         self._tool_speed = self.declare_channel(
-            "tool_speed", number_type("m/s"), 0.0, record="every_sample", record_period=0.1
+            "tool_speed", number_type("m/s"), 0.0, record="every_sample", every=self._telemetry_every
         )
 
     # -- helpers ------------------------------------------------------------------
@@ -157,8 +166,9 @@ class Robot(EntitySystem):
         mode = _MODES[int(self.mode_request_port.Eval(context)[0])]
         target = self.target_port.Eval(context)[0]
         activity = self.activity_port.Eval(context)[0]
-        motion = context.get_discrete_state(self._motion).get_value()
-        self.write_command(context, xd, view.mode, lambda: (mode.code, activity, target))
+        self.write_command(xd, view.mode, lambda: (mode.code, activity, target))
+        state = context.get_discrete_state(self._state).get_value()
+        published, motion = state[:4].tolist(), state[4:]
 
         if view.mode is TwinMode.MODEL:
             segment = motion[0]
@@ -176,23 +186,31 @@ class Robot(EntitySystem):
             activity, reached = view.sample[7], view.sample[8]
         else:  # stale or corrupt: the hologram holds its last known state
             motion, desired = None, None
-            mode = SafetyMode.from_code(read_scalar(context, self._mode))
-            activity, reached = read_scalar(context, self._activity), read_scalar(context, self._reached)
-        if motion is not None:
-            xd.get_mutable_vector(self._motion).SetFromVector(motion)
-            xd.get_mutable_vector(self._desired).SetFromVector(desired)
+            mode = _MODES[int(published[0])]
+            activity, reached = published[1], published[3]
 
         measured = self.measured_state_port.Eval(context)
         kin = self.kinematics
-        kin.plant.SetPositionsAndVelocities(kin.context, measured)
-        x, y, z = kin.tool.CalcPoseInWorld(kin.context).translation()
-        vx, vy, vz = kin.tool.CalcSpatialVelocityInWorld(kin.context).translational()
-        write_scalar(xd, self._mode, mode.code)
-        write_scalar(xd, self._activity, activity)
-        write_scalar(xd, self._location, self.locate((x, y, z)).code)
-        write_scalar(xd, self._reached, reached)
-        xd.get_mutable_vector(self._q).SetFromVector(measured[:6])
-        write_scalar(xd, self._tool_speed, math.sqrt(vx * vx + vy * vy + vz * vz))
+        telemetry = self.due(context, self._telemetry_every)
+        if telemetry:
+            kin.plant.SetPositionsAndVelocities(kin.context, measured)
+        else:
+            kin.plant.SetPositions(kin.context, measured[:6])
+        location = self.locate(kin.tool.CalcPoseInWorld(kin.context).translation())
+        codes = [float(mode.code), float(activity), float(location.code), float(reached)]
+        if codes != published:
+            for group, new, old in zip(self._published, codes, published):
+                if new != old:
+                    write_scalar(xd, group, new)
+        if motion is not None or codes != published:
+            kept = state[4:] if motion is None else motion
+            xd.get_mutable_vector(self._state).SetFromVector(np.concatenate((codes, kept)))
+        if desired is not None:
+            xd.get_mutable_vector(self._desired).SetFromVector(desired)
+        if telemetry:
+            vx, vy, vz = kin.tool.CalcSpatialVelocityInWorld(kin.context).translational()
+            xd.get_mutable_vector(self._q).SetFromVector(measured[:6])
+            write_scalar(xd, self._tool_speed, math.sqrt(vx * vx + vy * vy + vz * vz))
 
     def _rest_at(self, q) -> np.ndarray:
         """Motion state of an arm standing at q (no segment)."""
@@ -223,7 +241,7 @@ class Robot(EntitySystem):
             motion = self._start_segment(start + s * (goal - start), int(target))
             segment, s, rate, tool_per_s, joint_rate = motion[:5].tolist()
         if s < 1.0:
-            full = min(joint_rate, self.speed_caps[SafetyMode.NORMAL] / tool_per_s)
+            full = min(joint_rate, self._normal_cap / tool_per_s)
             accel = full / self.cfg.braking_time
             if mode in STANDSTILL_MODES or target != segment:
                 cap = 0.0  # brake: a mode that stands still, or a new target to replan for
@@ -235,8 +253,10 @@ class Robot(EntitySystem):
                 rate = 0.0
             motion = motion.copy()
             motion[1], motion[2] = s, rate
-        start, goal = motion[5:11], motion[11:17]
-        delta = goal - start
-        desired = np.concatenate([start + s * delta, rate * delta])
+        delta = motion[11:17] - motion[5:11]
+        desired = np.empty(12)
+        np.multiply(delta, s, out=desired[:6])
+        desired[:6] += motion[5:11]
+        np.multiply(delta, rate, out=desired[6:])
         reached = segment + 1.0 if s >= 1.0 and segment != HOLD else 0.0
         return motion, desired, reached

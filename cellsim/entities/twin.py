@@ -85,6 +85,8 @@ class EntitySystem(CellSystem):
         mode = TwinMode(mode)
         own = self.GetMyMutableContextFromRoot(root_context)
         own.get_mutable_discrete_state(self._mode_group).SetAtIndex(0, float(mode.code))
+        if mode is not TwinMode.TWIN:  # commands go out in twin mode only
+            own.get_mutable_discrete_state(self._command_group).SetZero()
 
     def twin_mode(self, root_context) -> TwinMode:
         return _MODES[int(read_scalar(self.GetMyContextFromRoot(root_context), self._mode_group))]
@@ -106,6 +108,8 @@ class EntitySystem(CellSystem):
             if nxt != start:
                 write_scalar(xd, self._next_change_group, nxt)
                 write_scalar(xd, self._mode_group, mode.code)
+                if mode is not TwinMode.TWIN:  # commands go out in twin mode only
+                    xd.get_mutable_vector(self._command_group).SetZero()
         if mode is TwinMode.MODEL:
             link, sample = PhysicalLink.UNUSED, None
         else:
@@ -127,12 +131,14 @@ class EntitySystem(CellSystem):
         """Entity-specific check of a finite sample (enum codes in range...)."""
         return True
 
-    def write_command(self, context, xd, mode: TwinMode, values: Callable[[], tuple]) -> None:
-        """Publish the commands addressed to this entity (``values()``): active only in twin mode."""
+    def write_command(self, xd, mode: TwinMode, values: Callable[[], tuple]) -> None:
+        """Publish the commands addressed to this entity (``values()``) in twin mode.
+
+        Outside twin mode the command output is all zeros (inactive): leaving twin
+        mode, by schedule or ``set_twin_mode``, clears it.
+        """
         if mode is TwinMode.TWIN:
             xd.get_mutable_vector(self._command_group).SetFromVector(np.array([1.0, *values()], float))
-        elif read_scalar(context, self._command_group) != 0.0:
-            write_scalar(xd, self._command_group, 0.0)
 
 
 _MODEL_VIEW = PhysicalView(TwinMode.MODEL, PhysicalLink.UNUSED, None)

@@ -63,7 +63,7 @@ class Welder(EntitySystem):
         mode_request = self.mode_request_port.Eval(context)[0]
         activity_request = self.activity_request_port.Eval(context)[0]
         weld = self.weld_command_port.Eval(context)[0] > 0.5
-        self.write_command(context, xd, view.mode, lambda: (mode_request, activity_request, weld))
+        self.write_command(xd, view.mode, lambda: (mode_request, activity_request, weld))
         if view.mode is TwinMode.MODEL:
             request = None if activity_request == NO_REQUEST else _ACTIVITIES[int(activity_request)]
             mode, activity = welder_step(SafetyMode.from_code(mode_request), request, weld)
