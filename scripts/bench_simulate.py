@@ -38,9 +38,9 @@ from diagrams.cell import KD, KI, KP  # noqa: E402
 SCENARIO = ROOT / "scenarios" / "welding_cell.yaml"
 
 
-def bare_plant_seconds(duration: float) -> float:
+def bare_plant_seconds(duration: float, overrides: list[str]) -> float:
     """The same arm, plant configuration and joint controller, following the cell's poses."""
-    sf = load_scenario(SCENARIO)
+    sf = load_scenario(SCENARIO, overrides)
     cfg = sf.scenario.entities["robot"]
     model = str(sf.resolve_path("entities.robot.model", cfg.model))
     builder = DiagramBuilder()
@@ -67,8 +67,8 @@ def bare_plant_seconds(duration: float) -> float:
     return time.perf_counter() - start
 
 
-def cell_seconds(duration: float, seed: int) -> float:
-    sf = load_scenario(SCENARIO)
+def cell_seconds(duration: float, seed: int, overrides: list[str]) -> float:
+    sf = load_scenario(SCENARIO, overrides)
     with tempfile.TemporaryDirectory() as tmp:
         summary = simulate(sf, Path(tmp) / "run", seed=seed, duration=duration)
     return summary.wall_time
@@ -78,9 +78,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=30.0)
     parser.add_argument("--repeats", type=int, default=3, help="median of this many runs of each")
+    parser.add_argument("--set", action="append", default=[], metavar="PATH=VALUE",
+                        help="scenario override for both (repeatable), e.g. time_step=0.002")
     args = parser.parse_args()
-    bare = statistics.median(bare_plant_seconds(args.duration) for _ in range(args.repeats))
-    cell = statistics.median(cell_seconds(args.duration, seed) for seed in range(args.repeats))
+    bare = statistics.median(bare_plant_seconds(args.duration, args.set) for _ in range(args.repeats))
+    cell = statistics.median(cell_seconds(args.duration, seed, args.set) for seed in range(args.repeats))
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"simulated time           {args.duration:.1f} s (median of {args.repeats})")
     print(f"bare plant + controller  {bare:.3f} s wall  {args.duration / bare:6.1f}x real time")

@@ -20,7 +20,7 @@ from cellsim.channels import enum_type, number_type
 from cellsim.entities.robot import HOLD
 from cellsim.entities.welder import NO_REQUEST
 from cellsim.scenario import WorkCycleConfig
-from cellsim.systems import CellSystem, read_scalar, write_scalar
+from cellsim.systems import CellSystem, write_scalar
 from cellsim.vocabulary import CodedEnum, RobotActivity, SafetyMode, WelderActivity
 
 _PAUSING = {RobotActivity.OFF.code: RobotActivity.OFF, RobotActivity.IDLE.code: RobotActivity.IDLE}
@@ -54,23 +54,26 @@ class WorkCycle(CellSystem):
         self.robot_mode_port = self.declare_input("robot_safety_mode")
         self.reached_pose_port = self.declare_input("robot_reached_pose")
         self.welder_activity_port = self.declare_input("welder_activity")
-        # [step progress (s dwelled or welded), last activity request]
-        self._progress = self.declare_state("progress", [0.0, NO_REQUEST])
         first = self.steps[0]
-        self._target = self.declare_state("target_pose", [self.targets[0]])
-        self._activity = self.declare_state("robot_activity", [first.activity.code])
-        self._weld = self.declare_state("weld_command", [0.0])
+        published = [self.targets[0], float(first.activity.code), 0.0, 0.0, 0.0]
+        # [step progress (s dwelled or welded), last activity request, the five outputs
+        # below as last published]: one read per update, and unchanged outputs are not rewritten
+        self._state = self.declare_state("state", [0.0, NO_REQUEST, *published])
+        self._target = self.declare_state("target_pose", [published[0]])
+        self._activity = self.declare_state("robot_activity", [published[1]])
+        self._weld = self.declare_state("weld_command", [published[2]])
         self.target_pose_port = self.DeclareStateOutputPort("target_pose", self._target)
         self.robot_activity_port = self.DeclareStateOutputPort("robot_activity", self._activity)
         self.weld_command_port = self.DeclareStateOutputPort("weld_command", self._weld)
         self._step = self.declare_channel("step", enum_type(self.step_names), first.name)
         self._cycles = self.declare_channel("cycles_completed", number_type(None), 0.0)
+        self._outputs = [self._target, self._activity, self._weld, self._step, self._cycles]
 
     def update(self, context, xd):
         request = self.activity_request_port.Eval(context)[0]
-        progress, last_request = context.get_discrete_state(self._progress).get_value()
-        index = int(read_scalar(context, self._step))
-        cycles = read_scalar(context, self._cycles)
+        state = context.get_discrete_state(self._state).get_value().tolist()
+        progress, last_request, published = state[0], state[1], state[2:]
+        index, cycles = int(published[3]), published[4]
         if request != last_request and request in self.restart:
             index, progress = self.restart[request], 0.0
         step = self.steps[index]
@@ -97,9 +100,10 @@ class WorkCycle(CellSystem):
                     cycles += 1
                 step = self.steps[index]
                 target, activity = self.targets[index], step.activity.code
-        xd.get_mutable_vector(self._progress).SetFromVector(np.array([progress, request]))
-        write_scalar(xd, self._target, target)
-        write_scalar(xd, self._activity, activity)
-        write_scalar(xd, self._weld, weld)
-        write_scalar(xd, self._step, index)
-        write_scalar(xd, self._cycles, cycles)
+        outputs = [float(target), float(activity), weld, float(index), float(cycles)]
+        for group, new, old in zip(self._outputs, outputs, published):
+            if new != old:
+                write_scalar(xd, group, new)
+        new_state = [progress, float(request), *outputs]
+        if new_state != state:
+            xd.get_mutable_vector(self._state).SetFromVector(np.array(new_state))
