@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from pydrake.systems.analysis import Simulator
+from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 
 from cellsim.config.typed_yaml import to_data
 from cellsim.scenario import ScenarioFile, export_scenario
@@ -157,9 +157,23 @@ def simulate(
 def make_simulator(cell: CellDiagram, realtime_rate: float = 0.0) -> Simulator:
     """A simulator of ``cell`` at its initial state; call ``Initialize()`` once recording is attached."""
     simulator = Simulator(cell.diagram)
+    integrate_at_plant_step(simulator, cell.plant.time_step())
     cell.set_initial_state(simulator.get_mutable_context())
     simulator.set_target_realtime_rate(realtime_rate)
     return simulator
+
+
+def integrate_at_plant_step(simulator: Simulator, time_step: float) -> None:
+    """Integrate the continuous state with explicit Euler, one step per plant step.
+
+    The only continuous state of a cell is its joint controllers' PID integral,
+    whose derivative (desired minus measured joint position) is constant between
+    plant steps, since every discrete event falls on a multiple of the plant
+    step. Explicit Euler at that step integrates it exactly, with one derivative
+    evaluation per step where the default error-controlled RK3 makes three.
+    """
+    ResetIntegratorFromFlags(simulator, "explicit_euler", time_step)
+    simulator.get_mutable_integrator().set_fixed_step_mode(True)
 
 
 def summarise(out_dir: Path, seed: int, status: str, sim_time: float, wall_time: float) -> RunSummary:

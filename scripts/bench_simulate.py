@@ -32,7 +32,7 @@ from pydrake.trajectories import PiecewisePolynomial  # noqa: E402
 
 from cellsim.entities.robot import robot_base_pose  # noqa: E402
 from cellsim.scenario import load_scenario  # noqa: E402
-from cellsim.simulation import simulate  # noqa: E402
+from cellsim.simulation import integrate_at_plant_step, simulate  # noqa: E402
 from diagrams.cell import KD, KI, KP  # noqa: E402
 
 SCENARIO = ROOT / "scenarios" / "welding_cell.yaml"
@@ -60,6 +60,7 @@ def bare_plant_seconds(duration: float, overrides: list[str]) -> float:
     builder.Connect(source.get_output_port(), controller.get_input_port_desired_state())
     builder.Connect(controller.get_output_port_control(), plant.get_actuation_input_port(arm))
     simulator = Simulator(builder.Build())
+    integrate_at_plant_step(simulator, plant.time_step())  # as the cell is simulated
     plant.SetPositions(plant.GetMyMutableContextFromRoot(simulator.get_mutable_context()), arm, poses[0])
     simulator.Initialize()
     start = time.perf_counter()
