@@ -105,3 +105,10 @@ def read_scalar(context, group: int) -> float:
 
 def write_scalar(xd, group: int, value: float) -> None:
     xd.get_mutable_vector(group).SetAtIndex(0, value)
+
+
+def write_changed(xd, groups: list[int], values: list[float], previous: list[float]) -> None:
+    """Write each scalar group whose value differs from what it held (a module's mirror of them)."""
+    for group, value, old in zip(groups, values, previous):
+        if value != old:
+            xd.get_mutable_vector(group).SetAtIndex(0, value)

@@ -20,7 +20,7 @@ from cellsim.channels import enum_type, number_type
 from cellsim.entities.robot import HOLD
 from cellsim.entities.welder import NO_REQUEST
 from cellsim.scenario import WorkCycleConfig
-from cellsim.systems import CellSystem, write_scalar
+from cellsim.systems import CellSystem, write_changed
 from cellsim.vocabulary import CodedEnum, RobotActivity, SafetyMode, WelderActivity
 
 _PAUSING = {RobotActivity.OFF.code: RobotActivity.OFF, RobotActivity.IDLE.code: RobotActivity.IDLE}
@@ -101,9 +101,7 @@ class WorkCycle(CellSystem):
                 step = self.steps[index]
                 target, activity = self.targets[index], step.activity.code
         outputs = [float(target), float(activity), weld, float(index), float(cycles)]
-        for group, new, old in zip(self._outputs, outputs, published):
-            if new != old:
-                write_scalar(xd, group, new)
+        write_changed(xd, self._outputs, outputs, published)
         new_state = [progress, float(request), *outputs]
         if new_state != state:
             xd.get_mutable_vector(self._state).SetFromVector(np.array(new_state))

@@ -28,7 +28,7 @@ from pydrake.math import RigidTransform, RollPitchYaw
 from cellsim.channels import enum_type, number_type, vector_type
 from cellsim.entities.twin import EntitySystem, valid_code
 from cellsim.scenario import Layout, RobotConfig
-from cellsim.systems import write_scalar
+from cellsim.systems import write_changed, write_scalar
 from cellsim.vocabulary import CodedEnum, RobotActivity, RobotLocation, SafetyMode, TwinMode
 
 HOLD = -1.0
@@ -136,7 +136,6 @@ class Robot(EntitySystem):
             self.declare_channel("location", enum_type(RobotLocation), published[2], description="rloc"),
             self.declare_channel("reached_pose", enum_type(self.reached_poses), published[3]),
         ]
-        self._mode = self._published[0]
         self._telemetry_every = max(1, round(TELEMETRY_PERIOD / self.period))
         self._q = self.declare_channel(
             "joint_positions", vector_type(n, "rad"), q0, record="every_sample", every=self._telemetry_every
@@ -198,10 +197,7 @@ class Robot(EntitySystem):
             kin.plant.SetPositions(kin.context, measured[:6])
         location = self.locate(kin.tool.CalcPoseInWorld(kin.context).translation())
         codes = [float(mode.code), float(activity), float(location.code), float(reached)]
-        if codes != published:
-            for group, new, old in zip(self._published, codes, published):
-                if new != old:
-                    write_scalar(xd, group, new)
+        write_changed(xd, self._published, codes, published)
         if motion is not None or codes != published:
             kept = state[4:] if motion is None else motion
             xd.get_mutable_vector(self._state).SetFromVector(np.concatenate((codes, kept)))
