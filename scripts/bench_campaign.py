@@ -27,8 +27,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from cellsim.campaign.runner import CampaignPlan, run_campaign  # noqa: E402
+from cellsim.config.typed_yaml import ConfigError  # noqa: E402
 from cellsim.logic.mtl import TraceEvaluator  # noqa: E402
 from cellsim.logic.trace import Trace  # noqa: E402
+from cellsim.scenario import load_scenario  # noqa: E402
 from cellsim.validation.check import check_run  # noqa: E402
 
 SCENARIO = ROOT / "scenarios" / "welding_cell.yaml"
@@ -42,6 +44,11 @@ def main() -> None:
     parser.add_argument("--scenario", type=Path, default=SCENARIO)
     parser.add_argument("--set", action="append", default=[], metavar="PATH=VALUE", help="scenario override (repeatable)")
     args = parser.parse_args()
+    try:  # bad input: one line and exit code 2, as the CLI does
+        load_scenario(args.scenario, args.set)
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
 
     with tempfile.TemporaryDirectory() as tmp:
         plan = CampaignPlan(str(args.scenario.resolve()), tuple(args.set), args.seed, args.runs)

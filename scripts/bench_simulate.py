@@ -31,6 +31,7 @@ from pydrake.systems.primitives import TrajectorySource  # noqa: E402
 from pydrake.trajectories import PiecewisePolynomial  # noqa: E402
 
 from cellsim.entities.robot import robot_base_pose  # noqa: E402
+from cellsim.config.typed_yaml import ConfigError  # noqa: E402
 from cellsim.scenario import load_scenario  # noqa: E402
 from cellsim.simulation import integrate_at_plant_step, simulate  # noqa: E402
 from diagrams.cell import KD, KI, KP  # noqa: E402
@@ -82,6 +83,11 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="PATH=VALUE",
                         help="scenario override for both (repeatable), e.g. time_step=0.002")
     args = parser.parse_args()
+    try:  # bad input: one line and exit code 2, as the CLI does
+        load_scenario(SCENARIO, args.set)
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
     bare = statistics.median(bare_plant_seconds(args.duration, args.set) for _ in range(args.repeats))
     cell = statistics.median(cell_seconds(args.duration, seed, args.set) for seed in range(args.repeats))
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
