@@ -445,3 +445,100 @@ def test_interval_set_boolean_ops_match_cell_sets(xs, ys):
         assert all(a_ < b_ for a_, b_ in got) and all(
             x[1] < y[0] for x, y in zip(got.intervals, got.intervals[1:])
         )  # canonical: non-empty, sorted, non-adjacent
+
+
+# --------------------------------------------------------------------------- exact bounds
+
+
+@pytest.mark.parametrize(
+    "t_hazard, t_act, holds",
+    [
+        # 8.3 - 0.5 > 7.8 in binary floating point: on the tick grid the deadline is exact
+        (7.8, 8.3, True),
+        (0.1, 0.6, True),
+        (2.7, 3.2, True),
+        (7.8, 8.300000001, False),  # one tick (1 ns) late
+    ],
+)
+def test_deadline_exactly_half_a_second_after_the_hazard(t_hazard, t_act, holds):
+    trace = Trace(
+        {"e": sig((0, False), (t_hazard, True), (20.0, False)),
+         "HS": sig((0, "inact"), (t_act, "act"))},  # fmt: skip
+        0.0,
+        30.0,
+    )
+    verdict = evaluate(cell(DETECTED), trace)
+    assert verdict == (Verdict(True, None) if holds else Verdict(False, t_hazard))
+
+
+@pytest.mark.parametrize("stint, exercised", [(1.0, False), (1.000000001, True), (0.7, False), (1.3, True)])
+def test_a_stint_of_exactly_one_second_is_not_more_than_a_second(stint, exercised):
+    # the welding cell's MU: "for more than a second" (G[0, 1s] and recorded 1 s on)
+    mu = cell("F(G[0, 1s] e and not G[1s, 1s] not e)")
+    trace = Trace({"e": sig((0, False), (12.1, True), (12.1 + stint, False))}, 0.0, 30.0)
+    # G[0,1s] e at t needs e on [t, t+1]; e holds on [12.1, 12.1 + stint): a stint of
+    # exactly 1 s misses the closed window's right end
+    assert evaluate(mu, trace).holds is exercised
+
+
+# --------------------------------------------------------------------------- conclusive verdicts
+
+
+def _readings(f, trace):
+    from cellsim.logic.mtl import DEFAULT, OPTIMISTIC, PESSIMISTIC
+
+    ev = TraceEvaluator(trace)
+    return {m: ev._sat(f, m) for m in (DEFAULT, OPTIMISTIC, PESSIMISTIC)}, ev
+
+
+def _within(inner, outer, start, end):
+    a = IntervalSet.from_flat(start, end, list(inner))
+    b = IntervalSet.from_flat(start, end, list(outer))
+    return (a - b).is_empty()
+
+
+@settings(max_examples=300, deadline=None)
+@given(formulas, grid_traces())
+def test_pessimistic_within_default_within_optimistic(f, trace_cells):
+    from cellsim.logic.mtl import DEFAULT, OPTIMISTIC, PESSIMISTIC
+
+    trace = trace_cells[0]
+    sets, ev = _readings(f, trace)
+    assert _within(sets[PESSIMISTIC], sets[DEFAULT], ev.start, ev.end)
+    assert _within(sets[DEFAULT], sets[OPTIMISTIC], ev.start, ev.end)
+
+
+@settings(max_examples=300, deadline=None)
+@given(formulas, grid_traces(), st.integers(1, 15))
+def test_a_conclusive_verdict_survives_any_continuation(f, trace_cells, cut_cells):
+    """Cut the trace short: where the cut trace's verdict is conclusive, the whole
+    trace (one of its continuations) gives the same verdict, however it goes on."""
+    from cellsim.logic.mtl import OPTIMISTIC, PESSIMISTIC
+
+    trace, _, n = trace_cells
+    if cut_cells >= n:
+        return
+    cut = Trace(trace.signals, trace.start, trace.start + cut_cells * D)
+    short = TraceEvaluator(cut)
+    if not short.conclusive(f):
+        return
+    verdict = short._holds_at_start(f, PESSIMISTIC)
+    whole = TraceEvaluator(trace)
+    # the whole trace's own readings bracket its truth on every further continuation
+    assert whole._holds_at_start(f, PESSIMISTIC) == verdict
+    assert whole._holds_at_start(f, OPTIMISTIC) == verdict
+
+
+def test_a_safety_condition_that_held_so_far_is_inconclusive_and_a_seen_violation_is_not():
+    trace = Trace({"HS": sig((0, "inact"), (3.0, "mis"))}, 0.0, 10.0)
+    ev = TraceEvaluator(trace)
+    assert not ev.evaluate(cell("G(not HS == mis)")).holds
+    assert ev.conclusive(cell("G(not HS == mis)"))  # the mishap was recorded
+    quiet = TraceEvaluator(Trace({"HS": sig((0, "inact"))}, 0.0, 10.0))
+    assert quiet.evaluate(cell("G(not HS == mis)")).holds
+    assert not quiet.conclusive(cell("G(not HS == mis)"))  # held so far: could still fail
+    # a hazard still open at the cut: violated by the strong F, but the run might have mitigated it
+    open_ = TraceEvaluator(Trace({"HS": sig((0, "inact"), (9.0, "act"))}, 0.0, 10.0))
+    f = cell("G(HS == act -> F HS == mit)")
+    assert not open_.evaluate(f).holds
+    assert not open_.conclusive(f)

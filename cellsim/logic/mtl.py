@@ -14,7 +14,7 @@ The semantics (continuous time, finite trace, end-of-trace rules) are specified 
 
 Everything is computed exactly, by interval arithmetic on satisfaction sets (finite
 unions of half-open intervals, :class:`~cellsim.logic.intervals.IntervalSet`), not
-by sampling.  Each operator is linear in the number of intervals of its operands.
+by sampling, on integer time ticks (1 ns), so bounds such as 0.5 s compare exactly.  Each operator is linear in the number of intervals of its operands.
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ from .syntax import (
     Or,
     Until,
 )
-from .trace import Trace
+from .trace import Trace, to_seconds, to_ticks
 
 __all__ = ["Verdict", "IntervalSet", "TraceEvaluator", "satisfaction", "evaluate"]
 
@@ -70,7 +70,7 @@ class Verdict:
     violated_at: float | None
 
 
-def _collect(los: list[float], his: list[float], truth) -> Flat:
+def _collect(los: list, his: list, truth) -> Flat:
     """Merge the pieces ``[los[i], his[i])`` whose ``truth[i]`` is true."""
     out: Flat = []
     for lo, hi, ok in zip(los, his, truth):
@@ -83,25 +83,39 @@ def _collect(los: list[float], his: list[float], truth) -> Flat:
     return out
 
 
+DEFAULT, OPTIMISTIC, PESSIMISTIC = 0, 1, -1
+"""How the evaluator reads what lies past the end of the trace.
+
+``DEFAULT`` is the documented semantics (bounded windows cut by the end are not
+judged, unbounded eventualities are strong). ``OPTIMISTIC`` gives the set of
+instants where the formula holds on *some* continuation of the trace, and
+``PESSIMISTIC`` those where it holds on *every* continuation: a verdict at the
+start is conclusive when the two agree. Negation swaps them.
+"""
+
+
 class TraceEvaluator:
     """Evaluates formulas on one trace, sharing the satisfaction sets of sub-formulas.
 
     Sub-formulas are memoised by value (ASTs are hashable), so a macro used twice in
     a condition, or an atom shared by several conditions evaluated with the same
-    evaluator, is computed once.
+    evaluator, is computed once. Internally every time is an integer number of
+    ticks (:data:`~cellsim.logic.trace.TICKS_PER_SECOND`), so window bounds
+    compare exactly; results are given back in seconds.
     """
 
     def __init__(self, trace: Trace) -> None:
         self.trace = trace
-        self.start = trace.start
-        self.end = trace.end
-        self._memo: dict[Formula, Flat] = {}
+        self.start = to_ticks(trace.start)
+        self.end = to_ticks(trace.end)
+        self._memo: dict[tuple[Formula, int], Flat] = {}
 
     # ----- public
 
     def satisfaction(self, formula: Formula) -> IntervalSet:
         """The instants of ``[start, end)`` at which ``formula`` holds."""
-        return IntervalSet.from_flat(self.start, self.end, list(self._sat(formula)))
+        flat = [to_seconds(x) for x in self._sat(formula, DEFAULT)]
+        return IntervalSet.from_flat(self.trace.start, self.trace.end, flat)
 
     def evaluate(self, formula: Formula) -> Verdict:
         """The :class:`Verdict` of ``formula`` at the start of the trace."""
@@ -109,43 +123,58 @@ class TraceEvaluator:
         if isinstance(formula, Always):
             # First violation of G[a,b] p: the earliest instant of the window
             # [s+a, s+b] where p is false (same arithmetic as always_flat).
-            bad = complement_flat(self._sat(formula.arg), s, self.end)
-            lo, hi = formula.lo, formula.hi
+            bad = complement_flat(self._sat(formula.arg, DEFAULT), s, self.end)
+            lo, hi = _bounds(formula)
             for k in range(0, len(bad), 2):
                 if bad[k + 1] - lo > s:
                     if bad[k] - hi <= s:
-                        return Verdict(False, max(bad[k], s + lo))
+                        return Verdict(False, to_seconds(max(bad[k], s + lo)))
                     break
             return Verdict(True, None)
-        flat = self._sat(formula)
-        holds = bool(flat) and flat[0] == s
-        return Verdict(holds, None if holds else s)
+        holds = self._holds_at_start(formula, DEFAULT)
+        return Verdict(holds, None if holds else self.trace.start)
+
+    def conclusive(self, formula: Formula) -> bool:
+        """Whether every continuation of the trace past its end gives the same verdict.
+
+        A conservative test: ``True`` means the verdict cannot change however the
+        run would have gone on; ``False`` means it might (a recording cut short
+        while a hazard was still open, or any safety condition that has held so far).
+        """
+        return self._holds_at_start(formula, OPTIMISTIC) == self._holds_at_start(formula, PESSIMISTIC)
+
+    def _holds_at_start(self, formula: Formula, mode: int) -> bool:
+        flat = self._sat(formula, mode)
+        return bool(flat) and flat[0] == self.start
 
     # ----- recursion
 
-    def _sat(self, node: Formula) -> Flat:
-        """Canonical flat list of ``node``'s satisfaction set (memoised; do not mutate)."""
-        memo = self._memo
-        result = memo.get(node)
+    def _sat(self, node: Formula, mode: int) -> Flat:
+        """Canonical flat list of ``node``'s satisfaction set in ticks (memoised; do not mutate)."""
+        key = (node, mode)
+        result = self._memo.get(key)
         if result is None:
             method = self._DISPATCH.get(type(node))
             if method is None:
                 raise TypeError(f"not a formula: {node!r}")
-            result = method(self, node)
-            memo[node] = result
+            if type(node) in _ATOMS and mode != DEFAULT:
+                result = self._sat(node, DEFAULT)  # what was recorded does not depend on the future
+            else:
+                result = method(self, node, mode)
+            self._memo[key] = result
         return result
 
-    def _const(self, node: Const) -> Flat:
+    def _const(self, node: Const, mode: int) -> Flat:
         return [self.start, self.end] if node.value else []
 
-    def _boolvar(self, node: BoolVar) -> Flat:
-        los, his, vals = self.trace.segments(node.name)
+    def _boolvar(self, node: BoolVar, mode: int) -> Flat:
+        los, his, vals = self.trace.tick_segments(node.name)
         return _collect(los, his, [v is not None and bool(v) for v in vals])
 
-    def _compare(self, node: Compare) -> Flat:
+    def _compare(self, node: Compare, mode: int) -> Flat:
         if node.other is not None:
             return self._compare_vars(node)
-        los, his, vals = self.trace.segments(node.var)
+        los, his, vals = self.trace.tick_segments(node.var)
         op, c = node.op, node.value
         if op == "==":
             truth = [v == c for v in vals]  # None == c is false
@@ -157,8 +186,8 @@ class TraceEvaluator:
         return _collect(los, his, truth)
 
     def _compare_vars(self, node: Compare) -> Flat:
-        los1, his1, vals1 = self.trace.segments(node.var)
-        los2, his2, vals2 = self.trace.segments(node.other)  # type: ignore[arg-type]
+        los1, his1, vals1 = self.trace.tick_segments(node.var)
+        los2, his2, vals2 = self.trace.tick_segments(node.other)  # type: ignore[arg-type]
         f = _ALL[node.op]
         out: Flat = []
         i = j = 0
@@ -180,67 +209,78 @@ class TraceEvaluator:
                 j += 1
         return out
 
-    def _inset(self, node: InSet) -> Flat:
-        los, his, vals = self.trace.segments(node.var)
+    def _inset(self, node: InSet, mode: int) -> Flat:
+        los, his, vals = self.trace.tick_segments(node.var)
         values = node.values
         return _collect(los, his, [v in values for v in vals])
 
-    def _not(self, node: Not) -> Flat:
-        return complement_flat(self._sat(node.arg), self.start, self.end)
+    def _not(self, node: Not, mode: int) -> Flat:
+        return complement_flat(self._sat(node.arg, -mode), self.start, self.end)
 
-    def _and(self, node: And) -> Flat:
+    def _and(self, node: And, mode: int) -> Flat:
         args = node.args
-        acc = self._sat(args[0])
+        acc = self._sat(args[0], mode)
         for arg in args[1:]:
             if not acc:
                 break
-            acc = intersection_flat(acc, self._sat(arg))
+            acc = intersection_flat(acc, self._sat(arg, mode))
         return acc
 
-    def _or(self, node: Or) -> Flat:
+    def _or(self, node: Or, mode: int) -> Flat:
         full = [self.start, self.end]
-        acc = self._sat(node.args[0])
+        acc = self._sat(node.args[0], mode)
         for arg in node.args[1:]:
             if acc == full:
                 break
-            acc = union_flat(acc, self._sat(arg))
+            acc = union_flat(acc, self._sat(arg, mode))
         return acc
 
-    def _implies(self, node: Implies) -> Flat:
-        lhs = self._sat(node.lhs)
+    def _implies(self, node: Implies, mode: int) -> Flat:
+        lhs = self._sat(node.lhs, -mode)
         if not lhs:
             return [self.start, self.end]
-        return union_flat(complement_flat(lhs, self.start, self.end), self._sat(node.rhs))
+        return union_flat(complement_flat(lhs, self.start, self.end), self._sat(node.rhs, mode))
 
-    def _eventually(self, node: Eventually) -> Flat:
+    def _cut(self, hi) -> Flat:
+        """The instants whose window ``[t+a, t+hi]`` reaches the end: ``t + hi >= end``."""
         s, e = self.start, self.end
-        result = eventually_flat(self._sat(node.arg), node.lo, node.hi, s)
-        if node.hi < math.inf:
+        cut = e - hi
+        return [cut if cut > s else s, e] if cut < e else []
+
+    def _eventually(self, node: Eventually, mode: int) -> Flat:
+        lo, hi = _bounds(node)
+        result = eventually_flat(self._sat(node.arg, mode), lo, hi, self.start)
+        if mode == OPTIMISTIC or (mode == DEFAULT and hi < math.inf):
             # Windows reaching the end of the trace (t + hi >= end) are not judged.
-            cut = e - node.hi
-            if cut < e:
-                result = union_flat(result, [cut if cut > s else s, e])
+            result = union_flat(result, self._cut(hi))
         return result
 
-    def _always(self, node: Always) -> Flat:
-        return always_flat(self._sat(node.arg), node.lo, node.hi, self.start, self.end)
+    def _always(self, node: Always, mode: int) -> Flat:
+        lo, hi = _bounds(node)
+        result = always_flat(self._sat(node.arg, mode), lo, hi, self.start, self.end)
+        if mode == PESSIMISTIC:  # only windows seen to the end are sure
+            result = intersection_flat(result, complement_flat(self._cut(hi), self.start, self.end))
+        return result
 
-    def _until(self, node: Until) -> Flat:
+    def _until(self, node: Until, mode: int) -> Flat:
         s, e = self.start, self.end
-        lo, hi = node.lo, node.hi
-        phi = self._sat(node.lhs)
-        psi = self._sat(node.rhs)
-        if lo == 0.0:
+        lo, hi = _bounds(node)
+        phi = self._sat(node.lhs, mode)
+        psi = self._sat(node.rhs, mode)
+        if lo == 0:
             result = until0_flat(phi, psi, hi)
         else:
             # p U[a,b] q  =  G[0,a] p  and  (p U[0,b-a] q) at t+a      (a > 0)
             later = until0_flat(phi, psi, hi - lo)
             result = intersection_flat(
-                always_flat(phi, 0.0, lo, s, e), eventually_flat(later, lo, lo, s)
+                always_flat(phi, 0, lo, s, e), eventually_flat(later, lo, lo, s)
             )
         if node.weak:
-            result = union_flat(result, always_flat(phi, 0.0, hi, s, e))
-        elif hi < math.inf:
+            held = always_flat(phi, 0, hi, s, e)
+            if mode == PESSIMISTIC:
+                held = intersection_flat(held, complement_flat(self._cut(hi), s, e))
+            result = union_flat(result, held)
+        elif mode == OPTIMISTIC or (mode == DEFAULT and hi < math.inf):
             # Deadline after the end of the trace: not violated while p has held
             # throughout [t, end).
             cut = e - hi
@@ -264,6 +304,14 @@ class TraceEvaluator:
         Always: _always,
         Until: _until,
     }
+
+
+_ATOMS = (Const, BoolVar, Compare, InSet)
+
+
+def _bounds(node) -> tuple:
+    """A temporal operator's window ``[lo, hi]`` in ticks (``hi`` may be infinite)."""
+    return to_ticks(node.lo), to_ticks(node.hi)
 
 
 def satisfaction(formula: Formula, trace: Trace) -> IntervalSet:

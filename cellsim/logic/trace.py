@@ -10,16 +10,38 @@ before that sample, and a sample whose value is ``None`` makes it undefined unti
 next sample.  Every atom (comparison, membership, boolean variable) that reads an
 undefined variable is **false** there - so ``HS == act`` and ``HS != act`` are both
 false before ``HS`` is first recorded, and ``not HS == act`` is true.
+
+Time resolution: the evaluator works on a fixed grid of :data:`TICKS_PER_SECOND`
+ticks (1 ns). Every time stamp, the trace's bounds and every bound of a formula
+are rounded to it once, and all arithmetic after that is on integers, so window
+bounds compare exactly: detection 0.5 s after the hazard (7.8 s -> 8.3 s) meets
+``U[0, 0.5s]`` although ``8.3 - 0.5 > 7.8`` in binary floating point.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Signal", "Trace"]
+__all__ = ["Signal", "Trace", "TICKS_PER_SECOND", "to_ticks", "to_seconds"]
+
+TICKS_PER_SECOND = 1_000_000_000
+"""The time resolution of evaluation: 1 ns, the resolution of recorded time stamps."""
+
+
+def to_ticks(t: float) -> int | float:
+    """``t`` seconds on the tick grid (an exact integer); infinities stay infinite."""
+    if t == math.inf or t == -math.inf:
+        return t
+    return round(t * TICKS_PER_SECOND)
+
+
+def to_seconds(ticks: int) -> float:
+    """Ticks back to seconds (the float nearest to the decimal value)."""
+    return ticks / TICKS_PER_SECOND
 
 
 @dataclass
@@ -88,11 +110,15 @@ class Trace:
     start: float
     end: float
     _segments: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    _ticks: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        self.start = float(self.start)
-        self.end = float(self.end)
-        if not (np.isfinite(self.start) and np.isfinite(self.end) and self.start < self.end):
+        if not (np.isfinite(self.start) and np.isfinite(self.end)):
+            raise ValueError(f"bad trace domain [{self.start}, {self.end})")
+        # the bounds lie on the tick grid, so converting them back and forth is exact
+        self.start = to_seconds(to_ticks(float(self.start)))
+        self.end = to_seconds(to_ticks(float(self.end)))
+        if not self.start < self.end:
             raise ValueError(f"bad trace domain [{self.start}, {self.end})")
         for name, signal in self.signals.items():
             if not isinstance(signal, Signal):
@@ -138,4 +164,23 @@ class Trace:
             vals.append(values[i])
         result = (los, his, vals)
         self._segments[name] = result
+        return result
+
+    def tick_segments(self, name: str) -> tuple[list[int], list[int], list[object]]:
+        """:meth:`segments` on the tick grid: integer bounds, pieces shorter than a tick dropped.
+
+        Dropping a piece that rounds to nothing keeps the pieces contiguous: the
+        next one starts where the dropped one did. Cached per trace.
+        """
+        cached = self._ticks.get(name)
+        if cached is not None:
+            return cached
+        los, his, vals = self.segments(name)
+        lo_t = np.rint(np.asarray(los, dtype=np.float64) * TICKS_PER_SECOND).astype(np.int64).tolist()
+        hi_t = np.rint(np.asarray(his, dtype=np.float64) * TICKS_PER_SECOND).astype(np.int64).tolist()
+        keep = [i for i in range(len(lo_t)) if lo_t[i] < hi_t[i]]
+        if len(keep) < len(lo_t):
+            lo_t, hi_t, vals = [lo_t[i] for i in keep], [hi_t[i] for i in keep], [vals[i] for i in keep]
+        result = (lo_t, hi_t, vals)
+        self._ticks[name] = result
         return result
