@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 import sqlite3
+from pathlib import Path
 
 import pytest
 from conftest import WELDING_CELL, run, welding_cell
@@ -62,7 +63,7 @@ def test_check_holds_on_the_default_run_and_says_which_use_cases(default_run, ca
     report = json.loads(capsys.readouterr().out)
     assert report["holds"] is True
     assert len(report["verdicts"]) == 14
-    assert all(v == {"holds": True, "violated_at": None} for v in report["verdicts"].values())
+    assert all(v == {"holds": True, "status": "holds", "violated_at": None} for v in report["verdicts"].values())
     assert report["use_cases"] == ["U1", "U2"]  # reaches across the table, walks to the welder
     assert ["ssmon"] in report["coverage"]["safmod"]  # HS was mitigated by speed and separation monitoring
 
@@ -72,7 +73,7 @@ def test_check_exits_1_and_names_the_violated_condition(operator_stays_in_cell, 
     report = json.loads(capsys.readouterr().out)
     assert report["holds"] is False
     assert set(report["violations"]) == {"Final:Cell", "HS:handled", "HC:handled"}
-    assert report["verdicts"]["Final:Cell"] == {"holds": False, "violated_at": 0.0}
+    assert report["verdicts"]["Final:Cell"] == {"holds": False, "status": "violated", "violated_at": 0.0}
     # HS (and HC) are mitigated when the operator comes near, never handled: the first
     # violation is the instant the mitigation starts
     with BlackBox(operator_stays_in_cell / "blackbox.sqlite") as bb:
@@ -107,14 +108,48 @@ def test_check_a_black_box_file_against_another_scenario(default_run, tmp_path, 
     assert main(["check", str(lone), "--scenario", str(WELDING_CELL), "--json"]) == 0
 
 
-def test_an_interrupted_run_is_checked_up_to_its_last_message(default_run, tmp_path):
+def _cut(default_run, tmp_path, at: float, recorded_until: bool) -> Path:
+    """A copy of the default run as if it had stopped at ``at`` s."""
     partial = tmp_path / "partial"
     shutil.copytree(default_run, partial)
     with sqlite3.connect(partial / "blackbox.sqlite") as db:
-        db.execute("DELETE FROM messages WHERE t > 12.0")
+        db.execute("DELETE FROM messages WHERE t >= ?", (at,))
         db.execute("UPDATE metadata SET value = '\"interrupted\"' WHERE key = 'status'")
+        if recorded_until:
+            db.execute("UPDATE metadata SET value = ? WHERE key = 'recorded_until'", (json.dumps(at),))
+        else:
+            db.execute("DELETE FROM metadata WHERE key = 'recorded_until'")
+    return partial
+
+
+def test_an_interrupted_run_ends_where_its_record_was_committed(default_run, tmp_path):
+    checked = check_run(_cut(default_run, tmp_path, 12.0, recorded_until=True))
+    assert checked.trace.trace.end == 12.0
+    assert not checked.trace.complete
+
+
+def test_a_recording_whose_last_message_is_a_mishap_violates_not_mis(default_run, tmp_path):
+    """Without recorded_until (a recording from the real cell), the last value holds for its period."""
+    partial = _cut(default_run, tmp_path, 12.0, recorded_until=False)
+    with sqlite3.connect(partial / "blackbox.sqlite") as db:
+        db.execute("INSERT INTO messages VALUES (12.5, 'safety_controller.HC', 'safety_controller', '{\"value\": \"mis\"}')")
     checked = check_run(partial)
-    assert checked.trace.trace.end == pytest.approx(12.0, abs=0.11)
+    with BlackBox(partial / "blackbox.sqlite") as bb:
+        period = bb.channels()["safety_controller.HC"].period
+    assert checked.trace.trace.end == pytest.approx(12.5 + period)
+    verdict = checked.result.verdicts["HC:not_mis"]
+    assert verdict.status == "violated" and verdict.violated_at == 12.5  # seen: conclusive
+
+
+def test_an_incomplete_run_marks_verdicts_the_cut_could_change_inconclusive(default_run, tmp_path, capsys):
+    partial = _cut(default_run, tmp_path, 12.0, recorded_until=True)
+    assert main(["check", str(partial), "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    statuses = {name: v["status"] for name, v in report["verdicts"].items()}
+    # nothing was violated in the first 12 s, but G conditions have only held so far
+    assert set(statuses.values()) == {"inconclusive"}
+    assert report["verdicts"]["HS:not_mis"]["reading"] == "holds so far"
+    assert report["holds"] is False and report["violations"] == []
 
 
 def _one_error_line(capsys) -> str:

@@ -57,7 +57,11 @@ def scenario_safety_case(sf: ScenarioFile) -> SafetyCase:
     """
     from diagrams.cell import build_cell
 
-    cell = build_cell(sf, seed=sf.scenario.seed, duration=sf.scenario.duration, record=False)
+    return cell_safety_case(sf, build_cell(sf, seed=sf.scenario.seed, duration=sf.scenario.duration, record=False))
+
+
+def cell_safety_case(sf: ScenarioFile, cell) -> SafetyCase:
+    """The scenario's validation compiled against the channels of a built cell."""
     specs = [spec for spec, _ in cell.channels.values()]
     return safety_case(sf, channel_domains(specs), cell.channels)
 
@@ -88,4 +92,4 @@ def check_run(path: str | os.PathLike, sf: ScenarioFile | None = None) -> Checke
     with BlackBox(blackbox) as bb:
         case = safety_case(sf, blackbox_domains(bb), bb.channels())
         trace = trace_of_run(bb, sf.scenario.validation.variables)
-    return CheckedRun(trace, case.check(trace.trace), case)
+    return CheckedRun(trace, case.check(trace.trace, complete=trace.complete), case)

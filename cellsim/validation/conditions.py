@@ -16,8 +16,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from cellsim.config.typed_yaml import ConfigError
-from cellsim.logic.mtl import TraceEvaluator, Verdict
-from cellsim.logic.syntax import Formula, FormulaError, parse
+from cellsim.logic.mtl import TraceEvaluator
+from cellsim.logic.syntax import Formula, FormulaError, parse, variables_of
 from cellsim.logic.trace import Trace
 from cellsim.validation.config import Validation
 from cellsim.validation.coverage import CoverageModel
@@ -26,20 +26,75 @@ Locate = Callable[[str], tuple[str, int | None, str]]
 """Dotted key of the validation section -> (file, line, key in that file) where it is written."""
 
 
+HOLDS, VIOLATED, INCONCLUSIVE, MISSING = "holds", "violated", "inconclusive", "missing data"
+
+
+@dataclass(frozen=True)
+class ConditionVerdict:
+    """A safety condition's verdict on one run.
+
+    ``status`` is one of:
+
+    * ``holds``: the condition holds on the run;
+    * ``violated``: it does not; ``violated_at`` is the first violation (for a
+      ``G`` condition) or the start;
+    * ``inconclusive``: the run did not complete and how it would have gone on
+      could change the verdict (a hazard still open at the cut, or any condition
+      that has held so far); ``reading`` says what the recorded part shows;
+    * ``missing data``: the condition reads a variable with no message at all
+      (``missing`` names them): nothing was observed, so nothing is claimed.
+    """
+
+    status: str
+    violated_at: float | None = None
+    missing: tuple[str, ...] = ()
+    reading: str | None = None
+    """For an inconclusive verdict: ``holds so far`` or ``violated so far``."""
+
+    @property
+    def holds(self) -> bool:
+        return self.status == HOLDS
+
+    def to_json(self) -> dict:
+        data = {"holds": self.holds, "status": self.status, "violated_at": self.violated_at}
+        if self.missing:
+            data["missing"] = list(self.missing)
+        if self.reading:
+            data["reading"] = self.reading
+        return data
+
+    def describe(self) -> str:
+        """The verdict in a few words, for tables."""
+        if self.status == MISSING:
+            return f"missing data: {', '.join(self.missing)} never recorded"
+        if self.status == INCONCLUSIVE:
+            return f"inconclusive: {self.reading} when the recording stopped"
+        return self.status
+
+
 @dataclass
 class CheckResult:
     """The verdict of every condition on one run, and the use cases it exercised."""
 
-    verdicts: dict[str, Verdict]
+    verdicts: dict[str, ConditionVerdict]
     use_cases: list[str]
     coverage: dict[str, list[list[str]]]
 
     @property
     def violations(self) -> list[str]:
-        return [name for name, v in self.verdicts.items() if not v.holds]
+        return [name for name, v in self.verdicts.items() if v.status == VIOLATED]
+
+    @property
+    def undecided(self) -> list[str]:
+        """Conditions that neither hold nor are violated: inconclusive or missing data."""
+        return [name for name, v in self.verdicts.items() if v.status in (INCONCLUSIVE, MISSING)]
+
+    @property
+    def all_hold(self) -> bool:
+        return all(v.holds for v in self.verdicts.values())
 
     def verdicts_json(self) -> dict[str, dict]:
-        return {name: {"holds": v.holds, "violated_at": v.violated_at} for name, v in self.verdicts.items()}
+        return {name: v.to_json() for name, v in self.verdicts.items()}
 
 
 @dataclass
@@ -74,10 +129,29 @@ class SafetyCase:
             raise ConfigError(*locate("validation.coverage"), str(e)) from None
         return cls(validation, conditions, use_cases, coverage)
 
-    def check(self, trace: Trace) -> CheckResult:
-        """Verdicts, use cases and covered situations of one trace."""
+    def check(self, trace: Trace, *, complete: bool = True, recorded: set[str] | None = None) -> CheckResult:
+        """Verdicts, use cases and covered situations of one trace.
+
+        ``complete`` says whether the trace ends where the run was meant to end
+        (otherwise verdicts the cut could change are inconclusive); ``recorded``
+        names the variables with at least one message (default: every variable
+        whose signal has a sample), the others make their conditions missing data.
+        """
         evaluator = TraceEvaluator(trace)
-        verdicts = {name: evaluator.evaluate(f) for name, f in self.conditions.items()}
+        if recorded is None:
+            recorded = {name for name, signal in trace.signals.items() if len(signal)}
+        verdicts = {name: self._verdict(evaluator, f, complete, recorded) for name, f in self.conditions.items()}
         use_cases = [name for name, f in self.use_cases.items() if evaluator.evaluate(f).holds]
         coverage = self.coverage.observe(trace, set(use_cases), evaluator)
         return CheckResult(verdicts, use_cases, coverage)
+
+    def _verdict(self, evaluator: TraceEvaluator, formula: Formula, complete: bool, recorded: set[str]) -> ConditionVerdict:
+        missing = tuple(sorted(variables_of(formula) - recorded))
+        if missing:
+            return ConditionVerdict(MISSING, missing=missing)
+        verdict = evaluator.evaluate(formula)
+        if not complete and not evaluator.conclusive(formula):
+            return ConditionVerdict(
+                INCONCLUSIVE, verdict.violated_at, reading="holds so far" if verdict.holds else "violated so far"
+            )
+        return ConditionVerdict(HOLDS if verdict.holds else VIOLATED, verdict.violated_at)

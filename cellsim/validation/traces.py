@@ -8,9 +8,20 @@ variables. Aliases from the scenario's ``validation.variables`` give the short
 names the conditions use (``safmod`` for ``robot.safety_mode``); an alias shares
 its channel's signal.
 
-The trace's domain is ``[0, end)``: ``end`` is the run's duration when it
-completed, otherwise the time of its last message (an interrupted run, or a
-recording made beside the real cell).
+The trace's domain is ``[0, end)``. ``end`` is the run's duration when the run
+completed. Otherwise (a run interrupted or killed, a recording made beside the
+real cell) it is the simulated time up to which the recorder had written every
+message (``recorded_until`` in the metadata), and without that the latest
+``t + period`` over the messages: a value last recorded at ``t`` was observed
+for at least its channel's sample period, so a recording whose last message is
+a mishap does not end at the instant the mishap began. Such a trace is
+*incomplete*: verdicts that its cut could change are inconclusive (see
+:class:`~cellsim.validation.conditions.ConditionVerdict`).
+
+A black box whose content is not what the recorder writes (metadata that is not
+JSON, unknown channel kinds, values outside a channel's domain, time stamps that
+are not finite numbers, no messages) is refused with a ``BlackBoxError`` that
+starts with "corrupt black box".
 """
 
 from __future__ import annotations
@@ -27,7 +38,7 @@ import numpy as np
 from cellsim.logic.syntax import BoolDomain, EnumDomain, NumberDomain
 from cellsim.logic.trace import Signal, Trace
 from cellsim.channels import ChannelSpec
-from cellsim.services.blackbox import BlackBox
+from cellsim.services.blackbox import BlackBox, BlackBoxError
 
 Domain = EnumDomain | BoolDomain | NumberDomain
 
@@ -94,6 +105,8 @@ class RunTrace:
 
     trace: Trace
     vocabulary: dict[str, Domain]
+    complete: bool = True
+    """Whether the trace ends where the run was meant to end (the run completed)."""
 
     def to_json(self) -> dict[str, list[list]]:
         """``{variable: [[t, value], ...]}`` (the ``--export-trace`` format)."""
@@ -112,10 +125,20 @@ def trace_of_run(bb: BlackBox, aliases: dict[str, str] | None = None) -> RunTrac
     except TraceError as e:
         raise TraceError(f"{bb.path}: variable '{e.variable}': {e}", e.variable) from None
 
+    channels = bb.channels()
     samples: dict[str, tuple[list[float], list]] = {name: ([], []) for name in domains}
-    last_t = 0.0
+    valid = {name: _validator(d) for name, d in domains.items()}
+    reach = 0.0  # latest t + period over all messages
     for t, channel, value in bb.iter_values(list(samples)):
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not np.isfinite(t) or t < 0:
+            raise BlackBoxError(f"{bb.path}: corrupt black box: a '{channel}' message has time stamp {t!r}")
+        if value is not None and not valid[channel](value):
+            raise BlackBoxError(
+                f"{bb.path}: corrupt black box: '{channel}' at t = {t} has value {value!r}, "
+                f"outside its domain {_describe(domains[channel])}"
+            )
         times, values = samples[channel]
+        reach = max(reach, t + channels[channel].period)
         if times and t <= times[-1]:
             if t < times[-1]:
                 raise TraceError(f"{bb.path}: channel '{channel}' goes back in time at t = {t}")
@@ -123,17 +146,46 @@ def trace_of_run(bb: BlackBox, aliases: dict[str, str] | None = None) -> RunTrac
             continue
         times.append(t)
         values.append(value)
-        last_t = max(last_t, t)
+    if not any(times for times, _ in samples.values()):
+        raise BlackBoxError(f"{bb.path}: corrupt black box: it holds no messages")
 
     metadata = bb.metadata()
-    end = metadata.get("duration") if metadata.get("status") == "completed" else None
-    end = float(end) if end else last_t
+    complete = metadata.get("status") == "completed"
+    end = _number(bb, metadata, "duration") if complete else None
+    if end is None:
+        complete = False
+        end = _number(bb, metadata, "recorded_until") or reach
     if end <= 0.0:
         raise TraceError(f"{bb.path}: the run recorded no time (no messages after t = 0)")
     signals = {name: Signal(np.asarray(ts, dtype=np.float64), vs) for name, (ts, vs) in samples.items()}
     for variable, channel in aliases.items():
         signals[variable] = signals[channel]
-    return RunTrace(Trace(signals, 0.0, end), vocabulary)
+    return RunTrace(Trace(signals, 0.0, end), vocabulary, complete)
+
+
+def _number(bb: BlackBox, metadata: dict, key: str) -> float | None:
+    """A positive finite number from the metadata, None when absent; corrupt otherwise."""
+    value = metadata.get(key)
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
+        raise BlackBoxError(f"{bb.path}: corrupt black box: metadata '{key}' is {value!r}, not a positive number")
+    return float(value)
+
+
+def _validator(domain: Domain):
+    if isinstance(domain, EnumDomain):
+        values = set(domain.values)
+        return lambda v: isinstance(v, str) and v in values
+    if isinstance(domain, BoolDomain):
+        return lambda v: isinstance(v, bool)
+    return lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+
+
+def _describe(domain: Domain) -> str:
+    if isinstance(domain, EnumDomain):
+        return "{" + ", ".join(domain.values) + "}"
+    return "boolean" if isinstance(domain, BoolDomain) else "finite number"
 
 
 def write_trace_json(run_trace: RunTrace, path: str | os.PathLike) -> None:
