@@ -57,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="run a scenario headless and record its black box",
         description="Simulate a scenario (far faster than real time unless --meshcat) and write "
         "OUT/blackbox.sqlite (every message) and OUT/scenario.yaml (the resolved scenario). "
-        "Exits 1 if a hazard reached its mishap phase.",
+        "Exits 1 if a hazard reached its mishap phase or a safety condition does not hold on the run.",
     )
     sim.add_argument("scenario", type=Path, help="scenario YAML file")
     sim.add_argument("--duration", type=float, help="simulated seconds (default: the scenario's duration)")
@@ -174,14 +174,15 @@ def cmd_simulate(args) -> int:
                 realtime_rate=1.0 if meshcat else 0.0,
                 on_progress=report,
             )
+        checked = _check_of(summary)
         if not args.quiet:
-            print_summary(summary, _verdicts_of(sf, out))
+            print_summary(summary, checked)
         if meshcat is not None and sys.stdin.isatty():
             input("Press Enter to close Meshcat. ")
     finally:
         if meshcat is not None:
             del meshcat
-    return EXIT_FINDING if summary.mishap else EXIT_OK
+    return EXIT_FINDING if summary.mishap or (checked is not None and not checked.all_hold) else EXIT_OK
 
 
 class _progress:
@@ -214,11 +215,18 @@ class _progress:
             self.bar.stop()
 
 
-def _verdicts_of(sf, out: Path):
+def _check_of(summary):
     """The run's check result, or None when the scenario has no safety conditions."""
-    from cellsim.validation.check import check_run
+    from cellsim.services.blackbox import BlackBox
+    from cellsim.simulation import BLACKBOX
+    from cellsim.validation.traces import trace_of_run
 
-    return check_run(out, sf).result if sf.scenario.validation.conditions else None
+    case = summary.safety_case
+    if case is None:
+        return None
+    with BlackBox(Path(summary.out_dir) / BLACKBOX) as bb:
+        run = trace_of_run(bb, case.validation.variables)
+    return case.check(run.trace, complete=run.complete)
 
 
 def print_summary(summary, checked=None) -> None:
@@ -239,12 +247,8 @@ def print_summary(summary, checked=None) -> None:
         table.add_row(f"hazard {name}", verdict)
     table.add_row("final safety mode", summary.final_safety_mode or "-")
     if checked is not None:
-        bad = checked.violations
-        table.add_row(
-            "safety conditions",
-            f"[red]{len(bad)} of {len(checked.verdicts)} violated: {', '.join(bad)}[/red]" if bad
-            else f"all {len(checked.verdicts)} hold (details: cellsim check {summary.out_dir})",
-        )
+        line = _conditions_line(checked)
+        table.add_row("safety conditions", line if checked.all_hold else f"{line} (details: cellsim check {summary.out_dir})")
         table.add_row("use cases exercised", ", ".join(checked.use_cases) or "none")
     table.add_row("simulated time", f"{summary.sim_time:.1f} s")
     table.add_row("wall time", f"{summary.wall_time:.2f} s")
@@ -273,9 +277,11 @@ def cmd_check(args) -> int:
         json.dump(
             {
                 "run": str(args.run),
-                "holds": not result.violations,
+                "holds": result.all_hold,
+                "complete": checked.trace.complete,
                 "verdicts": result.verdicts_json(),
                 "violations": result.violations,
+                "undecided": result.undecided,
                 "use_cases": result.use_cases,
                 "coverage": result.coverage,
             },
@@ -285,7 +291,7 @@ def cmd_check(args) -> int:
         sys.stdout.write("\n")
     else:
         print_verdicts(args.run, checked)
-    return EXIT_FINDING if result.violations else EXIT_OK
+    return EXIT_OK if result.all_hold else EXIT_FINDING
 
 
 def print_verdicts(run: Path, checked) -> None:
@@ -299,14 +305,33 @@ def print_verdicts(run: Path, checked) -> None:
     table.add_column("first violation")
     table.add_column("formula", style="dim")
     for name, verdict in result.verdicts.items():
-        mark = "[green]holds[/green]" if verdict.holds else "[red]VIOLATED[/red]"
-        when = "" if verdict.violated_at is None else f"t = {verdict.violated_at:.2f} s"
+        mark = {"holds": "[green]holds[/green]", "violated": "[red]VIOLATED[/red]"}.get(
+            verdict.status, f"[yellow]{verdict.describe()}[/yellow]"
+        )
+        when = "" if verdict.violated_at is None or verdict.holds else f"t = {verdict.violated_at:.2f} s"
         table.add_row(name, mark, when, conditions[name])
     console = Console()
+    if not checked.trace.complete:
+        console.print(
+            f"[yellow]the run did not complete: its record ends at t = {checked.trace.trace.end:.2f} s; "
+            "verdicts that a longer run could change are inconclusive[/yellow]"
+        )
     console.print(table)
     console.print(f"use cases exercised: {', '.join(result.use_cases) or 'none'}")
-    n = len(result.violations)
-    console.print(f"[red]{n} of {len(result.verdicts)} conditions violated[/red]" if n else f"all {len(result.verdicts)} conditions hold")
+    console.print(_conditions_line(result))
+
+
+def _conditions_line(result) -> str:
+    """'all 14 conditions hold', or what keeps them from holding."""
+    total = len(result.verdicts)
+    if result.all_hold:
+        return f"all {total} conditions hold"
+    parts = []
+    if result.violations:
+        parts.append(f"[red]{len(result.violations)} of {total} conditions violated: {', '.join(result.violations)}[/red]")
+    if result.undecided:
+        parts.append(f"[yellow]{len(result.undecided)} undecided (inconclusive or missing data): {', '.join(result.undecided)}[/yellow]")
+    return "; ".join(parts)
 
 
 def cmd_campaign(args) -> int:

@@ -1,7 +1,8 @@
 """Running a scenario headless: build, simulate, record, summarise.
 
 ``simulate`` checks and builds everything before it touches the output folder,
-so bad input leaves nothing behind. The output folder then holds
+so bad input leaves nothing behind, and claims the folder for itself (see
+:class:`RunFolder`). The output folder then holds
 
 * ``blackbox.sqlite``: every message (see ``cellsim.services.blackbox``);
 * ``scenario.yaml``: the resolved scenario, which re-runs the same run.
@@ -12,8 +13,10 @@ identical ``messages`` rows.
 
 from __future__ import annotations
 
+import fcntl
 import importlib.metadata
 import os
+import shutil
 import platform
 import time
 from dataclasses import dataclass, field
@@ -25,7 +28,7 @@ from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 from cellsim.config.typed_yaml import to_data
 from cellsim.scenario import ScenarioFile, export_scenario
 from cellsim.services.blackbox import BlackBox, BlackBoxWriter
-from cellsim.services.recorder import DRAIN_SAMPLES
+from cellsim.services.recorder import DRAIN_PERIOD
 from diagrams.cell import CellDiagram, build_cell
 
 BLACKBOX = "blackbox.sqlite"
@@ -53,6 +56,8 @@ class RunSummary:
     cycles_completed: int
     hazards: dict[str, HazardCounts] = field(default_factory=dict)
     final_safety_mode: str | None = None
+    safety_case: object | None = None
+    """The scenario's compiled validation (a ``SafetyCase``), when it has conditions."""
 
     @property
     def real_time_factor(self) -> float:
@@ -73,15 +78,77 @@ def package_versions() -> dict[str, str]:
     return versions
 
 
-def prepare_output(out_dir: Path, overwrite: bool = False) -> None:
-    """Make sure ``out_dir`` can take a new run without losing an old one."""
-    blackbox = out_dir / BLACKBOX
-    if blackbox.exists():
-        if not overwrite:
-            raise OutputExistsError(f"{out_dir} already holds a run ({BLACKBOX}); choose another --out or pass --overwrite")
-        for name in (BLACKBOX, BLACKBOX + "-wal", BLACKBOX + "-shm", RESOLVED_SCENARIO):
-            (out_dir / name).unlink(missing_ok=True)
-    out_dir.mkdir(parents=True, exist_ok=True)
+LOCK = ".cellsim.lock"
+"""A run folder's lock file: held (flock) by the process writing the run."""
+RUN_FILES = (BLACKBOX, BLACKBOX + "-wal", BLACKBOX + "-shm", BLACKBOX + "-journal", RESOLVED_SCENARIO)
+
+
+class RunFolder:
+    """An exclusive claim on a run's output folder, held while the run is written.
+
+    The claim is an advisory lock (``flock``) on ``OUT/.cellsim.lock``: a second
+    process that asks for the same folder is refused at once, and the lock goes
+    with its holder however that ends, SIGKILL included. The folder must be new,
+    empty, or hold a run (replaced only with ``overwrite``); the current folder is
+    refused, so a run never mixes its files with the user's.
+    """
+
+    def __init__(self, out_dir: str | os.PathLike, overwrite: bool = False):
+        self.path = Path(out_dir)
+        self.overwrite = overwrite
+        self._fd: int | None = None
+
+    def __enter__(self) -> "RunFolder":
+        out = self.path
+        if str(out) in ("", ".") or (out.exists() and out.resolve() == Path.cwd().resolve()):
+            raise OutputExistsError(f"--out '{out}' is the current folder; name a folder of its own for the run")
+        if out.exists() and not out.is_dir():
+            raise OutputExistsError(f"{out} is a file, not a folder; choose another --out")
+        self._refuse_foreign(out)
+        out.mkdir(parents=True, exist_ok=True)
+        fd = os.open(out / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise OutputExistsError(f"{out} is being written by another cellsim process; choose another --out") from None
+        self._fd = fd
+        try:
+            self._refuse_foreign(out)  # again, now that nobody else writes it
+            if any((out / name).exists() for name in (BLACKBOX, RESOLVED_SCENARIO)):
+                if not self.overwrite:
+                    raise OutputExistsError(f"{out} already holds a run ({BLACKBOX}); choose another --out or pass --overwrite")
+                for name in RUN_FILES:
+                    (out / name).unlink(missing_ok=True)
+                for extra in RUN_FOLDERS:
+                    shutil.rmtree(out / extra, ignore_errors=True)
+        except BaseException:
+            self.release()
+            raise
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+    def release(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)  # closing the descriptor releases the lock
+            self._fd = None
+
+    @staticmethod
+    def _refuse_foreign(out: Path) -> None:
+        """Refuse a folder holding files that no run wrote."""
+        if not out.is_dir():
+            return
+        names = {p.name for p in out.iterdir()} - {LOCK}
+        if names and not names & {BLACKBOX, RESOLVED_SCENARIO}:
+            raise OutputExistsError(
+                f"{out} is not empty and holds no run; choose a new or empty folder for --out"
+            )
+
+
+RUN_FOLDERS: tuple[str, ...] = ()
+"""Sub-folders a run writes, removed with the run on ``overwrite``."""
 
 
 def simulate(
@@ -103,10 +170,24 @@ def simulate(
     out_dir = Path(out_dir)
 
     # Everything that can fail on bad input happens before the folder is touched:
-    # building the diagram checks the wiring and loads the risk model.
+    # building the diagram checks the wiring and loads the risk model, and the
+    # safety conditions are compiled against the channels it publishes.
     cell = build_cell(sf, seed=seed, duration=duration, meshcat=meshcat, physical_sources=physical_sources)
+    case = None
+    if sc.validation.conditions:
+        from cellsim.validation.check import cell_safety_case
+
+        case = cell_safety_case(sf, cell)
     simulator = make_simulator(cell, realtime_rate)
-    prepare_output(out_dir, overwrite)
+    with RunFolder(out_dir, overwrite):
+        summary = _record(sf, cell, simulator, out_dir, seed, duration, on_progress)
+    summary.safety_case = case
+    return summary
+
+
+def _record(sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_progress) -> RunSummary:
+    """Write the resolved scenario, then simulate while recording the black box."""
+    sc = sf.scenario
     resolved = export_scenario(sf, destination_dir=out_dir)
     tmp = out_dir / (RESOLVED_SCENARIO + ".tmp")
     tmp.write_text(resolved)
@@ -134,12 +215,11 @@ def simulate(
         simulator.Initialize()
         started = time.perf_counter()
         try:
-            step = 1.0
             while context.get_time() < duration - 1e-9:
-                simulator.AdvanceTo(min(duration, context.get_time() + step))
+                simulator.AdvanceTo(min(duration, context.get_time() + DRAIN_PERIOD))
                 sim_time = context.get_time()
                 if cell.recorder is not None:
-                    cell.recorder.drain(context, min_samples=DRAIN_SAMPLES)
+                    cell.recorder.drain(context)
                 if on_progress:
                     on_progress(sim_time, duration)
             status = "completed"
@@ -149,7 +229,7 @@ def simulate(
     finally:
         wall = time.perf_counter() - started
         if cell.recorder is not None:
-            cell.recorder.drain(context)  # what was logged before an interruption
+            cell.recorder.drain(context, final=True)  # and what was logged before an interruption
         writer.close(status)
     return summarise(out_dir, seed, status, sim_time, wall)
 

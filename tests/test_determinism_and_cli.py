@@ -67,7 +67,7 @@ def test_simulate_writes_black_box_and_resolved_scenario(tmp_path, capsys):
     assert (out / "blackbox.sqlite").is_file() and (out / "scenario.yaml").is_file()
     printed = capsys.readouterr().out
     assert "real-time factor" in printed and "work cycles completed" in printed
-    assert "safety conditions" in printed and "all 14 hold" in printed
+    assert "safety conditions" in printed and "all 14 conditions hold" in printed
     assert load_scenario(out / "scenario.yaml").scenario.name == "welding_cell"
     assert main(["simulate", str(WELDING_CELL), "--duration", "3", "--out", str(out)]) == 2  # never overwrites silently
 

@@ -12,13 +12,15 @@ Schema (an open format: any SQLite client reads it):
   seed, package versions, status (``running``, ``completed``, ``interrupted``,
   ``failed``).
 
-Rows are written in batches inside transactions, so a crash loses at most the
-unflushed batch and what was committed stays readable.
+Rows are committed in transactions after every simulated second (with
+``recorded_until``, the simulated time they reach), so a killed run loses at
+most its last second and what was committed stays readable.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import sqlite3
 from dataclasses import dataclass
@@ -35,6 +37,9 @@ CREATE TABLE channels (
     unit TEXT, period REAL NOT NULL, record TEXT NOT NULL, description TEXT NOT NULL);
 CREATE TABLE metadata (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 """
+
+
+CHANNEL_KINDS = ("enum", "bool", "number", "vector")
 
 
 class BlackBoxError(Exception):
@@ -79,7 +84,23 @@ class BlackBoxWriter:
     def flush(self) -> None:
         if self._rows:
             with self._db:
-                self._db.executemany("INSERT INTO messages VALUES (?, ?, ?, ?)", self._rows)
+                self._insert()
+
+    def commit(self, recorded_until: float) -> None:
+        """Write the buffered rows and ``recorded_until`` (simulated s) in one transaction.
+
+        Everything published before ``recorded_until`` is then on disk: a reader
+        of a run that was killed later takes the record as complete up to there.
+        """
+        with self._db:
+            self._insert()
+            self._db.execute(
+                "INSERT OR REPLACE INTO metadata VALUES ('recorded_until', ?)", (json.dumps(round(recorded_until, 9)),)
+            )
+
+    def _insert(self) -> None:
+        if self._rows:
+            self._db.executemany("INSERT INTO messages VALUES (?, ?, ?, ?)", self._rows)
             self.rows_written += len(self._rows)
             self._rows.clear()
 
@@ -145,6 +166,7 @@ class BlackBox:
         missing = {"messages", "channels", "metadata"} - tables
         if missing:
             raise BlackBoxError(f"{self.path}: not a cellsim black box (missing tables: {', '.join(sorted(missing))})")
+        self._channels: dict[str, ChannelInfo] | None = None
 
     def close(self) -> None:
         self._db.close()
@@ -156,11 +178,41 @@ class BlackBox:
         self.close()
 
     def metadata(self) -> dict:
-        return {k: json.loads(v) for k, v in self._db.execute("SELECT key, value FROM metadata")}
+        data = {}
+        for key, value in self._query("SELECT key, value FROM metadata"):
+            try:
+                data[key] = json.loads(value)
+            except (json.JSONDecodeError, TypeError):
+                raise self.corrupt(f"metadata '{key}' is not JSON") from None
+        return data
 
     def channels(self) -> dict[str, ChannelInfo]:
-        rows = self._db.execute("SELECT name, source, kind, domain, unit, period, record, description FROM channels")
-        return {r[0]: ChannelInfo(r[0], r[1], r[2], json.loads(r[3]), *r[4:]) for r in rows}
+        if self._channels is None:
+            rows = self._query("SELECT name, source, kind, domain, unit, period, record, description FROM channels")
+            self._channels = {r[0]: self._channel(*r) for r in rows}
+        return self._channels
+
+    def corrupt(self, problem: str) -> BlackBoxError:
+        return BlackBoxError(f"{self.path}: corrupt black box: {problem}")
+
+    def _query(self, sql: str, args=()) -> list:
+        try:
+            return self._db.execute(sql, args).fetchall()
+        except sqlite3.DatabaseError as e:
+            raise self.corrupt(str(e)) from None
+
+    def _channel(self, name, source, kind, domain, unit, period, record, description) -> ChannelInfo:
+        try:
+            domain = json.loads(domain)
+        except (json.JSONDecodeError, TypeError):
+            raise self.corrupt(f"channel '{name}': its domain is not JSON") from None
+        if kind not in CHANNEL_KINDS:
+            raise self.corrupt(f"channel '{name}': unknown kind {kind!r} (expected one of: {', '.join(CHANNEL_KINDS)})")
+        if kind == "enum" and not (isinstance(domain, list) and domain and all(isinstance(v, str) for v in domain)):
+            raise self.corrupt(f"channel '{name}': an enum's domain must be a non-empty list of names, got {domain!r}")
+        if isinstance(period, bool) or not isinstance(period, (int, float)) or not math.isfinite(period) or period <= 0:
+            raise self.corrupt(f"channel '{name}': period {period!r} is not a positive number of seconds")
+        return ChannelInfo(name, source, kind, domain, unit, float(period), record, description)
 
     def messages(self, channel: str | None = None) -> list[Message]:
         if channel is None:
@@ -175,11 +227,11 @@ class BlackBox:
         """``(t, channel, value)`` of the messages of ``channels``, in publication order."""
         marks = ",".join("?" * len(channels))
         query = f"SELECT t, channel, payload FROM messages WHERE channel IN ({marks}) ORDER BY rowid"
-        for t, channel, payload in self._db.execute(query, list(channels)):
+        for t, channel, payload in self._query(query, list(channels)):
             try:
                 value = json.loads(payload)["value"]
             except (json.JSONDecodeError, KeyError, TypeError) as e:
-                raise BlackBoxError(f"{self.path}: corrupt payload of a '{channel}' message at t = {t} ({e})") from None
+                raise self.corrupt(f"the payload of a '{channel}' message at t = {t} is not a cellsim message ({e})") from None
             yield t, channel, value
 
     def rows(self) -> list[tuple]:

@@ -13,7 +13,14 @@ time, and at the end) turns the new samples into messages:
 Drake dispatches a periodic publish at time t *before* the discrete updates at
 t, so a sample taken at t holds what the publisher's update at t - period
 produced. Messages are stamped with that time: the simulated time at which the
-value was published. The initial values are sampled at t = 0.
+value was published. The sample taken at t = 0 holds the initial state, which
+the publishers' updates at t = 0 replace at once: for a channel looked at every
+update, the next sample is stamped 0 too, so the initial one is dropped (it held
+for no time) and each channel has one message at t = 0. It is kept only when the
+run ends before that next sample.
+
+Every drain is committed with the simulated time it reached (``recorded_until``
+in the metadata), so a killed run keeps everything up to its last drain.
 """
 
 from __future__ import annotations
@@ -28,9 +35,9 @@ from cellsim.channels import ChannelSpec
 from cellsim.services.blackbox import BlackBoxWriter
 
 
-DRAIN_SAMPLES = 250
-"""``drain(..., min_samples=DRAIN_SAMPLES)`` waits for this many logged samples
-(5 s of a 20 ms base period): decoding costs per drain, so fewer, larger ones."""
+DRAIN_PERIOD = 1.0
+"""The simulation loop drains (and commits) the recorder every simulated second:
+a killed run loses at most the last second of its record."""
 
 
 class Recorder:
@@ -55,44 +62,54 @@ class Recorder:
         groups: dict[tuple, list[int]] = {}
         for i in order:
             spec = self.specs[i]
-            groups.setdefault((max(1, round(spec.sample_period / self.base)), spec.record), []).append(i)
-        self._groups = [_Group(every, record, [(order.index(i), self.specs[i], offsets[i], offsets[i + 1]) for i in members])
-                        for (every, record), members in groups.items()]
+            every_update = spec.sample_period <= spec.period * (1 + 1e-9)
+            groups.setdefault((max(1, round(spec.sample_period / self.base)), spec.record, every_update), []).append(i)
+        self._groups = [
+            _Group(every, record, every_update, [(order.index(i), self.specs[i], offsets[i], offsets[i + 1]) for i in members])
+            for (every, record, every_update), members in groups.items()
+        ]
 
     def attach(self, writer: BlackBoxWriter) -> None:
         """Write to ``writer`` from now on (a diagram is built before its output exists)."""
         self.writer = writer
         writer.add_channels(self.specs)
 
-    def drain(self, root_context, *, min_samples: int = 1) -> int:
-        """Write the messages of the samples logged since the last drain; returns how many.
+    def drain(self, root_context, *, final: bool = False) -> int:
+        """Write and commit the messages of the samples logged since the last drain; returns how many.
 
-        Does nothing until at least ``min_samples`` samples are logged (the
-        simulation loop passes ``DRAIN_SAMPLES``, and drains everything at the end).
+        The commit records the simulated time reached as ``recorded_until``.
+        ``final`` marks the last drain of a run (which writes an initial sample
+        that nothing superseded).
         """
         log = self.sink.FindMutableLog(root_context)
-        if log.num_samples() < max(1, min_samples):
-            return 0
-        times, data = log.sample_times().copy(), log.data().copy()
-        log.Clear()
+        rows: list[tuple] = []  # (sample index, channel rank, row)
+        if log.num_samples():
+            times, data = log.sample_times().copy(), log.data().copy()
+            log.Clear()
+            ticks = np.rint(times / self.base).astype(np.int64)
+            for group in self._groups:
+                group.decode(ticks, times, data, rows)
+        if final:
+            for group in self._groups:
+                group.decode_pending(rows)
         if self.writer is None:
             return 0
-        ticks = np.rint(times / self.base).astype(np.int64)
-        rows: list[tuple] = []  # (sample index, channel rank, row)
-        for group in self._groups:
-            group.decode(ticks, times, data, rows)
         rows.sort(key=lambda r: (r[0], r[1]))
         for _, _, row in rows:
             self.writer.append(row)
+        self.writer.commit(recorded_until=root_context.get_time())
         return len(rows)
 
 
 class _Group:
     """Channels sampled every ``every`` base periods and recorded alike, decoded as one block."""
 
-    def __init__(self, every: int, record: str, channels: list[tuple[int, ChannelSpec, int, int]]):
+    def __init__(self, every: int, record: str, every_update: bool, channels: list[tuple[int, ChannelSpec, int, int]]):
         self.every = every
         self.on_change = record == "on_change"
+        self.supersedes_initial = every_update
+        """The sample at tick ``every`` is stamped 0 too and replaces the initial one."""
+        self.pending: tuple | None = None  # (ticks, times, data) of an initial sample not yet superseded
         self.channels = channels  # (rank, spec, first row, end row) in the logged vector
         self.rows = np.concatenate([np.arange(a, b) for _, _, a, b in channels])
         local = np.cumsum([0] + [b - a for _, _, a, b in channels])
@@ -105,8 +122,24 @@ class _Group:
 
     def decode(self, ticks: np.ndarray, times: np.ndarray, data: np.ndarray, out: list) -> None:
         due = np.flatnonzero(ticks % self.every == 0)
+        if len(due) and self.pending is not None:
+            self.pending = None  # the initial sample is superseded by this block's first
+        if self.supersedes_initial and len(due) and ticks[due[0]] == 0:
+            if len(due) == 1:
+                self.pending = (ticks[due], times[due], data[:, due])
+            due = due[1:]
         if len(due) == 0:
             return
+        self._decode(due, times, data, out)
+
+    def decode_pending(self, out: list) -> None:
+        """Write the initial sample if nothing superseded it (a run shorter than one period)."""
+        if self.pending is not None:
+            ticks, times, data = self.pending
+            self.pending = None
+            self._decode(np.arange(len(ticks)), times, data, out)
+
+    def _decode(self, due: np.ndarray, times: np.ndarray, data: np.ndarray, out: list) -> None:
         block = data[np.ix_(self.rows, due)]
         if self.on_change:
             with_last = np.concatenate((self.last[:, None], block), axis=1)
