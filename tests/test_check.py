@@ -239,3 +239,55 @@ def test_unwritable_output_paths_are_one_error_line(default_run, tmp_path, capsy
     assert main(["campaign", str(WELDING_CELL), "--runs", "1", "--out", str(blocker / "c"), "--quiet"]) == 2
     assert str(blocker) in _one_error_line(capsys)
     assert not missing.exists() and blocker.read_text() == ""
+
+
+def test_a_hazard_never_recorded_is_missing_data_not_holds(default_run, tmp_path, capsys, monkeypatch):
+    """HS never recorded: its four conditions cannot hold vacuously."""
+    copy = tmp_path / "no_hs"
+    shutil.copytree(default_run, copy)
+    with sqlite3.connect(copy / "blackbox.sqlite") as db:
+        db.execute("DELETE FROM messages WHERE channel = 'safety_controller.HS'")
+    assert main(["check", str(copy), "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    for condition in ("HS:detected", "HS:mitigated", "HS:handled", "HS:not_mis"):
+        assert report["verdicts"][condition]["status"] == "missing data"
+        assert report["verdicts"][condition]["missing"] == ["HS"]
+    assert report["verdicts"]["HC:not_mis"]["status"] == "holds"
+    assert report["undecided"] == ["HS:detected", "HS:mitigated", "HS:handled", "HS:not_mis"]
+    monkeypatch.setenv("COLUMNS", "160")
+    assert main(["check", str(copy)]) == 1
+    assert capsys.readouterr().out.count("missing data: HS never recorded") == 4
+
+
+CORRUPTIONS = {
+    "metadata not JSON": ("UPDATE metadata SET value = '{oops' WHERE key = 'status'", "metadata 'status' is not JSON"),
+    "domain not JSON": ("UPDATE channels SET domain = '[idle' WHERE name = 'robot.activity'", "its domain is not JSON"),
+    "unknown kind": ("UPDATE channels SET kind = 'colour' WHERE name = 'robot.activity'", "unknown kind 'colour'"),
+    "enum domain not names": ("UPDATE channels SET domain = '[1, 2]' WHERE name = 'robot.activity'", "non-empty list of names"),
+    "period not a number": ("UPDATE channels SET period = 'fast' WHERE name = 'robot.activity'", "not a positive number"),
+    "value out of domain": (
+        "UPDATE messages SET payload = '{\"value\": \"dancing\"}' WHERE rowid = "
+        "(SELECT min(rowid) FROM messages WHERE channel = 'robot.activity')", "outside its domain"),
+    "bool not a bool": (
+        "UPDATE messages SET payload = '{\"value\": 3}' WHERE rowid = "
+        "(SELECT min(rowid) FROM messages WHERE channel = 'light_barrier.broken')", "outside its domain"),
+    "time not a number": (
+        "UPDATE messages SET t = 'soon' WHERE rowid = (SELECT max(rowid) FROM messages WHERE channel = 'robot.activity')",
+        "time stamp 'soon'"),
+    "payload not a message": (
+        "UPDATE messages SET payload = '[1]' WHERE rowid = (SELECT max(rowid) FROM messages WHERE channel = 'robot.activity')",
+        "is not a cellsim message"),
+    "no messages": ("DELETE FROM messages", "holds no messages"),
+}
+
+
+@pytest.mark.parametrize("corruption", list(CORRUPTIONS))
+def test_a_corrupt_black_box_is_one_line_and_exit_2(default_run, tmp_path, capsys, corruption):
+    sql, expected = CORRUPTIONS[corruption]
+    copy = tmp_path / "corrupt"
+    shutil.copytree(default_run, copy)
+    with sqlite3.connect(copy / "blackbox.sqlite") as db:
+        db.execute(sql)
+    assert main(["check", str(copy)]) == 2
+    err = _one_error_line(capsys)
+    assert "corrupt black box" in err and expected in err, err

@@ -1,0 +1,173 @@
+"""A run's record survives what happens to its process, and one run owns its folder.
+
+These tests start real ``cellsim simulate`` processes, wait (with a deadline) on
+what the black box has committed, and stop every process they start by its PID.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from cellsim.cli import main
+from cellsim.services.blackbox import BlackBox
+from cellsim.simulation import BLACKBOX
+
+from conftest import WELDING_CELL
+
+DEADLINE = 90.0
+
+
+def start_simulate(out: Path, *extra: str, duration: float = 120.0) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "cellsim.cli", "simulate", str(WELDING_CELL), "--out", str(out),
+         "--duration", str(duration), "--quiet", *extra],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+
+
+def recorded_until(blackbox: Path) -> float:
+    """What the run has committed so far (0 before its first commit)."""
+    if not blackbox.exists():
+        return 0.0
+    try:
+        with sqlite3.connect(f"file:{blackbox}?mode=ro", uri=True, timeout=1.0) as db:
+            row = db.execute("SELECT value FROM metadata WHERE key = 'recorded_until'").fetchone()
+    except sqlite3.OperationalError:  # the file exists but its schema is not written yet
+        return 0.0
+    return json.loads(row[0]) if row else 0.0
+
+
+def wait_for_record(proc: subprocess.Popen, blackbox: Path, seconds: float) -> float:
+    """Wait until the run has committed ``seconds`` of simulated time; fail at the deadline."""
+    deadline = time.monotonic() + DEADLINE
+    while time.monotonic() < deadline:
+        reached = recorded_until(blackbox)
+        if reached >= seconds:
+            return reached
+        if proc.poll() is not None:
+            pytest.fail(f"simulate ended early ({proc.returncode}): {proc.stderr.read()}")
+        time.sleep(0.05)  # polling a file another process writes: no event to wait on
+    pytest.fail(f"no {seconds} s of record within {DEADLINE} s")
+
+
+def stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=30)
+    for stream in (proc.stdout, proc.stderr):
+        stream.close()
+
+
+def test_sigkill_keeps_the_record_up_to_the_last_second(tmp_path, capsys):
+    out = tmp_path / "killed"
+    proc = start_simulate(out)
+    try:
+        wait_for_record(proc, out / BLACKBOX, 5.0)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        stop(proc)
+    assert proc.returncode == -signal.SIGKILL
+    with BlackBox(out / BLACKBOX) as bb:
+        meta = bb.metadata()
+        kept = meta["recorded_until"]
+        times = [m.t for m in bb.messages("robot.tool_speed")]
+    assert meta["status"] == "running"  # it never got to close
+    assert kept >= 5.0
+    # everything up to the last commit is there: telemetry every 0.1 s
+    assert times[-1] >= kept - 0.2 and len(times) >= 45
+    # the killed run is checked up to its record, its G conditions inconclusive
+    assert main(["check", str(out), "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert report["complete"] is False
+    assert {v["status"] for v in report["verdicts"].values()} <= {"inconclusive", "violated"}
+    assert report["verdicts"]["HC:not_mis"] == {
+        "holds": False, "status": "inconclusive", "violated_at": None, "reading": "holds so far"}
+
+
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_a_second_simulate_into_a_folder_being_written_is_refused(tmp_path, overwrite):
+    out = tmp_path / "shared"
+    first = start_simulate(out)
+    try:
+        wait_for_record(first, out / BLACKBOX, 1.0)
+        before = (out / "scenario.yaml").read_bytes()
+        second = subprocess.run(
+            [sys.executable, "-m", "cellsim.cli", "simulate", str(WELDING_CELL), "--out", str(out),
+             "--duration", "2", "--seed", "9"] + (["--overwrite"] if overwrite else []),
+            capture_output=True, text=True, timeout=120,
+        )
+        assert second.returncode == 2
+        assert second.stderr.strip().count("\n") == 0 and "Traceback" not in second.stderr
+        assert "being written by another cellsim process" in second.stderr
+        # the first run's files are untouched and it goes on recording
+        assert (out / "scenario.yaml").read_bytes() == before
+        reached = recorded_until(out / BLACKBOX)
+        wait_for_record(first, out / BLACKBOX, reached + 1.0)
+    finally:
+        stop(first)
+    with BlackBox(out / BLACKBOX) as bb:
+        assert bb.metadata()["seed"] != 9
+
+
+@pytest.mark.parametrize("out", [".", ""])
+def test_the_current_folder_is_refused(tmp_path, out, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    mine = tmp_path / "scenario.yaml"
+    mine.write_text("my own notes\n")
+    assert main(["simulate", str(WELDING_CELL), "--out", out, "--duration", "1", "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert "current folder" in err and len(err.strip().splitlines()) == 1
+    assert mine.read_text() == "my own notes\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scenario.yaml"]
+
+
+def test_a_folder_of_other_files_is_refused(tmp_path, capsys):
+    out = tmp_path / "notes"
+    out.mkdir()
+    (out / "todo.txt").write_text("x")
+    assert main(["simulate", str(WELDING_CELL), "--out", str(out), "--duration", "1"]) == 2
+    assert "holds no run" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["todo.txt"]
+
+
+def test_simulate_exits_1_when_a_condition_is_violated(tmp_path, capsys):
+    """simulate and check agree: a violated condition is a safety finding for both."""
+    import yaml
+
+    from cellsim.scenario import export_scenario, load_scenario
+
+    data = yaml.safe_load(export_scenario(load_scenario(WELDING_CELL), destination_dir=tmp_path))
+    data["validation"]["conditions"]["Never:welds"] = "G(not wact == welding)"
+    scenario = tmp_path / "strict.yaml"
+    scenario.write_text(yaml.safe_dump(data, sort_keys=False))
+    out = tmp_path / "run"
+    assert main(["simulate", str(scenario), "--out", str(out), "--quiet"]) == 1
+    assert capsys.readouterr().out == ""  # --quiet
+    assert main(["check", str(out), "--json"]) == 1
+    assert json.loads(capsys.readouterr().out)["violations"] == ["Never:welds"]
+
+
+def test_a_bad_condition_is_refused_before_anything_is_written_even_quiet(tmp_path, capsys):
+    import yaml
+
+    from cellsim.scenario import export_scenario, load_scenario
+
+    data = yaml.safe_load(export_scenario(load_scenario(WELDING_CELL), destination_dir=tmp_path))
+    data["validation"]["conditions"]["Typo"] = "G(not wact == weldin)"
+    scenario = tmp_path / "typo.yaml"
+    scenario.write_text(yaml.safe_dump(data, sort_keys=False))
+    out = tmp_path / "run"
+    assert main(["simulate", str(scenario), "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "validation.conditions.Typo" in err and "weldin" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
