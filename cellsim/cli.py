@@ -369,7 +369,7 @@ def cmd_campaign(args) -> int:
             file=sys.stderr,
         )
         return EXIT_INPUT
-    return EXIT_FINDING if outcome.violating_runs else EXIT_OK
+    return EXIT_FINDING if outcome.violating_runs or outcome.results["totals"]["undecided_runs"] else EXIT_OK
 
 
 class _campaign_progress:
@@ -413,11 +413,18 @@ def print_campaign(outcome) -> None:
     table.add_row("runs", f"{totals['runs']} ({outcome.resumed} resumed, {totals['failed']} failed)")
     runs_of = {c: [r["index"] for r in outcome.results["runs"] if c in r.get("violations", ())] for c in totals["violations"]}
     bad = {c: runs for c, runs in runs_of.items() if runs}
+    undecided = {c: [r["index"] for r in outcome.results["runs"] if c in r.get("undecided", ())] for c in totals["violations"]}
+    undecided = {c: runs for c, runs in undecided.items() if runs}
     table.add_row(
         "violating runs",
         f"[red]{totals['violating_runs']}[/red]\n" + "\n".join(f"{c}: {_run_list(runs)}" for c, runs in bad.items())
-        if bad else "none: every condition holds in every run",
+        if bad else ("none" if undecided or totals["failed"] else "none: every condition holds in every run"),
     )
+    if undecided:
+        table.add_row(
+            "undecided (inconclusive or missing data)",
+            "[yellow]" + "\n".join(f"{c}: {_run_list(runs)}" for c, runs in undecided.items()) + "[/yellow]",
+        )
     table.add_row("use cases", ", ".join(f"{u} {n}" for u, n in totals["use_cases"].items()) or "-")
     table.add_row("coverage", f"{totals['coverage']['overall']['fraction']:.0%} of situations")
     table.add_row("time per stage", ", ".join(f"{k} {v:.1f} s" for k, v in timing.items()))

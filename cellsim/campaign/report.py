@@ -181,10 +181,17 @@ def _violated(run: Mapping) -> list[str]:
     if _is_failed(run):
         return []
     listed = [str(c) for c in _list(run.get("violations"))]
-    from_verdicts = [
-        str(c) for c, v in _dict(run.get("verdicts")).items() if _dict(v).get("holds") is False
-    ]
+    from_verdicts = [str(c) for c, v in _dict(run.get("verdicts")).items() if _status(_dict(v)) == "violated"]
     return listed + [c for c in from_verdicts if c not in listed]
+
+
+def _status(verdict: Mapping) -> str | None:
+    """A verdict's status; results written before statuses existed have only ``holds``."""
+    status = verdict.get("status")
+    if isinstance(status, str):
+        return status
+    holds = verdict.get("holds")
+    return None if not isinstance(holds, bool) else ("holds" if holds else "violated")
 
 
 def _plural(n: int, noun: str) -> str:
@@ -627,7 +634,7 @@ def _condition_rows(results: Mapping, runs: Sequence[Mapping]) -> str:
             verdict = _dict(_dict(run.get("verdicts")).get(name))
             if name in _violated(run):
                 violating.append(_run_index(run, i))
-            elif verdict.get("holds") is True:
+            elif _status(verdict) == "holds":
                 holding += 1
             else:
                 unchecked += 1
@@ -651,7 +658,7 @@ def _conditions_section(results: Mapping, runs: Sequence[Mapping]) -> str:
         return '<section id="conditions"><h2>Conditions</h2><p class="muted">No conditions checked.</p></section>'
     return (
         '<section id="conditions"><h2>Conditions</h2>\n<table><thead><tr><th>Condition</th><th>Formula</th>'
-        '<th class="num">Holding</th><th class="num">Violating</th><th class="num">Not checked</th>'
+        '<th class="num">Holding</th><th class="num">Violating</th><th class="num" title="inconclusive, missing data, or the run failed">Undecided</th>'
         f"<th>First violating runs</th></tr></thead>\n<tbody>\n{rows}\n</tbody></table></section>"
     )
 
