@@ -157,3 +157,21 @@ def test_meshcat_serves_the_cell_while_simulating_and_closes_on_exit(tmp_path):
     assert child.returncode == 0 and "real-time factor" in out
     with pytest.raises(OSError), socket.create_connection(("localhost", int(address.group(2))), timeout=1.0):
         pass
+
+
+def test_each_channel_has_one_message_at_t0_the_value_after_the_first_update(tmp_path):
+    """The initial sample, replaced at once by the publishers' first update, held for no time."""
+    bb = run(welding_cell(), tmp_path / "r", duration=1.0, seed=1)
+    at_zero: dict[str, list] = {}
+    for m in bb.messages():
+        if m.t == 0.0:
+            at_zero.setdefault(m.channel, []).append(m.value)
+    assert at_zero and all(len(values) == 1 for values in at_zero.values()), at_zero
+    assert at_zero["robot.activity"] == ["exchWrkp"]  # not idle, then exchWrkp
+    assert set(at_zero) == set(bb.channels())  # every channel starts at 0
+
+
+def test_a_run_shorter_than_one_period_keeps_the_initial_values(tmp_path):
+    bb = run(welding_cell(), tmp_path / "r", duration=0.01, seed=1)
+    values = {m.channel: m.value for m in bb.messages() if m.t == 0.0}
+    assert values["robot.activity"] == "idle" and values["robot.safety_mode"] == "normal"
