@@ -51,6 +51,7 @@ class SafetyMode(CodedEnum):
     POWER_FORCE_LIMITING = "pflim"  # collaborative speed, at most 0.25 m/s at the tool
     MONITORED_STOP = "srmst"  # safety-rated monitored stop: standstill, powered
     STOPPED = "stopped"  # protective stop
+    UNKNOWN = "unknown"  # a shadowed machine with no valid physical sample: assume the worst
 
 
 class RobotLocation(CodedEnum):
@@ -60,6 +61,7 @@ class RobotLocation(CodedEnum):
     SHARED_TABLE = "sharedTbl"  # over the shared handover table
     IN_CELL = "inCell"  # anywhere else in the cell
     AT_WELD_SPOT = "atWeldSpot"  # holding the work-piece at the welder
+    UNKNOWN = "unknown"  # a shadowed robot with no valid physical sample: could be anywhere
 
 
 class RobotActivity(CodedEnum):
@@ -67,6 +69,7 @@ class RobotActivity(CodedEnum):
     EXCHANGE_WORKPIECE = "exchWrkp"
     WELDING = "welding"
     OFF = "off"
+    UNKNOWN = "unknown"  # a shadowed robot with no valid physical sample: could be working
 
 
 class WelderActivity(CodedEnum):

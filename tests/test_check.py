@@ -182,8 +182,8 @@ def _scenario_with_validation(tmp_path, validation_text: str):
 @pytest.mark.parametrize(
     "edit, expected",
     [
-        (("HS == act))", "HS == akt))"), "welding_cell_validation.yaml:46: conditions.HS:detected: column 52 of the formula: 'akt' is not a value of HS"),
-        (("HC_e: permissive", "HC_e: permisive"), "welding_cell_validation.yaml:36: macros.HC_e: column 1 of the formula"),
+        (("HS == act))", "HS == akt))"), "welding_cell_validation.yaml:49: conditions.HS:detected: column 52 of the formula: 'akt' is not a value of HS"),
+        (("HC_e: permissive", "HC_e: permisive"), "welding_cell_validation.yaml:39: macros.HC_e: column 1 of the formula"),
         (("sep: ground_truth.separation", "sep: ground_truth.distance"), "welding_cell_validation.yaml:28: variables.sep: there is no channel 'ground_truth.distance'"),
         (("variables: [rloc, rngDet]", "variables: [rloc, rngdet]"), "coverage"),
     ],

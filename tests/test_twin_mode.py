@@ -137,3 +137,33 @@ def test_set_twin_mode_from_a_script():
     lb = built.entity("light_barrier")
     assert lb.twin_mode(sim.get_context()) is TwinMode.SHADOW
     assert lb.GetOutputPort("broken").Eval(lb.GetMyContextFromRoot(sim.get_context()))[0] == 1.0  # no sample: fails safe
+
+
+def test_a_shadowed_robot_without_samples_reports_unknown_not_its_last_state(tmp_path):
+    sf = place_operator(welding_cell(), start=(-4.0, -3.0))
+    sf.scenario.entities["robot"].twin.changes = [TwinModeChange(2.0, TwinMode.SHADOW)]
+    bb = run(sf, tmp_path / "run", duration=4.0)
+    assert bb.series("robot.physical_link").value_at(2.1) == "stale"
+    assert bb.series("robot.safety_mode").value_at(1.9) == "normal"
+    for channel in ("robot.safety_mode", "robot.activity", "robot.location"):
+        assert bb.series(channel).value_at(2.1) == "unknown", channel
+    assert bb.series("robot.reached_pose").value_at(2.1) == "moving"
+    assert bb.series("robot.joint_positions").value_at(2.2) == [None] * 6
+    assert bb.series("robot.tool_speed").value_at(2.2) is None
+
+
+def test_a_shadowed_robot_gone_silent_does_not_hide_a_person_in_the_cell(tmp_path, capsys):
+    """Losing the robot's samples makes the cell safer: unknown counts as dangerous."""
+    from cellsim.cli import main
+
+    sf = welding_cell()  # the operator walks into the cell
+    sf.scenario.entities["robot"].twin.mode = TwinMode.SHADOW
+    bb = run(sf, tmp_path / "run", duration=30.0)
+    assert set(bb.series("robot.safety_mode").values) == {"unknown"}
+    hs = bb.series("safety_controller.HS")
+    assert "act" in hs.values  # detected although the robot's mode and activity are unknown
+    main(["check", str(tmp_path / "run"), "--json"])
+    import json
+
+    verdicts = json.loads(capsys.readouterr().out)["verdicts"]
+    assert verdicts["HS:detected"]["status"] == "holds"

@@ -24,7 +24,8 @@ from cellsim.systems import CellSystem, write_changed
 from cellsim.vocabulary import CodedEnum, RobotActivity, SafetyMode, WelderActivity
 
 _PAUSING = {RobotActivity.OFF.code: RobotActivity.OFF, RobotActivity.IDLE.code: RobotActivity.IDLE}
-_STANDSTILL = {SafetyMode.MONITORED_STOP.code, SafetyMode.STOPPED.code}
+_STANDSTILL = {SafetyMode.MONITORED_STOP.code, SafetyMode.STOPPED.code, SafetyMode.UNKNOWN.code}
+"""Modes in which the cycle waits: the robot stands still, or its state is unknown."""
 
 
 class WorkCycle(CellSystem):

@@ -87,6 +87,10 @@ class Robot(EntitySystem):
       reached_pose (channel): the named pose the arm rests at, or ``moving``.
       joint_positions (channel, rad): measured q, every 0.1 s.
       tool_speed (channel, m/s): measured tool speed, every 0.1 s.
+
+    In shadow or twin mode with no valid physical sample (stale or corrupt), it
+    fails safe: safety mode, activity and location read ``unknown``, the pose
+    ``moving``, joint positions and tool speed no value (null).
     """
 
     def __init__(self, module: str, cfg: RobotConfig, model_path: str, layout: Layout):
@@ -183,10 +187,9 @@ class Robot(EntitySystem):
             desired = np.concatenate([q, np.zeros(6)])
             mode = SafetyMode.from_code(view.sample[6])
             activity, reached = view.sample[7], view.sample[8]
-        else:  # stale or corrupt: the hologram holds its last known state
-            motion, desired = None, None
-            mode = _MODES[int(published[0])]
-            activity, reached = published[1], published[3]
+        else:  # stale or corrupt: the arm stands still in the twin, its real state is unknown
+            self._report_unknown(xd, published, state, context)
+            return
 
         measured = self.measured_state_port.Eval(context)
         kin = self.kinematics
@@ -207,6 +210,22 @@ class Robot(EntitySystem):
             vx, vy, vz = kin.tool.CalcSpatialVelocityInWorld(kin.context).translational()
             xd.get_mutable_vector(self._q).SetFromVector(measured[:6])
             write_scalar(xd, self._tool_speed, math.sqrt(vx * vx + vy * vy + vz * vz))
+
+    def _report_unknown(self, xd, published: list, state: np.ndarray, context) -> None:
+        """Fail safe in shadow or twin mode with no valid sample: report what must be assumed.
+
+        Safety mode, activity and location read ``unknown`` (it may be moving at
+        full speed, working, anywhere), the pose ``moving`` and the telemetry no
+        value; the digital arm holds where it was, but nothing it shows is
+        presented as the physical robot's current state.
+        """
+        codes = [float(SafetyMode.UNKNOWN.code), float(RobotActivity.UNKNOWN.code), float(RobotLocation.UNKNOWN.code), 0.0]
+        write_changed(xd, self._published, codes, published)
+        if codes != published:
+            xd.get_mutable_vector(self._state).SetFromVector(np.concatenate((codes, state[4:])))
+        if self.due(context, self._telemetry_every):
+            xd.get_mutable_vector(self._q).SetFromVector(np.full(6, np.nan))
+            write_scalar(xd, self._tool_speed, np.nan)
 
     def _rest_at(self, q) -> np.ndarray:
         """Motion state of an arm standing at q (no segment)."""
