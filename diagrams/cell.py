@@ -263,7 +263,7 @@ def _add_safety_controller(builder, sf, name, cfg, risk_model: RiskModel, module
             ctype = getattr(system, "input_types", {}).get(port_name)
             if ctype is None:
                 raise sf.error(where, f"'{target}' is not a command input")
-            _check_domain(sf, where, var, risk_model.controlled[var].domain, ctype)
+            _check_domain(sf, where, var, risk_model.controlled[var], ctype)
             if var in command_types and command_types[var] != ctype:
                 raise sf.error(where, f"'{target}' expects a different type than the other inputs of {var}")
             command_types[var] = ctype
@@ -285,7 +285,7 @@ def _add_safety_controller(builder, sf, name, cfg, risk_model: RiskModel, module
             sources[var] = channels[channel][1]
         else:
             raise sf.error(where, f"no channel '{channel}' (known: {', '.join(sorted(channels))})")
-        _check_domain(sf, where, var, risk_model.monitored[var].domain, ctype)
+        _check_domain(sf, where, var, risk_model.monitored[var], ctype)
         monitor_types[var] = ctype
 
     controller = builder.AddSystem(SafetyController(name, cfg.period, risk_model, monitor_types, command_types))
@@ -302,7 +302,15 @@ def _add_safety_controller(builder, sf, name, cfg, risk_model: RiskModel, module
     return controller
 
 
-def _check_domain(sf, where: str, var: str, values: tuple, ctype: ChannelType) -> None:
+def _check_domain(sf, where: str, var: str, variable, ctype: ChannelType) -> None:
+    """The channel bound to a risk-model variable must carry its values (a number: in its unit)."""
+    if variable.type == "number":
+        if ctype.kind != "number":
+            raise sf.error(where, f"{var} is a number but the channel carries {ctype.domain()}")
+        if variable.unit is not None and ctype.unit != variable.unit:
+            raise sf.error(where, f"{var} is in {variable.unit} but the channel is in {ctype.unit or 'no unit'}")
+        return
+    values = variable.domain
     if ctype.kind == "bool":
         ok = set(values) <= {False, True}
     elif ctype.kind == "enum":

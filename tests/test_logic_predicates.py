@@ -179,3 +179,13 @@ def test_speed():
     v = {"safmod": "hguid", "lgtBar": True, "rloc": "sharedTbl", "HRW": "inact"}
     per_call = min(timeit.repeat(lambda: guard(v), number=2000, repeat=5)) / 2000
     assert per_call < 20e-6
+
+
+@pytest.mark.parametrize(
+    "text", ["speed < 1.0", "speed <= 1.0", "speed > 1.0", "speed >= 1.0", "speed == 1.0", "speed != 1.0",
+             "speed != limit", "limit != speed", "speed == limit", "speed < limit"],
+)
+def test_a_number_with_no_value_makes_every_comparison_false(text):
+    """NaN is how the safety controller reads a number channel with no value."""
+    guard = compile_predicate(parse(text, VOC, allow_temporal=False), VOC)
+    assert guard({"speed": float("nan"), "limit": 1.0}) is False

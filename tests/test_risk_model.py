@@ -205,3 +205,112 @@ def test_risk_model_errors_name_file_line_and_key(tmp_path):
         load_risk_model(bad)
     line = next(i for i, l in enumerate(text.splitlines(), 1) if "not lgtbar" in l)
     assert e.value.line == line and "lgtbar" in e.value.problem and "hazards.HRW.transitions" in e.value.key
+
+
+SSM_MODEL = """
+name: ssm
+monitored:
+  sep: {type: number, unit: m}
+  safmod: {values: [normal, ssmon, stopped, unknown]}
+controlled:
+  safmod: {values: [normal, ssmon, stopped], default: normal}
+macros:
+  moving: safmod in {normal, ssmon, unknown}
+hazards:
+  CLOSE:
+    transitions:
+      - {phase: inact, to: act, when: moving and sep < 1.0}
+      - {phase: act, to: mit}
+      - {phase: mit, to: inact, when: sep >= 1.5}
+    demands:
+      mit: {safmod: ssmon}
+  CONTACT:
+    transitions:
+      - {phase: inact, to: act, when: sep <= 0.2}
+      - {phase: act, to: mit}
+      - {phase: mit, to: inact, when: sep > 0.5}
+    demands:
+      mit: {safmod: stopped}
+"""
+
+
+def _ssm_harness(tmp_path):
+    from cellsim.channels import number_type
+
+    path = tmp_path / "ssm.yaml"
+    path.write_text(SSM_MODEL)
+    types = {"sep": number_type("m"), "safmod": enum_type(SafetyMode)}
+    h = Harness.__new__(Harness)
+    h.system = SafetyController("sc", 0.02, load_risk_model(path), types, {"safmod": enum_type(SafetyMode)})
+    h.context = h.system.CreateDefaultContext()
+    h.t, h.inputs = 0.0, {"sep": 3.0, "safmod": "normal"}
+    return h
+
+
+def _phase(h, hazard):
+    from cellsim.vocabulary import HazardPhase
+
+    return HazardPhase.from_code(h.phase(hazard)).value
+
+
+def test_speed_and_separation_monitoring_reads_a_measured_distance(tmp_path):
+    h = _ssm_harness(tmp_path)
+    h.step(sep=1.2).step()
+    assert _phase(h, "CLOSE") == "inact"
+    h.step(sep=0.99).step()
+    assert _phase(h, "CLOSE") == "mit"
+    assert SafetyMode.from_code(h.system.GetOutputPort("safmod").Eval(h.context)[0]).value == "ssmon"
+    h.step(sep=0.15).step()
+    assert _phase(h, "CONTACT") == "mit"  # the most restrictive demand wins
+    assert SafetyMode.from_code(h.system.GetOutputPort("safmod").Eval(h.context)[0]).value == "stopped"
+    h.step(sep=1.6).step().step()
+    assert (_phase(h, "CLOSE"), _phase(h, "CONTACT")) == ("inact", "inact")
+
+
+def test_a_separation_with_no_value_compares_false(tmp_path):
+    h = _ssm_harness(tmp_path)
+    h.step(sep=float("nan")).step()
+    # neither sep < 1.0 nor sep <= 0.2 holds for "no value"
+    assert (_phase(h, "CLOSE"), _phase(h, "CONTACT")) == ("inact", "inact")
+
+
+@pytest.mark.parametrize(
+    "edit, expected",
+    [
+        (("sep: {type: number, unit: m}", "sep: {type: number, values: [a]}"), "a number variable has no values list"),
+        (("sep: {type: number, unit: m}", "sep: {type: bool, unit: m}"), "only a number variable has a unit"),
+        (("safmod: {values: [normal, ssmon, stopped], default: normal}", "safmod: {type: number}"), "numbers are monitored only"),
+    ],
+)
+def test_number_variables_are_checked(tmp_path, edit, expected):
+    path = tmp_path / "bad.yaml"
+    path.write_text(SSM_MODEL.replace(*edit))
+    with pytest.raises(ConfigError, match=expected):
+        load_risk_model(path)
+
+
+@pytest.mark.parametrize(
+    "channel, expected",
+    [("ground_truth.separation", None), ("robot.tool_speed", "sep is in m but the channel is in m/s"),
+     ("light_barrier.broken", "sep is a number but the channel carries bool")],
+)
+def test_a_number_variable_is_bound_to_a_number_channel_in_its_unit(tmp_path, channel, expected):
+    import shutil
+
+    from cellsim.scenario import load_scenario
+    from diagrams.cell import build_cell
+
+    folder = tmp_path / "scenario"
+    shutil.copytree(ROOT / "scenarios", folder)
+    model = folder / "welding_cell_risk_model.yaml"
+    model.write_text(model.read_text().replace("  lgtBar: {type: bool}\n", "  lgtBar: {type: bool}\n  sep: {type: number, unit: m}\n", 1))
+    scenario = folder / "welding_cell.yaml"
+    text = scenario.read_text()
+    assert "      lgtBar: light_barrier.broken\n" in text
+    scenario.write_text(text.replace("      lgtBar: light_barrier.broken\n", f"      lgtBar: light_barrier.broken\n      sep: {channel}\n", 1))
+    sf = load_scenario(scenario)
+    if expected is None:
+        build_cell(sf, seed=0, duration=1.0, record=False)
+    else:
+        with pytest.raises(ConfigError, match=expected):
+            build_cell(sf, seed=0, duration=1.0, record=False)

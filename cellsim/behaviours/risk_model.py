@@ -19,7 +19,10 @@ Semantics, each control period:
 
 Guards use the condition language (docs/condition-language.md) without temporal
 operators; ``macros`` name sub-conditions (a hazard's detection condition), and
-each hazard's name is a variable holding its phase.
+each hazard's name is a variable holding its phase. Monitored variables are
+enums, booleans or numbers (``type: number``, with the channel's ``unit``), so
+speed-and-separation monitoring compares a measured separation with a distance.
+The format is documented in docs/risk-model.md.
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ from typing import Any, Callable, Literal
 
 from cellsim.config.typed_yaml import ConfigError, FieldError, Loaded, load_file
 from cellsim.logic.predicates import compile_predicate
-from cellsim.logic.syntax import BoolDomain, EnumDomain, FormulaError, parse
+from cellsim.logic.syntax import BoolDomain, EnumDomain, FormulaError, NumberDomain, parse
 from cellsim.vocabulary import HazardPhase
 
 PHASES = HazardPhase.names()
@@ -38,23 +41,31 @@ PHASES = HazardPhase.names()
 
 @dataclass
 class Variable:
-    type: Literal["enum", "bool"] = "enum"
+    type: Literal["enum", "bool", "number"] = "enum"
     values: list[str] = field(default_factory=list)
     """Enum values; for a controlled variable, from least to most restrictive."""
     default: Any = None
     """Controlled variables: the value commanded when no hazard demands one (null: no request)."""
+    unit: str | None = None
+    """Number variables (monitored only): the SI unit of the channel bound to it (m, m/s)."""
 
     def __post_init__(self):
         if self.type == "enum" and not self.values:
             raise FieldError("values", "an enum variable needs its values")
-        if self.type == "bool" and self.values:
-            raise FieldError("values", "a bool variable has no values list")
+        if self.type != "enum" and self.values:
+            raise FieldError("values", f"a {self.type} variable has no values list")
+        if self.type != "number" and self.unit is not None:
+            raise FieldError("unit", "only a number variable has a unit")
 
     @property
     def domain(self) -> tuple:
+        if self.type == "number":
+            return ()
         return tuple(self.values) if self.type == "enum" else (False, True)
 
     def logic_domain(self):
+        if self.type == "number":
+            return NumberDomain(self.unit)
         return EnumDomain(tuple(self.values)) if self.type == "enum" else BoolDomain()
 
 
@@ -144,6 +155,8 @@ def compile_risk_model(loaded: Loaded[RiskModelFile]) -> RiskModel:
         return ConfigError(loaded.source, loaded.line_of(key), key, problem)
 
     for name, var in rm.controlled.items():
+        if var.type == "number":
+            raise error(f"controlled.{name}.type", "a controlled variable is an enum or a bool (numbers are monitored only)")
         if var.default is not None and var.default not in var.domain:
             raise error(f"controlled.{name}.default", f"{var.default!r} is not a value of {name}")
     hazard_names = set(rm.hazards)

@@ -1,8 +1,8 @@
 """The safety controller: a discrete Drake system executing a risk model.
 
 Ports (for each controlled variable ``c`` of the risk model, and each hazard ``H``):
-  monitored (input): the codes (enum code or 0/1) of the risk model's monitored
-    variables, in the order the risk model lists them (``monitored_names``); the
+  monitored (input): the codes (enum code, 0/1, or the number in its unit) of the
+    risk model's monitored variables, in the order the risk model lists them (``monitored_names``); the
     builder gathers the monitored channels into it with a Multiplexer.
   c (channel): the commanded value, coded for the machines that receive it
     (-1 when the risk model's default is "no request").
@@ -48,7 +48,7 @@ class SafetyController(CellSystem):
         self.monitored_names = list(risk_model.monitored)
         self.monitored_types = [monitor_types[name] for name in self.monitored_names]
         self._decoders = [
-            (name, ctype.domain() if ctype.kind == "enum" else (False, True))
+            (name, ctype.domain() if ctype.kind == "enum" else (False, True) if ctype.kind == "bool" else None)
             for name, ctype in zip(self.monitored_names, self.monitored_types)
         ]
         self.monitored_port = self.declare_input("monitored", len(self.monitored_names))
@@ -91,7 +91,10 @@ class SafetyController(CellSystem):
             return  # the same inputs as a period that changed nothing: nothing changes
         values = {}
         for (name, decode), code in zip(self._decoders, codes):
-            values[name] = decode[int(code)] if 0 <= code < len(decode) else None
+            if decode is None:  # a number, in its unit; NaN (no value) makes every comparison false
+                values[name] = code
+            else:
+                values[name] = decode[int(code)] if 0 <= code < len(decode) else None
         phases = [_PHASES[int(context.get_discrete_state(g)[0])] for g in self._phase_groups]
         for hazard, phase in zip(self.hazards, phases):
             values[hazard.name] = phase

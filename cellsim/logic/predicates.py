@@ -68,6 +68,8 @@ def _compare_const(name: str, op: str, c: object) -> Predicate:
     if op == "==":
         return lambda v: v[name] == c
     if op == "!=":
+        if isinstance(c, float):  # a number with no value (NaN) is unequal to nothing
+            return lambda v: v[name] != c and v[name] == v[name]
         return lambda v: v[name] != c
     if op == "<":
         return lambda v: v[name] < c
@@ -83,8 +85,8 @@ def _compare_const(name: str, op: str, c: object) -> Predicate:
 def _compare_vars(name: str, op: str, other: str) -> Predicate:
     if op == "==":
         return lambda v: v[name] == v[other]
-    if op == "!=":
-        return lambda v: v[name] != v[other]
+    if op == "!=":  # a number with no value (NaN) is unequal to nothing, itself included
+        return lambda v: v[name] != v[other] and v[name] == v[name] and v[other] == v[other]
     if op == "<":
         return lambda v: v[name] < v[other]
     if op == "<=":
