@@ -213,3 +213,18 @@ def test_runs_that_cannot_be_simulated_are_reported_and_the_campaign_exits_2(tmp
         near, close = r["configuration"]["range_detector.near_below"], r["configuration"]["range_detector.close_below"]
         assert close >= near and "close_below" in r["error"]
     assert "close_below" in (out / "report.html").read_text()
+
+
+def test_the_report_headline_coverage_is_the_campaigns(campaign):
+    """On a real campaign's report (a hand-made fixture hid this): the coverage is a figure, not n/a."""
+    import re
+
+    _, out = campaign
+    overall = _results(out)["totals"]["coverage"]["overall"]
+    figure = f"{100.0 * overall['fraction']:.1f}%"
+    report = (out / "report.html").read_text()
+    summary = report[report.index('id="summary"'):report.index("</section>", report.index('id="summary"'))]
+    assert re.search(rf"<th>Coverage</th><td[^>]*>{re.escape(figure)}</td>", summary), summary
+    section = report[report.index('id="coverage"'):]
+    assert "Overall: " in section and figure in section[: section.index("</p>")]
+    assert "n/a" not in section[: section.index("</p>")]

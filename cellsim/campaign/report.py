@@ -202,6 +202,17 @@ def _anchor(index: int) -> str:
     return f"run-{index}"
 
 
+def _overall(coverage: Mapping) -> object:
+    """The overall coverage fraction: ``totals.coverage.overall`` is ``{covered, total, fraction}``."""
+    overall = coverage.get("overall")
+    if isinstance(overall, Mapping):
+        fraction, covered, total = overall.get("fraction"), overall.get("covered"), overall.get("total")
+        if not _is_number(fraction) and _is_number(covered) and _is_number(total) and total:
+            fraction = covered / total
+        return fraction
+    return overall
+
+
 def _fraction_text(fraction: object) -> str:
     return "n/a" if not _is_number(fraction) else f"{100.0 * float(fraction):.1f}%"  # type: ignore[arg-type]
 
@@ -606,7 +617,7 @@ def _summary(results: Mapping, runs: Sequence[Mapping]) -> str:
     ]
     rows = "".join(f'<tr><th>{k}</th><td class="num">{_e(v)}</td></tr>' for k, v in figures)
     if "overall" in coverage:
-        rows += f'<tr><th>Coverage</th><td class="num">{_fraction_text(coverage.get("overall"))}</td></tr>'
+        rows += f'<tr><th>Coverage</th><td class="num">{_fraction_text(_overall(coverage))}</td></tr>'
     timing = _dict(results.get("timing"))
     stages = [s for s in STAGES if s in timing] + [s for s in timing if s not in STAGES]
     timing_rows = "".join(
@@ -703,7 +714,7 @@ def _coverage_section(results: Mapping) -> str:
     criteria = _dict(coverage.get("criteria"))
     head = '<section id="coverage"><h2>Coverage</h2>\n'
     if "overall" in coverage:
-        head += f"<p>Overall: {_bar(coverage.get('overall'))} {_fraction_text(coverage.get('overall'))}</p>\n"
+        head += f"<p>Overall: {_bar(_overall(coverage))} {_fraction_text(_overall(coverage))}</p>\n"
     if not criteria:
         return head + '<p class="muted">No coverage criteria.</p></section>'
     rows = []
