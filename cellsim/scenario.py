@@ -30,6 +30,7 @@ from cellsim.config.typed_yaml import (
     to_data,
 )
 from cellsim.campaign.samplers import Sampler
+from cellsim.registry import BehaviourModule, EntityModule, KindError, ServiceModule, kind_of
 from cellsim.validation.config import Validation
 from cellsim.vocabulary import RobotActivity, RobotLocation, TwinMode
 
@@ -225,7 +226,6 @@ class OperatorConfig:
             raise FieldError("speed_jitter", "must be in [0, 1)")
 
 
-EntityConfig = RobotConfig | WelderConfig | LightBarrierConfig | RangeDetectorConfig | OperatorConfig
 
 
 # -- behaviours ---------------------------------------------------------------
@@ -289,7 +289,6 @@ class GroundTruthConfig:
     period: float = 0.1
 
 
-BehaviourConfig = WorkCycleConfig | SafetyControllerConfig | GroundTruthConfig
 
 
 # -- services -----------------------------------------------------------------
@@ -301,7 +300,6 @@ class RecorderConfig:
     batch_size: int = 5000
 
 
-ServiceConfig = RecorderConfig
 
 
 @dataclass
@@ -329,9 +327,10 @@ class CampaignConfig:
 class Scenario:
     name: str
     layout: Layout
-    entities: dict[str, EntityConfig]
-    behaviours: dict[str, BehaviourConfig] = field(default_factory=dict)
-    services: dict[str, ServiceConfig] = field(default_factory=dict)
+    entities: dict[str, EntityModule]
+    """Module name -> its config; ``kind`` names its module kind (``cellsim modules`` lists them)."""
+    behaviours: dict[str, BehaviourModule] = field(default_factory=dict)
+    services: dict[str, ServiceModule] = field(default_factory=dict)
     configuration_points: dict[str, ConfigurationPoint] = field(default_factory=dict)
     validation: Validation = field(default_factory=Validation)
     campaign: CampaignConfig = field(default_factory=CampaignConfig)
@@ -452,28 +451,13 @@ def _load_validation_file(sf: ScenarioFile) -> None:
 
 
 def check_scenario(sf: ScenarioFile) -> None:
-    """Cross-references a dataclass cannot check alone: files, poses, modules."""
+    """Cross-references a dataclass cannot check alone: each kind's own checks, samplers, points."""
     sc = sf.scenario
-    for name, cfg in sc.entities.items():
-        if isinstance(cfg, RobotConfig):
-            sf.resolve_path(f"entities.{name}.model", cfg.model)
-    robots = sc.modules_of_kind("robot")
-    for name, cfg in sc.behaviours.items():
-        key = f"behaviours.{name}"
-        if isinstance(cfg, SafetyControllerConfig):
-            sf.resolve_path(f"{key}.risk_model", cfg.risk_model)
-        if isinstance(cfg, WorkCycleConfig):
-            if cfg.robot not in robots:
-                raise sf.error(f"{key}.robot", f"no robot entity named '{cfg.robot}'")
-            if cfg.welder not in sc.modules_of_kind("welder"):
-                raise sf.error(f"{key}.welder", f"no welder entity named '{cfg.welder}'")
-            poses = robots[cfg.robot].named_poses
-            for i, step in enumerate(cfg.steps):
-                if step.move_to is not None and step.move_to not in poses:
-                    raise sf.error(
-                        f"{key}.steps.{i}.move_to",
-                        f"'{step.move_to}' is not a named pose of {cfg.robot} ({', '.join(poses)})",
-                    )
+    for section in ("entities", "behaviours", "services"):
+        for name, cfg in getattr(sc, section).items():
+            kind = _kind(sf, f"{section}.{name}", cfg)
+            if kind.check is not None:
+                kind.check(sf, name, cfg)
     for name in sc.campaign.samplers:
         if name not in sc.configuration_points:
             known = ", ".join(sc.configuration_points) or "none"
@@ -484,6 +468,13 @@ def check_scenario(sf: ScenarioFile) -> None:
                 value_at(sc, dotted)
             except KeyError:
                 raise sf.error(f"configuration_points.{name}.paths.{i}", f"no such configuration point: {dotted}") from None
+
+
+def _kind(sf: ScenarioFile, key: str, cfg):
+    try:
+        return kind_of(cfg)
+    except KindError as e:
+        raise sf.error(f"{key}.kind", str(e)) from None
 
 
 def value_at(scenario: Scenario, dotted: str):
@@ -515,15 +506,31 @@ def export_scenario(sf: ScenarioFile, destination_dir: str | os.PathLike | None 
     return dump_yaml(scenario, header=header)
 
 
-FILE_FIELDS = {RobotConfig: ("model",), SafetyControllerConfig: ("risk_model",)}
+class _FileFieldsByConfig:
+    """``FILE_FIELDS.get(ConfigClass)``: the file fields of the kind whose config that class is.
+
+    Transitional: prefer ``kind_of(cfg).file_fields``.
+    """
+
+    def get(self, config_type, default=()):
+        from cellsim import registry
+
+        for name in registry.kind_names():
+            kind = registry.get(name)
+            if kind.config is config_type:
+                return kind.file_fields
+        return default
+
+
+FILE_FIELDS = _FileFieldsByConfig()
 
 
 def rebase_file_references(scenario: Scenario, from_dir: Path, to_dir: Path) -> Scenario:
-    """A copy of ``scenario`` whose file references are relative to ``to_dir``."""
+    """A copy of ``scenario`` whose file references (each kind's ``file_fields``) are relative to ``to_dir``."""
     copy = from_data(Scenario, to_data(scenario))
-    for section in (copy.entities, copy.behaviours):
+    for section in (copy.entities, copy.behaviours, copy.services):
         for cfg in section.values():
-            for name in FILE_FIELDS.get(type(cfg), ()):
+            for name in kind_of(cfg).file_fields:
                 target = (from_dir / getattr(cfg, name)).resolve()
                 setattr(cfg, name, os.path.relpath(target, to_dir.resolve()))
     return copy

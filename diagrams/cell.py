@@ -2,15 +2,14 @@
 
 ``build_cell`` turns a loaded scenario into a Diagram, HardwareStation-style:
 
-* a MultibodyPlant (discrete, ``time_step``) with the layout's fixtures and each
-  robot arm, driven by an InverseDynamicsController;
-* one system per entity, behaviour and service of the scenario (``cellsim``);
+* a MultibodyPlant (discrete, ``time_step``) with the layout's fixtures;
+* one system per entity, behaviour and service of the scenario, each built by
+  its module kind (``cellsim.registry``: cellsim's kinds and plug-ins alike;
+  a robot kind adds its arm to the plant and its joint controller);
 * geometry: operators and sensor volumes are SceneGraph sources of their own;
   all contact between geometries is filtered out (the arm is position
   controlled and collisions are *measured*, by sensors and ground truth, not
   simulated), which also keeps the plant's step cheap;
-* the safety controller's inputs and outputs wired by the scenario's
-  ``monitors`` and ``commands``, checked against the channels' types;
 * every entity's physical-twin input wired by ``bridges.physical``;
 * the recorder tapping every channel, and optionally Meshcat.
 """
@@ -18,6 +17,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 from pydrake.geometry import (
@@ -30,40 +30,20 @@ from pydrake.geometry import (
     Role,
 )
 from pydrake.math import RigidTransform, RollPitchYaw
-from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, MultibodyPlant, MultibodyPlantConfig
 from pydrake.multibody.tree import BodyIndex
-from pydrake.systems.controllers import InverseDynamicsController
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, OutputPort
-from pydrake.systems.primitives import Multiplexer
 
 from bridges.physical import connect_physical_twins
-from cellsim.behaviours.ground_truth import GroundTruth
-from cellsim.behaviours.risk_model import RiskModel, load_risk_model
-from cellsim.behaviours.safety_controller import SafetyController
-from cellsim.behaviours.work_cycle import WorkCycle
-from cellsim.channels import ChannelSpec, ChannelType
-from cellsim.entities.operator import Operator
-from cellsim.entities.robot import Robot, robot_base_pose
-from cellsim.entities.sensors import LightBarrier, RangeDetector
+from cellsim import registry
+from cellsim.channels import ChannelSpec
 from cellsim.entities.twin import EntitySystem
-from cellsim.entities.welder import Welder
-from cellsim.scenario import (
-    GroundTruthConfig,
-    LightBarrierConfig,
-    OperatorConfig,
-    RangeDetectorConfig,
-    RecorderConfig,
-    RobotConfig,
-    SafetyControllerConfig,
-    ScenarioFile,
-    WelderConfig,
-    WorkCycleConfig,
-)
+from cellsim.scenario import ScenarioFile
 from cellsim.services.recorder import Recorder
 
-# joint controller gains: 20 rad/s bandwidth, critically damped
-KP, KI, KD = 400.0, 1.0, 40.0
+AFTER_ENTITIES = 10
+"""Modules of a stage below this are entities and sensors; hooks that need every
+person's or robot's geometry run once they are all built."""
 
 
 @dataclass
@@ -93,6 +73,88 @@ class CellDiagram:
             self.plant.SetPositions(plant_context, instance, self.modules[name].initial_positions)
 
 
+@dataclass
+class CellBuild:
+    """A cell's diagram under construction: what a module kind's builder works with.
+
+    A kind's ``build(cell, name, config)`` adds its system with :meth:`add`, wires
+    it to the modules already built (``modules``; entities are built before the
+    behaviours wired to them), and may register geometry: people's bodies go to
+    ``people`` (sensors detect them), robots' to ``robot_geometry``. Hooks given to
+    :meth:`after_entities` run once every entity exists (a sensor learns whom to
+    detect).
+    """
+
+    sf: ScenarioFile
+    builder: DiagramBuilder
+    plant: MultibodyPlant
+    scene_graph: object
+    seed: int
+    duration: float
+    record: bool
+    modules: dict[str, LeafSystem] = field(default_factory=dict)
+    entities: dict[str, EntitySystem] = field(default_factory=dict)
+    robots: dict[str, object] = field(default_factory=dict)
+    """Robot name -> its ModelInstanceIndex in ``plant``."""
+    people: list = field(default_factory=list)
+    """GeometryIds of every person's body, for the sensors."""
+    robot_geometry: list = field(default_factory=list)
+    foreign_geometry: list = field(default_factory=list)
+    """GeometryIds registered outside the plant (all contact is filtered out)."""
+    recorder: Recorder | None = None
+    _hooks: list[Callable[[], None]] = field(default_factory=list)
+    _counters: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def scenario(self):
+        return self.sf.scenario
+
+    def add(self, name: str, system: LeafSystem) -> LeafSystem:
+        """Add a module's system to the diagram under the module's name."""
+        self.builder.AddSystem(system)
+        self.modules[name] = system
+        if isinstance(system, EntitySystem):
+            self.entities[name] = system
+        return system
+
+    def register_geometry(self, system, person: bool = False) -> list:
+        """Register a system's own SceneGraph geometry (``system.register_geometry``)."""
+        ids = system.register_geometry(self.scene_graph)
+        self.foreign_geometry += ids
+        if person:
+            self.people += ids
+        return ids
+
+    def connect_query(self, port) -> None:
+        """Give an input port the SceneGraph's query object (a sensor measuring geometry)."""
+        self.builder.Connect(self.scene_graph.get_query_output_port(), port)
+
+    def after_entities(self, hook: Callable[[], None]) -> None:
+        self._hooks.append(hook)
+
+    def count(self, what: str) -> int:
+        """0, 1, 2 ... on successive calls: e.g. each person's own random stream."""
+        n = self._counters.get(what, 0)
+        self._counters[what] = n + 1
+        return n
+
+    def channels(self) -> dict[str, tuple[ChannelSpec, OutputPort]]:
+        """Every channel published by the modules built so far, in build order."""
+        return _channels(self.modules)
+
+    def module(self, key: str, name: str, section: str = "entities") -> LeafSystem:
+        """The built module ``name`` that the config key ``key`` refers to (ConfigError if none)."""
+        system = self.modules.get(name)
+        if system is None:
+            raise self.sf.error(key, f"no module named '{name}'")
+        return system
+
+    def _run_hooks(self) -> None:
+        hooks, self._hooks = self._hooks, []
+        for hook in hooks:
+            hook()
+
+
 def build_cell(
     sf: ScenarioFile,
     *,
@@ -102,7 +164,11 @@ def build_cell(
     meshcat: Meshcat | None = None,
     physical_sources: dict[str, LeafSystem] | None = None,
 ) -> CellDiagram:
-    """Assemble the scenario's Diagram. Raises ConfigError for wiring the scenario gets wrong."""
+    """Assemble the scenario's Diagram. Raises ConfigError for wiring the scenario gets wrong.
+
+    Each module is built by its kind (:mod:`cellsim.registry`): this function
+    names no concrete kind.
+    """
     sc = sf.scenario
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(
@@ -110,97 +176,28 @@ def build_cell(
     )
     plant.set_name("plant")
     _add_fixtures(plant, sf)
-    robot_configs = {n: c for n, c in sc.entities.items() if isinstance(c, RobotConfig)}
-    instances = {}
-    for name, cfg in robot_configs.items():
-        model = sf.resolve_path(f"entities.{name}.model", cfg.model)
-        parser = Parser(plant, name)
-        (instance,) = parser.AddModels(str(model))
-        plant.WeldFrames(plant.world_frame(), plant.GetBodyByName("base_link", instance).body_frame(), robot_base_pose(cfg))
-        instances[name] = instance
+    cell = CellBuild(sf, builder, plant, scene_graph, seed, duration, record)
+    modules = [
+        (registry.kind_of(cfg), section, name, cfg)
+        for section in registry.SECTIONS
+        for name, cfg in getattr(sc, section).items()
+    ]
+    for kind, _, name, cfg in modules:
+        if kind.prepare is not None:
+            kind.prepare(cell, name, cfg)
     plant.Finalize()
 
-    modules: dict[str, LeafSystem] = {}
-    entities: dict[str, EntitySystem] = {}
-    operator_index = 0
-    foreign_geometry, operator_geometry = [], []
-    for name, cfg in sc.entities.items():
-        if isinstance(cfg, RobotConfig):
-            system = Robot(name, cfg, str(sf.resolve_path(f"entities.{name}.model", cfg.model)), sc.layout)
-        elif isinstance(cfg, WelderConfig):
-            system = Welder(name, cfg)
-        elif isinstance(cfg, LightBarrierConfig):
-            system = LightBarrier(name, cfg)
-        elif isinstance(cfg, RangeDetectorConfig):
-            system = RangeDetector(name, cfg, seed, duration)
-        elif isinstance(cfg, OperatorConfig):
-            system = Operator(name, cfg, sc.layout, seed, salt=operator_index)
-            operator_index += 1
-        else:  # pragma: no cover - the schema admits no other kind
-            raise TypeError(cfg)
-        builder.AddSystem(system)
-        modules[name] = entities[name] = system
-        if hasattr(system, "register_geometry"):
-            ids = system.register_geometry(scene_graph)
-            foreign_geometry += ids
-            if isinstance(system, Operator):
-                operator_geometry += ids
-                builder.Connect(system.geometry_pose_port, scene_graph.get_source_pose_port(system.source_id))
-        if hasattr(system, "query_port"):
-            builder.Connect(scene_graph.get_query_output_port(), system.query_port)
-    for system in entities.values():
-        if hasattr(system, "set_targets"):  # sensors detect every operator
-            system.set_targets(operator_geometry)
+    hooks_run = False
+    for kind, _, name, cfg in sorted(modules, key=lambda m: m[0].stage):  # stable: scenario order within a stage
+        if kind.stage >= AFTER_ENTITIES and not hooks_run:
+            cell._run_hooks()
+            hooks_run = True
+        kind.build(cell, name, cfg)
+    cell._run_hooks()
+    _filter_all_contact(plant, scene_graph, cell.foreign_geometry)
 
-    robot_geometry = []
-    for name, instance in instances.items():
-        robot = modules[name]
-        controller = builder.AddNamedSystem(
-            f"{name}.joint_controller",
-            InverseDynamicsController(robot.kinematics.plant, [KP] * 6, [KI] * 6, [KD] * 6, False),
-        )
-        builder.Connect(plant.get_state_output_port(instance), controller.get_input_port_estimated_state())
-        builder.Connect(plant.get_state_output_port(instance), robot.measured_state_port)
-        builder.Connect(robot.desired_state_port, controller.get_input_port_desired_state())
-        builder.Connect(controller.get_output_port_control(), plant.get_actuation_input_port(instance))
-        for body in plant.GetBodyIndices(instance):
-            robot_geometry += plant.GetCollisionGeometriesForBody(plant.get_body(body))
-    _filter_all_contact(plant, scene_graph, foreign_geometry)
-
-    for name, cfg in sc.behaviours.items():
-        if isinstance(cfg, WorkCycleConfig):
-            robot = modules[cfg.robot]
-            system = builder.AddSystem(WorkCycle(name, cfg, robot.pose_names))
-            welder = modules[cfg.welder]
-            builder.Connect(system.target_pose_port, robot.target_port)
-            builder.Connect(system.robot_activity_port, robot.activity_port)
-            builder.Connect(system.weld_command_port, welder.weld_command_port)
-            builder.Connect(robot.GetOutputPort("safety_mode"), system.robot_mode_port)
-            builder.Connect(robot.GetOutputPort("reached_pose"), system.reached_pose_port)
-            builder.Connect(welder.GetOutputPort("activity"), system.welder_activity_port)
-        elif isinstance(cfg, GroundTruthConfig):
-            system = builder.AddSystem(GroundTruth(name, cfg))
-            builder.Connect(scene_graph.get_query_output_port(), system.query_port)
-            system.set_geometries(robot_geometry, operator_geometry)
-        elif isinstance(cfg, SafetyControllerConfig):
-            continue  # wired below, once every channel exists
-        modules[name] = system
-
-    channels = _channels(modules)
-    for name, cfg in sc.behaviours.items():
-        if isinstance(cfg, SafetyControllerConfig):
-            risk_model = load_risk_model(sf.resolve_path(f"behaviours.{name}.risk_model", cfg.risk_model))
-            system = _add_safety_controller(builder, sf, name, cfg, risk_model, modules, channels)
-            modules[name] = system
-            channels.update(_channels({name: system}))
-
-    fixed_inputs = _unconnected_command_inputs(builder, modules)
-    fixed_inputs += connect_physical_twins(builder, entities, physical_sources)
-
-    recorder = None
-    for name, cfg in sc.services.items():
-        if isinstance(cfg, RecorderConfig) and record:
-            recorder = Recorder(builder, name, list(channels.values()))
+    fixed_inputs = _unconnected_command_inputs(builder, cell.modules)
+    fixed_inputs += connect_physical_twins(builder, cell.entities, physical_sources)
 
     visualizer = None
     if meshcat is not None:
@@ -209,7 +206,9 @@ def build_cell(
         )
     diagram = builder.Build()
     diagram.set_name(sc.name)
-    return CellDiagram(diagram, plant, scene_graph, modules, channels, instances, recorder, visualizer, fixed_inputs)
+    return CellDiagram(
+        diagram, plant, scene_graph, cell.modules, cell.channels(), cell.robots, cell.recorder, visualizer, fixed_inputs
+    )
 
 
 def _add_fixtures(plant: MultibodyPlant, sf: ScenarioFile) -> None:
@@ -235,90 +234,6 @@ def _channels(modules: dict[str, LeafSystem]) -> dict[str, tuple[ChannelSpec, Ou
         for spec, port in getattr(system, "channels", []):
             found[spec.name] = (spec, port)
     return found
-
-
-def _add_safety_controller(builder, sf, name, cfg, risk_model: RiskModel, modules, channels) -> SafetyController:
-    key = f"behaviours.{name}"
-    missing = set(risk_model.monitored) - set(cfg.monitors)
-    if missing:
-        raise sf.error(f"{key}.monitors", f"the risk model monitors {', '.join(sorted(missing))}: bind them to channels")
-    for var in cfg.monitors:
-        if var not in risk_model.monitored:
-            raise sf.error(f"{key}.monitors.{var}", f"'{var}' is not a monitored variable of the risk model ({', '.join(risk_model.monitored)})")
-    for var in cfg.commands:
-        if var not in risk_model.controlled:
-            raise sf.error(f"{key}.commands.{var}", f"'{var}' is not a controlled variable of the risk model ({', '.join(risk_model.controlled)})")
-
-    command_types: dict[str, ChannelType] = {}
-    targets: dict[str, list] = {}
-    for var in risk_model.controlled:
-        inputs = cfg.commands.get(var, [])
-        targets[var] = []
-        for i, target in enumerate(inputs):
-            where = f"{key}.commands.{var}.{i}"
-            module_name, _, port_name = target.partition(".")
-            system = modules.get(module_name)
-            if system is None or not system.HasInputPort(port_name):
-                raise sf.error(where, f"no command input '{target}' (inputs are written module.input)")
-            ctype = getattr(system, "input_types", {}).get(port_name)
-            if ctype is None:
-                raise sf.error(where, f"'{target}' is not a command input")
-            _check_domain(sf, where, var, risk_model.controlled[var], ctype)
-            if var in command_types and command_types[var] != ctype:
-                raise sf.error(where, f"'{target}' expects a different type than the other inputs of {var}")
-            command_types[var] = ctype
-            targets[var].append(system.GetInputPort(port_name))
-        if var not in command_types:
-            raise sf.error(f"{key}.commands", f"controlled variable '{var}' drives no command input")
-
-    monitor_types: dict[str, ChannelType] = {}
-    sources = {}
-    for var, channel in cfg.monitors.items():
-        where = f"{key}.monitors.{var}"
-        if channel.partition(".")[0] == name:  # the controller's own command, read back
-            signal = channel.partition(".")[2]
-            if signal not in command_types:
-                raise sf.error(where, f"'{channel}' is not a command of {name}")
-            ctype = command_types[signal]
-        elif channel in channels:
-            ctype = channels[channel][0].type
-            sources[var] = channels[channel][1]
-        else:
-            raise sf.error(where, f"no channel '{channel}' (known: {', '.join(sorted(channels))})")
-        _check_domain(sf, where, var, risk_model.monitored[var], ctype)
-        monitor_types[var] = ctype
-
-    controller = builder.AddSystem(SafetyController(name, cfg.period, risk_model, monitor_types, command_types))
-    # one vector input: gathering the monitored channels in C++ costs the controller one read per period
-    monitors = builder.AddNamedSystem(f"{name}.monitors", Multiplexer(len(controller.monitored_names)))
-    for i, var in enumerate(controller.monitored_names):
-        channel = cfg.monitors[var]
-        port = sources.get(var) or controller.GetOutputPort(channel.partition(".")[2])
-        builder.Connect(port, monitors.get_input_port(i))
-    builder.Connect(monitors.get_output_port(0), controller.monitored_port)
-    for var, ports in targets.items():
-        for port in ports:
-            builder.Connect(controller.GetOutputPort(var), port)
-    return controller
-
-
-def _check_domain(sf, where: str, var: str, variable, ctype: ChannelType) -> None:
-    """The channel bound to a risk-model variable must carry its values (a number: in its unit)."""
-    if variable.type == "number":
-        if ctype.kind != "number":
-            raise sf.error(where, f"{var} is a number but the channel carries {ctype.domain()}")
-        if variable.unit is not None and ctype.unit != variable.unit:
-            raise sf.error(where, f"{var} is in {variable.unit} but the channel is in {ctype.unit or 'no unit'}")
-        return
-    values = variable.domain
-    if ctype.kind == "bool":
-        ok = set(values) <= {False, True}
-    elif ctype.kind == "enum":
-        ok = set(values) <= set(ctype.domain())
-    else:
-        ok = False
-    if not ok:
-        raise sf.error(where, f"{var} takes {list(values)} but the channel carries {ctype.domain()}")
 
 
 def _unconnected_command_inputs(builder: DiagramBuilder, modules: dict[str, LeafSystem]) -> list[tuple]:

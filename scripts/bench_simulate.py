@@ -34,7 +34,7 @@ from cellsim.entities.robot import robot_base_pose  # noqa: E402
 from cellsim.config.typed_yaml import ConfigError  # noqa: E402
 from cellsim.scenario import load_scenario  # noqa: E402
 from cellsim.simulation import integrate_at_plant_step, simulate  # noqa: E402
-from diagrams.cell import KD, KI, KP  # noqa: E402
+from cellsim.entities.robot import KD, KI, KP  # noqa: E402
 
 SCENARIO = ROOT / "scenarios" / "welding_cell.yaml"
 

@@ -10,6 +10,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject
 
 from cellsim.channels import number_type
+from cellsim.registry import ModuleKind
 from cellsim.scenario import GroundTruthConfig
 from cellsim.systems import CellSystem, write_scalar
 
@@ -41,3 +42,21 @@ class GroundTruth(CellSystem):
         query = self.query_port.Eval(context)
         nearest = min(query.ComputeSignedDistancePairClosestPoints(a, b).distance for a, b in self.pairs)
         write_scalar(xd, self._separation, min(nearest, FAR_AWAY))
+
+
+def build_ground_truth(cell, name: str, cfg: GroundTruthConfig) -> GroundTruth:
+    system = cell.add(name, GroundTruth(name, cfg))
+    cell.connect_query(system.query_port)
+    system.set_geometries(cell.robot_geometry, cell.people)  # every entity exists at this stage
+    return system
+
+
+KIND = ModuleKind(
+    name="ground_truth",
+    section="behaviours",
+    config=GroundTruthConfig,
+    build=build_ground_truth,
+    stage=10,
+    summary="Measures what no sensor reports: the true minimum distance between every robot and every person.",
+    channels=(("separation", "number, m", "true minimum person-robot distance (negative: overlap)"),),
+)

@@ -19,6 +19,7 @@ import numpy as np
 from cellsim.channels import enum_type, number_type
 from cellsim.entities.robot import HOLD
 from cellsim.entities.welder import NO_REQUEST
+from cellsim.registry import ModuleKind
 from cellsim.scenario import WorkCycleConfig
 from cellsim.systems import CellSystem, write_changed
 from cellsim.vocabulary import CodedEnum, RobotActivity, SafetyMode, WelderActivity
@@ -106,3 +107,47 @@ class WorkCycle(CellSystem):
         new_state = [progress, float(request), *outputs]
         if new_state != state:
             xd.get_mutable_vector(self._state).SetFromVector(np.array(new_state))
+
+
+# -- the module kind ----------------------------------------------------------------
+def build_work_cycle(cell, name: str, cfg: WorkCycleConfig) -> WorkCycle:
+    """The process controller, wired to the robot it moves and the welder it starts."""
+    robot, welder = cell.modules[cfg.robot], cell.modules[cfg.welder]
+    system = cell.add(name, WorkCycle(name, cfg, robot.pose_names))
+    connect = cell.builder.Connect
+    connect(system.target_pose_port, robot.target_port)
+    connect(system.robot_activity_port, robot.activity_port)
+    connect(system.weld_command_port, welder.weld_command_port)
+    connect(robot.GetOutputPort("safety_mode"), system.robot_mode_port)
+    connect(robot.GetOutputPort("reached_pose"), system.reached_pose_port)
+    connect(welder.GetOutputPort("activity"), system.welder_activity_port)
+    return system
+
+
+def _check(sf, name: str, cfg: WorkCycleConfig) -> None:
+    """The robot and welder it names exist, and every move goes to one of the robot's poses."""
+    key, sc = f"behaviours.{name}", sf.scenario
+    robots = sc.modules_of_kind("robot")
+    if cfg.robot not in robots:
+        raise sf.error(f"{key}.robot", f"no robot entity named '{cfg.robot}'")
+    if cfg.welder not in sc.modules_of_kind("welder"):
+        raise sf.error(f"{key}.welder", f"no welder entity named '{cfg.welder}'")
+    poses = robots[cfg.robot].named_poses
+    for i, step in enumerate(cfg.steps):
+        if step.move_to is not None and step.move_to not in poses:
+            raise sf.error(f"{key}.steps.{i}.move_to", f"'{step.move_to}' is not a named pose of {cfg.robot} ({', '.join(poses)})")
+
+
+KIND = ModuleKind(
+    name="work_cycle",
+    section="behaviours",
+    config=WorkCycleConfig,
+    build=build_work_cycle,
+    stage=10,
+    check=_check,
+    summary="The process controller: repeats moves to named poses, dwells and welds while the safety mode permits.",
+    channels=(
+        ("step", "enum", "the current step's name"),
+        ("cycles_completed", "number", "work cycles completed so far"),
+    ),
+)

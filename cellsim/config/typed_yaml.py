@@ -333,6 +333,8 @@ class _Converter:
     def convert(self, tp: Any, data: Any, path: str) -> Any:
         if tp is Any or tp is object:
             return data
+        if hasattr(tp, "__kind_config__"):
+            return self.registered_kind(tp, data, path)
         members = _union_args(tp)
         if members is not None:
             return self.union(members, data, path)
@@ -455,6 +457,31 @@ class _Converter:
         hint = _suggest(kind, [str(k) for k in kinds]) if isinstance(kind, str) else ""
         raise self.error(kpath, f"unknown kind {self.describe(kind, kpath)} "
                          f"(expected one of: {known}){hint}")
+
+    def registered_kind(self, marker: Any, data: Any, path: str) -> Any:
+        """A config whose dataclass a registry picks by its ``kind`` (plug-in module kinds).
+
+        ``marker.__kind_config__(name)`` returns the dataclass or raises a
+        LookupError whose text is the problem; ``marker.__kind_names__()`` lists
+        the kinds known, for the error message.
+        """
+        if dataclasses.is_dataclass(data) and not isinstance(data, type):
+            data = to_data(data)
+        if not isinstance(data, dict):
+            raise self.expected(dict, data, path)
+        if "kind" not in data:
+            raise self.error(path, f"missing required key 'kind' (one of: {', '.join(marker.__kind_names__())})")
+        kind, kpath = data["kind"], _join(path, "kind")
+        if not isinstance(kind, str):
+            raise self.error(kpath, f"expected a kind name, got {self.describe(kind, kpath)}")
+        try:
+            cls = marker.__kind_config__(kind)
+        except LookupError as e:
+            known = marker.__kind_names__()
+            hint = _suggest(kind, known) if str(e).startswith("unknown kind") else ""
+            detail = f" (expected one of: {', '.join(known)})" if str(e).startswith("unknown kind") else ""
+            raise self.error(kpath, f"{e.args[0] if e.args else e}{detail}{hint}") from None
+        return self.dataclass(cls, data, path)
 
     def dataclass(self, cls: type, data: Any, path: str) -> Any:
         if isinstance(data, cls):

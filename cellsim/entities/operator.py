@@ -29,6 +29,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from cellsim.channels import BOOL, enum_type, vector_type
 from cellsim.entities.twin import EntitySystem
 from cellsim.scenario import Layout, OperatorConfig
+from cellsim.registry import ModuleKind
 from cellsim.systems import read_scalar, write_scalar
 from cellsim.vocabulary import CodedEnum, Notification, OperatorLocation, TwinMode
 
@@ -233,3 +234,30 @@ class Operator(EntitySystem):
         write_scalar(xd, self._location, location.code)
         write_scalar(xd, self._at_table, 1.0 if self.layout.shared_table_zone.contains((x, y, 1.0)) else 0.0)
         xd.get_mutable_vector(self._position).SetFromVector(np.array(vector[:2]))
+
+
+def build_operator(cell, name: str, cfg: OperatorConfig) -> Operator:
+    """A person: their own random stream (salted by their order), body geometry the sensors see."""
+    person = cell.add(name, Operator(name, cfg, cell.scenario.layout, cell.seed, salt=cell.count("person")))
+    cell.register_geometry(person, person=True)
+    cell.builder.Connect(person.geometry_pose_port, cell.scene_graph.get_source_pose_port(person.source_id))
+    return person
+
+
+KIND = ModuleKind(
+    name="operator",
+    section="entities",
+    config=OperatorConfig,
+    build=build_operator,
+    summary="A person walking an ordered list of waypoints, waiting and reaching, with body geometry the sensors measure.",
+    sample_fields=Operator.POSE_FIELDS,
+    command_fields=("notification", "leave_workbench"),
+    channels=(
+        ("location", "enum", "inCell while standing in layout.cell, else none (oloc)"),
+        ("at_table", "bool", "standing in layout.shared_table_zone (otab)"),
+        ("waypoint", "enum", "the waypoint walked to or waited at"),
+        ("position", "vector, m", "x, y of the body, every 0.1 s"),
+        ("twin_mode", "enum", "model / shadow / twin"),
+        ("physical_link", "enum", "unused / ok / stale / corrupt"),
+    ),
+)

@@ -23,6 +23,7 @@ from pydrake.math import RigidTransform
 
 from cellsim.channels import BOOL, enum_type, number_type
 from cellsim.entities.twin import EntitySystem, valid_code
+from cellsim.registry import ModuleKind
 from cellsim.scenario import LightBarrierConfig, RangeDetectorConfig
 from cellsim.systems import write_scalar
 from cellsim.vocabulary import Range, TwinMode
@@ -162,3 +163,46 @@ class RangeDetector(_GeometrySensor):
             reading, distance = Range.from_code(view.sample[0]), view.sample[1]
         write_scalar(xd, self._range, reading.code)
         write_scalar(xd, self._distance, distance)
+
+
+def _build_sensor(system: _GeometrySensor):
+    """A sensor's builder: its own geometry, the SceneGraph query, and every person as a target."""
+
+    def build(cell, name, cfg):
+        sensor = cell.add(name, system(name, cfg, cell))
+        cell.register_geometry(sensor)
+        cell.connect_query(sensor.query_port)
+        cell.after_entities(lambda: sensor.set_targets(cell.people))
+        return sensor
+
+    return build
+
+
+LIGHT_BARRIER = ModuleKind(
+    name="light_barrier",
+    section="entities",
+    config=LightBarrierConfig,
+    build=_build_sensor(lambda name, cfg, cell: LightBarrier(name, cfg)),
+    summary="A light curtain whose beams fill a box: broken while a person's geometry is in it; fails safe to broken.",
+    sample_fields=("broken",),
+    channels=(
+        ("broken", "bool", "true while any person's geometry intersects the beams (lgtBar)"),
+        ("twin_mode", "enum", "model / shadow / twin"),
+        ("physical_link", "enum", "unused / ok / stale / corrupt"),
+    ),
+)
+
+RANGE_DETECTOR = ModuleKind(
+    name="range_detector",
+    section="entities",
+    config=RangeDetectorConfig,
+    build=_build_sensor(lambda name, cfg, cell: RangeDetector(name, cfg, cell.seed, cell.duration)),
+    summary="A safety scanner: far / near / close from the nearest person's distance; fails safe to close.",
+    sample_fields=("range", "distance"),
+    channels=(
+        ("range", "enum", "far / near / close (rngDet)"),
+        ("distance", "number, m", "measured distance to the nearest person"),
+        ("twin_mode", "enum", "model / shadow / twin"),
+        ("physical_link", "enum", "unused / ok / stale / corrupt"),
+    ),
+)

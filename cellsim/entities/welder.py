@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from cellsim.channels import NO_VALUE, enum_type
 from cellsim.entities.twin import EntitySystem, valid_code
+from cellsim.registry import ModuleKind
 from cellsim.scenario import WelderConfig
 from cellsim.systems import write_scalar
 from cellsim.vocabulary import SafetyMode, TwinMode, WelderActivity
@@ -73,3 +74,20 @@ class Welder(EntitySystem):
             mode, activity = SafetyMode.from_code(view.sample[0]), WelderActivity.from_code(view.sample[1])
         write_scalar(xd, self._mode, mode.code)
         write_scalar(xd, self._activity, activity.code)
+
+
+KIND = ModuleKind(
+    name="welder",
+    section="entities",
+    config=WelderConfig,
+    build=lambda cell, name, cfg: cell.add(name, Welder(name, cfg)),
+    summary="A spot welder with safety modes normal and stopped; welds while the process controller asks.",
+    sample_fields=("safety_mode", "activity"),
+    command_fields=("safety_mode_request", "activity_request", "weld_command"),
+    channels=(
+        ("safety_mode", "enum", "normal or stopped"),
+        ("activity", "enum", "idle / welding / off (wact); welding when shadowing with no valid sample"),
+        ("twin_mode", "enum", "model / shadow / twin"),
+        ("physical_link", "enum", "unused / ok / stale / corrupt"),
+    ),
+)

@@ -32,6 +32,8 @@ from pydrake.systems.framework import DiagramBuilder, OutputPort
 from pydrake.systems.primitives import Multiplexer, VectorLogSink
 
 from cellsim.channels import ChannelSpec
+from cellsim.registry import ModuleKind
+from cellsim.scenario import RecorderConfig
 from cellsim.services.blackbox import BlackBoxWriter
 
 
@@ -165,3 +167,19 @@ class _Group:
                 if payload is None:
                     payload = cache[code] = dumps({"value": spec.type.decode(values)})
             out.append((k, rank, (t, spec.name, spec.module, payload)))
+
+
+def build_recorder(cell, name: str, cfg) -> None:
+    """Tap every channel of the cell (the recorder is built last); nothing when not recording."""
+    if cell.record:
+        cell.recorder = Recorder(cell.builder, name, list(cell.channels().values()))
+
+
+KIND = ModuleKind(
+    name="blackbox",
+    section="services",
+    config=RecorderConfig,
+    build=build_recorder,
+    stage=30,
+    summary="The message snooper: records every message of every channel to the run's SQLite black box.",
+)

@@ -1,0 +1,159 @@
+"""Module kinds: the library a scenario's ``kind:`` names.
+
+A *module kind* ties a typed config (a dataclass with ``kind: Literal["name"]``)
+to a builder that adds the module's system to a cell's diagram. cellsim's own
+kinds and a user's are found the same way, the way python-can finds its
+interfaces: through the ``cellsim.modules`` entry-point group. A user's package
+declares, in its ``pyproject.toml``::
+
+    [project.entry-points."cellsim.modules"]
+    conveyor = "my_cell.conveyor:KIND"
+
+where ``KIND`` is a :class:`ModuleKind`, and scenarios can use ``kind: conveyor``
+with no change to cellsim. The core names no concrete kind: the scenario schema
+asks the registry which config a ``kind:`` means, and ``build_cell`` asks each
+module's kind to build it.
+
+Kinds are loaded lazily, one entry point at a time, so a plug-in that fails to
+import only fails the scenarios that use it (with one line naming the plug-in).
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib.metadata
+from dataclasses import dataclass, field
+from typing import Any, Callable, Literal
+
+ENTRY_POINT_GROUP = "cellsim.modules"
+Section = Literal["entities", "behaviours", "services"]
+SECTIONS: tuple[Section, ...] = ("entities", "behaviours", "services")
+
+
+class KindError(LookupError):
+    """An unknown kind, or a plug-in that cannot provide its kind (the message is one line)."""
+
+
+@dataclass(frozen=True)
+class ModuleKind:
+    """What a scenario's ``kind:`` means.
+
+    ``build(cell, name, config)`` adds the module's system to ``cell.builder``
+    (a :class:`diagrams.cell.CellBuild`) and returns it (or ``None`` when it
+    adds nothing, e.g. a recorder not wanted). Modules are built by ``stage``,
+    lower first, then in the order the scenario lists them: entities (0) before
+    the behaviours wired to them (10), the safety controller (20), which reads
+    every channel, and the recorder (30), which taps them all.
+    """
+
+    name: str
+    section: Section
+    config: type
+    build: Callable[[Any, str, Any], Any]
+    summary: str
+    stage: int = 0
+    prepare: Callable[[Any, str, Any], None] | None = None
+    """Called before the plant is finalised (a robot adds its arm model to the plant)."""
+    check: Callable[[Any, str, Any], None] | None = None
+    """Cross-checks at load time, without building: ``check(scenario_file, name, config)``
+    raises the scenario file's ConfigError (files exist, referenced modules exist)."""
+    file_fields: tuple[str, ...] = ()
+    """Config fields naming files relative to the scenario (rebased when it is exported)."""
+    sample_fields: tuple[str, ...] | Callable[[Any], tuple[str, ...]] = ()
+    """An entity's physical-sample fields (its physical twin's state), for docs and bridges."""
+    command_fields: tuple[str, ...] | Callable[[Any], tuple[str, ...]] = ()
+    """An entity's command fields (what it sends its physical twin in twin mode)."""
+    channels: tuple[tuple[str, str, str], ...] = field(default=())
+    """Documented channels: ``(signal, type, meaning)``; a test checks them against built systems."""
+
+
+@functools.cache
+def _entry_points() -> dict[str, list[importlib.metadata.EntryPoint]]:
+    found: dict[str, list] = {}
+    for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        found.setdefault(ep.name, []).append(ep)
+    return found
+
+
+_loaded: dict[str, ModuleKind] = {}
+
+
+def kind_names(section: Section | None = None) -> list[str]:
+    """Every kind's name (of one section: this loads each kind to learn its section)."""
+    names = sorted(_entry_points())
+    if section is None:
+        return names
+    out = []
+    for name in names:
+        try:
+            if get(name).section == section:
+                out.append(name)
+        except KindError:
+            continue  # a broken plug-in is reported where a scenario uses it
+    return out
+
+
+def get(name: str) -> ModuleKind:
+    """The kind called ``name``; KindError if there is none or its plug-in is broken."""
+    kind = _loaded.get(name)
+    if kind is not None:
+        return kind
+    eps = _entry_points().get(name)
+    if not eps:
+        raise KindError(f"unknown kind '{name}'")
+    distinct = {ep.value for ep in eps}
+    if len(distinct) > 1:
+        raise KindError(f"kind '{name}' is provided twice: by {' and by '.join(sorted(distinct))}")
+    ep = eps[0]
+    try:
+        kind = ep.load()
+    except Exception as e:  # noqa: BLE001 - any failure of a plug-in's import is that plug-in's
+        raise KindError(f"kind '{name}' comes from {ep.value}, which failed to load: {type(e).__name__}: {_one_line(e)}") from None
+    if not isinstance(kind, ModuleKind):
+        raise KindError(f"kind '{name}': {ep.value} is a {type(kind).__name__}, not a cellsim.registry.ModuleKind")
+    if kind.name != name:
+        raise KindError(f"kind '{name}': {ep.value} declares the kind '{kind.name}'")
+    _loaded[name] = kind
+    return kind
+
+
+def kind_of(config: Any) -> ModuleKind:
+    """The kind of a module's config object."""
+    return get(config.kind)
+
+
+def _one_line(error: Exception) -> str:
+    return " ".join(str(error).split())[:300]
+
+
+class ModuleConfig:
+    """Type marker for :mod:`cellsim.config.typed_yaml`: a module config chosen by its ``kind``.
+
+    ``dict[str, EntityModule]`` in a schema means "each value is the config of
+    whichever entity kind its ``kind:`` key names".
+    """
+
+    section: Section
+
+    @classmethod
+    def __kind_names__(cls) -> list[str]:
+        return kind_names(cls.section)
+
+    @classmethod
+    def __kind_config__(cls, name: str) -> type:
+        kind = get(name)
+        if kind.section != cls.section:
+            raise KindError(f"kind '{name}' is one of the {kind.section}, not of the {cls.section}")
+        return kind.config
+
+
+class EntityModule(ModuleConfig):
+    section = "entities"
+
+
+class BehaviourModule(ModuleConfig):
+    section = "behaviours"
+
+
+class ServiceModule(ModuleConfig):
+    section = "services"
