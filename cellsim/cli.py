@@ -106,6 +106,17 @@ def build_parser() -> argparse.ArgumentParser:
     camp.add_argument("--quiet", action="store_true", help="print nothing but errors")
     camp.set_defaults(handler=cmd_campaign)
 
+    mods = sub.add_parser(
+        "modules",
+        help="list the module kinds a scenario can use, or describe one",
+        description="Without KIND: every module kind (cellsim's and installed plug-ins'), its section and what it "
+        "is. With KIND: its parameters (type, default, meaning), channels, physical-sample and command fields. "
+        "Generated from the code's own declarations.",
+    )
+    mods.add_argument("kind", nargs="?", help="a kind to describe in full, e.g. robot")
+    mods.add_argument("--json", action="store_true", help="print as JSON on standard output")
+    mods.set_defaults(handler=cmd_modules)
+
     scenario = sub.add_parser("scenario", help="inspect scenario files", description="Inspect scenario files.")
     ssub = scenario.add_subparsers(metavar="ACTION")
     export = ssub.add_parser(
@@ -462,6 +473,65 @@ def cmd_scenario_check(args) -> int:
         f"{args.scenario}: ok ({len(case.conditions)} safety conditions, {len(case.use_cases)} use cases, "
         f"{len(sf.scenario.validation.coverage)} coverage criteria)"
     )
+    return EXIT_OK
+
+
+def cmd_modules(args) -> int:
+    import json
+
+    from rich.console import Console
+    from rich.markup import escape as e
+    from rich.table import Table
+
+    from cellsim import kinds_doc, registry
+
+    console = Console()
+    if args.kind is None:
+        kinds, errors = kinds_doc.catalogue()
+        if args.json:
+            json.dump({"kinds": kinds, "errors": errors}, sys.stdout, indent=2)
+            sys.stdout.write("\n")
+        else:
+            table = Table(title="Module kinds (cellsim modules KIND for one in full)", title_justify="left")
+            for column in ("kind", "section", "what it is"):
+                table.add_column(column, style="bold" if column == "kind" else None)
+            for k in kinds:
+                table.add_row(e(k["kind"]), k["section"], e(k["summary"]))
+            console.print(table)
+            for error in errors:
+                console.print(f"[yellow]not available: {e(error)}[/yellow]")
+        return EXIT_OK
+    try:
+        info = kinds_doc.describe(args.kind)
+    except registry.KindError as error:
+        import difflib
+
+        close = difflib.get_close_matches(args.kind, registry.kind_names(), n=1)
+        raise InputError(f"{error}" + (f"; did you mean '{close[0]}'?" if close else f" (known: {', '.join(registry.kind_names())})")) from None
+    if args.json:
+        json.dump(info, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+        return EXIT_OK
+    console.print(f"[bold]{e(info['kind'])}[/bold] ({info['section']}): {e(info['summary'])}")
+    params = Table(title="parameters", title_justify="left")
+    for column in ("name", "type", "default", "meaning"):
+        params.add_column(column, style="bold" if column == "name" else None)
+    for p in info["parameters"]:
+        params.add_row(e(p["name"]), e(p["type"]), e(p["default"]), e(p["doc"]))
+    console.print(params)
+    if info["channels"]:
+        channels = Table(title=f"channels ({info['kind']} module NAME publishes NAME.signal)", title_justify="left")
+        for column in ("signal", "type", "meaning"):
+            channels.add_column(column, style="bold" if column == "signal" else None)
+        for c in info["channels"]:
+            channels.add_row(e(c["signal"]), e(c["type"]), e(c["meaning"]))
+        console.print(channels)
+    if info["physical_sample_fields"]:
+        console.print("physical sample fields (shadow and twin mode): " + e(", ".join(info["physical_sample_fields"])))
+    if info["command_fields"]:
+        console.print("command fields (sent to the physical twin in twin mode): " + e(", ".join(info["command_fields"])))
+    if info["files"]:
+        console.print("file parameters (relative to the scenario): " + e(", ".join(info["files"])))
     return EXIT_OK
 
 

@@ -131,14 +131,21 @@ class RobotConfig:
     named_poses: dict[str, list[float]]
     """Joint positions (rad) of the poses the process moves between."""
     base_position: Vec3 = (0.0, 0.0, 0.0)
+    """Where the arm's base_link is fixed in the cell (m)."""
     base_yaw_deg: float = 0.0
+    """Rotation of the base about the vertical axis (degrees)."""
     tool_frame: str = "tcp"
+    """The frame of the model whose position gives the robot's location and tool speed."""
     initial_pose: str = "home"
+    """The named pose the arm starts in."""
     speed_limits: SpeedLimits = field(default_factory=SpeedLimits)
+    """Tool speed cap per moving safety mode (m/s)."""
     braking_time: float = 0.5
     """Time to standstill from full speed on srmst or stopped (s)."""
     period: float = 0.02
+    """Update period of the controller side (s); a multiple of the plant step."""
     twin: TwinSettings = field(default_factory=TwinSettings)
+    """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
 
     def __post_init__(self):
         if self.initial_pose not in self.named_poses:
@@ -154,7 +161,9 @@ class RobotConfig:
 class WelderConfig:
     kind: Literal["welder"]
     period: float = 0.04
+    """Update period (s)."""
     twin: TwinSettings = field(default_factory=TwinSettings)
+    """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
 
 
 @dataclass
@@ -163,10 +172,13 @@ class LightBarrierConfig:
 
     kind: Literal["light_barrier"]
     center: Vec3
+    """Centre of the box the beams fill (m)."""
     size: Vec3
+    """Size of that box along x, y, z (m)."""
     period: float = 0.04
     """Response time (s). People move every 40 ms in the twin; sampling faster reads the same geometry."""
     twin: TwinSettings = field(default_factory=TwinSettings)
+    """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
 
 
 @dataclass
@@ -175,12 +187,17 @@ class RangeDetectorConfig:
 
     kind: Literal["range_detector"]
     position: Vec3
+    """Where the scanner head is (m); distances are measured from it."""
     near_below: float = 2.0
+    """Below this distance (m) the range reads near."""
     close_below: float = 1.0
+    """Below this distance (m) the range reads close."""
     noise_std: float = 0.0
     """Standard deviation of the measured distance (m); drawn from the run's seed."""
     period: float = 0.04
+    """Response time (s)."""
     twin: TwinSettings = field(default_factory=TwinSettings)
+    """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
 
     def __post_init__(self):
         if not 0 < self.close_below < self.near_below:
@@ -208,16 +225,25 @@ class OperatorConfig:
 
     kind: Literal["operator"]
     start: Vec2
+    """Where the person stands at t = 0 (x, y in m)."""
     waypoints: dict[str, Waypoint]
+    """The places walked to, in order, each with a wait and an optional reach."""
     start_delay: float = 0.0
+    """Seconds before the person starts walking."""
     walking_speed: float = 1.2
+    """Mean walking speed (m/s)."""
     speed_jitter: float = 0.1
     """Each leg's speed is drawn uniformly within +-this fraction, from the run's seed."""
     height: float = 1.75
+    """Body height (m)."""
     body_radius: float = 0.2
+    """Radius of the torso's capsule (m)."""
     arm_length: float = 0.7
+    """Reach of the arm from the shoulder (m)."""
     period: float = 0.04
+    """Update period (s): how often the body moves in the twin."""
     twin: TwinSettings = field(default_factory=TwinSettings)
+    """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
 
     def __post_init__(self):
         if self.walking_speed <= 0:
@@ -250,11 +276,15 @@ class WorkCycleConfig:
 
     kind: Literal["work_cycle"]
     steps: list[WorkStep]
+    """The cycle's steps, in order: each a move_to a named pose, a dwell or a weld."""
     robot: str = "robot"
+    """The robot entity the cycle moves."""
     welder: str = "welder"
+    """The welder entity it asks to weld."""
     restart_on_request: dict[str, str] = field(default_factory=dict)
     """Robot activity requested by the safety controller -> step the cycle restarts from."""
     period: float = 0.04
+    """Update period (s)."""
 
     def __post_init__(self):
         names = [s.name for s in self.steps]
@@ -279,6 +309,7 @@ class SafetyControllerConfig:
     commands: dict[str, list[str]]
     """Controlled variable -> command inputs it drives (``module.input``)."""
     period: float = 0.02
+    """Control period (s): how often the risk model is evaluated."""
 
 
 @dataclass
@@ -287,6 +318,7 @@ class GroundTruthConfig:
 
     kind: Literal["ground_truth"]
     period: float = 0.1
+    """How often the separation is measured (s)."""
 
 
 
@@ -298,6 +330,7 @@ class RecorderConfig:
 
     kind: Literal["blackbox"]
     batch_size: int = 5000
+    """Rows buffered before they are written within one drain (memory bound)."""
 
 
 
@@ -513,13 +546,13 @@ class _FileFieldsByConfig:
     """
 
     def get(self, config_type, default=()):
+        import typing
+
         from cellsim import registry
 
-        for name in registry.kind_names():
-            kind = registry.get(name)
-            if kind.config is config_type:
-                return kind.file_fields
-        return default
+        (name,) = typing.get_args(typing.get_type_hints(config_type)["kind"])
+        kind = registry.get(name)
+        return kind.file_fields if kind.config is config_type else default
 
 
 FILE_FIELDS = _FileFieldsByConfig()

@@ -1,0 +1,134 @@
+"""What ``cellsim modules`` shows: every module kind, described from the code's own declarations.
+
+A kind's parameters are its config dataclass's fields (type, default, and the
+docstring written under the field), its channels and physical-twin fields are
+what its :class:`~cellsim.registry.ModuleKind` declares. Nothing here is written
+twice, so the listing cannot drift from the code.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import enum
+import functools
+import inspect
+import textwrap
+import typing
+from dataclasses import dataclass
+
+from cellsim import registry
+
+
+@dataclass(frozen=True)
+class Parameter:
+    name: str
+    type: str
+    default: str
+    doc: str
+
+
+@functools.cache
+def field_docs(cls: type) -> dict[str, str]:
+    """The docstrings written under a dataclass's fields (``x: float = 1.0`` then ``\"\"\"...\"\"\"``)."""
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        if not dataclasses.is_dataclass(klass):
+            continue
+        try:
+            tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
+        except (OSError, TypeError, SyntaxError):
+            continue
+        body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
+        for node, following in zip(body, body[1:]):
+            if (
+                isinstance(node, ast.AnnAssign)
+                and isinstance(node.target, ast.Name)
+                and isinstance(following, ast.Expr)
+                and isinstance(following.value, ast.Constant)
+                and isinstance(following.value.value, str)
+            ):
+                docs[node.target.id] = " ".join(following.value.value.split())
+    return docs
+
+
+def type_name(tp) -> str:
+    """A field's type as a user writes it in YAML."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is typing.Annotated:
+        return type_name(args[0])
+    if origin is typing.Literal:
+        return " | ".join(repr(a) if not isinstance(a, str) else a for a in args)
+    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
+        return " | ".join("null" if a is type(None) else type_name(a) for a in args)
+    if origin is list:
+        return f"list of {type_name(args[0])}" if args else "list"
+    if origin is tuple:
+        if len(args) == 2 and args[1] is Ellipsis:
+            return f"list of {type_name(args[0])}"
+        return f"[{', '.join(type_name(a) for a in args)}]"
+    if origin is dict:
+        return f"mapping of {type_name(args[0])} to {type_name(args[1])}" if args else "mapping"
+    if isinstance(tp, type) and issubclass(tp, enum.Enum):
+        return " | ".join(str(m.value) for m in tp)
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
+        return tp.__name__
+    return {float: "number", int: "integer", bool: "true/false", str: "text"}.get(tp, getattr(tp, "__name__", str(tp)))
+
+
+def parameters(config: type) -> list[Parameter]:
+    hints = typing.get_type_hints(config, include_extras=True)
+    docs = {**(field_docs(config))}
+    out = []
+    for f in dataclasses.fields(config):
+        if not f.init or f.name == "kind":
+            continue
+        if f.default is not dataclasses.MISSING:
+            default = _show(f.default)
+        elif f.default_factory is not dataclasses.MISSING:
+            default = _show(f.default_factory())
+        else:
+            default = "required"
+        out.append(Parameter(f.name, type_name(hints[f.name]), default, docs.get(f.name, "")))
+    return out
+
+
+def _show(value) -> str:
+    from cellsim.config.typed_yaml import to_data
+
+    data = to_data(value)
+    if isinstance(data, dict) and len(str(data)) > 40:
+        return "(see " + type(value).__name__ + ")" if dataclasses.is_dataclass(value) else "{...}"
+    return "null" if data is None else str(data).replace("'", "")
+
+
+def _fields(declared, kind: registry.ModuleKind) -> tuple[str, ...]:
+    return tuple(declared(kind)) if callable(declared) else tuple(declared)
+
+
+def describe(name: str) -> dict:
+    """One kind in full, as plain data (for ``--json`` and for the table)."""
+    kind = registry.get(name)
+    return {
+        "kind": kind.name,
+        "section": kind.section,
+        "summary": kind.summary,
+        "parameters": [dataclasses.asdict(p) for p in parameters(kind.config)],
+        "channels": [{"signal": s, "type": t, "meaning": m} for s, t, m in kind.channels],
+        "physical_sample_fields": list(_fields(kind.sample_fields, kind)),
+        "command_fields": list(_fields(kind.command_fields, kind)),
+        "files": list(kind.file_fields),
+    }
+
+
+def catalogue() -> tuple[list[dict], list[str]]:
+    """Every kind's name, section and summary; and one line per plug-in that failed to load."""
+    kinds, errors = [], []
+    for name in registry.kind_names():
+        try:
+            kind = registry.get(name)
+        except registry.KindError as e:
+            errors.append(str(e))
+            continue
+        kinds.append({"kind": kind.name, "section": kind.section, "summary": kind.summary})
+    return kinds, errors
