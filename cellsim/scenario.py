@@ -417,8 +417,8 @@ class ScenarioFile:
         return Path(self.loaded.source).resolve().parent
 
     def error(self, key: str, problem: str) -> ConfigError:
-        """A ConfigError at ``key`` (dotted path), naming the file and line."""
-        return ConfigError(self.source, self.loaded.line_of(key), key, problem)
+        """A ConfigError at ``key`` (dotted path), naming the file (the scenario or a base) and line."""
+        return ConfigError(*self.loaded.where(key), key, problem)
 
     def locate(self, key: str) -> tuple[str, int | None, str]:
         """(file, line, key in that file) where the dotted ``key`` is written, following ``validation.file``."""
@@ -426,13 +426,25 @@ class ScenarioFile:
         if self.validation_file is not None and key.startswith("validation.") and not written_inline:
             key = key.removeprefix("validation.")
             return self.validation_file.source, self.validation_file.line_of(key), key
-        return self.source, self.loaded.line_of(key), key
+        return (*self.loaded.where(key), key)
+
+    def file_dir(self, key: str) -> Path:
+        """The folder of the file in which ``key`` was written (the scenario's or a base's)."""
+        return Path(self.loaded.where(key)[0]).resolve().parent
+
+    @property
+    def files(self) -> list[str]:
+        """Every file this scenario was read from: itself, its bases, its validation file."""
+        files = list(self.loaded.files or [self.source])
+        if self.validation_file is not None:
+            files.append(self.validation_file.source)
+        return files
 
     def resolve_path(self, key: str, relative: str) -> Path:
-        """An existing file named at ``key``, relative to the scenario file."""
+        """An existing file named at ``key``, relative to the file that names it."""
         path = Path(relative)
         if not path.is_absolute():
-            path = self.base_dir / path
+            path = self.file_dir(key) / path
         if not path.is_file():
             raise self.error(key, f"file not found: {relative} (looked for {path})")
         return path.resolve()
@@ -454,7 +466,7 @@ def _shortcut(scenario: Scenario):
 
 def load_scenario(path: str | os.PathLike, overrides: list[str] | tuple[str, ...] = ()) -> ScenarioFile:
     """Load, override and check a scenario; raises ConfigError on any bad input."""
-    loaded = load_file(Scenario, path)
+    loaded = load_file(Scenario, path, base_key="base")
     apply_overrides(loaded, list(overrides), resolve=_shortcut(loaded.value))
     sf = ScenarioFile(loaded, list(overrides))
     _load_validation_file(sf)
@@ -526,13 +538,11 @@ def value_at(scenario: Scenario, dotted: str):
 def export_scenario(sf: ScenarioFile, destination_dir: str | os.PathLike | None = None) -> str:
     """The fully resolved scenario as YAML (every default written out).
 
-    File references are relative to the scenario file; when the export is to be
-    stored in ``destination_dir`` they are rewritten relative to it, so the
-    exported file loads from where it is kept.
+    File references are rewritten relative to ``destination_dir`` (default: the
+    scenario file's folder), so the exported file loads from where it is kept;
+    a scenario with a base is written whole, with no base.
     """
-    scenario = sf.scenario
-    if destination_dir is not None:
-        scenario = rebase_file_references(scenario, sf.base_dir, Path(destination_dir))
+    scenario = rebase_file_references(sf, Path(destination_dir) if destination_dir is not None else sf.base_dir)
     header = f"Resolved scenario exported by cellsim from {sf.source}"
     if sf.overrides:
         header += "\nwith overrides: " + " ".join(sf.overrides)
@@ -558,12 +568,15 @@ class _FileFieldsByConfig:
 FILE_FIELDS = _FileFieldsByConfig()
 
 
-def rebase_file_references(scenario: Scenario, from_dir: Path, to_dir: Path) -> Scenario:
-    """A copy of ``scenario`` whose file references (each kind's ``file_fields``) are relative to ``to_dir``."""
-    copy = from_data(Scenario, to_data(scenario))
-    for section in (copy.entities, copy.behaviours, copy.services):
-        for cfg in section.values():
+def rebase_file_references(sf: ScenarioFile, to_dir: Path) -> Scenario:
+    """A copy of the scenario whose file references (each kind's ``file_fields``) are relative to ``to_dir``.
+
+    Each reference is read relative to the file that wrote it (the scenario or a base).
+    """
+    copy = from_data(Scenario, to_data(sf.scenario))
+    for section in ("entities", "behaviours", "services"):
+        for module, cfg in getattr(copy, section).items():
             for name in kind_of(cfg).file_fields:
-                target = (from_dir / getattr(cfg, name)).resolve()
+                target = (sf.file_dir(f"{section}.{module}.{name}") / getattr(cfg, name)).resolve()
                 setattr(cfg, name, os.path.relpath(target, to_dir.resolve()))
     return copy

@@ -73,6 +73,8 @@ _Loader.add_implicit_resolver(
     list("tTfF"),
 )
 _MERGE_TAG = "tag:yaml.org,2002:merge"
+REPLACE_TAG = "!replace"
+"""A mapping tagged ``!replace`` replaces its base's mapping whole instead of merging into it."""
 _NoneType = type(None)
 
 
@@ -106,15 +108,28 @@ class ConfigError(Exception):
 
 @dataclass
 class Loaded(Generic[T]):
-    """A typed value together with where each of its keys was written."""
+    """A typed value together with where each of its keys was written.
+
+    With a base file (``load_file(..., base_key="base")``), a key may have been
+    written in a base rather than in ``source``: ``sources`` names that file, and
+    :meth:`where` gives the file and line of any key.
+    """
 
     value: T
     source: str
     lines: dict[str, int]
+    sources: dict[str, str] = dataclasses.field(default_factory=dict)
+    """Key -> the file it was written in, for keys not written in ``source``."""
+    files: list[str] = dataclasses.field(default_factory=list)
+    """Every file read: ``source`` first, then its bases."""
 
     def line_of(self, key: str) -> int | None:
         """Line of ``key``, or of its nearest written ancestor (``None`` if none)."""
         return _line_of(self.lines, key)
+
+    def where(self, key: str) -> tuple[str, int | None]:
+        """(file, line) where ``key``, or its nearest written ancestor, was written."""
+        return _where(self.lines, self.sources, self.source, key)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -130,6 +145,15 @@ def _line_of(lines: dict[str, int], key: str) -> int | None:
             return lines[key]
         if not key:
             return None
+        key = key.rpartition(".")[0]
+
+
+def _where(lines: dict[str, int], sources: dict[str, str], source: str, key: str) -> tuple[str, int | None]:
+    while True:
+        if key in lines:
+            return sources.get(key, source), lines[key]
+        if not key:
+            return source, None
         key = key.rpartition(".")[0]
 
 
@@ -201,6 +225,7 @@ class _Composer:
         self.texts: dict[str, str] = {}  # source text of scalars, for error messages
         self.done: dict[int, Any] = {}   # aliases: a node is converted once
         self.active: set[int] = set()    # nodes being converted: detects recursive aliases
+        self.replace: set[str] = set()   # paths of mappings tagged !replace (not merged over a base)
 
     def error(self, node: yaml.Node, key: str, problem: str) -> ConfigError:
         return ConfigError(self.source, node.start_mark.line + 1, key, problem)
@@ -234,6 +259,8 @@ class _Composer:
             raise self.error(node, path, f"malformed YAML: {e}") from None
 
     def mapping(self, node: yaml.MappingNode, path: str) -> dict[Any, Any]:
+        if node.tag == REPLACE_TAG:
+            self.replace.add(path)
         merged: dict[Any, Any] = {}
         explicit: dict[Any, Any] = {}
         # Merge keys ("<<: *base") first, so that explicit keys and their lines win.
@@ -266,6 +293,12 @@ class _Composer:
 
 
 def _parse(text: str, source: str) -> tuple[Any, dict[str, int], dict[str, str]]:
+    data, lines, texts, _ = _parse_full(text, source)
+    return data, lines, texts
+
+
+def _parse_full(text: str, source: str) -> tuple[Any, dict[str, int], dict[str, str], set[str]]:
+    """(data, line of each key, source text of each scalar, paths of mappings tagged !replace)."""
     loader = _Loader(text)
     try:
         try:
@@ -291,7 +324,7 @@ def _parse(text: str, source: str) -> tuple[Any, dict[str, int], dict[str, str]]
         composer = _Composer(loader, source)
         composer.lines[""] = node.start_mark.line + 1
         data = composer.build(node, "")
-        return data, composer.lines, composer.texts
+        return data, composer.lines, composer.texts, composer.replace
     finally:
         loader.dispose()
 
@@ -303,13 +336,14 @@ class _Converter:
     """Converts plain data to a type, raising :class:`ConfigError` at the right line."""
 
     def __init__(self, source: str, lines: dict[str, int] | None = None,
-                 texts: dict[str, str] | None = None):
+                 texts: dict[str, str] | None = None, sources: dict[str, str] | None = None):
         self.source = source
         self.lines = lines or {}
         self.texts = texts or {}
+        self.sources = sources or {}
 
     def error(self, path: str, problem: str) -> ConfigError:
-        return ConfigError(self.source, _line_of(self.lines, path), path, problem)
+        return ConfigError(*_where(self.lines, self.sources, self.source, path), path, problem)
 
     def describe(self, data: Any, path: str) -> str:
         if isinstance(data, dict):
@@ -522,16 +556,89 @@ def load_text(schema: type[T], text: str, source: str = "<text>") -> Loaded[T]:
     return Loaded(value=value, source=source, lines=lines)
 
 
-def load_file(schema: type[T], path: str | os.PathLike) -> Loaded[T]:
-    """Read a UTF-8 YAML file and convert it to ``schema``; raises :class:`ConfigError`."""
+def load_file(schema: type[T], path: str | os.PathLike, *, base_key: str | None = None) -> Loaded[T]:
+    """Read a UTF-8 YAML file and convert it to ``schema``; raises :class:`ConfigError`.
+
+    With ``base_key``, a top-level ``base_key: other.yaml`` (relative to the file)
+    names a base: the file is the base with its own keys merged in. Mappings
+    merge key by key, recursively, unless tagged ``!replace``; any other value
+    (a list, a number) replaces the base's. Bases may have bases; a cycle is an error. Every key keeps the
+    file and line where it was written, for errors and for paths relative to it.
+    """
     source = os.fspath(path)
+    if base_key is None:
+        return load_text(schema, _read(source), source)
+    try:
+        data, lines, texts, sources, files = _parse_with_bases(source, base_key, [])
+        value = _Converter(source, lines, texts, sources).convert(schema, data, "")
+    except RecursionError:
+        raise ConfigError(source, None, "", "malformed YAML: nested too deeply") from None
+    return Loaded(value=value, source=source, lines=lines, sources=sources, files=files)
+
+
+def _read(source: str) -> str:
     try:
         with open(source, encoding="utf-8") as f:
-            text = f.read()
+            return f.read()
     except (OSError, UnicodeDecodeError) as e:
         reason = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
         raise ConfigError(source, None, "", f"cannot read file: {reason}") from None
-    return load_text(schema, text, source)
+
+
+def _parse_with_bases(source: str, base_key: str, chain: list[str]):
+    """(data, lines, texts, sources, files) of ``source`` merged over its bases."""
+    data, lines, texts, replace = _parse_full(_read(source), source)
+    files = [source]
+    if base_key not in data:
+        return data, lines, texts, {}, files
+    base = data.pop(base_key)
+    if not isinstance(base, str) or not base:
+        raise ConfigError(source, lines.get(base_key), base_key, "expected the path of a base file, relative to this one")
+    base_path = os.path.normpath(os.path.join(os.path.dirname(source), base))
+    here = os.path.realpath(source)
+    if os.path.realpath(base_path) in chain + [here]:
+        raise ConfigError(source, lines.get(base_key), base_key, f"{base} is a base of itself (bases form a cycle)")
+    if not os.path.isfile(base_path):
+        raise ConfigError(source, lines.get(base_key), base_key, f"file not found: {base} (looked for {base_path})")
+    lines.pop(base_key, None)
+    texts.pop(base_key, None)
+    b_data, b_lines, b_texts, b_sources, b_files = _parse_with_bases(base_path, base_key, chain + [here])
+    replaced = _replaced_paths(b_data, data, "", replace)
+
+    def keep(key: str) -> bool:
+        return not any(key == p or key.startswith(p + ".") for p in replaced)
+
+    merged_lines = {k: v for k, v in b_lines.items() if keep(k) and k != ""}
+    sources = {k: b_sources.get(k, base_path) for k in merged_lines}
+    merged_texts = {k: v for k, v in b_texts.items() if keep(k)}
+    merged_lines.update(lines)
+    merged_texts.update(texts)
+    for key in lines:
+        sources.pop(key, None)
+    return _deep_merge(b_data, data, "", replace), merged_lines, merged_texts, sources, files + b_files
+
+
+def _replaced_paths(base: Any, over: Any, path: str, replace: set[str]) -> list[str]:
+    """Keys whose base value the override replaces whole (so the base's sub-keys go)."""
+    out = []
+    for key, value in over.items():
+        kpath = _join(path, key)
+        if isinstance(value, dict) and isinstance(base.get(key), dict) and kpath not in replace:
+            out += _replaced_paths(base[key], value, kpath, replace)
+        elif key in base:
+            out.append(kpath)
+    return out
+
+
+def _deep_merge(base: Any, over: Any, path: str, replace: set[str]) -> Any:
+    merged = dict(base)
+    for key, value in over.items():
+        kpath = _join(path, key)
+        if isinstance(value, dict) and isinstance(merged.get(key), dict) and kpath not in replace:
+            merged[key] = _deep_merge(merged[key], value, kpath, replace)
+        else:
+            merged[key] = value
+    return merged
 
 
 def from_data(schema: type[T], data: Any, source: str = "<data>") -> T:

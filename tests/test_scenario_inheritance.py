@@ -1,0 +1,100 @@
+"""Scenario inheritance: ``base: other.yaml`` plus only what differs."""
+
+from __future__ import annotations
+
+import pytest
+
+from cellsim.config.typed_yaml import ConfigError, to_data
+from cellsim.scenario import export_scenario, load_scenario
+
+from conftest import ROOT, WELDING_CELL
+
+TWO_OPERATORS = ROOT / "scenarios" / "two_operators.yaml"
+
+
+def test_the_misuse_scenario_states_only_what_differs():
+    base, derived = load_scenario(WELDING_CELL).scenario, load_scenario(TWO_OPERATORS).scenario
+    assert derived.name == "two_operators" and "visitor" in derived.entities
+    # merged key by key: the operator's positions come from the base, its waits from the file
+    op = derived.entities["operator"]
+    assert op.waypoints["bench"].reach == base.entities["operator"].waypoints["bench"].reach
+    assert [w.wait for w in op.waypoints.values()] == [2.0, 6.0, 2.0, 4.0, 6.0]
+    assert set(derived.campaign.samplers) == {"operator_waits", "visitor_waits", "visitor_start", "visitor_spot"}
+    assert set(derived.validation.conditions) == set(base.validation.conditions) | {"Final:Visitor"}
+
+
+def test_a_scenario_with_a_base_exports_whole_and_loads_back_equal(tmp_path):
+    sf = load_scenario(TWO_OPERATORS)
+    exported = tmp_path / "flat.yaml"
+    exported.write_text(export_scenario(sf, destination_dir=tmp_path))
+    assert "base:" not in exported.read_text()
+    again = load_scenario(exported)
+    a, b = to_data(sf.scenario), to_data(again.scenario)
+    for d in (a, b):
+        d["entities"]["robot"]["model"] = d["behaviours"]["safety_controller"]["risk_model"] = None
+    assert a == b
+
+
+def _derived(tmp_path, body: str, name: str = "derived.yaml"):
+    folder = tmp_path / "elsewhere"
+    folder.mkdir(exist_ok=True)
+    path = folder / name
+    path.write_text(f"base: {WELDING_CELL}\n" + body)
+    return path
+
+
+def test_paths_in_the_base_stay_relative_to_the_base(tmp_path):
+    sf = load_scenario(_derived(tmp_path, "name: moved\n"))
+    model = sf.resolve_path("entities.robot.model", sf.scenario.entities["robot"].model)
+    assert model == (WELDING_CELL.parent / "models" / "ur10.urdf").resolve()
+    assert sf.files[:2] == [str(tmp_path / "elsewhere" / "derived.yaml"), str(WELDING_CELL)]
+
+
+def test_an_error_in_the_derived_file_names_that_file_and_line(tmp_path):
+    path = _derived(tmp_path, "name: bad\nentities:\n  range_detector:\n    close_below: 5.0\n")
+    with pytest.raises(ConfigError) as e:
+        load_scenario(path)
+    assert e.value.source == str(path) and e.value.line == 5
+    assert e.value.key == "entities.range_detector.close_below"
+
+
+def test_an_error_in_the_base_names_the_base_file(tmp_path):
+    base = tmp_path / "base.yaml"
+    base.write_text(WELDING_CELL.read_text().replace("close_below: 1.0", "close_below: 9.0").replace(
+        "model: models/ur10.urdf", f"model: {WELDING_CELL.parent / 'models' / 'ur10.urdf'}").replace(
+        "risk_model: welding_cell_risk_model.yaml", f"risk_model: {WELDING_CELL.parent / 'welding_cell_risk_model.yaml'}").replace(
+        "file: welding_cell_validation.yaml", f"file: {WELDING_CELL.parent / 'welding_cell_validation.yaml'}"))
+    derived = tmp_path / "derived.yaml"
+    derived.write_text("base: base.yaml\nname: d\n")
+    with pytest.raises(ConfigError) as e:
+        load_scenario(derived)
+    line = next(i for i, l in enumerate(base.read_text().splitlines(), 1) if "close_below: 9.0" in l)
+    assert (e.value.source, e.value.line) == (str(base), line)
+
+
+def test_a_cycle_of_bases_is_one_error(tmp_path):
+    (tmp_path / "a.yaml").write_text("base: b.yaml\nname: a\n")
+    (tmp_path / "b.yaml").write_text("base: a.yaml\nname: b\n")
+    with pytest.raises(ConfigError, match="a base of itself"):
+        load_scenario(tmp_path / "a.yaml")
+
+
+def test_a_missing_base_is_one_error_at_its_line(tmp_path):
+    (tmp_path / "a.yaml").write_text("name: a\nbase: nowhere.yaml\n")
+    with pytest.raises(ConfigError) as e:
+        load_scenario(tmp_path / "a.yaml")
+    assert e.value.line == 2 and "file not found: nowhere.yaml" in str(e.value)
+
+
+SHORT_CYCLE = "name: short_cycle\nbehaviours:\n  process_controller:\n    steps:\n      - {name: only, dwell: 1.0, activity: exchWrkp}\n"
+
+
+def test_a_list_in_the_derived_file_replaces_the_base_list(tmp_path):
+    # the base's restart_on_request still names the base's steps: found, at the base's line
+    with pytest.raises(ConfigError) as e:
+        load_scenario(_derived(tmp_path, SHORT_CYCLE))
+    assert e.value.source == str(WELDING_CELL) and "'bring_back' is not a step of the cycle" in str(e.value)
+    # a mapping tagged !replace replaces the base's instead of merging into it
+    path = _derived(tmp_path, SHORT_CYCLE + "    restart_on_request: !replace {}\n", "replaced.yaml")
+    controller = load_scenario(path).scenario.behaviours["process_controller"]
+    assert [s.name for s in controller.steps] == ["only"] and controller.restart_on_request == {}
