@@ -314,3 +314,38 @@ def test_a_number_variable_is_bound_to_a_number_channel_in_its_unit(tmp_path, ch
     else:
         with pytest.raises(ConfigError, match=expected):
             build_cell(sf, seed=0, duration=1.0, record=False)
+
+
+def test_a_risk_model_declares_its_own_phases(tmp_path):
+    text = SSM_MODEL.replace("hazards:\n", "phases: {values: [clear, warned, slowed, harmed], initial: clear, mishap: harmed}\nhazards:\n", 1)
+    text = text.replace("phase: inact", "phase: clear").replace("to: inact", "to: clear")
+    text = text.replace("to: act", "to: warned").replace("phase: act", "phase: warned")
+    text = text.replace("to: mit", "to: slowed").replace("phase: mit", "phase: slowed").replace("      mit: {", "      slowed: {")
+    path = tmp_path / "own.yaml"
+    path.write_text(text)
+    from cellsim.channels import number_type
+
+    system = SafetyController("sc", 0.02, load_risk_model(path), {"sep": number_type("m"), "safmod": enum_type(SafetyMode)},
+                              {"safmod": enum_type(SafetyMode)})
+    spec = next(spec for spec, _ in system.channels if spec.signal == "CLOSE")
+    assert spec.type.domain() == ["clear", "warned", "slowed", "harmed"]
+    context = system.CreateDefaultContext()
+    for sep in (0.5, 0.5):
+        system.monitored_port.FixValue(context, system.encode_monitored({"sep": sep, "safmod": "normal"}))
+        context.SetDiscreteState(system.EvalUniquePeriodicDiscreteUpdate(context))
+    assert system.phases[int(system.GetOutputPort("CLOSE").Eval(context)[0])] == "slowed"
+
+
+@pytest.mark.parametrize(
+    "edit, expected",
+    [
+        (("{phase: act, to: mit}", "{phase: act, to: mitigated}"), "'mitigated' is not a phase of this model"),
+        (("      mit: {safmod: ssmon}", "      done: {safmod: ssmon}"), "'done' is not a phase of this model"),
+        (("hazards:\n", "phases: {values: [a, b], initial: c}\nhazards:\n"), "'c' is not one of the phases"),
+    ],
+)
+def test_phases_are_checked(tmp_path, edit, expected):
+    path = tmp_path / "bad.yaml"
+    path.write_text(SSM_MODEL.replace(*edit, 1))
+    with pytest.raises(ConfigError, match=expected):
+        load_risk_model(path)

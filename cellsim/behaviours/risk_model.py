@@ -37,6 +37,7 @@ from cellsim.logic.syntax import BoolDomain, EnumDomain, FormulaError, NumberDom
 from cellsim.vocabulary import HazardPhase
 
 PHASES = HazardPhase.names()
+"""The phases of a risk model that declares none (those of the published case study)."""
 
 
 @dataclass
@@ -79,9 +80,6 @@ class Transition:
     """The guard must have held this long (s) before the transition fires."""
 
     def __post_init__(self):
-        for key in ("phase", "to"):
-            if getattr(self, key) not in PHASES:
-                raise FieldError(key, f"'{getattr(self, key)}' is not a hazard phase ({', '.join(PHASES)})")
         if self.after < 0:
             raise FieldError("after", "must not be negative")
 
@@ -95,6 +93,27 @@ class Hazard:
 
 
 @dataclass
+class Phases:
+    """The phases every hazard of the model goes through: the model's own words."""
+
+    values: list[str] = field(default_factory=lambda: list(PHASES))
+    initial: str = "inact"
+    """The phase every hazard starts in: not present."""
+    mishap: str | None = "mis"
+    """The phase that means harm happened (null: the model has none)."""
+
+    def __post_init__(self):
+        if not self.values:
+            raise FieldError("values", "a risk model needs at least one phase")
+        if len(set(self.values)) != len(self.values):
+            raise FieldError("values", "phases must differ")
+        if self.initial not in self.values:
+            raise FieldError("initial", f"'{self.initial}' is not one of the phases ({', '.join(self.values)})")
+        if self.mishap is not None and self.mishap not in self.values:
+            raise FieldError("mishap", f"'{self.mishap}' is not one of the phases ({', '.join(self.values)})")
+
+
+@dataclass
 class RiskModelFile:
     name: str
     monitored: dict[str, Variable]
@@ -102,6 +121,8 @@ class RiskModelFile:
     hazards: dict[str, Hazard]
     description: str = ""
     macros: dict[str, str] = field(default_factory=dict)
+    phases: Phases = field(default_factory=Phases)
+    """The hazards' phases, which one is initial and which the mishap."""
 
 
 # -- compiled form ----------------------------------------------------------------
@@ -131,11 +152,12 @@ class RiskModel:
     controlled: dict[str, Variable]
     hazards: tuple[CompiledHazard, ...]
     macros: dict[str, str]
+    phases: Phases = field(default_factory=Phases)
 
     def vocabulary(self) -> dict:
         """Variables guards (and safety conditions) may use: monitored ones and phases."""
         vocab = {name: var.logic_domain() for name, var in self.monitored.items()}
-        vocab.update({h.name: EnumDomain(PHASES) for h in self.hazards})
+        vocab.update({h.name: EnumDomain(tuple(self.phases.values)) for h in self.hazards})
         return vocab
 
     def demand_rank(self, variable: str, value) -> int:
@@ -163,13 +185,18 @@ def compile_risk_model(loaded: Loaded[RiskModelFile]) -> RiskModel:
     clash = hazard_names & (set(rm.monitored) | set(rm.macros))
     if clash:
         raise error("hazards", f"hazard names must differ from variables and macros: {', '.join(sorted(clash))}")
+    phases = rm.phases.values
     vocabulary = {name: var.logic_domain() for name, var in rm.monitored.items()}
-    vocabulary.update({h: EnumDomain(PHASES) for h in rm.hazards})
+    vocabulary.update({h: EnumDomain(tuple(phases)) for h in rm.hazards})
 
     hazards = []
     for hname, hazard in rm.hazards.items():
         transitions = []
         for i, tr in enumerate(hazard.transitions):
+            for end in ("phase", "to"):
+                if getattr(tr, end) not in phases:
+                    raise error(f"hazards.{hname}.transitions.{i}.{end}",
+                                f"'{getattr(tr, end)}' is not a phase of this model ({', '.join(phases)})")
             key = f"hazards.{hname}.transitions.{i}.when"
             try:
                 formula = parse(
@@ -180,8 +207,8 @@ def compile_risk_model(loaded: Loaded[RiskModelFile]) -> RiskModel:
                 raise error(key, e.message) from None
             transitions.append(CompiledTransition(tr.phase, tr.to, compile_predicate(formula, vocabulary), tr.after, tr.when))
         for phase, demands in hazard.demands.items():
-            if phase not in PHASES:
-                raise error(f"hazards.{hname}.demands.{phase}", f"'{phase}' is not a hazard phase")
+            if phase not in phases:
+                raise error(f"hazards.{hname}.demands.{phase}", f"'{phase}' is not a phase of this model ({', '.join(phases)})")
             for var, value in demands.items():
                 key = f"hazards.{hname}.demands.{phase}.{var}"
                 if var not in rm.controlled:
@@ -189,4 +216,4 @@ def compile_risk_model(loaded: Loaded[RiskModelFile]) -> RiskModel:
                 if value not in rm.controlled[var].domain:
                     raise error(key, f"{value!r} is not a value of {var} ({', '.join(map(str, rm.controlled[var].domain))})")
         hazards.append(CompiledHazard(hname, tuple(transitions), hazard.demands))
-    return RiskModel(rm.name, loaded.source, rm.monitored, rm.controlled, tuple(hazards), rm.macros)
+    return RiskModel(rm.name, loaded.source, rm.monitored, rm.controlled, tuple(hazards), rm.macros, rm.phases)

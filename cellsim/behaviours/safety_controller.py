@@ -29,9 +29,7 @@ from cellsim.channels import ChannelType, enum_type
 from cellsim.registry import ModuleKind
 from cellsim.scenario import SafetyControllerConfig
 from cellsim.systems import CellSystem, write_scalar
-from cellsim.vocabulary import HazardPhase
-
-_PHASES = HazardPhase.names()
+from cellsim.vocabulary import CodedEnum
 
 
 class SafetyController(CellSystem):
@@ -54,8 +52,11 @@ class SafetyController(CellSystem):
             for name, ctype in zip(self.monitored_names, self.monitored_types)
         ]
         self.monitored_port = self.declare_input("monitored", len(self.monitored_names))
+        # the risk model's own phases, in its words
+        self.phases = tuple(risk_model.phases.values)
+        self.phase_type = CodedEnum(f"{module}_phase", [(p, p) for p in self.phases])
         self._phase_groups = [
-            self.declare_channel(h.name, enum_type(HazardPhase), HazardPhase.INACTIVE, description=f"Phase of hazard {h.name}")
+            self.declare_channel(h.name, enum_type(self.phase_type), risk_model.phases.initial, description=f"Phase of hazard {h.name}")
             for h in self.hazards
         ]
         self._commands = []
@@ -65,7 +66,7 @@ class SafetyController(CellSystem):
             self._commands.append((name, var, group, self._encoder(ctype)))
         # each hazard's transitions by the phase they leave, in the order listed
         self._leaving = [
-            {phase: [(ti, tr) for ti, tr in enumerate(h.transitions) if tr.phase == phase] for phase in _PHASES}
+            {phase: [(ti, tr) for ti, tr in enumerate(h.transitions) if tr.phase == phase] for phase in self.phases}
             for h in self.hazards
         ]
         self._timed = [
@@ -97,7 +98,7 @@ class SafetyController(CellSystem):
                 values[name] = code
             else:
                 values[name] = decode[int(code)] if 0 <= code < len(decode) else None
-        phases = [_PHASES[int(context.get_discrete_state(g)[0])] for g in self._phase_groups]
+        phases = [self.phases[int(context.get_discrete_state(g)[0])] for g in self._phase_groups]
         for hazard, phase in zip(self.hazards, phases):
             values[hazard.name] = phase
         held, timing = self._timers(context, xd, values, phases) if self._timed else ({}, False)
@@ -107,7 +108,7 @@ class SafetyController(CellSystem):
             for ti, tr in self._leaving[hi][phase]:
                 if held.get((hi, ti), False) if tr.after > 0 else tr.guard(values):
                     phase = tr.to
-                    write_scalar(xd, self._phase_groups[hi], _PHASES.index(phase))
+                    write_scalar(xd, self._phase_groups[hi], self.phases.index(phase))
                     break
             new_phases.append(phase)
         changed = new_phases != phases
@@ -259,7 +260,7 @@ KIND = ModuleKind(
     file_fields=("risk_model",),
     summary="A generic engine executing a risk model (docs/risk-model.md): hazard phase machines and their demands.",
     channels=(
-        ("<hazard>", "enum", "each hazard's phase: inact / act / mit / mit1 / mit2 / res / mis"),
+        ("<hazard>", "enum", "each hazard's phase, in the phases the risk model declares"),
         ("<controlled variable>", "enum or bool", "the value commanded (null: no request)"),
     ),
 )
