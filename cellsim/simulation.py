@@ -5,7 +5,10 @@ so bad input leaves nothing behind, and claims the folder for itself (see
 :class:`RunFolder`). The output folder then holds
 
 * ``blackbox.sqlite``: every message (see ``cellsim.services.blackbox``);
-* ``scenario.yaml``: the resolved scenario, which re-runs the same run.
+* ``scenario.yaml``: the resolved scenario, which re-runs the same run;
+* ``inputs/``: copies of the files the run used (risk models, robot models),
+  which ``scenario.yaml`` refers to, so the folder re-runs alone (see
+  ``cellsim.provenance``).
 
 A run is a pure function of the scenario and the seed: the same inputs give
 identical ``messages`` rows.
@@ -26,7 +29,9 @@ from typing import Callable
 from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 
 from cellsim.config.typed_yaml import to_data
-from cellsim.scenario import ScenarioFile, export_scenario
+from cellsim.provenance import INPUTS, read_inputs, write_run_scenario
+from cellsim.provenance import provenance as make_provenance
+from cellsim.scenario import ScenarioFile
 from cellsim.services.blackbox import BlackBox, BlackBoxWriter
 from cellsim.services.recorder import DRAIN_PERIOD
 from diagrams.cell import CellDiagram, build_cell
@@ -147,7 +152,7 @@ class RunFolder:
             )
 
 
-RUN_FOLDERS: tuple[str, ...] = ()
+RUN_FOLDERS: tuple[str, ...] = (INPUTS,)
 """Sub-folders a run writes, removed with the run on ``overwrite``."""
 
 
@@ -162,12 +167,20 @@ def simulate(
     realtime_rate: float = 0.0,
     physical_sources: dict | None = None,
     on_progress: Callable[[float, float], None] | None = None,
+    provenance: dict | None = None,
 ) -> RunSummary:
-    """Simulate ``sf`` headless (or at ``realtime_rate``), recording to ``out_dir``."""
+    """Simulate ``sf`` headless (or at ``realtime_rate``), recording to ``out_dir``.
+
+    The black box's ``provenance`` metadata is :func:`cellsim.provenance.provenance`
+    of the run's inputs, updated with ``provenance`` (a campaign names itself there).
+    """
     sc = sf.scenario
     seed = sc.seed if seed is None else seed
     duration = sc.duration if duration is None else duration
     out_dir = Path(out_dir)
+    # -- provenance: the input files, read once; the run folder keeps copies of these bytes
+    inputs = read_inputs(sf)
+    record = make_provenance(inputs.identity(sf.overrides, seed, duration), **(provenance or {}))
 
     # Everything that can fail on bad input happens before the folder is touched:
     # building the diagram checks the wiring and loads the risk model, and the
@@ -179,19 +192,17 @@ def simulate(
 
         case = cell_safety_case(sf, cell)
     simulator = make_simulator(cell, realtime_rate)
+    inputs.check_unchanged()  # what was built is what was read, copied and hashed
     with RunFolder(out_dir, overwrite):
-        summary = _record(sf, cell, simulator, out_dir, seed, duration, on_progress)
+        summary = _record(sf, cell, simulator, out_dir, seed, duration, on_progress, inputs, record)
     summary.safety_case = case
     return summary
 
 
-def _record(sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_progress) -> RunSummary:
-    """Write the resolved scenario, then simulate while recording the black box."""
+def _record(sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_progress, inputs, record) -> RunSummary:
+    """Write the resolved scenario and its input files, then simulate while recording the black box."""
     sc = sf.scenario
-    resolved = export_scenario(sf, destination_dir=out_dir)
-    tmp = out_dir / (RESOLVED_SCENARIO + ".tmp")
-    tmp.write_text(resolved)
-    tmp.replace(out_dir / RESOLVED_SCENARIO)
+    write_run_scenario(sf, inputs, out_dir, RESOLVED_SCENARIO, seed, duration)
 
     recorder_cfg = next(iter(sc.modules_of_kind("blackbox").values()), None)
     writer = BlackBoxWriter(out_dir / BLACKBOX, batch_size=recorder_cfg.batch_size if recorder_cfg else 5000)
@@ -210,6 +221,7 @@ def _record(sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_p
             seed=seed,
             duration=duration,
             versions=package_versions(),
+            provenance=record,
             status="running",
         )
         simulator.Initialize()

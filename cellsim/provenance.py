@@ -1,0 +1,342 @@
+"""Provenance: what a run or a campaign was made of, and by which cellsim.
+
+A run is a pure function of its *inputs*: the scenario file and its bases,
+every file the loaded scenario uses (the validation file it names, each
+safety controller's risk model, each robot's model and the files that model
+names, such as meshes), the ``--set`` overrides, the seed, the duration and
+cellsim's version. :func:`read_inputs` reads those files once; :meth:`Inputs.identity`
+is their *content identity*: a SHA-256 over the files' bytes (not their paths,
+so it is the same on every machine) and the other inputs, with a digest per
+file so that :func:`changes` says what differs between two identities
+("risk model scenarios/welding_cell_risk_model.yaml changed").
+
+Two uses:
+
+* A campaign is identified by the identity of its inputs and runs from a
+  snapshot of them (:func:`snapshot_scenario`, ``OUT/inputs/``), so a file
+  edited while it runs, or before it is resumed, never leaks into it.
+* A run folder holds copies of the files the run used (``inputs/<module>/``),
+  which its ``scenario.yaml`` (written whole: no base, validation inline)
+  refers to (:func:`write_run_scenario`): re-running
+  it a year later, from wherever the folder was moved, gives the same black box.
+
+:func:`provenance` is the record kept in every black box (metadata key
+``provenance``) and in a campaign's ``results.json``: versions, command line,
+working directory, time, and the content identity of the inputs.
+
+Not followed: ``package://`` and other URIs in a robot model (resolved by
+Drake's package map, not by cellsim), and files a robot model names by an
+absolute path are hashed but neither copied nor snapshotted.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import platform
+import shlex
+import sys
+import xml.etree.ElementTree as ElementTree
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+import cellsim
+from cellsim.config.typed_yaml import ConfigError, dump_yaml, from_data, to_data
+
+IDENTITY_FORMAT = 1
+"""Version of the identity record; identities of different formats never match."""
+INPUTS = "inputs"
+"""The folder, in a run folder or a campaign folder, holding copies of the inputs."""
+ROLES = {"model": "robot model", "risk_model": "risk model"}
+"""How a message names the file of a scenario field (the field name by default)."""
+MODEL_SUFFIXES = (".urdf", ".sdf", ".xml")
+"""Robot models read as XML for the files they name (``<mesh filename=...>``, ``<uri>``)."""
+
+
+class SnapshotError(Exception):
+    """The inputs could not be snapshotted so that they load back the same."""
+
+
+@dataclass(frozen=True)
+class InputFile:
+    """One input file, read once: a snapshot or a copy is made of these very bytes."""
+
+    key: str
+    """Stable name: ``scenario``, ``validation.file``, the scenario key naming the file
+    (``behaviours.safety_controller.risk_model``) or, for a file named by another,
+    ``<that file's key>:<the reference as written>``."""
+    role: str
+    """What a message calls it: ``risk model``, ``validation file``, ..."""
+    path: Path
+    """Where it was read (absolute)."""
+    data: bytes = field(repr=False, compare=False)
+    sha256: str = ""
+    module: str | None = None
+    """The module whose field names the file (files named in the scenario)."""
+    parent: str | None = None
+    """The key of the file naming this one (a mesh of a URDF)."""
+    ref: str | None = None
+    """The reference as written in the parent."""
+
+    @classmethod
+    def read(cls, key: str, role: str, path: Path, **kwargs) -> "InputFile":
+        data = Path(path).read_bytes()
+        return cls(key, role, Path(path), data, hashlib.sha256(data).hexdigest(), **kwargs)
+
+    @property
+    def named_absolutely(self) -> bool:
+        """Named by an absolute path in its parent: cannot be relocated with it."""
+        return self.ref is not None and (self.ref.startswith("file://") or os.path.isabs(self.ref))
+
+
+@dataclass
+class Inputs:
+    """The input files of a loaded scenario, the scenario file first."""
+
+    files: list[InputFile]
+
+    def identity(self, overrides, seed: int | None, duration: float | None) -> dict:
+        """The content identity of these files with the other inputs of a run or campaign.
+
+        ``hash`` covers the files' digests (by key, not path), the overrides, seed,
+        duration and cellsim's version; ``files`` also names where each was read.
+        """
+        essence = {
+            "format": IDENTITY_FORMAT,
+            "cellsim": cellsim.__version__,
+            "overrides": list(overrides),
+            "seed": seed,
+            "duration": duration,
+            "files": {f.key: f.sha256 for f in self.files},
+        }
+        digest = hashlib.sha256(json.dumps(essence, sort_keys=True).encode()).hexdigest()
+        return {
+            "hash": digest,
+            **{k: v for k, v in essence.items() if k != "files"},
+            "files": {f.key: {"role": f.role, "path": str(f.path), "sha256": f.sha256} for f in self.files},
+        }
+
+    def digests(self) -> dict[str, str]:
+        return {f.key: f.sha256 for f in self.files}
+
+    def check_unchanged(self) -> None:
+        """ConfigError if a file no longer holds the bytes read (edited meanwhile)."""
+        for f in self.files:
+            try:
+                same = f.path.read_bytes() == f.data
+            except OSError:
+                same = False
+            if not same:
+                raise ConfigError(str(f.path), None, "", f"the {f.role} changed while the run was being prepared; run again")
+
+    def write_snapshot(self, dest: Path) -> Path:
+        """Write every file under ``dest``, keeping their layout relative to one another;
+        returns the scenario's copy."""
+        root = Path(os.path.commonpath([f.path.parent for f in self.files]))
+        for f in self.files:
+            target = dest / f.path.relative_to(root)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_bytes(f.data)
+        return dest / self.files[0].path.relative_to(root)
+
+
+def read_inputs(sf) -> Inputs:
+    """The files the loaded scenario ``sf`` uses, read now (OSError if one cannot be)."""
+    from cellsim.registry import kind_of
+
+    files = [InputFile.read("scenario", "scenario", Path(sf.source).resolve())]
+    # the scenario's bases (``base: other.yaml``), nearest first
+    for i, base in enumerate((getattr(sf.loaded, "files", None) or [sf.source])[1:], start=1):
+        files.append(InputFile.read(f"base {i}", "scenario base", Path(base).resolve()))
+    if sf.validation_file is not None:
+        files.append(InputFile.read("validation.file", "validation file", Path(sf.validation_file.source).resolve()))
+    sc = sf.scenario
+    for section in ("entities", "behaviours", "services"):
+        for module, cfg in getattr(sc, section).items():
+            for name in kind_of(cfg).file_fields:
+                key = f"{section}.{module}.{name}"
+                role = ROLES.get(name, name.replace("_", " "))
+                top = InputFile.read(key, role, sf.resolve_path(key, getattr(cfg, name)), module=module)
+                files.append(top)
+                files.extend(_named_files(top))
+    return Inputs(files)
+
+
+def _named_files(f: InputFile) -> list[InputFile]:
+    """The existing local files an XML robot model names (meshes and the like)."""
+    if f.path.suffix.lower() not in MODEL_SUFFIXES:
+        return []
+    try:
+        tree = ElementTree.fromstring(f.data)
+    except ElementTree.ParseError:
+        return []  # not ours to judge: Drake reports a malformed model
+    found: dict[str, InputFile] = {}
+    for element in tree.iter():
+        refs = [element.attrib.get("filename")]
+        if isinstance(element.tag, str) and element.tag.rpartition("}")[2] == "uri":
+            refs.append(element.text)
+        for ref in refs:
+            ref = (ref or "").strip()
+            if not ref or ref in found:
+                continue
+            local = ref.removeprefix("file://")
+            if "://" in local:
+                continue  # package:// and the like: Drake's package map, not a path
+            path = Path(os.path.normpath(f.path.parent / local))
+            if path.is_file():
+                found[ref] = InputFile.read(f"{f.key}:{ref}", f"file of the {f.role}", path, parent=f.key, ref=ref)
+    return list(found.values())
+
+
+# --------------------------------------------------------------------------- identities
+
+
+def changes(old: dict, new: dict) -> list[str]:
+    """What differs between two content identities, in words (empty if nothing)."""
+    found = []
+    if old.get("format") != new.get("format"):
+        found.append(f"inputs recorded in format {old.get('format')}, this cellsim writes {new.get('format')}")
+    if old.get("cellsim") != new.get("cellsim"):
+        found.append(f"cellsim version {old.get('cellsim')} -> {new.get('cellsim')}")
+    old_files, new_files = old.get("files", {}), new.get("files", {})
+    for key in [*old_files, *(k for k in new_files if k not in old_files)]:
+        a, b = old_files.get(key), new_files.get(key)
+        if a is None:
+            found.append(f"{b['role']} {show_path(b['path'])} added")
+        elif b is None:
+            found.append(f"{a['role']} {show_path(a['path'])} no longer used")
+        elif a["sha256"] != b["sha256"]:
+            if Path(a["path"]).name == Path(b["path"]).name:  # the same file, perhaps moved with the campaign
+                found.append(f"{b['role']} {show_path(b['path'])} changed")
+            else:
+                found.append(f"{b['role']} {show_path(a['path'])} -> {show_path(b['path'])} (other content)")
+    if old.get("overrides") != new.get("overrides"):
+        found.append(f"overrides differ ({_sets(old.get('overrides'))} -> {_sets(new.get('overrides'))})")
+    if old.get("seed") != new.get("seed"):
+        found.append(f"seed {old.get('seed')} -> {new.get('seed')}")
+    if old.get("duration") != new.get("duration"):
+        found.append(f"duration {_duration(old.get('duration'))} -> {_duration(new.get('duration'))}")
+    if not found and old.get("hash") != new.get("hash"):
+        found.append("inputs differ")
+    return found
+
+
+def show_path(path: str | os.PathLike) -> str:
+    """A path relative to the working directory when it is below it."""
+    try:
+        return str(Path(path).relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
+
+
+def _sets(overrides) -> str:
+    return " ".join(f"--set {shlex.quote(o)}" for o in overrides) if overrides else "none"
+
+
+def _duration(value) -> str:
+    return "the scenario's" if value is None else f"{value:g} s"
+
+
+# --------------------------------------------------------------------------- snapshots and run folders
+
+
+def snapshot_scenario(inputs: Inputs, dest: Path, overrides) -> tuple[Path, tuple[str, ...]]:
+    """Snapshot ``inputs`` into ``dest``; returns the scenario to load from it and the
+    overrides to add to ``overrides`` so that it uses the snapshot's files.
+
+    Files named by relative paths keep their layout and need none; one named by an
+    absolute path (or through a symbolic link the layout does not follow) is pinned
+    to its copy by an override. The snapshot must load back to the very inputs
+    read, or SnapshotError.
+    """
+    scenario = inputs.write_snapshot(dest)
+    top = [f for f in inputs.files if f.parent is None and f.key != "scenario"]
+    root = Path(os.path.commonpath([f.path.parent for f in inputs.files]))
+    all_pinned = tuple(f"{f.key}={json.dumps(str(dest / f.path.relative_to(root)))}" for f in top)
+    problem = "the copies load back to other files"
+    for pins in ((), all_pinned):
+        from cellsim.scenario import load_scenario
+
+        try:
+            again = read_inputs(load_scenario(scenario, [*overrides, *pins]))
+        except (ConfigError, OSError) as e:
+            problem = str(e)
+            continue
+        inside = all(f.path.resolve().is_relative_to(dest.resolve()) for f in again.files if not f.named_absolutely)
+        if inside and again.digests() == inputs.digests():
+            return scenario, pins
+    raise SnapshotError(f"cannot snapshot the inputs into {dest}: {problem}")
+
+
+def write_run_scenario(
+    sf, inputs: Inputs, out_dir: Path, name: str = "scenario.yaml", seed: int | None = None, duration: float | None = None
+) -> None:
+    """Write ``out_dir/name``, the resolved scenario with the run's ``seed`` and
+    ``duration``, and copies of the files it uses.
+
+    The copies are ``inputs/<module>/<file>`` (a robot model with the files it
+    names, in their layout) and the scenario refers to them, so the folder
+    re-runs alone, wherever it is. The validation section is written inline.
+    The scenario is written first: a folder holding it is a run's (see
+    ``cellsim.simulation.RunFolder``).
+    """
+    from cellsim.scenario import Scenario
+
+    copy = from_data(Scenario, to_data(sf.scenario))
+    copy.seed = copy.seed if seed is None else seed
+    copy.duration = copy.duration if duration is None else duration
+    placed: dict[str, Path] = {}
+    folders: set[Path] = set()
+    for f in inputs.files:
+        if f.module is None:
+            continue  # the scenario, written resolved; the validation file, inline
+        named = [d for d in inputs.files if d.parent == f.key and not d.named_absolutely]
+        root = Path(os.path.commonpath([f.path.parent, *(d.path.parent for d in named)]))
+        section, module, field_name = f.key.split(".")
+        folder = Path(INPUTS) / module
+        if folder in folders:
+            folder = Path(INPUTS) / f"{module}-{field_name}"
+        folders.add(folder)
+        placed[f.key] = folder / f.path.relative_to(root)
+        placed.update({d.key: folder / d.path.relative_to(root) for d in named})
+        setattr(getattr(copy, section)[module], field_name, placed[f.key].as_posix())
+    header = f"Resolved scenario exported by cellsim from {sf.source}"
+    if sf.overrides:
+        header += "\nwith overrides: " + " ".join(sf.overrides)
+    if placed:
+        header += f"\nThe files it uses are copies, in {INPUTS}/, of those the run used."
+    tmp = out_dir / (name + ".tmp")
+    tmp.write_text(dump_yaml(copy, header=header))
+    tmp.replace(out_dir / name)
+    data = {f.key: f.data for f in inputs.files}
+    for key, relative in placed.items():
+        target = out_dir / relative
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(data[key])
+
+
+# --------------------------------------------------------------------------- the record
+
+
+def command_line() -> str:
+    """This process's command line, shell-quoted."""
+    return shlex.join(sys.argv)
+
+
+def provenance(identity: dict | None = None, **extra) -> dict:
+    """What produced a result: versions, command line, working directory, time, inputs."""
+    from cellsim.simulation import package_versions
+
+    record = {
+        "versions": package_versions(),
+        "command": command_line(),
+        "executable": sys.executable,
+        "cwd": os.getcwd(),
+        "platform": platform.platform(),
+        "created": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "inputs": identity,
+    }
+    record.update(extra)
+    return record
