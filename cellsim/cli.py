@@ -93,7 +93,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="simulate and check many sampled variants of a scenario",
         description="Draw --runs variants of the scenario from its samplers (campaign.samplers), simulate "
         "each in a worker process, check its safety conditions, use cases and coverage, and write "
-        "OUT/results.json and OUT/report.html. Re-running the same command on the same OUT resumes it. "
+        "OUT/results.json and OUT/report.html. Each run folder (OUT/runs/NNNN) holds copies of the files it "
+        "used and re-runs alone. Re-running the same command on the same OUT resumes it (a larger --runs "
+        "extends it) if its inputs are unchanged: the content of the scenario and of every file it uses, "
+        "the overrides, seed, duration and cellsim's version. If one changed, the campaign refuses, naming "
+        "it, unless --restart. "
         "Exits 1 if any run violates a condition, 2 if a run could not be simulated (a sampled value out of range).",
     )
     camp.add_argument("scenario", type=Path, help="scenario YAML file")
@@ -102,6 +106,13 @@ def build_parser() -> argparse.ArgumentParser:
     camp.add_argument("--seed", type=int, default=0, help="campaign seed: run i is a pure function of it and i (default 0)")
     camp.add_argument("--out", type=Path, help="campaign folder (default: campaigns/<scenario>-seed<seed>)")
     camp.add_argument("--duration", type=float, help="simulated seconds per run (default: the scenario's duration)")
+    camp.add_argument(
+        "--restart",
+        action="store_true",
+        help="discard the runs already in OUT and start the campaign afresh; needed to reuse an OUT whose "
+        "campaign had other inputs (an edited scenario, validation file, risk or robot model, other "
+        "overrides, seed, duration or cellsim version), since runs of different inputs are never mixed",
+    )
     _add_set(camp)
     camp.add_argument("--quiet", action="store_true", help="print nothing but errors")
     camp.set_defaults(handler=cmd_campaign)
@@ -364,7 +375,7 @@ def cmd_campaign(args) -> int:
     console = Console(stderr=True, quiet=args.quiet)
     try:
         with _campaign_progress(console, args.quiet, runs) as report:
-            outcome = run_campaign(plan, out, jobs=args.jobs, on_progress=report)
+            outcome = run_campaign(plan, out, jobs=args.jobs, on_progress=report, restart=args.restart)
     except CampaignError as e:
         raise InputError(str(e)) from None
     except KeyboardInterrupt:
@@ -439,6 +450,9 @@ def print_campaign(outcome) -> None:
     table.add_row("use cases", ", ".join(f"{u} {n}" for u, n in totals["use_cases"].items()) or "-")
     table.add_row("coverage", f"{totals['coverage']['overall']['fraction']:.0%} of situations")
     table.add_row("time per stage", ", ".join(f"{k} {v:.1f} s" for k, v in timing.items()))
+    inputs = (outcome.results.get("provenance") or {}).get("inputs") or {}
+    if inputs:
+        table.add_row("inputs", f"content hash {inputs['hash'][:16]} ({len(inputs['files'])} files, snapshot in {outcome.results_path.parent / 'inputs'})")
     table.add_row("results", str(outcome.results_path))
     table.add_row("report", str(outcome.report_path))
     console.print(table)

@@ -1,7 +1,9 @@
-"""``cellsim campaign``: sampled runs in workers, results, report, resume, re-running one run, misuse."""
+"""``cellsim campaign``: sampled runs in workers, results, report, resume, re-running one run, misuse;
+campaigns identified by the content of their inputs, self-contained run folders, provenance."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -15,7 +17,9 @@ import pytest
 from conftest import ROOT, WELDING_CELL
 
 from cellsim.cli import main
+from cellsim.scenario import load_scenario
 from cellsim.services.blackbox import BlackBox
+from cellsim.simulation import simulate
 
 TWO_OPERATORS = ROOT / "scenarios" / "two_operators.yaml"
 WAITS = [f"operator.waypoints.{w}.wait" for w in ("bench_entrance", "bench", "cell_entrance", "cell", "exit")]
@@ -99,7 +103,7 @@ def test_a_different_campaign_is_not_mixed_into_a_folder(campaign, capsys):
     _, out = campaign
     assert main(["campaign", str(WELDING_CELL), "--runs", "3", "--seed", "6", "--out", str(out), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "different campaign" in err
+    assert len(err.splitlines()) == 1 and "different campaign (seed 5 -> 6)" in err and "--restart" in err
 
 
 def test_bad_campaign_input_exits_2_and_writes_nothing(tmp_path, capsys):
@@ -228,3 +232,213 @@ def test_the_report_headline_coverage_is_the_campaigns(campaign):
     section = report[report.index('id="coverage"'):]
     assert "Overall: " in section and figure in section[: section.index("</p>")]
     assert "n/a" not in section[: section.index("</p>")]
+
+
+# --------------------------------------------------------------------------- identity by content, provenance
+
+RISK_MODEL = "welding_cell_risk_model.yaml"
+VALIDATION = "welding_cell_validation.yaml"
+# An edit that changes what the controller commands from t = 0: runs that read it differ.
+NORMAL_DEFAULT, SSMON_DEFAULT = "stopped], default: normal}", "stopped], default: ssmon}"
+
+
+def _sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _add_condition(validation: Path, name: str, formula: str) -> None:
+    text = validation.read_text()
+    assert text.count("\nconditions:\n") == 1
+    validation.write_text(text.replace("\nconditions:\n", f'\nconditions:\n  "{name}": {formula}\n'))
+
+
+@pytest.fixture(scope="module")
+def small_campaign(tmp_path_factory):
+    """Two 3 s runs of a copy of the welding cell's files; tests edit copies of both (see ``_copy_of``)."""
+    base = tmp_path_factory.mktemp("small")
+    scenarios = shutil.copytree(ROOT / "scenarios", base / "scenarios")
+    code = main(["campaign", str(scenarios / "welding_cell.yaml"), "--runs", "2", "--jobs", "2", "--duration", "3",
+                 "--seed", "2", "--out", str(base / "c"), "--quiet"])
+    # 3 s runs end with the operator still at the table: Final:Tbl, exit 1
+    assert code == 1 and {c for r in _results(base / "c")["runs"] for c in r["violations"]} == {"Final:Tbl"}
+    return base
+
+
+def _copy_of(small_campaign, tmp_path):
+    """A copy of the small campaign with its scenarios, and the command that resumes it."""
+    base = Path(shutil.copytree(small_campaign, tmp_path / "copy"))
+    args = ["campaign", str(base / "scenarios" / "welding_cell.yaml"), "--runs", "2", "--jobs", "2", "--duration", "3",
+            "--seed", "2", "--out", str(base / "c"), "--quiet"]
+    return base, args
+
+
+def test_the_same_content_elsewhere_resumes_without_redoing_a_run(small_campaign, tmp_path):
+    base, args = _copy_of(small_campaign, tmp_path)
+    kept = [(base / "c" / "runs" / f"000{i}" / "blackbox.sqlite").stat().st_mtime_ns for i in range(2)]
+    assert main(args) == 1
+    assert [(base / "c" / "runs" / f"000{i}" / "blackbox.sqlite").stat().st_mtime_ns for i in range(2)] == kept
+    assert _results(base / "c")["provenance"]["inputs"]["hash"] == _results(small_campaign / "c")["provenance"]["inputs"]["hash"]
+
+
+def test_resuming_after_the_validation_file_changed_refuses_and_restart_checks_the_new_condition(
+    small_campaign, tmp_path, capsys
+):
+    base, args = _copy_of(small_campaign, tmp_path)
+    out, validation = base / "c", base / "scenarios" / VALIDATION
+    before = (out / "results.json").read_text()
+    _add_condition(validation, "Always:stopped", "G(safmod == stopped)")  # violated by every run
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert f"holds a different campaign (validation file {validation} changed)" in err and "--restart" in err
+    assert (out / "results.json").read_text() == before  # nothing was run, nothing reported
+
+    assert main([*args, "--restart"]) == 1
+    results = _results(out)
+    assert [r["index"] for r in results["runs"]] == [0, 1]
+    for r in results["runs"]:
+        assert r["verdicts"]["Always:stopped"]["status"] == "violated" and "Always:stopped" in r["violations"]
+    assert results["totals"]["violations"]["Always:stopped"] == 2
+    assert results["provenance"]["inputs"]["files"]["validation.file"]["sha256"] == _sha(validation)
+
+
+def test_resuming_after_the_risk_model_changed_refuses_naming_it(small_campaign, tmp_path, capsys):
+    base, args = _copy_of(small_campaign, tmp_path)
+    out, risk = base / "c", base / "scenarios" / RISK_MODEL
+    risk.write_text(risk.read_text().replace(NORMAL_DEFAULT, SSMON_DEFAULT))
+    assert main([*args, "--runs", "3"]) == 2  # extending is resuming too
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"(risk model {risk} changed)" in err and "--restart" in err
+    assert not (out / "runs" / "0002").exists()
+
+    # the edit undone, the content is the campaign's again: it resumes and extends
+    risk.write_text(risk.read_text().replace(SSMON_DEFAULT, NORMAL_DEFAULT))
+    assert main([*args, "--runs", "3"]) == 1
+    assert [r["index"] for r in _results(out)["runs"]] == [0, 1, 2]
+
+
+def test_restart_refuses_a_folder_that_is_not_a_campaign_s(tmp_path, capsys):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("keep me")
+    assert main(["campaign", str(WELDING_CELL), "--runs", "1", "--out", str(out), "--restart", "--quiet"]) == 2
+    assert "not a campaign folder" in capsys.readouterr().err
+    assert (out / "notes.txt").read_text() == "keep me"
+
+
+def test_a_campaign_of_an_earlier_cellsim_is_refused_until_restarted(small_campaign, tmp_path, capsys):
+    base, args = _copy_of(small_campaign, tmp_path)
+    out = base / "c"
+    old_identity = {"scenario": str(base / "scenarios" / "welding_cell.yaml"), "overrides": [], "seed": 2, "duration": 3.0}
+    (out / "campaign.json").write_text(json.dumps({"identity": old_identity, "runs": 2}))
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "earlier cellsim" in err and "--restart" in err
+    assert main([*args, "--restart"]) == 1
+    plan = json.loads((out / "campaign.json").read_text())
+    assert plan["identity"]["hash"] == _results(out)["provenance"]["inputs"]["hash"]
+
+
+def test_provenance_is_in_results_and_every_black_box(small_campaign):
+    out, scenarios = small_campaign / "c", small_campaign / "scenarios"
+    results = _results(out)
+    record = results["provenance"]
+    assert set(record["versions"]) >= {"python", "cellsim", "drake", "numpy"}
+    assert record["command"] and record["cwd"] == os.getcwd() and record["created"]
+    identity = record["inputs"]
+    assert identity["hash"] == json.loads((out / "campaign.json").read_text())["identity"]["hash"]
+    assert (identity["seed"], identity["duration"], identity["overrides"]) == (2, 3.0, [])
+    originals = {
+        "scenario": scenarios / "welding_cell.yaml",
+        "validation.file": scenarios / VALIDATION,
+        "entities.robot.model": scenarios / "models" / "ur10.urdf",
+        "behaviours.safety_controller.risk_model": scenarios / RISK_MODEL,
+    }
+    assert {k: f["sha256"] for k, f in identity["files"].items()} == {k: _sha(p) for k, p in originals.items()}
+    # the runs were made from the campaign's snapshot of these files
+    assert {_sha(p) for p in (out / "inputs").rglob("*") if p.is_file()} == {_sha(p) for p in originals.values()}
+    for r in results["runs"]:
+        assert r["inputs_hash"] == identity["hash"]
+        with BlackBox(out / r["out"] / "blackbox.sqlite") as bb:
+            run = bb.metadata()["provenance"]
+        assert run["campaign"] == {"folder": str(out.resolve()), "scenario": str(originals["scenario"]),
+                                   "inputs_hash": identity["hash"], "run": r["index"]}
+        assert run["command"] == record["command"] and set(run["versions"]) == set(record["versions"])
+        files = run["inputs"]["files"]
+        assert all(Path(f["path"]).is_relative_to(out / "inputs") for f in files.values())
+        assert {k: f["sha256"] for k, f in files.items()} == {k: f["sha256"] for k, f in identity["files"].items()}
+        assert run["inputs"]["seed"] == r["seed"]
+
+
+def test_a_run_re_runs_from_its_folder_after_the_originals_are_edited(small_campaign, tmp_path):
+    base, _ = _copy_of(small_campaign, tmp_path)
+    run, risk = base / "c" / "runs" / "0001", base / "scenarios" / RISK_MODEL
+    assert sorted(p.relative_to(run).as_posix() for p in (run / "inputs").rglob("*") if p.is_file()) == [
+        "inputs/robot/ur10.urdf", "inputs/safety_controller/welding_cell_risk_model.yaml"
+    ]
+    risk.write_text(risk.read_text().replace(NORMAL_DEFAULT, SSMON_DEFAULT))
+    rerun = tmp_path / "rerun"
+    done = subprocess.run([sys.executable, "-m", "cellsim.cli", "simulate", str(run / "scenario.yaml"), "--out", str(rerun),
+                           "--quiet"], cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert done.returncode == 1, done.stderr  # Final:Tbl, as in the campaign
+    with BlackBox(run / "blackbox.sqlite") as original, BlackBox(rerun / "blackbox.sqlite") as again:
+        rows = original.rows()
+        assert again.rows() == rows
+    # the control: with the edited original, the same run is another run
+    edited = load_scenario(run / "scenario.yaml", [f"safety_controller.risk_model={risk}"])
+    simulate(edited, tmp_path / "edited")
+    with BlackBox(tmp_path / "edited" / "blackbox.sqlite") as bb:
+        assert bb.rows() != rows
+
+
+def _children(pid: int) -> dict[int, str]:
+    """Live child processes of ``pid``: their pid and start time (to tell a reused pid)."""
+    found = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid and fields[0] != "Z":  # after the name: state, ppid, ...; Z: ended
+            found[int(stat.parent.name)] = fields[19]  # starttime
+    return found
+
+
+def _alive(pid: int, started: str) -> bool:
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return False
+    return fields[19] == started and fields[0] != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc")
+def test_workers_end_when_the_campaign_process_is_killed(tmp_path):
+    out = tmp_path / "c"
+    command = [sys.executable, "-m", "cellsim.cli", "campaign", str(WELDING_CELL), "--runs", "40", "--jobs", "2",
+               "--out", str(out), "--quiet"]
+    child = subprocess.Popen(command, stdin=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                             env={**os.environ, "PYTHONPATH": str(ROOT)})
+    workers: dict[int, str] = {}
+    try:
+        deadline = time.monotonic() + 120.0
+        while not (out / "runs").is_dir() or not any((out / "runs").iterdir()) or len(_children(child.pid)) < 2:
+            assert child.poll() is None, child.stderr.read()
+            assert time.monotonic() < deadline, "the campaign started no run in 120 s"
+            time.sleep(0.05)
+        workers = _children(child.pid)
+        child.kill()  # SIGKILL: no chance to stop its workers itself
+        child.wait(timeout=30)
+        deadline = time.monotonic() + 10.0
+        while any(_alive(p, s) for p, s in workers.items()) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert [p for p, s in workers.items() if _alive(p, s)] == []
+        assert not (out / "results.json").exists()
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+        for pid, started in workers.items():
+            if _alive(pid, started):
+                os.kill(pid, signal.SIGKILL)

@@ -1,45 +1,67 @@
 """Test campaigns: many sampled variants of a scenario, simulated and checked in parallel.
 
-A campaign is a pure function of the scenario (with its ``--set`` overrides),
-the campaign seed and the number of runs. Run ``i`` draws its configuration
-from the scenario's samplers (``campaign.samplers``) and its simulation seed
-from ``(seed, i)`` (see :mod:`cellsim.campaign.samplers`), so any run can be
-redone alone, in any order, in any process.
+A campaign is a pure function of its inputs: the scenario and every file it
+uses (validation file, risk models, robot models), the ``--set`` overrides, the
+campaign seed, the duration and cellsim's version, and of the number of runs.
+Run ``i`` draws its configuration from the scenario's samplers
+(``campaign.samplers``) and its simulation seed from ``(seed, i)`` (see
+:mod:`cellsim.campaign.samplers`), so any run can be redone alone, in any
+order, in any process.
+
+A campaign is identified by the *content* of its inputs (see
+:mod:`cellsim.provenance`): a SHA-256 of the files' bytes with the overrides,
+seed, duration and cellsim's version. The campaign reads its files once and
+runs from a snapshot of them, so editing a file while it runs changes nothing.
 
 The output folder holds::
 
-    OUT/campaign.json        the plan: scenario, overrides, seed, samplers
+    OUT/campaign.json        the identity: content hash, per-file digests, overrides,
+                             seed, duration, cellsim version; and the number of runs
+    OUT/inputs/              the snapshot of the input files every run is made from
     OUT/runs/0007/           one folder per run, as written by ``cellsim simulate``,
-        blackbox.sqlite      ... its black box
-        scenario.yaml        ... the run's resolved scenario, seed included:
-                             ``cellsim simulate OUT/runs/0007/scenario.yaml`` redoes it
+        blackbox.sqlite      ... its black box, with its provenance in its metadata
+        scenario.yaml        ... the run's resolved scenario, seed included, validation
+                             inline: ``cellsim simulate OUT/runs/0007/scenario.yaml`` redoes it
+        inputs/              ... copies of the risk and robot models it used, which
+                             scenario.yaml refers to: the folder re-runs alone, anywhere
         result.json          ... its verdicts, use cases and covered situations;
                              written last, so its presence means the run is done
-    OUT/results.json         every run's result and the totals
+    OUT/results.json         every run's result, the totals and the provenance
     OUT/report.html          the self-contained report
 
 Running the same command again on the same ``OUT`` resumes: finished runs are
-kept, unfinished ones are redone. Asking for more runs extends the campaign.
+kept, unfinished ones are redone, and asking for more runs extends the
+campaign, as long as the inputs' content is the same. If anything changed, the
+campaign refuses with one line naming what changed; ``restart`` (``--restart``)
+discards the folder's runs and starts afresh. Runs of different inputs are
+never mixed.
+
+Workers end with the campaign process, however it ends (SIGKILL included).
 """
 
 from __future__ import annotations
 
+import ctypes
+import dataclasses
 import functools
 import json
 import multiprocessing
 import os
 import shutil
 import signal
+import sys
+import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
 from cellsim.campaign.samplers import draw_configuration, run_seed
 from cellsim.config.typed_yaml import to_data
+from cellsim.provenance import INPUTS, SnapshotError, changes, command_line, provenance, read_inputs, snapshot_scenario
 
 PLAN = "campaign.json"
 RESULTS = "results.json"
@@ -55,7 +77,11 @@ class CampaignError(Exception):
 
 @dataclass(frozen=True)
 class CampaignPlan:
-    """What defines a campaign; runs are numbered 0 .. runs-1."""
+    """What the user asks for; runs are numbered 0 .. runs-1.
+
+    The campaign's identity is the content of the files this names (see
+    :func:`cellsim.provenance.read_inputs`), not the path of the scenario.
+    """
 
     scenario: str
     """Absolute path of the scenario file."""
@@ -63,13 +89,6 @@ class CampaignPlan:
     seed: int
     runs: int
     duration: float | None = None
-
-    def identity(self) -> dict:
-        """Everything that must match for a folder to be resumed (all but the number of runs)."""
-        data = asdict(self)
-        data.pop("runs")
-        data["overrides"] = list(self.overrides)
-        return data
 
 
 def run_dir(out: Path, index: int) -> Path:
@@ -111,8 +130,12 @@ def _safety_case(plan: CampaignPlan):
     return scenario_safety_case(_base_scenario(plan))
 
 
-def execute_run(plan: CampaignPlan, out: Path, index: int) -> dict:
+def execute_run(plan: CampaignPlan, out: Path, index: int, origin: dict | None = None) -> dict:
     """Simulate and check run ``index``; returns its result (also written to its folder).
+
+    ``origin`` is the campaign's part of the run's provenance (its command line,
+    folder and content hash), recorded in the black box; the result carries the
+    content hash as ``inputs_hash``, so a resumed campaign keeps only its own runs.
 
     Never raises for a problem of the run itself: a run that fails is reported
     with ``status: failed`` and the error, and the campaign goes on.
@@ -128,6 +151,10 @@ def execute_run(plan: CampaignPlan, out: Path, index: int) -> dict:
     seed = run_seed(plan.seed, index)
     folder = run_dir(out, index)
     result: dict = {"index": index, "seed": seed, "configuration": configuration, "out": str(folder.relative_to(out))}
+    origin = origin or {}
+    if "campaign" in origin:
+        result["inputs_hash"] = origin["campaign"].get("inputs_hash")
+        origin = {**origin, "campaign": {**origin["campaign"], "run": index}}
     timing: dict[str, float] = {}
     try:
         started = time.perf_counter()
@@ -135,7 +162,7 @@ def execute_run(plan: CampaignPlan, out: Path, index: int) -> dict:
         case = _safety_case(plan)
         if folder.exists():
             shutil.rmtree(folder)  # an unfinished earlier attempt
-        summary = simulate(sf, folder)
+        summary = simulate(sf, folder, provenance=origin)
         timing["simulate"] = time.perf_counter() - started
         t0 = time.perf_counter()
         with BlackBox(folder / BLACKBOX) as bb:
@@ -194,31 +221,61 @@ class CampaignOutcome:
         return self.results["totals"]["violating_runs"]
 
 
-def prepare(plan: CampaignPlan, out: Path) -> list[dict]:
-    """Create or resume the campaign folder; returns the results of runs already done."""
+RESTART_HINT = "pass --restart to discard its runs and start afresh, or choose another --out"
+
+
+def prepare(plan: CampaignPlan, out: Path, identity: dict, restart: bool = False) -> list[dict]:
+    """Create, resume or (``restart``) start afresh the campaign folder; returns the
+    results of runs already done.
+
+    A folder is resumed only if it holds a campaign of the same ``identity``
+    (content of the inputs, see :mod:`cellsim.provenance`); otherwise CampaignError,
+    one line naming what changed. ``restart`` discards a campaign folder's runs
+    (never a folder that is not a campaign's).
+    """
     plan_path = out / PLAN
     if plan_path.exists():
-        try:
-            previous = json.loads(plan_path.read_text())
-        except json.JSONDecodeError as e:
-            raise CampaignError(f"{plan_path}: unreadable ({e}); choose another --out") from None
-        if previous.get("identity") != plan.identity():
-            raise CampaignError(
-                f"{out} holds a different campaign (scenario, overrides, seed or duration differ); choose another --out"
-            )
+        if restart:
+            discard(out)
+        else:
+            try:
+                previous = json.loads(plan_path.read_text())
+                old = previous.get("identity")
+            except (json.JSONDecodeError, AttributeError) as e:
+                raise CampaignError(f"{plan_path}: unreadable ({e}); {RESTART_HINT}") from None
+            if not isinstance(old, dict) or "hash" not in old:
+                raise CampaignError(
+                    f"{out} holds a campaign of an earlier cellsim, which did not record the content of its inputs, "
+                    f"so it cannot be resumed safely; {RESTART_HINT}"
+                )
+            differences = changes(old, identity)
+            if differences:
+                raise CampaignError(f"{out} holds a different campaign ({'; '.join(differences)}); {RESTART_HINT}")
     elif out.exists() and any(out.iterdir()):
         raise CampaignError(f"{out} exists and is not a campaign folder; choose another --out")
     out.mkdir(parents=True, exist_ok=True)
-    _write_json(plan_path, {"identity": plan.identity(), "runs": plan.runs})
+    _write_json(plan_path, {"identity": identity, "runs": plan.runs, "scenario": plan.scenario})
     done = []
     for index in range(plan.runs):
         path = run_dir(out, index) / RESULT
         if path.is_file():
             try:
-                done.append(json.loads(path.read_text()))
+                result = json.loads(path.read_text())
             except json.JSONDecodeError:
                 path.unlink()  # a result cut short: redo the run
+                continue
+            if result.get("inputs_hash") == identity["hash"]:
+                done.append(result)  # any other is redone: never count a run of other inputs
     return done
+
+
+def discard(out: Path) -> None:
+    """Remove what a campaign wrote in ``out``, the plan last (files of others stay)."""
+    for name in (RUNS, INPUTS):
+        shutil.rmtree(out / name, ignore_errors=True)
+    for name in (RESULTS, REPORT, RESULTS + ".tmp", PLAN + ".tmp"):
+        (out / name).unlink(missing_ok=True)
+    (out / PLAN).unlink(missing_ok=True)
 
 
 def run_campaign(
@@ -226,12 +283,14 @@ def run_campaign(
     out: str | os.PathLike,
     jobs: int = 1,
     on_progress: Callable[[Progress], None] | None = None,
+    restart: bool = False,
 ) -> CampaignOutcome:
     """Run (or resume) the campaign into ``out``; writes results.json and report.html.
 
-    Raises ConfigError for a bad scenario and CampaignError for a bad folder,
-    both before any run starts. KeyboardInterrupt stops the workers; finished
-    runs stay, and running the same campaign again resumes it.
+    Raises ConfigError for a bad scenario and CampaignError for a bad folder (one
+    holding a campaign of other inputs, unless ``restart``), both before any run
+    starts. KeyboardInterrupt stops the workers; finished runs stay, and running
+    the same campaign again resumes it.
     """
     from cellsim.scenario import load_scenario
     from cellsim.validation.check import scenario_safety_case
@@ -242,9 +301,25 @@ def run_campaign(
     # starts. The per-process caches serve the runs of this campaign only.
     _base_scenario.cache_clear()
     _safety_case.cache_clear()
-    sf = load_scenario(plan.scenario, plan.overrides)
+    given = load_scenario(plan.scenario, plan.overrides)
+    scenario_safety_case(given)
+    inputs = read_inputs(given)
+    identity = inputs.identity(plan.overrides, plan.seed, plan.duration)
+    results = {r["index"]: r for r in prepare(plan, out, identity, restart)}
+    # Every run, and the checks here, are made from the snapshot of the bytes hashed.
+    shutil.rmtree(out / INPUTS, ignore_errors=True)
+    try:
+        snapshot, pins = snapshot_scenario(inputs, out / INPUTS, plan.overrides)
+    except SnapshotError as e:
+        raise CampaignError(str(e)) from None
+    worker_plan = dataclasses.replace(plan, scenario=str(snapshot.resolve()), overrides=(*plan.overrides, *pins))
+    sf = load_scenario(worker_plan.scenario, worker_plan.overrides)
     case = scenario_safety_case(sf)
-    results = {r["index"]: r for r in prepare(plan, out)}
+    origin = {
+        "command": command_line(),
+        "cwd": os.getcwd(),
+        "campaign": {"folder": str(out.resolve()), "scenario": plan.scenario, "inputs_hash": identity["hash"]},
+    }
     resumed = len(results)
     todo = [i for i in range(plan.runs) if i not in results]
 
@@ -266,14 +341,15 @@ def run_campaign(
     if todo:
         if jobs <= 1:
             for index in todo:
-                results[index] = execute_run(plan, out, index)
+                results[index] = execute_run(worker_plan, out, index, origin)
                 report_progress()
         else:
-            _run_parallel(plan, out, todo, jobs, results, report_progress)
-    return finish(plan, out, sf, case, [results[i] for i in range(plan.runs)], resumed, wall_start)
+            _run_parallel(worker_plan, out, todo, jobs, results, report_progress, origin)
+    runs = [results[i] for i in range(plan.runs)]
+    return finish(plan, out, sf, case, runs, resumed, wall_start, provenance(identity))
 
 
-def _run_parallel(plan, out, todo, jobs, results, report_progress) -> None:
+def _run_parallel(plan, out, todo, jobs, results, report_progress, origin=None) -> None:
     # Fresh interpreters ("spawn"), not forks of this one: nothing of the parent's
     # Drake state is shared, and no helper process outlives the campaign. A
     # pydrake diagram holding Python systems is never freed (about 2.5 MB a
@@ -282,10 +358,11 @@ def _run_parallel(plan, out, todo, jobs, results, report_progress) -> None:
         max_workers=jobs,
         mp_context=multiprocessing.get_context("spawn"),
         max_tasks_per_child=RUNS_PER_WORKER,
-        initializer=_ignore_interrupts,
+        initializer=_init_worker,
+        initargs=(os.getpid(),),
     )
     try:
-        pending = {executor.submit(execute_run, plan, out, i) for i in todo}
+        pending = {executor.submit(execute_run, plan, out, i, origin) for i in todo}
         while pending:
             finished, pending = wait(pending, return_when=FIRST_COMPLETED)
             for future in finished:
@@ -303,14 +380,49 @@ def _run_parallel(plan, out, todo, jobs, results, report_progress) -> None:
     executor.shutdown(wait=True)
 
 
-def _ignore_interrupts() -> None:
+PR_SET_PDEATHSIG = 1
+"""prctl(2) option: the signal a process gets when its parent ends (Linux)."""
+PARENT_POLL = 0.5
+"""How often (s) a worker's watcher checks that the campaign process is alive."""
+
+
+def _init_worker(parent: int) -> None:
     """Workers leave Ctrl-C to the campaign, which cancels what has not started and
-    lets running runs finish, so an interruption loses no finished run."""
+    lets running runs finish, so an interruption loses no finished run; and they
+    end when the campaign process ends, however it ends."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _end_with_parent(parent)
 
 
-def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start: float) -> CampaignOutcome:
-    """Totals, results.json and report.html from the runs' results."""
+def _end_with_parent(parent: int) -> None:
+    """End this process as soon as ``parent`` (the campaign) ends, SIGKILL included.
+
+    On Linux the kernel kills it (``PR_SET_PDEATHSIG``; the executor creates
+    workers from threads that outlive them: the caller's and its manager
+    thread). Everywhere, a daemon thread also watches for the process being
+    re-parented, the portable sign that the parent is gone; it also covers a
+    parent that died before the prctl call.
+    """
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        except (OSError, AttributeError):
+            pass  # no usable libc: the watcher below still ends the worker
+    if os.getppid() != parent:
+        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(PARENT_POLL)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="cellsim-parent-watch", daemon=True).start()
+
+
+def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start: float, record: dict | None = None) -> CampaignOutcome:
+    """Totals, results.json and report.html from the runs' results; ``record`` is the
+    campaign's provenance (:func:`cellsim.provenance.provenance`)."""
     from cellsim.campaign.report import write_report
     from cellsim.services.blackbox import BlackBox, BlackBoxError
     from cellsim.simulation import BLACKBOX
@@ -336,6 +448,7 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
             "use_cases": dict(sc.validation.use_cases),
             "samplers": {name: to_data(s) for name, s in sc.campaign.samplers.items()},
         },
+        "provenance": record,
         "runs": [{**r, "rerun": _rerun_command(out, r)} for r in runs],
         "totals": {
             "runs": len(runs),
