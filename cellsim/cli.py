@@ -8,7 +8,9 @@ file, line and key); 130 interrupted.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import signal
 import sys
 from datetime import datetime
 from pathlib import Path
@@ -21,17 +23,27 @@ class InputError(Exception):
 
 
 def main(argv: list[str] | None = None) -> int:
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # also while starting up: importing Drake takes a while
+        print("cellsim: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "handler", None):
         parser.print_help(sys.stderr)
         return EXIT_INPUT
-    from cellsim.config.typed_yaml import ConfigError
-    from cellsim.simulation import OutputExistsError
+    with _interrupt_deferred():  # pydrake's loader reports an interrupt with its own traceback
+        from cellsim.config.typed_yaml import ConfigError
+        from cellsim.live.session import SessionConfigError
+        from cellsim.simulation import OutputExistsError
 
     try:
         return args.handler(args)
-    except (ConfigError, OutputExistsError, InputError) as e:
+    except (ConfigError, OutputExistsError, InputError, SessionConfigError) as e:
         print(f"cellsim: error: {e}", file=sys.stderr)
         return EXIT_INPUT
     except OSError as e:  # an output path that cannot be written, a file that vanished
@@ -43,12 +55,25 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_INTERRUPTED
 
 
+@contextlib.contextmanager
+def _interrupt_deferred():
+    """Act on Ctrl-C only once the block is done (then as KeyboardInterrupt)."""
+    interrupted = []
+    previous = signal.signal(signal.SIGINT, lambda *_: interrupted.append(True))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if interrupted:
+        raise KeyboardInterrupt
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="cellsim",
         description="Scenario digital twins of collaborative robot cells: simulate them headless, "
         "record black boxes, and gather safety evidence.",
-        epilog="Exit codes: 0 ok, 1 safety finding, 2 usage or input error.",
+        epilog="Exit codes: 0 ok, 1 safety finding, 2 usage or input error, 130 interrupted.",
     )
     sub = parser.add_subparsers(metavar="COMMAND")
 

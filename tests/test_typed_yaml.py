@@ -211,7 +211,7 @@ def test_malformed_yaml() -> None:
     err = error_of(VALID + "---\nname: again\n")
     assert err.line == 21 and "single document" in err.problem
     err = error_of("name: " + "[" * 5000 + "]" * 5000)
-    assert (err.line, err.problem) == (None, "malformed YAML: nested too deeply")
+    assert (err.line, err.problem) == (1, "malformed YAML: nested deeper than 100 levels")
     err = error_of(edit(6, "    name: !custom ur5"))
     assert err.line == 6 and err.key == "entities.arm.name"
     assert err.problem.startswith("malformed YAML: ")

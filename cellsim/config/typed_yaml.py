@@ -90,6 +90,10 @@ class FieldError(ValueError):
         self.message = message
 
 
+MAX_MESSAGE = 1000
+"""Longest error line, in characters."""
+
+
 class ConfigError(Exception):
     """One configuration problem: ``source:line: key: problem``."""
 
@@ -103,7 +107,8 @@ class ConfigError(Exception):
     def __str__(self) -> str:
         where = self.source if self.line is None else f"{self.source}:{self.line}"
         text = f"{where}: {self.key}: {self.problem}" if self.key else f"{where}: {self.problem}"
-        return text.replace("\r", "\\r").replace("\n", "\\n")  # always one line
+        text = text.replace("\r", "\\r").replace("\n", "\\n")  # always one line
+        return text if len(text) <= MAX_MESSAGE else text[: MAX_MESSAGE - 1] + "…"  # never a value dumped whole
 
 
 @dataclass
@@ -297,8 +302,58 @@ def _parse(text: str, source: str) -> tuple[Any, dict[str, int], dict[str, str]]
     return data, lines, texts
 
 
+MAX_DEPTH = 100
+"""Deepest nesting of lists and mappings a file may have."""
+MAX_NODES = 200_000
+"""Most values a file may expand to, aliases counted as often as they are used."""
+
+
+def _check_size(text: str, source: str) -> None:
+    """Refuse, in bounded time and memory, a document too deep or that aliases expand too far.
+
+    A first pass over the parser's events (libyaml's parser keeps its own stack,
+    so depth costs no recursion) counts nesting and the expanded size of every
+    anchor: 100 000 nested brackets, which would overflow the composer's stack,
+    and a "billion laughs" of aliases of aliases are one error line each.
+    """
+    loader = _Loader(text)
+    frames: list[list] = [[None, 0]]  # [anchor, expanded size] of each open collection
+    sizes: dict[str, int] = {}
+    try:
+        while True:
+            event = loader.get_event()
+            if event is None or isinstance(event, yaml.StreamEndEvent):
+                break
+            if isinstance(event, (yaml.SequenceStartEvent, yaml.MappingStartEvent)):
+                frames.append([event.anchor, 1])
+                if len(frames) - 1 > MAX_DEPTH:
+                    raise ConfigError(source, event.start_mark.line + 1, "",
+                                      f"malformed YAML: nested deeper than {MAX_DEPTH} levels")
+            elif isinstance(event, (yaml.SequenceEndEvent, yaml.MappingEndEvent)):
+                anchor, size = frames.pop()
+                if anchor is not None:
+                    sizes[anchor] = size
+                frames[-1][1] += size
+            elif isinstance(event, yaml.ScalarEvent):
+                if event.anchor is not None:
+                    sizes[event.anchor] = 1
+                frames[-1][1] += 1
+            elif isinstance(event, yaml.AliasEvent):
+                frames[-1][1] += sizes.get(event.anchor, 1)
+            else:
+                continue
+            if frames[-1][1] > MAX_NODES:
+                raise ConfigError(source, event.start_mark.line + 1, "",
+                                  f"malformed YAML: expands to more than {MAX_NODES} values (aliases of aliases?)")
+    except yaml.YAMLError:
+        return  # the composer reports malformed YAML with its position
+    finally:
+        loader.dispose()
+
+
 def _parse_full(text: str, source: str) -> tuple[Any, dict[str, int], dict[str, str], set[str]]:
     """(data, line of each key, source text of each scalar, paths of mappings tagged !replace)."""
+    _check_size(text, source)
     loader = _Loader(text)
     try:
         try:
