@@ -198,9 +198,13 @@ def cmd_simulate(args) -> int:
 
     from cellsim.simulation import simulate
 
-    if args.duration is not None and args.duration <= 0:
-        raise InputError(f"--duration must be positive, got {args.duration}")
+    from cellsim.scenario import check_run_length, check_seed
+
     sf = _load(args)
+    if args.duration is not None:
+        check_run_length(sf, args.duration, "--duration")
+    if args.seed is not None:
+        check_seed(args.seed, "--seed")
     out = args.out or Path("runs") / f"{sf.scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"
     console = Console(stderr=True, quiet=args.quiet)
     meshcat = None
@@ -389,11 +393,12 @@ def cmd_campaign(args) -> int:
     for flag in ("runs", "jobs"):
         if getattr(args, flag) is not None and getattr(args, flag) < 1:
             raise InputError(f"--{flag} must be at least 1, got {getattr(args, flag)}")
-    if args.seed < 0:
-        raise InputError(f"--seed must be non-negative, got {args.seed}")
-    if args.duration is not None and args.duration <= 0:
-        raise InputError(f"--duration must be positive, got {args.duration}")
+    from cellsim.scenario import check_run_length, check_seed
+
+    check_seed(args.seed, "--seed")
     sf = _load(args)
+    if args.duration is not None:
+        check_run_length(sf, args.duration, "--duration")
     runs = args.runs or sf.scenario.campaign.runs
     out = args.out or Path("campaigns") / f"{sf.scenario.name}-seed{args.seed}"
     plan = CampaignPlan(str(args.scenario.resolve()), tuple(args.overrides), args.seed, runs, args.duration)
@@ -553,10 +558,10 @@ def cmd_modules(args) -> int:
         return EXIT_OK
     console.print(f"[bold]{e(info['kind'])}[/bold] ({info['section']}): {e(info['summary'])}")
     params = Table(title="parameters", title_justify="left")
-    for column in ("name", "type", "default", "meaning"):
+    for column in ("name", "type", "default", "valid range", "meaning"):
         params.add_column(column, style="bold" if column == "name" else None)
     for p in info["parameters"]:
-        params.add_row(e(p["name"]), e(p["type"]), e(p["default"]), e(p["doc"]))
+        params.add_row(e(p["name"]), e(p["type"]), e(p["default"]), e(p["range"]), e(p["doc"]))
     console.print(params)
     if info["channels"]:
         channels = Table(title=f"channels ({info['kind']} module NAME publishes NAME.signal)", title_justify="left")

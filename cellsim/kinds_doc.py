@@ -25,7 +25,25 @@ class Parameter:
     name: str
     type: str
     default: str
+    range: str
     doc: str
+
+
+def range_text(tp) -> str:
+    """The valid range of a numeric type, or of the numbers inside a list, tuple or mapping."""
+    from cellsim.config.typed_yaml import range_of
+
+    found = range_of(tp)
+    if found is not None:
+        return str(found)
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is typing.Annotated:
+        return range_text(args[0])
+    for arg in reversed(args):  # a mapping's values, a list's items, an optional's value
+        text = range_text(arg)
+        if text:
+            return text
+    return ""
 
 
 @functools.cache
@@ -76,9 +94,10 @@ def type_name(tp) -> str:
     return {float: "number", int: "integer", bool: "true/false", str: "text"}.get(tp, getattr(tp, "__name__", str(tp)))
 
 
-def parameters(config: type) -> list[Parameter]:
+def parameters(config: type, prefix: str = "") -> list[Parameter]:
+    """Every parameter of a config, nested configs flattened (``twin.stale_after``, ``waypoints.<name>.wait``)."""
     hints = typing.get_type_hints(config, include_extras=True)
-    docs = {**(field_docs(config))}
+    docs = field_docs(config)
     out = []
     for f in dataclasses.fields(config):
         if not f.init or f.name == "kind":
@@ -89,16 +108,40 @@ def parameters(config: type) -> list[Parameter]:
             default = _show(f.default_factory())
         else:
             default = "required"
-        out.append(Parameter(f.name, type_name(hints[f.name]), default, docs.get(f.name, "")))
+        tp = hints[f.name]
+        out.append(Parameter(prefix + f.name, type_name(tp), default, range_text(tp), docs.get(f.name, "")))
+        nested, key = _nested(tp)
+        if nested is not None:
+            out += parameters(nested, f"{prefix}{f.name}.{key}")
     return out
+
+
+def _nested(tp) -> tuple[type | None, str]:
+    """The dataclass a field holds (itself, or as the values of a mapping or items of a list)."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is typing.Annotated:
+        return _nested(args[0])
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
+        return tp, ""
+    if origin is dict and args and isinstance(args[1], type) and dataclasses.is_dataclass(args[1]):
+        return args[1], "<name>."
+    if origin is list and args and isinstance(args[0], type) and dataclasses.is_dataclass(args[0]):
+        return args[0], "<i>."
+    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
+        arms = [a for a in args if a is not type(None)]
+        if len(arms) == 1:
+            return _nested(arms[0])
+    return None, ""
 
 
 def _show(value) -> str:
     from cellsim.config.typed_yaml import to_data
 
     data = to_data(value)
+    if dataclasses.is_dataclass(value):
+        return "(below)"
     if isinstance(data, dict) and len(str(data)) > 40:
-        return "(see " + type(value).__name__ + ")" if dataclasses.is_dataclass(value) else "{...}"
+        return "{...}"
     return "null" if data is None else str(data).replace("'", "")
 
 

@@ -14,15 +14,19 @@ resolved scenario, which loads back to an equal one.
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 from cellsim.config.typed_yaml import (
     ConfigError,
     FieldError,
     Loaded,
+    Range,
+    range_of,
+    type_at,
     apply_overrides,
     dump_yaml,
     from_data,
@@ -34,9 +38,29 @@ from cellsim.registry import BehaviourModule, EntityModule, KindError, ServiceMo
 from cellsim.validation.config import Validation
 from cellsim.vocabulary import RobotActivity, RobotLocation, TwinMode
 
-Vec2 = tuple[float, float]
-Vec3 = tuple[float, float, float]
-Rgba = tuple[float, float, float, float]
+# -- numbers and their valid ranges (checked at load time and by --set) ----------
+MAX_EXTENT = 100.0
+"""How far from the cell's origin (m) any position may be."""
+MAX_DURATION = 86400.0
+"""Longest run, and longest wait or delay (s): one day."""
+MAX_PLANT_STEPS = 50_000_000
+"""Most plant steps a run may take (a day at 2 ms): beyond, its cost is refused."""
+
+SEEDS = Range(0, 2**32 - 1)
+"""Valid random seeds."""
+
+Vec2 = Annotated[tuple[float, float], Range(-MAX_EXTENT, MAX_EXTENT, unit="m")]
+Vec3 = Annotated[tuple[float, float, float], Range(-MAX_EXTENT, MAX_EXTENT, unit="m")]
+Size3 = Annotated[tuple[float, float, float], Range(0.0, 50.0, lo_open=True, unit="m")]
+Rgba = Annotated[tuple[float, float, float, float], Range(0.0, 1.0)]
+Degrees = Annotated[float, Range(-360.0, 360.0, unit="deg")]
+JointAngle = Annotated[float, Range(-2 * math.pi, 2 * math.pi, unit="rad")]
+Period = Annotated[float, Range(0.0001, 10.0, unit="s")]
+"""A module's update period: also a whole number of plant steps (checked with the scenario)."""
+Seconds = Annotated[float, Range(0.0, MAX_DURATION, unit="s")]
+PositiveSeconds = Annotated[float, Range(0.0, MAX_DURATION, lo_open=True, unit="s")]
+Speed = Annotated[float, Range(0.0, 10.0, lo_open=True, unit="m/s")]
+Distance = Annotated[float, Range(0.0, MAX_EXTENT, lo_open=True, unit="m")]
 
 
 # -- layout -------------------------------------------------------------------
@@ -44,9 +68,9 @@ Rgba = tuple[float, float, float, float]
 class Fixture:
     """A static box in the cell (table, bench, fence panel, machine body)."""
 
-    size: Vec3
+    size: Size3
     center: Vec3
-    yaw_deg: float = 0.0
+    yaw_deg: Degrees = 0.0
     color: Rgba = (0.55, 0.55, 0.58, 1.0)
 
     def __post_init__(self):
@@ -92,8 +116,10 @@ class Layout:
 # -- entities -----------------------------------------------------------------
 @dataclass
 class TwinModeChange:
-    at: float
+    at: Seconds
+    """When the mode changes (s of simulated time)."""
     mode: TwinMode
+    """The mode from then on."""
 
 
 @dataclass
@@ -101,26 +127,31 @@ class TwinSettings:
     """How an entity relates to its physical twin, and when that changes."""
 
     mode: TwinMode = TwinMode.MODEL
+    """model: the digital behaviour drives the entity; shadow: it follows its physical twin;
+    twin: as shadow, and its commands go out to the physical twin."""
     changes: list[TwinModeChange] = field(default_factory=list)
-    stale_after: float = 0.5
+    """Mode changes at given simulated times, in time order."""
+    stale_after: Annotated[float, Range(0.0, 60.0, lo_open=True, unit="s")] = 0.5
     """A physical sample older than this (s) is stale: the entity fails safe."""
 
     def __post_init__(self):
         times = [c.at for c in self.changes]
         if times != sorted(times):
             raise FieldError("changes", "twin-mode changes must be in time order")
-        if self.stale_after <= 0:
-            raise FieldError("stale_after", "must be positive")
 
 
 @dataclass
 class SpeedLimits:
     """Cap on the tool's speed (m/s) in each moving safety mode; srmst and stopped are standstill."""
 
-    normal: float = 1.0
-    hguid: float = 0.25
-    ssmon: float = 0.5
-    pflim: float = 0.25
+    normal: Speed = 1.0
+    """Full speed."""
+    hguid: Speed = 0.25
+    """Hand-guided operation."""
+    ssmon: Speed = 0.5
+    """Speed and separation monitoring."""
+    pflim: Speed = 0.25
+    """Power and force limiting (ISO/TS 15066: collaborative speed)."""
 
 
 @dataclass
@@ -128,11 +159,11 @@ class RobotConfig:
     kind: Literal["robot"]
     model: str
     """URDF of the arm, relative to the scenario file."""
-    named_poses: dict[str, list[float]]
+    named_poses: dict[str, list[JointAngle]]
     """Joint positions (rad) of the poses the process moves between."""
     base_position: Vec3 = (0.0, 0.0, 0.0)
     """Where the arm's base_link is fixed in the cell (m)."""
-    base_yaw_deg: float = 0.0
+    base_yaw_deg: Degrees = 0.0
     """Rotation of the base about the vertical axis (degrees)."""
     tool_frame: str = "tcp"
     """The frame of the model whose position gives the robot's location and tool speed."""
@@ -140,9 +171,9 @@ class RobotConfig:
     """The named pose the arm starts in."""
     speed_limits: SpeedLimits = field(default_factory=SpeedLimits)
     """Tool speed cap per moving safety mode (m/s)."""
-    braking_time: float = 0.5
+    braking_time: Annotated[float, Range(0.0, 10.0, lo_open=True, unit="s")] = 0.5
     """Time to standstill from full speed on srmst or stopped (s)."""
-    period: float = 0.02
+    period: Period = 0.02
     """Update period of the controller side (s); a multiple of the plant step."""
     twin: TwinSettings = field(default_factory=TwinSettings)
     """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
@@ -153,14 +184,12 @@ class RobotConfig:
         for name, q in self.named_poses.items():
             if len(q) != 6:
                 raise FieldError(f"named_poses.{name}", f"needs 6 joint positions, got {len(q)}")
-        if self.braking_time <= 0:
-            raise FieldError("braking_time", "must be positive")
 
 
 @dataclass
 class WelderConfig:
     kind: Literal["welder"]
-    period: float = 0.04
+    period: Period = 0.04
     """Update period (s)."""
     twin: TwinSettings = field(default_factory=TwinSettings)
     """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
@@ -173,9 +202,9 @@ class LightBarrierConfig:
     kind: Literal["light_barrier"]
     center: Vec3
     """Centre of the box the beams fill (m)."""
-    size: Vec3
+    size: Size3
     """Size of that box along x, y, z (m)."""
-    period: float = 0.04
+    period: Period = 0.04
     """Response time (s). People move every 40 ms in the twin; sampling faster reads the same geometry."""
     twin: TwinSettings = field(default_factory=TwinSettings)
     """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
@@ -188,13 +217,13 @@ class RangeDetectorConfig:
     kind: Literal["range_detector"]
     position: Vec3
     """Where the scanner head is (m); distances are measured from it."""
-    near_below: float = 2.0
+    near_below: Distance = 2.0
     """Below this distance (m) the range reads near."""
-    close_below: float = 1.0
+    close_below: Distance = 1.0
     """Below this distance (m) the range reads close."""
-    noise_std: float = 0.0
+    noise_std: Annotated[float, Range(0.0, 10.0, unit="m")] = 0.0
     """Standard deviation of the measured distance (m); drawn from the run's seed."""
-    period: float = 0.04
+    period: Period = 0.04
     """Response time (s)."""
     twin: TwinSettings = field(default_factory=TwinSettings)
     """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
@@ -202,21 +231,16 @@ class RangeDetectorConfig:
     def __post_init__(self):
         if not 0 < self.close_below < self.near_below:
             raise FieldError("close_below", "needs 0 < close_below < near_below")
-        if self.noise_std < 0:
-            raise FieldError("noise_std", "must not be negative")
 
 
 @dataclass
 class Waypoint:
     position: Vec2
-    wait: float = 0.0
+    """Where the person stands (x, y in m)."""
+    wait: Seconds = 0.0
     """Seconds spent at the waypoint."""
     reach: Vec3 | None = None
     """A point the operator reaches for with one hand while waiting here."""
-
-    def __post_init__(self):
-        if self.wait < 0:
-            raise FieldError("wait", "must not be negative")
 
 
 @dataclass
@@ -228,30 +252,22 @@ class OperatorConfig:
     """Where the person stands at t = 0 (x, y in m)."""
     waypoints: dict[str, Waypoint]
     """The places walked to, in order, each with a wait and an optional reach."""
-    start_delay: float = 0.0
+    start_delay: Seconds = 0.0
     """Seconds before the person starts walking."""
-    walking_speed: float = 1.2
+    walking_speed: Speed = 1.2
     """Mean walking speed (m/s)."""
-    speed_jitter: float = 0.1
+    speed_jitter: Annotated[float, Range(0.0, 1.0, hi_open=True)] = 0.1
     """Each leg's speed is drawn uniformly within +-this fraction, from the run's seed."""
-    height: float = 1.75
+    height: Annotated[float, Range(0.5, 2.5, unit="m")] = 1.75
     """Body height (m)."""
-    body_radius: float = 0.2
+    body_radius: Annotated[float, Range(0.05, 1.0, unit="m")] = 0.2
     """Radius of the torso's capsule (m)."""
-    arm_length: float = 0.7
+    arm_length: Annotated[float, Range(0.15, 2.0, unit="m")] = 0.7
     """Reach of the arm from the shoulder (m)."""
-    period: float = 0.04
+    period: Period = 0.04
     """Update period (s): how often the body moves in the twin."""
     twin: TwinSettings = field(default_factory=TwinSettings)
     """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
-
-    def __post_init__(self):
-        if self.walking_speed <= 0:
-            raise FieldError("walking_speed", "must be positive")
-        if not 0 <= self.speed_jitter < 1:
-            raise FieldError("speed_jitter", "must be in [0, 1)")
-
-
 
 
 # -- behaviours ---------------------------------------------------------------
@@ -260,10 +276,15 @@ class WorkStep:
     """One step of the work cycle: a move, a dwell or a weld, with the robot's activity."""
 
     name: str
+    """The step's name: the process controller's step channel reads it."""
     move_to: str | None = None
-    dwell: float = 0.0
-    weld: float = 0.0
+    """A named pose of the robot to move to."""
+    dwell: Seconds = 0.0
+    """Seconds to stay put (picking, placing)."""
+    weld: Seconds = 0.0
+    """Seconds of welding (the welder welds while the robot holds the work-piece)."""
     activity: RobotActivity = RobotActivity.EXCHANGE_WORKPIECE
+    """The robot activity this step is (ract)."""
 
     def __post_init__(self):
         if sum(x is not None and x != 0 for x in (self.move_to, self.dwell or None, self.weld or None)) != 1:
@@ -283,7 +304,7 @@ class WorkCycleConfig:
     """The welder entity it asks to weld."""
     restart_on_request: dict[str, str] = field(default_factory=dict)
     """Robot activity requested by the safety controller -> step the cycle restarts from."""
-    period: float = 0.04
+    period: Period = 0.04
     """Update period (s)."""
 
     def __post_init__(self):
@@ -308,7 +329,7 @@ class SafetyControllerConfig:
     """Risk-model variable -> channel it reads (``module.signal``)."""
     commands: dict[str, list[str]]
     """Controlled variable -> command inputs it drives (``module.input``)."""
-    period: float = 0.02
+    period: Period = 0.02
     """Control period (s): how often the risk model is evaluated."""
 
 
@@ -317,10 +338,8 @@ class GroundTruthConfig:
     """Measures what no sensor reports: the true operator-robot separation."""
 
     kind: Literal["ground_truth"]
-    period: float = 0.1
+    period: Period = 0.1
     """How often the separation is measured (s)."""
-
-
 
 
 # -- services -----------------------------------------------------------------
@@ -329,10 +348,8 @@ class RecorderConfig:
     """The message snooper: writes every message to the black box (SQLite)."""
 
     kind: Literal["blackbox"]
-    batch_size: int = 5000
+    batch_size: Annotated[int, Range(1, 1_000_000)] = 5000
     """Rows buffered before they are written within one drain (memory bound)."""
-
-
 
 
 @dataclass
@@ -347,13 +364,9 @@ class ConfigurationPoint:
 class CampaignConfig:
     """Defaults of ``cellsim campaign``: how many runs, and how each configuration point is drawn."""
 
-    runs: int = 100
+    runs: Annotated[int, Range(1, 100_000)] = 100
     samplers: dict[str, Sampler] = field(default_factory=dict)
     """Configuration point name -> sampler (``uniform``, ``choice`` or ``simplex``)."""
-
-    def __post_init__(self):
-        if self.runs < 1:
-            raise FieldError("runs", "must be at least 1")
 
 
 @dataclass
@@ -368,9 +381,11 @@ class Scenario:
     validation: Validation = field(default_factory=Validation)
     campaign: CampaignConfig = field(default_factory=CampaignConfig)
     description: str = ""
-    duration: float = 30.0
-    seed: int = 0
-    time_step: float = 0.002
+    duration: PositiveSeconds = 30.0
+    """Simulated seconds of a run."""
+    seed: Annotated[int, SEEDS] = 0
+    """The run's random seed: a run is a pure function of the scenario and the seed."""
+    time_step: Annotated[float, Range(0.0001, 0.01, unit="s")] = 0.002
     """The robot plant's discrete step (s): 2 ms, the 500 Hz of a UR controller's joint loop."""
 
     def __post_init__(self):
@@ -382,10 +397,6 @@ class Scenario:
                 if not name.isidentifier():
                     raise FieldError(f"{section}.{name}", "module names must be identifiers (letters, digits, _)")
                 seen[name] = section
-        if self.duration <= 0:
-            raise FieldError("duration", "must be positive")
-        if not 0 < self.time_step <= 0.01:
-            raise FieldError("time_step", "must be in (0, 0.01] s")
 
     def modules_of_kind(self, kind: str) -> dict[str, object]:
         found = {}
@@ -450,7 +461,6 @@ class ScenarioFile:
         return path.resolve()
 
 
-
 def _shortcut(scenario: Scenario):
     """``--set operator.wait=...`` means ``entities.operator.wait``: module names are roots."""
 
@@ -503,6 +513,14 @@ def check_scenario(sf: ScenarioFile) -> None:
             kind = _kind(sf, f"{section}.{name}", cfg)
             if kind.check is not None:
                 kind.check(sf, name, cfg)
+            period = getattr(cfg, "period", None)
+            if isinstance(period, float) and not _whole_steps(period, sc.time_step):
+                raise sf.error(
+                    f"{section}.{name}.period",
+                    f"{period:g} s is not a whole number of plant steps (time_step {sc.time_step:g} s): "
+                    "every event of the cell falls on a plant step",
+                )
+    check_run_length(sf, sc.duration, "duration")
     for name in sc.campaign.samplers:
         if name not in sc.configuration_points:
             known = ", ".join(sc.configuration_points) or "none"
@@ -513,6 +531,60 @@ def check_scenario(sf: ScenarioFile) -> None:
                 value_at(sc, dotted)
             except KeyError:
                 raise sf.error(f"configuration_points.{name}.paths.{i}", f"no such configuration point: {dotted}") from None
+    for name, sampler in sc.campaign.samplers.items():
+        _check_sampler_range(sf, name, sampler, sc.configuration_points[name].paths)
+
+
+def _check_sampler_range(sf: ScenarioFile, name: str, sampler, paths: list[str]) -> None:
+    """A sampler draws only values its configuration point's fields accept (their Range)."""
+    n = len(paths)
+    if sampler.kind == "uniform":
+        drawn = {"low": sampler.low, "high": sampler.high}
+    elif sampler.kind == "simplex":  # each value lies in [minimum, total - (n - 1) * minimum]
+        drawn = {"minimum": sampler.minimum, "total": sampler.total - (n - 1) * sampler.minimum}
+    else:
+        drawn = {f"values.{i}": v for i, v in enumerate(sampler.values) if isinstance(v, (int, float)) and not isinstance(v, bool)}
+    for dotted in paths:
+        valid = range_of(type_at(sf.scenario, _shortcut(sf.scenario)(dotted.split("."))))
+        if valid is None:
+            continue
+        for key, value in drawn.items():
+            if not valid.admits(value):
+                raise sf.error(
+                    f"campaign.samplers.{name}.{key}",
+                    f"draws {value:g}, outside what {dotted} accepts: {valid}",
+                )
+
+
+def _whole_steps(period: float, step: float) -> bool:
+    ratio = period / step
+    return round(ratio) >= 1 and abs(ratio - round(ratio)) <= 1e-6 * ratio
+
+
+def check_run_length(sf: ScenarioFile, duration: float, key: str = "duration") -> None:
+    """Refuse a run whose length is out of range or whose cost would be absurd.
+
+    ``key`` names where the duration came from: the scenario's ``duration``, or
+    a command-line flag such as ``--duration``.
+    """
+
+    def refuse(problem: str) -> ConfigError:
+        return sf.error(key, problem) if key == "duration" else ConfigError(key, None, "", problem)
+
+    valid = Range(0.0, MAX_DURATION, lo_open=True, unit="s")
+    if not math.isfinite(duration) or not valid.admits(duration):
+        raise refuse(f"{duration:g} is out of range: must be in {valid}")
+    steps = duration / sf.scenario.time_step
+    if steps > MAX_PLANT_STEPS:
+        raise refuse(
+            f"{duration:g} s at a {sf.scenario.time_step:g} s plant step is {steps:.3g} plant steps, "
+            f"more than the {MAX_PLANT_STEPS:.0e} a run may take: shorten it or lengthen time_step"
+        )
+
+
+def check_seed(seed: int, key: str) -> None:
+    if not SEEDS.admits(seed):
+        raise ConfigError(key, None, "", f"{seed} is out of range: must be in {SEEDS}")
 
 
 def _kind(sf: ScenarioFile, key: str, cfg):

@@ -75,3 +75,148 @@ def test_sigint_during_start_up_is_one_line_and_130(tmp_path):
     assert proc.returncode == 130, err
     assert one_line(err) == "cellsim: interrupted"
     assert not out.exists()
+
+
+# --------------------------------------------------------------------------- numbers
+
+def _numbers_without_range(cls, prefix="", seen=None) -> list[str]:
+    """Every float or int reachable from a dataclass schema that carries no Range."""
+    import dataclasses
+    import typing
+
+    from cellsim.config.typed_yaml import range_of
+
+    seen = set() if seen is None else seen
+    if cls in seen:
+        return []
+    seen.add(cls)
+    missing = []
+
+    def walk(tp, where, ranged):
+        origin, args = typing.get_origin(tp), typing.get_args(tp)
+        if origin is typing.Annotated:
+            return walk(args[0], where, ranged or range_of(tp) is not None)
+        if tp in (float, int):
+            if not ranged:
+                missing.append(where)
+        elif isinstance(tp, type) and dataclasses.is_dataclass(tp):
+            missing.extend(_numbers_without_range(tp, where + ".", seen))
+        elif hasattr(tp, "__kind_names__"):
+            from cellsim import registry
+
+            for name in tp.__kind_names__():
+                missing.extend(_numbers_without_range(registry.get(name).config, f"{where}<{name}>.", seen))
+        else:
+            for arg in args:
+                if arg is not Ellipsis and arg is not type(None):
+                    walk(arg, where, ranged)
+
+    hints = typing.get_type_hints(cls, include_extras=True)
+    for f in dataclasses.fields(cls):
+        if f.init:
+            walk(hints[f.name], prefix + f.name, False)
+    return missing
+
+
+EXEMPT = {
+    # a coverage bin's edges: any finite numbers, in the variable's unit, increasing
+    "validation.bins.edges",
+    # a sampler's numbers: checked against the ranges of the fields they are drawn for
+    "campaign.samplers.low", "campaign.samplers.high", "campaign.samplers.values",
+    "campaign.samplers.total", "campaign.samplers.minimum",
+}
+
+
+def test_every_number_of_the_scenario_schema_has_a_valid_range():
+    from cellsim.behaviours.risk_model import RiskModelFile
+    from cellsim.scenario import Scenario
+
+    assert set(_numbers_without_range(Scenario)) <= EXEMPT and _numbers_without_range(RiskModelFile) == []
+
+
+@pytest.mark.parametrize(
+    "override, expected",
+    [
+        ("campaign.samplers.operator_waits.total=1.0e+6", "campaign.samplers.operator_waits.total: draws 1e+06, outside what"),
+    ],
+)
+def test_a_sampler_that_would_draw_out_of_range_is_refused_at_load_time(override, expected):
+    from cellsim.config.typed_yaml import ConfigError
+    from cellsim.scenario import load_scenario
+
+    import re
+
+    with pytest.raises(ConfigError, match=re.escape(expected)):
+        load_scenario(WELDING_CELL, [override])
+
+
+BAD_NUMBERS = {
+    # category: (override path, bad values)
+    "period": ("robot.period", ["nan", ".inf", "0", "-0.02", "1e9", "0.003"]),
+    "time step": ("time_step", ["nan", "0", "-1", "1.0e-9", "5"]),
+    "duration": ("duration", ["nan", ".inf", "0", "-3", "1.0e+9"]),
+    "speed": ("operator.walking_speed", ["nan", "-.inf", "0", "-1", "1000"]),
+    "wait": ("operator.waypoints.cell.wait", ["nan", ".inf", "-1", "1.0e+9"]),
+    "threshold": ("range_detector.near_below", ["nan", "0", "-2", "1000"]),
+    "size": ("light_barrier.size", ["[0, 1, 1]", "[-1, 1, 1]", "[1, .nan, 1]", "[1000, 1, 1]"]),
+    "radius": ("operator.body_radius", ["0", "-0.2", "nan", "50"]),
+    "colour": ("layout.fixtures.shared_table.color", ["[2, 0, 0, 1]", "[0, -1, 0, 1]", "[0, 0, .nan, 1]"]),
+    "seed": ("seed", ["-1", "99999999999999999999"]),
+    "position": ("range_detector.position", ["[.inf, 0, 0]", "[1.0e+9, 0, 0]", "[0, .nan, 0]"]),
+    "joint angle": ("robot.named_poses.home.0", ["nan", "100", "-7"]),
+    "stale after": ("robot.twin.stale_after", ["0", "-1", ".inf"]),
+    "batch size": ("blackbox.batch_size", ["0", "-5", "99999999999"]),
+    "braking time": ("robot.braking_time", ["0", "nan", "1000"]),
+    "noise": ("range_detector.noise_std", ["-0.1", "nan", "100"]),
+}
+
+
+@pytest.mark.parametrize(
+    "path, value", [(path, v) for path, values in BAD_NUMBERS.values() for v in values],
+    ids=[f"{cat}={v}" for cat, (_, values) in BAD_NUMBERS.items() for v in values],
+)
+def test_a_bad_number_is_refused_at_load_time_naming_it(path, value):
+    from cellsim.config.typed_yaml import ConfigError
+    from cellsim.scenario import load_scenario
+
+    with pytest.raises(ConfigError) as e:
+        load_scenario(WELDING_CELL, [f"{path}={value}"])
+    text = str(e.value)
+    assert "\n" not in text
+    assert path.split(".")[-1] in text or path.split(".")[-2] in text, text
+
+
+def test_a_bad_number_in_the_file_names_file_line_and_key_and_writes_nothing(tmp_path):
+    import shutil
+
+    folder = tmp_path / "scenario"
+    shutil.copytree(WELDING_CELL.parent, folder)
+    scenario = folder / "welding_cell.yaml"
+    text = scenario.read_text()
+    assert "    close_below: 1.0\n" in text
+    scenario.write_text(text.replace("    close_below: 1.0\n", "    close_below: .nan\n"))
+    line = next(i for i, l in enumerate(scenario.read_text().splitlines(), 1) if "close_below: .nan" in l)
+    out = tmp_path / "run"
+    done = cellsim("simulate", str(scenario), "--out", str(out))
+    assert done.returncode == 2
+    assert one_line(done.stderr) == (
+        f"cellsim: error: {scenario}:{line}: entities.range_detector.close_below: expected a finite number, got '.nan'"
+    )
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "args, expected",
+    [
+        (["--duration", "1e9"], "--duration: 1e+09 is out of range: must be in (0, 86400] s"),
+        (["--duration", "nan"], "--duration: nan is out of range"),
+        (["--duration", "0"], "--duration: 0 is out of range"),
+        (["--seed", "-1"], "--seed: -1 is out of range"),
+        (["--set", "time_step=0.0001", "--duration", "86400"], "plant steps, more than the 5e+07 a run may take"),
+    ],
+)
+def test_absurd_runs_are_refused_with_a_reason(tmp_path, args, expected):
+    out = tmp_path / "run"
+    done = cellsim("simulate", str(WELDING_CELL), "--out", str(out), *args)
+    assert done.returncode == 2 and expected in one_line(done.stderr)
+    assert not out.exists()

@@ -99,7 +99,7 @@ def test_modules_lists_the_plugin_and_names_a_broken_one(site):
     assert {"kind": "beacon", "section": "behaviours", "summary": "Counts its updates."} in data["kinds"]
     assert any("cellsim_beacon.missing:KIND" in e and "failed to load" in e for e in data["errors"])
     one = json.loads(cellsim(site, "modules", "beacon", "--json").stdout)
-    assert one["parameters"] == [{"name": "period", "type": "number", "default": "0.5", "doc": "How often it blinks (s)."}]
+    assert one["parameters"] == [{"name": "period", "type": "number", "default": "0.5", "range": "", "doc": "How often it blinks (s)."}]
 
 
 def test_a_scenario_using_a_broken_plugin_is_one_line_naming_it(site, tmp_path):

@@ -345,7 +345,7 @@ def test_dump_yaml_round_trip_and_header() -> None:
     assert yaml.safe_load(dump_yaml(s)) == to_data(s)
 
 
-finite = st.floats(allow_nan=False, width=64)
+finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 names = st.text(min_size=1, max_size=8)
 waypoints = st.builds(Waypoint, position=st.tuples(finite, finite, finite), wait=finite,
                       reach=st.none() | st.floats(-5, 2))

@@ -29,9 +29,9 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal
+from typing import Annotated, Any, Callable, Literal
 
-from cellsim.config.typed_yaml import ConfigError, FieldError, Loaded, load_file
+from cellsim.config.typed_yaml import ConfigError, FieldError, Loaded, Range, load_file
 from cellsim.logic.predicates import compile_predicate
 from cellsim.logic.syntax import BoolDomain, EnumDomain, FormulaError, NumberDomain, parse
 from cellsim.vocabulary import HazardPhase
@@ -76,12 +76,8 @@ class Transition:
     """The phase this transition leaves."""
     to: str
     when: str = "true"
-    after: float = 0.0
+    after: Annotated[float, Range(0.0, 3600.0, unit="s")] = 0.0
     """The guard must have held this long (s) before the transition fires."""
-
-    def __post_init__(self):
-        if self.after < 0:
-            raise FieldError("after", "must not be negative")
 
 
 @dataclass

@@ -24,6 +24,7 @@ import dataclasses
 import difflib
 import enum
 import functools
+import math
 import os
 import types
 import typing
@@ -35,6 +36,9 @@ import yaml
 __all__ = [
     "ConfigError",
     "FieldError",
+    "Range",
+    "range_of",
+    "type_at",
     "Loaded",
     "apply_override",
     "apply_overrides",
@@ -76,6 +80,46 @@ _MERGE_TAG = "tag:yaml.org,2002:merge"
 REPLACE_TAG = "!replace"
 """A mapping tagged ``!replace`` replaces its base's mapping whole instead of merging into it."""
 _NoneType = type(None)
+
+
+@dataclass(frozen=True)
+class Range:
+    """The valid range of a number: ``Annotated[float, Range(0, 10, lo_open=True, unit="s")]``.
+
+    On a list or tuple of numbers (a position) it applies to each element. The
+    converter checks it wherever the number comes from (a file, ``--set``), and
+    ``cellsim modules`` shows it. Every float is also finite: NaN and infinities
+    are refused everywhere, range or not.
+    """
+
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+    unit: str = ""
+
+    def admits(self, x: float) -> bool:
+        if self.lo is not None and (x <= self.lo if self.lo_open else x < self.lo):
+            return False
+        if self.hi is not None and (x >= self.hi if self.hi_open else x > self.hi):
+            return False
+        return True
+
+    def __str__(self) -> str:
+        def text(x) -> str:
+            return str(x) if isinstance(x, int) else f"{x:g}"
+
+        lo = "-inf" if self.lo is None else text(self.lo)
+        hi = "inf" if self.hi is None else text(self.hi)
+        interval = f"{'(' if self.lo_open or self.lo is None else '['}{lo}, {hi}{')' if self.hi_open or self.hi is None else ']'}"
+        return f"{interval} {self.unit}".rstrip()
+
+
+def range_of(tp: Any) -> Range | None:
+    """The Range an ``Annotated`` type carries, if any."""
+    if typing.get_origin(tp) is typing.Annotated:
+        return next((m for m in typing.get_args(tp)[1:] if isinstance(m, Range)), None)
+    return None
 
 
 class FieldError(ValueError):
@@ -164,7 +208,7 @@ def _where(lines: dict[str, int], sources: dict[str, str], source: str, key: str
 
 @functools.lru_cache(maxsize=None)
 def _hints(cls: type) -> dict[str, Any]:
-    return typing.get_type_hints(cls)
+    return typing.get_type_hints(cls, include_extras=True)
 
 
 def _init_fields(cls: type) -> dict[str, dataclasses.Field]:
@@ -422,6 +466,13 @@ class _Converter:
     def convert(self, tp: Any, data: Any, path: str) -> Any:
         if tp is Any or tp is object:
             return data
+        if typing.get_origin(tp) is typing.Annotated:
+            base, *extras = typing.get_args(tp)
+            value = self.convert(base, data, path)
+            for extra in extras:
+                if isinstance(extra, Range):
+                    self.check_range(extra, value, path)
+            return value
         if hasattr(tp, "__kind_config__"):
             return self.registered_kind(tp, data, path)
         members = _union_args(tp)
@@ -453,9 +504,12 @@ class _Converter:
         elif tp is float:
             if isinstance(data, (int, float)) and not isinstance(data, bool):
                 try:
-                    return float(data)
+                    value = float(data)
                 except OverflowError:
                     raise self.error(path, f"number too large: {self.describe(data, path)}") from None
+                if not math.isfinite(value):
+                    raise self.error(path, f"expected a finite number, got {self.describe(data, path)}")
+                return value
             if isinstance(data, str) and "e" in data.lower():
                 try:
                     float(data)
@@ -546,6 +600,13 @@ class _Converter:
         hint = _suggest(kind, [str(k) for k in kinds]) if isinstance(kind, str) else ""
         raise self.error(kpath, f"unknown kind {self.describe(kind, kpath)} "
                          f"(expected one of: {known}){hint}")
+
+    def check_range(self, valid: Range, value: Any, path: str) -> None:
+        items = value if isinstance(value, (list, tuple)) else [value]
+        for i, x in enumerate(items):
+            if isinstance(x, (int, float)) and not isinstance(x, bool) and not valid.admits(x):
+                where = _join(path, i) if isinstance(value, (list, tuple)) else path
+                raise self.error(where, f"{self.describe(x, where)} is out of range: must be in {valid}")
 
     def registered_kind(self, marker: Any, data: Any, path: str) -> Any:
         """A config whose dataclass a registry picks by its ``kind`` (plug-in module kinds).
@@ -730,6 +791,10 @@ def dump_yaml(value: Any, header: str | None = None) -> str:
 
 def _element_type(tp: Any, key: Any) -> Any:
     """Declared type of ``tp``'s element ``key`` (dict value, list item, tuple slot)."""
+    if typing.get_origin(tp) is typing.Annotated:  # a range on a list applies to its items
+        base, *extras = typing.get_args(tp)
+        item = _element_type(base, key)
+        return typing.Annotated[(item, *extras)] if extras and item is not Any else item
     members = _union_args(tp)
     if members is not None:
         arms = [m for m in members if m is not _NoneType]
@@ -778,6 +843,11 @@ def _locate(root: Any, parts: list[str]) -> tuple[list[Any], Any]:
             raise ConfigError("--set", None, full, "no such configuration point" + hint)
         keys.append(key)
     return keys, tp
+
+
+def type_at(root: Any, parts: list[str]) -> Any:
+    """The declared type of the value at ``parts`` below a typed value (ConfigError if none)."""
+    return _locate(root, parts)[1]
 
 
 def apply_override(loaded: Loaded[T], assignment: str,
