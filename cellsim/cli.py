@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import os
 import signal
 import sys
@@ -501,10 +502,11 @@ def cmd_export(args) -> int:
     if args.out is None:
         sys.stdout.write(export_scenario(sf))
     else:
-        text = export_scenario(sf, destination_dir=args.out.resolve().parent)
-        tmp = args.out.with_name(args.out.name + ".tmp")
-        tmp.write_text(text)
-        tmp.replace(args.out)
+        from cellsim.atomic import write_text
+
+        if args.out.is_dir():
+            raise IsADirectoryError(errno.EISDIR, "is a folder; name a file to write", str(args.out))
+        write_text(args.out, export_scenario(sf, destination_dir=args.out.resolve().parent))
     return EXIT_OK
 
 

@@ -43,6 +43,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 import cellsim
+from cellsim.atomic import write_text
 from cellsim.config.typed_yaml import ConfigError, dump_yaml, from_data, to_data
 
 IDENTITY_FORMAT = 1
@@ -307,9 +308,7 @@ def write_run_scenario(
         header += "\nwith overrides: " + " ".join(sf.overrides)
     if placed:
         header += f"\nThe files it uses are copies, in {INPUTS}/, of those the run used."
-    tmp = out_dir / (name + ".tmp")
-    tmp.write_text(dump_yaml(copy, header=header))
-    tmp.replace(out_dir / name)
+    write_text(out_dir / name, dump_yaml(copy, header=header))
     data = {f.key: f.data for f in inputs.files}
     for key, relative in placed.items():
         target = out_dir / relative

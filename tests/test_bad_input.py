@@ -220,3 +220,88 @@ def test_absurd_runs_are_refused_with_a_reason(tmp_path, args, expected):
     done = cellsim("simulate", str(WELDING_CELL), "--out", str(out), *args)
     assert done.returncode == 2 and expected in one_line(done.stderr)
     assert not out.exists()
+
+
+@pytest.fixture(scope="module")
+def short_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("short") / "run"
+    assert cellsim("simulate", str(WELDING_CELL), "--out", str(out), "--duration", "3", "--quiet").returncode in (0, 1)
+    return out
+
+
+@pytest.mark.parametrize("command", ["export", "export-trace"])
+@pytest.mark.parametrize("target, expected", [("a_folder", "is a folder; name a file to write"),
+                                              ("missing/x.json", "no such folder to write into")])
+def test_writing_to_a_folder_or_into_nothing_is_one_line_and_leaves_no_tmp(tmp_path, short_run, command, target, expected):
+    (tmp_path / "a_folder").mkdir()
+    destination = tmp_path / target
+    args = (["scenario", "export", str(WELDING_CELL), "--out", str(destination)] if command == "export"
+            else ["check", str(short_run), "--export-trace", str(destination)])
+    done = cellsim(*args)
+    assert done.returncode == 2 and expected in one_line(done.stderr)
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["a_folder"]
+
+
+URDF = (Path(__file__).resolve().parents[1] / "scenarios" / "models" / "ur10.urdf").read_text()
+BAD_MODELS = {
+    "empty file": ("", "entities.robot.model: not a robot model Drake can read"),
+    "not XML": ("this is not a robot\n", "entities.robot.model: not a robot model Drake can read"),
+    "XML, not a model": ("<notes><note>hi</note></notes>\n", "entities.robot.model: not a robot model Drake can read"),
+    "no base_link": (URDF.replace('"base_link"', '"pedestal_link"'), "has no link named 'base_link'"),
+    "no tool frame": (URDF.replace('name="tcp"', 'name="tip"').replace('child link="tcp"', 'child link="tip"'), "entities.robot.tool_frame: models/ur10.urdf has no frame named 'tcp'"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_MODELS))
+def test_a_bad_robot_model_is_one_line_not_a_drake_traceback(tmp_path, case):
+    import shutil
+
+    text, expected = BAD_MODELS[case]
+    if case == "no base_link":
+        assert '"base_link"' in URDF
+    if case == "no tool frame":
+        assert 'name="tcp"' in URDF
+    folder = tmp_path / "scenario"
+    shutil.copytree(WELDING_CELL.parent, folder)
+    (folder / "models" / "ur10.urdf").write_text(text)
+    out = tmp_path / "run"
+    done = cellsim("simulate", str(folder / "welding_cell.yaml"), "--out", str(out))
+    assert done.returncode == 2
+    line = one_line(done.stderr)
+    assert expected in line and str(folder / "welding_cell.yaml") in line
+    assert not out.exists()
+
+
+VALIDATION = WELDING_CELL.parent / "welding_cell_validation.yaml"
+
+
+@pytest.mark.parametrize(
+    "edit, key, expected",
+    [
+        (("variables: [rloc, rngDet]", "variables: [rloc, rngdet]"), "coverage.rloc x rngDet.variables.1", "did you mean 'rngDet'?"),
+        (("  safmod: [normal, ssmon, pflim, stopped]", "  safmod: [normal, ssmon, plfim, stopped]"), "domains.safmod.2", "'plfim'"),
+        (("  HS: [inact, act, mit, res]", "  HSS: [inact, act, mit, res]"), "domains.HSS", "did you mean 'HS'?"),
+        (("    use_case: U1", "    use_case: U9"), "coverage.U1 welder x range.use_case", "no use case named 'U9'"),
+        (("  sep: {edges: [0.5, 1.0, 2.0]}", "  sepp: {edges: [0.5, 1.0, 2.0]}"), "bins.sepp", "did you mean 'sep'?"),
+    ],
+)
+def test_coverage_errors_point_at_the_entry_at_fault(tmp_path, edit, key, expected):
+    import shutil
+
+    from cellsim.config.typed_yaml import ConfigError
+    from cellsim.validation.check import scenario_safety_case
+    from cellsim.scenario import load_scenario
+
+    folder = tmp_path / "scenario"
+    shutil.copytree(WELDING_CELL.parent, folder)
+    validation = folder / VALIDATION.name
+    text = validation.read_text()
+    assert edit[0] in text
+    validation.write_text(text.replace(*edit, 1))
+    with pytest.raises(ConfigError) as e:
+        scenario_safety_case(load_scenario(folder / "welding_cell.yaml"))
+    line = next(i for i, l in enumerate(validation.read_text().splitlines(), 1) if edit[1].strip() in l)
+    assert (e.value.source, e.value.key) == (str(validation), key)
+    assert expected in e.value.problem
+    if key.count(".") <= 2 or "use_case" in key:  # the entry's own line (list items are on their list's line)
+        assert e.value.line == line

@@ -59,9 +59,10 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from html import escape
+
+from cellsim.atomic import write_text
 
 __all__ = [
     "BOOL_COLOURS",
@@ -923,26 +924,7 @@ def write_report(
 ) -> None:
     """Renders the report and writes it to ``path`` atomically.
 
-    The page goes to a temporary file in the same folder, which then replaces
-    ``path`` (:func:`os.replace`): readers see the old report or the new one, never
-    a partial one, and no temporary file is left behind, even on error.
+    Readers see the old report or the new one, never a partial one, and no
+    temporary file is left behind, even on error (:func:`cellsim.atomic.write_text`).
     """
-    text = render_report(results, timelines, lanes)
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        mode = os.stat(path).st_mode & 0o777 if os.path.exists(path) else 0o644
-        os.chmod(tmp, mode)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    write_text(path, render_report(results, timelines, lanes), make_folder=True)

@@ -59,6 +59,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
+from cellsim.atomic import write_text
 from cellsim.campaign.samplers import draw_configuration, run_seed
 from cellsim.config.typed_yaml import to_data
 from cellsim.provenance import INPUTS, SnapshotError, changes, command_line, provenance, read_inputs, snapshot_scenario
@@ -189,9 +190,7 @@ def execute_run(plan: CampaignPlan, out: Path, index: int, origin: dict | None =
 
 
 def _write_json(path: Path, data) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=1))
-    tmp.replace(path)
+    write_text(path, json.dumps(data, indent=1))
 
 
 # --------------------------------------------------------------------------- the campaign

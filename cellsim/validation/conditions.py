@@ -20,7 +20,7 @@ from cellsim.logic.mtl import TraceEvaluator
 from cellsim.logic.syntax import Formula, FormulaError, parse, variables_of
 from cellsim.logic.trace import Trace
 from cellsim.validation.config import Validation
-from cellsim.validation.coverage import CoverageModel
+from cellsim.validation.coverage import CoverageError, CoverageModel
 
 Locate = Callable[[str], tuple[str, int | None, str]]
 """Dotted key of the validation section -> (file, line, key in that file) where it is written."""
@@ -121,10 +121,19 @@ class SafetyCase:
             formula(f"validation.macros.{name}", text)
         conditions = {name: formula(f"validation.conditions.{name}", t) for name, t in validation.conditions.items()}
         use_cases = {name: formula(f"validation.use_cases.{name}", t) for name, t in validation.use_cases.items()}
+        for name, criterion in validation.coverage.items():
+            if criterion.use_case and criterion.use_case not in use_cases:
+                import difflib
+
+                close = difflib.get_close_matches(criterion.use_case, list(use_cases), n=1)
+                hint = f"; did you mean '{close[0]}'?" if close else f" (use cases: {', '.join(use_cases) or 'none'})"
+                raise ConfigError(*locate(f"validation.coverage.{name}.use_case"), f"no use case named '{criterion.use_case}'{hint}")
         try:
             coverage = CoverageModel.compile(
                 validation.coverage, vocabulary, validation.macros, validation.bins, validation.domains
             )
+        except CoverageError as e:
+            raise ConfigError(*locate(f"validation.{e.key}"), str(e)) from None
         except ValueError as e:
             raise ConfigError(*locate("validation.coverage"), str(e)) from None
         return cls(validation, conditions, use_cases, coverage)

@@ -268,6 +268,14 @@ class _Criterion:
         return self.key(tuple(codes))
 
 
+class CoverageError(ValueError):
+    """A coverage problem at ``key`` (dotted, within the validation section)."""
+
+    def __init__(self, key: str, message: str):
+        super().__init__(message)
+        self.key = key
+
+
 def _suggestion(name: str, candidates: list[str]) -> str:
     folded = [c for c in candidates if c.lower() == name.lower()]
     close = folded or difflib.get_close_matches(name, candidates, n=1, cutoff=0.6)
@@ -359,14 +367,16 @@ class CoverageModel:
         bins = dict(bins or {})
         domains = dict(domains or {})
         for var, only in domains.items():
+            key = f"domains.{var}"
             domain = vocabulary.get(var)
             if not isinstance(domain, (EnumDomain, BoolDomain)):
                 what = "unknown" if domain is None else "numeric (give it bins)"
-                raise ValueError(f"domain given for variable {var!r}, which is {what}" + _suggestion(var, list(vocabulary)))
+                raise CoverageError(key, f"domain given for variable {var!r}, which is {what}" + _suggestion(var, list(vocabulary)))
             allowed = domain.values if isinstance(domain, EnumDomain) else ("false", "true")
             wrong = [v for v in only if v not in allowed]
             if wrong or not only:
-                raise ValueError(
+                raise CoverageError(
+                    f"{key}.{list(only).index(wrong[0])}" if wrong else key,
                     f"domain of {var!r}: {', '.join(map(repr, wrong)) or 'no values'}; "
                     f"choose among {', '.join(allowed)}"
                 )
@@ -374,24 +384,27 @@ class CoverageModel:
             if not isinstance(vocabulary.get(var), NumberDomain):
                 what = "unknown" if var not in vocabulary else "not numeric"
                 numeric = [v for v, d in vocabulary.items() if isinstance(d, NumberDomain)]
-                raise ValueError(
+                raise CoverageError(
+                    f"bins.{var}",
                     f"bins given for variable {var!r}, which is {what}"
                     + _suggestion(var, numeric)
                 )
         axes: dict[str, _Axis] = {}
         compiled: dict[str, _Criterion] = {}
         for name, crit in criteria.items():
-            for var in crit.variables:
+            for i, var in enumerate(crit.variables):
                 if var in axes:
                     continue
                 if var not in vocabulary:
-                    raise ValueError(
+                    raise CoverageError(
+                        f"coverage.{name}.variables.{i}",
                         f"coverage criterion {name!r}: unknown variable {var!r}"
                         + _suggestion(var, list(vocabulary))
                     )
                 domain = vocabulary[var]
                 if isinstance(domain, NumberDomain) and var not in bins:
-                    raise ValueError(
+                    raise CoverageError(
+                        f"coverage.{name}.variables.{i}",
                         f"coverage criterion {name!r}: numeric variable {var!r} needs bins "
                         f"(give its bin edges, e.g. {var}: {{edges: [0.5, 1]}})"
                     )
@@ -402,7 +415,7 @@ class CoverageModel:
                 try:
                     when = parse(crit.when, vocabulary, macros, allow_temporal=False)
                 except FormulaError as e:
-                    raise ValueError(f"coverage criterion {name!r}: when: {e}") from e
+                    raise CoverageError(f"coverage.{name}.when", f"coverage criterion {name!r}: when: {e}") from e
                 reads |= variables_of(when)
             compiled[name] = _Criterion(
                 name, crit, tuple(axes[v] for v in crit.variables), when, reads

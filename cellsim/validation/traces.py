@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cellsim.atomic import write_text
 from cellsim.logic.syntax import BoolDomain, EnumDomain, NumberDomain
 from cellsim.logic.trace import Signal, Trace
 from cellsim.channels import ChannelSpec
@@ -189,9 +190,6 @@ def _describe(domain: Domain) -> str:
 
 
 def write_trace_json(run_trace: RunTrace, path: str | os.PathLike) -> None:
-    """Write the trace as JSON, atomically (a temporary file replaced in one step)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
+    """Write the trace as JSON, atomically (:func:`cellsim.atomic.write_text`)."""
     lines = [f"  {json.dumps(name)}: {json.dumps(samples)}" for name, samples in run_trace.to_json().items()]
-    tmp.write_text("{\n" + ",\n".join(lines) + "\n}\n")
-    tmp.replace(path)
+    write_text(path, "{\n" + ",\n".join(lines) + "\n}\n")
