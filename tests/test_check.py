@@ -233,7 +233,7 @@ def test_a_corrupt_message_is_one_error_line_naming_channel_and_time(default_run
 def test_unwritable_output_paths_are_one_error_line(default_run, tmp_path, capsys):
     missing = tmp_path / "no" / "such" / "folder"
     assert main(["check", str(default_run), "--export-trace", str(missing / "t.json")]) == 2
-    assert "No such file or directory" in _one_error_line(capsys)
+    assert "no such folder to write into" in _one_error_line(capsys)
     blocker = tmp_path / "a-file"
     blocker.write_text("")
     assert main(["campaign", str(WELDING_CELL), "--runs", "1", "--out", str(blocker / "c"), "--quiet"]) == 2
