@@ -305,3 +305,27 @@ def test_coverage_errors_point_at_the_entry_at_fault(tmp_path, edit, key, expect
     assert expected in e.value.problem
     if key.count(".") <= 2 or "use_case" in key:  # the entry's own line (list items are on their list's line)
         assert e.value.line == line
+
+
+@pytest.mark.parametrize(
+    "edit, expected",
+    [
+        (("      rngDet: range_detector.range\n", "      rngDet: range_detector.rang\n"),
+         "behaviours.safety_controller.monitors.rngDet: no channel 'range_detector.rang'; did you mean 'range_detector.range'?"),
+        (("[robot.safety_mode_request, welder.safety_mode_request]", "[robot.safety_mode_requst, welder.safety_mode_request]"),
+         "no command input 'robot.safety_mode_requst'; did you mean 'robot.safety_mode_request'?"),
+    ],
+)
+def test_a_misspelt_channel_gets_a_did_you_mean_not_every_channel(tmp_path, edit, expected):
+    import shutil
+
+    folder = tmp_path / "scenario"
+    shutil.copytree(WELDING_CELL.parent, folder)
+    scenario = folder / "welding_cell.yaml"
+    text = scenario.read_text()
+    assert edit[0] in text
+    scenario.write_text(text.replace(*edit, 1))
+    done = cellsim("scenario", "check", str(scenario))
+    assert done.returncode == 2
+    line = one_line(done.stderr)
+    assert expected in line and "robot.location" not in line  # not a list of every channel
