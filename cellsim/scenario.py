@@ -36,7 +36,7 @@ from cellsim.config.typed_yaml import (
 from cellsim.campaign.samplers import Sampler
 from cellsim.registry import BehaviourModule, EntityModule, KindError, ServiceModule, kind_of
 from cellsim.validation.config import Validation
-from cellsim.vocabulary import RobotActivity, RobotLocation, TwinMode
+from cellsim.vocabulary import RobotActivity, TwinMode
 
 # -- numbers and their valid ranges (checked at load time and by --set) ----------
 MAX_EXTENT = 100.0
@@ -95,22 +95,50 @@ class Region:
 
 @dataclass
 class Layout:
+    """The cell's fixtures and the named volumes its vocabulary is made of (in the cell's own words)."""
+
     fixtures: dict[str, Fixture] = field(default_factory=dict)
+    """Static boxes: tables, benches, fences, machine bodies."""
     robot_regions: dict[str, Region] = field(default_factory=dict)
-    """Where the robot's tool counts as atTable, sharedTbl or atWeldSpot; elsewhere inCell."""
-    cell: Region = field(default_factory=lambda: Region((-1.3, -1.6, 0.0), (2.0, 1.6, 2.5)))
-    """The safeguarded cell: an operator standing in it is ``inCell``."""
-    shared_table_zone: Region = field(default_factory=lambda: Region((-2.0, -0.5, 0.0), (-1.3, 0.5, 2.5)))
-    """Where an operator standing counts as at the shared table (``otab``)."""
+    """Robot locations: a robot's ``location`` channel takes the name of the first region holding its tool."""
+    robot_elsewhere: str = "elsewhere"
+    """A robot's location when its tool is in none of the regions."""
+    operator_zones: dict[str, Region] = field(default_factory=dict)
+    """Where people are: a person's ``location`` channel takes the name of the first zone they stand in."""
+    operator_outside: str = "outside"
+    """A person's location when they stand in none of the zones."""
+    operator_flags: dict[str, Region] = field(default_factory=dict)
+    """Volumes each giving every person a true/false channel of that name (``at_table``: standing there)."""
 
     def __post_init__(self):
-        allowed = {m.value for m in RobotLocation} - {RobotLocation.IN_CELL.value}
-        for name in self.robot_regions:
-            if name not in allowed:
-                raise FieldError(
-                    f"robot_regions.{name}",
-                    f"'{name}' is not a robot location with a region (one of: {', '.join(sorted(allowed))})",
-                )
+        for key, names, other in (
+            ("robot_regions", list(self.robot_regions), [self.robot_elsewhere, UNKNOWN]),
+            ("operator_zones", list(self.operator_zones), [self.operator_outside]),
+        ):
+            for name in names:
+                if not name.isidentifier():
+                    raise FieldError(f"{key}.{name}", "a location's name must be an identifier (letters, digits, _)")
+                if name in other:
+                    raise FieldError(f"{key}.{name}", f"'{name}' is already the name of the location outside every {key[:-1].replace('_', ' ')}")
+        for key in ("robot_elsewhere", "operator_outside"):
+            if not getattr(self, key).isidentifier():
+                raise FieldError(key, "a location's name must be an identifier (letters, digits, _)")
+        for name in self.operator_flags:
+            if not name.isidentifier() or name in RESERVED_OPERATOR_CHANNELS:
+                raise FieldError(f"operator_flags.{name}", f"'{name}' cannot name a person's channel")
+
+    def robot_locations(self) -> list[str]:
+        """The values of a robot's location channel: the regions, elsewhere, and unknown (no valid sample)."""
+        return [*self.robot_regions, self.robot_elsewhere, UNKNOWN]
+
+    def operator_locations(self) -> list[str]:
+        """The values of a person's location channel: outside, then the zones."""
+        return [self.operator_outside, *self.operator_zones]
+
+
+UNKNOWN = "unknown"
+"""What a shadowed machine reports when its physical samples are stale or corrupt."""
+RESERVED_OPERATOR_CHANNELS = ("location", "waypoint", "position", "twin_mode", "physical_link")
 
 
 # -- entities -----------------------------------------------------------------

@@ -54,16 +54,6 @@ class SafetyMode(CodedEnum):
     UNKNOWN = "unknown"  # a shadowed machine with no valid physical sample: assume the worst
 
 
-class RobotLocation(CodedEnum):
-    """Where the robot's tool is, from its pose against the layout's regions."""
-
-    AT_TABLE = "atTable"  # parked over its own table (home)
-    SHARED_TABLE = "sharedTbl"  # over the shared handover table
-    IN_CELL = "inCell"  # anywhere else in the cell
-    AT_WELD_SPOT = "atWeldSpot"  # holding the work-piece at the welder
-    UNKNOWN = "unknown"  # a shadowed robot with no valid physical sample: could be anywhere
-
-
 class RobotActivity(CodedEnum):
     IDLE = "idle"
     EXCHANGE_WORKPIECE = "exchWrkp"
@@ -116,11 +106,6 @@ class PhysicalLink(CodedEnum):
     OK = "ok"  # a fresh, well-formed sample drives the entity
     STALE = "stale"  # no sample within the entity's stale_after: failing safe
     CORRUPT = "corrupt"  # the latest sample is malformed: failing safe
-
-
-class OperatorLocation(CodedEnum):
-    NONE = "none"  # outside the cell
-    IN_CELL = "inCell"
 
 
 PERMISSIVE_MODES = frozenset(

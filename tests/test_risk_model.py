@@ -12,10 +12,10 @@ from cellsim.behaviours.safety_controller import SafetyController
 from cellsim.channels import BOOL, enum_type
 from cellsim.config.typed_yaml import ConfigError
 from cellsim.vocabulary import (
+    CodedEnum,
     Notification,
     Range,
     RobotActivity,
-    RobotLocation,
     SafetyMode,
     WelderActivity,
 )
@@ -25,7 +25,7 @@ from conftest import ROOT
 RISK_MODEL = ROOT / "scenarios" / "welding_cell_risk_model.yaml"
 TYPES = {
     "safmod": enum_type(SafetyMode),
-    "rloc": enum_type(RobotLocation),
+    "rloc": enum_type(CodedEnum("rloc", [(n, n) for n in ("atTable", "sharedTbl", "atWeldSpot", "inCell", "unknown")])),
     "wact": enum_type(WelderActivity),
     "ract": enum_type(RobotActivity),
     "rngDet": enum_type(Range),

@@ -98,3 +98,63 @@ def test_a_list_in_the_derived_file_replaces_the_base_list(tmp_path):
     path = _derived(tmp_path, SHORT_CYCLE + "    restart_on_request: !replace {}\n", "replaced.yaml")
     controller = load_scenario(path).scenario.behaviours["process_controller"]
     assert [s.name for s in controller.steps] == ["only"] and controller.restart_on_request == {}
+
+
+OWN_WORDS = """\
+base: {base}
+name: own_words
+layout:
+  robot_regions: !replace
+    infeed: {{min: [-0.3, 0.45, 0.8], max: [0.3, 1.1, 1.5]}}
+    press: {{min: [-1.35, -0.4, 0.85], max: [-0.75, 0.4, 1.4]}}
+  robot_elsewhere: aisle
+  operator_zones: !replace
+    pressArea: {{min: [-1.3, -1.6, 0.0], max: [2.0, 1.6, 2.5]}}
+  operator_outside: away
+  operator_flags: !replace
+    at_pallet: {{min: [-2.0, -0.5, 0.0], max: [-1.4, 0.5, 2.5]}}
+behaviours: !replace
+  process_controller:
+    kind: work_cycle
+    steps:
+      - {{name: fetch, move_to: shared_table, activity: exchWrkp}}
+      - {{name: carry, move_to: weld_spot, activity: exchWrkp}}
+validation: !replace {{}}
+"""
+
+
+def test_a_cell_speaks_its_own_words_in_its_black_box(tmp_path):
+    """Places are the layout's names: no welding-cell word reaches the evidence."""
+    from cellsim.services.blackbox import BlackBox
+    from cellsim.simulation import simulate
+
+    path = tmp_path / "own_words.yaml"
+    path.write_text(OWN_WORDS.format(base=WELDING_CELL))
+    simulate(load_scenario(path), tmp_path / "run", duration=20.0)
+    with BlackBox(tmp_path / "run" / "blackbox.sqlite") as bb:
+        channels = bb.channels()
+        robot_at = set(bb.series("robot.location").values)
+        person_at = set(bb.series("operator.location").values)
+        at_pallet = set(bb.series("operator.at_pallet").values)
+    assert channels["robot.location"].domain == ["infeed", "press", "aisle", "unknown"]
+    assert channels["operator.location"].domain == ["away", "pressArea"]
+    assert robot_at == {"infeed", "press", "aisle"} and person_at == {"away", "pressArea"} and at_pallet == {False, True}
+    assert "operator.at_table" not in channels
+    words = {"atTable", "sharedTbl", "atWeldSpot", "inCell", "none"}
+    assert not words & {v for c in channels.values() if isinstance(c.domain, list) for v in c.domain}
+
+
+@pytest.mark.parametrize(
+    "layout, expected",
+    [
+        ("  robot_regions: !replace {unknown: {min: [0, 0, 0], max: [1, 1, 1]}}\n", "already the name of the location outside"),
+        ("  robot_regions: !replace {in cell: {min: [0, 0, 0], max: [1, 1, 1]}}\n", "must be an identifier"),
+        ("  operator_zones: !replace {none: {min: [0, 0, 0], max: [1, 1, 1]}}\n", "already the name of the location outside"),
+        ("  operator_flags: {location: {min: [0, 0, 0], max: [1, 1, 1]}}\n", "cannot name a person's channel"),
+    ],
+)
+def test_bad_place_names_are_refused(tmp_path, layout, expected):
+    path = tmp_path / "bad.yaml"
+    path.write_text(f"base: {WELDING_CELL}\nname: bad\nlayout:\n{layout}")
+    with pytest.raises(ConfigError, match=expected):
+        load_scenario(path)

@@ -31,7 +31,7 @@ from cellsim.entities.twin import EntitySystem
 from cellsim.scenario import Layout, OperatorConfig
 from cellsim.registry import ModuleKind
 from cellsim.systems import read_scalar, write_scalar
-from cellsim.vocabulary import CodedEnum, Notification, OperatorLocation, TwinMode
+from cellsim.vocabulary import CodedEnum, Notification, TwinMode
 
 REACH_TIME = 0.5  # s to extend or withdraw the arm
 SKIN = (0.85, 0.65, 0.5, 1.0)
@@ -113,8 +113,10 @@ class Operator(EntitySystem):
         wearable in twin mode.
       physical_sample (input): [t, valid, x, y, yaw, reach_fraction, reach_x, reach_y, reach_z].
       geometry_pose (output): FramePoseVector of the body and arm frames, for SceneGraph.
-      location (channel, inCell/none): whether the body stands in the cell (oloc).
-      at_table (channel, bool): whether the body stands in the shared-table zone (otab).
+      location (channel): the name of the layout's operator zone the body stands in, else
+        layout.operator_outside (oloc; the welding cell: inCell / none).
+      <flag> (channel, bool), for each of the layout's operator_flags: whether the body
+        stands in that volume (the welding cell: at_table, otab).
       waypoint (channel): the waypoint walked to or waited at.
       position (channel, m): [x, y] of the body, every 0.1 s.
     """
@@ -135,10 +137,16 @@ class Operator(EntitySystem):
         self.leave_workbench_port = self.declare_input("leave_workbench", ctype=BOOL, default=0.0)
         initial = pose_at(self.legs, self.start_yaw, 0.0)
         self._pose = self.declare_state("pose", self._pose_vector(initial))
+        # the cell's own words for where a person is: outside, or one of the layout's zones
+        self.locations = CodedEnum(f"{module}_location", [(n, n) for n in layout.operator_locations()])
+        self._zones = [(self.locations(name).code, zone) for name, zone in layout.operator_zones.items()]
         self._location = self.declare_channel(
-            "location", enum_type(OperatorLocation), OperatorLocation.NONE, description="Operator location (oloc)"
+            "location", enum_type(self.locations), layout.operator_outside, description="Where the person stands: a zone of the layout, or outside"
         )
-        self._at_table = self.declare_channel("at_table", BOOL, False, description="Operator at the shared table (otab)")
+        self._flags = [
+            (self.declare_channel(name, BOOL, False, description=f"Standing in the layout's {name} volume"), zone)
+            for name, zone in layout.operator_flags.items()
+        ]
         self._waypoint = self.declare_channel("waypoint", enum_type(self.waypoints), "start")
         self._position = self.declare_channel(
             "position", vector_type(2, "m"), initial.xy, record="every_sample", record_period=0.1
@@ -229,10 +237,10 @@ class Operator(EntitySystem):
         if vector == current:
             return  # standing still: nothing derived from the pose changes
         xd.get_mutable_vector(self._pose).SetFromVector(np.array(vector))
-        x, y = vector[0], vector[1]
-        location = OperatorLocation.IN_CELL if self.layout.cell.contains((x, y, 1.0)) else OperatorLocation.NONE
-        write_scalar(xd, self._location, location.code)
-        write_scalar(xd, self._at_table, 1.0 if self.layout.shared_table_zone.contains((x, y, 1.0)) else 0.0)
+        standing = (vector[0], vector[1], 1.0)  # the body, a metre above the floor
+        write_scalar(xd, self._location, next((code for code, zone in self._zones if zone.contains(standing)), 0.0))
+        for group, zone in self._flags:
+            write_scalar(xd, group, 1.0 if zone.contains(standing) else 0.0)
         xd.get_mutable_vector(self._position).SetFromVector(np.array(vector[:2]))
 
 
@@ -253,8 +261,8 @@ KIND = ModuleKind(
     sample_fields=Operator.POSE_FIELDS,
     command_fields=("notification", "leave_workbench"),
     channels=(
-        ("location", "enum", "inCell while standing in layout.cell, else none (oloc)"),
-        ("at_table", "bool", "standing in layout.shared_table_zone (otab)"),
+        ("location", "enum", "the layout.operator_zones zone stood in, else layout.operator_outside (oloc)"),
+        ("<flag>", "bool", "for each of layout.operator_flags: standing in that volume (otab)"),
         ("waypoint", "enum", "the waypoint walked to or waited at"),
         ("position", "vector, m", "x, y of the body, every 0.1 s"),
         ("twin_mode", "enum", "model / shadow / twin"),

@@ -30,7 +30,7 @@ from cellsim.entities.twin import EntitySystem, valid_code
 from cellsim.registry import ModuleKind
 from cellsim.scenario import Layout, RobotConfig
 from cellsim.systems import write_changed, write_scalar
-from cellsim.vocabulary import CodedEnum, RobotActivity, RobotLocation, SafetyMode, TwinMode
+from cellsim.vocabulary import CodedEnum, RobotActivity, SafetyMode, TwinMode
 
 KP, KI, KD = 400.0, 1.0, 40.0
 """Joint controller gains: 20 rad/s bandwidth, critically damped."""
@@ -87,7 +87,8 @@ class Robot(EntitySystem):
       desired_state (output): [q (rad), v (rad/s)] for the joint controller.
       safety_mode (channel): the robot's current safety mode (safmod).
       activity (channel): idle / exchWrkp / welding / off (ract).
-      location (channel): atTable / sharedTbl / inCell / atWeldSpot from the tool's position (rloc).
+      location (channel): the name of the layout's robot region holding the tool, else
+        layout.robot_elsewhere (rloc; the welding cell: atTable / sharedTbl / atWeldSpot / inCell).
       reached_pose (channel): the named pose the arm rests at, or ``moving``.
       joint_positions (channel, rad): measured q, every 0.1 s.
       tool_speed (channel, m/s): measured tool speed, every 0.1 s.
@@ -112,7 +113,11 @@ class Robot(EntitySystem):
             raise ValueError(f"{module}: the arm model has {self.kinematics.num_joints} joints, expected {n}")
         self.pose_names = list(cfg.named_poses)
         self.poses = np.array([cfg.named_poses[p] for p in self.pose_names], float)
-        self.regions = [(RobotLocation(name), r.min, r.max) for name, r in layout.robot_regions.items()]
+        # the cell's own words for where the tool is: its regions, elsewhere, unknown
+        self.locations = CodedEnum(f"{module}_location", [(n, n) for n in layout.robot_locations()])
+        self.regions = [(self.locations(name), r.min, r.max) for name, r in layout.robot_regions.items()]
+        self.elsewhere = self.locations(layout.robot_elsewhere)
+        self.unknown_location = self.locations("unknown")
         self.speed_caps = {
             SafetyMode.NORMAL: cfg.speed_limits.normal,
             SafetyMode.HAND_GUIDED: cfg.speed_limits.hguid,
@@ -141,7 +146,7 @@ class Robot(EntitySystem):
         self._published = [
             self.declare_channel("safety_mode", enum_type(SafetyMode), published[0], description="safmod"),
             self.declare_channel("activity", enum_type(RobotActivity), published[1], description="ract"),
-            self.declare_channel("location", enum_type(RobotLocation), published[2], description="rloc"),
+            self.declare_channel("location", enum_type(self.locations), published[2], description="rloc"),
             self.declare_channel("reached_pose", enum_type(self.reached_poses), published[3]),
         ]
         self._telemetry_every = max(1, round(TELEMETRY_PERIOD / self.period))
@@ -153,12 +158,13 @@ class Robot(EntitySystem):
         )
 
     # -- helpers ------------------------------------------------------------------
-    def locate(self, tool_position) -> RobotLocation:
+    def locate(self, tool_position):
+        """The location (a member of ``self.locations``) of the tool at ``tool_position``."""
         x, y, z = tool_position
         for location, (x0, y0, z0), (x1, y1, z1) in self.regions:
             if x0 <= x <= x1 and y0 <= y <= y1 and z0 <= z <= z1:
                 return location
-        return RobotLocation.IN_CELL
+        return self.elsewhere
 
     def sample_is_valid(self, sample) -> bool:
         return (
@@ -223,7 +229,7 @@ class Robot(EntitySystem):
         value; the digital arm holds where it was, but nothing it shows is
         presented as the physical robot's current state.
         """
-        codes = [float(SafetyMode.UNKNOWN.code), float(RobotActivity.UNKNOWN.code), float(RobotLocation.UNKNOWN.code), 0.0]
+        codes = [float(SafetyMode.UNKNOWN.code), float(RobotActivity.UNKNOWN.code), float(self.unknown_location.code), 0.0]
         write_changed(xd, self._published, codes, published)
         if codes != published:
             xd.get_mutable_vector(self._state).SetFromVector(np.concatenate((codes, state[4:])))
@@ -351,7 +357,7 @@ KIND = ModuleKind(
     channels=(
         ("safety_mode", "enum", "current safety mode (safmod); unknown when shadowing with no valid sample"),
         ("activity", "enum", "idle / exchWrkp / welding / off (ract)"),
-        ("location", "enum", "which region of layout.robot_regions holds the tool, else inCell (rloc)"),
+        ("location", "enum", "the layout.robot_regions region holding the tool, else layout.robot_elsewhere (rloc)"),
         ("reached_pose", "enum", "the named pose the arm rests at, or moving"),
         ("joint_positions", "vector, rad", "measured joint positions, every 0.1 s"),
         ("tool_speed", "number, m/s", "measured tool speed, every 0.1 s"),
