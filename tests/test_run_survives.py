@@ -140,16 +140,16 @@ def test_a_folder_of_other_files_is_refused(tmp_path, capsys):
     assert sorted(p.name for p in out.iterdir()) == ["todo.txt"]
 
 
+def with_condition(tmp_path: Path, name: str, formula: str) -> Path:
+    """The welding cell with one more safety condition (a scenario with the welding cell as base)."""
+    path = tmp_path / "with_condition.yaml"
+    path.write_text(f"base: {WELDING_CELL}\nvalidation:\n  conditions:\n    {json.dumps(name)}: {json.dumps(formula)}\n")
+    return path
+
+
 def test_simulate_exits_1_when_a_condition_is_violated(tmp_path, capsys):
     """simulate and check agree: a violated condition is a safety finding for both."""
-    import yaml
-
-    from cellsim.scenario import export_scenario, load_scenario
-
-    data = yaml.safe_load(export_scenario(load_scenario(WELDING_CELL), destination_dir=tmp_path))
-    data["validation"]["conditions"]["Never:welds"] = "G(not wact == welding)"
-    scenario = tmp_path / "strict.yaml"
-    scenario.write_text(yaml.safe_dump(data, sort_keys=False))
+    scenario = with_condition(tmp_path, "Never:welds", "G(not wact == welding)")
     out = tmp_path / "run"
     assert main(["simulate", str(scenario), "--out", str(out), "--quiet"]) == 1
     assert capsys.readouterr().out == ""  # --quiet
@@ -158,14 +158,7 @@ def test_simulate_exits_1_when_a_condition_is_violated(tmp_path, capsys):
 
 
 def test_a_bad_condition_is_refused_before_anything_is_written_even_quiet(tmp_path, capsys):
-    import yaml
-
-    from cellsim.scenario import export_scenario, load_scenario
-
-    data = yaml.safe_load(export_scenario(load_scenario(WELDING_CELL), destination_dir=tmp_path))
-    data["validation"]["conditions"]["Typo"] = "G(not wact == weldin)"
-    scenario = tmp_path / "typo.yaml"
-    scenario.write_text(yaml.safe_dump(data, sort_keys=False))
+    scenario = with_condition(tmp_path, "Typo", "G(not wact == weldin)")
     out = tmp_path / "run"
     assert main(["simulate", str(scenario), "--out", str(out), "--quiet"]) == 2
     err = capsys.readouterr().err
