@@ -280,11 +280,14 @@ def test_a_separation_with_no_value_compares_false(tmp_path):
         (("sep: {type: number, unit: m}", "sep: {type: number, values: [a]}"), "a number variable has no values list"),
         (("sep: {type: number, unit: m}", "sep: {type: bool, unit: m}"), "only a number variable has a unit"),
         (("safmod: {values: [normal, ssmon, stopped], default: normal}", "safmod: {type: number}"), "numbers are monitored only"),
+        (("{phase: act, to: mit}", "{phase: act, to: mitigated}"), "'mitigated' is not a phase of this model"),
+        (("      mit: {safmod: ssmon}", "      done: {safmod: ssmon}"), "'done' is not a phase of this model"),
+        (("hazards:\n", "phases: {values: [a, b], initial: c}\nhazards:\n"), "'c' is not one of the phases"),
     ],
 )
-def test_number_variables_are_checked(tmp_path, edit, expected):
+def test_number_variables_and_phases_are_checked(tmp_path, edit, expected):
     path = tmp_path / "bad.yaml"
-    path.write_text(SSM_MODEL.replace(*edit))
+    path.write_text(SSM_MODEL.replace(*edit, 1))
     with pytest.raises(ConfigError, match=expected):
         load_risk_model(path)
 
@@ -336,16 +339,3 @@ def test_a_risk_model_declares_its_own_phases(tmp_path):
     assert system.phases[int(system.GetOutputPort("CLOSE").Eval(context)[0])] == "slowed"
 
 
-@pytest.mark.parametrize(
-    "edit, expected",
-    [
-        (("{phase: act, to: mit}", "{phase: act, to: mitigated}"), "'mitigated' is not a phase of this model"),
-        (("      mit: {safmod: ssmon}", "      done: {safmod: ssmon}"), "'done' is not a phase of this model"),
-        (("hazards:\n", "phases: {values: [a, b], initial: c}\nhazards:\n"), "'c' is not one of the phases"),
-    ],
-)
-def test_phases_are_checked(tmp_path, edit, expected):
-    path = tmp_path / "bad.yaml"
-    path.write_text(SSM_MODEL.replace(*edit, 1))
-    with pytest.raises(ConfigError, match=expected):
-        load_risk_model(path)
