@@ -76,6 +76,9 @@ def build_parser() -> argparse.ArgumentParser:
         "record black boxes, and gather safety evidence.",
         epilog="Exit codes: 0 ok, 1 safety finding, 2 usage or input error, 130 interrupted.",
     )
+    from cellsim import __version__
+
+    parser.add_argument("--version", action="version", version=f"cellsim {__version__}")
     sub = parser.add_subparsers(metavar="COMMAND")
 
     sim = sub.add_parser(

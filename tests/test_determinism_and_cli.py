@@ -175,3 +175,12 @@ def test_a_run_shorter_than_one_period_keeps_the_initial_values(tmp_path):
     bb = run(welding_cell(), tmp_path / "r", duration=0.01, seed=1)
     values = {m.channel: m.value for m in bb.messages() if m.t == 0.0}
     assert values["robot.activity"] == "idle" and values["robot.safety_mode"] == "normal"
+
+
+def test_version_is_the_package_version():
+    import subprocess
+    import sys
+    from importlib.metadata import version
+
+    done = subprocess.run([sys.executable, "-m", "cellsim.cli", "--version"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and done.stdout.strip() == f"cellsim {version('cellsim')}"
