@@ -1,0 +1,169 @@
+"""A machine of the cell (a press, a welder, a conveyor), in the cell's own words.
+
+A machine has activities named by the scenario (``[idle, pressing, off]``): a
+*rest* activity, a *working* activity and an *off* activity. It works in one of
+two ways:
+
+* with a ``cycle_time``: a rising edge of its ``command`` input starts a cycle of
+  that many seconds (a press stroke), which runs on its own, in parallel with the
+  robot, and counts in ``cycles_completed`` when it ends;
+* without (``cycle_time: 0``): it works exactly while ``command`` is on (a
+  welder welding while the process controller asks).
+
+Its safety: it supports the ``safety_modes`` listed; a requested mode it does not
+support becomes the next more restrictive one it supports. In ``stopped`` it is
+``off`` (a cycle under way is abandoned); in ``srmst`` it rests and a cycle
+under way pauses; the safety controller can also request an activity (rest or
+off) outright. In shadow or twin mode with no valid physical sample it fails
+safe: it reports its working activity and safety mode ``unknown``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from cellsim.channels import NO_VALUE, enum_type, number_type
+from cellsim.entities.twin import EntitySystem, valid_code
+from cellsim.registry import ModuleKind
+from cellsim.scenario import Period, Seconds, TwinSettings
+from cellsim.config.typed_yaml import FieldError
+from cellsim.systems import read_scalar, write_changed
+from cellsim.vocabulary import CodedEnum, SafetyMode, TwinMode
+
+_MODES = tuple(SafetyMode)
+
+
+@dataclass
+class MachineConfig:
+    """A machine with named activities, the safety modes it supports, and an optional cycle."""
+
+    kind: Literal["machine"]
+    activities: list[str] = field(default_factory=lambda: ["idle", "working", "off"])
+    """Its activities in the cell's words; its activity channel takes these names."""
+    rest: str = "idle"
+    """The activity while it waits for work."""
+    working: str = "working"
+    """The activity while it works (the hazardous one: reported when its state is unknown)."""
+    off: str = "off"
+    """The activity while stopped or switched off."""
+    cycle_time: Seconds = 0.0
+    """Seconds a cycle takes once started by its command (0: it works while commanded)."""
+    safety_modes: list[SafetyMode] = field(default_factory=lambda: [SafetyMode.NORMAL, SafetyMode.STOPPED])
+    """The safety modes it supports; a request for another becomes the next more restrictive one."""
+    period: Period = 0.04
+    """Update period (s)."""
+    twin: TwinSettings = field(default_factory=TwinSettings)
+    """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
+
+    def __post_init__(self):
+        if len(set(self.activities)) != len(self.activities) or not all(a.isidentifier() for a in self.activities):
+            raise FieldError("activities", "activities must be distinct identifiers")
+        for key in ("rest", "working", "off"):
+            if getattr(self, key) not in self.activities:
+                raise FieldError(key, f"'{getattr(self, key)}' is not one of its activities ({', '.join(self.activities)})")
+        if len({self.rest, self.working, self.off}) != 3:
+            raise FieldError("working", "rest, working and off must be three different activities")
+        if SafetyMode.STOPPED not in self.safety_modes:
+            raise FieldError("safety_modes", "every machine supports stopped")
+        if SafetyMode.UNKNOWN in self.safety_modes:
+            raise FieldError("safety_modes", "unknown is what a shadowed machine reports, not a mode it supports")
+
+
+def supported_mode(request: SafetyMode, supported: list[SafetyMode]) -> SafetyMode:
+    """The requested mode if supported, else the next more restrictive supported one."""
+    order = [m for m in _MODES if m is not SafetyMode.UNKNOWN]
+    for mode in order[order.index(request):]:
+        if mode in supported:
+            return mode
+    return SafetyMode.STOPPED
+
+
+class Machine(EntitySystem):
+    """A machine's controller side.
+
+    Ports:
+      safety_mode_request (input): SafetyMode code from the safety controller.
+      activity_request (input): code of one of its activities from the safety controller, -1 for none.
+      command (input): 1 while the process controller asks it to work (a rising edge starts a cycle).
+      physical_sample (input): [t, valid, safety_mode code, activity code].
+      safety_mode (channel): its safety mode.
+      activity (channel): one of its activities.
+      cycles_completed (channel): cycles it finished (cycle machines).
+    """
+
+    def __init__(self, module: str, cfg: MachineConfig):
+        super().__init__(module, cfg.period, cfg.twin, ("safety_mode", "activity"),
+                         ("safety_mode_request", "activity_request", "command"))
+        self.cfg = cfg
+        self.activity_type = CodedEnum(f"{module}_activity", [(a, a) for a in cfg.activities])
+        self.rest, self.working, self.off = (self.activity_type(a).code for a in (cfg.rest, cfg.working, cfg.off))
+        self.mode_request_port = self.declare_input("safety_mode_request", ctype=enum_type(SafetyMode), default=SafetyMode.NORMAL.code)
+        self.activity_request_port = self.declare_input("activity_request", ctype=enum_type(self.activity_type), default=NO_VALUE)
+        self.command_port = self.declare_input("command", default=0.0)
+        # [cycle seconds left, command as last seen]
+        self._cycle = self.declare_state("cycle", [0.0, 0.0])
+        self._outputs = [
+            self.declare_channel("safety_mode", enum_type(SafetyMode), SafetyMode.NORMAL),
+            self.declare_channel("activity", enum_type(self.activity_type), cfg.rest),
+            self.declare_channel("cycles_completed", number_type(None), 0.0),
+        ]
+
+    def sample_is_valid(self, sample) -> bool:
+        return valid_code(sample[0], SafetyMode) and valid_code(sample[1], self.activity_type)
+
+    def update(self, context, xd):
+        view = self.consult_physical(context, xd)
+        mode_request = self.mode_request_port.Eval(context)[0]
+        activity_request = self.activity_request_port.Eval(context)[0]
+        command = self.command_port.Eval(context)[0]
+        self.write_command(xd, view.mode, lambda: (mode_request, activity_request, command))
+        published = [read_scalar(context, g) for g in self._outputs]
+        cycle = context.get_discrete_state(self._cycle).get_value().tolist()
+        left, last_command = cycle
+        cycles = published[2]
+        if view.mode is TwinMode.MODEL:
+            mode = supported_mode(SafetyMode.from_code(mode_request), self.cfg.safety_modes)
+            started = command > 0.5 and last_command <= 0.5
+            if self.cfg.cycle_time > 0 and started and left <= 0.0:
+                left = self.cfg.cycle_time
+            if mode is SafetyMode.STOPPED or activity_request == self.off:
+                activity, left = self.off, 0.0  # stopped: a cycle under way is abandoned
+            elif mode is SafetyMode.MONITORED_STOP or activity_request == self.rest:
+                activity = self.rest  # a cycle under way pauses
+            elif self.cfg.cycle_time > 0:
+                if left > 0.0:
+                    left = max(0.0, left - self.period)
+                    activity = self.working
+                    if left <= 1e-9:
+                        left, cycles = 0.0, cycles + 1
+                else:
+                    activity = self.rest
+            else:
+                activity = self.working if command > 0.5 else self.rest
+            codes = [float(mode.code), float(activity), cycles]
+        elif view.sample is None:  # unknown physical state: assume it works, mode unknown
+            codes = [float(SafetyMode.UNKNOWN.code), float(self.working), cycles]
+        else:
+            codes = [float(view.sample[0]), float(view.sample[1]), cycles]
+        write_changed(xd, self._outputs, codes, published)
+        if [left, command] != cycle:
+            xd.get_mutable_vector(self._cycle).SetFromVector([left, command])
+
+
+KIND = ModuleKind(
+    name="machine",
+    section="entities",
+    config=MachineConfig,
+    build=lambda cell, name, cfg: cell.add(name, Machine(name, cfg)),
+    summary="A machine with named activities and supported safety modes, working while commanded or for a cycle.",
+    sample_fields=("safety_mode", "activity"),
+    command_fields=("safety_mode_request", "activity_request", "command"),
+    channels=(
+        ("safety_mode", "enum", "its safety mode; unknown when shadowing with no valid sample"),
+        ("activity", "enum", "one of its activities; its working one when shadowing with no valid sample"),
+        ("cycles_completed", "number", "cycles finished"),
+        ("twin_mode", "enum", "model / shadow / twin"),
+        ("physical_link", "enum", "unused / ok / stale / corrupt"),
+    ),
+)
