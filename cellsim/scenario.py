@@ -36,7 +36,7 @@ from cellsim.config.typed_yaml import (
 from cellsim.campaign.samplers import Sampler
 from cellsim.registry import BehaviourModule, EntityModule, KindError, ServiceModule, kind_of
 from cellsim.validation.config import Validation
-from cellsim.vocabulary import RobotActivity, TwinMode
+from cellsim.vocabulary import TwinMode
 
 # -- numbers and their valid ranges (checked at load time and by --set) ----------
 MAX_EXTENT = 100.0
@@ -45,6 +45,9 @@ MAX_DURATION = 86400.0
 """Longest run, and longest wait or delay (s): one day."""
 MAX_PLANT_STEPS = 50_000_000
 """Most plant steps a run may take (a day at 2 ms): beyond, its cost is refused."""
+MAX_MODULE_UPDATES = 100_000_000
+"""Most periodic module updates a run may take, summed over its modules (the welding
+cell makes 2e7 in a day; eight modules at 500 Hz reach 1e8 in 3.5 h): beyond, its cost is refused."""
 
 SEEDS = Range(0, 2**32 - 1)
 """Valid random seeds."""
@@ -195,6 +198,8 @@ class RobotConfig:
     """Rotation of the base about the vertical axis (degrees)."""
     tool_frame: str = "tcp"
     """The frame of the model whose position gives the robot's location and tool speed."""
+    activities: list[str] = field(default_factory=lambda: ["idle", "working", "off"])
+    """Its activities in the cell's words (ract); the first is its activity before the process starts."""
     initial_pose: str = "home"
     """The named pose the arm starts in."""
     speed_limits: SpeedLimits = field(default_factory=SpeedLimits)
@@ -207,6 +212,10 @@ class RobotConfig:
     """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
 
     def __post_init__(self):
+        if len(set(self.activities)) != len(self.activities) or not all(a.isidentifier() for a in self.activities):
+            raise FieldError("activities", "activities must be distinct identifiers")
+        if not self.activities or UNKNOWN in self.activities:
+            raise FieldError("activities", f"list at least one activity; '{UNKNOWN}' is what a shadowed robot reports")
         if self.initial_pose not in self.named_poses:
             raise FieldError("initial_pose", f"'{self.initial_pose}' is not one of the named_poses")
         for name, q in self.named_poses.items():
@@ -311,8 +320,8 @@ class WorkStep:
     """Seconds to stay put (picking, placing)."""
     weld: Seconds = 0.0
     """Seconds of welding (the welder welds while the robot holds the work-piece)."""
-    activity: RobotActivity = RobotActivity.EXCHANGE_WORKPIECE
-    """The robot activity this step is (ract)."""
+    activity: str = "working"
+    """The robot activity this step is (one of the robot's ``activities``; ract)."""
 
     def __post_init__(self):
         if sum(x is not None and x != 0 for x in (self.move_to, self.dwell or None, self.weld or None)) != 1:
@@ -331,7 +340,8 @@ class WorkCycleConfig:
     welder: str = "welder"
     """The welder entity it asks to weld."""
     restart_on_request: dict[str, str] = field(default_factory=dict)
-    """Robot activity requested by the safety controller -> step the cycle restarts from."""
+    """Robot activity requested by the safety controller -> step the cycle restarts from.
+    Any other activity requested pauses the cycle, and the robot reports it."""
     period: Period = 0.04
     """Update period (s)."""
 
@@ -340,8 +350,6 @@ class WorkCycleConfig:
         if not names:
             raise FieldError("steps", "needs at least one step")
         for activity, step in self.restart_on_request.items():
-            if activity not in RobotActivity.names():
-                raise FieldError(f"restart_on_request.{activity}", f"'{activity}' is not a robot activity")
             if step not in names:
                 raise FieldError(f"restart_on_request.{activity}", f"'{step}' is not a step of the cycle")
 
@@ -608,6 +616,26 @@ def check_run_length(sf: ScenarioFile, duration: float, key: str = "duration") -
             f"{duration:g} s at a {sf.scenario.time_step:g} s plant step is {steps:.3g} plant steps, "
             f"more than the {MAX_PLANT_STEPS:.0e} a run may take: shorten it or lengthen time_step"
         )
+    periods = _module_periods(sf.scenario)
+    updates = sum(duration / p for p in periods.values())
+    if updates > MAX_MODULE_UPDATES:
+        busiest = sorted(periods, key=periods.get)[:3]
+        listed = ", ".join(f"{name} every {periods[name]:g} s" for name in busiest)
+        raise refuse(
+            f"{duration:g} s is {updates:.3g} module updates ({listed}{', ...' if len(periods) > 3 else ''}), "
+            f"more than the {MAX_MODULE_UPDATES:.0e} a run may take: shorten it or lengthen the periods"
+        )
+
+
+def _module_periods(sc: Scenario) -> dict[str, float]:
+    """Module name -> its update period (s), for the modules updated periodically."""
+    found = {}
+    for section in ("entities", "behaviours", "services"):
+        for name, cfg in getattr(sc, section).items():
+            period = getattr(cfg, "period", None)
+            if isinstance(period, float) and period > 0:
+                found[name] = period
+    return found
 
 
 def check_seed(seed: int, key: str) -> None:

@@ -54,14 +54,6 @@ class SafetyMode(CodedEnum):
     UNKNOWN = "unknown"  # a shadowed machine with no valid physical sample: assume the worst
 
 
-class RobotActivity(CodedEnum):
-    IDLE = "idle"
-    EXCHANGE_WORKPIECE = "exchWrkp"
-    WELDING = "welding"
-    OFF = "off"
-    UNKNOWN = "unknown"  # a shadowed robot with no valid physical sample: could be working
-
-
 class WelderActivity(CodedEnum):
     IDLE = "idle"
     WELDING = "welding"

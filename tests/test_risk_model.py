@@ -15,7 +15,6 @@ from cellsim.vocabulary import (
     CodedEnum,
     Notification,
     Range,
-    RobotActivity,
     SafetyMode,
     WelderActivity,
 )
@@ -27,7 +26,7 @@ TYPES = {
     "safmod": enum_type(SafetyMode),
     "rloc": enum_type(CodedEnum("rloc", [(n, n) for n in ("atTable", "sharedTbl", "atWeldSpot", "inCell", "unknown")])),
     "wact": enum_type(WelderActivity),
-    "ract": enum_type(RobotActivity),
+    "ract": enum_type(CodedEnum("ract", [(n, n) for n in ("idle", "exchWrkp", "welding", "off", "unknown")])),
     "rngDet": enum_type(Range),
     "lgtBar": BOOL,
     "notif": enum_type(Notification),

@@ -113,12 +113,16 @@ layout:
   operator_outside: away
   operator_flags: !replace
     at_pallet: {{min: [-2.0, -0.5, 0.0], max: [-1.4, 0.5, 2.5]}}
+entities:
+  robot:
+    activities: [waiting, loading, down]
 behaviours: !replace
   process_controller:
     kind: work_cycle
     steps:
-      - {{name: fetch, move_to: shared_table, activity: exchWrkp}}
-      - {{name: carry, move_to: weld_spot, activity: exchWrkp}}
+      - {{name: fetch, move_to: shared_table, activity: loading}}
+      - {{name: carry, move_to: weld_spot, activity: loading}}
+    restart_on_request: {{loading: fetch}}
 validation: !replace {{}}
 """
 
@@ -137,10 +141,11 @@ def test_a_cell_speaks_its_own_words_in_its_black_box(tmp_path):
         person_at = set(bb.series("operator.location").values)
         at_pallet = set(bb.series("operator.at_pallet").values)
     assert channels["robot.location"].domain == ["infeed", "press", "aisle", "unknown"]
+    assert channels["robot.activity"].domain == ["waiting", "loading", "down", "unknown"]
     assert channels["operator.location"].domain == ["away", "pressArea"]
     assert robot_at == {"infeed", "press", "aisle"} and person_at == {"away", "pressArea"} and at_pallet == {False, True}
     assert "operator.at_table" not in channels
-    words = {"atTable", "sharedTbl", "atWeldSpot", "inCell", "none"}
+    words = {"atTable", "sharedTbl", "atWeldSpot", "inCell", "none", "exchWrkp"}
     assert not words & {v for c in channels.values() if isinstance(c.domain, list) for v in c.domain}
 
 
@@ -158,3 +163,22 @@ def test_bad_place_names_are_refused(tmp_path, layout, expected):
     path.write_text(f"base: {WELDING_CELL}\nname: bad\nlayout:\n{layout}")
     with pytest.raises(ConfigError, match=expected):
         load_scenario(path)
+
+
+@pytest.mark.parametrize(
+    "edit, key, expected",
+    [
+        (("activity: loading}}\n      - {{name: carry", "activity: lading}}\n      - {{name: carry"),
+         "behaviours.process_controller.steps.0.activity", "'lading' is not an activity of robot"),
+        (("restart_on_request: {{loading: fetch}}", "restart_on_request: {{welding: fetch}}"),
+         "behaviours.process_controller.restart_on_request.welding", "'welding' is not an activity of robot"),
+    ],
+)
+def test_activities_must_be_the_robots(tmp_path, edit, key, expected):
+    path = tmp_path / "bad.yaml"
+    text = OWN_WORDS.replace(*edit)
+    assert text != OWN_WORDS
+    path.write_text(text.format(base=WELDING_CELL))
+    with pytest.raises(ConfigError) as e:
+        load_scenario(path)
+    assert e.value.key == key and expected in e.value.problem

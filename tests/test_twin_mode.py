@@ -7,7 +7,7 @@ import numpy as np
 from bridges.physical import BlackBoxReplay
 from cellsim.channels import enum_type, vector_type
 from cellsim.scenario import TwinModeChange
-from cellsim.vocabulary import RobotActivity, SafetyMode, TwinMode
+from cellsim.vocabulary import SafetyMode, TwinMode
 
 from conftest import first_time, place_operator, run, welding_cell
 
@@ -17,7 +17,7 @@ def robot_replay(recorded, robot, time_offset):
     fields = [("robot.joint_positions", i, vector_type(6, "rad")) for i in range(6)]
     fields += [
         ("robot.safety_mode", 0, enum_type(SafetyMode)),
-        ("robot.activity", 0, enum_type(RobotActivity)),
+        ("robot.activity", 0, enum_type(robot.activity_type)),
         ("robot.reached_pose", 0, enum_type(robot.reached_poses)),
     ]
     return BlackBoxReplay(recorded, fields, period=0.02, time_offset=time_offset)

@@ -22,9 +22,8 @@ from cellsim.entities.welder import NO_REQUEST
 from cellsim.registry import ModuleKind
 from cellsim.scenario import WorkCycleConfig
 from cellsim.systems import CellSystem, write_changed
-from cellsim.vocabulary import CodedEnum, RobotActivity, SafetyMode, WelderActivity
+from cellsim.vocabulary import CodedEnum, SafetyMode, WelderActivity
 
-_PAUSING = {RobotActivity.OFF.code: RobotActivity.OFF, RobotActivity.IDLE.code: RobotActivity.IDLE}
 _STANDSTILL = {SafetyMode.MONITORED_STOP.code, SafetyMode.STOPPED.code, SafetyMode.UNKNOWN.code}
 """Modes in which the cycle waits: the robot stands still, or its state is unknown."""
 
@@ -33,31 +32,32 @@ class WorkCycle(CellSystem):
     """The robot's process controller.
 
     Ports:
-      activity_request (input): RobotActivity code requested by the safety controller, -1 for none.
+      activity_request (input): code of a robot activity requested by the safety controller, -1 for none.
       robot_safety_mode (input): the robot's SafetyMode code.
       robot_reached_pose (input): the robot's reached-pose code (0 moving, i + 1 for named pose i).
       welder_activity (input): the welder's WelderActivity code.
       target_pose (output): index of the robot's named pose to move to, -1 to hold.
-      robot_activity (output): the RobotActivity code the robot is carrying out.
+      robot_activity (output): code of the robot activity the robot is carrying out.
       weld_command (output): 1 while a weld is wanted.
       step (channel): the current step's name.
       cycles_completed (channel): work cycles completed so far.
     """
 
-    def __init__(self, module: str, cfg: WorkCycleConfig, pose_names: list[str]):
+    def __init__(self, module: str, cfg: WorkCycleConfig, pose_names: list[str], activities: type[CodedEnum]):
         super().__init__(module, cfg.period)
         self.cfg = cfg
         self.steps = cfg.steps
         self.targets = [HOLD if s.move_to is None else float(pose_names.index(s.move_to)) for s in self.steps]
-        self.restart = {RobotActivity(a).code: [s.name for s in self.steps].index(step) for a, step in cfg.restart_on_request.items()}
+        self.activity_codes = [float(activities(s.activity).code) for s in self.steps]
+        self.restart = {activities(a).code: [s.name for s in self.steps].index(step) for a, step in cfg.restart_on_request.items()}
         self.step_names = CodedEnum(f"{module}_step", [(s.name.upper(), s.name) for s in self.steps])
 
-        self.activity_request_port = self.declare_input("activity_request", ctype=enum_type(RobotActivity), default=NO_REQUEST)
+        self.activity_request_port = self.declare_input("activity_request", ctype=enum_type(activities), default=NO_REQUEST)
         self.robot_mode_port = self.declare_input("robot_safety_mode")
         self.reached_pose_port = self.declare_input("robot_reached_pose")
         self.welder_activity_port = self.declare_input("welder_activity")
         first = self.steps[0]
-        published = [self.targets[0], float(first.activity.code), 0.0, 0.0, 0.0]
+        published = [self.targets[0], self.activity_codes[0], 0.0, 0.0, 0.0]
         # [step progress (s dwelled or welded), last activity request, the five outputs
         # below as last published]: one read per update, and unchanged outputs are not rewritten
         self._state = self.declare_state("state", [0.0, NO_REQUEST, *published])
@@ -79,9 +79,9 @@ class WorkCycle(CellSystem):
         if request != last_request and request in self.restart:
             index, progress = self.restart[request], 0.0
         step = self.steps[index]
-        target, weld, activity = self.targets[index], 0.0, step.activity.code
+        target, weld, activity = self.targets[index], 0.0, self.activity_codes[index]
 
-        if request in _PAUSING:
+        if request != NO_REQUEST and request not in self.restart:  # any other request pauses the cycle
             target, activity = HOLD, request
         elif self.robot_mode_port.Eval(context)[0] not in _STANDSTILL:
             done = False
@@ -101,7 +101,7 @@ class WorkCycle(CellSystem):
                 if index == 0:
                     cycles += 1
                 step = self.steps[index]
-                target, activity = self.targets[index], step.activity.code
+                target, activity = self.targets[index], self.activity_codes[index]
         outputs = [float(target), float(activity), weld, float(index), float(cycles)]
         write_changed(xd, self._outputs, outputs, published)
         new_state = [progress, float(request), *outputs]
@@ -113,7 +113,7 @@ class WorkCycle(CellSystem):
 def build_work_cycle(cell, name: str, cfg: WorkCycleConfig) -> WorkCycle:
     """The process controller, wired to the robot it moves and the welder it starts."""
     robot, welder = cell.modules[cfg.robot], cell.modules[cfg.welder]
-    system = cell.add(name, WorkCycle(name, cfg, robot.pose_names))
+    system = cell.add(name, WorkCycle(name, cfg, robot.pose_names, robot.activity_type))
     connect = cell.builder.Connect
     connect(system.target_pose_port, robot.target_port)
     connect(system.robot_activity_port, robot.activity_port)
@@ -132,10 +132,15 @@ def _check(sf, name: str, cfg: WorkCycleConfig) -> None:
         raise sf.error(f"{key}.robot", f"no robot entity named '{cfg.robot}'")
     if cfg.welder not in sc.modules_of_kind("welder"):
         raise sf.error(f"{key}.welder", f"no welder entity named '{cfg.welder}'")
-    poses = robots[cfg.robot].named_poses
+    poses, activities = robots[cfg.robot].named_poses, robots[cfg.robot].activities
     for i, step in enumerate(cfg.steps):
         if step.move_to is not None and step.move_to not in poses:
             raise sf.error(f"{key}.steps.{i}.move_to", f"'{step.move_to}' is not a named pose of {cfg.robot} ({', '.join(poses)})")
+        if step.activity not in activities:
+            raise sf.error(f"{key}.steps.{i}.activity", f"'{step.activity}' is not an activity of {cfg.robot} ({', '.join(activities)})")
+    for activity in cfg.restart_on_request:
+        if activity not in activities:
+            raise sf.error(f"{key}.restart_on_request.{activity}", f"'{activity}' is not an activity of {cfg.robot} ({', '.join(activities)})")
 
 
 KIND = ModuleKind(

@@ -30,7 +30,7 @@ from cellsim.entities.twin import EntitySystem, valid_code
 from cellsim.registry import ModuleKind
 from cellsim.scenario import Layout, RobotConfig
 from cellsim.systems import write_changed, write_scalar
-from cellsim.vocabulary import CodedEnum, RobotActivity, SafetyMode, TwinMode
+from cellsim.vocabulary import CodedEnum, SafetyMode, TwinMode
 
 KP, KI, KD = 400.0, 1.0, 40.0
 """Joint controller gains: 20 rad/s bandwidth, critically damped."""
@@ -81,12 +81,13 @@ class Robot(EntitySystem):
     Ports:
       safety_mode_request (input): SafetyMode code from the safety controller.
       target_pose (input): index of the named pose to move to, or -1 to hold.
-      activity (input): RobotActivity code the process controller is carrying out.
+      activity (input): code of the robot activity the process controller is carrying out.
       measured_state (input): the plant's joint state [q (rad), v (rad/s)].
       physical_sample (input): [t, valid, q (6, rad), safety_mode code, activity code, reached_pose code].
       desired_state (output): [q (rad), v (rad/s)] for the joint controller.
       safety_mode (channel): the robot's current safety mode (safmod).
-      activity (channel): idle / exchWrkp / welding / off (ract).
+      activity (channel): one of the robot's ``activities`` (ract; the welding cell:
+        idle / exchWrkp / welding / off).
       location (channel): the name of the layout's robot region holding the tool, else
         layout.robot_elsewhere (rloc; the welding cell: atTable / sharedTbl / atWeldSpot / inCell).
       reached_pose (channel): the named pose the arm rests at, or ``moving``.
@@ -131,21 +132,23 @@ class Robot(EntitySystem):
 
         self.mode_request_port = self.declare_input("safety_mode_request", ctype=enum_type(SafetyMode), default=SafetyMode.NORMAL.code)
         self.target_port = self.declare_input("target_pose", default=HOLD)
-        self.activity_port = self.declare_input("activity", default=RobotActivity.IDLE.code)
+        # the cell's own words for what it does, and unknown (shadowed with no valid sample)
+        self.activity_type = CodedEnum(f"{module}_activity", [(a, a) for a in [*cfg.activities, "unknown"]])
+        self.activity_port = self.declare_input("activity", ctype=enum_type(self.activity_type), default=0.0)
         self.measured_state_port = self.declare_input("measured_state", 2 * n)
         self._desired = self.declare_state("desired_state", np.concatenate([q0, np.zeros(n)]))
         self.desired_state_port = self.DeclareStateOutputPort("desired_state", self._desired)
 
         location = self.locate(self.kinematics.tool_position(q0))
         self.reached_poses = CodedEnum(f"{module}_pose", [("MOVING", "moving")] + [(p.upper(), p) for p in self.pose_names])
-        published = [SafetyMode.NORMAL, RobotActivity.IDLE, location, self.reached_poses(cfg.initial_pose)]
+        published = [SafetyMode.NORMAL, self.activity_type(cfg.activities[0]), location, self.reached_poses(cfg.initial_pose)]
         # [the four codes below as last published, motion (see _advance)]: one read per update
         self._state = self.declare_state(
             "state", np.concatenate([[float(v.code) for v in published], [initial, 1.0, 0.0, 0.0, 0.0], q0, q0])
         )
         self._published = [
             self.declare_channel("safety_mode", enum_type(SafetyMode), published[0], description="safmod"),
-            self.declare_channel("activity", enum_type(RobotActivity), published[1], description="ract"),
+            self.declare_channel("activity", enum_type(self.activity_type), published[1], description="ract"),
             self.declare_channel("location", enum_type(self.locations), published[2], description="rloc"),
             self.declare_channel("reached_pose", enum_type(self.reached_poses), published[3]),
         ]
@@ -169,7 +172,7 @@ class Robot(EntitySystem):
     def sample_is_valid(self, sample) -> bool:
         return (
             valid_code(sample[6], SafetyMode)
-            and valid_code(sample[7], RobotActivity)
+            and valid_code(sample[7], self.activity_type)
             and valid_code(sample[8], self.reached_poses)
         )
 
@@ -229,7 +232,7 @@ class Robot(EntitySystem):
         value; the digital arm holds where it was, but nothing it shows is
         presented as the physical robot's current state.
         """
-        codes = [float(SafetyMode.UNKNOWN.code), float(RobotActivity.UNKNOWN.code), float(self.unknown_location.code), 0.0]
+        codes = [float(SafetyMode.UNKNOWN.code), float(self.activity_type("unknown").code), float(self.unknown_location.code), 0.0]
         write_changed(xd, self._published, codes, published)
         if codes != published:
             xd.get_mutable_vector(self._state).SetFromVector(np.concatenate((codes, state[4:])))
@@ -297,8 +300,10 @@ def _add_arm(cell, name: str, cfg: RobotConfig) -> None:
     sf, plant = cell.sf, cell.plant
     key = f"entities.{name}"
     model = _model_path(sf, name, cfg)
+    parser = Parser(plant, name)
+    parser.SetStrictParsing()  # what Drake would only warn about (a massless link) is refused too
     try:
-        instances = Parser(plant, name).AddModels(str(model))
+        instances = parser.AddModels(str(model))
     except Exception as e:  # noqa: BLE001 - Drake's parser raises RuntimeError with a long text
         raise sf.error(f"{key}.model", f"not a robot model Drake can read: {_first_line(e)}") from None
     if len(instances) != 1:
@@ -315,6 +320,29 @@ def _add_arm(cell, name: str, cfg: RobotConfig) -> None:
     cell.robots[name] = instance
 
 
+def _check_against_model(cell, name: str, cfg: RobotConfig) -> None:
+    """Each named pose within the model's joint limits; each joint able to move (the plant finalised)."""
+    plant, instance = cell.plant, cell.robots[name]
+    joints = sorted(
+        (plant.get_joint(j) for j in plant.GetJointIndices(instance) if plant.get_joint(j).num_positions() == 1),
+        key=lambda joint: joint.position_start(),
+    )
+    for joint in joints:
+        if not joint.velocity_upper_limits()[0] > 0:
+            raise cell.sf.error(
+                f"entities.{name}.model",
+                f"joint '{joint.name()}' of {cfg.model} has velocity limit {joint.velocity_upper_limits()[0]:g}: it could never move",
+            )
+    for pose, q in cfg.named_poses.items():
+        for i, (x, joint) in enumerate(zip(q, joints)):
+            lo, hi = joint.position_lower_limits()[0], joint.position_upper_limits()[0]
+            if not lo <= x <= hi:
+                raise cell.sf.error(
+                    f"entities.{name}.named_poses.{pose}.{i}",
+                    f"{x:g} rad is outside the limits of joint '{joint.name()}' in {cfg.model}: [{lo:g}, {hi:g}] rad",
+                )
+
+
 def _first_line(error: Exception) -> str:
     text = " ".join(line.strip() for line in str(error).splitlines() if line.strip())
     return text[:300]
@@ -324,6 +352,7 @@ def build_robot(cell, name: str, cfg: RobotConfig) -> Robot:
     """The arm's controller side, its joint controller, and its geometry for ground truth."""
     from pydrake.systems.controllers import InverseDynamicsController
 
+    _check_against_model(cell, name, cfg)
     robot = cell.add(name, Robot(name, cfg, str(_model_path(cell.sf, name, cfg)), cell.scenario.layout))
     instance, plant, builder = cell.robots[name], cell.plant, cell.builder
     controller = builder.AddNamedSystem(
@@ -356,7 +385,7 @@ KIND = ModuleKind(
     command_fields=("safety_mode_request", "activity", "target_pose"),
     channels=(
         ("safety_mode", "enum", "current safety mode (safmod); unknown when shadowing with no valid sample"),
-        ("activity", "enum", "idle / exchWrkp / welding / off (ract)"),
+        ("activity", "enum", "one of its activities, or unknown (ract)"),
         ("location", "enum", "the layout.robot_regions region holding the tool, else layout.robot_elsewhere (rloc)"),
         ("reached_pose", "enum", "the named pose the arm rests at, or moving"),
         ("joint_positions", "vector, rad", "measured joint positions, every 0.1 s"),
