@@ -1,0 +1,230 @@
+"""A process controller for any cell: the robot's moves and dwells, and the machines' cycles.
+
+Each step does one thing and names the robot activity it is:
+
+* ``move_to: POSE``: the robot moves to one of its named poses;
+* ``dwell: SECONDS``: the robot stays put (picking, placing);
+* ``start: MACHINE``: starts a machine's cycle and goes on at once, so the
+  machine works in parallel with the robot;
+* ``wait_for: MACHINE``: waits until that machine has finished the cycle started
+  last (at once if it already has).
+
+The steps repeat; completing the last counts one cycle. Like the welding cell's
+``work_cycle`` it advances only while the robot's safety mode lets it move (not
+srmst, stopped, or unknown), and it obeys the safety controller's activity
+requests: a new request listed in ``restart_on_request`` restarts the steps from
+the one it names; any other request pauses them, and the robot reports it.
+No machine is mandatory.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from cellsim.channels import NO_VALUE, enum_type, number_type
+from cellsim.config.typed_yaml import FieldError
+from cellsim.entities.robot import HOLD
+from cellsim.registry import ModuleKind
+from cellsim.scenario import Period, Seconds
+from cellsim.systems import CellSystem, write_changed
+from cellsim.vocabulary import CodedEnum, SafetyMode
+
+_STANDSTILL = {SafetyMode.MONITORED_STOP.code, SafetyMode.STOPPED.code, SafetyMode.UNKNOWN.code}
+
+
+@dataclass
+class ProcessStep:
+    """One step: exactly one of move_to, dwell, start, wait_for; and the robot's activity."""
+
+    name: str
+    """The step's name: the controller's step channel reads it."""
+    activity: str
+    """The robot activity this step is (one of the robot's activities)."""
+    move_to: str | None = None
+    """A named pose of the robot to move to."""
+    dwell: Seconds = 0.0
+    """Seconds to stay put."""
+    start: str | None = None
+    """A machine whose cycle to start (the process goes on at once)."""
+    wait_for: str | None = None
+    """A machine whose cycle to wait for."""
+
+    def __post_init__(self):
+        given = [k for k in ("move_to", "start", "wait_for") if getattr(self, k) is not None] + (["dwell"] if self.dwell else [])
+        if len(given) != 1:
+            raise FieldError("name", f"step '{self.name}' must have exactly one of move_to, dwell, start, wait_for")
+
+
+@dataclass
+class ProcessConfig:
+    """The cell's process: steps of the robot and its machines, repeated."""
+
+    kind: Literal["process"]
+    steps: list[ProcessStep]
+    """The steps, in order."""
+    robot: str = "robot"
+    """The robot entity the process moves."""
+    restart_on_request: dict[str, str] = field(default_factory=dict)
+    """Robot activity requested by the safety controller -> step the process restarts from.
+    Any other activity requested pauses the process, and the robot reports it."""
+    period: Period = 0.04
+    """Update period (s)."""
+
+    def __post_init__(self):
+        names = [s.name for s in self.steps]
+        if not names:
+            raise FieldError("steps", "needs at least one step")
+        if len(set(names)) != len(names):
+            raise FieldError("steps", "step names must differ")
+        for activity, step in self.restart_on_request.items():
+            if step not in names:
+                raise FieldError(f"restart_on_request.{activity}", f"'{step}' is not a step")
+
+    @property
+    def machines(self) -> list[str]:
+        """The machines the steps start or wait for, in order of first mention."""
+        found: list[str] = []
+        for step in self.steps:
+            for name in (step.start, step.wait_for):
+                if name is not None and name not in found:
+                    found.append(name)
+        return found
+
+
+class Process(CellSystem):
+    """The process controller.
+
+    Ports:
+      activity_request (input): code of a robot activity requested by the safety controller, -1 for none.
+      robot_safety_mode (input): the robot's SafetyMode code.
+      robot_reached_pose (input): the robot's reached-pose code (0 moving, i + 1 for named pose i).
+      <machine>_cycles (input), per machine: the machine's cycles_completed.
+      target_pose (output): index of the robot's named pose to move to, -1 to hold.
+      robot_activity (output): code of the robot activity being carried out.
+      <machine>_command (output), per machine: 1 for one update to start its cycle.
+      step (channel): the current step's name.
+      cycles_completed (channel): process cycles completed so far.
+    """
+
+    def __init__(self, module: str, cfg: ProcessConfig, pose_names: list[str], activities: type[CodedEnum]):
+        super().__init__(module, cfg.period)
+        self.steps = cfg.steps
+        self.machines = cfg.machines
+        self.targets = [HOLD if s.move_to is None else float(pose_names.index(s.move_to)) for s in self.steps]
+        self.activity_codes = [float(activities(s.activity).code) for s in self.steps]
+        self.restart = {activities(a).code: [s.name for s in self.steps].index(step) for a, step in cfg.restart_on_request.items()}
+        self.step_names = CodedEnum(f"{module}_step", [(s.name, s.name) for s in self.steps])
+
+        self.activity_request_port = self.declare_input("activity_request", ctype=enum_type(activities), default=NO_VALUE)
+        self.robot_mode_port = self.declare_input("robot_safety_mode")
+        self.reached_pose_port = self.declare_input("robot_reached_pose")
+        self.cycles_ports = [self.declare_input(f"{m}_cycles") for m in self.machines]
+        # [step progress (s dwelled), last request, cycles of each machine when last started]
+        self._state = self.declare_state("state", [0.0, NO_VALUE, *([0.0] * len(self.machines))])
+        self._target = self.declare_state("target_pose", [self.targets[0]])
+        self._activity = self.declare_state("robot_activity", [self.activity_codes[0]])
+        self._commands = [self.declare_state(f"{m}_command", [0.0]) for m in self.machines]
+        self.target_pose_port = self.DeclareStateOutputPort("target_pose", self._target)
+        self.robot_activity_port = self.DeclareStateOutputPort("robot_activity", self._activity)
+        self.command_ports = [self.DeclareStateOutputPort(f"{m}_command", g) for m, g in zip(self.machines, self._commands)]
+        self._step = self.declare_channel("step", enum_type(self.step_names), self.steps[0].name)
+        self._cycles = self.declare_channel("cycles_completed", number_type(None), 0.0)
+        self._outputs = [self._target, self._activity, self._step, self._cycles, *self._commands]
+
+    def update(self, context, xd):
+        request = self.activity_request_port.Eval(context)[0]
+        state = context.get_discrete_state(self._state).get_value().tolist()
+        progress, last_request, started = state[0], state[1], state[2:]
+        published = [context.get_discrete_state(g)[0] for g in self._outputs]
+        index, cycles = int(published[2]), published[3]
+        if request != last_request and request in self.restart:
+            index, progress = self.restart[request], 0.0
+        step = self.steps[index]
+        target, activity = self.targets[index], self.activity_codes[index]
+        commands = [0.0] * len(self.machines)
+
+        if request != NO_VALUE and request not in self.restart:  # any other request pauses the process
+            target, activity = HOLD, request
+        elif self.robot_mode_port.Eval(context)[0] not in _STANDSTILL:
+            if step.move_to is not None:
+                done = self.reached_pose_port.Eval(context)[0] == target + 1.0
+            elif step.dwell > 0:
+                progress += self.period
+                done = progress >= step.dwell - 1e-9
+            elif step.start is not None:
+                m = self.machines.index(step.start)
+                commands[m] = 1.0  # a rising edge on the machine's command: its cycle starts
+                started[m] = self.cycles_ports[m].Eval(context)[0]
+                done = True
+            else:
+                m = self.machines.index(step.wait_for)
+                done = self.cycles_ports[m].Eval(context)[0] > started[m]
+            if done:
+                progress = 0.0
+                index = (index + 1) % len(self.steps)
+                if index == 0:
+                    cycles += 1
+                target, activity = self.targets[index], self.activity_codes[index]
+        outputs = [float(target), float(activity), float(index), float(cycles), *commands]
+        write_changed(xd, self._outputs, outputs, published)
+        new_state = [progress, float(request), *started]
+        if new_state != state:
+            xd.get_mutable_vector(self._state).SetFromVector(np.array(new_state))
+
+
+# -- the module kind ----------------------------------------------------------------
+def build_process(cell, name: str, cfg: ProcessConfig) -> Process:
+    """The process, wired to the robot it moves and to each machine it starts or waits for."""
+    robot = cell.modules[cfg.robot]
+    system = cell.add(name, Process(name, cfg, robot.pose_names, robot.activity_type))
+    connect = cell.builder.Connect
+    connect(system.target_pose_port, robot.target_port)
+    connect(system.robot_activity_port, robot.activity_port)
+    connect(robot.GetOutputPort("safety_mode"), system.robot_mode_port)
+    connect(robot.GetOutputPort("reached_pose"), system.reached_pose_port)
+    for machine, command, cycles in zip(cfg.machines, system.command_ports, system.cycles_ports):
+        connect(command, cell.modules[machine].GetInputPort("command"))
+        connect(cell.modules[machine].GetOutputPort("cycles_completed"), cycles)
+    return system
+
+
+def _check(sf, name: str, cfg: ProcessConfig) -> None:
+    """The robot and machines it names exist; poses and activities are the robot's."""
+    key, sc = f"behaviours.{name}", sf.scenario
+    robots = sc.modules_of_kind("robot")
+    if cfg.robot not in robots:
+        raise sf.error(f"{key}.robot", f"no robot entity named '{cfg.robot}'")
+    robot = robots[cfg.robot]
+    machines = sc.modules_of_kind("machine")
+    for i, step in enumerate(cfg.steps):
+        if step.move_to is not None and step.move_to not in robot.named_poses:
+            raise sf.error(f"{key}.steps.{i}.move_to", f"'{step.move_to}' is not a named pose of {cfg.robot} ({', '.join(robot.named_poses)})")
+        if step.activity not in robot.activities:
+            raise sf.error(f"{key}.steps.{i}.activity", f"'{step.activity}' is not an activity of {cfg.robot} ({', '.join(robot.activities)})")
+        for field_name in ("start", "wait_for"):
+            machine = getattr(step, field_name)
+            if machine is not None and machine not in machines:
+                raise sf.error(f"{key}.steps.{i}.{field_name}", f"no machine entity named '{machine}' ({', '.join(machines) or 'none'})")
+            if machine is not None and machines[machine].cycle_time <= 0:
+                raise sf.error(f"{key}.steps.{i}.{field_name}", f"machine '{machine}' has no cycle_time: it cannot run a cycle")
+    for activity in cfg.restart_on_request:
+        if activity not in robot.activities:
+            raise sf.error(f"{key}.restart_on_request.{activity}", f"'{activity}' is not an activity of {cfg.robot} ({', '.join(robot.activities)})")
+
+
+KIND = ModuleKind(
+    name="process",
+    section="behaviours",
+    config=ProcessConfig,
+    build=build_process,
+    stage=10,
+    check=_check,
+    summary="A process controller for any cell: the robot's moves and dwells, machines' cycles started and awaited.",
+    channels=(
+        ("step", "enum", "the current step's name"),
+        ("cycles_completed", "number", "process cycles completed so far"),
+    ),
+)
