@@ -528,3 +528,94 @@ def test_overrides_at_once_name_the_one_at_fault(loaded) -> None:
 def test_overrides_at_once_see_the_structure_earlier_ones_create(loaded) -> None:
     apply_overrides(loaded, ["entities.operator.route=[bench, cell, bench]", "entities.operator.route.2=cell"])
     assert loaded.value.entities["operator"].route == ["bench", "cell", "cell"]
+
+
+# --------------------------------------------------------------------------- valid ranges and bounds
+
+from typing import Annotated  # noqa: E402
+
+from cellsim.config import typed_yaml  # noqa: E402
+from cellsim.config.typed_yaml import Range, range_of, type_at  # noqa: E402
+
+Pos = Annotated[tuple[float, float, float], Range(-10.0, 10.0, unit="m")]
+
+
+@dataclass
+class Ranged:
+    period: Annotated[float, Range(0.0, 1.0, lo_open=True, unit="s")] = 0.5
+    count: Annotated[int, Range(1, 10)] = 1
+    where: Pos = (0.0, 0.0, 0.0)
+    reach: Pos | None = None
+    poses: dict[str, list[Annotated[float, Range(-1.0, 1.0, unit="rad")]]] = field(default_factory=dict)
+    free: float = 0.0
+
+
+@pytest.mark.parametrize(
+    "text, line, key, problem",
+    [
+        ("period: 0\n", 1, "period", "'0' is out of range: must be in (0, 1] s"),
+        ("free: 1\nperiod: 1.5\n", 2, "period", "'1.5' is out of range: must be in (0, 1] s"),
+        ("period: .nan\n", 1, "period", "expected a finite number, got '.nan'"),
+        ("free: -.inf\n", 1, "free", "expected a finite number, got '-.inf'"),
+        ("count: 0\n", 1, "count", "'0' is out of range: must be in [1, 10]"),
+        ("count: 99999999999999999999\n", 1, "count", "is out of range: must be in [1, 10]"),
+        ("where: [0, 11, 0]\n", 1, "where.1", "'11' is out of range: must be in [-10, 10] m"),
+        ("where: [0, .inf, 0]\n", 1, "where.1", "expected a finite number, got '.inf'"),
+        ("reach:\n  - 0\n  - 0\n  - -20\n", 4, "reach.2", "'-20' is out of range"),
+        ("poses:\n  a: [0, 2]\n", 2, "poses.a.1", "'2' is out of range: must be in [-1, 1] rad"),
+    ],
+)
+def test_a_number_out_of_its_range_is_one_error_at_its_line(text, line, key, problem) -> None:
+    with pytest.raises(ConfigError) as e:
+        load_text(Ranged, text, source="r.yaml")
+    assert (e.value.line, e.value.key) == (line, key) and problem in e.value.problem
+
+
+def test_ranges_are_checked_on_overrides_and_found_through_optionals() -> None:
+    loaded = load_text(Ranged, "reach: [1, 2, 3]\nposes: {a: [0.5]}\n", source="r.yaml")
+    assert str(range_of(type_at(loaded.value, ["reach", "0"]))) == "[-10, 10] m"  # through `| None`
+    assert str(range_of(type_at(loaded.value, ["poses", "a", "0"]))) == "[-1, 1] rad"
+    for assignment, key in [("reach.2=20", "reach.2"), ("poses.a.0=-3", "poses.a.0"), ("period=nan", "period"),
+                            ("where=[0, 0, 1.0e+9]", "where.2"), ("count=11", "count")]:
+        with pytest.raises(ConfigError) as e:
+            apply_override(loaded, assignment)
+        assert e.value.key == key and ("out of range" in e.value.problem or "finite" in e.value.problem)
+    apply_override(loaded, "reach.2=-10")
+    assert loaded.value.reach == (1.0, 2.0, -10.0)
+    again = load_text(Ranged, dump_yaml(loaded.value)).value  # Annotated types dump and load back
+    assert again == loaded.value and to_data(again)["poses"] == {"a": [0.5]}
+
+
+def test_range_text() -> None:
+    assert str(Range(0.0, 1.0, lo_open=True, unit="s")) == "(0, 1] s"
+    assert str(Range(0, 2**32 - 1)) == "[0, 4294967295]"
+    assert str(Range(lo=0.0, hi_open=True)) == "[0, inf)"
+    assert Range(0.0, 1.0, hi_open=True).admits(0.0) and not Range(0.0, 1.0, hi_open=True).admits(1.0)
+
+
+LAUGHS = "[" + ", ".join(
+    [f"&a0 [{', '.join(['1'] * 9)}]"] + [f"&a{i} [{', '.join([f'*a{i - 1}'] * 9)}]" for i in range(1, 9)]
+) + "]"
+
+
+@pytest.mark.parametrize(
+    "value, problem",
+    [(LAUGHS, "expands to more than"), ("[" * 5000 + "]" * 5000, "nested deeper than")],
+    ids=["billion laughs", "deep nesting"],
+)
+def test_a_bomb_is_refused_in_a_file_and_in_an_override(value, problem) -> None:
+    with pytest.raises(ConfigError) as e:
+        load_text(Ranged, f"free: 1\nposes: {{a: {value}}}\n", source="r.yaml")
+    assert e.value.line == 2 and problem in e.value.problem
+    loaded = load_text(Ranged, "free: 1\n")
+    with pytest.raises(ConfigError) as e:
+        apply_override(loaded, f"poses={value}")
+    assert e.value.source == "--set" and e.value.key == "poses" and problem in e.value.problem
+
+
+def test_a_file_too_long_is_refused_without_reading_it_whole(tmp_path, monkeypatch) -> None:
+    monkeypatch.setattr(typed_yaml, "MAX_FILE_CHARS", 100)
+    path = tmp_path / "long.yaml"
+    path.write_text("free: 1\n" + "# comment\n" * 20)
+    with pytest.raises(ConfigError, match="file too long: more than 100 characters"):
+        load_file(Ranged, path)

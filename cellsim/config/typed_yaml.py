@@ -510,6 +510,8 @@ class _Converter:
                 if not math.isfinite(value):
                     raise self.error(path, f"expected a finite number, got {self.describe(data, path)}")
                 return value
+            if isinstance(data, str) and data.strip().lower().lstrip("+-") in ("nan", "inf", "infinity"):
+                raise self.error(path, f"expected a finite number, got {self.describe(data, path)}")
             if isinstance(data, str) and "e" in data.lower():
                 try:
                     float(data)
@@ -692,13 +694,20 @@ def load_file(schema: type[T], path: str | os.PathLike, *, base_key: str | None 
     return Loaded(value=value, source=source, lines=lines, sources=sources, files=files)
 
 
+MAX_FILE_CHARS = 10_000_000
+"""Longest configuration file, in characters (a device such as /dev/zero never ends)."""
+
+
 def _read(source: str) -> str:
     try:
         with open(source, encoding="utf-8") as f:
-            return f.read()
+            text = f.read(MAX_FILE_CHARS + 1)
     except (OSError, UnicodeDecodeError) as e:
         reason = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
         raise ConfigError(source, None, "", f"cannot read file: {reason}") from None
+    if len(text) > MAX_FILE_CHARS:
+        raise ConfigError(source, None, "", f"file too long: more than {MAX_FILE_CHARS:,} characters")
+    return text
 
 
 def _parse_with_bases(source: str, base_key: str, chain: list[str]):
@@ -796,9 +805,9 @@ def _element_type(tp: Any, key: Any) -> Any:
         item = _element_type(base, key)
         return typing.Annotated[(item, *extras)] if extras and item is not Any else item
     members = _union_args(tp)
-    if members is not None:
+    if members is not None:  # an optional value's elements: those of the value (ranges kept)
         arms = [m for m in members if m is not _NoneType]
-        tp = arms[0] if len(arms) == 1 else Any
+        return _element_type(arms[0], key) if len(arms) == 1 else Any
     origin, args = typing.get_origin(tp), typing.get_args(tp)
     if origin is dict and args:
         return args[1]
@@ -910,6 +919,10 @@ def _parse_override(value: Any, assignment: str, resolve) -> tuple[list[Any], An
     full = ".".join(str(p) for p in parts)
     if not parts:
         raise ConfigError("--set", None, "", f"malformed override '{assignment}' (empty path)")
+    try:
+        _check_size(value_text, "--set")  # an alias bomb or deep nesting: bounded, as in a file
+    except ConfigError as e:
+        raise ConfigError("--set", None, full, e.problem.replace("malformed YAML", "malformed value")) from None
     try:
         raw = yaml.safe_load(value_text)
     except RecursionError:
