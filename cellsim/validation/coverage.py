@@ -55,6 +55,7 @@ from cellsim.logic.syntax import (
 from cellsim.logic.trace import Trace
 
 __all__ = [
+    "MAX_SITUATIONS",
     "CoverageCriterion",
     "NumberBins",
     "CoverageModel",
@@ -67,6 +68,9 @@ RunCoverage = dict[str, list[list[str]]]
 """Per criterion, the situations one run covered (lists of value names, domain order)."""
 
 _UNDEFINED = -1  # value code of an undefined stretch
+
+MAX_SITUATIONS = 100_000
+"""Most situations one criterion may have (reports name every situation never covered)."""
 
 
 # --------------------------------------------------------------------------- configuration
@@ -124,6 +128,7 @@ class NumberBins:
     """
 
     edges: list[float]
+    """Finite and strictly increasing, in the variable's unit; n edges give n + 1 bins."""
 
     def __post_init__(self) -> None:
         if not self.edges:
@@ -420,6 +425,13 @@ class CoverageModel:
             compiled[name] = _Criterion(
                 name, crit, tuple(axes[v] for v in crit.variables), when, reads
             )
+            if compiled[name].total > MAX_SITUATIONS:
+                sizes = " x ".join(f"{len(axes[v].labels)} {v}" for v in crit.variables)
+                raise CoverageError(
+                    f"coverage.{name}",
+                    f"coverage criterion {name!r} has {compiled[name].total:,} situations ({sizes}), "
+                    f"more than the {MAX_SITUATIONS:,} a criterion may have: use fewer variables, bins or values",
+                )
         return cls(compiled)
 
     @property
