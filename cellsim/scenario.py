@@ -72,9 +72,13 @@ class Fixture:
     """A static box in the cell (table, bench, fence panel, machine body)."""
 
     size: Size3
+    """Its size along x, y, z (m)."""
     center: Vec3
+    """Where its centre is in the cell (m)."""
     yaw_deg: Degrees = 0.0
+    """Rotation about the vertical axis (degrees)."""
     color: Rgba = (0.55, 0.55, 0.58, 1.0)
+    """Red, green, blue and opacity, each from 0 to 1."""
 
     def __post_init__(self):
         if min(self.size) <= 0:
@@ -86,7 +90,9 @@ class Region:
     """An axis-aligned box of space, [min, max] per axis."""
 
     min: Vec3
+    """The corner with the smallest x, y, z (m)."""
     max: Vec3
+    """The opposite corner: each coordinate greater than min's (m)."""
 
     def __post_init__(self):
         if any(lo >= hi for lo, hi in zip(self.min, self.max)):
@@ -393,7 +399,9 @@ class ConfigurationPoint:
     """A named, documented value of the scenario that runs may vary."""
 
     paths: list[str]
+    """The dotted keys it sets (a module's name stands for its section: ``operator.waypoints.cell.wait``)."""
     description: str = ""
+    """What it is, for people."""
 
 
 @dataclass
@@ -401,6 +409,7 @@ class CampaignConfig:
     """Defaults of ``cellsim campaign``: how many runs, and how each configuration point is drawn."""
 
     runs: Annotated[int, Range(1, 100_000)] = 100
+    """Runs of a campaign when ``--runs`` does not say."""
     samplers: dict[str, Sampler] = field(default_factory=dict)
     """Configuration point name -> sampler (``uniform``, ``choice`` or ``simplex``)."""
 
@@ -408,17 +417,25 @@ class CampaignConfig:
 @dataclass
 class Scenario:
     name: str
+    """The scenario's name (run and campaign folders are named after it)."""
     layout: Layout
+    """The cell's fixtures and named volumes."""
     entities: dict[str, EntityModule]
     """Module name -> its config; ``kind`` names its module kind (``cellsim modules`` lists them)."""
     behaviours: dict[str, BehaviourModule] = field(default_factory=dict)
+    """Module name -> its config: process and safety controllers, analyses."""
     services: dict[str, ServiceModule] = field(default_factory=dict)
+    """Module name -> its config: the recorder."""
     configuration_points: dict[str, ConfigurationPoint] = field(default_factory=dict)
+    """Named, documented values of the scenario that a campaign varies."""
     validation: Validation = field(default_factory=Validation)
+    """Safety conditions, use cases and coverage criteria, inline or in a file it names."""
     campaign: CampaignConfig = field(default_factory=CampaignConfig)
+    """Defaults of ``cellsim campaign``."""
     description: str = ""
+    """What the scenario is, for people."""
     duration: PositiveSeconds = 30.0
-    """Simulated seconds of a run."""
+    """Simulated seconds of a run (also at most 5e7 plant steps and 1e8 module updates)."""
     seed: Annotated[int, SEEDS] = 0
     """The run's random seed: a run is a pure function of the scenario and the seed."""
     time_step: Annotated[float, Range(0.0001, 0.01, unit="s")] = 0.002

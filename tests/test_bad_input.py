@@ -52,6 +52,35 @@ def test_yaml_bombs_are_one_line_in_bounded_time(tmp_path, bomb):
     assert time.monotonic() - started < 30 and not out.exists()
 
 
+@pytest.mark.skipif(not Path("/dev/zero").exists(), reason="needs /dev/zero")
+def test_an_endless_file_is_one_line_in_bounded_memory(tmp_path):
+    out = tmp_path / "run"
+    done = cellsim("simulate", "/dev/zero", "--out", str(out), timeout=60)
+    assert done.returncode == 2
+    assert one_line(done.stderr) == "cellsim: error: /dev/zero: file too long: more than 10,000,000 characters"
+    assert not out.exists()
+
+
+SET_BOMBS = {
+    "billion laughs": ("[" + ", ".join(['&a ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]']
+                                       + [f"&{b} [{','.join(['*' + a] * 9)}]" for a, b in zip("abcdefgh", "bcdefghi")]) + "]",
+                       "malformed value: expands to more than"),
+    "100 000 levels of nesting": ("[" * 100_000 + "]" * 100_000, "malformed value: nested deeper than 100 levels"),
+}
+
+
+@pytest.mark.parametrize("bomb", list(SET_BOMBS))
+def test_a_bomb_in_a_set_value_is_one_error(bomb):
+    from cellsim.config.typed_yaml import ConfigError
+    from cellsim.scenario import load_scenario
+
+    value, expected = SET_BOMBS[bomb]
+    with pytest.raises(ConfigError) as e:
+        load_scenario(WELDING_CELL, [f"configuration_points.operator_waits.paths={value}"])
+    assert (e.value.source, e.value.key) == ("--set", "configuration_points.operator_waits.paths")
+    assert expected in e.value.problem
+
+
 def test_sigint_during_start_up_is_one_line_and_130(tmp_path):
     out = tmp_path / "run"
     proc = subprocess.Popen(
@@ -213,6 +242,9 @@ def test_a_bad_number_in_the_file_names_file_line_and_key_and_writes_nothing(tmp
         (["--duration", "0"], "--duration: 0 is out of range"),
         (["--seed", "-1"], "--seed: -1 is out of range"),
         (["--set", "time_step=0.0001", "--duration", "86400"], "plant steps, more than the 5e+07 a run may take"),
+        (["--set", "robot.period=0.002", "--set", "operator.period=0.002", "--set", "safety_controller.period=0.002",
+          "--duration", "86400"], "module updates (robot every 0.002 s, operator every 0.002 s, "
+                                  "safety_controller every 0.002 s, ...), more than the 1e+08 a run may take"),
     ],
 )
 def test_absurd_runs_are_refused_with_a_reason(tmp_path, args, expected):
@@ -329,3 +361,116 @@ def test_a_misspelt_channel_gets_a_did_you_mean_not_every_channel(tmp_path, edit
     assert done.returncode == 2
     line = one_line(done.stderr)
     assert expected in line and "robot.location" not in line  # not a list of every channel
+
+
+def test_a_coverage_criterion_too_large_to_report_is_refused_at_its_line(tmp_path):
+    import shutil
+
+    from cellsim.config.typed_yaml import ConfigError
+    from cellsim.scenario import load_scenario
+    from cellsim.validation.check import scenario_safety_case
+
+    folder = tmp_path / "scenario"
+    shutil.copytree(WELDING_CELL.parent, folder)
+    validation = folder / VALIDATION.name
+    text = validation.read_text()
+    bins = "  sep: {edges: [0.5, 1.0, 2.0]}"
+    assert bins in text
+    edges = ", ".join(f"{i / 1000:g}" for i in range(1, 100_001))  # 100 001 bins
+    validation.write_text(text.replace(bins, f"  sep: {{edges: [{edges}]}}"))
+    with pytest.raises(ConfigError) as e:
+        scenario_safety_case(load_scenario(folder / "welding_cell.yaml"))
+    line = next(i for i, l in enumerate(text.splitlines(), 1) if l.startswith("  separation:"))
+    assert (e.value.source, e.value.line, e.value.key) == (str(validation), line, "coverage.separation")
+    assert "has 100,001 situations (100001 sep), more than the 100,000 a criterion may have" in e.value.problem
+
+
+# a model Drake reads but the cell cannot use: refused when the cell is built (in-process: no simulation)
+MODELS_THE_CELL_REFUSES = {
+    "a massless link": (URDF.replace('<mass value="4.0"/>', '<mass value="0"/>', 1), "entities.robot.model",
+                        "not a robot model Drake can read: "),
+    "joints that cannot move": (URDF.replace('velocity="2.16"', 'velocity="0"'), "entities.robot.model",
+                                "joint 'shoulder_pan_joint' of models/ur10.urdf has velocity limit 0: it could never move"),
+    "a named pose beyond the joint limits": (
+        URDF.replace('lower="-6.283185307179586" upper="6.283185307179586" effort="330" velocity="2.16"',
+                     'lower="-1.0" upper="1.0" effort="330" velocity="2.16"', 1),
+        "entities.robot.named_poses.home.0",
+        "1.3576 rad is outside the limits of joint 'shoulder_pan_joint' in models/ur10.urdf: [-1, 1] rad"),
+}
+
+
+@pytest.mark.parametrize("case", list(MODELS_THE_CELL_REFUSES))
+def test_a_robot_model_the_cell_cannot_use_is_refused_at_build(tmp_path, case):
+    import shutil
+
+    from cellsim.config.typed_yaml import ConfigError
+    from cellsim.scenario import load_scenario
+    from cellsim.validation.check import scenario_safety_case
+
+    text, key, expected = MODELS_THE_CELL_REFUSES[case]
+    assert text != URDF
+    folder = tmp_path / "scenario"
+    shutil.copytree(WELDING_CELL.parent, folder)
+    (folder / "models" / "ur10.urdf").write_text(text)
+    with pytest.raises(ConfigError) as e:
+        scenario_safety_case(load_scenario(folder / "welding_cell.yaml"))
+    assert (e.value.source, e.value.key) == (str(folder / "welding_cell.yaml"), key)
+    assert expected in e.value.problem and "\n" not in str(e.value)
+
+
+# --------------------------------------------------------------------------- the documented ranges
+
+def test_the_schema_reference_is_current():
+    from cellsim.kinds_doc import SCHEMA_DOC, schema_markdown
+
+    written = (Path(__file__).resolve().parents[1] / SCHEMA_DOC).read_text()
+    assert written == schema_markdown(), f"{SCHEMA_DOC} is out of date: python -m cellsim.kinds_doc > {SCHEMA_DOC}"
+
+
+def _ranged_fields(cls, seen=None) -> list[tuple[str, str]]:
+    """(field name, its range) of every field with a Range reachable from a dataclass."""
+    import dataclasses
+    import typing
+
+    from cellsim.config.typed_yaml import range_of
+
+    seen = set() if seen is None else seen
+    if cls in seen:
+        return []
+    seen.add(cls)
+    found = []
+
+    def walk(name, tp):
+        ranged = range_of(tp)
+        if ranged is not None:
+            found.append((name, str(ranged)))
+        for arg in typing.get_args(tp):
+            if isinstance(arg, type) and dataclasses.is_dataclass(arg):
+                found.extend(_ranged_fields(arg, seen))
+            elif arg is not Ellipsis and not isinstance(arg, (str, int, float)):
+                walk(name, arg)
+
+    hints = typing.get_type_hints(cls, include_extras=True)
+    for f in dataclasses.fields(cls):
+        if isinstance(hints[f.name], type) and dataclasses.is_dataclass(hints[f.name]):
+            found.extend(_ranged_fields(hints[f.name], seen))
+        else:
+            walk(f.name, hints[f.name])
+    return found
+
+
+def test_the_schema_reference_gives_every_numbers_range():
+    import re
+
+    from cellsim import registry
+    from cellsim.behaviours.risk_model import RiskModelFile
+    from cellsim.kinds_doc import SCHEMA_DOC
+    from cellsim.scenario import Scenario
+
+    text = (Path(__file__).resolve().parents[1] / SCHEMA_DOC).read_text()
+    rows = [[c.strip() for c in re.split(r"(?<!\\)\|", line)[1:-1]] for line in text.splitlines() if line.startswith("| `")]
+    documented = {(key.strip("`").rsplit(".", 1)[-1], valid) for key, _type, _default, valid, _doc in rows}
+    schemas = [Scenario, RiskModelFile] + [registry.get(n).config for n in registry.kind_names()
+                                           if registry.get(n).config.__module__.startswith("cellsim.")]
+    wanted = {pair for cls in schemas for pair in _ranged_fields(cls)}
+    assert len(wanted) > 25 and wanted <= documented, sorted(wanted - documented)

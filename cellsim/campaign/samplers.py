@@ -69,9 +69,9 @@ class UniformSampler:
 
     kind: Literal["uniform"]
     low: float
-    """Smallest value drawn."""
+    """Smallest value drawn; in the valid range of every key it is drawn for."""
     high: float
-    """Largest value drawn; must be greater than ``low``."""
+    """Largest value drawn; greater than ``low`` and in the valid range of every key it is drawn for."""
 
     def __post_init__(self) -> None:
         _finite("low", self.low)
@@ -90,7 +90,7 @@ class ChoiceSampler:
 
     kind: Literal["choice"]
     values: list[bool | int | float | str]
-    """The candidates: non-empty, no value listed twice, numbers finite."""
+    """The candidates: non-empty, no value listed twice, numbers in the valid range of every key drawn for."""
 
     def __post_init__(self) -> None:
         if not self.values:
@@ -122,9 +122,9 @@ class SimplexSampler:
 
     kind: Literal["simplex"]
     total: float
-    """Sum of the ``n`` values; positive."""
+    """Sum of the ``n`` values; positive, a multiple of 1e-6, and no value drawn beyond the valid range of its key."""
     minimum: float = 0.0
-    """Lower bound of every value; ``n * minimum`` must not exceed ``total``."""
+    """Lower bound of every value; ``n * minimum`` must not exceed ``total``; in the valid range of every key."""
 
     def __post_init__(self) -> None:
         _finite("total", self.total)

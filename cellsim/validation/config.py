@@ -42,12 +42,16 @@ class Validation:
     variables: dict[str, str] = field(default_factory=dict)
     """Trace variable name -> recorded channel (``<module>.<signal>``)."""
     macros: dict[str, str] = field(default_factory=dict)
+    """Name -> a sub-formula, usable by name in every formula of the section."""
     conditions: dict[str, str] = field(default_factory=dict)
     """Condition name -> MTL formula that must hold on every run."""
     use_cases: dict[str, str] = field(default_factory=dict)
     """Use-case name -> MTL formula that holds iff a run exercises the use case."""
     coverage: dict[str, CoverageCriterion] = field(default_factory=dict)
+    """Criterion name -> the variables whose value combinations (situations) should be seen;
+    at most 100,000 situations each."""
     bins: dict[str, NumberBins] = field(default_factory=dict)
+    """Numeric variable -> the bins its coverage counts."""
     domains: dict[str, list[str]] = field(default_factory=dict)
     """Variable -> the values its coverage counts (the designed domain); default: all."""
 
