@@ -132,6 +132,8 @@ class Layout:
         for key in ("robot_elsewhere", "operator_outside"):
             if not getattr(self, key).isidentifier():
                 raise FieldError(key, "a location's name must be an identifier (letters, digits, _)")
+        if self.robot_elsewhere == UNKNOWN:
+            raise FieldError("robot_elsewhere", f"'{UNKNOWN}' is what a shadowed robot reports; name elsewhere otherwise")
         for name in self.operator_flags:
             if not name.isidentifier() or name in RESERVED_OPERATOR_CHANNELS:
                 raise FieldError(f"operator_flags.{name}", f"'{name}' cannot name a person's channel")
@@ -222,6 +224,8 @@ class RobotConfig:
             raise FieldError("activities", "activities must be distinct identifiers")
         if not self.activities or UNKNOWN in self.activities:
             raise FieldError("activities", f"list at least one activity; '{UNKNOWN}' is what a shadowed robot reports")
+        if "moving" in self.named_poses:
+            raise FieldError("named_poses.moving", "'moving' is what reached_pose reads between poses; name the pose otherwise")
         if self.initial_pose not in self.named_poses:
             raise FieldError("initial_pose", f"'{self.initial_pose}' is not one of the named_poses")
         for name, q in self.named_poses.items():
@@ -312,6 +316,10 @@ class OperatorConfig:
     twin: TwinSettings = field(default_factory=TwinSettings)
     """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
 
+    def __post_init__(self):
+        if "start" in self.waypoints:
+            raise FieldError("waypoints.start", "'start' is the waypoint channel's value before the walk; name it otherwise")
+
 
 # -- behaviours ---------------------------------------------------------------
 @dataclass
@@ -355,6 +363,8 @@ class WorkCycleConfig:
         names = [s.name for s in self.steps]
         if not names:
             raise FieldError("steps", "needs at least one step")
+        if len(set(names)) != len(names):
+            raise FieldError("steps", "step names must differ")
         for activity, step in self.restart_on_request.items():
             if step not in names:
                 raise FieldError(f"restart_on_request.{activity}", f"'{step}' is not a step of the cycle")

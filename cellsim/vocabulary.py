@@ -42,6 +42,21 @@ class CodedEnum(enum.Enum):
         return tuple(m.value for m in cls._members())
 
 
+def value_set(name: str, values) -> type[CodedEnum]:
+    """A CodedEnum of the names a scenario declares (a cell's places, activities, phases, steps).
+
+    Members get positional names, so any value works (``mro``, ``_x_``, ``name``);
+    every lookup is by value. Values must differ: ValueError names the first repeated.
+    """
+    values = list(values)
+    seen: set[str] = set()
+    for value in values:
+        if value in seen:
+            raise ValueError(f"'{value}' is listed twice")
+        seen.add(value)
+    return CodedEnum(name, [(f"V{i}", v) for i, v in enumerate(values)])
+
+
 class SafetyMode(CodedEnum):
     """Safety mode of a machine, from the most permissive to the most restrictive."""
 

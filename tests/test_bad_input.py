@@ -474,3 +474,46 @@ def test_the_schema_reference_gives_every_numbers_range():
                                            if registry.get(n).config.__module__.startswith("cellsim.")]
     wanted = {pair for cls in schemas for pair in _ranged_fields(cls)}
     assert len(wanted) > 25 and wanted <= documented, sorted(wanted - documented)
+
+
+@pytest.mark.parametrize(
+    "override, expected",
+    [
+        ("layout.robot_elsewhere=unknown", "'unknown' is what a shadowed robot reports"),
+        ("robot.activities=[idle, idle]", "activities must be distinct identifiers"),
+        ("process_controller.steps.1.name=fetch", "step names must differ"),
+    ],
+)
+def test_declared_names_that_would_collide_are_refused_at_load(override, expected):
+    from cellsim.config.typed_yaml import ConfigError
+    from cellsim.scenario import load_scenario
+
+    with pytest.raises(ConfigError, match=expected):
+        load_scenario(WELDING_CELL, [override])
+
+
+def test_a_pose_named_moving_is_refused(tmp_path):
+    from cellsim.config.typed_yaml import ConfigError
+    from cellsim.scenario import load_scenario
+
+    path = tmp_path / "moving.yaml"
+    path.write_text(f"base: {WELDING_CELL}\nentities:\n  robot:\n    named_poses:\n      moving: [0, 0, 0, 0, 0, 0]\n")
+    with pytest.raises(ConfigError, match="'moving' is what reached_pose reads") as e:
+        load_scenario(path)
+    assert e.value.line == 5
+
+
+def test_any_identifier_is_a_value_even_the_enum_machinerys_own_words(tmp_path):
+    """Names such as mro or _x_ once crashed the enum a cell's vocabulary becomes."""
+    from cellsim.scenario import load_scenario
+    from diagrams.cell import build_cell
+
+    path = tmp_path / "odd.yaml"
+    path.write_text(
+        f"base: {WELDING_CELL}\nlayout:\n  robot_elsewhere: mro\n"
+        "entities:\n  robot:\n    activities: [_x_, name, __x__]\n"
+        "behaviours: !replace {}\nvalidation: !replace {}\n"
+    )
+    robot = build_cell(load_scenario(path), seed=0, duration=1.0, record=False).modules["robot"]
+    assert [m.value for m in robot.locations][-2:] == ["mro", "unknown"]
+    assert [m.value for m in robot.activity_type] == ["_x_", "name", "__x__", "unknown"]

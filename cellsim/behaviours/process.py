@@ -30,7 +30,7 @@ from cellsim.entities.robot import HOLD
 from cellsim.registry import ModuleKind
 from cellsim.scenario import Period, Seconds
 from cellsim.systems import CellSystem, write_changed
-from cellsim.vocabulary import CodedEnum, SafetyMode
+from cellsim.vocabulary import CodedEnum, SafetyMode, value_set
 
 _STANDSTILL = {SafetyMode.MONITORED_STOP.code, SafetyMode.STOPPED.code, SafetyMode.UNKNOWN.code}
 
@@ -116,7 +116,7 @@ class Process(CellSystem):
         self.targets = [HOLD if s.move_to is None else float(pose_names.index(s.move_to)) for s in self.steps]
         self.activity_codes = [float(activities(s.activity).code) for s in self.steps]
         self.restart = {activities(a).code: [s.name for s in self.steps].index(step) for a, step in cfg.restart_on_request.items()}
-        self.step_names = CodedEnum(f"{module}_step", [(s.name, s.name) for s in self.steps])
+        self.step_names = value_set(f"{module}_step", [s.name for s in self.steps])
 
         self.activity_request_port = self.declare_input("activity_request", ctype=enum_type(activities), default=NO_VALUE)
         self.robot_mode_port = self.declare_input("robot_safety_mode")

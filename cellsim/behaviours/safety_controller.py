@@ -29,7 +29,7 @@ from cellsim.channels import ChannelType, enum_type
 from cellsim.registry import ModuleKind
 from cellsim.scenario import SafetyControllerConfig
 from cellsim.systems import CellSystem, write_scalar
-from cellsim.vocabulary import CodedEnum
+from cellsim.vocabulary import value_set
 
 
 class SafetyController(CellSystem):
@@ -54,7 +54,7 @@ class SafetyController(CellSystem):
         self.monitored_port = self.declare_input("monitored", len(self.monitored_names))
         # the risk model's own phases, in its words
         self.phases = tuple(risk_model.phases.values)
-        self.phase_type = CodedEnum(f"{module}_phase", [(p, p) for p in self.phases])
+        self.phase_type = value_set(f"{module}_phase", self.phases)
         self._phase_groups = [
             self.declare_channel(h.name, enum_type(self.phase_type), risk_model.phases.initial, description=f"Phase of hazard {h.name}")
             for h in self.hazards

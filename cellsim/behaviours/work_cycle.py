@@ -22,7 +22,7 @@ from cellsim.entities.welder import NO_REQUEST
 from cellsim.registry import ModuleKind
 from cellsim.scenario import WorkCycleConfig
 from cellsim.systems import CellSystem, write_changed
-from cellsim.vocabulary import CodedEnum, SafetyMode, WelderActivity
+from cellsim.vocabulary import CodedEnum, SafetyMode, value_set, WelderActivity
 
 _STANDSTILL = {SafetyMode.MONITORED_STOP.code, SafetyMode.STOPPED.code, SafetyMode.UNKNOWN.code}
 """Modes in which the cycle waits: the robot stands still, or its state is unknown."""
@@ -50,7 +50,7 @@ class WorkCycle(CellSystem):
         self.targets = [HOLD if s.move_to is None else float(pose_names.index(s.move_to)) for s in self.steps]
         self.activity_codes = [float(activities(s.activity).code) for s in self.steps]
         self.restart = {activities(a).code: [s.name for s in self.steps].index(step) for a, step in cfg.restart_on_request.items()}
-        self.step_names = CodedEnum(f"{module}_step", [(s.name.upper(), s.name) for s in self.steps])
+        self.step_names = value_set(f"{module}_step", [s.name for s in self.steps])
 
         self.activity_request_port = self.declare_input("activity_request", ctype=enum_type(activities), default=NO_REQUEST)
         self.robot_mode_port = self.declare_input("robot_safety_mode")

@@ -29,7 +29,7 @@ from cellsim.registry import ModuleKind
 from cellsim.scenario import Period, Seconds, TwinSettings
 from cellsim.config.typed_yaml import FieldError
 from cellsim.systems import read_scalar, write_changed
-from cellsim.vocabulary import CodedEnum, SafetyMode, TwinMode
+from cellsim.vocabulary import SafetyMode, TwinMode, value_set
 
 _MODES = tuple(SafetyMode)
 
@@ -96,7 +96,7 @@ class Machine(EntitySystem):
         super().__init__(module, cfg.period, cfg.twin, ("safety_mode", "activity"),
                          ("safety_mode_request", "activity_request", "command"))
         self.cfg = cfg
-        self.activity_type = CodedEnum(f"{module}_activity", [(a, a) for a in cfg.activities])
+        self.activity_type = value_set(f"{module}_activity", cfg.activities)
         self.rest, self.working, self.off = (self.activity_type(a).code for a in (cfg.rest, cfg.working, cfg.off))
         self.mode_request_port = self.declare_input("safety_mode_request", ctype=enum_type(SafetyMode), default=SafetyMode.NORMAL.code)
         self.activity_request_port = self.declare_input("activity_request", ctype=enum_type(self.activity_type), default=NO_VALUE)

@@ -31,7 +31,7 @@ from cellsim.entities.twin import EntitySystem
 from cellsim.scenario import Layout, OperatorConfig
 from cellsim.registry import ModuleKind
 from cellsim.systems import read_scalar, write_scalar
-from cellsim.vocabulary import CodedEnum, Notification, TwinMode
+from cellsim.vocabulary import Notification, TwinMode, value_set
 
 REACH_TIME = 0.5  # s to extend or withdraw the arm
 SKIN = (0.85, 0.65, 0.5, 1.0)
@@ -130,15 +130,13 @@ class Operator(EntitySystem):
         self.legs = plan_walk(cfg, seed, salt)
         first = self.legs[0].end - np.array(cfg.start) if self.legs else np.array([1.0, 0.0])
         self.start_yaw = float(np.arctan2(first[1], first[0]))
-        self.waypoints = CodedEnum(
-            f"{module}_waypoint", [("START", "start")] + [(n.upper(), n) for n in cfg.waypoints]
-        )
+        self.waypoints = value_set(f"{module}_waypoint", ["start", *cfg.waypoints])
         self.notification_port = self.declare_input("notification", ctype=enum_type(Notification), default=Notification.OK.code)
         self.leave_workbench_port = self.declare_input("leave_workbench", ctype=BOOL, default=0.0)
         initial = pose_at(self.legs, self.start_yaw, 0.0)
         self._pose = self.declare_state("pose", self._pose_vector(initial))
         # the cell's own words for where a person is: outside, or one of the layout's zones
-        self.locations = CodedEnum(f"{module}_location", [(n, n) for n in layout.operator_locations()])
+        self.locations = value_set(f"{module}_location", layout.operator_locations())
         self._zones = [(self.locations(name).code, zone) for name, zone in layout.operator_zones.items()]
         self._location = self.declare_channel(
             "location", enum_type(self.locations), layout.operator_outside, description="Where the person stands: a zone of the layout, or outside"

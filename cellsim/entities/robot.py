@@ -30,7 +30,7 @@ from cellsim.entities.twin import EntitySystem, valid_code
 from cellsim.registry import ModuleKind
 from cellsim.scenario import Layout, RobotConfig
 from cellsim.systems import write_changed, write_scalar
-from cellsim.vocabulary import CodedEnum, SafetyMode, TwinMode
+from cellsim.vocabulary import SafetyMode, TwinMode, value_set
 
 KP, KI, KD = 400.0, 1.0, 40.0
 """Joint controller gains: 20 rad/s bandwidth, critically damped."""
@@ -115,7 +115,7 @@ class Robot(EntitySystem):
         self.pose_names = list(cfg.named_poses)
         self.poses = np.array([cfg.named_poses[p] for p in self.pose_names], float)
         # the cell's own words for where the tool is: its regions, elsewhere, unknown
-        self.locations = CodedEnum(f"{module}_location", [(n, n) for n in layout.robot_locations()])
+        self.locations = value_set(f"{module}_location", layout.robot_locations())
         self.regions = [(self.locations(name), r.min, r.max) for name, r in layout.robot_regions.items()]
         self.elsewhere = self.locations(layout.robot_elsewhere)
         self.unknown_location = self.locations("unknown")
@@ -133,14 +133,14 @@ class Robot(EntitySystem):
         self.mode_request_port = self.declare_input("safety_mode_request", ctype=enum_type(SafetyMode), default=SafetyMode.NORMAL.code)
         self.target_port = self.declare_input("target_pose", default=HOLD)
         # the cell's own words for what it does, and unknown (shadowed with no valid sample)
-        self.activity_type = CodedEnum(f"{module}_activity", [(a, a) for a in [*cfg.activities, "unknown"]])
+        self.activity_type = value_set(f"{module}_activity", [*cfg.activities, "unknown"])
         self.activity_port = self.declare_input("activity", ctype=enum_type(self.activity_type), default=0.0)
         self.measured_state_port = self.declare_input("measured_state", 2 * n)
         self._desired = self.declare_state("desired_state", np.concatenate([q0, np.zeros(n)]))
         self.desired_state_port = self.DeclareStateOutputPort("desired_state", self._desired)
 
         location = self.locate(self.kinematics.tool_position(q0))
-        self.reached_poses = CodedEnum(f"{module}_pose", [("MOVING", "moving")] + [(p.upper(), p) for p in self.pose_names])
+        self.reached_poses = value_set(f"{module}_pose", ["moving", *self.pose_names])
         published = [SafetyMode.NORMAL, self.activity_type(cfg.activities[0]), location, self.reached_poses(cfg.initial_pose)]
         # [the four codes below as last published, motion (see _advance)]: one read per update
         self._state = self.declare_state(
