@@ -296,7 +296,7 @@ def print_summary(summary, checked=None) -> None:
     table.add_row("seed", str(summary.seed))
     table.add_row("work cycles completed", str(summary.cycles_completed))
     for name, counts in summary.hazards.items():
-        verdict = f"raised {counts.raised}, mitigated {counts.mitigated}"
+        verdict = f"raised {counts.raised}, handled {counts.handled}"
         if counts.mishaps:
             verdict += f", [red]MISHAPS {counts.mishaps}[/red]"
         table.add_row(f"hazard {name}", verdict)

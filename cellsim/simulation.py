@@ -47,8 +47,11 @@ class OutputExistsError(Exception):
 @dataclass
 class HazardCounts:
     raised: int = 0
-    mitigated: int = 0
+    """Times the hazard left its initial phase (was detected)."""
+    handled: int = 0
+    """Times it came back to its initial phase."""
     mishaps: int = 0
+    """Times it entered its mishap phase."""
 
 
 @dataclass
@@ -222,6 +225,7 @@ def _record(sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_p
             duration=duration,
             versions=package_versions(),
             provenance=record,
+            hazards=hazard_channels(cell),
             status="running",
         )
         simulator.Initialize()
@@ -244,6 +248,14 @@ def _record(sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_p
             cell.recorder.drain(context, final=True)  # and what was logged before an interruption
         writer.close(status)
     return summarise(out_dir, seed, status, sim_time, wall)
+
+
+def hazard_channels(cell: CellDiagram) -> dict[str, dict]:
+    """Every hazard channel of the cell, with its risk model's initial and mishap phases."""
+    found = {}
+    for system in cell.modules.values():
+        found.update(getattr(system, "hazard_phases", dict)())
+    return found
 
 
 def make_simulator(cell: CellDiagram, realtime_rate: float = 0.0) -> Simulator:
@@ -269,27 +281,31 @@ def integrate_at_plant_step(simulator: Simulator, time_step: float) -> None:
 
 
 def summarise(out_dir: Path, seed: int, status: str, sim_time: float, wall_time: float) -> RunSummary:
-    """Read a run's summary back from its black box."""
+    """Read a run's summary back from its black box.
+
+    Hazards are the channels the metadata's ``hazards`` names, each with its risk
+    model's initial and mishap phases: raised counts leaving the initial phase,
+    handled counts returning to it, mishaps counts entering the mishap phase.
+    """
     with BlackBox(out_dir / BLACKBOX) as bb:
-        channels = bb.channels()
+        channels, metadata = bb.channels(), bb.metadata()
+        scenario = metadata.get("scenario", {})
         summary = RunSummary(out_dir, seed, status, sim_time, wall_time, 0)
+        for name, phases in (metadata.get("hazards") or {}).items():
+            values = bb.series(name).values if name in channels else []
+            initial, mishap = phases.get("initial"), phases.get("mishap")
+            summary.hazards[name.rpartition(".")[2]] = HazardCounts(
+                raised=sum(v != initial and (i == 0 or values[i - 1] == initial) for i, v in enumerate(values)),
+                handled=sum(v == initial and i > 0 and values[i - 1] != initial for i, v in enumerate(values)),
+                mishaps=sum(v == mishap and (i == 0 or values[i - 1] != mishap) for i, v in enumerate(values)) if mishap else 0,
+            )
+        behaviours = set(scenario.get("behaviours", {}))
+        robots = {n for n, e in scenario.get("entities", {}).items() if e.get("kind") == "robot"}
         for name, info in channels.items():
-            if info.kind == "enum" and info.domain == ["inact", "act", "mit", "mit1", "mit2", "res", "mis"]:
-                phases = bb.series(name).values
-                summary.hazards[name.rpartition(".")[2]] = HazardCounts(
-                    raised=phases.count("act"),
-                    mitigated=sum(p in ("mit", "mit1", "mit2") for p in phases),
-                    mishaps=phases.count("mis"),
-                )
-            elif name.endswith(".cycles_completed"):
+            if name.endswith(".cycles_completed") and info.source in behaviours:
                 values = bb.series(name).values
                 summary.cycles_completed = int(values[-1]) if values else 0
-            elif name.endswith(".safety_mode") and info.source in _robots(bb):
+            elif name.endswith(".safety_mode") and info.source in robots:
                 values = bb.series(name).values
                 summary.final_safety_mode = values[-1] if values else None
     return summary
-
-
-def _robots(bb: BlackBox) -> set[str]:
-    scenario = bb.metadata().get("scenario", {})
-    return {n for n, e in scenario.get("entities", {}).items() if e.get("kind") == "robot"}

@@ -164,3 +164,24 @@ def test_a_bad_condition_is_refused_before_anything_is_written_even_quiet(tmp_pa
     err = capsys.readouterr().err
     assert "validation.conditions.Typo" in err and "weldin" in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_a_mishap_in_a_risk_models_own_phases_is_a_finding(tmp_path, capsys):
+    """simulate exits 1 on a mishap whatever the risk model calls its phases."""
+    model = tmp_path / "own_phases.yaml"
+    model.write_text(
+        "name: own\nphases: {values: [clear, warned, hurt], initial: clear, mishap: hurt}\n"
+        "monitored:\n  lgtBar: {type: bool}\n"
+        "controlled:\n  notif: {values: [ok, leaveArea], default: ok}\n"
+        "hazards:\n  X:\n    transitions:\n      - {phase: clear, to: warned}\n      - {phase: warned, to: hurt, after: 0.5}\n"
+    )
+    scenario = tmp_path / "own.yaml"
+    scenario.write_text(
+        f"base: {WELDING_CELL}\nbehaviours:\n  safety_controller:\n    risk_model: {model}\n"
+        "    monitors: !replace {lgtBar: light_barrier.broken}\n"
+        "    commands: !replace {notif: [operator.notification]}\n"
+        "validation: !replace {}\n"
+    )
+    assert main(["simulate", str(scenario), "--out", str(tmp_path / "run"), "--duration", "2"]) == 1
+    printed = capsys.readouterr().out
+    assert "hazard X" in printed and "raised 1, handled 0, MISHAPS 1" in " ".join(printed.split())

@@ -76,6 +76,11 @@ class SafetyController(CellSystem):
         # [settled (0/1), the inputs it settled on]: see the module docstring
         self._memory = self.declare_state("settled_on", np.full(1 + len(self.monitored_names), np.nan))
 
+    def hazard_phases(self) -> dict[str, dict]:
+        """Each hazard's channel with its initial and mishap phases (recorded in the black box)."""
+        phases = self.risk_model.phases
+        return {f"{self.module}.{h.name}": {"initial": phases.initial, "mishap": phases.mishap} for h in self.hazards}
+
     @staticmethod
     def _encoder(ctype: ChannelType):
         if ctype.kind == "bool":
