@@ -115,3 +115,16 @@ def test_a_welder_like_machine_works_while_commanded():
 def test_bad_machine_configs(edit, expected):
     with pytest.raises(ConfigError, match=expected):
         load_text(MachineConfig, PRESS.replace(*edit))
+
+
+def test_busy_marks_a_cycle_under_way_and_an_abandoned_one_ends_it():
+    press = Press()
+    busy = lambda: press.system.GetOutputPort("busy").Eval(press.context)[0]  # noqa: E731
+    press.step()
+    assert busy() == 0.0
+    press.set("normal", None, 1.0).step()
+    assert busy() == 1.0
+    press.set("srmst", None, 1.0).step(3)
+    assert busy() == 1.0  # paused, still under way
+    press.set("stopped", None, 1.0).step()
+    assert busy() == 0.0  # abandoned: whoever waits is released

@@ -79,3 +79,14 @@ def test_process_steps_are_checked_at_load_time(tmp_path, edits, key, expected):
     with pytest.raises(ConfigError) as e:
         load_scenario(press_cell(tmp_path, **edits))
     assert e.value.key == key and expected in e.value.problem
+
+
+def test_a_start_is_held_until_a_slower_machine_acknowledges_it(tmp_path):
+    """A one-update pulse from a 20 ms process was missed by a machine looking every 200 ms."""
+    path = press_cell(tmp_path, **{"    cycle_time: 3.0\n": "    cycle_time: 3.0\n    period: 0.2\n",
+                                   "    kind: process\n": "    kind: process\n    period: 0.02\n"})
+    simulate(load_scenario(path), tmp_path / "run", duration=30.0)
+    with BlackBox(tmp_path / "run" / "blackbox.sqlite") as bb:
+        strokes = bb.series("welder.cycles_completed").values[-1]
+        done = bb.series("process_controller.cycles_completed").values[-1]
+    assert strokes >= 2 and done >= strokes - 1

@@ -4,10 +4,11 @@ Each step does one thing and names the robot activity it is:
 
 * ``move_to: POSE``: the robot moves to one of its named poses;
 * ``dwell: SECONDS``: the robot stays put (picking, placing);
-* ``start: MACHINE``: starts a machine's cycle and goes on at once, so the
-  machine works in parallel with the robot;
-* ``wait_for: MACHINE``: waits until that machine has finished the cycle started
-  last (at once if it already has).
+* ``start: MACHINE``: starts a machine's cycle (its command stays on until the
+  machine says it is busy) and goes on, so the machine works in parallel with
+  the robot;
+* ``wait_for: MACHINE``: waits until that machine is no longer busy: its cycle
+  ended, or was abandoned when the machine stopped (at once if it is idle).
 
 The steps repeat; completing the last counts one cycle. Like the welding cell's
 ``work_cycle`` it advances only while the robot's safety mode lets it move (not
@@ -101,10 +102,10 @@ class Process(CellSystem):
       activity_request (input): code of a robot activity requested by the safety controller, -1 for none.
       robot_safety_mode (input): the robot's SafetyMode code.
       robot_reached_pose (input): the robot's reached-pose code (0 moving, i + 1 for named pose i).
-      <machine>_cycles (input), per machine: the machine's cycles_completed.
+      <machine>_busy (input), per machine: the machine's busy channel.
       target_pose (output): index of the robot's named pose to move to, -1 to hold.
       robot_activity (output): code of the robot activity being carried out.
-      <machine>_command (output), per machine: 1 for one update to start its cycle.
+      <machine>_command (output), per machine: 1 from a start step until the machine is busy.
       step (channel): the current step's name.
       cycles_completed (channel): process cycles completed so far.
     """
@@ -121,9 +122,9 @@ class Process(CellSystem):
         self.activity_request_port = self.declare_input("activity_request", ctype=enum_type(activities), default=NO_VALUE)
         self.robot_mode_port = self.declare_input("robot_safety_mode")
         self.reached_pose_port = self.declare_input("robot_reached_pose")
-        self.cycles_ports = [self.declare_input(f"{m}_cycles") for m in self.machines]
-        # [step progress (s dwelled), last request, cycles of each machine when last started]
-        self._state = self.declare_state("state", [0.0, NO_VALUE, *([0.0] * len(self.machines))])
+        self.busy_ports = [self.declare_input(f"{m}_busy") for m in self.machines]
+        # [step progress (s dwelled), last request]
+        self._state = self.declare_state("state", [0.0, NO_VALUE])
         self._target = self.declare_state("target_pose", [self.targets[0]])
         self._activity = self.declare_state("robot_activity", [self.activity_codes[0]])
         self._commands = [self.declare_state(f"{m}_command", [0.0]) for m in self.machines]
@@ -137,7 +138,7 @@ class Process(CellSystem):
     def update(self, context, xd):
         request = self.activity_request_port.Eval(context)[0]
         state = context.get_discrete_state(self._state).get_value().tolist()
-        progress, last_request, started = state[0], state[1], state[2:]
+        progress, last_request = state
         published = [context.get_discrete_state(g)[0] for g in self._outputs]
         index, cycles = int(published[2]), published[3]
         if request != last_request and request in self.restart:
@@ -154,14 +155,13 @@ class Process(CellSystem):
             elif step.dwell > 0:
                 progress += self.period
                 done = progress >= step.dwell - 1e-9
-            elif step.start is not None:
+            elif step.start is not None:  # held until the machine acknowledges by being busy
                 m = self.machines.index(step.start)
-                commands[m] = 1.0  # a rising edge on the machine's command: its cycle starts
-                started[m] = self.cycles_ports[m].Eval(context)[0]
-                done = True
+                done = self.busy_ports[m].Eval(context)[0] > 0.5
+                commands[m] = 0.0 if done else 1.0
             else:
                 m = self.machines.index(step.wait_for)
-                done = self.cycles_ports[m].Eval(context)[0] > started[m]
+                done = self.busy_ports[m].Eval(context)[0] < 0.5
             if done:
                 progress = 0.0
                 index = (index + 1) % len(self.steps)
@@ -170,7 +170,7 @@ class Process(CellSystem):
                 target, activity = self.targets[index], self.activity_codes[index]
         outputs = [float(target), float(activity), float(index), float(cycles), *commands]
         write_changed(xd, self._outputs, outputs, published)
-        new_state = [progress, float(request), *started]
+        new_state = [progress, float(request)]
         if new_state != state:
             xd.get_mutable_vector(self._state).SetFromVector(np.array(new_state))
 
@@ -185,9 +185,9 @@ def build_process(cell, name: str, cfg: ProcessConfig) -> Process:
     connect(system.robot_activity_port, robot.activity_port)
     connect(robot.GetOutputPort("safety_mode"), system.robot_mode_port)
     connect(robot.GetOutputPort("reached_pose"), system.reached_pose_port)
-    for machine, command, cycles in zip(cfg.machines, system.command_ports, system.cycles_ports):
+    for machine, command, busy in zip(cfg.machines, system.command_ports, system.busy_ports):
         connect(command, cell.modules[machine].GetInputPort("command"))
-        connect(cell.modules[machine].GetOutputPort("cycles_completed"), cycles)
+        connect(cell.modules[machine].GetOutputPort("busy"), busy)
     return system
 
 

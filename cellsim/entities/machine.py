@@ -23,7 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
-from cellsim.channels import NO_VALUE, enum_type, number_type
+from cellsim.channels import BOOL, NO_VALUE, enum_type, number_type
 from cellsim.entities.twin import EntitySystem, valid_code
 from cellsim.registry import ModuleKind
 from cellsim.scenario import Period, Seconds, TwinSettings
@@ -90,6 +90,8 @@ class Machine(EntitySystem):
       safety_mode (channel): its safety mode.
       activity (channel): one of its activities.
       cycles_completed (channel): cycles it finished (cycle machines).
+      busy (channel, bool): a cycle is under way (paused included); a cycle abandoned
+        in stopped ends it too, so whoever waits for the cycle is released.
     """
 
     def __init__(self, module: str, cfg: MachineConfig):
@@ -107,6 +109,7 @@ class Machine(EntitySystem):
             self.declare_channel("safety_mode", enum_type(SafetyMode), SafetyMode.NORMAL),
             self.declare_channel("activity", enum_type(self.activity_type), cfg.rest),
             self.declare_channel("cycles_completed", number_type(None), 0.0),
+            self.declare_channel("busy", BOOL, False, description="A cycle is under way (paused included)"),
         ]
 
     def sample_is_valid(self, sample) -> bool:
@@ -141,11 +144,11 @@ class Machine(EntitySystem):
                     activity = self.rest
             else:
                 activity = self.working if command > 0.5 else self.rest
-            codes = [float(mode.code), float(activity), cycles]
+            codes = [float(mode.code), float(activity), cycles, 1.0 if left > 0.0 else 0.0]
         elif view.sample is None:  # unknown physical state: assume it works, mode unknown
-            codes = [float(SafetyMode.UNKNOWN.code), float(self.working), cycles]
+            codes = [float(SafetyMode.UNKNOWN.code), float(self.working), cycles, published[3]]
         else:
-            codes = [float(view.sample[0]), float(view.sample[1]), cycles]
+            codes = [float(view.sample[0]), float(view.sample[1]), cycles, published[3]]
         write_changed(xd, self._outputs, codes, published)
         if [left, command] != cycle:
             xd.get_mutable_vector(self._cycle).SetFromVector([left, command])
@@ -163,6 +166,7 @@ KIND = ModuleKind(
         ("safety_mode", "enum", "its safety mode; unknown when shadowing with no valid sample"),
         ("activity", "enum", "one of its activities; its working one when shadowing with no valid sample"),
         ("cycles_completed", "number", "cycles finished"),
+        ("busy", "bool", "a cycle is under way (paused included); false again once it ends or is abandoned"),
         ("twin_mode", "enum", "model / shadow / twin"),
         ("physical_link", "enum", "unused / ok / stale / corrupt"),
     ),
