@@ -397,11 +397,9 @@ class GroundTruthConfig:
 # -- services -----------------------------------------------------------------
 @dataclass
 class RecorderConfig:
-    """The message snooper: writes every message to the black box (SQLite)."""
+    """The message snooper: writes every message to the black box (SQLite), committed every simulated second."""
 
     kind: Literal["blackbox"]
-    batch_size: Annotated[int, Range(1, 1_000_000)] = 5000
-    """Rows buffered before they are written within one drain (memory bound)."""
 
 
 @dataclass

@@ -207,8 +207,7 @@ def _record(sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_p
     sc = sf.scenario
     write_run_scenario(sf, inputs, out_dir, RESOLVED_SCENARIO, seed, duration)
 
-    recorder_cfg = next(iter(sc.modules_of_kind("blackbox").values()), None)
-    writer = BlackBoxWriter(out_dir / BLACKBOX, batch_size=recorder_cfg.batch_size if recorder_cfg else 5000)
+    writer = BlackBoxWriter(out_dir / BLACKBOX)
     status = "failed"
     started = time.perf_counter()
     context = simulator.get_mutable_context()
@@ -228,9 +227,9 @@ def _record(sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_p
             hazards=hazard_channels(cell),
             status="running",
         )
-        simulator.Initialize()
-        started = time.perf_counter()
         try:
+            simulator.Initialize()
+            started = time.perf_counter()
             while context.get_time() < duration - 1e-9:
                 simulator.AdvanceTo(min(duration, context.get_time() + DRAIN_PERIOD))
                 sim_time = context.get_time()

@@ -194,7 +194,6 @@ BAD_NUMBERS = {
     "position": ("range_detector.position", ["[.inf, 0, 0]", "[1.0e+9, 0, 0]", "[0, .nan, 0]"]),
     "joint angle": ("robot.named_poses.home.0", ["nan", "100", "-7"]),
     "stale after": ("robot.twin.stale_after", ["0", "-1", ".inf"]),
-    "batch size": ("blackbox.batch_size", ["0", "-5", "99999999999"]),
     "braking time": ("robot.braking_time", ["0", "nan", "1000"]),
     "noise": ("range_detector.noise_std", ["-0.1", "nan", "100"]),
 }

@@ -47,13 +47,13 @@ class BlackBoxError(Exception):
 
 
 class BlackBoxWriter:
-    """Writes one run's black box; rows are buffered and flushed in batches."""
+    """Writes one run's black box; rows are buffered until the next :meth:`commit`,
+    so what is on disk always ends at the ``recorded_until`` written with it."""
 
-    def __init__(self, path: str | os.PathLike, batch_size: int = 5000):
+    def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
         if self.path.exists():
             raise FileExistsError(f"{self.path} already exists")
-        self.batch_size = batch_size
         self._rows: list[tuple] = []
         self._db = sqlite3.connect(self.path)
         self._db.executescript("PRAGMA journal_mode=WAL; PRAGMA synchronous=NORMAL;" + SCHEMA)
@@ -76,10 +76,8 @@ class BlackBoxWriter:
             )
 
     def append(self, row: tuple) -> None:
-        """Buffer one message row ``(t, channel, source, payload_json)``."""
+        """Buffer one message row ``(t, channel, source, payload_json)``; :meth:`commit` writes it."""
         self._rows.append(row)
-        if len(self._rows) >= self.batch_size:
-            self.flush()
 
     def flush(self) -> None:
         if self._rows:
@@ -227,12 +225,16 @@ class BlackBox:
         """``(t, channel, value)`` of the messages of ``channels``, in publication order."""
         marks = ",".join("?" * len(channels))
         query = f"SELECT t, channel, payload FROM messages WHERE channel IN ({marks}) ORDER BY rowid"
-        for t, channel, payload in self._query(query, list(channels)):
-            try:
-                value = json.loads(payload)["value"]
-            except (json.JSONDecodeError, KeyError, TypeError) as e:
-                raise self.corrupt(f"the payload of a '{channel}' message at t = {t} is not a cellsim message ({e})") from None
-            yield t, channel, value
+        try:
+            cursor = self._db.execute(query, list(channels))
+            for t, channel, payload in cursor:  # row by row: memory stays flat however long the run
+                try:
+                    value = json.loads(payload)["value"]
+                except (json.JSONDecodeError, KeyError, TypeError) as e:
+                    raise self.corrupt(f"the payload of a '{channel}' message at t = {t} is not a cellsim message ({e})") from None
+                yield t, channel, value
+        except sqlite3.DatabaseError as e:
+            raise self.corrupt(str(e)) from None
 
     def rows(self) -> list[tuple]:
         """The raw ``messages`` rows in publication order (for comparing runs)."""

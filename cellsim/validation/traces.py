@@ -31,7 +31,6 @@ import json
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -147,10 +146,12 @@ def trace_of_run(bb: BlackBox, aliases: dict[str, str] | None = None) -> RunTrac
             continue
         times.append(t)
         values.append(value)
+    metadata = bb.metadata()
     if not any(times for times, _ in samples.values()):
+        if metadata.get("status") in ("interrupted", "running", "failed"):
+            raise TraceError(f"{bb.path}: the run stopped ({metadata.get('status')}) before it recorded anything")
         raise BlackBoxError(f"{bb.path}: corrupt black box: it holds no messages")
 
-    metadata = bb.metadata()
     complete = metadata.get("status") == "completed"
     end = _number(bb, metadata, "duration") if complete else None
     if end is None:
@@ -169,9 +170,9 @@ def _number(bb: BlackBox, metadata: dict, key: str) -> float | None:
     value = metadata.get(key)
     if value is None:
         return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
-        raise BlackBoxError(f"{bb.path}: corrupt black box: metadata '{key}' is {value!r}, not a positive number")
-    return float(value)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
+        raise BlackBoxError(f"{bb.path}: corrupt black box: metadata '{key}' is {value!r}, not a time in seconds")
+    return float(value) if value > 0 else None
 
 
 def _validator(domain: Domain):
