@@ -1,15 +1,14 @@
 """The ``cellsim`` command line.
 
-Exit codes: 0 all well; 1 a safety finding (a mishap in a run, a violated
-safety condition); 2 a usage or input error (one line on stderr naming the
-file, line and key); 130 interrupted.
+Exit codes: 0 all well; 1 a safety finding (a mishap in a run, a safety
+condition violated, inconclusive or with missing data); 2 a usage or input
+error (one line on stderr naming the file, line and key); 130 interrupted.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import errno
 import os
 import signal
 import sys
@@ -127,7 +126,8 @@ def build_parser() -> argparse.ArgumentParser:
         "extends it) if its inputs are unchanged: the content of the scenario and of every file it uses, "
         "the overrides, seed, duration and cellsim's version. If one changed, the campaign refuses, naming "
         "it, unless --restart. "
-        "Exits 1 if any run violates a condition, 2 if a run could not be simulated (a sampled value out of range).",
+        "Exits 1 if a condition does not hold on some run (violated, or missing data), 2 if a run could not be "
+        "simulated (a sampled value out of range).",
     )
     camp.add_argument("scenario", type=Path, help="scenario YAML file")
     camp.add_argument("--runs", type=int, help="number of runs (default: the scenario's campaign.runs)")
@@ -394,9 +394,10 @@ def cmd_campaign(args) -> int:
 
     from cellsim.campaign.runner import CampaignError, CampaignPlan, run_campaign
 
-    for flag in ("runs", "jobs"):
-        if getattr(args, flag) is not None and getattr(args, flag) < 1:
-            raise InputError(f"--{flag} must be at least 1, got {getattr(args, flag)}")
+    for flag, most in (("runs", 100_000), ("jobs", 256)):
+        value = getattr(args, flag)
+        if value is not None and not 1 <= value <= most:
+            raise InputError(f"--{flag} must be in [1, {most}], got {value}")
     from cellsim.scenario import check_run_length, check_seed
 
     check_seed(args.seed, "--seed")
@@ -507,8 +508,6 @@ def cmd_export(args) -> int:
     else:
         from cellsim.atomic import write_text
 
-        if args.out.is_dir():
-            raise IsADirectoryError(errno.EISDIR, "is a folder; name a file to write", str(args.out))
         write_text(args.out, export_scenario(sf, destination_dir=args.out.resolve().parent))
     return EXIT_OK
 
@@ -553,10 +552,10 @@ def cmd_modules(args) -> int:
     try:
         info = kinds_doc.describe(args.kind)
     except registry.KindError as error:
-        import difflib
+        from cellsim.config.typed_yaml import suggest
 
-        close = difflib.get_close_matches(args.kind, registry.kind_names(), n=1)
-        raise InputError(f"{error}" + (f"; did you mean '{close[0]}'?" if close else f" (known: {', '.join(registry.kind_names())})")) from None
+        known = registry.kind_names()
+        raise InputError(f"{error}" + (suggest(args.kind, known) or f" (known: {', '.join(known)})")) from None
     if args.json:
         json.dump(info, sys.stdout, indent=2)
         sys.stdout.write("\n")

@@ -150,9 +150,6 @@ def _show(value) -> str:
     return "null" if data is None else str(data).replace("'", "")
 
 
-def _fields(declared, kind: registry.ModuleKind) -> tuple[str, ...]:
-    return tuple(declared(kind)) if callable(declared) else tuple(declared)
-
 
 def describe(name: str) -> dict:
     """One kind in full, as plain data (for ``--json`` and for the table)."""
@@ -163,8 +160,8 @@ def describe(name: str) -> dict:
         "summary": kind.summary,
         "parameters": [dataclasses.asdict(p) for p in parameters(kind.config)],
         "channels": [{"signal": s, "type": t, "meaning": m} for s, t, m in kind.channels],
-        "physical_sample_fields": list(_fields(kind.sample_fields, kind)),
-        "command_fields": list(_fields(kind.command_fields, kind)),
+        "physical_sample_fields": list(kind.sample_fields),
+        "command_fields": list(kind.command_fields),
         "files": list(kind.file_fields),
     }
 

@@ -59,9 +59,9 @@ class ModuleKind:
     raises the scenario file's ConfigError (files exist, referenced modules exist)."""
     file_fields: tuple[str, ...] = ()
     """Config fields naming files relative to the scenario (rebased when it is exported)."""
-    sample_fields: tuple[str, ...] | Callable[[Any], tuple[str, ...]] = ()
+    sample_fields: tuple[str, ...] = ()
     """An entity's physical-sample fields (its physical twin's state), for docs and bridges."""
-    command_fields: tuple[str, ...] | Callable[[Any], tuple[str, ...]] = ()
+    command_fields: tuple[str, ...] = ()
     """An entity's command fields (what it sends its physical twin in twin mode)."""
     channels: tuple[tuple[str, str, str], ...] = field(default=())
     """Documented channels: ``(signal, type, meaning)``; a test checks them against built systems."""

@@ -702,25 +702,6 @@ def export_scenario(sf: ScenarioFile, destination_dir: str | os.PathLike | None 
     return dump_yaml(scenario, header=header)
 
 
-class _FileFieldsByConfig:
-    """``FILE_FIELDS.get(ConfigClass)``: the file fields of the kind whose config that class is.
-
-    Transitional: prefer ``kind_of(cfg).file_fields``.
-    """
-
-    def get(self, config_type, default=()):
-        import typing
-
-        from cellsim import registry
-
-        (name,) = typing.get_args(typing.get_type_hints(config_type)["kind"])
-        kind = registry.get(name)
-        return kind.file_fields if kind.config is config_type else default
-
-
-FILE_FIELDS = _FileFieldsByConfig()
-
-
 def rebase_file_references(sf: ScenarioFile, to_dir: Path) -> Scenario:
     """A copy of the scenario whose file references (each kind's ``file_fields``) are relative to ``to_dir``.
 

@@ -16,7 +16,7 @@ identical ``messages`` rows.
 
 from __future__ import annotations
 
-import fcntl
+import contextlib
 import importlib.metadata
 import os
 import shutil
@@ -28,6 +28,7 @@ from typing import Callable
 
 from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 
+from cellsim.atomic import LOCK, FolderBusy, folder_lock
 from cellsim.config.typed_yaml import to_data
 from cellsim.provenance import INPUTS, read_inputs, write_run_scenario
 from cellsim.provenance import provenance as make_provenance
@@ -86,25 +87,23 @@ def package_versions() -> dict[str, str]:
     return versions
 
 
-LOCK = ".cellsim.lock"
-"""A run folder's lock file: held (flock) by the process writing the run."""
 RUN_FILES = (BLACKBOX, BLACKBOX + "-wal", BLACKBOX + "-shm", BLACKBOX + "-journal", RESOLVED_SCENARIO)
 
 
 class RunFolder:
     """An exclusive claim on a run's output folder, held while the run is written.
 
-    The claim is an advisory lock (``flock``) on ``OUT/.cellsim.lock``: a second
-    process that asks for the same folder is refused at once, and the lock goes
-    with its holder however that ends, SIGKILL included. The folder must be new,
-    empty, or hold a run (replaced only with ``overwrite``); the current folder is
-    refused, so a run never mixes its files with the user's.
+    The claim is :func:`cellsim.atomic.folder_lock`: a second process that asks
+    for the same folder is refused at once, and the lock goes with its holder
+    however that ends, SIGKILL included. The folder must be new, empty, or hold a
+    run (replaced only with ``overwrite``); the current folder is refused, so a
+    run never mixes its files with the user's.
     """
 
     def __init__(self, out_dir: str | os.PathLike, overwrite: bool = False):
         self.path = Path(out_dir)
         self.overwrite = overwrite
-        self._fd: int | None = None
+        self._lock = contextlib.ExitStack()
 
     def __enter__(self) -> "RunFolder":
         out = self.path
@@ -114,13 +113,10 @@ class RunFolder:
             raise OutputExistsError(f"{out} is a file, not a folder; choose another --out")
         self._refuse_foreign(out)
         out.mkdir(parents=True, exist_ok=True)
-        fd = os.open(out / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
+            self._lock.enter_context(folder_lock(out))
+        except FolderBusy:
             raise OutputExistsError(f"{out} is being written by another cellsim process; choose another --out") from None
-        self._fd = fd
         try:
             self._refuse_foreign(out)  # again, now that nobody else writes it
             if any((out / name).exists() for name in (BLACKBOX, RESOLVED_SCENARIO)):
@@ -131,17 +127,12 @@ class RunFolder:
                 for extra in RUN_FOLDERS:
                     shutil.rmtree(out / extra, ignore_errors=True)
         except BaseException:
-            self.release()
+            self._lock.close()
             raise
         return self
 
     def __exit__(self, *exc) -> None:
-        self.release()
-
-    def release(self) -> None:
-        if self._fd is not None:
-            os.close(self._fd)  # closing the descriptor releases the lock
-            self._fd = None
+        self._lock.close()
 
     @staticmethod
     def _refuse_foreign(out: Path) -> None:
@@ -177,9 +168,13 @@ def simulate(
     The black box's ``provenance`` metadata is :func:`cellsim.provenance.provenance`
     of the run's inputs, updated with ``provenance`` (a campaign names itself there).
     """
+    from cellsim.scenario import check_run_length, check_seed
+
     sc = sf.scenario
     seed = sc.seed if seed is None else seed
     duration = sc.duration if duration is None else duration
+    check_seed(seed, "seed")
+    check_run_length(sf, duration, "duration" if duration == sc.duration else "--duration")
     out_dir = Path(out_dir)
     # -- provenance: the input files, read once; the run folder keeps copies of these bytes
     inputs = read_inputs(sf)

@@ -185,3 +185,29 @@ def test_a_mishap_in_a_risk_models_own_phases_is_a_finding(tmp_path, capsys):
     assert main(["simulate", str(scenario), "--out", str(tmp_path / "run"), "--duration", "2"]) == 1
     printed = capsys.readouterr().out
     assert "hazard X" in printed and "raised 1, handled 0, MISHAPS 1" in " ".join(printed.split())
+
+
+@pytest.mark.parametrize("restart", [False, True])
+def test_a_second_campaign_into_a_folder_being_written_is_refused(tmp_path, restart):
+    out = tmp_path / "campaign"
+    first = subprocess.Popen(
+        [sys.executable, "-m", "cellsim.cli", "campaign", str(WELDING_CELL), "--runs", "40", "--jobs", "1",
+         "--out", str(out), "--duration", "5", "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        deadline = time.monotonic() + DEADLINE
+        while not list(out.glob("runs/*/result.json")):  # a run finished: the campaign holds its folder
+            assert time.monotonic() < deadline and first.poll() is None, "the first campaign never finished a run"
+            time.sleep(0.05)  # polling files another process writes: no event to wait on
+        second = subprocess.run(
+            [sys.executable, "-m", "cellsim.cli", "campaign", str(WELDING_CELL), "--runs", "2", "--out", str(out),
+             "--duration", "5", "--quiet"] + (["--restart"] if restart else []),
+            capture_output=True, text=True, timeout=120,
+        )
+        assert second.returncode == 2
+        assert "being written by another cellsim campaign" in second.stderr and "Traceback" not in second.stderr
+        assert list(out.glob("runs/*/result.json"))  # the first campaign's runs are still there
+        assert first.poll() is None  # and it goes on
+    finally:
+        stop(first)

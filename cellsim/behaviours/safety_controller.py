@@ -26,6 +26,7 @@ import numpy as np
 from cellsim.behaviours.risk_model import RiskModel, load_risk_model
 from cellsim.channels import NO_VALUE as NO_REQUEST
 from cellsim.channels import ChannelType, enum_type
+from cellsim.config.typed_yaml import suggest
 from cellsim.registry import ModuleKind
 from cellsim.scenario import SafetyControllerConfig
 from cellsim.systems import CellSystem, write_scalar
@@ -182,7 +183,7 @@ def build_safety_controller(cell, name: str, cfg: SafetyControllerConfig) -> Saf
             system = modules.get(module_name)
             if system is None or not system.HasInputPort(port_name):
                 inputs = [f"{m}.{p}" for m, system in modules.items() for p in getattr(system, "input_types", {})]
-                raise sf.error(where, f"no command input '{target}'{_did_you_mean(target, inputs)} (inputs are written module.input)")
+                raise sf.error(where, f"no command input '{target}'{suggest(target, inputs)} (inputs are written module.input)")
             ctype = getattr(system, "input_types", {}).get(port_name)
             if ctype is None:
                 raise sf.error(where, f"'{target}' is not a command input")
@@ -207,7 +208,7 @@ def build_safety_controller(cell, name: str, cfg: SafetyControllerConfig) -> Saf
             ctype = channels[channel][0].type
             sources[var] = channels[channel][1]
         else:
-            raise sf.error(where, f"no channel '{channel}'{_did_you_mean(channel, channels)}")
+            raise sf.error(where, f"no channel '{channel}'{suggest(channel, channels)}")
         _check_domain(sf, where, var, risk_model.monitored[var], ctype)
         monitor_types[var] = ctype
 
@@ -223,13 +224,6 @@ def build_safety_controller(cell, name: str, cfg: SafetyControllerConfig) -> Saf
         for port in ports:
             builder.Connect(controller.GetOutputPort(var), port)
     return controller
-
-
-def _did_you_mean(name: str, options) -> str:
-    import difflib
-
-    close = difflib.get_close_matches(name, sorted(options), n=1)
-    return f"; did you mean '{close[0]}'?" if close else ""
 
 
 def _check_domain(sf, where: str, var: str, variable, ctype: ChannelType) -> None:

@@ -41,6 +41,7 @@ Workers end with the campaign process, however it ends (SIGKILL included).
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import dataclasses
 import functools
@@ -59,7 +60,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
-from cellsim.atomic import write_text
+from cellsim.atomic import LOCK, FolderBusy, folder_lock, write_text
 from cellsim.campaign.samplers import draw_configuration, run_seed
 from cellsim.config.typed_yaml import to_data
 from cellsim.provenance import INPUTS, SnapshotError, changes, command_line, provenance, read_inputs, snapshot_scenario
@@ -250,7 +251,7 @@ def prepare(plan: CampaignPlan, out: Path, identity: dict, restart: bool = False
             differences = changes(old, identity)
             if differences:
                 raise CampaignError(f"{out} holds a different campaign ({'; '.join(differences)}); {RESTART_HINT}")
-    elif out.exists() and any(out.iterdir()):
+    elif _holds_others(out):
         raise CampaignError(f"{out} exists and is not a campaign folder; choose another --out")
     out.mkdir(parents=True, exist_ok=True)
     _write_json(plan_path, {"identity": identity, "runs": plan.runs, "scenario": plan.scenario})
@@ -272,9 +273,17 @@ def discard(out: Path) -> None:
     """Remove what a campaign wrote in ``out``, the plan last (files of others stay)."""
     for name in (RUNS, INPUTS):
         shutil.rmtree(out / name, ignore_errors=True)
-    for name in (RESULTS, REPORT, RESULTS + ".tmp", PLAN + ".tmp"):
+    for name in (RESULTS, REPORT):
         (out / name).unlink(missing_ok=True)
+    for name in (RESULTS, REPORT, PLAN):  # a write cut short left its temporary file (cellsim.atomic)
+        for tmp in out.glob(f".{name}.*.tmp"):
+            tmp.unlink(missing_ok=True)
     (out / PLAN).unlink(missing_ok=True)
+
+
+def _holds_others(out: Path) -> bool:
+    """Whether ``out`` holds files no campaign wrote (its lock file aside)."""
+    return out.is_dir() and not (out / PLAN).exists() and any(p.name != LOCK for p in out.iterdir())
 
 
 def run_campaign(
@@ -304,6 +313,22 @@ def run_campaign(
     scenario_safety_case(given)
     inputs = read_inputs(given)
     identity = inputs.identity(plan.overrides, plan.seed, plan.duration)
+    if _holds_others(out):  # refused before the folder is touched, lock file included
+        raise CampaignError(f"{out} exists and is not a campaign folder; choose another --out")
+    out.mkdir(parents=True, exist_ok=True)
+    with contextlib.ExitStack() as held:
+        try:
+            held.enter_context(folder_lock(out))
+        except FolderBusy:
+            raise CampaignError(f"{out} is being written by another cellsim campaign; choose another --out") from None
+        return _run_locked(plan, out, jobs, on_progress, restart, inputs, identity, wall_start)
+
+
+def _run_locked(plan, out: Path, jobs, on_progress, restart, inputs, identity, wall_start) -> CampaignOutcome:
+    """The campaign, with ``out`` locked against every other cellsim process."""
+    from cellsim.scenario import load_scenario
+    from cellsim.validation.check import scenario_safety_case
+
     results = {r["index"]: r for r in prepare(plan, out, identity, restart)}
     # Every run, and the checks here, are made from the snapshot of the bytes hashed.
     shutil.rmtree(out / INPUTS, ignore_errors=True)

@@ -39,6 +39,7 @@ __all__ = [
     "Range",
     "range_of",
     "type_at",
+    "suggest",
     "Loaded",
     "apply_override",
     "apply_overrides",
@@ -239,8 +240,9 @@ def _same(a: Any, b: Any) -> bool:
     return type(a) is type(b) and a == b
 
 
-def _suggest(word: str, options: list[str]) -> str:
-    match = difflib.get_close_matches(word, options, n=1)
+def suggest(word: str, options) -> str:
+    """"; did you mean 'x'?" for the option closest to ``word``, or "" when none is close."""
+    match = difflib.get_close_matches(word, list(options), n=1)
     return f"; did you mean '{match[0]}'?" if match else ""
 
 
@@ -599,7 +601,7 @@ class _Converter:
             if _same(value, kind):
                 return self.dataclass(cls, data, path)
         kpath = _join(path, "kind")
-        hint = _suggest(kind, [str(k) for k in kinds]) if isinstance(kind, str) else ""
+        hint = suggest(kind, [str(k) for k in kinds]) if isinstance(kind, str) else ""
         raise self.error(kpath, f"unknown kind {self.describe(kind, kpath)} "
                          f"(expected one of: {known}){hint}")
 
@@ -630,7 +632,7 @@ class _Converter:
             cls = marker.__kind_config__(kind)
         except LookupError as e:
             known = marker.__kind_names__()
-            hint = _suggest(kind, known) if str(e).startswith("unknown kind") else ""
+            hint = suggest(kind, known) if str(e).startswith("unknown kind") else ""
             detail = f" (expected one of: {', '.join(known)})" if str(e).startswith("unknown kind") else ""
             raise self.error(kpath, f"{e.args[0] if e.args else e}{detail}{hint}") from None
         return self.dataclass(cls, data, path)
@@ -647,7 +649,7 @@ class _Converter:
             if key not in fields:
                 names = list(fields)
                 raise self.error(kpath, f"unknown key '{key}' (expected one of: {', '.join(names)})"
-                                 + _suggest(str(key), names))
+                                 + suggest(str(key), names))
             kwargs[key] = self.convert(hints[key], value, kpath)
         for name, f in fields.items():
             if (name not in kwargs and f.default is dataclasses.MISSING

@@ -100,6 +100,8 @@ class Machine(EntitySystem):
         self.cfg = cfg
         self.activity_type = value_set(f"{module}_activity", cfg.activities)
         self.rest, self.working, self.off = (self.activity_type(a).code for a in (cfg.rest, cfg.working, cfg.off))
+        # the mode it takes for each requested mode's code, worked out once
+        self._modes = [supported_mode(m, cfg.safety_modes) if m is not SafetyMode.UNKNOWN else SafetyMode.STOPPED for m in _MODES]
         self.mode_request_port = self.declare_input("safety_mode_request", ctype=enum_type(SafetyMode), default=SafetyMode.NORMAL.code)
         self.activity_request_port = self.declare_input("activity_request", ctype=enum_type(self.activity_type), default=NO_VALUE)
         self.command_port = self.declare_input("command", default=0.0)
@@ -126,7 +128,7 @@ class Machine(EntitySystem):
         left, last_command = cycle
         cycles = published[2]
         if view.mode is TwinMode.MODEL:
-            mode = supported_mode(SafetyMode.from_code(mode_request), self.cfg.safety_modes)
+            mode = self._modes[int(mode_request)]
             started = command > 0.5 and last_command <= 0.5
             if self.cfg.cycle_time > 0 and started and left <= 0.0:
                 left = self.cfg.cycle_time

@@ -5,10 +5,14 @@ Every session cellsim opens starts from :func:`session_config`, which
 
 * turns multicast scouting and gossip off (a config file may turn them on again
   explicitly: its keys win over these defaults);
-* listens on, or connects to, the endpoints given with ``--listen`` and
-  ``--connect``; when none are given (by flag or file), the twin (``cellsim
-  live``) listens on ``tcp/127.0.0.1:7447`` and every other process connects
-  to it.
+* listens on, or connects to, the endpoints given (``listen``, ``connect``: the
+  networked commands' ``--listen`` and ``--connect``); when none are given, by
+  argument or file, the twin listens on ``tcp/127.0.0.1:7447``
+  (``listen_by_default``) and every other process connects to it.
+
+It is the first piece of the live twin (issue "The twin goes live"): the
+commands that open these sessions (``cellsim live``, ``emulate``, ``twin-mode``)
+are still to come.
 
 Endpoints are Zenoh locators such as ``tcp/127.0.0.1:7447``; anything else is
 refused with one line before a session is opened.

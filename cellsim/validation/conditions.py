@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from cellsim.config.typed_yaml import ConfigError
+from cellsim.config.typed_yaml import ConfigError, suggest
 from cellsim.logic.mtl import TraceEvaluator
 from cellsim.logic.syntax import Formula, FormulaError, parse, variables_of
 from cellsim.logic.trace import Trace
@@ -123,10 +123,7 @@ class SafetyCase:
         use_cases = {name: formula(f"validation.use_cases.{name}", t) for name, t in validation.use_cases.items()}
         for name, criterion in validation.coverage.items():
             if criterion.use_case and criterion.use_case not in use_cases:
-                import difflib
-
-                close = difflib.get_close_matches(criterion.use_case, list(use_cases), n=1)
-                hint = f"; did you mean '{close[0]}'?" if close else f" (use cases: {', '.join(use_cases) or 'none'})"
+                hint = suggest(criterion.use_case, use_cases) or f" (use cases: {', '.join(use_cases) or 'none'})"
                 raise ConfigError(*locate(f"validation.coverage.{name}.use_case"), f"no use case named '{criterion.use_case}'{hint}")
         try:
             coverage = CoverageModel.compile(
