@@ -322,6 +322,17 @@ class OperatorConfig:
 
 
 # -- behaviours ---------------------------------------------------------------
+def check_steps(names: list[str], restart_on_request: dict[str, str]) -> None:
+    """A process's steps: at least one, names distinct, restarts naming steps (FieldError)."""
+    if not names:
+        raise FieldError("steps", "needs at least one step")
+    if len(set(names)) != len(names):
+        raise FieldError("steps", "step names must differ")
+    for activity, step in restart_on_request.items():
+        if step not in names:
+            raise FieldError(f"restart_on_request.{activity}", f"'{step}' is not a step")
+
+
 @dataclass
 class WorkStep:
     """One step of the work cycle: a move, a dwell or a weld, with the robot's activity."""
@@ -360,14 +371,7 @@ class WorkCycleConfig:
     """Update period (s)."""
 
     def __post_init__(self):
-        names = [s.name for s in self.steps]
-        if not names:
-            raise FieldError("steps", "needs at least one step")
-        if len(set(names)) != len(names):
-            raise FieldError("steps", "step names must differ")
-        for activity, step in self.restart_on_request.items():
-            if step not in names:
-                raise FieldError(f"restart_on_request.{activity}", f"'{step}' is not a step of the cycle")
+        check_steps([s.name for s in self.steps], self.restart_on_request)
 
 
 @dataclass

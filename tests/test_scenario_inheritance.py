@@ -93,7 +93,7 @@ def test_a_list_in_the_derived_file_replaces_the_base_list(tmp_path):
     # the base's restart_on_request still names the base's steps: found, at the base's line
     with pytest.raises(ConfigError) as e:
         load_scenario(_derived(tmp_path, SHORT_CYCLE))
-    assert e.value.source == str(WELDING_CELL) and "'bring_back' is not a step of the cycle" in str(e.value)
+    assert e.value.source == str(WELDING_CELL) and "'bring_back' is not a step" in str(e.value)
     # a mapping tagged !replace replaces the base's instead of merging into it
     path = _derived(tmp_path, SHORT_CYCLE + "    restart_on_request: !replace {}\n", "replaced.yaml")
     controller = load_scenario(path).scenario.behaviours["process_controller"]

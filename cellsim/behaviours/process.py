@@ -29,7 +29,7 @@ from cellsim.channels import NO_VALUE, enum_type, number_type
 from cellsim.config.typed_yaml import FieldError
 from cellsim.entities.robot import HOLD
 from cellsim.registry import ModuleKind
-from cellsim.scenario import Period, Seconds
+from cellsim.scenario import Period, Seconds, check_steps
 from cellsim.systems import CellSystem, write_changed
 from cellsim.vocabulary import CodedEnum, SafetyMode, value_set
 
@@ -75,14 +75,7 @@ class ProcessConfig:
     """Update period (s)."""
 
     def __post_init__(self):
-        names = [s.name for s in self.steps]
-        if not names:
-            raise FieldError("steps", "needs at least one step")
-        if len(set(names)) != len(names):
-            raise FieldError("steps", "step names must differ")
-        for activity, step in self.restart_on_request.items():
-            if step not in names:
-                raise FieldError(f"restart_on_request.{activity}", f"'{step}' is not a step")
+        check_steps([s.name for s in self.steps], self.restart_on_request)
 
     @property
     def machines(self) -> list[str]:
@@ -191,28 +184,38 @@ def build_process(cell, name: str, cfg: ProcessConfig) -> Process:
     return system
 
 
+def check_robot_steps(sf, key: str, robot_name: str, steps, restart_on_request: dict[str, str]):
+    """The robot a process moves exists, and its steps' poses and activities are the robot's.
+
+    Returns the robot's config. Shared by the process and the welding cell's work cycle.
+    """
+    robots = sf.scenario.modules_of_kind("robot")
+    if robot_name not in robots:
+        raise sf.error(f"{key}.robot", f"no robot entity named '{robot_name}'")
+    robot = robots[robot_name]
+    for i, step in enumerate(steps):
+        if step.move_to is not None and step.move_to not in robot.named_poses:
+            raise sf.error(f"{key}.steps.{i}.move_to", f"'{step.move_to}' is not a named pose of {robot_name} ({', '.join(robot.named_poses)})")
+        if step.activity not in robot.activities:
+            raise sf.error(f"{key}.steps.{i}.activity", f"'{step.activity}' is not an activity of {robot_name} ({', '.join(robot.activities)})")
+    for activity in restart_on_request:
+        if activity not in robot.activities:
+            raise sf.error(f"{key}.restart_on_request.{activity}", f"'{activity}' is not an activity of {robot_name} ({', '.join(robot.activities)})")
+    return robot
+
+
 def _check(sf, name: str, cfg: ProcessConfig) -> None:
     """The robot and machines it names exist; poses and activities are the robot's."""
-    key, sc = f"behaviours.{name}", sf.scenario
-    robots = sc.modules_of_kind("robot")
-    if cfg.robot not in robots:
-        raise sf.error(f"{key}.robot", f"no robot entity named '{cfg.robot}'")
-    robot = robots[cfg.robot]
-    machines = sc.modules_of_kind("machine")
+    key = f"behaviours.{name}"
+    check_robot_steps(sf, key, cfg.robot, cfg.steps, cfg.restart_on_request)
+    machines = sf.scenario.modules_of_kind("machine")
     for i, step in enumerate(cfg.steps):
-        if step.move_to is not None and step.move_to not in robot.named_poses:
-            raise sf.error(f"{key}.steps.{i}.move_to", f"'{step.move_to}' is not a named pose of {cfg.robot} ({', '.join(robot.named_poses)})")
-        if step.activity not in robot.activities:
-            raise sf.error(f"{key}.steps.{i}.activity", f"'{step.activity}' is not an activity of {cfg.robot} ({', '.join(robot.activities)})")
         for field_name in ("start", "wait_for"):
             machine = getattr(step, field_name)
             if machine is not None and machine not in machines:
                 raise sf.error(f"{key}.steps.{i}.{field_name}", f"no machine entity named '{machine}' ({', '.join(machines) or 'none'})")
             if machine is not None and machines[machine].cycle_time <= 0:
                 raise sf.error(f"{key}.steps.{i}.{field_name}", f"machine '{machine}' has no cycle_time: it cannot run a cycle")
-    for activity in cfg.restart_on_request:
-        if activity not in robot.activities:
-            raise sf.error(f"{key}.restart_on_request.{activity}", f"'{activity}' is not an activity of {cfg.robot} ({', '.join(robot.activities)})")
 
 
 KIND = ModuleKind(

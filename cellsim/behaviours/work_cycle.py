@@ -125,22 +125,13 @@ def build_work_cycle(cell, name: str, cfg: WorkCycleConfig) -> WorkCycle:
 
 
 def _check(sf, name: str, cfg: WorkCycleConfig) -> None:
-    """The robot and welder it names exist, and every move goes to one of the robot's poses."""
-    key, sc = f"behaviours.{name}", sf.scenario
-    robots = sc.modules_of_kind("robot")
-    if cfg.robot not in robots:
-        raise sf.error(f"{key}.robot", f"no robot entity named '{cfg.robot}'")
-    if cfg.welder not in sc.modules_of_kind("welder"):
+    """The robot and welder it names exist; poses and activities are the robot's."""
+    from cellsim.behaviours.process import check_robot_steps
+
+    key = f"behaviours.{name}"
+    check_robot_steps(sf, key, cfg.robot, cfg.steps, cfg.restart_on_request)
+    if cfg.welder not in sf.scenario.modules_of_kind("welder"):
         raise sf.error(f"{key}.welder", f"no welder entity named '{cfg.welder}'")
-    poses, activities = robots[cfg.robot].named_poses, robots[cfg.robot].activities
-    for i, step in enumerate(cfg.steps):
-        if step.move_to is not None and step.move_to not in poses:
-            raise sf.error(f"{key}.steps.{i}.move_to", f"'{step.move_to}' is not a named pose of {cfg.robot} ({', '.join(poses)})")
-        if step.activity not in activities:
-            raise sf.error(f"{key}.steps.{i}.activity", f"'{step.activity}' is not an activity of {cfg.robot} ({', '.join(activities)})")
-    for activity in cfg.restart_on_request:
-        if activity not in activities:
-            raise sf.error(f"{key}.restart_on_request.{activity}", f"'{activity}' is not an activity of {cfg.robot} ({', '.join(activities)})")
 
 
 KIND = ModuleKind(
