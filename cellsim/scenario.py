@@ -253,6 +253,9 @@ class LightBarrierConfig:
     """Size of that box along x, y, z (m)."""
     period: Period = 0.04
     """Response time (s). People move every 40 ms in the twin; sampling faster reads the same geometry."""
+    restart_interlock: bool = False
+    """Once broken it stays tripped, after the beams clear, until a reset (a rising edge of its
+    reset input while the beams are clear), as a guard with a manual restart (ISO 13849-1, 5.2.2)."""
     twin: TwinSettings = field(default_factory=TwinSettings)
     """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
 

@@ -25,7 +25,7 @@ from cellsim.channels import BOOL, enum_type, number_type
 from cellsim.entities.twin import EntitySystem, valid_code
 from cellsim.registry import ModuleKind
 from cellsim.scenario import LightBarrierConfig, RangeDetectorConfig
-from cellsim.systems import write_scalar
+from cellsim.systems import read_scalar, write_scalar
 from cellsim.vocabulary import Range, TwinMode
 
 
@@ -51,7 +51,9 @@ class LightBarrier(_GeometrySensor):
     Ports:
       geometry_query (input): SceneGraph QueryObject.
       physical_sample (input): [t, valid, broken (0/1)].
-      broken (channel, bool): true while any target geometry intersects the beams.
+      reset (input, with restart_interlock): a rising edge resets a tripped curtain whose beams are clear.
+      broken (channel, bool): true while any target geometry intersects the beams; with
+        restart_interlock, from the first break until a reset.
     Fails safe (reads broken) when its physical sample is stale or corrupt.
     """
 
@@ -62,6 +64,9 @@ class LightBarrier(_GeometrySensor):
         self._broken = self.declare_channel(
             "broken", BOOL, False, description="Light barrier interrupted (lgtBar)"
         )
+        if cfg.restart_interlock:
+            self.reset_port = self.declare_input("reset", ctype=BOOL, default=0.0)
+            self._reset_seen = self.declare_state("reset_seen", [0.0])
 
     def register_geometry(self, scene_graph) -> list:
         source = scene_graph.RegisterSource(self.module)
@@ -86,7 +91,20 @@ class LightBarrier(_GeometrySensor):
             broken = True
         else:
             broken = view.sample[0] > 0.5
+        if self.cfg.restart_interlock:
+            broken = self._interlocked(context, xd, broken)
         write_scalar(xd, self._broken, 1.0 if broken else 0.0)
+
+    def _interlocked(self, context, xd, beams_broken: bool) -> bool:
+        """Tripped from the first break until a reset (a rising edge) while the beams are clear."""
+        reset = self.reset_port.Eval(context)[0] > 0.5
+        seen = read_scalar(context, self._reset_seen) > 0.5
+        if reset != seen:
+            write_scalar(xd, self._reset_seen, 1.0 if reset else 0.0)
+        tripped = read_scalar(context, self._broken) > 0.5
+        if beams_broken:
+            return True
+        return tripped and not (reset and not seen)
 
 
 class RangeDetector(_GeometrySensor):

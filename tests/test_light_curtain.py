@@ -1,0 +1,59 @@
+"""The light curtain's restart interlock: tripped from the first break until a reset while clear."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cellsim.config.typed_yaml import load_text
+from cellsim.entities.sensors import LightBarrier
+from cellsim.scenario import LightBarrierConfig
+
+CURTAIN = "kind: light_barrier\ncenter: [0, 0, 1]\nsize: [0.02, 0.9, 0.7]\ntwin: {mode: shadow}\n"
+
+
+class Curtain:
+    """A curtain fed by its physical twin's samples (beams broken or clear), stepped by hand."""
+
+    def __init__(self, interlock: bool):
+        cfg = load_text(LightBarrierConfig, CURTAIN + f"restart_interlock: {str(interlock).lower()}\n").value
+        self.system = LightBarrier("curtain", cfg)
+        self.context = self.system.CreateDefaultContext()
+        self.t = 0.0
+        if interlock:
+            self.system.reset_port.FixValue(self.context, [0.0])
+
+    def step(self, beams: bool, reset: bool | None = None) -> bool:
+        s = self.system
+        s.physical_sample_port.FixValue(self.context, np.array([self.t, 1.0, 1.0 if beams else 0.0]))
+        if reset is not None:
+            s.reset_port.FixValue(self.context, [1.0 if reset else 0.0])
+        self.context.SetTime(self.t)
+        self.context.SetDiscreteState(s.EvalUniquePeriodicDiscreteUpdate(self.context))
+        self.t += s.period
+        return bool(s.GetOutputPort("broken").Eval(self.context)[0] > 0.5)
+
+
+def test_without_interlock_it_clears_with_the_beams():
+    curtain = Curtain(interlock=False)
+    assert curtain.step(beams=True) and not curtain.step(beams=False)
+
+
+def test_with_interlock_it_stays_tripped_until_a_reset_while_clear():
+    curtain = Curtain(interlock=True)
+    assert not curtain.step(beams=False)
+    assert curtain.step(beams=True)
+    assert curtain.step(beams=False)  # the person left: still tripped
+    assert curtain.step(beams=True, reset=True)  # a reset while broken does nothing
+    assert curtain.step(beams=False, reset=True)  # held reset: no new edge
+    assert curtain.step(beams=False, reset=False)  # releasing the button is not a reset
+    assert not curtain.step(beams=False, reset=True)  # a fresh press while clear resets it
+    assert curtain.step(beams=True, reset=True) and curtain.step(beams=False, reset=True)  # trips again
+
+
+def test_a_shadowed_interlocked_curtain_with_no_samples_stays_tripped():
+    curtain = Curtain(interlock=True)
+    s = curtain.system
+    s.physical_sample_port.FixValue(curtain.context, np.array([-np.inf, 0.0, 0.0]))
+    curtain.context.SetDiscreteState(s.EvalUniquePeriodicDiscreteUpdate(curtain.context))
+    assert s.GetOutputPort("broken").Eval(curtain.context)[0] == 1.0
