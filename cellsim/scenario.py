@@ -302,6 +302,11 @@ class OperatorConfig:
     """Where the person stands at t = 0 (x, y in m)."""
     waypoints: dict[str, Waypoint]
     """The places walked to, in order, each with a wait and an optional reach."""
+    notifications: list[str] = field(default_factory=lambda: ["none"])
+    """What the cell can tell this person (its notification command input), in the cell's
+    words; the first means there is nothing to say."""
+    alerts: list[str] = field(default_factory=list)
+    """True/false alerts the cell can give this person, each a command input of that name."""
     start_delay: Seconds = 0.0
     """Seconds before the person starts walking."""
     walking_speed: Speed = 1.2
@@ -320,6 +325,14 @@ class OperatorConfig:
     """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
 
     def __post_init__(self):
+        for key, names in (("notifications", self.notifications), ("alerts", self.alerts)):
+            if len(set(names)) != len(names) or not all(n.isidentifier() for n in names):
+                raise FieldError(key, f"{key} must be distinct identifiers")
+        if not self.notifications:
+            raise FieldError("notifications", "list at least the notification meaning 'nothing to say'")
+        clash = set(self.alerts) & {"notification", "physical_sample"}
+        if clash:
+            raise FieldError("alerts", f"'{clash.pop()}' is already an input of a person")
         if "start" in self.waypoints:
             raise FieldError("waypoints.start", "'start' is the waypoint channel's value before the walk; name it otherwise")
 

@@ -83,11 +83,6 @@ class Range(CodedEnum):
     CLOSE = "close"
 
 
-class Notification(CodedEnum):
-    OK = "ok"
-    LEAVE_AREA = "leaveArea"
-
-
 class HazardPhase(CodedEnum):
     INACTIVE = "inact"  # not present
     ACTIVE = "act"  # detected, not yet handled

@@ -13,7 +13,6 @@ from cellsim.channels import BOOL, enum_type
 from cellsim.config.typed_yaml import ConfigError
 from cellsim.vocabulary import (
     CodedEnum,
-    Notification,
     Range,
     SafetyMode,
     WelderActivity,
@@ -29,7 +28,7 @@ TYPES = {
     "ract": enum_type(CodedEnum("ract", [(n, n) for n in ("idle", "exchWrkp", "welding", "off", "unknown")])),
     "rngDet": enum_type(Range),
     "lgtBar": BOOL,
-    "notif": enum_type(Notification),
+    "notif": enum_type(CodedEnum("notif", [(n, n) for n in ("ok", "leaveArea")])),
     "notif_leaveWrkb": BOOL,
 }
 COMMANDS = {k: TYPES[k] for k in ("safmod", "ract", "wact", "notif", "notif_leaveWrkb")}

@@ -182,3 +182,21 @@ def test_activities_must_be_the_robots(tmp_path, edit, key, expected):
     with pytest.raises(ConfigError) as e:
         load_scenario(path)
     assert e.value.key == key and expected in e.value.problem
+
+
+def test_what_the_cell_tells_a_person_is_in_its_own_words(tmp_path):
+    from diagrams.cell import build_cell
+
+    words = (
+        f"base: {WELDING_CELL}\nentities:\n  operator:\n    notifications: [quiet, stepBack, stop]\n"
+        "    alerts: [leave_workbench, wear_goggles]\n"
+    )
+    path = tmp_path / "words.yaml"
+    path.write_text(words)
+    # the welding risk model still commands ok / leaveArea: the wiring check refuses it
+    with pytest.raises(ConfigError, match=r"notif takes \['ok', 'leaveArea'\] but the channel carries"):
+        build_cell(load_scenario(path), seed=0, duration=1.0, record=False)
+    path.write_text(words + "behaviours: !replace {}\nvalidation: !replace {}\n")
+    person = build_cell(load_scenario(path), seed=0, duration=1.0, record=False).modules["operator"]
+    assert [m.value for m in person.notification_type] == ["quiet", "stepBack", "stop"]
+    assert person.HasInputPort("wear_goggles") and person.command_fields == ("notification", "leave_workbench", "wear_goggles")

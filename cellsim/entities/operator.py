@@ -31,7 +31,7 @@ from cellsim.entities.twin import EntitySystem
 from cellsim.scenario import Layout, OperatorConfig
 from cellsim.registry import ModuleKind
 from cellsim.systems import read_scalar, write_scalar
-from cellsim.vocabulary import Notification, TwinMode, value_set
+from cellsim.vocabulary import TwinMode, value_set
 
 REACH_TIME = 0.5  # s to extend or withdraw the arm
 SKIN = (0.85, 0.65, 0.5, 1.0)
@@ -108,8 +108,8 @@ class Operator(EntitySystem):
     """A person in the cell.
 
     Ports:
-      notification, leave_workbench (inputs): the safety controller's notifications
-        to this person (Notification code; 0/1), forwarded to the physical twin's
+      notification (input): code of one of the person's notifications; and one
+        true/false input per alert: what the safety controller tells this person, forwarded to the physical twin's
         wearable in twin mode.
       physical_sample (input): [t, valid, x, y, yaw, reach_fraction, reach_x, reach_y, reach_z].
       geometry_pose (output): FramePoseVector of the body and arm frames, for SceneGraph.
@@ -124,15 +124,17 @@ class Operator(EntitySystem):
     POSE_FIELDS = ("x", "y", "yaw", "reach_fraction", "reach_x", "reach_y", "reach_z")
 
     def __init__(self, module: str, cfg: OperatorConfig, layout: Layout, seed: int, salt: int = 0):
-        super().__init__(module, cfg.period, cfg.twin, self.POSE_FIELDS, ("notification", "leave_workbench"))
+        super().__init__(module, cfg.period, cfg.twin, self.POSE_FIELDS, ("notification", *cfg.alerts))
         self.cfg = cfg
         self.layout = layout
         self.legs = plan_walk(cfg, seed, salt)
         first = self.legs[0].end - np.array(cfg.start) if self.legs else np.array([1.0, 0.0])
         self.start_yaw = float(np.arctan2(first[1], first[0]))
         self.waypoints = value_set(f"{module}_waypoint", ["start", *cfg.waypoints])
-        self.notification_port = self.declare_input("notification", ctype=enum_type(Notification), default=Notification.OK.code)
-        self.leave_workbench_port = self.declare_input("leave_workbench", ctype=BOOL, default=0.0)
+        # what the cell can tell this person, in its own words
+        self.notification_type = value_set(f"{module}_notification", cfg.notifications)
+        self.notification_port = self.declare_input("notification", ctype=enum_type(self.notification_type), default=0.0)
+        self.alert_ports = [self.declare_input(name, ctype=BOOL, default=0.0) for name in cfg.alerts]
         initial = pose_at(self.legs, self.start_yaw, 0.0)
         self._pose = self.declare_state("pose", self._pose_vector(initial))
         # the cell's own words for where a person is: outside, or one of the layout's zones
@@ -228,7 +230,7 @@ class Operator(EntitySystem):
             vector, waypoint = view.sample.tolist(), None
         self.write_command(
             xd, view.mode,
-            lambda: (self.notification_port.Eval(context)[0], self.leave_workbench_port.Eval(context)[0]),
+            lambda: (self.notification_port.Eval(context)[0], *(port.Eval(context)[0] for port in self.alert_ports)),
         )
         if waypoint is not None and waypoint + 1 != read_scalar(context, self._waypoint):
             write_scalar(xd, self._waypoint, waypoint + 1)
@@ -257,7 +259,7 @@ KIND = ModuleKind(
     build=build_operator,
     summary="A person walking an ordered list of waypoints, waiting and reaching, with body geometry the sensors measure.",
     sample_fields=Operator.POSE_FIELDS,
-    command_fields=("notification", "leave_workbench"),
+    command_fields=("notification", "<alert>"),
     channels=(
         ("location", "enum", "the layout.operator_zones zone stood in, else layout.operator_outside (oloc)"),
         ("<flag>", "bool", "for each of layout.operator_flags: standing in that volume (otab)"),
