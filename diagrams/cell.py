@@ -142,13 +142,6 @@ class CellBuild:
         """Every channel published by the modules built so far, in build order."""
         return _channels(self.modules)
 
-    def module(self, key: str, name: str, section: str = "entities") -> LeafSystem:
-        """The built module ``name`` that the config key ``key`` refers to (ConfigError if none)."""
-        system = self.modules.get(name)
-        if system is None:
-            raise self.sf.error(key, f"no module named '{name}'")
-        return system
-
     def _run_hooks(self) -> None:
         hooks, self._hooks = self._hooks, []
         for hook in hooks:
