@@ -128,3 +128,18 @@ def test_busy_marks_a_cycle_under_way_and_an_abandoned_one_ends_it():
     assert busy() == 1.0  # paused, still under way
     press.set("stopped", None, 1.0).step()
     assert busy() == 0.0  # abandoned: whoever waits is released
+
+
+def test_a_shadowed_machine_is_busy_while_its_twin_works_and_when_unknown():
+    press = Press(PRESS + "twin: {mode: shadow}\n")
+    busy = lambda: press.system.GetOutputPort("busy").Eval(press.context)[0]  # noqa: E731
+    working, resting = (float(press.system.activity_type(a).code) for a in ("pressing", "waiting"))
+    normal = float(SafetyMode.NORMAL.code)
+    press.step()
+    assert busy() == 1.0  # no sample: assume it works
+    press.system.physical_sample_port.FixValue(press.context, np.array([press.t, 1.0, normal, resting]))
+    press.step()
+    assert busy() == 0.0
+    press.system.physical_sample_port.FixValue(press.context, np.array([press.t, 1.0, normal, working]))
+    press.step()
+    assert busy() == 1.0

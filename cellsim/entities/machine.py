@@ -91,7 +91,8 @@ class Machine(EntitySystem):
       activity (channel): one of its activities.
       cycles_completed (channel): cycles it finished (cycle machines).
       busy (channel, bool): a cycle is under way (paused included); a cycle abandoned
-        in stopped ends it too, so whoever waits for the cycle is released.
+        in stopped ends it too, so whoever waits for the cycle is released. Shadowing,
+        it follows the physical twin's working activity, and reads busy with no valid sample.
     """
 
     def __init__(self, module: str, cfg: MachineConfig):
@@ -147,10 +148,10 @@ class Machine(EntitySystem):
             else:
                 activity = self.working if command > 0.5 else self.rest
             codes = [float(mode.code), float(activity), cycles, 1.0 if left > 0.0 else 0.0]
-        elif view.sample is None:  # unknown physical state: assume it works, mode unknown
-            codes = [float(SafetyMode.UNKNOWN.code), float(self.working), cycles, published[3]]
-        else:
-            codes = [float(view.sample[0]), float(view.sample[1]), cycles, published[3]]
+        elif view.sample is None:  # unknown physical state: assume it works (busy), mode unknown
+            codes = [float(SafetyMode.UNKNOWN.code), float(self.working), cycles, 1.0]
+        else:  # the physical machine is busy exactly while it reports its working activity
+            codes = [float(view.sample[0]), float(view.sample[1]), cycles, 1.0 if view.sample[1] == self.working else 0.0]
         write_changed(xd, self._outputs, codes, published)
         if [left, command] != cycle:
             xd.get_mutable_vector(self._cycle).SetFromVector([left, command])
