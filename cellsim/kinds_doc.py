@@ -122,20 +122,23 @@ def parameters(config: type, prefix: str = "") -> list[Parameter]:
 
 
 def _nested(tp) -> tuple[type | None, str]:
-    """The dataclass a field holds (itself, or as the values of a mapping or items of a list)."""
+    """The dataclass a field holds (itself, one arm of a union, or as the values of a mapping or items of a list)."""
     origin, args = typing.get_origin(tp), typing.get_args(tp)
     if origin is typing.Annotated:
         return _nested(args[0])
     if isinstance(tp, type) and dataclasses.is_dataclass(tp):
         return tp, ""
-    if origin is dict and args and isinstance(args[1], type) and dataclasses.is_dataclass(args[1]):
-        return args[1], "<name>."
-    if origin is list and args and isinstance(args[0], type) and dataclasses.is_dataclass(args[0]):
-        return args[0], "<i>."
+    if origin is dict and args:
+        inner, key = _nested(args[1])
+        return inner, "<name>." + key
+    if origin is list and args:
+        inner, key = _nested(args[0])
+        return inner, "<i>." + key
     if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
-        arms = [a for a in args if a is not type(None)]
-        if len(arms) == 1:
-            return _nested(arms[0])
+        arms = [_nested(a) for a in args if a is not type(None)]
+        found = [arm for arm in arms if arm[0] is not None]
+        if len(found) == 1:
+            return found[0]
     return None, ""
 
 

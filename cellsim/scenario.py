@@ -193,13 +193,24 @@ class SpeedLimits:
     """Power and force limiting (ISO/TS 15066: collaborative speed)."""
 
 
+@dataclass(frozen=True)
+class ToolTarget:
+    """A pose given by where the robot's tool should be; solved into joint angles at load time."""
+
+    tool_at: Vec3
+    """Where the tool frame's origin should be, in the cell (m)."""
+    tool_rpy_deg: tuple[Degrees, Degrees, Degrees] | None = None
+    """The tool frame's orientation in the cell, roll-pitch-yaw (degrees); omitted: any orientation."""
+
+
 @dataclass
 class RobotConfig:
     kind: Literal["robot"]
     model: str
     """URDF of the arm, relative to the scenario file."""
-    named_poses: dict[str, list[JointAngle]]
-    """Joint positions (rad) of the poses the process moves between."""
+    named_poses: dict[str, list[JointAngle] | ToolTarget]
+    """The poses the process moves between: joint positions (rad), or a tool target
+    ``{tool_at: [x, y, z], tool_rpy_deg: [r, p, y]}`` solved by inverse kinematics at load time."""
     base_position: Vec3 = (0.0, 0.0, 0.0)
     """Where the arm's base_link is fixed in the cell (m)."""
     base_yaw_deg: Degrees = 0.0
@@ -229,7 +240,7 @@ class RobotConfig:
         if self.initial_pose not in self.named_poses:
             raise FieldError("initial_pose", f"'{self.initial_pose}' is not one of the named_poses")
         for name, q in self.named_poses.items():
-            if len(q) != 6:
+            if isinstance(q, list) and len(q) != 6:
                 raise FieldError(f"named_poses.{name}", f"needs 6 joint positions, got {len(q)}")
 
 

@@ -28,7 +28,8 @@ from pydrake.math import RigidTransform, RollPitchYaw
 from cellsim.channels import enum_type, number_type, vector_type
 from cellsim.entities.twin import EntitySystem, valid_code
 from cellsim.registry import ModuleKind
-from cellsim.scenario import Layout, RobotConfig
+from cellsim.kinematics import solve_tool_target
+from cellsim.scenario import Layout, RobotConfig, ToolTarget
 from cellsim.systems import write_changed, write_scalar
 from cellsim.vocabulary import SafetyMode, TwinMode, value_set
 
@@ -99,7 +100,7 @@ class Robot(EntitySystem):
     ``moving``, joint positions and tool speed no value (null).
     """
 
-    def __init__(self, module: str, cfg: RobotConfig, model_path: str, layout: Layout):
+    def __init__(self, module: str, cfg: RobotConfig, model_path: str, layout: Layout, poses: dict[str, np.ndarray]):
         n = 6
         super().__init__(
             module,
@@ -112,8 +113,8 @@ class Robot(EntitySystem):
         self.kinematics = ArmKinematics(model_path, cfg)
         if self.kinematics.num_joints != n:
             raise ValueError(f"{module}: the arm model has {self.kinematics.num_joints} joints, expected {n}")
-        self.pose_names = list(cfg.named_poses)
-        self.poses = np.array([cfg.named_poses[p] for p in self.pose_names], float)
+        self.pose_names = list(poses)
+        self.poses = np.array([poses[p] for p in self.pose_names], float)
         # the cell's own words for where the tool is: its regions, elsewhere, unknown
         self.locations = value_set(f"{module}_location", layout.robot_locations())
         self.regions = [(self.locations(name), r.min, r.max) for name, r in layout.robot_regions.items()]
@@ -334,6 +335,8 @@ def _check_against_model(cell, name: str, cfg: RobotConfig) -> None:
                 f"joint '{joint.name()}' of {cfg.model} has velocity limit {joint.velocity_upper_limits()[0]:g}: it could never move",
             )
     for pose, q in cfg.named_poses.items():
+        if isinstance(q, ToolTarget):
+            continue  # solved within the joint limits
         for i, (x, joint) in enumerate(zip(q, joints)):
             lo, hi = joint.position_lower_limits()[0], joint.position_upper_limits()[0]
             if not lo <= x <= hi:
@@ -353,7 +356,8 @@ def build_robot(cell, name: str, cfg: RobotConfig) -> Robot:
     from pydrake.systems.controllers import InverseDynamicsController
 
     _check_against_model(cell, name, cfg)
-    robot = cell.add(name, Robot(name, cfg, str(_model_path(cell.sf, name, cfg)), cell.scenario.layout))
+    poses = resolve_poses(cell.sf, name, cfg)
+    robot = cell.add(name, Robot(name, cfg, str(_model_path(cell.sf, name, cfg)), cell.scenario.layout, poses))
     instance, plant, builder = cell.robots[name], cell.plant, cell.builder
     controller = builder.AddNamedSystem(
         f"{name}.joint_controller",
@@ -368,8 +372,54 @@ def build_robot(cell, name: str, cfg: RobotConfig) -> Robot:
     return robot
 
 
+def resolve_poses(sf, name: str, cfg: RobotConfig) -> dict[str, np.ndarray]:
+    """Every named pose as joint angles (rad): tool targets solved by inverse kinematics.
+
+    A tool target is solved from the pose declared before it, then from each
+    joint pose, so a sequence of nearby targets gives nearby arm configurations.
+    An unreachable target is a ConfigError naming the pose and the steps moving to it.
+    """
+    model = str(_model_path(sf, name, cfg))
+    base = (*cfg.base_position, cfg.base_yaw_deg)
+    joint_poses = [tuple(q) for q in cfg.named_poses.values() if not isinstance(q, ToolTarget)]
+    joint_poses.sort(key=lambda q: q != tuple(cfg.named_poses.get(cfg.initial_pose, ())))
+    poses: dict[str, np.ndarray] = {}
+    previous: tuple | None = None
+    for pose, value in cfg.named_poses.items():
+        if isinstance(value, ToolTarget):
+            seeds = tuple(dict.fromkeys(([previous] if previous else []) + joint_poses + [(0.0,) * 6]))
+            try:
+                solution = solve_tool_target(model, base, cfg.tool_frame, tuple(value.tool_at), value.tool_rpy_deg, seeds)
+            except Exception as e:  # noqa: BLE001 - a model Drake cannot read is reported by the build
+                raise sf.error(f"entities.{name}.named_poses.{pose}", f"inverse kinematics failed: {_first_line(e)}") from None
+            if solution.q is None:
+                turned = "" if value.tool_rpy_deg is None else f" turned {list(value.tool_rpy_deg)} deg"
+                raise sf.error(
+                    f"entities.{name}.named_poses.{pose}",
+                    f"the tool of {name} cannot reach {list(value.tool_at)}{turned} within its joint limits "
+                    f"(nearest {solution.miss:.3f} m away){_used_by(sf, pose)}",
+                )
+            value = solution.q
+        poses[pose] = np.array(value, float)
+        previous = tuple(value)
+    return poses
+
+
+def _used_by(sf, pose: str) -> str:
+    """"; moved to by step 'x' of y" for the behaviours' steps naming ``pose``."""
+    steps = [
+        f"step '{getattr(step, 'name', i)}' of {module}"
+        for module, cfg in sf.scenario.behaviours.items()
+        for i, step in enumerate(getattr(cfg, "steps", []))
+        if getattr(step, "move_to", None) == pose
+    ]
+    return f"; moved to by {', '.join(steps)}" if steps else ""
+
+
 def _check(sf, name: str, cfg: RobotConfig) -> None:
     _model_path(sf, name, cfg)
+    if any(isinstance(q, ToolTarget) for q in cfg.named_poses.values()):
+        resolve_poses(sf, name, cfg)
 
 
 KIND = ModuleKind(
