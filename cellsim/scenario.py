@@ -138,6 +138,19 @@ class Layout:
             if not name.isidentifier() or name in RESERVED_OPERATOR_CHANNELS:
                 raise FieldError(f"operator_flags.{name}", f"'{name}' cannot name a person's channel")
 
+    def extent(self) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+        """The box (min, max corners, m) holding every fixture, region, zone and flag: the cell's extent."""
+        corners = []
+        for fixture in self.fixtures.values():
+            reach = math.hypot(fixture.size[0], fixture.size[1]) / 2 if fixture.yaw_deg % 90 else None
+            half = [reach, reach, fixture.size[2] / 2] if reach else [s / 2 for s in fixture.size]
+            corners += [[c - h for c, h in zip(fixture.center, half)], [c + h for c, h in zip(fixture.center, half)]]
+        for volumes in (self.robot_regions, self.operator_zones, self.operator_flags):
+            corners += [list(r.min) for r in volumes.values()] + [list(r.max) for r in volumes.values()]
+        if not corners:
+            return None
+        return tuple(min(c[i] for c in corners) for i in range(3)), tuple(max(c[i] for c in corners) for i in range(3))
+
     def robot_locations(self) -> list[str]:
         """The values of a robot's location channel: the regions, elsewhere, and unknown (no valid sample)."""
         return [*self.robot_regions, self.robot_elsewhere, UNKNOWN]

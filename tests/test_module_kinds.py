@@ -132,10 +132,11 @@ def test_a_kind_in_the_wrong_section_is_refused(tmp_path, capsys):
 def test_every_kind_documents_the_channels_its_systems_publish(tmp_path):
     """The docs of ``cellsim modules`` against the systems two cells build (every shipped kind)."""
     from diagrams.cell import build_cell
+    from test_area_scanner import scanner_cell
     from test_process import press_cell
 
     seen = set()
-    for sf in (welding_cell(), load_scenario(press_cell(tmp_path))):
+    for sf in (welding_cell(), load_scenario(press_cell(tmp_path)), load_scenario(scanner_cell(tmp_path))):
         built = build_cell(sf, seed=0, duration=1.0, record=False)
         for section in registry.SECTIONS:
             for name, cfg in getattr(sf.scenario, section).items():

@@ -32,7 +32,7 @@ from cellsim.vocabulary import Range, TwinMode
 _HEAD_RADIUS = 0.05  # m, the scanner head's sphere
 
 
-class _GeometrySensor(EntitySystem):
+class GeometrySensor(EntitySystem):
     """An entity reading the SceneGraph query port to measure target geometries."""
 
     def __init__(self, module, period, twin, sample_fields):
@@ -45,7 +45,7 @@ class _GeometrySensor(EntitySystem):
         self.targets = tuple(geometry_ids)
 
 
-class LightBarrier(_GeometrySensor):
+class LightBarrier(GeometrySensor):
     """A light curtain whose beams fill a box.
 
     Ports:
@@ -107,7 +107,7 @@ class LightBarrier(_GeometrySensor):
         return tripped and not (reset and not seen)
 
 
-class RangeDetector(_GeometrySensor):
+class RangeDetector(GeometrySensor):
     """A safety scanner at a point, classifying the nearest person's distance.
 
     Ports:
@@ -183,7 +183,7 @@ class RangeDetector(_GeometrySensor):
         write_scalar(xd, self._distance, distance)
 
 
-def _build_sensor(system: _GeometrySensor):
+def build_sensor(system: GeometrySensor):
     """A sensor's builder: its own geometry, the SceneGraph query, and every person as a target."""
 
     def build(cell, name, cfg):
@@ -200,7 +200,7 @@ LIGHT_BARRIER = ModuleKind(
     name="light_barrier",
     section="entities",
     config=LightBarrierConfig,
-    build=_build_sensor(lambda name, cfg, cell: LightBarrier(name, cfg)),
+    build=build_sensor(lambda name, cfg, cell: LightBarrier(name, cfg)),
     summary="A light curtain whose beams fill a box: broken while a person's geometry is in it; fails safe to broken.",
     sample_fields=("broken",),
     channels=(
@@ -214,7 +214,7 @@ RANGE_DETECTOR = ModuleKind(
     name="range_detector",
     section="entities",
     config=RangeDetectorConfig,
-    build=_build_sensor(lambda name, cfg, cell: RangeDetector(name, cfg, cell.seed, cell.duration)),
+    build=build_sensor(lambda name, cfg, cell: RangeDetector(name, cfg, cell.seed, cell.duration)),
     summary="A safety scanner: far / near / close from the nearest person's distance; fails safe to close.",
     sample_fields=("range", "distance"),
     channels=(

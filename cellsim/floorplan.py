@@ -1,0 +1,222 @@
+"""The cell's floor plan: fixtures as boxes, polygons on the floor, lines of sight and walking paths.
+
+Plain geometry in the cell's frame (metres, z up), used once at load or build
+time: an area scanner's fields are polygons turned into SceneGraph shapes, its
+line of sight is a segment tested against the fixtures' boxes, and a person's
+walk between waypoints is the shortest path around the fixtures' footprints
+(grown by the person's body radius) through the corners of those footprints.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+_EPS = 1e-9
+
+
+# -- boxes -------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Box3:
+    """A fixture's box: centre (m), half sizes (m) along its own axes, yaw (rad) about z."""
+
+    center: np.ndarray
+    half: np.ndarray
+    yaw: float
+
+    @staticmethod
+    def of(fixture) -> "Box3":
+        return Box3(np.array(fixture.center, float), np.array(fixture.size, float) / 2.0, math.radians(fixture.yaw_deg))
+
+    def to_local(self, p) -> np.ndarray:
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        d = np.asarray(p, float) - self.center
+        return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]])
+
+    def contains(self, p, margin: float = 0.0) -> bool:
+        return bool(np.all(np.abs(self.to_local(p)) <= self.half + margin))
+
+    def blocks(self, p0, p1) -> bool:
+        """Whether the segment p0-p1 passes through the box's inside (slab test in its frame)."""
+        a, b = self.to_local(p0), self.to_local(p1)
+        d = b - a
+        t0, t1 = 0.0, 1.0
+        for axis in range(3):
+            lo, hi = -self.half[axis], self.half[axis]
+            if abs(d[axis]) < _EPS:
+                if not lo < a[axis] < hi:
+                    return False
+                continue
+            u, v = (lo - a[axis]) / d[axis], (hi - a[axis]) / d[axis]
+            t0, t1 = max(t0, min(u, v)), min(t1, max(u, v))
+            if t1 - t0 <= _EPS:
+                return False
+        return True
+
+    def footprint(self, grow: float = 0.0) -> list[np.ndarray]:
+        """The box's outline on the floor, grown by ``grow`` (m) on every side, counter-clockwise."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        hx, hy = self.half[0] + grow, self.half[1] + grow
+        return [
+            self.center[:2] + np.array([c * x - s * y, s * x + c * y])
+            for x, y in ((-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy))
+        ]
+
+
+# -- polygons ----------------------------------------------------------------------
+def signed_area(polygon) -> float:
+    """The polygon's signed area (m²), positive when counter-clockwise."""
+    p = np.asarray(polygon, float)
+    return 0.5 * float(np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1]))
+
+
+def _cross(o, a, b) -> float:
+    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+
+def segments_cross(a, b, c, d) -> bool:
+    """Whether segments a-b and c-d meet at a point inside both (touching at an end does not count)."""
+    d1, d2 = _cross(c, d, a), _cross(c, d, b)
+    d3, d4 = _cross(a, b, c), _cross(a, b, d)
+    return ((d1 > _EPS and d2 < -_EPS) or (d1 < -_EPS and d2 > _EPS)) and (
+        (d3 > _EPS and d4 < -_EPS) or (d3 < -_EPS and d4 > _EPS)
+    )
+
+
+def is_simple(polygon) -> bool:
+    """No two edges that are not neighbours meet, and no vertex repeats."""
+    p = [tuple(v) for v in polygon]
+    n = len(p)
+    if len(set(p)) != n:
+        return False
+    for i in range(n):
+        for j in range(i + 1, n):
+            if j == i + 1 or (i == 0 and j == n - 1):
+                continue
+            if segments_cross(p[i], p[(i + 1) % n], p[j], p[(j + 1) % n]):
+                return False
+    return True
+
+
+def is_convex(polygon) -> bool:
+    p = np.asarray(polygon, float)
+    n = len(p)
+    turns = [_cross(p[i], p[(i + 1) % n], p[(i + 2) % n]) for i in range(n)]
+    return all(t >= -_EPS for t in turns) or all(t <= _EPS for t in turns)
+
+
+def point_in_triangle(q, a, b, c) -> bool:
+    return _cross(a, b, q) >= -_EPS and _cross(b, c, q) >= -_EPS and _cross(c, a, q) >= -_EPS
+
+
+def triangulate(polygon) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Ear clipping of a simple polygon into counter-clockwise triangles."""
+    p = [np.asarray(v, float) for v in polygon]
+    if signed_area(p) < 0:
+        p.reverse()
+    triangles, left = [], list(range(len(p)))
+    while len(left) > 3:
+        for k in range(len(left)):
+            i, j, m = left[k - 1], left[k], left[(k + 1) % len(left)]
+            a, b, c = p[i], p[j], p[m]
+            if _cross(a, b, c) <= _EPS:
+                continue  # a reflex (or flat) corner is not an ear
+            if any(point_in_triangle(p[o], a, b, c) for o in left if o not in (i, j, m)):
+                continue
+            triangles.append((a, b, c))
+            left.pop(k)
+            break
+        else:  # numerically degenerate: what is left is flat
+            break
+    if len(left) == 3 and _cross(p[left[0]], p[left[1]], p[left[2]]) > _EPS:
+        triangles.append(tuple(p[i] for i in left))
+    return triangles
+
+
+def point_in_polygon(q, polygon) -> bool:
+    inside, p, n = False, polygon, len(polygon)
+    for i in range(n):
+        a, b = p[i], p[(i + 1) % n]
+        if (a[1] > q[1]) != (b[1] > q[1]):
+            x = a[0] + (q[1] - a[1]) * (b[0] - a[0]) / (b[1] - a[1])
+            if q[0] < x:
+                inside = not inside
+    return inside
+
+
+# -- walking ----------------------------------------------------------------------
+def _inside_any(q, obstacles) -> int | None:
+    for index, outline in enumerate(obstacles):
+        if point_in_polygon(q, outline) and not _on_boundary(q, outline):
+            return index
+    return None
+
+
+def _on_boundary(q, outline) -> bool:
+    n = len(outline)
+    for i in range(n):
+        a, b = outline[i], outline[(i + 1) % n]
+        ab = b - a
+        t = float(np.clip(np.dot(q - a, ab) / max(np.dot(ab, ab), _EPS), 0.0, 1.0))
+        if np.linalg.norm(a + t * ab - q) < 1e-7:
+            return True
+    return False
+
+
+def _clear(a, b, obstacles) -> bool:
+    """Whether walking straight from a to b stays out of every outline's inside."""
+    for outline in obstacles:
+        n = len(outline)
+        for i in range(n):
+            if segments_cross(a, b, outline[i], outline[(i + 1) % n]):
+                return False
+        mid = (a + b) / 2.0
+        if point_in_polygon(mid, outline) and not _on_boundary(mid, outline):
+            return False
+        # a segment along a diagonal from corner to corner crosses no edge: test quarter points too
+        for f in (0.25, 0.75):
+            q = a + f * (b - a)
+            if point_in_polygon(q, outline) and not _on_boundary(q, outline):
+                return False
+    return True
+
+
+def shortest_path(start, goal, obstacles: list[list[np.ndarray]]) -> list[np.ndarray] | None:
+    """The shortest walk from start to goal around convex outlines, through their corners.
+
+    Returns the points after ``start`` (ending with ``goal``), or None when no
+    walk exists. Corners inside another outline are not used.
+    """
+    start, goal = np.asarray(start, float), np.asarray(goal, float)
+    if _clear(start, goal, obstacles):
+        return [goal]
+    corners = [c for outline in obstacles for c in outline if _inside_any(c, obstacles) is None]
+    nodes = [start, goal, *corners]
+    best = {0: 0.0}
+    previous: dict[int, int] = {}
+    queue = [(0.0, 0)]
+    done = set()
+    while queue:
+        cost, i = heapq.heappop(queue)
+        if i in done:
+            continue
+        done.add(i)
+        if i == 1:
+            break
+        for j in range(1, len(nodes)):
+            if j in done or not _clear(nodes[i], nodes[j], obstacles):
+                continue
+            c = cost + float(np.linalg.norm(nodes[j] - nodes[i]))
+            if c < best.get(j, math.inf) - 1e-12:
+                best[j], previous[j] = c, i
+                heapq.heappush(queue, (c, j))
+    if 1 not in done:
+        return None
+    path, i = [], 1
+    while i != 0:
+        path.append(nodes[i])
+        i = previous[i]
+    return path[::-1]
