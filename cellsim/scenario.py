@@ -343,6 +343,9 @@ class OperatorConfig:
     """Radius of the torso's capsule (m)."""
     arm_length: Annotated[float, Range(0.15, 2.0, unit="m")] = 0.7
     """Reach of the arm from the shoulder (m)."""
+    avoid_fixtures: bool = True
+    """Walk around the layout's fixtures (their footprints grown by body_radius + 5 cm), by the
+    shortest way; false: straight lines, through them."""
     period: Period = 0.04
     """Update period (s): how often the body moves in the twin."""
     twin: TwinSettings = field(default_factory=TwinSettings)

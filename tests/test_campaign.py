@@ -117,13 +117,14 @@ def test_bad_campaign_input_exits_2_and_writes_nothing(tmp_path, capsys):
 
 
 def test_the_misuse_campaign_reveals_violations(tmp_path):
-    """Two operators break the controller's single-operator assumption: HS goes undetected."""
+    """Two operators break the controller's single-operator assumption: a hazard goes undetected."""
     out = tmp_path / "misuse"
     assert main(["campaign", str(TWO_OPERATORS), "--runs", "3", "--jobs", "2", "--seed", "0", "--out", str(out), "--quiet"]) == 1
     results = _results(out)
     violating = [r for r in results["runs"] if r["violations"]]
     assert violating and results["totals"]["violating_runs"] == len(violating)
-    assert results["totals"]["violations"]["HS:detected"] >= 1
+    missed = results["totals"]["violations"]
+    assert missed["HS:detected"] + missed["HRW:detected"] >= 1
     report = (out / "report.html").read_text()
     # timelines of safety mode, hazard phases, sensors and the operator, by their short names
     for lane in ("safmod", "HS", "HRW", "HC", "lgtBar", "rngDet", "oloc"):

@@ -5,12 +5,16 @@ The operator is its own SceneGraph geometry source with two frames: the body
 The digital behaviour walks the scenario's waypoints in order at a walking speed
 drawn per leg from the run's seed, waits at each, and while waiting at a
 waypoint with a ``reach`` point swings the arm towards that point (0.5 s to
-extend and 0.5 s to withdraw). The whole walk is planned when the system is
-built, so the operator's pose is a pure function of time.
+extend and 0.5 s to withdraw). Each leg is the shortest way around the layout's
+fixtures (their footprints grown by the body's radius and ``CLEARANCE``;
+fixtures overhead, above the person's height, do not count). The whole walk is
+planned when the system is built, so the operator's pose is a pure function of
+time; a waypoint inside a fixture, or one that cannot be reached, is a load error.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,12 +32,15 @@ from pydrake.math import RigidTransform, RotationMatrix
 
 from cellsim.channels import BOOL, enum_type, vector_type
 from cellsim.entities.twin import EntitySystem
+from cellsim.floorplan import Box3, point_in_polygon, shortest_path
 from cellsim.scenario import Layout, OperatorConfig
 from cellsim.registry import ModuleKind
 from cellsim.systems import read_scalar, write_scalar
 from cellsim.vocabulary import TwinMode, value_set
 
 REACH_TIME = 0.5  # s to extend or withdraw the arm
+CLEARANCE = 0.05
+"""How far (m) a person keeps their body from a fixture when walking round it."""
 SKIN = (0.85, 0.65, 0.5, 1.0)
 CLOTHES = (0.1, 0.35, 0.8, 1.0)
 
@@ -50,9 +57,75 @@ class Leg:
     leave: float
     reach: np.ndarray | None
     heading: float | None = None
-    """Walking direction (rad), None for a leg of zero length."""
+    """Walking direction at the end of the leg (rad), None for a leg of zero length."""
     facing: float | None = None
     """Direction of the reach point from ``end`` (rad), None without a reach."""
+    corners: tuple = ()
+    """Points walked through between start and end, going round fixtures."""
+
+    def point_at(self, s: float) -> tuple[np.ndarray, float | None]:
+        """Where the person is (and heading, rad) a fraction ``s`` of the way along the leg."""
+        points = [self.start, *self.corners, self.end]
+        lengths = [float(np.linalg.norm(b - a)) for a, b in zip(points, points[1:])]
+        along = s * sum(lengths)
+        for a, b, length in zip(points, points[1:], lengths):
+            if along <= length or b is self.end:
+                way = b - a
+                heading = float(np.arctan2(way[1], way[0])) if length > 1e-9 else self.heading
+                return a + (min(along, length) / length if length > 1e-9 else 0.0) * way, heading
+            along -= length
+        return self.end, self.heading
+
+
+class RouteError(ValueError):
+    """A waypoint a person cannot stand at or reach: ``key`` is the waypoint's key under the operator."""
+
+    def __init__(self, key: str, problem: str):
+        super().__init__(problem)
+        self.key = key
+
+
+def obstacles(cfg: OperatorConfig, layout: Layout) -> list[tuple[str, tuple]]:
+    """(name, footprint grown by the body's radius and CLEARANCE) of each fixture a person walks round."""
+    grow = cfg.body_radius + CLEARANCE
+    return [
+        (name, tuple(tuple(c) for c in Box3.of(f).footprint(grow)))
+        for name, f in layout.fixtures.items()
+        if f.center[2] - f.size[2] / 2 < cfg.height
+    ]
+
+
+def plan_routes(cfg: OperatorConfig, layout: Layout) -> list[tuple]:
+    """For each waypoint, the corners walked through on the way to it (raises RouteError)."""
+    if not cfg.avoid_fixtures:
+        return [() for _ in cfg.waypoints]
+    found = obstacles(cfg, layout)
+    outlines = tuple(outline for _, outline in found)
+    places = [("start", tuple(cfg.start))] + [(f"waypoints.{n}.position", tuple(w.position)) for n, w in cfg.waypoints.items()]
+    for key, xy in places:
+        for name, outline in found:
+            if point_in_polygon(xy, outline) and not _on_edge(xy, outline):
+                raise RouteError(key, f"{list(xy)} is inside fixture '{name}' or too near it for the body "
+                                      f"({cfg.body_radius + CLEARANCE:g} m from its edge)")
+    routes = []
+    for (_, here), (key, there) in zip(places, places[1:]):
+        path = _route(here, there, outlines)
+        if path is None:
+            raise RouteError(key, f"no way round the fixtures leads from {list(here)} to {list(there)}")
+        routes.append(path)
+    return routes
+
+
+@functools.lru_cache(maxsize=4096)
+def _route(start: tuple, goal: tuple, outlines: tuple) -> tuple | None:
+    path = shortest_path(start, goal, [[np.array(c) for c in outline] for outline in outlines])
+    return None if path is None else tuple(tuple(float(x) for x in p) for p in path[:-1])
+
+
+def _on_edge(xy, outline) -> bool:
+    from cellsim.floorplan import _on_boundary
+
+    return _on_boundary(np.asarray(xy, float), [np.array(c) for c in outline])
 
 
 @dataclass(frozen=True)
@@ -64,19 +137,22 @@ class OperatorPose:
     waypoint: int  # index of the waypoint walked to or waited at; -1 before setting off
 
 
-def plan_walk(cfg: OperatorConfig, seed: int, salt: int = 0) -> list[Leg]:
-    """The legs of the operator's walk, with per-leg speeds drawn from ``seed``."""
+def plan_walk(cfg: OperatorConfig, seed: int, salt: int = 0, layout: Layout | None = None) -> list[Leg]:
+    """The legs of the operator's walk, round the layout's fixtures, with per-leg speeds drawn from ``seed``."""
     rng = np.random.default_rng([seed, 0x0BE7, salt])
+    routes = plan_routes(cfg, layout) if layout is not None else [() for _ in cfg.waypoints]
     legs, here, t = [], np.array(cfg.start, float), cfg.start_delay
-    for index, wp in enumerate(cfg.waypoints.values()):
+    for index, (wp, route) in enumerate(zip(cfg.waypoints.values(), routes)):
         speed = cfg.walking_speed * (1.0 + cfg.speed_jitter * rng.uniform(-1.0, 1.0))
         end = np.array(wp.position, float)
-        arrive = t + float(np.linalg.norm(end - here)) / speed
+        corners = tuple(np.array(c) for c in route)
+        points = [here, *corners, end]
+        arrive = t + sum(float(np.linalg.norm(b - a)) for a, b in zip(points, points[1:])) / speed
         reach = None if wp.reach is None else np.array(wp.reach, float)
-        way = end - here
+        way = end - points[-2]
         heading = float(np.arctan2(way[1], way[0])) if np.linalg.norm(way) > 1e-9 else None
         facing = None if reach is None else float(np.arctan2(reach[1] - end[1], reach[0] - end[0]))
-        legs.append(Leg(index, here, end, t, arrive, arrive + wp.wait, reach, heading, facing))
+        legs.append(Leg(index, here, end, t, arrive, arrive + wp.wait, reach, heading, facing, corners))
         here, t = end, arrive + wp.wait
     return legs
 
@@ -92,8 +168,8 @@ def pose_at(legs: list[Leg], start_yaw: float, t: float) -> OperatorPose:
             yaw = leg.heading
         waypoint = leg.index
         if t < leg.arrive:
-            s = (t - leg.depart) / (leg.arrive - leg.depart)
-            return OperatorPose(leg.start + s * (leg.end - leg.start), yaw, 0.0, _NO_REACH, waypoint)
+            xy, heading = leg.point_at((t - leg.depart) / (leg.arrive - leg.depart))
+            return OperatorPose(xy, yaw if heading is None else heading, 0.0, _NO_REACH, waypoint)
         xy = leg.end
         if leg.reach is not None and t < leg.leave:
             fraction = min((t - leg.arrive) / REACH_TIME, (leg.leave - t) / REACH_TIME, 1.0)
@@ -127,7 +203,7 @@ class Operator(EntitySystem):
         super().__init__(module, cfg.period, cfg.twin, self.POSE_FIELDS, ("notification", *cfg.alerts))
         self.cfg = cfg
         self.layout = layout
-        self.legs = plan_walk(cfg, seed, salt)
+        self.legs = plan_walk(cfg, seed, salt, layout)
         first = self.legs[0].end - np.array(cfg.start) if self.legs else np.array([1.0, 0.0])
         self.start_yaw = float(np.arctan2(first[1], first[0]))
         self.waypoints = value_set(f"{module}_waypoint", ["start", *cfg.waypoints])
@@ -252,11 +328,20 @@ def build_operator(cell, name: str, cfg: OperatorConfig) -> Operator:
     return person
 
 
+def _check(sf, name: str, cfg: OperatorConfig) -> None:
+    """Every place the person stands is clear of the fixtures, and reachable round them."""
+    try:
+        plan_routes(cfg, sf.scenario.layout)
+    except RouteError as e:
+        raise sf.error(f"entities.{name}.{e.key}", str(e)) from None
+
+
 KIND = ModuleKind(
     name="operator",
     section="entities",
     config=OperatorConfig,
     build=build_operator,
+    check=_check,
     summary="A person walking an ordered list of waypoints, waiting and reaching, with body geometry the sensors measure.",
     sample_fields=Operator.POSE_FIELDS,
     command_fields=("notification", "<alert>"),

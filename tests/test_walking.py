@@ -1,0 +1,90 @@
+"""People walk round the fixtures, by the shortest way, and cannot stand inside one."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cellsim.config.typed_yaml import ConfigError
+from cellsim.entities.operator import CLEARANCE, obstacles, plan_walk, pose_at
+from cellsim.floorplan import point_in_polygon, shortest_path, signed_area, triangulate
+from cellsim.scenario import load_scenario
+
+from conftest import WELDING_CELL, welding_cell
+
+
+def _inside(xy, outline) -> bool:
+    """Strictly inside (a path may run along an edge), with a little slack for rounding."""
+    centre = np.mean(outline, axis=0)
+    shrunk = [centre + (np.array(c) - centre) * 0.999 for c in outline]
+    return point_in_polygon(xy, shrunk)
+
+
+def test_the_welding_cell_operator_never_walks_through_a_fixture():
+    sf = welding_cell()
+    cfg, layout = sf.scenario.entities["operator"], sf.scenario.layout
+    legs = plan_walk(cfg, seed=0, layout=layout)
+    outlines = obstacles(cfg, layout)
+    times = np.arange(0.0, legs[-1].leave, 0.02)
+    for t in times:
+        xy = pose_at(legs, 0.0, t).xy
+        for name, outline in outlines:
+            assert not _inside(xy, outline), (t, xy, name)
+    # the walk to the exit goes round the south fence's west end instead of through it
+    assert legs[-1].corners and legs[-1].corners[0][0] == pytest.approx(-1.3 - 0.2 - CLEARANCE)
+
+
+def test_straight_walks_cut_through_the_fence_when_asked_to():
+    sf = welding_cell("operator.avoid_fixtures=false")
+    cfg, layout = sf.scenario.entities["operator"], sf.scenario.layout
+    legs = plan_walk(cfg, seed=0, layout=layout)
+    fence = dict(obstacles(cfg, layout))["fence_south"]
+    assert not any(leg.corners for leg in legs)
+    assert any(_inside(pose_at(legs, 0.0, t).xy, fence) for t in np.arange(legs[-1].depart, legs[-1].arrive, 0.02))
+
+
+def test_the_way_round_is_the_shortest():
+    # a 2 m wide wall across the way: round its nearer end, not the farther one
+    wall = [np.array(c) for c in ((-0.1, -0.5), (0.1, -0.5), (0.1, 1.5), (-0.1, 1.5))]
+    path = shortest_path((-1.0, 0.0), (1.0, 0.0), [wall])
+    assert [tuple(p) for p in path] == [(-0.1, -0.5), (0.1, -0.5), (1.0, 0.0)]
+    # no way through a closed ring of walls
+    ring = [[np.array(c) for c in box] for box in (
+        ((-2, -2), (2, -2), (2, -1.8), (-2, -1.8)), ((-2, 1.8), (2, 1.8), (2, 2), (-2, 2)),
+        ((-2, -2), (-1.8, -2), (-1.8, 2), (-2, 2)), ((1.8, -2), (2, -2), (2, 2), (1.8, 2)))]
+    assert shortest_path((0.0, 0.0), (3.0, 0.0), ring) is None
+
+
+def test_triangulating_a_non_convex_outline_keeps_its_area():
+    ell = [(0, 0), (2, 0), (2, 1), (1, 1), (1, 2), (0, 2)]
+    triangles = triangulate(ell)
+    assert len(triangles) == 4
+    assert sum(signed_area(t) for t in triangles) == pytest.approx(signed_area(ell)) == pytest.approx(3.0)
+
+
+def _with_waypoint(tmp_path, position, extra: str = "") -> str:
+    path = tmp_path / "walk.yaml"
+    path.write_text(
+        f"base: {WELDING_CELL}\n{extra}entities:\n  operator:\n    waypoints:\n      bench: {{position: {position}}}\n"
+    )
+    return str(path)
+
+
+def test_a_waypoint_inside_a_fixture_is_a_load_error_naming_it(tmp_path):
+    with pytest.raises(ConfigError) as e:
+        load_scenario(_with_waypoint(tmp_path, "[-1.05, 0.0]"))
+    assert e.value.key == "entities.operator.waypoints.bench.position"
+    assert "inside fixture 'shared_table'" in str(e.value) and e.value.line == 5
+
+
+def test_a_waypoint_walled_in_is_a_load_error_naming_it(tmp_path):
+    walls = (
+        "layout:\n  fixtures:\n"
+        "    w1: {size: [2.0, 0.1, 2.0], center: [-2.0, 3.0, 1.0]}\n"
+        "    w2: {size: [2.0, 0.1, 2.0], center: [-2.0, 5.0, 1.0]}\n"
+        "    w3: {size: [0.1, 2.1, 2.0], center: [-3.0, 4.0, 1.0]}\n"
+        "    w4: {size: [0.1, 2.1, 2.0], center: [-1.0, 4.0, 1.0]}\n"
+    )
+    with pytest.raises(ConfigError) as e:
+        load_scenario(_with_waypoint(tmp_path, "[-2.0, 4.0]", walls))
+    assert e.value.key == "entities.operator.waypoints.bench.position" and "no way round the fixtures" in str(e.value)
