@@ -8,7 +8,8 @@ origin within ``POSITION_TOLERANCE`` of the point, its orientation within
 ``ORIENTATION_TOLERANCE`` when one is given, every joint within its limits.
 
 The solve is deterministic: it starts from each of the given seed poses in turn
-and keeps the first feasible solution, the one nearest its seed (a quadratic
+(then from the arm bent with its first joint turned towards the target, and
+round from it) and keeps the first feasible solution, the one nearest its seed (a quadratic
 cost on the distance to it), so a target near the previous pose of a sequence
 is reached without the arm flipping over. Results are cached, so the check at
 load time and the build share one solve.
@@ -52,6 +53,13 @@ def _arm(model_path: str, base: tuple[float, ...], tool_frame: str):
     return plant, plant.GetFrameByName(tool_frame, instance)
 
 
+def _facing_seeds(base, target, n: int) -> tuple[tuple[float, ...], ...]:
+    """Extra starting poses: the arm bent, its first joint turned towards the target (and round from it)."""
+    pan = math.atan2(target[1] - base[1], target[0] - base[0]) - math.radians(base[3])
+    bent = (-math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0)[: n - 1]
+    return tuple((pan + k * math.pi / 2, *bent) for k in (0, 1, -1, 2))
+
+
 @functools.lru_cache(maxsize=1024)
 def solve_tool_target(
     model_path: str,
@@ -70,7 +78,7 @@ def solve_tool_target(
     target = np.array(position, float)
     context = plant.CreateDefaultContext()
     best_miss = math.inf
-    for seed in seeds:
+    for seed in seeds + _facing_seeds(base, target, len(seeds[0]) if seeds else 6):
         ik = InverseKinematics(plant, with_joint_limits=True)
         slack = np.full(3, POSITION_TOLERANCE)
         ik.AddPositionConstraint(tool, np.zeros(3), plant.world_frame(), target - slack, target + slack)

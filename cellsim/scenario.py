@@ -315,6 +315,13 @@ class Waypoint:
     """Seconds spent at the waypoint."""
     reach: Vec3 | None = None
     """A point the operator reaches for with one hand while waiting here."""
+    press: str | None = None
+    """A button pressed on arriving here (held 0.5 s): an entity's input, ``module.input``
+    (a light curtain's restart: ``pallet_curtain.reset``)."""
+
+    def __post_init__(self):
+        if self.press is not None and (self.press.count(".") != 1 or not all(p.isidentifier() for p in self.press.split("."))):
+            raise FieldError("press", f"'{self.press}' is not module.input (an entity and one of its inputs)")
 
 
 @dataclass

@@ -39,6 +39,8 @@ from cellsim.systems import read_scalar, write_scalar
 from cellsim.vocabulary import TwinMode, value_set
 
 REACH_TIME = 0.5  # s to extend or withdraw the arm
+PRESS_TIME = 0.5
+"""How long (s) a person holds a button pressed on arriving at a waypoint."""
 CLEARANCE = 0.05
 """How far (m) a person keeps their body from a fixture when walking round it."""
 SKIN = (0.85, 0.65, 0.5, 1.0)
@@ -195,6 +197,8 @@ class Operator(EntitySystem):
         stands in that volume (the welding cell: at_table, otab).
       waypoint (channel): the waypoint walked to or waited at.
       position (channel, m): [x, y] of the body, every 0.1 s.
+      press_<module>_<input> (output), per button a waypoint presses: 1 for PRESS_TIME
+        after arriving there (model mode only: a physical person presses the real button).
     """
 
     POSE_FIELDS = ("x", "y", "yaw", "reach_fraction", "reach_x", "reach_y", "reach_z")
@@ -227,6 +231,15 @@ class Operator(EntitySystem):
         self._position = self.declare_channel(
             "position", vector_type(2, "m"), initial.xy, record="every_sample", record_period=0.1
         )
+        # the buttons this person presses, and where: (button index, leg) per pressing waypoint
+        self.buttons = list(dict.fromkeys(w.press for w in cfg.waypoints.values() if w.press))
+        self._presses = [
+            (self.buttons.index(w.press), leg) for w, leg in zip(cfg.waypoints.values(), self.legs) if w.press
+        ]
+        self._pressing = [self.declare_state(f"press_{b.replace('.', '_')}", [0.0]) for b in self.buttons]
+        self.button_ports = [
+            self.DeclareStateOutputPort(f"press_{b.replace('.', '_')}", g) for b, g in zip(self.buttons, self._pressing)
+        ]
         self.body_frame = self.arm_frame = None
         self._last_frame_poses: tuple | None = None  # (pose state, FramePoseVector)
         self.geometry_ids: list = []
@@ -289,6 +302,17 @@ class Operator(EntitySystem):
         return poses
 
     # -- behaviour ---------------------------------------------------------------
+    def _press_buttons(self, context, xd, digital: bool) -> None:
+        t = context.get_time()
+        held = [0.0] * len(self.buttons)
+        if digital:
+            for button, leg in self._presses:
+                if leg.arrive <= t < leg.arrive + PRESS_TIME - 1e-9:
+                    held[button] = 1.0
+        for group, value in zip(self._pressing, held):
+            if read_scalar(context, group) != value:
+                write_scalar(xd, group, value)
+
     @staticmethod
     def _pose_vector(pose: OperatorPose) -> list[float]:
         x, y = pose.xy.tolist()
@@ -310,6 +334,8 @@ class Operator(EntitySystem):
         )
         if waypoint is not None and waypoint + 1 != read_scalar(context, self._waypoint):
             write_scalar(xd, self._waypoint, waypoint + 1)
+        if self.buttons:
+            self._press_buttons(context, xd, view.mode is TwinMode.MODEL)
         if vector == current:
             return  # standing still: nothing derived from the pose changes
         xd.get_mutable_vector(self._pose).SetFromVector(np.array(vector))
@@ -325,11 +351,31 @@ def build_operator(cell, name: str, cfg: OperatorConfig) -> Operator:
     person = cell.add(name, Operator(name, cfg, cell.scenario.layout, cell.seed, salt=cell.count("person")))
     cell.register_geometry(person, person=True)
     cell.builder.Connect(person.geometry_pose_port, cell.scene_graph.get_source_pose_port(person.source_id))
+    if person.buttons:
+        cell.after_entities(lambda: _wire_buttons(cell, name, cfg, person))
     return person
 
 
+def _wire_buttons(cell, name: str, cfg: OperatorConfig, person: Operator) -> None:
+    """Each button the person presses drives that entity's input."""
+    for button, port in zip(person.buttons, person.button_ports):
+        key = next(f"entities.{name}.waypoints.{w}.press" for w, wp in cfg.waypoints.items() if wp.press == button)
+        module, input_name = button.split(".")
+        target = cell.modules[module]
+        if not target.HasInputPort(input_name):
+            inputs = [target.get_input_port(i).get_name() for i in range(target.num_input_ports())]
+            raise cell.sf.error(key, f"{module} has no input '{input_name}' (its inputs: {', '.join(inputs)})")
+        if cell.builder.IsConnectedOrExported(target.GetInputPort(input_name)):
+            raise cell.sf.error(key, f"{button} is already driven by someone else")
+        cell.builder.Connect(port, target.GetInputPort(input_name))
+
+
 def _check(sf, name: str, cfg: OperatorConfig) -> None:
-    """Every place the person stands is clear of the fixtures, and reachable round them."""
+    """Every place the person stands is clear of the fixtures, and reachable round them;
+    every button pressed belongs to an entity."""
+    for waypoint, wp in cfg.waypoints.items():
+        if wp.press is not None and wp.press.split(".")[0] not in sf.scenario.entities:
+            raise sf.error(f"entities.{name}.waypoints.{waypoint}.press", f"no entity named '{wp.press.split('.')[0]}'")
     try:
         plan_routes(cfg, sf.scenario.layout)
     except RouteError as e:

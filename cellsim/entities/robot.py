@@ -148,9 +148,9 @@ class Robot(EntitySystem):
             "state", np.concatenate([[float(v.code) for v in published], [initial, 1.0, 0.0, 0.0, 0.0], q0, q0])
         )
         self._published = [
-            self.declare_channel("safety_mode", enum_type(SafetyMode), published[0], description="safmod"),
-            self.declare_channel("activity", enum_type(self.activity_type), published[1], description="ract"),
-            self.declare_channel("location", enum_type(self.locations), published[2], description="rloc"),
+            self.declare_channel("safety_mode", enum_type(SafetyMode), published[0], description="Safety mode"),
+            self.declare_channel("activity", enum_type(self.activity_type), published[1], description="What the robot is doing"),
+            self.declare_channel("location", enum_type(self.locations), published[2], description="Where the tool is: a region of the layout, or elsewhere"),
             self.declare_channel("reached_pose", enum_type(self.reached_poses), published[3]),
         ]
         self._telemetry_every = max(1, round(TELEMETRY_PERIOD / self.period))
@@ -375,8 +375,9 @@ def build_robot(cell, name: str, cfg: RobotConfig) -> Robot:
 def resolve_poses(sf, name: str, cfg: RobotConfig) -> dict[str, np.ndarray]:
     """Every named pose as joint angles (rad): tool targets solved by inverse kinematics.
 
-    A tool target is solved from the pose declared before it, then from each
-    joint pose, so a sequence of nearby targets gives nearby arm configurations.
+    A tool target is solved from the initial pose, then from the pose declared
+    before it, then from the other joint poses: the arm stays in the initial
+    pose's configuration (elbow up, say) where it can.
     An unreachable target is a ConfigError naming the pose and the steps moving to it.
     """
     model = str(_model_path(sf, name, cfg))
@@ -387,7 +388,7 @@ def resolve_poses(sf, name: str, cfg: RobotConfig) -> dict[str, np.ndarray]:
     previous: tuple | None = None
     for pose, value in cfg.named_poses.items():
         if isinstance(value, ToolTarget):
-            seeds = tuple(dict.fromkeys(([previous] if previous else []) + joint_poses + [(0.0,) * 6]))
+            seeds = tuple(dict.fromkeys(joint_poses[:1] + ([previous] if previous else []) + joint_poses[1:]))
             try:
                 solution = solve_tool_target(model, base, cfg.tool_frame, tuple(value.tool_at), value.tool_rpy_deg, seeds)
             except Exception as e:  # noqa: BLE001 - a model Drake cannot read is reported by the build

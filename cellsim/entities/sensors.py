@@ -62,7 +62,7 @@ class LightBarrier(GeometrySensor):
         self.cfg = cfg
         self.beam_id = None
         self._broken = self.declare_channel(
-            "broken", BOOL, False, description="Light barrier interrupted (lgtBar)"
+            "broken", BOOL, False, description="Beams interrupted (with a restart interlock: tripped until reset)"
         )
         if cfg.restart_interlock:
             self.reset_port = self.declare_input("reset", ctype=BOOL, default=0.0)
@@ -129,7 +129,7 @@ class RangeDetector(GeometrySensor):
         ticks = int(math.ceil(duration / cfg.period)) + 2
         rng = np.random.default_rng([seed, 0x5CA7])
         self._noise = rng.normal(0.0, cfg.noise_std, ticks) if cfg.noise_std > 0 else None
-        self._range = self.declare_channel("range", enum_type(Range), Range.FAR, description="Range detector (rngDet)")
+        self._range = self.declare_channel("range", enum_type(Range), Range.FAR, description="Range class of the nearest person")
         self._distance = self.declare_channel(
             "distance",
             number_type("m"),
