@@ -258,15 +258,6 @@ class RobotConfig:
 
 
 @dataclass
-class WelderConfig:
-    kind: Literal["welder"]
-    period: Period = 0.04
-    """Update period (s)."""
-    twin: TwinSettings = field(default_factory=TwinSettings)
-    """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
-
-
-@dataclass
 class LightBarrierConfig:
     """A light curtain; its beams fill a box, broken while a person's geometry is in it."""
 
@@ -381,47 +372,6 @@ def check_steps(names: list[str], restart_on_request: dict[str, str]) -> None:
     for activity, step in restart_on_request.items():
         if step not in names:
             raise FieldError(f"restart_on_request.{activity}", f"'{step}' is not a step")
-
-
-@dataclass
-class WorkStep:
-    """One step of the work cycle: a move, a dwell or a weld, with the robot's activity."""
-
-    name: str
-    """The step's name: the process controller's step channel reads it."""
-    move_to: str | None = None
-    """A named pose of the robot to move to."""
-    dwell: Seconds = 0.0
-    """Seconds to stay put (picking, placing)."""
-    weld: Seconds = 0.0
-    """Seconds of welding (the welder welds while the robot holds the work-piece)."""
-    activity: str = "working"
-    """The robot activity this step is (one of the robot's ``activities``; ract)."""
-
-    def __post_init__(self):
-        if sum(x is not None and x != 0 for x in (self.move_to, self.dwell or None, self.weld or None)) != 1:
-            raise FieldError("name", f"step '{self.name}' must have exactly one of move_to, dwell, weld")
-
-
-@dataclass
-class WorkCycleConfig:
-    """The process controller: repeats its steps while the safety mode permits."""
-
-    kind: Literal["work_cycle"]
-    steps: list[WorkStep]
-    """The cycle's steps, in order: each a move_to a named pose, a dwell or a weld."""
-    robot: str = "robot"
-    """The robot entity the cycle moves."""
-    welder: str = "welder"
-    """The welder entity it asks to weld."""
-    restart_on_request: dict[str, str] = field(default_factory=dict)
-    """Robot activity requested by the safety controller -> step the cycle restarts from.
-    Any other activity requested pauses the cycle, and the robot reports it."""
-    period: Period = 0.04
-    """Update period (s)."""
-
-    def __post_init__(self):
-        check_steps([s.name for s in self.steps], self.restart_on_request)
 
 
 @dataclass

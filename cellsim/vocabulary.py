@@ -69,12 +69,6 @@ class SafetyMode(CodedEnum):
     UNKNOWN = "unknown"  # a shadowed machine with no valid physical sample: assume the worst
 
 
-class WelderActivity(CodedEnum):
-    IDLE = "idle"
-    WELDING = "welding"
-    OFF = "off"
-
-
 class Range(CodedEnum):
     """Range detector reading, from the operator's distance to the sensor."""
 

@@ -75,9 +75,9 @@ def test_simulate_writes_black_box_and_resolved_scenario(tmp_path, capsys):
 BAD = {
     "malformed YAML": ("name: welding_cell\n", "name: [welding_cell\n", "malformed YAML"),
     "unknown key": ("    braking_time: 0.5\n", "    braking_tme: 0.5\n", "unknown key 'braking_tme'"),
-    "unknown entity kind": ("    kind: welder\n", "    kind: wleder\n", "unknown kind 'wleder'"),
-    "bad twin mode": ("  welder:\n    kind: welder\n    twin: {mode: model}\n",
-                      "  welder:\n    kind: welder\n    twin: {mode: shadw}\n", "'shadw' is not one of: model, shadow, twin"),
+    "unknown entity kind": ("    kind: machine\n", "    kind: machin\n", "unknown kind 'machin'"),
+    "bad twin mode": ("    unsupported_request: ignore\n    twin: {mode: model}\n",
+                      "    unsupported_request: ignore\n    twin: {mode: shadw}\n", "'shadw' is not one of: model, shadow, twin"),
     "wrong value type": ("    near_below: 2.0\n", "    near_below: two\n", "expected a number"),
     "missing model file": ("    model: models/ur10.urdf\n", "    model: models/ur5.urdf\n", "file not found: models/ur5.urdf"),
 }

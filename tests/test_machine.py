@@ -49,7 +49,7 @@ class Press:
         s, c = self.system, self.context
         return (SafetyMode.from_code(s.GetOutputPort("safety_mode").Eval(c)[0]).value,
                 s.activity_type.from_code(s.GetOutputPort("activity").Eval(c)[0]).value,
-                s.GetOutputPort("cycles_completed").Eval(c)[0])
+                s.GetOutputPort("cycles_completed").Eval(c)[0] if s.HasOutputPort("cycles_completed") else None)
 
 
 def test_a_command_starts_one_cycle_that_runs_on_its_own():
@@ -101,6 +101,21 @@ def test_a_welder_like_machine_works_while_commanded():
     assert press.read()[1] == "pressing"
     press.set("normal", None, 0.0).step()
     assert press.read()[1] == "waiting"
+    # with no cycle it has no cycles to count, nor to be busy with
+    assert press.read()[2] is None and not press.system.HasOutputPort("busy")
+
+
+def test_a_machine_that_ignores_unsupported_requests_stays_normal_but_obeys_a_stop():
+    welder = PRESS.replace("cycle_time: 0.2", "cycle_time: 0").replace(
+        "safety_modes: [normal, srmst, stopped]", "safety_modes: [normal, stopped]\nunsupported_request: ignore"
+    )
+    press = Press(welder).set("srmst", None, 1.0).step(3)
+    assert press.read()[:2] == ("normal", "pressing")  # srmst is not its business
+    press.set("stopped", None, 1.0).step()
+    assert press.read()[:2] == ("stopped", "down")
+    # the default restricts: srmst becomes its next more restrictive mode, stopped
+    press = Press(welder.replace("unsupported_request: ignore", "unsupported_request: restrict")).set("srmst", None, 1.0).step()
+    assert press.read()[:2] == ("stopped", "down")
 
 
 @pytest.mark.parametrize(

@@ -15,7 +15,6 @@ from cellsim.vocabulary import (
     CodedEnum,
     Range,
     SafetyMode,
-    WelderActivity,
 )
 
 from conftest import ROOT
@@ -24,7 +23,7 @@ RISK_MODEL = ROOT / "scenarios" / "welding_cell_risk_model.yaml"
 TYPES = {
     "safmod": enum_type(SafetyMode),
     "rloc": enum_type(CodedEnum("rloc", [(n, n) for n in ("atTable", "sharedTbl", "atWeldSpot", "inCell", "unknown")])),
-    "wact": enum_type(WelderActivity),
+    "wact": enum_type(CodedEnum("wact", [(n, n) for n in ("idle", "welding", "off")])),
     "ract": enum_type(CodedEnum("ract", [(n, n) for n in ("idle", "exchWrkp", "welding", "off", "unknown")])),
     "rngDet": enum_type(Range),
     "lgtBar": BOOL,

@@ -118,7 +118,7 @@ entities:
     activities: [waiting, loading, down]
 behaviours: !replace
   process_controller:
-    kind: work_cycle
+    kind: process
     steps:
       - {{name: fetch, move_to: shared_table, activity: loading}}
       - {{name: carry, move_to: weld_spot, activity: loading}}

@@ -8,11 +8,14 @@ Each step does one thing and names the robot activity it is:
   machine says it is busy) and goes on, so the machine works in parallel with
   the robot;
 * ``wait_for: MACHINE``: waits until that machine is no longer busy: its cycle
-  ended, or was abandoned when the machine stopped (at once if it is idle).
+  ended, or was abandoned when the machine stopped (at once if it is idle);
+* ``operate: {machine: MACHINE, seconds: S}``: keeps a machine without a cycle
+  working (its command on) until it has worked S seconds, counting only while
+  it reports its working activity (the welding cell's weld: the robot holds the
+  work-piece while the welder welds).
 
-The steps repeat; completing the last counts one cycle. Like the welding cell's
-``work_cycle`` it advances only while the robot's safety mode lets it move (not
-srmst, stopped, or unknown), and it obeys the safety controller's activity
+The steps repeat; completing the last counts one cycle. It advances only
+while the robot's safety mode lets it move (not srmst, stopped, or unknown), and it obeys the safety controller's activity
 requests: a new request listed in ``restart_on_request`` restarts the steps from
 the one it names; any other request pauses them, and the robot reports it.
 No machine is mandatory.
@@ -29,7 +32,7 @@ from cellsim.channels import NO_VALUE, enum_type, number_type
 from cellsim.config.typed_yaml import FieldError
 from cellsim.entities.robot import HOLD
 from cellsim.registry import ModuleKind
-from cellsim.scenario import Period, Seconds, check_steps
+from cellsim.scenario import Period, PositiveSeconds, Seconds, check_steps
 from cellsim.systems import CellSystem, write_changed
 from cellsim.vocabulary import CodedEnum, SafetyMode, value_set
 
@@ -37,8 +40,18 @@ _STANDSTILL = {SafetyMode.MONITORED_STOP.code, SafetyMode.STOPPED.code, SafetyMo
 
 
 @dataclass
+class Operation:
+    """A machine kept working for a time."""
+
+    machine: str
+    """The machine (one without a cycle_time: it works while commanded)."""
+    seconds: PositiveSeconds
+    """How long it must work (s): counted while it reports its working activity."""
+
+
+@dataclass
 class ProcessStep:
-    """One step: exactly one of move_to, dwell, start, wait_for; and the robot's activity."""
+    """One step: exactly one of move_to, dwell, start, wait_for, operate; and the robot's activity."""
 
     name: str
     """The step's name: the controller's step channel reads it."""
@@ -52,11 +65,19 @@ class ProcessStep:
     """A machine whose cycle to start (the process goes on at once)."""
     wait_for: str | None = None
     """A machine whose cycle to wait for."""
+    operate: Operation | None = None
+    """A machine to keep working for some seconds ({machine, seconds})."""
 
     def __post_init__(self):
-        given = [k for k in ("move_to", "start", "wait_for") if getattr(self, k) is not None] + (["dwell"] if self.dwell else [])
+        given = [k for k in ("move_to", "start", "wait_for", "operate") if getattr(self, k) is not None]
+        given += ["dwell"] if self.dwell else []
         if len(given) != 1:
-            raise FieldError("name", f"step '{self.name}' must have exactly one of move_to, dwell, start, wait_for")
+            raise FieldError("name", f"step '{self.name}' must have exactly one of move_to, dwell, start, wait_for, operate")
+
+    @property
+    def machine(self) -> str | None:
+        """The machine this step starts, waits for or operates."""
+        return self.start or self.wait_for or (self.operate.machine if self.operate else None)
 
 
 @dataclass
@@ -79,13 +100,18 @@ class ProcessConfig:
 
     @property
     def machines(self) -> list[str]:
-        """The machines the steps start or wait for, in order of first mention."""
-        found: list[str] = []
-        for step in self.steps:
-            for name in (step.start, step.wait_for):
-                if name is not None and name not in found:
-                    found.append(name)
-        return found
+        """The machines the steps start, wait for or operate, in order of first mention."""
+        return list(dict.fromkeys(step.machine for step in self.steps if step.machine is not None))
+
+    @property
+    def cycled(self) -> list[str]:
+        """The machines whose cycles the steps start or wait for (whose busy they read)."""
+        return list(dict.fromkeys(s.machine for s in self.steps if s.start or s.wait_for))
+
+    @property
+    def operated(self) -> list[str]:
+        """The machines the steps operate (whose activity they read)."""
+        return list(dict.fromkeys(s.machine for s in self.steps if s.operate))
 
 
 class Process(CellSystem):
@@ -95,7 +121,8 @@ class Process(CellSystem):
       activity_request (input): code of a robot activity requested by the safety controller, -1 for none.
       robot_safety_mode (input): the robot's SafetyMode code.
       robot_reached_pose (input): the robot's reached-pose code (0 moving, i + 1 for named pose i).
-      <machine>_busy (input), per machine: the machine's busy channel.
+      <machine>_busy (input), per machine started or waited for: the machine's busy channel.
+      <machine>_activity (input), per machine operated: the machine's activity code.
       target_pose (output): index of the robot's named pose to move to, -1 to hold.
       robot_activity (output): code of the robot activity being carried out.
       <machine>_command (output), per machine: 1 from a start step until the machine is busy.
@@ -103,8 +130,12 @@ class Process(CellSystem):
       cycles_completed (channel): process cycles completed so far.
     """
 
-    def __init__(self, module: str, cfg: ProcessConfig, pose_names: list[str], activities: type[CodedEnum]):
+    def __init__(
+        self, module: str, cfg: ProcessConfig, pose_names: list[str], activities: type[CodedEnum], working: dict[str, float]
+    ):
+        """``working``: the code of each operated machine's working activity."""
         super().__init__(module, cfg.period)
+        self.working = working
         self.steps = cfg.steps
         self.machines = cfg.machines
         self.targets = [HOLD if s.move_to is None else float(pose_names.index(s.move_to)) for s in self.steps]
@@ -115,7 +146,8 @@ class Process(CellSystem):
         self.activity_request_port = self.declare_input("activity_request", ctype=enum_type(activities), default=NO_VALUE)
         self.robot_mode_port = self.declare_input("robot_safety_mode")
         self.reached_pose_port = self.declare_input("robot_reached_pose")
-        self.busy_ports = [self.declare_input(f"{m}_busy") for m in self.machines]
+        self.busy_ports = {m: self.declare_input(f"{m}_busy") for m in cfg.cycled}
+        self.activity_ports = {m: self.declare_input(f"{m}_activity") for m in cfg.operated}
         # [step progress (s dwelled), last request]
         self._state = self.declare_state("state", [0.0, NO_VALUE])
         self._target = self.declare_state("target_pose", [self.targets[0]])
@@ -149,12 +181,16 @@ class Process(CellSystem):
                 progress += self.period
                 done = progress >= step.dwell - 1e-9
             elif step.start is not None:  # held until the machine acknowledges by being busy
-                m = self.machines.index(step.start)
-                done = self.busy_ports[m].Eval(context)[0] > 0.5
-                commands[m] = 0.0 if done else 1.0
-            else:
-                m = self.machines.index(step.wait_for)
-                done = self.busy_ports[m].Eval(context)[0] < 0.5
+                done = self.busy_ports[step.start].Eval(context)[0] > 0.5
+                commands[self.machines.index(step.start)] = 0.0 if done else 1.0
+            elif step.wait_for is not None:
+                done = self.busy_ports[step.wait_for].Eval(context)[0] < 0.5
+            else:  # operate: commanded on, its working time counted while it works
+                machine = step.operate.machine
+                if self.activity_ports[machine].Eval(context)[0] == self.working[machine]:
+                    progress += self.period
+                done = progress >= step.operate.seconds - 1e-9
+                commands[self.machines.index(machine)] = 0.0 if done else 1.0
             if done:
                 progress = 0.0
                 index = (index + 1) % len(self.steps)
@@ -172,22 +208,26 @@ class Process(CellSystem):
 def build_process(cell, name: str, cfg: ProcessConfig) -> Process:
     """The process, wired to the robot it moves and to each machine it starts or waits for."""
     robot = cell.modules[cfg.robot]
-    system = cell.add(name, Process(name, cfg, robot.pose_names, robot.activity_type))
+    working = {m: float(cell.modules[m].working) for m in cfg.operated}
+    system = cell.add(name, Process(name, cfg, robot.pose_names, robot.activity_type, working))
     connect = cell.builder.Connect
     connect(system.target_pose_port, robot.target_port)
     connect(system.robot_activity_port, robot.activity_port)
     connect(robot.GetOutputPort("safety_mode"), system.robot_mode_port)
     connect(robot.GetOutputPort("reached_pose"), system.reached_pose_port)
-    for machine, command, busy in zip(cfg.machines, system.command_ports, system.busy_ports):
+    for machine, command in zip(cfg.machines, system.command_ports):
         connect(command, cell.modules[machine].GetInputPort("command"))
+    for machine, busy in system.busy_ports.items():
         connect(cell.modules[machine].GetOutputPort("busy"), busy)
+    for machine, activity in system.activity_ports.items():
+        connect(cell.modules[machine].GetOutputPort("activity"), activity)
     return system
 
 
 def check_robot_steps(sf, key: str, robot_name: str, steps, restart_on_request: dict[str, str]):
     """The robot a process moves exists, and its steps' poses and activities are the robot's.
 
-    Returns the robot's config. Shared by the process and the welding cell's work cycle.
+    Returns the robot's config.
     """
     robots = sf.scenario.modules_of_kind("robot")
     if robot_name not in robots:
@@ -215,7 +255,13 @@ def _check(sf, name: str, cfg: ProcessConfig) -> None:
             if machine is not None and machine not in machines:
                 raise sf.error(f"{key}.steps.{i}.{field_name}", f"no machine entity named '{machine}' ({', '.join(machines) or 'none'})")
             if machine is not None and machines[machine].cycle_time <= 0:
-                raise sf.error(f"{key}.steps.{i}.{field_name}", f"machine '{machine}' has no cycle_time: it cannot run a cycle")
+                raise sf.error(f"{key}.steps.{i}.{field_name}", f"machine '{machine}' has no cycle_time: it cannot run a cycle; operate it")
+        if step.operate is not None:
+            machine = step.operate.machine
+            if machine not in machines:
+                raise sf.error(f"{key}.steps.{i}.operate.machine", f"no machine entity named '{machine}' ({', '.join(machines) or 'none'})")
+            if machines[machine].cycle_time > 0:
+                raise sf.error(f"{key}.steps.{i}.operate.machine", f"machine '{machine}' runs cycles: start it and wait_for it")
 
 
 KIND = ModuleKind(
@@ -225,7 +271,7 @@ KIND = ModuleKind(
     build=build_process,
     stage=10,
     check=_check,
-    summary="A process controller for any cell: the robot's moves and dwells, machines' cycles started and awaited.",
+    summary="A process controller for any cell: the robot's moves and dwells, machines' cycles started and awaited, machines operated.",
     channels=(
         ("step", "enum", "the current step's name"),
         ("cycles_completed", "number", "process cycles completed so far"),

@@ -11,7 +11,9 @@ two ways:
   welder welding while the process controller asks).
 
 Its safety: it supports the ``safety_modes`` listed; a requested mode it does not
-support becomes the next more restrictive one it supports. In ``stopped`` it is
+support becomes the next more restrictive one it supports (or, with
+``unsupported_request: ignore``, leaves it in normal: the welding cell's welder,
+which only obeys a stop). In ``stopped`` it is
 ``off`` (a cycle under way is abandoned); in ``srmst`` it rests and a cycle
 under way pauses; the safety controller can also request an activity (rest or
 off) outright. In shadow or twin mode with no valid physical sample it fails
@@ -50,7 +52,10 @@ class MachineConfig:
     cycle_time: Seconds = 0.0
     """Seconds a cycle takes once started by its command (0: it works while commanded)."""
     safety_modes: list[SafetyMode] = field(default_factory=lambda: [SafetyMode.NORMAL, SafetyMode.STOPPED])
-    """The safety modes it supports; a request for another becomes the next more restrictive one."""
+    """The safety modes it supports."""
+    unsupported_request: Literal["restrict", "ignore"] = "restrict"
+    """A request for a mode it does not support: ``restrict`` takes the next more restrictive
+    mode it supports; ``ignore`` keeps it normal (a machine that only obeys a stop)."""
     period: Period = 0.04
     """Update period (s)."""
     twin: TwinSettings = field(default_factory=TwinSettings)
@@ -70,8 +75,10 @@ class MachineConfig:
             raise FieldError("safety_modes", "unknown is what a shadowed machine reports, not a mode it supports")
 
 
-def supported_mode(request: SafetyMode, supported: list[SafetyMode]) -> SafetyMode:
-    """The requested mode if supported, else the next more restrictive supported one."""
+def supported_mode(request: SafetyMode, supported: list[SafetyMode], unsupported: str = "restrict") -> SafetyMode:
+    """The requested mode if supported, else the next more restrictive supported one (or normal, ignoring it)."""
+    if unsupported == "ignore" and request not in supported:
+        return SafetyMode.NORMAL if SafetyMode.NORMAL in supported else supported[0]
     order = [m for m in _MODES if m is not SafetyMode.UNKNOWN]
     for mode in order[order.index(request):]:
         if mode in supported:
@@ -89,8 +96,8 @@ class Machine(EntitySystem):
       physical_sample (input): [t, valid, safety_mode code, activity code].
       safety_mode (channel): its safety mode.
       activity (channel): one of its activities.
-      cycles_completed (channel): cycles it finished (cycle machines).
-      busy (channel, bool): a cycle is under way (paused included); a cycle abandoned
+      cycles_completed (channel, with a cycle_time): cycles it finished.
+      busy (channel, bool, with a cycle_time): a cycle is under way (paused included); a cycle abandoned
         in stopped ends it too, so whoever waits for the cycle is released. Shadowing,
         it follows the physical twin's working activity, and reads busy with no valid sample.
     """
@@ -102,7 +109,10 @@ class Machine(EntitySystem):
         self.activity_type = value_set(f"{module}_activity", cfg.activities)
         self.rest, self.working, self.off = (self.activity_type(a).code for a in (cfg.rest, cfg.working, cfg.off))
         # the mode it takes for each requested mode's code, worked out once
-        self._modes = [supported_mode(m, cfg.safety_modes) if m is not SafetyMode.UNKNOWN else SafetyMode.STOPPED for m in _MODES]
+        self._modes = [
+            supported_mode(m, cfg.safety_modes, cfg.unsupported_request) if m is not SafetyMode.UNKNOWN else SafetyMode.STOPPED
+            for m in _MODES
+        ]
         self.mode_request_port = self.declare_input("safety_mode_request", ctype=enum_type(SafetyMode), default=SafetyMode.NORMAL.code)
         self.activity_request_port = self.declare_input("activity_request", ctype=enum_type(self.activity_type), default=NO_VALUE)
         self.command_port = self.declare_input("command", default=0.0)
@@ -111,9 +121,12 @@ class Machine(EntitySystem):
         self._outputs = [
             self.declare_channel("safety_mode", enum_type(SafetyMode), SafetyMode.NORMAL),
             self.declare_channel("activity", enum_type(self.activity_type), cfg.rest),
-            self.declare_channel("cycles_completed", number_type(None), 0.0),
-            self.declare_channel("busy", BOOL, False, description="A cycle is under way (paused included)"),
         ]
+        if cfg.cycle_time > 0:  # only a machine with cycles has cycles to count, or to be busy with
+            self._outputs += [
+                self.declare_channel("cycles_completed", number_type(None), 0.0),
+                self.declare_channel("busy", BOOL, False, description="A cycle is under way (paused included)"),
+            ]
 
     def sample_is_valid(self, sample) -> bool:
         return valid_code(sample[0], SafetyMode) and valid_code(sample[1], self.activity_type)
@@ -127,7 +140,7 @@ class Machine(EntitySystem):
         published = [read_scalar(context, g) for g in self._outputs]
         cycle = context.get_discrete_state(self._cycle).get_value().tolist()
         left, last_command = cycle
-        cycles = published[2]
+        cycles = published[2] if len(published) > 2 else 0.0
         if view.mode is TwinMode.MODEL:
             mode = self._modes[int(mode_request)]
             started = command > 0.5 and last_command <= 0.5
@@ -152,7 +165,7 @@ class Machine(EntitySystem):
             codes = [float(SafetyMode.UNKNOWN.code), float(self.working), cycles, 1.0]
         else:  # the physical machine is busy exactly while it reports its working activity
             codes = [float(view.sample[0]), float(view.sample[1]), cycles, 1.0 if view.sample[1] == self.working else 0.0]
-        write_changed(xd, self._outputs, codes, published)
+        write_changed(xd, self._outputs, codes[: len(self._outputs)], published)
         if [left, command] != cycle:
             xd.get_mutable_vector(self._cycle).SetFromVector([left, command])
 
@@ -168,8 +181,8 @@ KIND = ModuleKind(
     channels=(
         ("safety_mode", "enum", "its safety mode; unknown when shadowing with no valid sample"),
         ("activity", "enum", "one of its activities; its working one when shadowing with no valid sample"),
-        ("cycles_completed", "number", "cycles finished"),
-        ("busy", "bool", "a cycle is under way (paused included); false again once it ends or is abandoned"),
+        ("cycles_completed", "number", "only with a cycle_time: cycles finished"),
+        ("busy", "bool", "only with a cycle_time: a cycle is under way (paused included); false again once it ends or is abandoned"),
         ("twin_mode", "enum", "model / shadow / twin"),
         ("physical_link", "enum", "unused / ok / stale / corrupt"),
     ),
