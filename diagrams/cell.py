@@ -2,14 +2,17 @@
 
 ``build_cell`` turns a loaded scenario into a Diagram, HardwareStation-style:
 
-* a MultibodyPlant (discrete, ``time_step``) with the layout's fixtures;
+* a MultibodyPlant (discrete, ``time_step``) with the layout's fixtures as visual
+  geometry, and no collision geometry at all: a plant with some asks SceneGraph
+  for contacts at every step, and contact is never simulated here;
 * one system per entity, behaviour and service of the scenario, each built by
   its module kind (``cellsim.registry``: cellsim's kinds and plug-ins alike;
   a robot kind adds its arm to the plant and its joint controller);
-* geometry: operators and sensor volumes are SceneGraph sources of their own;
-  all contact between geometries is filtered out (the arm is position
-  controlled and collisions are *measured*, by sensors and ground truth, not
-  simulated), which also keeps the plant's step cheap;
+* geometry: operators, sensor volumes and each arm's collision shapes
+  (``cellsim.entities.arm_geometry``) are SceneGraph sources of their own,
+  posed only when a sensor or the ground truth queries SceneGraph; all contact
+  between them is filtered out (the arm is position controlled and collisions
+  are *measured*, by sensors and ground truth, not simulated);
 * every entity's physical-twin input wired by ``bridges.physical``;
 * the recorder tapping every channel, and optionally Meshcat.
 """
@@ -30,7 +33,7 @@ from pydrake.geometry import (
     Role,
 )
 from pydrake.math import RigidTransform, RollPitchYaw
-from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, MultibodyPlant, MultibodyPlantConfig
+from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, OutputPort
 
@@ -102,6 +105,8 @@ class CellBuild:
     foreign_geometry: list = field(default_factory=list)
     """GeometryIds registered outside the plant (all contact is filtered out)."""
     recorder: Recorder | None = None
+    prepared: dict[str, object] = field(default_factory=dict)
+    """What a kind's ``prepare`` left for its ``build``, by module name."""
     _hooks: list[Callable[[], None]] = field(default_factory=list)
     _counters: dict[str, int] = field(default_factory=dict)
 
@@ -210,7 +215,6 @@ def _add_fixtures(plant: MultibodyPlant, sf: ScenarioFile) -> None:
         pose = RigidTransform(RollPitchYaw(0.0, 0.0, np.radians(fixture.yaw_deg)), list(fixture.center))
         shape = Box(*fixture.size)
         plant.RegisterVisualGeometry(world, pose, shape, f"fixture/{name}", np.array(fixture.color))
-        plant.RegisterCollisionGeometry(world, pose, shape, f"fixture/{name}", CoulombFriction(0.5, 0.5))
 
 
 def _filter_all_contact(plant: MultibodyPlant, scene_graph, foreign_geometry: list) -> None:

@@ -26,6 +26,7 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.math import RigidTransform, RollPitchYaw
 
 from cellsim.channels import enum_type, number_type, vector_type
+from cellsim.entities.arm_geometry import add_arm_geometry, collision_shapes, model_without_collision
 from cellsim.entities.twin import EntitySystem, valid_code
 from cellsim.registry import ModuleKind
 from cellsim.kinematics import solve_tool_target
@@ -297,19 +298,22 @@ def _model_path(sf, name: str, cfg: RobotConfig):
 
 
 def _add_arm(cell, name: str, cfg: RobotConfig) -> None:
-    """Add the arm's model to the plant, welded at its base pose; every problem is a ConfigError."""
+    """Add the arm's model to the plant, welded at its base pose; every problem is a ConfigError.
+
+    The model is read in full (strictly) to check it and to take its collision
+    shapes, then added to the plant without them (see ``arm_geometry``).
+    """
     sf, plant = cell.sf, cell.plant
     key = f"entities.{name}"
     model = _model_path(sf, name, cfg)
-    parser = Parser(plant, name)
-    parser.SetStrictParsing()  # what Drake would only warn about (a massless link) is refused too
     try:
-        instances = parser.AddModels(str(model))
+        shapes, instances = collision_shapes(model, name, strict=True)
     except Exception as e:  # noqa: BLE001 - Drake's parser raises RuntimeError with a long text
         raise sf.error(f"{key}.model", f"not a robot model Drake can read: {_first_line(e)}") from None
-    if len(instances) != 1:
-        raise sf.error(f"{key}.model", f"expected one robot model in {cfg.model}, found {len(instances)}")
-    (instance,) = instances
+    if instances != 1:
+        raise sf.error(f"{key}.model", f"expected one robot model in {cfg.model}, found {instances}")
+    text, file_type = model_without_collision(model)
+    (instance,) = Parser(plant, name).AddModelsFromString(text, file_type)
     if not plant.HasBodyNamed("base_link", instance):
         raise sf.error(f"{key}.model", f"{cfg.model} has no link named 'base_link' (where the arm is fixed to the cell)")
     if not plant.HasFrameNamed(cfg.tool_frame, instance):
@@ -319,6 +323,7 @@ def _add_arm(cell, name: str, cfg: RobotConfig) -> None:
         raise sf.error(f"{key}.model", f"{cfg.model} has {joints} joint positions; a robot entity needs 6")
     plant.WeldFrames(plant.world_frame(), plant.GetBodyByName("base_link", instance).body_frame(), robot_base_pose(cfg))
     cell.robots[name] = instance
+    cell.prepared[name] = shapes
 
 
 def _check_against_model(cell, name: str, cfg: RobotConfig) -> None:
@@ -367,8 +372,9 @@ def build_robot(cell, name: str, cfg: RobotConfig) -> Robot:
     builder.Connect(plant.get_state_output_port(instance), robot.measured_state_port)
     builder.Connect(robot.desired_state_port, controller.get_input_port_desired_state())
     builder.Connect(controller.get_output_port_control(), plant.get_actuation_input_port(instance))
-    for body in plant.GetBodyIndices(instance):
-        cell.robot_geometry += plant.GetCollisionGeometriesForBody(plant.get_body(body))
+    ids = add_arm_geometry(cell, name, instance, cell.prepared[name])
+    cell.robot_geometry += ids
+    cell.foreign_geometry += ids
     return robot
 
 
