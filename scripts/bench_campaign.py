@@ -8,7 +8,7 @@ Prints the time per stage (summed over the workers for the per-run stages) and
 the wall time, then the time to evaluate the 14 conditions, use cases and
 coverage on one recorded 30-s trace.
 
-Targets (issue 3): 100 runs in at most 60 s wall with --jobs 2; the 14
+Targets (issue 3, tightened by issue 9): 100 runs in at most 55 s wall with --jobs 2; the 14
 conditions on one 30-s trace in at most 10 ms.
 
     .venv/bin/python scripts/bench_campaign.py [--runs 100] [--jobs 2] [--seed 1]
@@ -62,7 +62,7 @@ def main() -> None:
             print(f"  {stage:<10} {timing[stage]:7.2f} s  (summed over workers, {timing[stage] / args.runs * 1e3:6.1f} ms per run)")
         for stage in ("coverage", "report"):
             print(f"  {stage:<10} {timing[stage]:7.2f} s")
-        print(f"  wall       {wall:7.2f} s  (target <= 60 s for 100 runs)")
+        print(f"  wall       {wall:7.2f} s  (target <= 55 s for 100 runs)")
         print(
             f"  violating runs {totals['violating_runs']}, failed {totals['failed']}, "
             f"coverage {totals['coverage']['overall']['fraction']:.0%}"
