@@ -5,9 +5,9 @@ collided with), yet a MultibodyPlant holding collision geometry asks SceneGraph
 for contacts at every 2 ms step, all of them filtered out: a fifth of a
 simulation's cost. So the arm is added to the plant *without* its collision
 elements (its visual ones stay, for Meshcat), and its collision shapes are
-registered as a SceneGraph source of their own, posed from the plant's body
-poses by :class:`ArmGeometry` only when a sensor or the ground truth queries
-SceneGraph. Distances measured to them are those to the model's collision
+registered with SceneGraph directly on the plant's body frames: the plant's
+pose output poses them (in C++), but the plant does not count them as its
+collision geometry and asks for no contacts. Distances measured to them are those to the model's collision
 shapes, as before.
 """
 
@@ -17,12 +17,11 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from pydrake.common.value import AbstractValue
-from pydrake.geometry import FramePoseVector, GeometryFrame, GeometryInstance, ProximityProperties, SceneGraph
+from pydrake.geometry import GeometryInstance, ProximityProperties, SceneGraph
 from pydrake.math import RigidTransform
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
-from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.framework import DiagramBuilder
 
 _COLLISION = re.compile(r"<collision\b.*?</collision>|<collision\b[^>]*/>", re.S)
 _FILENAME = re.compile(r'(filename|uri)="([^"]+)"')
@@ -79,46 +78,19 @@ def collision_shapes(path: Path, prefix: str, strict: bool = True) -> tuple[list
     return shapes, 1
 
 
-class ArmGeometry(LeafSystem):
-    """Poses an arm's collision shapes from the plant's body poses.
-
-    Ports:
-      body_poses (input): the plant's body poses (world frame), indexed by BodyIndex.
-      geometry_pose (output): FramePoseVector of one frame per body carrying shapes.
-    """
-
-    def __init__(self, name: str, frames: list[tuple[object, int]]):
-        """``frames``: (FrameId, BodyIndex) of each frame this source poses."""
-        super().__init__()
-        self.set_name(name)
-        self.frames = frames
-        self.body_poses_port = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
-        self.geometry_pose_port = self.DeclareAbstractOutputPort(
-            "geometry_pose", lambda: AbstractValue.Make(FramePoseVector()), self._calc
-        )
-
-    def _calc(self, context, output):
-        poses = self.body_poses_port.Eval(context)
-        vector = output.get_mutable_value()
-        for frame, body in self.frames:
-            vector.set_value(frame, poses[body])
-
-
 def add_arm_geometry(cell, name: str, instance, shapes: list[CollisionShape]) -> list:
-    """Register the arm's collision shapes with SceneGraph, posed from the plant; returns their ids."""
+    """Register the arm's collision shapes with SceneGraph on the plant's own body frames; returns their ids.
+
+    They belong to the plant's geometry source, so the plant's (C++) pose output
+    poses them, but the plant does not know them as its collision geometry: it
+    asks for no contacts.
+    """
     scene_graph, plant = cell.scene_graph, cell.plant
-    source = scene_graph.RegisterSource(f"{name}/collision")
-    frames, ids, frame_of = [], [], {}
+    source = plant.get_source_id()
+    ids = []
     for shape in shapes:
-        if shape.body not in frame_of:
-            body = plant.GetBodyByName(shape.body, instance)
-            frame = scene_graph.RegisterFrame(source, GeometryFrame(f"{name}/{shape.body}"))
-            frame_of[shape.body] = frame
-            frames.append((frame, int(body.index())))
+        body = plant.GetBodyByName(shape.body, instance)
         geometry = GeometryInstance(shape.pose, shape.shape, f"{name}/collision/{shape.name}")
         geometry.set_proximity_properties(ProximityProperties())
-        ids.append(scene_graph.RegisterGeometry(source, frame_of[shape.body], geometry))
-    poser = cell.builder.AddSystem(ArmGeometry(f"{name}.collision_geometry", frames))
-    cell.builder.Connect(plant.get_body_poses_output_port(), poser.body_poses_port)
-    cell.builder.Connect(poser.geometry_pose_port, scene_graph.get_source_pose_port(source))
+        ids.append(scene_graph.RegisterGeometry(source, plant.GetBodyFrameIdOrThrow(body.index()), geometry))
     return ids

@@ -374,7 +374,7 @@ def build_robot(cell, name: str, cfg: RobotConfig) -> Robot:
     builder.Connect(controller.get_output_port_control(), plant.get_actuation_input_port(instance))
     ids = add_arm_geometry(cell, name, instance, cell.prepared[name])
     cell.robot_geometry += ids
-    cell.foreign_geometry += ids
+    cell.foreign_geometry += ids  # contact between them and anything is filtered out
     return robot
 
 
