@@ -177,7 +177,67 @@ def build_parser() -> argparse.ArgumentParser:
     check.add_argument("scenario", type=Path)
     _add_set(check)
     check.set_defaults(handler=cmd_scenario_check)
+
+    live = sub.add_parser(
+        "live",
+        help="run the twin in real time beside the real cell, on Zenoh",
+        description="Run the scenario's twin paced to the wall clock. Entities in shadow or twin mode "
+        "take their physical samples from Zenoh (cellsim/<cell>/physical/<entity>); commands of entities in "
+        "twin mode are published (cellsim/<cell>/command/<entity>); every channel is published "
+        "(cellsim/<cell>/twin/...). `cellsim twin-mode` switches an entity while it runs. The black box "
+        "is recorded as in any run. Key space and formats: docs/live.md. By default it listens on "
+        "tcp/127.0.0.1:7447, with multicast scouting off.",
+    )
+    live.add_argument("scenario", type=Path, help="scenario YAML file")
+    _add_live_args(live, duration_default="until interrupted")
+    live.set_defaults(handler=cmd_live)
+
+    emu = sub.add_parser(
+        "emulate",
+        help="play the physical cell in real time where no hardware is",
+        description="Run the scenario's devices as their digital models, in real time, with the "
+        "scenario's own safety controller, and publish each entity's state on its physical key in the "
+        "format the twin reads. Keeps its own black box (the ground truth). By default it connects to "
+        "tcp/127.0.0.1:7447.",
+    )
+    emu.add_argument("scenario", type=Path, help="scenario YAML file")
+    _add_live_args(emu, duration_default="until interrupted")
+    emu.add_argument(
+        "--fault", action="append", default=[], metavar="ENTITY=KIND[@T]",
+        help="inject a fault from simulated time T (default 0): silence, freeze, corrupt, delay or replay (repeatable)",
+    )
+    emu.set_defaults(handler=cmd_emulate)
+
+    mode = sub.add_parser(
+        "twin-mode",
+        help="switch an entity of the running twin to model, shadow or twin",
+        description="Ask the running twin (cellsim live) to switch ENTITY to MODE. Prints the twin's "
+        "answer; exits 0 if accepted, 2 if refused or if no twin answers.",
+    )
+    mode.add_argument("entity", help="an entity of the running twin, e.g. light_barrier")
+    mode.add_argument("mode", help="model, shadow or twin")
+    mode.add_argument("--cell", default=None, help="the cell's name (default: the only twin that answers)")
+    _add_network_args(mode)
+    mode.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the answer (default 5)")
+    mode.set_defaults(handler=cmd_twin_mode)
     return parser
+
+
+def _add_network_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                        help="Zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    parser.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                        help="Zenoh endpoint to connect to (repeatable)")
+    parser.add_argument("--config", type=Path, metavar="FILE", help="a Zenoh JSON5 configuration for anything more")
+
+
+def _add_live_args(parser: argparse.ArgumentParser, duration_default: str) -> None:
+    parser.add_argument("--out", type=Path, help="output folder (default: runs/<scenario>-<process>-<date-time>)")
+    parser.add_argument("--duration", type=float, help=f"seconds to run (default: {duration_default})")
+    parser.add_argument("--seed", type=int, help="random seed (default: the scenario's seed)")
+    _add_set(parser)
+    _add_network_args(parser)
+    parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
 def _add_set(parser: argparse.ArgumentParser) -> None:
@@ -195,6 +255,110 @@ def _load(args):
     from cellsim.scenario import load_scenario
 
     return load_scenario(args.scenario, args.overrides)
+
+
+def _open_session(args, listen_by_default: bool):
+    import zenoh
+
+    from cellsim.live.session import session_config
+
+    config = session_config(listen=args.listen, connect=args.connect, config_file=args.config, listen_by_default=listen_by_default)
+    try:
+        return zenoh.open(config)
+    except Exception as e:  # noqa: BLE001 - zenoh raises ZError with a long text
+        raise InputError(f"cannot open a Zenoh session: {' '.join(str(e).split())[:200]}") from None
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt():
+    """SIGTERM ends a live process as Ctrl-C does: the black box is closed cleanly."""
+    def on_term(*_):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, on_term)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _live_run(args, process: str, listen_by_default: bool, run):
+    from cellsim.scenario import MAX_DURATION, check_run_length, check_seed
+
+    sf = _load(args)
+    duration = MAX_DURATION if args.duration is None else args.duration
+    check_run_length(sf, duration, "--duration")
+    if args.seed is not None:
+        check_seed(args.seed, "--seed")
+    out = args.out or Path("runs") / f"{sf.scenario.name}-{process}-{datetime.now():%Y%m%d-%H%M%S}"
+    session = _open_session(args, listen_by_default)
+    try:
+        with _terminate_as_interrupt():
+            return run(sf, out, session, duration)
+    finally:
+        session.close()
+
+
+def cmd_live(args) -> int:
+    from cellsim.live.twin import run_live
+
+    def run(sf, out, session, duration):
+        if not args.quiet:
+            print(f"cellsim live: {sf.scenario.name} twin running, recording to {out}", file=sys.stderr)
+        summary, _ = run_live(sf, out, session=session, duration=duration, seed=args.seed)
+        return EXIT_FINDING if summary.mishap else EXIT_OK
+
+    return _live_run(args, "twin", True, run)
+
+
+def cmd_emulate(args) -> int:
+    from cellsim.live.emulator import FAULTS, Fault, run_emulator
+
+    faults = []
+    for text in args.fault:
+        entity, _, rest = text.partition("=")
+        kind, _, at = rest.partition("@")
+        try:
+            at_s = float(at) if at else 0.0
+        except ValueError:
+            at_s = -1.0
+        if not entity or kind not in FAULTS or not 0.0 <= at_s < float("inf"):
+            raise InputError(f"--fault {text!r}: expected ENTITY=KIND[@T] with KIND one of {', '.join(FAULTS)}")
+        faults.append(Fault(entity, kind, at_s))
+
+    def run(sf, out, session, duration):
+        unknown = [f.entity for f in faults if f.entity not in sf.scenario.entities]
+        if unknown:
+            raise InputError(f"--fault: no entity named {unknown[0]!r} (entities: {', '.join(sf.scenario.entities)})")
+        if not args.quiet:
+            print(f"cellsim emulate: playing the physical {sf.scenario.name}, recording to {out}", file=sys.stderr)
+        summary, _ = run_emulator(sf, out, session=session, duration=duration, seed=args.seed, faults=faults)
+        return EXIT_FINDING if summary.mishap else EXIT_OK
+
+    return _live_run(args, "emulator", False, run)
+
+
+def cmd_twin_mode(args) -> int:
+    import json
+
+    from cellsim.live import keys
+
+    session = _open_session(args, listen_by_default=False)
+    try:
+        selector = keys.twin_mode_control(args.cell) if args.cell else f"{keys.ROOT}/*/control/twin_mode"
+        request = json.dumps({"entity": args.entity, "mode": args.mode, "by": f"cellsim twin-mode ({session.zid()})"})
+        answers = []
+        for reply in session.get(selector, payload=request, timeout=args.timeout):
+            if reply.ok is not None:
+                answers.append(json.loads(reply.ok.payload.to_bytes()))
+    finally:
+        session.close()
+    if not answers:
+        print(f"cellsim: error: no running twin answered on {selector} within {args.timeout:g} s", file=sys.stderr)
+        return EXIT_INPUT
+    answer = answers[0]
+    print(("accepted: " if answer.get("accepted") else "refused: ") + str(answer.get("reason", "")))
+    return EXIT_OK if answer.get("accepted") else EXIT_INPUT
 
 
 def cmd_simulate(args) -> int:

@@ -162,8 +162,14 @@ def simulate(
     physical_sources: dict | None = None,
     on_progress: Callable[[float, float], None] | None = None,
     provenance: dict | None = None,
+    live: "LiveHooks | None" = None,
+    on_built: Callable[[CellDiagram], None] | None = None,
 ) -> RunSummary:
     """Simulate ``sf`` headless (or at ``realtime_rate``), recording to ``out_dir``.
+
+    ``live`` runs it beside the real cell (``cellsim.live``): its ``start`` is called
+    once the simulator is initialised, its ``tick(context)`` after every ``period``
+    of simulated time, and its ``metadata()`` is added to the black box's at each drain.
 
     The black box's ``provenance`` metadata is :func:`cellsim.provenance.provenance`
     of the run's inputs, updated with ``provenance`` (a campaign names itself there).
@@ -184,6 +190,8 @@ def simulate(
     # building the diagram checks the wiring and loads the risk model, and the
     # safety conditions are compiled against the channels it publishes.
     cell = build_cell(sf, seed=seed, duration=duration, meshcat=meshcat, physical_sources=physical_sources)
+    if on_built is not None:
+        on_built(cell)
     case = None
     if sc.validation.conditions:
         from cellsim.validation.check import cell_safety_case
@@ -192,12 +200,22 @@ def simulate(
     simulator = make_simulator(cell, realtime_rate)
     inputs.check_unchanged()  # what was built is what was read, copied and hashed
     with RunFolder(out_dir, overwrite):
-        summary = _record(sf, cell, simulator, out_dir, seed, duration, on_progress, inputs, record)
+        summary = _record(sf, cell, simulator, out_dir, seed, duration, on_progress, inputs, record, live)
     summary.safety_case = case
     return summary
 
 
-def _record(sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_progress, inputs, record) -> RunSummary:
+@dataclass
+class LiveHooks:
+    """What a live run does besides simulating (see ``simulate``)."""
+
+    period: float
+    start: Callable[[], None]
+    tick: Callable[[object], None]
+    metadata: Callable[[], dict]
+
+
+def _record(sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_progress, inputs, record, live=None) -> RunSummary:
     """Write the resolved scenario and its input files, then simulate while recording the black box."""
     sc = sf.scenario
     write_run_scenario(sf, inputs, out_dir, RESOLVED_SCENARIO, seed, duration)
@@ -225,13 +243,23 @@ def _record(sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_p
         try:
             simulator.Initialize()
             started = time.perf_counter()
+            if live is not None:
+                live.start()
+            chunk = DRAIN_PERIOD if live is None else live.period
+            next_drain = DRAIN_PERIOD
             while context.get_time() < duration - 1e-9:
-                simulator.AdvanceTo(min(duration, context.get_time() + DRAIN_PERIOD))
+                simulator.AdvanceTo(min(duration, context.get_time() + chunk))
                 sim_time = context.get_time()
-                if cell.recorder is not None:
-                    cell.recorder.drain(context)
-                if on_progress:
-                    on_progress(sim_time, duration)
+                if live is not None:
+                    live.tick(context)
+                if sim_time >= next_drain - 1e-9 or sim_time >= duration - 1e-9:
+                    next_drain += DRAIN_PERIOD
+                    if cell.recorder is not None:
+                        cell.recorder.drain(context)
+                    if live is not None:
+                        writer.set_metadata(live=live.metadata())
+                    if on_progress:
+                        on_progress(sim_time, duration)
             status = "completed"
         except KeyboardInterrupt:
             status = "interrupted"
@@ -240,6 +268,8 @@ def _record(sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_p
         wall = time.perf_counter() - started
         if cell.recorder is not None:
             cell.recorder.drain(context, final=True)  # and what was logged before an interruption
+        if live is not None:
+            writer.set_metadata(live=live.metadata())
         writer.close(status)
     return summarise(out_dir, seed, status, sim_time, wall)
 

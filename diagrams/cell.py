@@ -160,7 +160,7 @@ def build_cell(
     duration: float,
     record: bool = True,
     meshcat: Meshcat | None = None,
-    physical_sources: dict[str, LeafSystem] | None = None,
+    physical_sources: dict[str, LeafSystem] | Callable[[dict], dict[str, LeafSystem]] | None = None,
 ) -> CellDiagram:
     """Assemble the scenario's Diagram. Raises ConfigError for wiring the scenario gets wrong.
 
@@ -195,6 +195,8 @@ def build_cell(
     _filter_all_contact(plant, scene_graph, cell.foreign_geometry)
 
     fixed_inputs = _unconnected_command_inputs(builder, cell.modules)
+    if callable(physical_sources):  # sources made for the entities built (a live twin's, one per entity)
+        physical_sources = physical_sources(cell.entities)
     fixed_inputs += connect_physical_twins(builder, cell.entities, physical_sources)
 
     visualizer = None

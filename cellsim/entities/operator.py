@@ -301,6 +301,10 @@ class Operator(EntitySystem):
         poses.set_value(self.arm_frame, RigidTransform(RotationMatrix.MakeFromOneVector(-direction, 2), shoulder))
         return poses
 
+    def physical_state(self, root_context) -> list[float]:
+        """x, y (m), yaw (rad), reach fraction and reach point (m): the pose state."""
+        return self.GetMyContextFromRoot(root_context).get_discrete_state(self._pose).get_value().tolist()
+
     # -- behaviour ---------------------------------------------------------------
     def _press_buttons(self, context, xd, digital: bool) -> None:
         t = context.get_time()

@@ -31,7 +31,7 @@ from cellsim.entities.twin import EntitySystem, valid_code
 from cellsim.registry import ModuleKind
 from cellsim.kinematics import solve_tool_target
 from cellsim.scenario import Layout, RobotConfig, ToolTarget
-from cellsim.systems import write_changed, write_scalar
+from cellsim.systems import read_scalar, write_changed, write_scalar
 from cellsim.vocabulary import SafetyMode, TwinMode, value_set
 
 KP, KI, KD = 400.0, 1.0, 40.0
@@ -161,6 +161,12 @@ class Robot(EntitySystem):
         self._tool_speed = self.declare_channel(
             "tool_speed", number_type("m/s"), 0.0, record="every_sample", every=self._telemetry_every
         )
+
+    def physical_state(self, root_context) -> list[float]:
+        """q (rad, measured), safety mode, activity and reached pose codes."""
+        own = self.GetMyContextFromRoot(root_context)
+        q = self.measured_state_port.Eval(own)[:6]
+        return [*q.tolist(), *(read_scalar(own, g) for g in self._published[:2]), read_scalar(own, self._published[3])]
 
     # -- helpers ------------------------------------------------------------------
     def locate(self, tool_position):

@@ -88,6 +88,16 @@ class EntitySystem(CellSystem):
         if mode is not TwinMode.TWIN:  # commands go out in twin mode only
             own.get_mutable_discrete_state(self._command_group).SetZero()
 
+    def physical_state(self, root_context) -> list[float]:
+        """What this entity's physical twin would report now: its sample fields as port codes.
+
+        The emulator publishes this for a digital model playing the physical twin.
+        By default each field is the channel of that name; an entity whose fields
+        are not channels (joint angles, a person's pose) says otherwise.
+        """
+        own = self.GetMyContextFromRoot(root_context)
+        return [read_scalar(own, self.group(name)) for name in self.sample_fields]
+
     def twin_mode(self, root_context) -> TwinMode:
         return _MODES[int(read_scalar(self.GetMyContextFromRoot(root_context), self._mode_group))]
 

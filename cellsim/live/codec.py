@@ -1,0 +1,80 @@
+"""The one encoding of every live message: UTF-8 JSON objects.
+
+A physical sample or a command::
+
+    {"t": 1795000000.125, "seq": 42, "fields": {"safety_mode": "normal", "q0": 1.3576, ...}}
+
+``t`` is the sender's wall-clock time (UNIX seconds) when the sample was taken,
+``seq`` counts the sender's messages on that key (a repeat or an older message
+is dropped), ``fields`` names each field as ``cellsim modules KIND`` lists it
+(physical-sample fields, command fields), enums by name, booleans as true/false,
+numbers in SI units; a command field with no request is null.
+
+A twin channel's value: ``{"t": ..., "sim_time": ..., "value": ...}``, the value as
+the black box writes it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+from cellsim.channels import ChannelType, number_type
+
+
+class CodecError(ValueError):
+    """A message that is not what its key carries (the reason is one line)."""
+
+
+def field_types(entity) -> list[ChannelType]:
+    """The type of each physical-sample field of an entity: its channel of that name, else a number."""
+    by_signal = {spec.signal: spec.type for spec, _ in getattr(entity, "channels", [])}
+    return [
+        by_signal[name] if name in by_signal and by_signal[name].kind in ("enum", "bool") else number_type(None)
+        for name in entity.sample_fields
+    ]
+
+
+def encode_fields(t: float, seq: int, fields: dict) -> bytes:
+    return json.dumps({"t": t, "seq": seq, "fields": fields}, separators=(",", ":")).encode()
+
+
+def decode_fields(payload: bytes, names: tuple[str, ...], types: list[ChannelType]) -> tuple[float, int, list[float]]:
+    """(wall time, sequence number, the fields as port codes) of a message, or CodecError."""
+    try:
+        message = json.loads(payload)
+    except (ValueError, UnicodeDecodeError) as e:
+        raise CodecError(f"not JSON: {e}") from None
+    if not isinstance(message, dict):
+        raise CodecError("not a JSON object")
+    t, seq, fields = message.get("t"), message.get("seq"), message.get("fields")
+    if not isinstance(t, (int, float)) or isinstance(t, bool) or not math.isfinite(t):
+        raise CodecError("'t' is not a time")
+    if not isinstance(seq, int) or isinstance(seq, bool) or seq < 0:
+        raise CodecError("'seq' is not a count")
+    if not isinstance(fields, dict):
+        raise CodecError("'fields' is not an object")
+    codes = []
+    for name, ctype in zip(names, types):
+        if name not in fields:
+            raise CodecError(f"field '{name}' is missing")
+        value = fields[name]
+        try:
+            if ctype.kind == "bool":
+                if not isinstance(value, bool):
+                    raise ValueError
+                codes.append(1.0 if value else 0.0)
+            elif ctype.kind == "enum":
+                codes.append(float(ctype.encode(value)[0]))
+            else:
+                if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+                    raise ValueError
+                codes.append(float(value))
+        except (ValueError, KeyError, TypeError):
+            raise CodecError(f"field '{name}': {value!r} is not {ctype.domain() if ctype.kind == 'enum' else ctype.kind}") from None
+    return float(t), seq, codes
+
+
+def fields_of(names: tuple[str, ...], types: list[ChannelType], codes) -> dict:
+    """The JSON fields of port codes (inverse of ``decode_fields``)."""
+    return {name: ctype.decode([code]) for name, ctype, code in zip(names, types, codes)}

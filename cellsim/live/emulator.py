@@ -1,0 +1,135 @@
+"""``cellsim emulate``: plays the physical cell in real time, where no hardware is.
+
+The scenario's entities run as their digital models (every twin mode forced to
+model) with the scenario's own safety controller: a standalone cell. Every
+``TICK`` the emulator publishes, for each entity whose update period has come
+round, its physical sample (``EntitySystem.physical_state``) on its physical key
+in the format the twin reads (``cellsim.live.codec``), the format the bridge
+daemon will publish too. It keeps its own black box: the ground truth to
+compare the twin against.
+
+Faults, for tests and demos (``--fault ENTITY=KIND[@T]``): ``silence`` (stops
+publishing), ``freeze`` (repeats its last sample, same sequence number),
+``corrupt`` (malformed messages), ``delay`` (samples stamped 1 s in the past),
+``replay`` (old samples again, sequence going back).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+from cellsim.entities.twin import EntitySystem
+from cellsim.live import keys
+from cellsim.live.codec import encode_fields, field_types, fields_of
+from cellsim.vocabulary import TwinMode
+
+TICK = 0.01
+"""How often (s of simulated time) the emulator looks for samples to publish."""
+FAULTS = ("silence", "freeze", "corrupt", "delay", "replay")
+
+
+@dataclass
+class Fault:
+    entity: str
+    kind: str
+    at: float = 0.0
+    """Simulated time (s) from which the fault holds."""
+
+
+@dataclass
+class Emulator:
+    sf: object
+    session: object
+    faults: list[Fault] = field(default_factory=list)
+    process: str = "emulator"
+    published: int = 0
+
+    def attach(self, cell) -> None:
+        name = self.sf.scenario.name
+        self.cell = cell
+        self.entities = {n: m for n, m in cell.modules.items() if isinstance(m, EntitySystem)}
+        self._next_due = {n: 0.0 for n in self.entities}
+        self._publishers = {n: self.session.declare_publisher(keys.physical(name, n)) for n in self.entities}
+        self._types = {n: field_types(e) for n, e in self.entities.items()}
+        self._seq = {n: 0 for n in self.entities}
+        self._history: dict[str, list[bytes]] = {n: [] for n in self.entities}
+        self._token = self.session.liveliness().declare_token(keys.alive(name, self.process))
+
+    def hooks(self):
+        from cellsim.simulation import LiveHooks
+
+        return LiveHooks(TICK, self.start, self.tick, self.metadata)
+
+    def start(self) -> None:
+        self.wall_at_zero = time.time()
+
+    def tick(self, context) -> None:
+        t = context.get_time()
+        for name, entity in self.entities.items():
+            if t < self._next_due[name] - 1e-9:
+                continue  # its update period has not come round
+            self._next_due[name] += entity.period
+            fault = self._fault(name, t)
+            if fault == "silence":
+                continue
+            payload = self._payload(name, entity, context, fault)
+            self._publishers[name].put(payload)
+            self.published += 1
+
+    def _payload(self, name: str, entity, context, fault: str | None) -> bytes:
+        history = self._history[name]
+        if fault == "freeze" and history:
+            return history[-1]
+        if fault == "replay" and len(history) > 50:
+            return history[-50]
+        if fault == "corrupt":
+            return b'{"t": "soon", "fields": [1, 2'
+        self._seq[name] += 1
+        stamp = time.time() - (1.0 if fault == "delay" else 0.0)
+        fields = fields_of(entity.sample_fields, self._types[name], entity.physical_state(context))
+        payload = encode_fields(stamp, self._seq[name], fields)
+        history.append(payload)
+        del history[:-100]
+        return payload
+
+    def _fault(self, name: str, t: float) -> str | None:
+        active = [f.kind for f in self.faults if f.entity == name and t >= f.at - 1e-9]
+        return active[-1] if active else None
+
+    def metadata(self) -> dict:
+        return {"process": self.process, "wall_at_zero": getattr(self, "wall_at_zero", None),
+                "samples_published": self.published, "faults": [f.__dict__ for f in self.faults]}
+
+    def close(self) -> None:
+        token = getattr(self, "_token", None)
+        if token is not None:
+            try:
+                token.undeclare()
+            except Exception:  # noqa: BLE001 - closing anyway
+                pass
+
+
+def as_digital_models(sf) -> None:
+    """Every entity of the scenario runs as its digital model (the emulated physical cell)."""
+    for section in ("entities",):
+        for cfg in getattr(sf.scenario, section).values():
+            twin = getattr(cfg, "twin", None)
+            if twin is not None:
+                twin.mode = TwinMode.MODEL
+                twin.changes = []
+
+
+def run_emulator(sf, out_dir, *, session, duration: float, seed: int | None = None, faults=(), on_progress=None):
+    from cellsim.simulation import simulate
+
+    as_digital_models(sf)
+    emulator = Emulator(sf, session, list(faults))
+    try:
+        summary = simulate(
+            sf, out_dir, seed=seed, duration=duration, realtime_rate=1.0,
+            on_built=emulator.attach, live=emulator.hooks(), on_progress=on_progress,
+        )
+    finally:
+        emulator.close()
+    return summary, emulator

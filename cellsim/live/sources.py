@@ -1,0 +1,98 @@
+"""Physical samples from Zenoh into an entity's ``physical_sample`` input.
+
+A Zenoh subscriber's callback runs on a network thread: it only puts the raw
+payload and its arrival time into the source's inbox (a thread-safe queue).
+The source system drains the inbox in a periodic discrete update, at the
+entity's rate, and copies the newest acceptable sample into its state, which its
+``physical_sample`` output port reads. Nothing written by the network thread is
+read by a calc method.
+
+Acceptable: a message that decodes (else the entity reads its link corrupt) and
+is newer than the last one taken, by sequence number and by time (a repeat or
+an older message is dropped, so a replayed or duplicated stream goes stale). The
+sample's time stamp is its sender's wall-clock time on the twin's simulation
+clock (``LiveClock``), so an entity judges its age as in any run.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from cellsim.live.codec import CodecError, decode_fields, field_types
+
+
+@dataclass
+class LiveClock:
+    """The wall-clock time (UNIX s) at simulation time 0 of a run paced to the wall clock."""
+
+    wall_at_zero: float = 0.0
+
+    def sim_time(self, wall: float) -> float:
+        return wall - self.wall_at_zero
+
+
+class ZenohSampleSource(LeafSystem):
+    """Physical samples of one entity, from its physical key.
+
+    Ports:
+      physical_sample (output): [t (s, simulation clock), valid (0/1), *fields]; fields
+        NaN when the newest message was malformed (the entity reads its link corrupt).
+    """
+
+    def __init__(self, entity, clock: LiveClock, time_step: float):
+        super().__init__()
+        self.set_name(f"{entity.module}.physical_source")
+        self.names = tuple(entity.sample_fields)
+        self.types = field_types(entity)
+        self.clock = clock
+        self.inbox: queue.SimpleQueue = queue.SimpleQueue()
+        self.rejected = 0
+        n = len(self.names)
+        initial = np.zeros(2 + n)
+        initial[0] = -np.inf
+        self._sample = self.DeclareDiscreteState(initial)
+        self._memory = self.DeclareDiscreteState(np.array([-1.0, -np.inf]))  # [last seq, last wall time]
+        self.DeclareStateOutputPort("physical_sample", self._sample)
+        # drained one plant step before each of the entity's updates, so the entity reads
+        # what arrived up to then (discrete updates at one instant read the old state)
+        self.DeclarePeriodicDiscreteUpdateEvent(entity.period, entity.period - time_step, self._drain)
+
+    def deliver(self, payload: bytes) -> None:
+        """Called on the network thread: hand a message over, nothing more."""
+        self.inbox.put(payload)
+
+    def _drain(self, context, xd) -> None:
+        last_seq, last_wall = context.get_discrete_state(self._memory).get_value()
+        taken = None
+        corrupt = False
+        while True:
+            try:
+                payload = self.inbox.get_nowait()
+            except queue.Empty:
+                break
+            try:
+                wall, seq, codes = decode_fields(payload, self.names, self.types)
+            except CodecError:
+                corrupt, self.rejected = True, self.rejected + 1
+                continue
+            if seq <= last_seq or wall <= last_wall:  # a repeat, or back in time
+                self.rejected += 1
+                continue
+            taken, last_seq, last_wall, corrupt = (wall, codes), seq, wall, False
+        if taken is not None:
+            xd.get_mutable_vector(self._sample).SetFromVector(np.array([self.clock.sim_time(taken[0]), 1.0, *taken[1]]))
+            xd.get_mutable_vector(self._memory).SetFromVector(np.array([last_seq, last_wall]))
+        elif corrupt:  # the newest message was malformed: fresh, but unusable
+            sample = np.full(2 + len(self.names), math.nan)
+            sample[0], sample[1] = context.get_time(), 1.0
+            xd.get_mutable_vector(self._sample).SetFromVector(sample)
+
+
+def now() -> float:
+    return time.time()

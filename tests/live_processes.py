@@ -1,0 +1,116 @@
+"""Helpers for multi-process live tests: free loopback ports, processes stopped by PID, events with deadlines."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 nothing listens on now."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Process:
+    """A cellsim command run as a process; ``stop()`` ends it by its PID."""
+
+    def __init__(self, args: list[str], log: Path):
+        self.log = log
+        self._file = open(log, "w")
+        self.popen = subprocess.Popen(
+            [sys.executable, "-m", "cellsim", *args], stdout=self._file, stderr=subprocess.STDOUT, cwd=ROOT
+        )
+        self.pid = self.popen.pid
+
+    def wait(self, timeout: float) -> int:
+        """Its exit code, waiting at most ``timeout`` s (then it is stopped and the test fails)."""
+        try:
+            return self.popen.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.stop()
+            raise AssertionError(f"{self.popen.args} did not end within {timeout} s; log:\n{self.output()}") from None
+
+    def stop(self, sig: int = signal.SIGINT, grace: float = 15.0) -> int | None:
+        if self.popen.poll() is None:
+            os.kill(self.pid, sig)
+            try:
+                self.popen.wait(timeout=grace)
+            except subprocess.TimeoutExpired:
+                os.kill(self.pid, signal.SIGKILL)
+                self.popen.wait(timeout=grace)
+        self._file.close()
+        return self.popen.returncode
+
+    def output(self) -> str:
+        self._file.flush()
+        return self.log.read_text()
+
+
+@contextmanager
+def processes():
+    """Collects processes and stops every one still running at the end, by its PID."""
+    started: list[Process] = []
+
+    def start(args: list[str], log: Path) -> Process:
+        process = Process(args, log)
+        started.append(process)
+        return process
+
+    try:
+        yield start
+    finally:
+        for process in started:
+            process.stop(signal.SIGKILL if process.popen.poll() is None else signal.SIGINT)
+
+
+@contextmanager
+def observer(port: int):
+    """A Zenoh session of the test, connected to the twin's loopback port."""
+    import zenoh
+
+    from cellsim.live.session import session_config
+
+    session = zenoh.open(session_config(connect=[f"tcp/127.0.0.1:{port}"]))
+    try:
+        yield session
+    finally:
+        session.close()
+
+
+def wait_alive(session, key: str, timeout: float = 60.0) -> None:
+    """Wait until a liveliness token matching ``key`` is present (a process is up), with a deadline."""
+    seen = threading.Event()
+
+    def on_token(sample) -> None:
+        if str(sample.kind).endswith("PUT"):
+            seen.set()
+
+    subscriber = session.liveliness().declare_subscriber(key, on_token, history=True)
+    try:
+        if not seen.wait(timeout):
+            raise AssertionError(f"no liveliness token on {key} within {timeout} s")
+    finally:
+        subscriber.undeclare()
+
+
+def wait_for(predicate, timeout: float, what: str, poll: threading.Event | None = None) -> None:
+    """Wait until ``predicate()`` holds, checking on every set of ``poll`` (or every 50 ms), with a deadline."""
+    deadline = time.monotonic() + timeout
+    event = poll or threading.Event()
+    while not predicate():
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            raise AssertionError(f"{what}: not within {timeout} s")
+        event.wait(min(remaining, 0.05))
+        event.clear()
