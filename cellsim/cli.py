@@ -257,16 +257,18 @@ def _load(args):
     return load_scenario(args.scenario, args.overrides)
 
 
-def _open_session(args, listen_by_default: bool):
+def _open_session(args, listen_by_default: bool, wait: float = 30.0):
     import zenoh
 
     from cellsim.live.session import session_config
 
-    config = session_config(listen=args.listen, connect=args.connect, config_file=args.config, listen_by_default=listen_by_default)
+    config = session_config(
+        listen=args.listen, connect=args.connect, config_file=args.config, listen_by_default=listen_by_default, wait=wait
+    )
     try:
         return zenoh.open(config)
     except Exception as e:  # noqa: BLE001 - zenoh raises ZError with a long text
-        raise InputError(f"cannot open a Zenoh session: {' '.join(str(e).split())[:200]}") from None
+        raise InputError(f"cannot open a Zenoh session (is the twin running?): {' '.join(str(e).split())[:200]}") from None
 
 
 @contextlib.contextmanager
@@ -343,7 +345,11 @@ def cmd_twin_mode(args) -> int:
 
     from cellsim.live import keys
 
-    session = _open_session(args, listen_by_default=False)
+    try:
+        session = _open_session(args, listen_by_default=False, wait=args.timeout)
+    except InputError:
+        print(f"cellsim: error: no running twin reachable within {args.timeout:g} s", file=sys.stderr)
+        return EXIT_INPUT
     try:
         selector = keys.twin_mode_control(args.cell) if args.cell else f"{keys.ROOT}/*/control/twin_mode"
         request = json.dumps({"entity": args.entity, "mode": args.mode, "by": f"cellsim twin-mode ({session.zid()})"})

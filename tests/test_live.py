@@ -36,10 +36,11 @@ def shadow_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("shadow")
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    with processes() as start, observer(port) as session:
+    with processes() as start:
         twin = start(["live", WELDING_CELL, "--out", str(tmp / "twin"), "--listen", endpoint, "--quiet", *ALL_SHADOW],
                      tmp / "twin.log")
-        wait_alive(session, "cellsim/welding_cell/alive/twin")
+        with observer(port) as session:  # opening waits for the twin to listen
+            wait_alive(session, "cellsim/welding_cell/alive/twin")
         emulator = start(["emulate", WELDING_CELL, "--out", str(tmp / "emulator"), "--duration", "12",
                           "--connect", endpoint, "--quiet"], tmp / "emulator.log")
         assert emulator.wait(timeout=120) == 0, emulator.output()
@@ -86,3 +87,57 @@ def test_the_live_twins_run_is_checked_as_any_run(shadow_run):
         assert live["process"] == "twin" and live["pacing_lag_s"]["p99"] < 0.05
         links = twin.series("robot.physical_link").values
         assert links[0] == "stale" and "ok" in links  # no emulator yet, then its samples
+
+
+def _twin_mode(endpoint: str, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "cellsim", "twin-mode", *args, "--connect", endpoint],
+                          capture_output=True, text=True, timeout=60, cwd=ROOT)
+
+
+def test_twin_modes_switch_at_run_time_on_request_and_bad_requests_are_refused(tmp_path):
+    import contextlib
+    import threading
+
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    modes: list[str] = []
+    changed = threading.Event()
+
+    def on_mode(sample) -> None:
+        value = json.loads(sample.payload.to_bytes())["value"]
+        if not modes or modes[-1] != value:
+            modes.append(value)
+            changed.set()
+
+    with processes() as start, contextlib.ExitStack() as stack:
+        twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet"], tmp_path / "twin.log")
+        session = stack.enter_context(observer(port))
+        subscriber = session.declare_subscriber("cellsim/welding_cell/twin/light_barrier/twin_mode", on_mode)
+        start(["emulate", WELDING_CELL, "--out", str(tmp_path / "emulator"), "--connect", endpoint, "--quiet"], tmp_path / "emu.log")
+        wait_alive(session, "cellsim/welding_cell/alive/twin")
+        wait_alive(session, "cellsim/welding_cell/alive/emulator")
+        assert changed.wait(30) and modes == ["model"]
+        for mode in ("shadow", "twin", "model"):
+            changed.clear()
+            done = _twin_mode(endpoint, "light_barrier", mode)
+            assert done.returncode == 0 and done.stdout.startswith("accepted"), done.stdout + done.stderr
+            assert changed.wait(10) and modes[-1] == mode, modes
+        for args, reason in ((("lightbarrier", "shadow"), "no entity named 'lightbarrier'"),
+                             (("light_barrier", "shdow"), "'shdow' is not a twin mode")):
+            refused = _twin_mode(endpoint, *args)
+            assert refused.returncode == 2 and refused.stdout.startswith("refused") and reason in refused.stdout
+        subscriber.undeclare()
+        stack.close()
+        twin.stop()
+    with BlackBox(tmp_path / "twin" / "blackbox.sqlite") as bb:
+        assert bb.series("light_barrier.twin_mode").values == ["model", "shadow", "twin", "model"]
+        requests = bb.metadata()["live"]["twin_mode_requests"]
+        assert [r["mode"] for r in requests] == ["shadow", "twin", "model"]
+        assert all(r["entity"] == "light_barrier" and r["by"].startswith("cellsim twin-mode") for r in requests)
+        # nothing else changed
+        assert bb.series("range_detector.twin_mode").values == ["model"]
+
+
+def test_twin_mode_with_no_twin_running_says_so(tmp_path):
+    done = _twin_mode(f"tcp/127.0.0.1:{free_port()}", "light_barrier", "shadow", "--timeout", "1")
+    assert done.returncode == 2 and "no running twin reachable within 1 s" in done.stderr

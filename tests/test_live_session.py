@@ -27,7 +27,9 @@ def test_defaults_turn_multicast_off_and_stay_on_loopback():
     for config in (twin, other):
         assert _get(config, "scouting/multicast/enabled") is False
         assert _get(config, "scouting/gossip/enabled") is False
-        assert _get(config, "mode") == "peer"
+    # the twin routes between everyone else, who are its clients
+    assert (_get(twin, "mode"), _get(other, "mode")) == ("router", "client")
+    assert _get(session_config(listen=["tcp/127.0.0.1:7600"]), "mode") == "peer"
     assert _get(twin, "listen/endpoints") == [DEFAULT_ENDPOINT]
     assert _get(other, "connect/endpoints") == [DEFAULT_ENDPOINT]
     assert _get(other, "listen/endpoints") == []  # not every interface

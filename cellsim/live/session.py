@@ -8,11 +8,13 @@ Every session cellsim opens starts from :func:`session_config`, which
 * listens on, or connects to, the endpoints given (``listen``, ``connect``: the
   networked commands' ``--listen`` and ``--connect``); when none are given, by
   argument or file, the twin listens on ``tcp/127.0.0.1:7447``
-  (``listen_by_default``) and every other process connects to it.
+  (``listen_by_default``) and every other process connects to it;
+* makes the twin a Zenoh *router* and the others *clients* of it (peers when
+  they listen themselves): every message between the emulator, the bridge
+  daemon and the dashboard goes through the twin, and they reach each other
+  with no scouting at all.
 
-It is the first piece of the live twin (issue "The twin goes live"): the
-commands that open these sessions (``cellsim live``, ``emulate``, ``twin-mode``)
-are still to come.
+The commands that open these sessions: ``cellsim live``, ``emulate``, ``twin-mode``.
 
 Endpoints are Zenoh locators such as ``tcp/127.0.0.1:7447``; anything else is
 refused with one line before a session is opened.
@@ -49,11 +51,13 @@ def session_config(
     connect: list[str] = (),
     config_file: str | Path | None = None,
     listen_by_default: bool = False,
+    wait: float = 30.0,
 ):
     """A ``zenoh.Config`` for a cellsim process (see the module docstring).
 
     ``listen_by_default``: with no endpoint configured at all, listen on
     :data:`DEFAULT_ENDPOINT` (the twin) instead of connecting to it (everyone else).
+    ``wait``: how long (s) a client's session waits at opening for the twin to be reachable.
     """
     import zenoh
 
@@ -72,7 +76,10 @@ def session_config(
     else:
         config = zenoh.Config()
     if "mode" not in user:
-        config.insert_json5("mode", json.dumps("peer"))
+        mode = "router" if listen_by_default else ("peer" if listen else "client")
+        config.insert_json5("mode", json.dumps(mode))
+        if mode == "client":  # the twin may start after it: wait for it, then reconnect if it goes
+            config.insert_json5("connect/timeout_ms", json.dumps({"client": max(0, int(wait * 1000))}))
     if "scouting/multicast/enabled" not in user:
         config.insert_json5("scouting/multicast/enabled", "false")
     if "scouting/gossip/enabled" not in user:
