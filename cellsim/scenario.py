@@ -185,6 +185,9 @@ class TwinSettings:
     """Mode changes at given simulated times, in time order."""
     stale_after: Annotated[float, Range(0.0, 60.0, lo_open=True, unit="s")] = 0.5
     """A physical sample older than this (s) is stale: the entity fails safe."""
+    recover_after: Annotated[int, Range(1, 1000)] = 3
+    """Good samples in a row (each newer than the last) before a failing-safe entity trusts its
+    physical twin again: not the first good one after a fault, nor the very first one."""
 
     def __post_init__(self):
         times = [c.at for c in self.changes]

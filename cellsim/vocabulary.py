@@ -102,6 +102,7 @@ class PhysicalLink(CodedEnum):
     OK = "ok"  # a fresh, well-formed sample drives the entity
     STALE = "stale"  # no sample within the entity's stale_after: failing safe
     CORRUPT = "corrupt"  # the latest sample is malformed: failing safe
+    RECOVERING = "recovering"  # good samples again, not yet recover_after in a row: still failing safe
 
 
 PERMISSIVE_MODES = frozenset(

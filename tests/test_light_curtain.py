@@ -9,7 +9,8 @@ from cellsim.config.typed_yaml import load_text
 from cellsim.entities.sensors import LightBarrier
 from cellsim.scenario import LightBarrierConfig
 
-CURTAIN = "kind: light_barrier\ncenter: [0, 0, 1]\nsize: [0.02, 0.9, 0.7]\ntwin: {mode: shadow}\n"
+# trusting each sample at once: the interlock is tested here, recovery in test_twin_mode
+CURTAIN = "kind: light_barrier\ncenter: [0, 0, 1]\nsize: [0.02, 0.9, 0.7]\ntwin: {mode: shadow, recover_after: 1}\n"
 
 
 class Curtain:

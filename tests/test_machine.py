@@ -146,7 +146,7 @@ def test_busy_marks_a_cycle_under_way_and_an_abandoned_one_ends_it():
 
 
 def test_a_shadowed_machine_is_busy_while_its_twin_works_and_when_unknown():
-    press = Press(PRESS + "twin: {mode: shadow}\n")
+    press = Press(PRESS + "twin: {mode: shadow, recover_after: 1}\n")  # each sample trusted at once
     busy = lambda: press.system.GetOutputPort("busy").Eval(press.context)[0]  # noqa: E731
     working, resting = (float(press.system.activity_type(a).code) for a in ("pressing", "waiting"))
     normal = float(SafetyMode.NORMAL.code)

@@ -70,6 +70,7 @@ def test_corrupt_samples_fail_safe():
 
     sf = welding_cell()
     sf.scenario.entities["range_detector"].twin.mode = TwinMode.SHADOW
+    sf.scenario.entities["range_detector"].twin.recover_after = 1  # each sample judged alone
     built = build_cell(sf, seed=0, duration=1.0, record=False)
     sim = Simulator(built.diagram)
     context = sim.get_mutable_context()
@@ -167,3 +168,32 @@ def test_a_shadowed_robot_gone_silent_does_not_hide_a_person_in_the_cell(tmp_pat
 
     verdicts = json.loads(capsys.readouterr().out)["verdicts"]
     assert verdicts["HS:detected"]["status"] == "holds"
+
+
+def test_a_sensor_trusts_its_physical_twin_again_only_after_several_good_samples_in_a_row():
+    from diagrams.cell import build_cell
+    from pydrake.systems.analysis import Simulator
+
+    sf = welding_cell()
+    sf.scenario.entities["range_detector"].twin.mode = TwinMode.SHADOW  # recover_after: 3 (the default)
+    built = build_cell(sf, seed=0, duration=1.0, record=False)
+    sim = Simulator(built.diagram)
+    context = sim.get_mutable_context()
+    built.set_initial_state(context)
+    rd = built.modules["range_detector"]
+    own = rd.GetMyMutableContextFromRoot(context)
+
+    def step(stamp: float, code: float = 0.0) -> tuple[str, str]:
+        context.SetTime(max(stamp, 0.0))
+        rd.physical_sample_port.FixValue(own, np.array([stamp, 1.0, code, 2.5]))
+        own.SetDiscreteState(rd.EvalUniquePeriodicDiscreteUpdate(own))
+        return (rd.GetOutputPort("range").Eval(own)[0], rd.GetOutputPort("physical_link").Eval(own)[0])
+
+    far, close = 0.0, 2.0
+    ok, corrupt, recovering = 1.0, 3.0, 4.0
+    # the very first good samples: not trusted until the third
+    assert [step(t) for t in (0.0, 0.04, 0.08)] == [(close, recovering), (close, recovering), (far, ok)]
+    assert step(0.12, code=7.0) == (close, corrupt)  # one bad sample: fail safe at once
+    assert step(0.16) == (close, recovering)  # and not trusted again on the first good one
+    assert step(0.16) == (close, recovering)  # the same sample again does not count
+    assert [step(t) for t in (0.20, 0.24)] == [(close, recovering), (far, ok)]

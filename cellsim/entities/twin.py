@@ -75,6 +75,8 @@ class EntitySystem(CellSystem):
             description="Freshness and validity of the physical twin's samples",
         )
         self._next_change_group = self.declare_state("next_twin_change", [0.0])
+        # [good samples in a row, time stamp of the last one]: trust comes back only after several
+        self._recovery_group = self.declare_state("recovery", [0.0, -np.inf])
         self.physical_sample_port = self.declare_input("physical_sample", 2 + len(sample_fields))
         self._command_group = self.declare_state("physical_command", np.zeros(1 + len(command_fields)))
         self.physical_command_port = self.DeclareStateOutputPort("physical_command", self._command_group)
@@ -85,6 +87,7 @@ class EntitySystem(CellSystem):
         mode = TwinMode(mode)
         own = self.GetMyMutableContextFromRoot(root_context)
         own.get_mutable_discrete_state(self._mode_group).SetAtIndex(0, float(mode.code))
+        own.get_mutable_discrete_state(self._recovery_group).SetFromVector([0.0, -np.inf])
         if mode is not TwinMode.TWIN:  # commands go out in twin mode only
             own.get_mutable_discrete_state(self._command_group).SetZero()
 
@@ -118,15 +121,33 @@ class EntitySystem(CellSystem):
             if nxt != start:
                 write_scalar(xd, self._next_change_group, nxt)
                 write_scalar(xd, self._mode_group, mode.code)
+                xd.get_mutable_vector(self._recovery_group).SetFromVector([0.0, -np.inf])
                 if mode is not TwinMode.TWIN:  # commands go out in twin mode only
                     xd.get_mutable_vector(self._command_group).SetZero()
         if mode is TwinMode.MODEL:
             link, sample = PhysicalLink.UNUSED, None
         else:
-            link, sample = self._judge(self.physical_sample_port.Eval(context), t)
+            raw = self.physical_sample_port.Eval(context)
+            link, sample = self._judge(raw, t)
+            link, sample = self._recover(context, xd, raw[0], link, sample)
         if link.code != read_scalar(context, self._link_group):
             write_scalar(xd, self._link_group, link.code)
         return PhysicalView(mode, link, sample)
+
+    def _recover(self, context, xd, stamp: float, link: PhysicalLink, sample):
+        """Trust a good sample only once ``recover_after`` good ones came in a row."""
+        good, last = context.get_discrete_state(self._recovery_group).get_value()
+        needed = self.twin.recover_after
+        if link is PhysicalLink.OK:
+            if stamp != last:
+                good, last = min(good + 1.0, float(needed)), stamp
+            if good < needed:
+                link, sample = PhysicalLink.RECOVERING, None
+        else:
+            good = 0.0
+        if [good, last] != context.get_discrete_state(self._recovery_group).get_value().tolist():
+            xd.get_mutable_vector(self._recovery_group).SetFromVector([good, last])
+        return link, sample
 
     def _judge(self, raw: np.ndarray, t: float) -> tuple[PhysicalLink, np.ndarray | None]:
         stamp, valid = raw[0], raw[1]
