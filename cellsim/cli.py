@@ -203,8 +203,9 @@ def build_parser() -> argparse.ArgumentParser:
     emu.add_argument("scenario", type=Path, help="scenario YAML file")
     _add_live_args(emu, duration_default="until interrupted")
     emu.add_argument(
-        "--fault", action="append", default=[], metavar="ENTITY=KIND[@T]",
-        help="inject a fault from simulated time T (default 0): silence, freeze, corrupt, delay or replay (repeatable)",
+        "--fault", action="append", default=[], metavar="ENTITY=KIND[@T0[-T1]]",
+        help="inject a fault from simulated time T0 (default 0) to T1 (default: the end): silence, freeze, "
+        "corrupt, delay or replay (repeatable)",
     )
     emu.set_defaults(handler=cmd_emulate)
 
@@ -319,14 +320,17 @@ def cmd_emulate(args) -> int:
     faults = []
     for text in args.fault:
         entity, _, rest = text.partition("=")
-        kind, _, at = rest.partition("@")
+        kind, _, window = rest.partition("@")
+        start, _, end = window.partition("-")
         try:
-            at_s = float(at) if at else 0.0
+            at, until = float(start) if start else 0.0, float(end) if end else float("inf")
         except ValueError:
-            at_s = -1.0
-        if not entity or kind not in FAULTS or not 0.0 <= at_s < float("inf"):
-            raise InputError(f"--fault {text!r}: expected ENTITY=KIND[@T] with KIND one of {', '.join(FAULTS)}")
-        faults.append(Fault(entity, kind, at_s))
+            at = until = -1.0
+        if not entity or kind not in FAULTS or not 0.0 <= at < until or at != at:
+            raise InputError(
+                f"--fault {text!r}: expected ENTITY=KIND[@T0[-T1]] (seconds, T0 < T1) with KIND one of {', '.join(FAULTS)}"
+            )
+        faults.append(Fault(entity, kind, at, until))
 
     def run(sf, out, session, duration):
         unknown = [f.entity for f in faults if f.entity not in sf.scenario.entities]

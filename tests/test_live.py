@@ -141,3 +141,86 @@ def test_twin_modes_switch_at_run_time_on_request_and_bad_requests_are_refused(t
 def test_twin_mode_with_no_twin_running_says_so(tmp_path):
     done = _twin_mode(f"tcp/127.0.0.1:{free_port()}", "light_barrier", "shadow", "--timeout", "1")
     assert done.returncode == 2 and "no running twin reachable within 1 s" in done.stderr
+
+
+FAULTS = {  # entity: (fault injected, the link state it must cause, a channel and its fail-safe value)
+    "light_barrier": ("silence", "stale", "light_barrier.broken", True),
+    "range_detector": ("corrupt", "corrupt", "range_detector.range", "close"),
+    "robot": ("freeze", "stale", "robot.safety_mode", "unknown"),
+    "welder": ("replay", "stale", "welder.activity", "welding"),
+    "operator": ("delay", "stale", None, None),
+}
+
+
+def test_each_injected_fault_drives_its_entity_to_fail_safe_and_back(tmp_path):
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    faults = [arg for e, (kind, *_) in FAULTS.items() for arg in ("--fault", f"{e}={kind}@3-5")]
+    with processes() as start:
+        twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet", *ALL_SHADOW],
+                     tmp_path / "twin.log")
+        with observer(port) as session:
+            wait_alive(session, "cellsim/welding_cell/alive/twin")
+        emulator = start(["emulate", WELDING_CELL, "--out", str(tmp_path / "emulator"), "--duration", "7.5",
+                          "--connect", endpoint, "--quiet", *faults], tmp_path / "emulator.log")
+        assert emulator.wait(timeout=120) == 0, emulator.output()
+        twin.stop()
+    with BlackBox(tmp_path / "twin" / "blackbox.sqlite") as twin, BlackBox(tmp_path / "emulator" / "blackbox.sqlite") as emu:
+        offset = _offset(twin, emu)
+        for entity, (kind, link_state, channel, safe) in FAULTS.items():
+            period = 0.02 if entity == "robot" else 0.04
+            link = twin.series(f"{entity}.physical_link")
+            assert link.value_at(2.5 + offset) == "ok", entity
+            # failing safe within stale_after plus one update period (and the way of a sample)
+            failed = 3.0 + offset + (0.5 if link_state == "stale" else 0.0) + period + 0.06
+            assert link.value_at(failed) == link_state, (entity, kind, link.value_at(failed))
+            if channel is not None:
+                assert twin.series(channel).value_at(failed) == safe, (entity, channel)
+            # back once recover_after good samples came in a row
+            assert link.value_at(5.0 + offset + 4 * period + 0.06) == "ok", entity
+            assert "recovering" in [v for t, v in zip(link.times, link.values) if t > 5.0 + offset - 0.01]
+        assert emu.metadata()["live"]["faults"][0] == {"entity": "light_barrier", "kind": "silence", "at": 3.0, "until": 5.0}
+
+
+def test_a_killed_emulator_makes_the_shadow_fail_safe_and_a_restarted_one_recovers_it(tmp_path):
+    import signal
+    import threading
+
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    links: list[str] = []
+    changed = threading.Event()
+
+    def on_link(sample) -> None:
+        value = json.loads(sample.payload.to_bytes())["value"]
+        if not links or links[-1] != value:
+            links.append(value)
+            changed.set()
+
+    def wait_link(state: str, timeout: float) -> None:
+        deadline = __import__("time").monotonic() + timeout
+        while not links or links[-1] != state:
+            remaining = deadline - __import__("time").monotonic()
+            assert remaining > 0, f"robot link not {state} within {timeout} s: {links}"
+            changed.wait(remaining)
+            changed.clear()
+
+    emulator_args = ["emulate", WELDING_CELL, "--connect", endpoint, "--quiet"]
+    with processes() as start:
+        twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet", *ALL_SHADOW],
+                     tmp_path / "twin.log")
+        with observer(port) as session:
+            subscriber = session.declare_subscriber("cellsim/welding_cell/twin/robot/physical_link", on_link)
+            wait_alive(session, "cellsim/welding_cell/alive/twin")
+            first = start([*emulator_args, "--out", str(tmp_path / "emu1")], tmp_path / "emu1.log")
+            wait_link("ok", 60)
+            first.stop(signal.SIGKILL)
+            wait_link("stale", 2.0)  # stale_after 0.5 s, one period, and the status of the twin's publishing
+            start([*emulator_args, "--out", str(tmp_path / "emu2")], tmp_path / "emu2.log")
+            wait_link("ok", 60)
+            subscriber.undeclare()
+        twin.stop()
+    assert links[:1] == ["stale"] and "recovering" in links
+    # the killed emulator's black box is still readable: what it committed is kept
+    with BlackBox(tmp_path / "emu1" / "blackbox.sqlite") as killed:
+        assert killed.metadata()["status"] == "running" and killed.channels()

@@ -8,8 +8,8 @@ in the format the twin reads (``cellsim.live.codec``), the format the bridge
 daemon will publish too. It keeps its own black box: the ground truth to
 compare the twin against.
 
-Faults, for tests and demos (``--fault ENTITY=KIND[@T]``): ``silence`` (stops
-publishing), ``freeze`` (repeats its last sample, same sequence number),
+Faults, for tests and demos (``--fault ENTITY=KIND[@T0[-T1]]``, simulated
+seconds): ``silence`` (stops publishing), ``freeze`` (repeats its last sample, same sequence number),
 ``corrupt`` (malformed messages), ``delay`` (samples stamped 1 s in the past),
 ``replay`` (old samples again, sequence going back).
 """
@@ -35,6 +35,8 @@ class Fault:
     kind: str
     at: float = 0.0
     """Simulated time (s) from which the fault holds."""
+    until: float = float("inf")
+    """Simulated time (s) at which it ends."""
 
 
 @dataclass
@@ -94,12 +96,13 @@ class Emulator:
         return payload
 
     def _fault(self, name: str, t: float) -> str | None:
-        active = [f.kind for f in self.faults if f.entity == name and t >= f.at - 1e-9]
+        active = [f.kind for f in self.faults if f.entity == name and f.at - 1e-9 <= t < f.until - 1e-9]
         return active[-1] if active else None
 
     def metadata(self) -> dict:
+        faults = [{**f.__dict__, "until": None if f.until == float("inf") else f.until} for f in self.faults]
         return {"process": self.process, "wall_at_zero": getattr(self, "wall_at_zero", None),
-                "samples_published": self.published, "faults": [f.__dict__ for f in self.faults]}
+                "samples_published": self.published, "faults": faults}
 
     def close(self) -> None:
         token = getattr(self, "_token", None)

@@ -8,8 +8,9 @@ entity's rate, and copies the newest acceptable sample into its state, which its
 read by a calc method.
 
 Acceptable: a message that decodes (else the entity reads its link corrupt) and
-is newer than the last one taken, by sequence number and by time (a repeat or
-an older message is dropped, so a replayed or duplicated stream goes stale). The
+was taken after the last one taken, by its time stamp: a repeat or an older
+message is dropped, so a frozen, replayed or duplicated stream goes stale,
+while a restarted sender (its ``seq`` counting from 1 again) is heard at once. The
 sample's time stamp is its sender's wall-clock time on the twin's simulation
 clock (``LiveClock``), so an entity judges its age as in any run.
 """
@@ -81,7 +82,7 @@ class ZenohSampleSource(LeafSystem):
             except CodecError:
                 corrupt, self.rejected = True, self.rejected + 1
                 continue
-            if seq <= last_seq or wall <= last_wall:  # a repeat, or back in time
+            if wall <= last_wall:  # a repeat, or back in time
                 self.rejected += 1
                 continue
             taken, last_seq, last_wall, corrupt = (wall, codes), seq, wall, False
