@@ -190,6 +190,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     live.add_argument("scenario", type=Path, help="scenario YAML file")
     _add_live_args(live, duration_default="until interrupted")
+    live.add_argument(
+        "--wait-physical", type=float, default=10.0, metavar="SECONDS",
+        help="before starting the clock, wait this long at most for samples of every entity in shadow or twin mode (default 10)",
+    )
     live.set_defaults(handler=cmd_live)
 
     emu = sub.add_parser(
@@ -206,6 +210,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--fault", action="append", default=[], metavar="ENTITY=KIND[@T0[-T1]]",
         help="inject a fault from simulated time T0 (default 0) to T1 (default: the end): silence, freeze, "
         "corrupt, delay or replay (repeatable)",
+    )
+    emu.add_argument(
+        "--commanded-by-twin", action="store_true",
+        help="no safety controller of its own: the inputs it drove take the commands of the twin's entities in twin "
+        "mode (with no command for stale_after, a safety-mode request reads stopped)",
     )
     emu.set_defaults(handler=cmd_emulate)
 
@@ -308,7 +317,9 @@ def cmd_live(args) -> int:
     def run(sf, out, session, duration):
         if not args.quiet:
             print(f"cellsim live: {sf.scenario.name} twin running, recording to {out}", file=sys.stderr)
-        summary, _ = run_live(sf, out, session=session, duration=duration, seed=args.seed)
+        if not 0.0 <= args.wait_physical <= 3600.0:
+            raise InputError(f"--wait-physical {args.wait_physical:g}: expected 0 to 3600 seconds")
+        summary, _ = run_live(sf, out, session=session, duration=duration, seed=args.seed, wait_physical=args.wait_physical)
         return EXIT_FINDING if summary.mishap else EXIT_OK
 
     return _live_run(args, "twin", True, run)
@@ -338,7 +349,8 @@ def cmd_emulate(args) -> int:
             raise InputError(f"--fault: no entity named {unknown[0]!r} (entities: {', '.join(sf.scenario.entities)})")
         if not args.quiet:
             print(f"cellsim emulate: playing the physical {sf.scenario.name}, recording to {out}", file=sys.stderr)
-        summary, _ = run_emulator(sf, out, session=session, duration=duration, seed=args.seed, faults=faults)
+        summary, _ = run_emulator(sf, out, session=session, duration=duration, seed=args.seed, faults=faults,
+                                  commanded_by_twin=args.commanded_by_twin)
         return EXIT_FINDING if summary.mishap else EXIT_OK
 
     return _live_run(args, "emulator", False, run)

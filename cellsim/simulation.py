@@ -164,6 +164,7 @@ def simulate(
     provenance: dict | None = None,
     live: "LiveHooks | None" = None,
     on_built: Callable[[CellDiagram], None] | None = None,
+    command_sources: Callable | None = None,
 ) -> RunSummary:
     """Simulate ``sf`` headless (or at ``realtime_rate``), recording to ``out_dir``.
 
@@ -189,7 +190,9 @@ def simulate(
     # Everything that can fail on bad input happens before the folder is touched:
     # building the diagram checks the wiring and loads the risk model, and the
     # safety conditions are compiled against the channels it publishes.
-    cell = build_cell(sf, seed=seed, duration=duration, meshcat=meshcat, physical_sources=physical_sources)
+    cell = build_cell(
+        sf, seed=seed, duration=duration, meshcat=meshcat, physical_sources=physical_sources, command_sources=command_sources
+    )
     if on_built is not None:
         on_built(cell)
     case = None
@@ -244,7 +247,8 @@ def _record(sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_p
             simulator.Initialize()
             started = time.perf_counter()
             if live is not None:
-                live.start()
+                live.start()  # may wait for the physical cell
+                simulator.ResetStatistics()  # real-time pacing counts from now
             chunk = DRAIN_PERIOD if live is None else live.period
             next_drain = DRAIN_PERIOD
             while context.get_time() < duration - 1e-9:
@@ -262,14 +266,18 @@ def _record(sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_p
                         on_progress(sim_time, duration)
             status = "completed"
         except KeyboardInterrupt:
-            status = "interrupted"
+            # a live run goes until it is stopped: its record is then complete, ending now
+            status = "interrupted" if live is None else "stopped"
             raise
     finally:
         wall = time.perf_counter() - started
+        sim_time = context.get_time()
         if cell.recorder is not None:
             cell.recorder.drain(context, final=True)  # and what was logged before an interruption
         if live is not None:
             writer.set_metadata(live=live.metadata())
+            if status == "stopped":
+                writer.set_metadata(duration=sim_time)
         writer.close(status)
     return summarise(out_dir, seed, status, sim_time, wall)
 

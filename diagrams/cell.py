@@ -161,6 +161,7 @@ def build_cell(
     record: bool = True,
     meshcat: Meshcat | None = None,
     physical_sources: dict[str, LeafSystem] | Callable[[dict], dict[str, LeafSystem]] | None = None,
+    command_sources: Callable[[EntitySystem, list[str]], LeafSystem] | None = None,
 ) -> CellDiagram:
     """Assemble the scenario's Diagram. Raises ConfigError for wiring the scenario gets wrong.
 
@@ -194,6 +195,8 @@ def build_cell(
     cell._run_hooks()
     _filter_all_contact(plant, scene_graph, cell.foreign_geometry)
 
+    if command_sources is not None:  # a cell emulated under the twin's command
+        _connect_command_sources(builder, cell.entities, command_sources)
     fixed_inputs = _unconnected_command_inputs(builder, cell.modules)
     if callable(physical_sources):  # sources made for the entities built (a live twin's, one per entity)
         physical_sources = physical_sources(cell.entities)
@@ -233,6 +236,19 @@ def _channels(modules: dict[str, LeafSystem]) -> dict[str, tuple[ChannelSpec, Ou
         for spec, port in getattr(system, "channels", []):
             found[spec.name] = (spec, port)
     return found
+
+
+def _connect_command_sources(builder: DiagramBuilder, entities: dict, make: Callable) -> None:
+    """Each entity's command inputs that nothing in the cell drives, fed by ``make(entity, inputs)``."""
+    for entity in entities.values():
+        free = [
+            name for name in entity.command_fields
+            if entity.HasInputPort(name) and not builder.IsConnectedOrExported(entity.GetInputPort(name))
+        ]
+        if free:
+            source = builder.AddSystem(make(entity, free))
+            for name in free:
+                builder.Connect(source.GetOutputPort(name), entity.GetInputPort(name))
 
 
 def _unconnected_command_inputs(builder: DiagramBuilder, modules: dict[str, LeafSystem]) -> list[tuple]:

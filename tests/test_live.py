@@ -52,7 +52,7 @@ def shadow_run(tmp_path_factory):
 def test_a_shadow_twin_follows_the_emulated_cell(shadow_run):
     with BlackBox(shadow_run / "twin" / "blackbox.sqlite") as twin, BlackBox(shadow_run / "emulator" / "blackbox.sqlite") as emu:
         offset = _offset(twin, emu)
-        assert twin.metadata()["status"] == "interrupted"
+        assert twin.metadata()["status"] == "stopped"  # a live run ends on request: its record is complete
         for channel, period in FOLLOWED.items():
             followed = twin.series(channel)
             changes = [(t, v) for t, v in zip(emu.series(channel).times, emu.series(channel).values) if t > 0]
@@ -224,3 +224,52 @@ def test_a_killed_emulator_makes_the_shadow_fail_safe_and_a_restarted_one_recove
     # the killed emulator's black box is still readable: what it committed is kept
     with BlackBox(tmp_path / "emu1" / "blackbox.sqlite") as killed:
         assert killed.metadata()["status"] == "running" and killed.channels()
+
+
+TWIN_SUPERVISES = ["--set", "robot.twin.mode=twin", "--set", "welder.twin.mode=twin",
+                   *[arg for e in ("light_barrier", "range_detector", "operator") for arg in ("--set", f"{e}.twin.mode=shadow")]]
+
+
+def test_the_twins_safety_controller_supervises_the_emulated_cell(tmp_path):
+    """The published twin test: the welding cell's full 30 s, the twin supervising the emulated cell."""
+    import threading
+
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    reached = threading.Event()
+
+    def on_status(sample) -> None:
+        if json.loads(sample.payload.to_bytes())["sim_time"] >= 30.0:
+            reached.set()
+
+    with processes() as start:
+        twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet", *TWIN_SUPERVISES],
+                     tmp_path / "twin.log")
+        with observer(port) as session:
+            wait_alive(session, "cellsim/welding_cell/alive/twin")
+            status = session.declare_subscriber("cellsim/welding_cell/status/twin", on_status)
+            emulator = start(["emulate", WELDING_CELL, "--out", str(tmp_path / "emulator"), "--duration", "36",
+                              "--commanded-by-twin", "--connect", endpoint, "--quiet"], tmp_path / "emulator.log")
+            assert reached.wait(90), twin.output()
+            status.undeclare()
+        twin.stop()  # after the scenario's 30 s, while the emulated cell still runs
+        assert emulator.wait(timeout=60) == 0, emulator.output()
+    with BlackBox(tmp_path / "twin" / "blackbox.sqlite") as twin, BlackBox(tmp_path / "emulator" / "blackbox.sqlite") as emu:
+        offset = _offset(twin, emu)
+        assert "safety_controller.HS" not in emu.channels()  # the emulated cell has no supervisor of its own
+        # the operator walks into the emulated cell; the twin detects HS from the emulated scanner
+        hs = twin.series("safety_controller.HS")
+        # (the twin fails safe for its first updates, until recover_after samples came: HS may be raised then)
+        raised = next(t for t, v in zip(hs.times, hs.values) if v == "act" and t > offset + 5.0)
+        assert raised - offset > 13.0  # the default walk reaches the cell after 14 s
+        # its ssmon request reaches the emulated robot, which slows down
+        mode, speed = emu.series("robot.safety_mode"), emu.series("robot.tool_speed")
+        slowed = next(t for t, v in zip(mode.times, mode.values) if v == "ssmon" and t > raised - offset - 0.5)
+        assert slowed - (raised - offset) < 0.3  # twin's update, the command's way, the robot's update
+        after = [v for t, v in zip(speed.times, speed.values) if slowed + 0.6 <= t and mode.value_at(t) == "ssmon"]
+        assert after and max(after) <= 0.5 + 0.05  # ssmon's tool speed cap, once braked
+    proc = subprocess.run([sys.executable, "-m", "cellsim", "check", str(tmp_path / "twin"), "--json"],
+                          capture_output=True, text=True, timeout=120, cwd=ROOT)
+    verdicts = json.loads(proc.stdout)
+    assert proc.returncode == 0 and verdicts["holds"] and verdicts["complete"], verdicts["violations"]
+    assert len(verdicts["verdicts"]) == 14  # all 14 conditions hold on the twin's record

@@ -256,6 +256,7 @@ KIND = ModuleKind(
     build=build_safety_controller,
     stage=20,
     check=_check,
+    supervises=True,
     file_fields=("risk_model",),
     summary="A generic engine executing a risk model (docs/risk-model.md): hazard phase machines and their demands.",
     channels=(

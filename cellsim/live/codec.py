@@ -78,3 +78,38 @@ def decode_fields(payload: bytes, names: tuple[str, ...], types: list[ChannelTyp
 def fields_of(names: tuple[str, ...], types: list[ChannelType], codes) -> dict:
     """The JSON fields of port codes (inverse of ``decode_fields``)."""
     return {name: ctype.decode([code]) for name, ctype, code in zip(names, types, codes)}
+
+
+def decode_command(payload: bytes, names: list[str], types: list[ChannelType]) -> tuple[float, list[float]]:
+    """(wall time, the named command fields as input codes) of a command message; a null
+    field is "no request" (-1). Fields a receiver does not take are ignored."""
+    from cellsim.channels import NO_VALUE
+
+    try:
+        message = json.loads(payload)
+    except (ValueError, UnicodeDecodeError) as e:
+        raise CodecError(f"not JSON: {e}") from None
+    if not isinstance(message, dict) or not isinstance(message.get("fields"), dict):
+        raise CodecError("not a command object")
+    t = message.get("t")
+    if not isinstance(t, (int, float)) or isinstance(t, bool) or not math.isfinite(t):
+        raise CodecError("'t' is not a time")
+    codes = []
+    for name, ctype in zip(names, types):
+        if name not in message["fields"]:
+            raise CodecError(f"field '{name}' is missing")
+        value = message["fields"][name]
+        try:
+            if value is None:
+                codes.append(NO_VALUE)
+            elif ctype.kind == "enum":
+                codes.append(float(ctype.encode(value)[0]))
+            elif ctype.kind == "bool":
+                codes.append(1.0 if value is True else 0.0 if value is False else float("nan"))
+            else:
+                codes.append(float(value))
+        except (ValueError, KeyError, TypeError):
+            raise CodecError(f"field '{name}': {value!r} is not {ctype.domain()}") from None
+        if not math.isfinite(codes[-1]):
+            raise CodecError(f"field '{name}': {value!r} is not {ctype.domain()}")
+    return float(t), codes

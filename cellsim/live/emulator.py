@@ -8,6 +8,13 @@ in the format the twin reads (``cellsim.live.codec``), the format the bridge
 daemon will publish too. It keeps its own black box: the ground truth to
 compare the twin against.
 
+With ``commanded_by_twin`` it is a cell under the twin's supervision: the
+scenario's supervisors (its safety controller) are left out, and the entity
+inputs they drove take the commands the twin publishes for its entities in
+twin mode (``ZenohCommandSource``; with no command for ``stale_after`` they fail
+safe: a safety-mode request becomes stopped). Its black box then has no hazard
+channels: the evidence is the twin's.
+
 Faults, for tests and demos (``--fault ENTITY=KIND[@T0[-T1]]``, simulated
 seconds): ``silence`` (stops publishing), ``freeze`` (repeats its last sample, same sequence number),
 ``corrupt`` (malformed messages), ``delay`` (samples stamped 1 s in the past),
@@ -22,6 +29,7 @@ from dataclasses import dataclass, field
 from cellsim.entities.twin import EntitySystem
 from cellsim.live import keys
 from cellsim.live.codec import encode_fields, field_types, fields_of
+from cellsim.live.sources import LiveClock, ZenohCommandSource
 from cellsim.vocabulary import TwinMode
 
 TICK = 0.01
@@ -46,6 +54,17 @@ class Emulator:
     faults: list[Fault] = field(default_factory=list)
     process: str = "emulator"
     published: int = 0
+    commanded_by_twin: bool = False
+    clock: LiveClock = field(default_factory=LiveClock)
+
+    def command_source(self, entity, inputs: list[str]):
+        """The twin's commands for ``entity``'s free command inputs (see the module docstring)."""
+        source = ZenohCommandSource(entity, inputs, self.clock, self.sf.scenario.time_step, entity.twin.stale_after)
+        subscriber = self.session.declare_subscriber(
+            keys.command(self.sf.scenario.name, entity.module), lambda sample: source.deliver(sample.payload.to_bytes())
+        )
+        self._command_subscribers = [*getattr(self, "_command_subscribers", []), subscriber]
+        return source
 
     def attach(self, cell) -> None:
         name = self.sf.scenario.name
@@ -64,7 +83,7 @@ class Emulator:
         return LiveHooks(TICK, self.start, self.tick, self.metadata)
 
     def start(self) -> None:
-        self.wall_at_zero = time.time()
+        self.wall_at_zero = self.clock.wall_at_zero = time.time()
 
     def tick(self, context) -> None:
         t = context.get_time()
@@ -102,9 +121,14 @@ class Emulator:
     def metadata(self) -> dict:
         faults = [{**f.__dict__, "until": None if f.until == float("inf") else f.until} for f in self.faults]
         return {"process": self.process, "wall_at_zero": getattr(self, "wall_at_zero", None),
-                "samples_published": self.published, "faults": faults}
+                "samples_published": self.published, "faults": faults, "commanded_by_twin": self.commanded_by_twin}
 
     def close(self) -> None:
+        for subscriber in getattr(self, "_command_subscribers", []):
+            try:
+                subscriber.undeclare()
+            except Exception:  # noqa: BLE001 - closing anyway
+                pass
         token = getattr(self, "_token", None)
         if token is not None:
             try:
@@ -123,15 +147,29 @@ def as_digital_models(sf) -> None:
                 twin.changes = []
 
 
-def run_emulator(sf, out_dir, *, session, duration: float, seed: int | None = None, faults=(), on_progress=None):
+def without_supervisors(sf) -> None:
+    """Leave the scenario's supervisors out, and its safety evidence (it is the twin's)."""
+    from cellsim import registry
+    from cellsim.validation.config import Validation
+
+    sc = sf.scenario
+    sc.behaviours = {name: cfg for name, cfg in sc.behaviours.items() if not registry.kind_of(cfg).supervises}
+    sc.validation = Validation()
+
+
+def run_emulator(sf, out_dir, *, session, duration: float, seed: int | None = None, faults=(), on_progress=None,
+                 commanded_by_twin: bool = False):
     from cellsim.simulation import simulate
 
     as_digital_models(sf)
-    emulator = Emulator(sf, session, list(faults))
+    if commanded_by_twin:
+        without_supervisors(sf)
+    emulator = Emulator(sf, session, list(faults), commanded_by_twin=commanded_by_twin)
     try:
         summary = simulate(
             sf, out_dir, seed=seed, duration=duration, realtime_rate=1.0,
             on_built=emulator.attach, live=emulator.hooks(), on_progress=on_progress,
+            command_sources=emulator.command_source if commanded_by_twin else None,
         )
     finally:
         emulator.close()

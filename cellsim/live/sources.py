@@ -97,3 +97,69 @@ class ZenohSampleSource(LeafSystem):
 
 def now() -> float:
     return time.time()
+
+
+class ZenohCommandSource(LeafSystem):
+    """Commands from the twin (an entity's command key) into an emulated entity's inputs.
+
+    For a cell emulated under the twin's command: the inputs the twin's
+    supervisor drives (a safety-mode request, an activity request, a person's
+    notification), one output port per input, of the same name. Without a valid
+    command for ``stale_after`` (the twin stopped, or was never there) each
+    output takes its *fail-safe* value: a safety-mode request becomes ``stopped``
+    (losing the supervisor makes the cell safer), any other its no-request default.
+
+    Ports:
+      <input> (output), per input: the commanded code.
+    """
+
+    def __init__(self, entity, inputs: list[str], clock: LiveClock, time_step: float, stale_after: float):
+        super().__init__()
+        from cellsim.channels import NO_VALUE, number_type
+        from cellsim.vocabulary import SafetyMode
+
+        self.set_name(f"{entity.module}.command_source")
+        self.inputs = list(inputs)
+        self.types = [entity.input_types.get(name, number_type(None)) for name in self.inputs]
+        self.safe = [
+            float(SafetyMode.STOPPED.code) if t.kind == "enum" and t.enum is SafetyMode else float(entity.input_defaults.get(name, NO_VALUE))
+            for name, t in zip(self.inputs, self.types)
+        ]
+        self.clock, self.stale_after = clock, stale_after
+        self.inbox: queue.SimpleQueue = queue.SimpleQueue()
+        self.rejected = 0
+        self._values = [self.DeclareDiscreteState(np.array([v])) for v in self.safe]
+        self._memory = self.DeclareDiscreteState(np.array([-np.inf]))  # wall time of the last command taken
+        for name, group in zip(self.inputs, self._values):
+            self.DeclareStateOutputPort(name, group)
+        self.DeclarePeriodicDiscreteUpdateEvent(entity.period, entity.period - time_step, self._drain)
+
+    def deliver(self, payload: bytes) -> None:
+        self.inbox.put(payload)
+
+    def _drain(self, context, xd) -> None:
+        from cellsim.live.codec import decode_command
+
+        (last_wall,) = context.get_discrete_state(self._memory).get_value()
+        taken = None
+        while True:
+            try:
+                payload = self.inbox.get_nowait()
+            except queue.Empty:
+                break
+            try:
+                wall, codes = decode_command(payload, self.inputs, self.types)
+            except CodecError:
+                self.rejected += 1
+                continue
+            if wall <= last_wall:
+                self.rejected += 1
+                continue
+            taken, last_wall = codes, wall
+        if taken is not None:
+            xd.get_mutable_vector(self._memory).SetFromVector([last_wall])
+        elif context.get_time() - self.clock.sim_time(last_wall) > self.stale_after:
+            taken = self.safe  # the supervisor is gone: fail safe
+        if taken is not None:
+            for group, value in zip(self._values, taken):
+                xd.get_mutable_vector(group).SetFromVector([value])

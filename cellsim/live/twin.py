@@ -12,6 +12,10 @@ twin runs). Every ``TICK`` of simulated time the twin
 * publishes its status every second: pacing lag (wall clock minus simulated
   time), the age of each entity's newest sample.
 
+Its clock starts once every entity in shadow or twin mode has been heard from
+(at most ``wait_physical`` seconds), so a twin started before the cell does not
+record a start-up spent failing safe as safety evidence.
+
 Its black box is recorded as in any run; ``live`` in its metadata holds the mode
 requests and the pacing figures.
 """
@@ -21,6 +25,7 @@ from __future__ import annotations
 import json
 import queue
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -36,6 +41,9 @@ TICK = 0.01
 """How often (s of simulated time) the twin publishes, applies requests and checks its pacing."""
 HEARTBEAT = 1.0
 """Every channel is published at least this often (s), changed or not."""
+COMMAND_HEARTBEAT = 0.1
+"""An entity in twin mode has its commands published at least this often (s): its physical twin
+takes a silence longer than its stale_after for a lost supervisor, and stops."""
 LAG_WARNING = 0.1
 """Pacing lag (s) beyond which the twin says, once, that it cannot keep up."""
 
@@ -59,6 +67,8 @@ class LiveTwin:
     applied: list = field(default_factory=list)
     lags: list = field(default_factory=list)
     warned: bool = False
+    wait_physical: float = 10.0
+    """Seconds to wait, before the clock starts, for samples of every entity in shadow or twin mode."""
 
     @property
     def cell_name(self) -> str:
@@ -70,11 +80,26 @@ class LiveTwin:
         self.entities = entities
         step = self.sf.scenario.time_step
         self._sources = {name: ZenohSampleSource(entity, self.clock, step) for name, entity in entities.items()}
+        self._heard: dict[str, int] = {name: 0 for name in entities}
+        self._all_heard = threading.Event()
+        self._awaited = [n for n, e in entities.items() if e.twin.mode is not TwinMode.MODEL]
+        if not self._awaited:
+            self._all_heard.set()
         self._subscribers = [
-            self.session.declare_subscriber(keys.physical(self.cell_name, name), _deliver_to(source))
+            self.session.declare_subscriber(keys.physical(self.cell_name, name), self._deliver_to(name, source))
             for name, source in self._sources.items()
         ]
         return self._sources
+
+    def _deliver_to(self, name: str, source: ZenohSampleSource):
+        def on_sample(sample) -> None:  # on the network thread: queue it, count it, nothing more
+            source.deliver(sample.payload.to_bytes())
+            if not self._all_heard.is_set():
+                self._heard[name] += 1
+                if all(self._heard[n] > 0 for n in self._awaited):
+                    self._all_heard.set()
+
+        return on_sample
 
     # -- hooks -------------------------------------------------------------------------
     def attach(self, cell) -> None:
@@ -108,6 +133,11 @@ class LiveTwin:
         return LiveHooks(TICK, self.start, self.tick, self.metadata)
 
     def start(self) -> None:
+        """Start the clock once every entity in shadow or twin mode has been heard (or ``wait_physical`` passed)."""
+        if not self._all_heard.wait(self.wait_physical):
+            silent = [n for n in self._awaited if not self._heard[n]]
+            print(f"cellsim live: no physical samples from {', '.join(silent)} within {self.wait_physical:g} s; "
+                  "starting anyway, failing safe", file=sys.stderr)
         self.clock.wall_at_zero = time.time()
         self._next_status = 0.0
 
@@ -160,9 +190,11 @@ class LiveTwin:
                 self._last_command.pop(name, None)
                 continue
             codes = tuple(float(x) for x in vector[1:])
-            if self._last_command.get(name) == codes:
+            t = context.get_time()
+            last = self._last_command.get(name)
+            if last is not None and last[0] == codes and t - last[1] < COMMAND_HEARTBEAT - 1e-9:
                 continue
-            self._last_command[name] = codes
+            self._last_command[name] = (codes, t)
             self._command_seq += 1
             fields = {
                 f: (None if code == NO_VALUE and ctype is not None and ctype.kind == "enum" else
@@ -209,18 +241,11 @@ class LiveTwin:
 _UNSET = object()
 
 
-def _deliver_to(source: ZenohSampleSource):
-    def on_sample(sample) -> None:
-        source.deliver(sample.payload.to_bytes())
-
-    return on_sample
-
-
-def run_live(sf, out_dir, *, session, duration: float, seed: int | None = None, on_progress=None):
+def run_live(sf, out_dir, *, session, duration: float, seed: int | None = None, on_progress=None, wait_physical: float = 10.0):
     """Run the twin of ``sf`` in real time on ``session``, recording to ``out_dir``."""
     from cellsim.simulation import simulate
 
-    twin = LiveTwin(sf, session)
+    twin = LiveTwin(sf, session, wait_physical=wait_physical)
     try:
         summary = simulate(
             sf, out_dir, seed=seed, duration=duration, realtime_rate=1.0,

@@ -9,7 +9,8 @@ names the conditions use (``safmod`` for ``robot.safety_mode``); an alias shares
 its channel's signal.
 
 The trace's domain is ``[0, end)``. ``end`` is the run's duration when the run
-completed. Otherwise (a run interrupted or killed, a recording made beside the
+completed, or when a live run was stopped on request (status ``stopped``: its
+duration is then the time it ran). Otherwise (a run interrupted or killed, a recording made beside the
 real cell) it is the simulated time up to which the recorder had written every
 message (``recorded_until`` in the metadata), and without that the latest
 ``t + period`` over the messages: a value last recorded at ``t`` was observed
@@ -152,7 +153,7 @@ def trace_of_run(bb: BlackBox, aliases: dict[str, str] | None = None) -> RunTrac
             raise TraceError(f"{bb.path}: the run stopped ({metadata.get('status')}) before it recorded anything")
         raise BlackBoxError(f"{bb.path}: corrupt black box: it holds no messages")
 
-    complete = metadata.get("status") == "completed"
+    complete = metadata.get("status") in ("completed", "stopped")  # stopped: a live run ended on request
     end = _number(bb, metadata, "duration") if complete else None
     if end is None:
         complete = False
