@@ -273,3 +273,81 @@ def test_the_twins_safety_controller_supervises_the_emulated_cell(tmp_path):
     verdicts = json.loads(proc.stdout)
     assert proc.returncode == 0 and verdicts["holds"] and verdicts["complete"], verdicts["violations"]
     assert len(verdicts["verdicts"]) == 14  # all 14 conditions hold on the twin's record
+
+
+def test_only_authorised_peers_may_publish_samples_or_switch_modes(tmp_path):
+    """With the shipped access-control configuration: the observer may watch but neither feed a
+    physical sample nor switch a mode; a session without credentials cannot even connect."""
+    import threading
+    import time
+
+    import zenoh
+
+    from cellsim.live.session import session_config
+
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+
+    def session(user: str):
+        return zenoh.open(session_config(connect=[endpoint], config_file=ROOT / "config" / "zenoh" / f"client-{user}.json5"))
+
+    links: list[tuple[float, str]] = []
+    sim_time = [0.0]
+    heard = threading.Event()
+
+    def on_link(sample) -> None:
+        message = json.loads(sample.payload.to_bytes())
+        links.append((message["sim_time"], message["value"]))
+        heard.set()
+
+    def on_status(sample) -> None:
+        sim_time[0] = json.loads(sample.payload.to_bytes())["sim_time"]
+        heard.set()
+
+    def publish_until(publisher, done, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        seq = 0
+        while not done():
+            assert time.monotonic() < deadline, links
+            seq += 1
+            publisher.put(json.dumps({"t": time.time(), "seq": seq, "fields": {"broken": False}}))
+            heard.wait(0.02)  # a sample stream at 50 Hz, or sooner when the twin reports
+            heard.clear()
+
+    with processes() as start:
+        twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet",
+                      "--config", "config/zenoh/twin-acl.json5", "--set", "light_barrier.twin.mode=shadow",
+                      "--wait-physical", "0"], tmp_path / "twin.log")
+        observer_session = session("observer")
+        try:
+            wait_alive(observer_session, "cellsim/welding_cell/alive/twin")
+            observer_session.declare_subscriber("cellsim/welding_cell/twin/light_barrier/physical_link", on_link)
+            observer_session.declare_subscriber("cellsim/welding_cell/status/twin", on_status)
+            # the observer's samples do not reach the twin: two simulated seconds of them
+            forged = observer_session.declare_publisher("cellsim/welding_cell/physical/light_barrier")
+            publish_until(forged, lambda: sim_time[0] >= 3.0, 60)
+            observer_phase_end = sim_time[0]
+            # nor does its mode request
+            refused = _twin_mode(endpoint, "robot", "shadow", "--config", "config/zenoh/client-observer.json5", "--timeout", "2")
+            assert refused.returncode == 2 and "no running twin answered" in refused.stderr
+            # a session with no credentials cannot connect at all
+            anonymous = _twin_mode(endpoint, "robot", "shadow", "--timeout", "2")
+            assert anonymous.returncode == 2 and "no running twin reachable" in anonymous.stderr
+            # the engineer may switch modes; the cell may feed samples
+            accepted = _twin_mode(endpoint, "robot", "shadow", "--config", "config/zenoh/client-engineer.json5")
+            assert accepted.returncode == 0 and accepted.stdout.startswith("accepted"), accepted.stdout + accepted.stderr
+            cell_session = session("cell")
+            try:
+                device = cell_session.declare_publisher("cellsim/welding_cell/physical/light_barrier")
+                publish_until(device, lambda: any(v == "ok" for _, v in links), 60)
+            finally:
+                cell_session.close()
+        finally:
+            observer_session.close()
+        twin.stop()
+    with BlackBox(tmp_path / "twin" / "blackbox.sqlite") as bb:
+        link = bb.series("light_barrier.physical_link")
+        trusted = [t for t, v in zip(link.times, link.values) if v in ("recovering", "ok")]
+        assert trusted and trusted[0] > observer_phase_end  # nothing of the observer's was taken
+        assert bb.series("robot.twin_mode").values == ["model", "shadow"]  # only the engineer's request
+        assert [r["by"] for r in bb.metadata()["live"]["twin_mode_requests"]][0].startswith("cellsim twin-mode")
