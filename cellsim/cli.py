@@ -216,6 +216,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="no safety controller of its own: the inputs it drove take the commands of the twin's entities in twin "
         "mode (with no command for stale_after, a safety-mode request reads stopped)",
     )
+    emu.add_argument(
+        "--rate", action="append", default=[], metavar="ENTITY=HZ",
+        help="publish an entity's samples this often instead of once per update period, e.g. robot=500 (repeatable)",
+    )
     emu.set_defaults(handler=cmd_emulate)
 
     mode = sub.add_parser(
@@ -294,10 +298,12 @@ def _terminate_as_interrupt():
         signal.signal(signal.SIGTERM, previous)
 
 
-def _live_run(args, process: str, listen_by_default: bool, run):
+def _live_run(args, process: str, listen_by_default: bool, run, check=None):
     from cellsim.scenario import MAX_DURATION, check_run_length, check_seed
 
     sf = _load(args)
+    if check is not None:
+        check(sf)  # before any session is opened
     duration = MAX_DURATION if args.duration is None else args.duration
     check_run_length(sf, duration, "--duration")
     if args.seed is not None:
@@ -314,15 +320,17 @@ def _live_run(args, process: str, listen_by_default: bool, run):
 def cmd_live(args) -> int:
     from cellsim.live.twin import run_live
 
+    def check(sf):
+        if not 0.0 <= args.wait_physical <= 3600.0:
+            raise InputError(f"--wait-physical {args.wait_physical:g}: expected 0 to 3600 seconds")
+
     def run(sf, out, session, duration):
         if not args.quiet:
             print(f"cellsim live: {sf.scenario.name} twin running, recording to {out}", file=sys.stderr)
-        if not 0.0 <= args.wait_physical <= 3600.0:
-            raise InputError(f"--wait-physical {args.wait_physical:g}: expected 0 to 3600 seconds")
         summary, _ = run_live(sf, out, session=session, duration=duration, seed=args.seed, wait_physical=args.wait_physical)
         return EXIT_FINDING if summary.mishap else EXIT_OK
 
-    return _live_run(args, "twin", True, run)
+    return _live_run(args, "twin", True, run, check)
 
 
 def cmd_emulate(args) -> int:
@@ -343,17 +351,31 @@ def cmd_emulate(args) -> int:
             )
         faults.append(Fault(entity, kind, at, until))
 
-    def run(sf, out, session, duration):
+    rates = {}
+    for text in args.rate:
+        entity, _, hz = text.partition("=")
+        try:
+            value = float(hz)
+        except ValueError:
+            value = -1.0
+        if not entity or not 0.1 <= value <= 1000.0:
+            raise InputError(f"--rate {text!r}: expected ENTITY=HZ with HZ from 0.1 to 1000")
+        rates[entity] = value
+
+    def check(sf):
         unknown = [f.entity for f in faults if f.entity not in sf.scenario.entities]
+        unknown += [e for e in rates if e not in sf.scenario.entities]
         if unknown:
-            raise InputError(f"--fault: no entity named {unknown[0]!r} (entities: {', '.join(sf.scenario.entities)})")
+            raise InputError(f"--fault/--rate: no entity named {unknown[0]!r} (entities: {', '.join(sf.scenario.entities)})")
+
+    def run(sf, out, session, duration):
         if not args.quiet:
             print(f"cellsim emulate: playing the physical {sf.scenario.name}, recording to {out}", file=sys.stderr)
         summary, _ = run_emulator(sf, out, session=session, duration=duration, seed=args.seed, faults=faults,
-                                  commanded_by_twin=args.commanded_by_twin)
+                                  commanded_by_twin=args.commanded_by_twin, rates=rates)
         return EXIT_FINDING if summary.mishap else EXIT_OK
 
-    return _live_run(args, "emulator", False, run)
+    return _live_run(args, "emulator", False, run, check)
 
 
 def cmd_twin_mode(args) -> int:

@@ -351,3 +351,23 @@ def test_only_authorised_peers_may_publish_samples_or_switch_modes(tmp_path):
         assert trusted and trusted[0] > observer_phase_end  # nothing of the observer's was taken
         assert bb.series("robot.twin_mode").values == ["model", "shadow"]  # only the engineer's request
         assert [r["by"] for r in bb.metadata()["live"]["twin_mode_requests"]][0].startswith("cellsim twin-mode")
+
+
+@pytest.mark.parametrize(
+    "args, expected",
+    [
+        (["emulate", WELDING_CELL, "--fault", "robot=melt"], "--fault 'robot=melt'"),
+        (["emulate", WELDING_CELL, "--fault", "robot=silence@5-2"], "T0 < T1"),
+        (["emulate", WELDING_CELL, "--fault", "robto=silence"], "no entity named 'robto'"),
+        (["emulate", WELDING_CELL, "--rate", "robot=0"], "HZ from 0.1 to 1000"),
+        (["live", WELDING_CELL, "--wait-physical", "-1"], "--wait-physical -1"),
+        (["live", WELDING_CELL, "--listen", "tcp/127.0.0.1"], "not a Zenoh endpoint"),
+        (["live", WELDING_CELL, "--set", "robot.twin.mode=shadw"], "'shadw' is not one of"),
+    ],
+)
+def test_bad_live_arguments_are_one_line_exit_2_and_write_nothing(tmp_path, args, expected):
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-m", "cellsim", *args, "--out", str(out)],
+                          capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and expected in proc.stderr, proc.stderr
+    assert not out.exists()

@@ -56,6 +56,8 @@ class Emulator:
     published: int = 0
     commanded_by_twin: bool = False
     clock: LiveClock = field(default_factory=LiveClock)
+    rates: dict = field(default_factory=dict)
+    """Entity name -> samples per second, instead of one per update period (a robot's state at 500 Hz)."""
 
     def command_source(self, entity, inputs: list[str]):
         """The twin's commands for ``entity``'s free command inputs (see the module docstring)."""
@@ -71,6 +73,7 @@ class Emulator:
         self.cell = cell
         self.entities = {n: m for n, m in cell.modules.items() if isinstance(m, EntitySystem)}
         self._next_due = {n: 0.0 for n in self.entities}
+        self._periods = {n: 1.0 / self.rates[n] if n in self.rates else e.period for n, e in self.entities.items()}
         self._publishers = {n: self.session.declare_publisher(keys.physical(name, n)) for n in self.entities}
         self._types = {n: field_types(e) for n, e in self.entities.items()}
         self._seq = {n: 0 for n in self.entities}
@@ -80,7 +83,9 @@ class Emulator:
     def hooks(self):
         from cellsim.simulation import LiveHooks
 
-        return LiveHooks(TICK, self.start, self.tick, self.metadata)
+        step = self.sf.scenario.time_step
+        fastest = min([TICK, *(1.0 / hz for hz in self.rates.values())])
+        return LiveHooks(max(step, round(fastest / step) * step), self.start, self.tick, self.metadata)
 
     def start(self) -> None:
         self.wall_at_zero = self.clock.wall_at_zero = time.time()
@@ -90,7 +95,7 @@ class Emulator:
         for name, entity in self.entities.items():
             if t < self._next_due[name] - 1e-9:
                 continue  # its update period has not come round
-            self._next_due[name] += entity.period
+            self._next_due[name] += self._periods[name]
             fault = self._fault(name, t)
             if fault == "silence":
                 continue
@@ -158,13 +163,13 @@ def without_supervisors(sf) -> None:
 
 
 def run_emulator(sf, out_dir, *, session, duration: float, seed: int | None = None, faults=(), on_progress=None,
-                 commanded_by_twin: bool = False):
+                 commanded_by_twin: bool = False, rates: dict | None = None):
     from cellsim.simulation import simulate
 
     as_digital_models(sf)
     if commanded_by_twin:
         without_supervisors(sf)
-    emulator = Emulator(sf, session, list(faults), commanded_by_twin=commanded_by_twin)
+    emulator = Emulator(sf, session, list(faults), commanded_by_twin=commanded_by_twin, rates=dict(rates or {}))
     try:
         summary = simulate(
             sf, out_dir, seed=seed, duration=duration, realtime_rate=1.0,

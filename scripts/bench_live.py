@@ -1,0 +1,178 @@
+#!/usr/bin/env python3
+"""Benchmark: the live twin beside the emulated welding cell, over a minute of real time.
+
+Starts ``cellsim live`` (robot and welder in twin mode, sensors and operator in
+shadow mode) and ``cellsim emulate --commanded-by-twin`` (the robot's state
+published at 500 Hz) on a free loopback port, and acts itself as the physical
+light curtain (the emulator's is silenced): it publishes the curtain's samples
+at 25 Hz, toggling broken every 0.5 s. Prints:
+
+* the twin's pacing lag (wall clock minus simulated time): p50, p99, max;
+* physical sample published -> twin channel updated (the curtain's toggles, at
+  jittered times): p50, p99; the update is the twin's black-box time of the
+  change on its clock (wall clock at simulated time 0 plus simulated time);
+* sensor change -> safety command applied by the emulated robot: for each change
+  of the twin's commanded safety mode to a more restrictive one, from the sensor change just before it (a
+  curtain toggle, or the emulated scanner's reading) to the emulated robot
+  taking that mode, on the two processes' clocks (one machine);
+* CPU of the twin and of the emulator, in % of one core.
+
+Targets (issue "The twin goes live"): lag p99 <= 5 ms; sample -> twin <= one
+update period of the entity (the curtain: 40 ms) + 2 ms at p99; twin <= 50 % of
+one core.
+
+    .venv/bin/python scripts/bench_live.py [--seconds 60]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+from cellsim.services.blackbox import BlackBox  # noqa: E402
+from cellsim.vocabulary import SafetyMode  # noqa: E402
+from live_processes import free_port, observer, wait_alive  # noqa: E402
+
+SCENARIO = ROOT / "scenarios" / "welding_cell.yaml"
+TWIN_MODES = ["--set", "robot.twin.mode=twin", "--set", "welder.twin.mode=twin"] + [
+    arg for e in ("light_barrier", "range_detector", "operator") for arg in ("--set", f"{e}.twin.mode=shadow")
+]
+CURTAIN_PERIOD = 0.04
+"""The curtain entity's update period in the twin (s)."""
+CURTAIN_SAMPLES = 0.037
+"""How often the bench publishes the curtain's samples (s): not a multiple of the twin's period,
+so that toggles fall at every phase of its updates."""
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def percentiles(values, *ps) -> list[float]:
+    return [float(np.percentile(values, p)) for p in ps] if len(values) else [float("nan")] * len(ps)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=60.0, help="seconds of real time measured (default 60)")
+    args = parser.parse_args()
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    tmp = Path(tempfile.mkdtemp(prefix="bench_live-"))
+    cellsim = [sys.executable, "-m", "cellsim"]
+    logs = [open(tmp / "twin.log", "w"), open(tmp / "emulator.log", "w")]
+    twin = subprocess.Popen([*cellsim, "live", str(SCENARIO), "--out", str(tmp / "twin"), "--listen", endpoint, "--quiet",
+                             "--wait-physical", "30", *TWIN_MODES], stdout=logs[0], stderr=subprocess.STDOUT, cwd=ROOT)
+    emulator = None
+    toggles: list[tuple[float, bool]] = []  # (sample time, broken) of each toggle's first sample
+    try:
+        with observer(port) as session:
+            curtain = session.declare_publisher("cellsim/welding_cell/physical/light_barrier")
+            emulator = subprocess.Popen(
+                [*cellsim, "emulate", str(SCENARIO), "--out", str(tmp / "emulator"), "--connect", endpoint, "--quiet",
+                 "--commanded-by-twin", "--rate", "robot=500", "--fault", "light_barrier=silence",
+                 "--duration", str(args.seconds + 40)], stdout=logs[1], stderr=subprocess.STDOUT, cwd=ROOT)
+            # the curtain is a device too: its samples start with the emulator's
+            stop = threading.Event()
+
+            def play_curtain() -> None:
+                # toggles every 0.5 s plus a jitter, so that they fall at every phase of the twin's updates
+                jitter = np.random.default_rng(7).uniform(0.0, 0.1, 10_000)
+                seq, broken, next_toggle, tick = 0, False, time.time() + 0.5, time.time()
+                while not stop.is_set():
+                    now = time.time()
+                    if now >= next_toggle:
+                        broken, next_toggle = not broken, now + 0.45 + jitter[len(toggles)]
+                        toggles.append((now, broken))
+                        tick = now
+                    seq += 1
+                    curtain.put(json.dumps({"t": now, "seq": seq, "fields": {"broken": broken}}))
+                    tick += CURTAIN_SAMPLES
+                    stop.wait(max(0.0, tick - time.time()))
+
+            player = threading.Thread(target=play_curtain, daemon=True)
+            player.start()
+            wait_alive(session, "cellsim/welding_cell/alive/emulator", 60)
+            wait_alive(session, "cellsim/welding_cell/alive/twin", 60)
+            cpu0 = (cpu_seconds(twin.pid), cpu_seconds(emulator.pid), time.monotonic())
+            stop.wait(args.seconds)  # the measured minute
+            cpu1 = (cpu_seconds(twin.pid), cpu_seconds(emulator.pid), time.monotonic())
+            stop.set()
+            player.join()
+        twin.send_signal(signal.SIGINT)
+        twin.wait(60)
+        emulator.send_signal(signal.SIGINT)
+        emulator.wait(60)
+    finally:
+        for process in (twin, emulator):
+            if process is not None and process.poll() is None:
+                process.kill()
+                process.wait()
+        for log in logs:
+            log.close()
+
+    with BlackBox(tmp / "twin" / "blackbox.sqlite") as bb:
+        live = bb.metadata()["live"]
+        broken = bb.series("light_barrier.broken")
+        commanded = bb.series("safety_controller.safmod")
+    with BlackBox(tmp / "emulator" / "blackbox.sqlite") as emu:
+        emu_wall0 = emu.metadata()["live"]["wall_at_zero"]
+        ranges, modes = emu.series("range_detector.range"), emu.series("robot.safety_mode")
+    wall0 = live["wall_at_zero"]
+    # sample -> twin: each toggle's first sample, to the twin's channel taking its value (its
+    # update time in the black box, on the twin's clock: wall0 + simulated time)
+    latencies = []
+    for t_sample, value in toggles:
+        if t_sample < wall0 + 1.0:
+            continue  # the twin's clock had not started, or its curtain was still recovering
+        later = [t for t, v in zip(broken.times, broken.values) if v == value and wall0 + t >= t_sample - 0.001]
+        if later and wall0 + later[0] - t_sample < 1.0:
+            latencies.append(wall0 + later[0] - t_sample)
+    # sensor change -> safety command applied by the emulated robot: each change of the twin's
+    # commanded safety mode, from the sensor change just before it (a curtain toggle, or the
+    # emulated scanner's) to the emulated robot taking that mode
+    sensor_walls = sorted([t for t, _ in toggles] + [emu_wall0 + t for t in ranges.times[1:]])
+    reactions = []
+    order = [m.value for m in SafetyMode]
+    for t_cmd, mode, previous in zip(commanded.times[1:], commanded.values[1:], commanded.values):
+        if order.index(mode) <= order.index(previous):
+            continue  # a command that relaxes the mode answers no sensor change
+        before = [w for w in sensor_walls if wall0 + t_cmd - 0.5 <= w <= wall0 + t_cmd]
+        applied = [emu_wall0 + t for t, v in zip(modes.times, modes.values) if v == mode and emu_wall0 + t >= wall0 + t_cmd - 0.001]
+        if before and applied and applied[0] - before[-1] < 1.0:
+            reactions.append(applied[0] - before[-1])
+    if os.environ.get("BENCH_LIVE_VERBOSE"):
+        print("sample -> twin (ms):", [round(float(x) * 1e3, 1) for x in latencies])
+        print("sensor -> command (ms):", [round(float(x) * 1e3, 1) for x in reactions])
+    twin_cpu = 100.0 * (cpu1[0] - cpu0[0]) / (cpu1[2] - cpu0[2])
+    emu_cpu = 100.0 * (cpu1[1] - cpu0[1]) / (cpu1[2] - cpu0[2])
+    lag = live["pacing_lag_s"]
+    p50, p99 = percentiles(latencies, 50, 99)
+    r50, r99 = percentiles(reactions, 50, 99)
+    print(f"measured                  {args.seconds:.0f} s of real time, robot state at 500 Hz  ({tmp})")
+    print(f"twin pacing lag           p50 {lag['p50'] * 1e3:6.2f} ms  p99 {lag['p99'] * 1e3:6.2f} ms  max {lag['max'] * 1e3:6.2f} ms"
+          "   (target p99 <= 5 ms)")
+    print(f"sample -> twin channel    p50 {p50 * 1e3:6.2f} ms  p99 {p99 * 1e3:6.2f} ms   ({len(latencies)} curtain toggles;"
+          f" target p99 <= {CURTAIN_PERIOD * 1e3 + 2:.0f} ms)")
+    print(f"sensor -> command applied p50 {r50 * 1e3:6.2f} ms  p99 {r99 * 1e3:6.2f} ms   ({len(reactions)} safety-mode commands,"
+          " from the sensor change to the emulated robot's mode)")
+    print(f"CPU                       twin {twin_cpu:5.1f} %  emulator {emu_cpu:5.1f} % of one core   (target twin <= 50 %)")
+
+
+if __name__ == "__main__":
+    main()
