@@ -371,3 +371,52 @@ def test_bad_live_arguments_are_one_line_exit_2_and_write_nothing(tmp_path, args
                           capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and expected in proc.stderr, proc.stderr
     assert not out.exists()
+
+
+def test_a_fault_injected_at_run_time_fails_the_shadow_safe_and_sigterm_ends_the_twin_cleanly(tmp_path):
+    import signal
+    import threading
+    import time
+
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    links: list[str] = []
+    changed = threading.Event()
+
+    def on_link(sample) -> None:
+        value = json.loads(sample.payload.to_bytes())["value"]
+        if not links or links[-1] != value:
+            links.append(value)
+            changed.set()
+
+    def wait_link(state: str, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        while not links or links[-1] != state:
+            assert time.monotonic() < deadline, f"curtain link not {state} within {timeout} s: {links}"
+            changed.wait(deadline - time.monotonic())
+            changed.clear()
+
+    def inject(session, request: dict) -> dict:
+        replies = list(session.get("cellsim/welding_cell/control/fault", payload=json.dumps(request), timeout=5))
+        return json.loads(replies[0].ok.payload.to_bytes())
+
+    with processes() as start:
+        twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet",
+                      "--set", "light_barrier.twin.mode=shadow"], tmp_path / "twin.log")
+        with observer(port) as session:
+            session.declare_subscriber("cellsim/welding_cell/twin/light_barrier/physical_link", on_link)
+            wait_alive(session, "cellsim/welding_cell/alive/twin")
+            start(["emulate", WELDING_CELL, "--out", str(tmp_path / "emulator"), "--connect", endpoint, "--quiet"], tmp_path / "emu.log")
+            wait_alive(session, "cellsim/welding_cell/alive/emulator")
+            wait_link("ok", 60)
+            assert inject(session, {"entity": "light_barrier", "kind": "melt", "seconds": 1}) == {
+                "accepted": False, "reason": "'melt' is not a fault (silence, freeze, corrupt, delay, replay)"}
+            assert inject(session, {"entity": "light_barrier", "kind": "corrupt", "seconds": 1.0})["accepted"]
+            wait_link("corrupt", 5)
+            wait_link("ok", 10)  # the fault ends after a second; trusted again after good samples in a row
+        twin.stop(signal.SIGTERM)
+        assert twin.popen.returncode == 130
+    assert links[-3:] == ["corrupt", "recovering", "ok"]
+    with BlackBox(tmp_path / "twin" / "blackbox.sqlite") as bb:
+        assert bb.metadata()["status"] == "stopped"  # SIGTERM closed the black box as Ctrl-C does
+        assert "corrupt" in bb.series("light_barrier.physical_link").values

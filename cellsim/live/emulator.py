@@ -18,11 +18,15 @@ channels: the evidence is the twin's.
 Faults, for tests and demos (``--fault ENTITY=KIND[@T0[-T1]]``, simulated
 seconds): ``silence`` (stops publishing), ``freeze`` (repeats its last sample, same sequence number),
 ``corrupt`` (malformed messages), ``delay`` (samples stamped 1 s in the past),
-``replay`` (old samples again, sequence going back).
+``replay`` (old samples again, sequence going back). At run time, a query on
+``cellsim/<cell>/control/fault`` with ``{"entity", "kind", "seconds"}`` injects
+one from the next tick for that long (answered accepted, or refused with the reason).
 """
 
 from __future__ import annotations
 
+import json
+import queue
 import time
 from dataclasses import dataclass, field
 
@@ -79,6 +83,27 @@ class Emulator:
         self._seq = {n: 0 for n in self.entities}
         self._history: dict[str, list[bytes]] = {n: [] for n in self.entities}
         self._token = self.session.liveliness().declare_token(keys.alive(name, self.process))
+        self._fault_requests: queue.SimpleQueue = queue.SimpleQueue()
+        self._fault_queryable = self.session.declare_queryable(keys.fault_control(name), self._on_fault_query)
+
+    def _on_fault_query(self, query) -> None:
+        """On the network thread: check a fault request, answer, queue it for the next tick."""
+        try:
+            request = json.loads(query.payload.to_bytes()) if query.payload is not None else {}
+            entity, kind, seconds = request.get("entity"), request.get("kind"), float(request.get("seconds", "inf"))
+        except (ValueError, TypeError, AttributeError):
+            entity = kind = None
+            seconds = -1.0
+        if entity not in self.entities:
+            answer = {"accepted": False, "reason": f"no entity named {entity!r}"}
+        elif kind not in FAULTS:
+            answer = {"accepted": False, "reason": f"{kind!r} is not a fault ({', '.join(FAULTS)})"}
+        elif not seconds > 0:
+            answer = {"accepted": False, "reason": "'seconds' must be a positive number"}
+        else:
+            self._fault_requests.put((entity, kind, seconds))
+            answer = {"accepted": True, "reason": f"{kind} on {entity} for {seconds:g} s from the next tick"}
+        query.reply(query.key_expr, json.dumps(answer))
 
     def hooks(self):
         from cellsim.simulation import LiveHooks
@@ -92,6 +117,9 @@ class Emulator:
 
     def tick(self, context) -> None:
         t = context.get_time()
+        while not self._fault_requests.empty():
+            entity, kind, seconds = self._fault_requests.get_nowait()
+            self.faults.append(Fault(entity, kind, t, t + seconds))
         for name, entity in self.entities.items():
             if t < self._next_due[name] - 1e-9:
                 continue  # its update period has not come round
@@ -129,7 +157,9 @@ class Emulator:
                 "samples_published": self.published, "faults": faults, "commanded_by_twin": self.commanded_by_twin}
 
     def close(self) -> None:
-        for subscriber in getattr(self, "_command_subscribers", []):
+        for subscriber in [*getattr(self, "_command_subscribers", []), getattr(self, "_fault_queryable", None)]:
+            if subscriber is None:
+                continue
             try:
                 subscriber.undeclare()
             except Exception:  # noqa: BLE001 - closing anyway

@@ -43,3 +43,8 @@ def status(cell: str, process: str) -> str:
 def alive(cell: str, process: str) -> str:
     """A process's liveliness token: present while it runs."""
     return f"{ROOT}/{cell}/alive/{process}"
+
+
+def fault_control(cell: str) -> str:
+    """Queryable of the emulator: inject a fault at run time."""
+    return f"{ROOT}/{cell}/control/fault"
