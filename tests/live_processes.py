@@ -114,3 +114,34 @@ def wait_for(predicate, timeout: float, what: str, poll: threading.Event | None 
             raise AssertionError(f"{what}: not within {timeout} s")
         event.wait(min(remaining, 0.05))
         event.clear()
+
+
+class ChannelWatch:
+    """The successive values of one twin channel as published (cellsim/<cell>/twin/<module>/<signal>)."""
+
+    def __init__(self, session, key: str):
+        import json
+
+        self.values: list = []
+        self._changed = threading.Event()
+
+        def on_value(sample) -> None:
+            value = json.loads(sample.payload.to_bytes())["value"]
+            if not self.values or self.values[-1] != value:
+                self.values.append(value)
+                self._changed.set()
+
+        self.subscriber = session.declare_subscriber(key, on_value)
+
+    def wait_for(self, value, timeout: float) -> None:
+        """Wait until the channel's latest value is ``value``, with a deadline."""
+        deadline = time.monotonic() + timeout
+        while not self.values or self.values[-1] != value:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise AssertionError(f"not {value!r} within {timeout} s: {self.values}")
+            self._changed.wait(remaining)
+            self._changed.clear()
+
+    def close(self) -> None:
+        self.subscriber.undeclare()

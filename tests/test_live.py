@@ -11,7 +11,7 @@ import pytest
 
 from cellsim.services.blackbox import BlackBox
 
-from live_processes import ROOT, free_port, observer, processes, wait_alive
+from live_processes import ROOT, ChannelWatch, free_port, observer, processes, wait_alive
 
 WELDING_CELL = str(ROOT / "scenarios" / "welding_cell.yaml")
 ENTITIES = ("robot", "welder", "light_barrier", "range_detector", "operator")
@@ -95,40 +95,27 @@ def _twin_mode(endpoint: str, *args: str) -> subprocess.CompletedProcess:
 
 
 def test_twin_modes_switch_at_run_time_on_request_and_bad_requests_are_refused(tmp_path):
-    import contextlib
-    import threading
-
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    modes: list[str] = []
-    changed = threading.Event()
-
-    def on_mode(sample) -> None:
-        value = json.loads(sample.payload.to_bytes())["value"]
-        if not modes or modes[-1] != value:
-            modes.append(value)
-            changed.set()
-
-    with processes() as start, contextlib.ExitStack() as stack:
+    with processes() as start:
         twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet"], tmp_path / "twin.log")
-        session = stack.enter_context(observer(port))
-        subscriber = session.declare_subscriber("cellsim/welding_cell/twin/light_barrier/twin_mode", on_mode)
-        start(["emulate", WELDING_CELL, "--out", str(tmp_path / "emulator"), "--connect", endpoint, "--quiet"], tmp_path / "emu.log")
-        wait_alive(session, "cellsim/welding_cell/alive/twin")
-        wait_alive(session, "cellsim/welding_cell/alive/emulator")
-        assert changed.wait(30) and modes == ["model"]
-        for mode in ("shadow", "twin", "model"):
-            changed.clear()
-            done = _twin_mode(endpoint, "light_barrier", mode)
-            assert done.returncode == 0 and done.stdout.startswith("accepted"), done.stdout + done.stderr
-            assert changed.wait(10) and modes[-1] == mode, modes
-        for args, reason in ((("lightbarrier", "shadow"), "no entity named 'lightbarrier'"),
-                             (("light_barrier", "shdow"), "'shdow' is not a twin mode")):
-            refused = _twin_mode(endpoint, *args)
-            assert refused.returncode == 2 and refused.stdout.startswith("refused") and reason in refused.stdout
-        subscriber.undeclare()
-        stack.close()
+        with observer(port) as session:
+            mode = ChannelWatch(session, "cellsim/welding_cell/twin/light_barrier/twin_mode")
+            start(["emulate", WELDING_CELL, "--out", str(tmp_path / "emulator"), "--connect", endpoint, "--quiet"], tmp_path / "emu.log")
+            wait_alive(session, "cellsim/welding_cell/alive/twin")
+            wait_alive(session, "cellsim/welding_cell/alive/emulator")
+            mode.wait_for("model", 30)
+            for wanted in ("shadow", "twin", "model"):
+                done = _twin_mode(endpoint, "light_barrier", wanted)
+                assert done.returncode == 0 and done.stdout.startswith("accepted"), done.stdout + done.stderr
+                mode.wait_for(wanted, 10)
+            for args, reason in ((("lightbarrier", "shadow"), "no entity named 'lightbarrier'"),
+                                 (("light_barrier", "shdow"), "'shdow' is not a twin mode")):
+                refused = _twin_mode(endpoint, *args)
+                assert refused.returncode == 2 and refused.stdout.startswith("refused") and reason in refused.stdout
+            mode.close()
         twin.stop()
+    assert mode.values == ["model", "shadow", "twin", "model"]
     with BlackBox(tmp_path / "twin" / "blackbox.sqlite") as bb:
         assert bb.series("light_barrier.twin_mode").values == ["model", "shadow", "twin", "model"]
         requests = bb.metadata()["live"]["twin_mode_requests"]
@@ -184,43 +171,25 @@ def test_each_injected_fault_drives_its_entity_to_fail_safe_and_back(tmp_path):
 
 def test_a_killed_emulator_makes_the_shadow_fail_safe_and_a_restarted_one_recovers_it(tmp_path):
     import signal
-    import threading
 
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    links: list[str] = []
-    changed = threading.Event()
-
-    def on_link(sample) -> None:
-        value = json.loads(sample.payload.to_bytes())["value"]
-        if not links or links[-1] != value:
-            links.append(value)
-            changed.set()
-
-    def wait_link(state: str, timeout: float) -> None:
-        deadline = __import__("time").monotonic() + timeout
-        while not links or links[-1] != state:
-            remaining = deadline - __import__("time").monotonic()
-            assert remaining > 0, f"robot link not {state} within {timeout} s: {links}"
-            changed.wait(remaining)
-            changed.clear()
-
     emulator_args = ["emulate", WELDING_CELL, "--connect", endpoint, "--quiet"]
     with processes() as start:
         twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet", *ALL_SHADOW],
                      tmp_path / "twin.log")
         with observer(port) as session:
-            subscriber = session.declare_subscriber("cellsim/welding_cell/twin/robot/physical_link", on_link)
+            link = ChannelWatch(session, "cellsim/welding_cell/twin/robot/physical_link")
             wait_alive(session, "cellsim/welding_cell/alive/twin")
             first = start([*emulator_args, "--out", str(tmp_path / "emu1")], tmp_path / "emu1.log")
-            wait_link("ok", 60)
+            link.wait_for("ok", 60)
             first.stop(signal.SIGKILL)
-            wait_link("stale", 2.0)  # stale_after 0.5 s, one period, and the status of the twin's publishing
+            link.wait_for("stale", 2.0)  # stale_after 0.5 s, one period, and the twin's publishing
             start([*emulator_args, "--out", str(tmp_path / "emu2")], tmp_path / "emu2.log")
-            wait_link("ok", 60)
-            subscriber.undeclare()
+            link.wait_for("ok", 60)
+            link.close()
         twin.stop()
-    assert links[:1] == ["stale"] and "recovering" in links
+    assert link.values[:1] == ["stale"] and "recovering" in link.values
     # the killed emulator's black box is still readable: what it committed is kept
     with BlackBox(tmp_path / "emu1" / "blackbox.sqlite") as killed:
         assert killed.metadata()["status"] == "running" and killed.channels()
@@ -375,26 +344,9 @@ def test_bad_live_arguments_are_one_line_exit_2_and_write_nothing(tmp_path, args
 
 def test_a_fault_injected_at_run_time_fails_the_shadow_safe_and_sigterm_ends_the_twin_cleanly(tmp_path):
     import signal
-    import threading
-    import time
 
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    links: list[str] = []
-    changed = threading.Event()
-
-    def on_link(sample) -> None:
-        value = json.loads(sample.payload.to_bytes())["value"]
-        if not links or links[-1] != value:
-            links.append(value)
-            changed.set()
-
-    def wait_link(state: str, timeout: float) -> None:
-        deadline = time.monotonic() + timeout
-        while not links or links[-1] != state:
-            assert time.monotonic() < deadline, f"curtain link not {state} within {timeout} s: {links}"
-            changed.wait(deadline - time.monotonic())
-            changed.clear()
 
     def inject(session, request: dict) -> dict:
         replies = list(session.get("cellsim/welding_cell/control/fault", payload=json.dumps(request), timeout=5))
@@ -404,19 +356,20 @@ def test_a_fault_injected_at_run_time_fails_the_shadow_safe_and_sigterm_ends_the
         twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet",
                       "--set", "light_barrier.twin.mode=shadow"], tmp_path / "twin.log")
         with observer(port) as session:
-            session.declare_subscriber("cellsim/welding_cell/twin/light_barrier/physical_link", on_link)
+            link = ChannelWatch(session, "cellsim/welding_cell/twin/light_barrier/physical_link")
             wait_alive(session, "cellsim/welding_cell/alive/twin")
             start(["emulate", WELDING_CELL, "--out", str(tmp_path / "emulator"), "--connect", endpoint, "--quiet"], tmp_path / "emu.log")
             wait_alive(session, "cellsim/welding_cell/alive/emulator")
-            wait_link("ok", 60)
+            link.wait_for("ok", 60)
             assert inject(session, {"entity": "light_barrier", "kind": "melt", "seconds": 1}) == {
                 "accepted": False, "reason": "'melt' is not a fault (silence, freeze, corrupt, delay, replay)"}
             assert inject(session, {"entity": "light_barrier", "kind": "corrupt", "seconds": 1.0})["accepted"]
-            wait_link("corrupt", 5)
-            wait_link("ok", 10)  # the fault ends after a second; trusted again after good samples in a row
+            link.wait_for("corrupt", 5)
+            link.wait_for("ok", 10)  # the fault ends after a second; trusted again after good samples in a row
+            link.close()
         twin.stop(signal.SIGTERM)
         assert twin.popen.returncode == 130
-    assert links[-3:] == ["corrupt", "recovering", "ok"]
+    assert link.values[-3:] == ["corrupt", "recovering", "ok"]
     with BlackBox(tmp_path / "twin" / "blackbox.sqlite") as bb:
         assert bb.metadata()["status"] == "stopped"  # SIGTERM closed the black box as Ctrl-C does
         assert "corrupt" in bb.series("light_barrier.physical_link").values

@@ -64,19 +64,24 @@ def test_shadow_without_a_physical_twin_fails_safe(tmp_path):
     assert bb.series("light_barrier.physical_link").value_at(2.1) == "stale"
 
 
-def test_corrupt_samples_fail_safe():
+def shadowed_range_detector(recover_after: int):
+    """The welding cell's range detector shadowing its physical twin: (root context, system, its context)."""
     from diagrams.cell import build_cell
     from pydrake.systems.analysis import Simulator
 
     sf = welding_cell()
     sf.scenario.entities["range_detector"].twin.mode = TwinMode.SHADOW
-    sf.scenario.entities["range_detector"].twin.recover_after = 1  # each sample judged alone
+    sf.scenario.entities["range_detector"].twin.recover_after = recover_after
     built = build_cell(sf, seed=0, duration=1.0, record=False)
     sim = Simulator(built.diagram)
     context = sim.get_mutable_context()
     built.set_initial_state(context)
     rd = built.modules["range_detector"]
-    own = rd.GetMyMutableContextFromRoot(context)
+    return context, rd, rd.GetMyMutableContextFromRoot(context), sim
+
+
+def test_corrupt_samples_fail_safe():
+    _, rd, own, _sim = shadowed_range_detector(recover_after=1)  # each sample judged alone
     readings = {}
     for label, sample in {"ok": [0.0, 1.0, 0.0, 2.5], "bad enum": [0.0, 1.0, 7.0, 2.5], "nan": [0.0, 1.0, 0.0, np.nan]}.items():
         rd.physical_sample_port.FixValue(own, np.array(sample))
@@ -171,17 +176,7 @@ def test_a_shadowed_robot_gone_silent_does_not_hide_a_person_in_the_cell(tmp_pat
 
 
 def test_a_sensor_trusts_its_physical_twin_again_only_after_several_good_samples_in_a_row():
-    from diagrams.cell import build_cell
-    from pydrake.systems.analysis import Simulator
-
-    sf = welding_cell()
-    sf.scenario.entities["range_detector"].twin.mode = TwinMode.SHADOW  # recover_after: 3 (the default)
-    built = build_cell(sf, seed=0, duration=1.0, record=False)
-    sim = Simulator(built.diagram)
-    context = sim.get_mutable_context()
-    built.set_initial_state(context)
-    rd = built.modules["range_detector"]
-    own = rd.GetMyMutableContextFromRoot(context)
+    context, rd, own, _sim = shadowed_range_detector(recover_after=3)  # the default
 
     def step(stamp: float, code: float = 0.0) -> tuple[str, str]:
         context.SetTime(max(stamp, 0.0))

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import math
 import queue
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -72,11 +71,7 @@ class ZenohSampleSource(LeafSystem):
         last_seq, last_wall = context.get_discrete_state(self._memory).get_value()
         taken = None
         corrupt = False
-        while True:
-            try:
-                payload = self.inbox.get_nowait()
-            except queue.Empty:
-                break
+        for payload in _received(self.inbox):
             try:
                 wall, seq, codes = decode_fields(payload, self.names, self.types)
             except CodecError:
@@ -95,8 +90,13 @@ class ZenohSampleSource(LeafSystem):
             xd.get_mutable_vector(self._sample).SetFromVector(sample)
 
 
-def now() -> float:
-    return time.time()
+def _received(inbox: queue.SimpleQueue):
+    """Every payload waiting in ``inbox``, oldest first, without blocking."""
+    while True:
+        try:
+            yield inbox.get_nowait()
+        except queue.Empty:
+            return
 
 
 class ZenohCommandSource(LeafSystem):
@@ -142,11 +142,7 @@ class ZenohCommandSource(LeafSystem):
 
         (last_wall,) = context.get_discrete_state(self._memory).get_value()
         taken = None
-        while True:
-            try:
-                payload = self.inbox.get_nowait()
-            except queue.Empty:
-                break
+        for payload in _received(self.inbox):
             try:
                 wall, codes = decode_command(payload, self.inputs, self.types)
             except CodecError:
