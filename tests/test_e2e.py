@@ -1,0 +1,107 @@
+"""The welding cell's DBC and the black-channel checks on its frames (AUTOSAR E2E profile 2)."""
+
+from __future__ import annotations
+
+import can
+import cantools
+import pytest
+from cantools.autosar.end_to_end import check_profile2_crc
+
+from bridges.e2e import DeviceChecker, Fault, data_id, protect
+
+from conftest import ROOT
+
+DBC = cantools.database.load_file(str(ROOT / "bridges" / "welding_cell.dbc"))
+SCANNER = DBC.get_message_by_name("ScannerState")
+
+
+def frames(n: int, start: int = 0, **values):
+    values = {"Range": 1, "Distance": 1.5, **values}
+    return [protect(SCANNER, values, start + i) for i in range(n)]
+
+
+def test_frames_are_profile_2_protected_and_decode_with_any_dbc_tool():
+    frame = protect(SCANNER, {"Range": "close", "Distance": 0.75}, counter=5)
+    assert len(frame) == SCANNER.length and frame[1] & 0x0F == 5
+    assert check_profile2_crc(frame, data_id(SCANNER.frame_id, 5))  # cantools' own check agrees
+    decoded = DBC.decode_message(SCANNER.frame_id, frame)
+    assert decoded["Range"] == "close" and decoded["Distance"] == pytest.approx(0.75)
+    # every message of the cell carries the protection
+    for message in DBC.messages:
+        assert {"Crc", "Counter"} <= {s.name for s in message.signals}, message.name
+
+
+def test_a_device_is_trusted_only_after_three_good_frames_in_a_row():
+    checker = DeviceChecker(SCANNER, timeout=0.1)
+    verdicts = [checker.check(f, t * 0.04) for t, f in enumerate(frames(4))]
+    assert [v.trusted for v in verdicts] == [False, False, True, True]
+    assert verdicts[0].recovering and verdicts[2].values == {"Range": 1, "Distance": pytest.approx(1.5)}
+
+
+@pytest.mark.parametrize(
+    "spoil, fault",
+    [
+        (lambda f: bytes([f[0] ^ 0x01]) + f[1:], Fault.CRC),  # corrupt CRC
+        (lambda f: f[:-1], Fault.LENGTH),  # wrong length
+        (lambda f: bytes([f[0]]) + bytes([f[1] ^ 0x40]) + f[2:], Fault.CRC),  # a flipped data bit
+    ],
+)
+def test_a_spoiled_frame_fails_the_device_at_once(spoil, fault):
+    checker = DeviceChecker(SCANNER, timeout=0.1)
+    good = frames(5)
+    for t, f in enumerate(good[:3]):
+        checker.check(f, t * 0.04)
+    verdict = checker.check(spoil(good[3]), 0.12)
+    assert not verdict.trusted and verdict.fault is fault and checker.counts[fault.value] == 1
+
+
+def test_a_replayed_or_repeated_counter_is_refused_and_recovery_needs_good_frames_again():
+    checker = DeviceChecker(SCANNER, timeout=0.1)
+    good = frames(8)
+    for t, f in enumerate(good[:4]):
+        assert checker.check(f, t * 0.04).trusted == (t >= 2)
+    assert checker.check(good[3], 0.16).fault is Fault.COUNTER  # the same frame again
+    assert checker.check(good[1], 0.20).fault is Fault.COUNTER  # an old one
+    # the stream goes on from counter 2 (resynchronised): good frames, but not trusted at once
+    later = frames(4, start=2)
+    assert [checker.check(f, 0.24 + i * 0.04).trusted for i, f in enumerate(later[1:])] == [False, False, True]
+    assert checker.counts["counter"] == 2
+
+
+def test_a_value_outside_its_range_or_choices_is_refused():
+    checker = DeviceChecker(SCANNER, timeout=0.1)
+    for t, f in enumerate(frames(3)):
+        checker.check(f, t * 0.04)
+    # range code 3 is no reading (the DBC names 0 far, 1 near, 2 close): encode it around cantools' checks
+    frame = bytearray(protect(SCANNER, {"Range": 2, "Distance": 1.0}, 3))
+    frame[1] |= 0x30  # Range bits 12..13 -> 3
+    from cantools.autosar.end_to_end import compute_profile2_crc
+
+    frame[0] = compute_profile2_crc(bytes(frame), data_id(SCANNER.frame_id, 3))
+    assert checker.check(bytes(frame), 0.12).fault is Fault.RANGE
+
+
+def test_the_watchdog_fails_a_silent_device_once_per_timeout():
+    checker = DeviceChecker(SCANNER, timeout=0.1)
+    for t, f in enumerate(frames(3)):
+        checker.check(f, t * 0.04)
+    assert checker.watchdog(0.15) is None
+    assert checker.watchdog(0.25).fault is Fault.TIMEOUT
+    assert checker.watchdog(0.30) is None and checker.watchdog(0.36).fault is Fault.TIMEOUT
+    assert checker.counts["timeout"] == 2
+
+
+def test_protected_frames_cross_a_python_can_bus_intact():
+    sender = can.Bus(interface="virtual", channel="e2e-test", receive_own_messages=False)
+    receiver = can.Bus(interface="virtual", channel="e2e-test")
+    try:
+        checker = DeviceChecker(SCANNER, timeout=0.1)
+        for t, data in enumerate(frames(3, Range=2, Distance=0.4)):
+            sender.send(can.Message(arbitration_id=SCANNER.frame_id, data=data, is_extended_id=False))
+            received = receiver.recv(timeout=1.0)
+            assert received is not None and received.arbitration_id == SCANNER.frame_id
+            verdict = checker.check(bytes(received.data), t * 0.04)
+        assert verdict.trusted and verdict.values["Range"] == 2
+    finally:
+        sender.shutdown()
+        receiver.shutdown()
