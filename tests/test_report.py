@@ -302,3 +302,20 @@ def test_write_report_failure_keeps_old_file(tmp_path, monkeypatch):
         write_report(target, RESULTS, {1: TIMELINE})
     assert target.read_text() == "old report"
     assert os.listdir(tmp_path) == ["report.html"]
+
+
+def test_a_cells_own_hazard_phases_get_the_hazard_lanes_and_colours_of_its_risk_model():
+    """The palletising cell's phases (idle ... harm), not the welding cell's, from its black box's record."""
+    phases = {"PALLET": {"values": ["idle", "detected", "guarded", "clearing", "harm"], "initial": "idle", "mishap": "harm"}}
+    timeline = {"PALLET": [[0.0, "idle"], [4.0, "detected"], [4.02, "guarded"], [9.0, "harm"]],
+                "curtain": [[0.0, False], [4.0, True]]}
+    page = render_report(RESULTS, {1: timeline}, phases=phases)
+    parsed = parse(page)
+    fills = [a["fill"] for t, a in run_svg_elements(parsed, 1) if t == "rect" and a.get("data-var") == "PALLET"]
+    assert fills[0] == PHASE_COLOURS["inact"] and fills[-1] == PHASE_COLOURS["mis"]  # initial grey, mishap red
+    assert len(set(fills)) == 4  # detected and guarded told apart
+    texts = [a for t, a in run_svg_elements(parsed, 1) if t == "text"]
+    assert texts  # lane titles are drawn as text; the hazard sits under "Hazard phases"
+    assert page.index(">Hazard phases<") < page.index('data-var="PALLET"') < page.index(">Other variables<")
+    legend = page[page.index('class="legend"'):page.index("Red lines")]
+    assert "guarded" in legend and "harm" in legend and "inact" not in legend

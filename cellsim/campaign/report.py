@@ -115,6 +115,8 @@ PHASE_COLOURS = {
     "res": "#42a5f5",
     "mis": "#e53935",
 }
+PHASE_SEQUENCE = ("#fb8c00", "#c0ca33", "#aed581", "#7cb342", "#42a5f5", "#ab47bc", "#8d6e63")
+"""Colours of a risk model's own phases in declared order, between its initial (grey) and mishap (red)."""
 BOOL_COLOURS = {True: "#37474f", False: "#cfd8dc"}
 ENUM_PALETTE = (
     "#8dd3c7", "#bebada", "#80b1d3", "#fdb462", "#b3de69", "#fccde5",
@@ -282,7 +284,11 @@ class _Palette:
     colour in every timeline of the page.
     """
 
-    def __init__(self, timelines: Iterable[Timeline]) -> None:
+    def __init__(self, timelines: Iterable[Timeline], phases: Mapping[str, Mapping] | None = None) -> None:
+        """``phases``: hazard variable -> its risk model's ``{values, initial, mishap}``."""
+        self.phases = dict(phases or {})
+        self.hazards = list(self.phases)
+        self._phase_colours = {var: _phase_colours(spec) for var, spec in self.phases.items()}
         values: dict[str, list] = {}
         for timeline in timelines:
             for var, samples in timeline.items():
@@ -293,10 +299,14 @@ class _Palette:
         }
 
     def kind(self, var: str) -> str:
+        if var in self.phases:
+            return "phase"
         return self._kinds.get(var, "enum")
 
     def colour(self, var: str, value: object) -> str:
         kind = self.kind(var)
+        if var in self._phase_colours:
+            return self._phase_colours[var].get(str(value), "#9e9e9e")
         if kind == "phase":
             return PHASE_COLOURS.get(str(value), "#9e9e9e")
         if kind == "bool":
@@ -305,6 +315,22 @@ class _Palette:
         key = _sort_key(value)
         i = order.index(key) if key in order else len(order)
         return ENUM_PALETTE[i % len(ENUM_PALETTE)]
+
+
+def _phase_colours(spec: Mapping) -> dict[str, str]:
+    """A hazard's phases coloured: the published ones as ever, otherwise initial grey, mishap red."""
+    values = [str(v) for v in _list(spec.get("values"))]
+    if values and all(v in PHASE_COLOURS for v in values):
+        return {v: PHASE_COLOURS[v] for v in values}
+    colours, others = {}, iter(PHASE_SEQUENCE * 4)
+    for v in values:
+        if v == spec.get("initial"):
+            colours[v] = PHASE_COLOURS["inact"]
+        elif v == spec.get("mishap"):
+            colours[v] = PHASE_COLOURS["mis"]
+        else:
+            colours[v] = next(others)
+    return colours
 
 
 def _text_colour(fill: str) -> str:
@@ -317,16 +343,18 @@ def _text_colour(fill: str) -> str:
 
 
 def _lane_groups(
-    timeline: Timeline, lanes: Sequence[tuple[str, Sequence[str]]] | None
+    timeline: Timeline, lanes: Sequence[tuple[str, Sequence[str]]] | None, hazards: Sequence[str] = ()
 ) -> list[tuple[str, list[str]]]:
     """The groups of lanes to draw: variables absent from the trace are skipped.
 
-    With the default lanes, variables of the trace not named there follow under
+    With the default lanes, the hazards of the cell's risk model (``hazards``) fill
+    the hazard-phase group, and variables of the trace not named there follow under
     "Other variables"; explicit ``lanes`` are drawn as given.
     """
-    groups = [(title, [v for v in names if v in timeline]) for title, names in (lanes or DEFAULT_LANES)]
+    default = [(title, tuple(hazards) if hazards and title == "Hazard phases" else names) for title, names in DEFAULT_LANES]
+    groups = [(title, [v for v in names if v in timeline]) for title, names in (lanes or default)]
     if lanes is None:
-        named = {v for _, names in DEFAULT_LANES for v in names}
+        named = {v for _, names in default for v in names}
         others = sorted(v for v in timeline if v not in named)
         groups.append((OTHER_GROUP, others))
     return [(title, names) for title, names in groups if names]
@@ -462,7 +490,7 @@ def render_timeline(
 ) -> str:
     """One run's trace as an inline SVG (see the module docstring for the geometry)."""
     palette = palette or _Palette([timeline])
-    groups = _lane_groups(timeline, lanes)
+    groups = _lane_groups(timeline, lanes, palette.hazards)
     placed = _marker_rows([(time_to_x(t, duration), name) for name, t in violations])
     n_rows = 1 + max((row for _, _, row, _ in placed), default=-1)
     label_top = 2.0
@@ -812,8 +840,9 @@ def _runs_section(runs: Sequence[Mapping]) -> str:
     )
 
 
-def _legend() -> str:
-    items = [(p, c) for p, c in PHASE_COLOURS.items()] + [("true", BOOL_COLOURS[True]), ("false", BOOL_COLOURS[False])]
+def _legend(palette: "_Palette") -> str:
+    phases = next(iter(palette._phase_colours.values()), PHASE_COLOURS)
+    items = list(phases.items()) + [("true", BOOL_COLOURS[True]), ("false", BOOL_COLOURS[False])]
     swatches = "".join(f'<span class="swatch" style="background: {c}"></span>{_e(n)}' for n, c in items)
     return (
         f'<p class="legend">Hazard phases and booleans:{swatches}. '
@@ -862,19 +891,19 @@ def _duration(results: Mapping, timelines: Iterable[Timeline]) -> float:
 
 def _timelines_section(
     results: Mapping, runs: Sequence[Mapping], timelines: Mapping,
-    lanes: Sequence[tuple[str, Sequence[str]]] | None,
+    lanes: Sequence[tuple[str, Sequence[str]]] | None, phases: Mapping | None = None,
 ) -> str:
     violating = _violating_runs(runs)
     if not violating:
         return '<section id="timelines"><h2>Timelines</h2><p class="muted">No violating runs.</p></section>'
     traces = {index: _timeline_key(timelines, index) for index, _ in violating}
     present = [t for t in traces.values() if t]
-    palette = _Palette(present)
+    palette = _Palette(present, phases)
     duration = _duration(results, present)
     sections = [
         _run_timeline_section(run, index, traces[index], duration, lanes, palette) for index, run in violating
     ]
-    return '<section id="timelines"><h2>Timelines of violating runs</h2>\n' + _legend() + "\n" + "\n".join(sections) + "</section>"
+    return '<section id="timelines"><h2>Timelines of violating runs</h2>\n' + _legend(palette) + "\n" + "\n".join(sections) + "</section>"
 
 
 # --------------------------------------------------------------------------- API
@@ -884,6 +913,7 @@ def render_report(
     results: Mapping,
     timelines: Mapping[int, Timeline] | None,
     lanes: Sequence[tuple[str, Sequence[str]]] | None = None,
+    phases: Mapping[str, Mapping] | None = None,
 ) -> str:
     """The whole HTML report of a campaign.
 
@@ -891,7 +921,8 @@ def render_report(
     ``timelines`` maps a violating run's index (int, or its decimal string as read
     back from JSON) to its trace ``{variable: [[t, value], ...]}``; ``lanes`` groups
     the timeline lanes as ``[(group title, [variable, ...]), ...]`` (default:
-    :data:`DEFAULT_LANES`, then the trace's other variables).
+    :data:`DEFAULT_LANES`, then the trace's other variables); ``phases`` gives each hazard
+    variable its risk model's ``{values, initial, mishap}`` (its lanes, colours and legend).
     """
     runs = [r for r in _list(results.get("runs")) if isinstance(r, Mapping)]
     campaign = _dict(results.get("campaign"))
@@ -905,7 +936,7 @@ def render_report(
             _use_cases_section(results, runs),
             _coverage_section(results),
             _runs_section(runs),
-            _timelines_section(results, runs, timelines or {}, lanes),
+            _timelines_section(results, runs, timelines or {}, lanes, phases),
             "</main>",
         )
     )
@@ -921,10 +952,11 @@ def write_report(
     results: Mapping,
     timelines: Mapping[int, Timeline] | None,
     lanes: Sequence[tuple[str, Sequence[str]]] | None = None,
+    phases: Mapping[str, Mapping] | None = None,
 ) -> None:
     """Renders the report and writes it to ``path`` atomically.
 
     Readers see the old report or the new one, never a partial one, and no
     temporary file is left behind, even on error (:func:`cellsim.atomic.write_text`).
     """
-    write_text(path, render_report(results, timelines, lanes), make_folder=True)
+    write_text(path, render_report(results, timelines, lanes, phases), make_folder=True)

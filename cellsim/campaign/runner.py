@@ -493,12 +493,13 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
         },
     }
     t0 = time.perf_counter()
-    timelines = {}
+    timelines, phases = {}, {}
     for r in runs:
         if r.get("violations"):
             try:
                 with BlackBox(out / r["out"] / BLACKBOX) as bb:
                     signals = trace_of_run(bb, sc.validation.variables).to_json()
+                    phases = phases or hazard_phases(bb, sc.validation.variables)
             except (BlackBoxError, TraceError):
                 continue  # the run's black box is gone or damaged: the report says it has no trace
             # the short names of the validation section; all channels when it names none
@@ -506,11 +507,23 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
             timelines[r["index"]] = {name: signals[name] for name in shown}
     results["timing"]["report"] = time.perf_counter() - t0
     results["timing"]["wall"] = time.perf_counter() - wall_start
-    write_report(out / REPORT, results, timelines)
+    write_report(out / REPORT, results, timelines, phases=phases)
     results["timing"]["report"] = time.perf_counter() - t0
     results["timing"]["wall"] = time.perf_counter() - wall_start
     _write_json(out / RESULTS, results)
     return CampaignOutcome(results, out / RESULTS, out / REPORT, resumed, results["timing"])
+
+
+def hazard_phases(bb: BlackBox, aliases: dict[str, str]) -> dict[str, dict]:
+    """Each hazard's trace variable (its alias, else its channel) -> ``{values, initial, mishap}``,
+    from the black box's record of the risk model's phases."""
+    by_channel = {channel: alias for alias, channel in aliases.items()}
+    channels = bb.channels()
+    found = {}
+    for channel, spec in (bb.metadata().get("hazards") or {}).items():
+        if channel in channels:
+            found[by_channel.get(channel, channel)] = {**spec, "values": list(channels[channel].domain)}
+    return found
 
 
 def _rerun_command(out: Path, run: dict) -> str:
