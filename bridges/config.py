@@ -1,0 +1,119 @@
+"""The bridge daemon's configuration (``bridges/welding_cell.yaml``): typed, checked at load.
+
+Errors name the file, line and key, as the scenario's do: a DBC that does not
+match the mapping (an unknown message or signal, a fail-safe value outside a
+signal's choices) is one such error.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated
+
+from cellsim.config.typed_yaml import ConfigError, FieldError, Range, load_file
+
+Seconds = Annotated[float, Range(0.0, 60.0, lo_open=True, unit="s")]
+
+
+@dataclass
+class CanSettings:
+    """The CAN bus: any python-can interface (socketcan on a real cell; remote or virtual in tests)."""
+
+    interface: str = "virtual"
+    """python-can interface name: socketcan, remote, virtual..."""
+    channel: str = "cellsim"
+    """The interface's channel: can0, ws://127.0.0.1:54701/, a virtual bus name..."""
+
+
+@dataclass
+class ZenohSettings:
+    """How the daemon reaches the twin (as ``cellsim live``'s clients do)."""
+
+    connect: list[str] = field(default_factory=list)
+    """Zenoh endpoints to connect to (default: the twin's tcp/127.0.0.1:7447)."""
+    config: str | None = None
+    """A Zenoh JSON5 configuration file (credentials), relative to this file."""
+
+
+@dataclass
+class DeviceMapping:
+    """One CAN device: the DBC message it sends and the entity sample fields its signals fill."""
+
+    message: str
+    """The DBC message the device sends, every cycle_time."""
+    fields: dict[str, str]
+    """Entity sample field -> DBC signal (an enumeration's value names are the field's values)."""
+    fail_safe: dict[str, str | float | bool]
+    """The sample published at once when the device's frames fail a check: a value per field."""
+    cycle_time: Seconds = 0.02
+    """How often the device sends (s)."""
+    watchdog: Seconds = 0.1
+    """With no good frame for this long the device is failed (s)."""
+
+    def __post_init__(self):
+        if set(self.fail_safe) != set(self.fields):
+            raise FieldError("fail_safe", f"give a fail-safe value for each field, exactly: {', '.join(self.fields)}")
+        if self.watchdog <= self.cycle_time:
+            raise FieldError("watchdog", "the watchdog must be longer than the cycle time")
+
+
+@dataclass
+class BridgeConfig:
+    """The bridge daemon of one cell."""
+
+    cell: str
+    """The scenario's name: the daemon publishes on cellsim/<cell>/physical/<entity>."""
+    dbc: str
+    """The cell's DBC file, relative to this file."""
+    devices: dict[str, DeviceMapping]
+    """Entity name -> the CAN device that is its physical twin."""
+    can: CanSettings = field(default_factory=CanSettings)
+    zenoh: ZenohSettings = field(default_factory=ZenohSettings)
+    recover_after: Annotated[int, Range(1, 1000)] = 3
+    """Good frames in a row before a failed device is trusted again."""
+
+
+@dataclass
+class LoadedBridge:
+    config: BridgeConfig
+    database: object
+    """The cantools database of the DBC."""
+    source: Path
+
+
+def load_bridge(path: str | Path) -> LoadedBridge:
+    """Read and check a bridge configuration; raises ConfigError naming file, line and key."""
+    import cantools
+
+    path = Path(path)
+    loaded = load_file(BridgeConfig, path)
+    cfg = loaded.value
+
+    def error(key: str, problem: str) -> ConfigError:
+        return ConfigError(*loaded.where(key), key, problem)
+
+    dbc = path.parent / cfg.dbc
+    if not dbc.is_file():
+        raise error("dbc", f"file not found: {cfg.dbc}")
+    try:
+        database = cantools.database.load_file(str(dbc))
+    except Exception as e:  # noqa: BLE001 - cantools raises several kinds on a bad file
+        raise error("dbc", f"not a DBC file cantools can read: {' '.join(str(e).split())[:200]}") from None
+    messages = {m.name: m for m in database.messages}
+    for name, device in cfg.devices.items():
+        key = f"devices.{name}"
+        if device.message not in messages:
+            raise error(f"{key}.message", f"no message '{device.message}' in {cfg.dbc} ({', '.join(messages)})")
+        message = messages[device.message]
+        signals = {s.name: s for s in message.signals}
+        if not {"Crc", "Counter"} <= set(signals):
+            raise error(f"{key}.message", f"'{device.message}' has no Crc and Counter signals: it is not end-to-end protected")
+        for field_name, signal_name in device.fields.items():
+            if signal_name not in signals:
+                raise error(f"{key}.fields.{field_name}", f"no signal '{signal_name}' in message '{device.message}'")
+            signal, safe = signals[signal_name], device.fail_safe[field_name]
+            if signal.choices is not None and str(safe) not in {str(v) for v in signal.choices.values()}:
+                raise error(f"{key}.fail_safe.{field_name}",
+                            f"'{safe}' is not a value of signal {signal_name} ({', '.join(str(v) for v in signal.choices.values())})")
+    return LoadedBridge(cfg, database, path)

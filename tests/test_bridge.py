@@ -1,0 +1,140 @@
+"""The bridge daemon's CAN side: checked device frames become the twin's physical samples."""
+
+from __future__ import annotations
+
+import json
+import queue
+
+import can
+import pytest
+import zenoh
+
+from bridges.config import load_bridge
+from bridges.daemon import Bridge
+from bridges.e2e import protect
+from cellsim.channels import BOOL, enum_type, number_type
+from cellsim.config.typed_yaml import ConfigError
+from cellsim.live.codec import decode_fields
+from cellsim.live.session import session_config
+from cellsim.vocabulary import Range
+
+from conftest import ROOT
+from live_processes import free_port
+
+CONFIG = ROOT / "bridges" / "welding_cell.yaml"
+
+
+@pytest.fixture
+def sessions():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    hub = zenoh.open(session_config(listen=[endpoint], listen_by_default=True))
+    watcher = zenoh.open(session_config(connect=[endpoint]))
+    try:
+        yield hub, watcher
+    finally:
+        watcher.close()
+        hub.close()
+
+
+def test_checked_frames_become_samples_and_any_failure_the_fail_safe_sample_at_once(sessions):
+    hub, watcher = sessions
+    received: queue.Queue = queue.Queue()
+    subscriber = watcher.declare_subscriber("cellsim/welding_cell/physical/**",
+                                            lambda s: received.put((str(s.key_expr), s.payload.to_bytes())))
+    loaded = load_bridge(CONFIG)
+    bridge = Bridge(loaded, hub)
+    curtain = loaded.database.get_message_by_name("LightCurtainState")
+    device = can.Bus(interface="virtual", channel="bridge-test", receive_own_messages=False)
+    bus = can.Bus(interface="virtual", channel="bridge-test")
+
+    def next_sample(timeout: float = 5.0):
+        key, payload = received.get(timeout=timeout)
+        return key, json.loads(payload)
+
+    def send(data: bytes, frame_id: int = curtain.frame_id):
+        device.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+        frame = bus.recv(timeout=1.0)
+        return bridge.handle(frame.arbitration_id, bytes(frame.data), now=0.02 * counter[0])
+
+    counter = [0]
+    try:
+        # the subscription reaches the hub asynchronously: until the first sample is heard, resend
+        for _ in range(250):
+            send(protect(curtain, {"Broken": 0}, counter[0]))
+            counter[0] += 1
+            try:
+                first = next_sample(timeout=0.02)
+                break
+            except queue.Empty:
+                continue
+        assert first[0] == "cellsim/welding_cell/physical/light_barrier"
+        while True:  # not trusted until three good frames in a row: the fail-safe sample (broken)
+            send(protect(curtain, {"Broken": 0}, counter[0]))
+            counter[0] += 1
+            _, sample = next_sample()
+            if sample["fields"] == {"broken": False}:
+                break
+            assert sample["fields"] == {"broken": True}
+        # the twin's light barrier reads the payload as any sample
+        t, seq, codes = decode_fields(json.dumps(sample).encode(), ("broken",), [BOOL])
+        assert codes == [0.0] and seq > 1
+        # a corrupt CRC: the fail-safe sample at once, and the fault counted
+        bad = bytearray(protect(curtain, {"Broken": 0}, counter[0]))
+        bad[0] ^= 0xFF
+        counter[0] += 1
+        assert send(bytes(bad)).fault.value == "crc"
+        assert next_sample()[1]["fields"] == {"broken": True}
+        assert bridge.devices[curtain.frame_id].checker.counts["crc"] == 1
+        # an unknown frame is counted and dropped
+        assert send(b"\x00\x01", frame_id=0x7FF) is None and bridge.unknown_frames == 1
+        # silence: the watchdog publishes the fail-safe sample
+        bridge.check_watchdogs(now=0.02 * counter[0] + 1.0)
+        assert next_sample()[1]["fields"] == {"broken": True}
+    finally:
+        subscriber.undeclare()
+        device.shutdown()
+        bus.shutdown()
+
+
+def test_enumerations_go_out_by_name():
+    loaded = load_bridge(CONFIG)
+
+    class Recorder:
+        def __init__(self):
+            self.payloads = []
+
+        def declare_publisher(self, key):
+            return self
+
+        def put(self, payload):
+            self.payloads.append(payload)
+
+    out = Recorder()
+    bridge = Bridge(loaded, out)
+    scanner = loaded.database.get_message_by_name("ScannerState")
+    for c in range(3):
+        bridge.handle(scanner.frame_id, protect(scanner, {"Range": "near", "Distance": 1.25}, c), now=0.04 * c)
+    _, _, codes = decode_fields(out.payloads[-1], ("range", "distance"), [enum_type(Range), number_type("m")])
+    assert codes == [float(Range.NEAR.code), pytest.approx(1.25)]
+
+
+@pytest.mark.parametrize(
+    "old, new, key, expected",
+    [
+        ("message: LightCurtainState", "message: LightCurtain", "devices.light_barrier.message", "no message 'LightCurtain'"),
+        ("fields: {broken: Broken}", "fields: {broken: Brokn}", "devices.light_barrier.fields.broken", "no signal 'Brokn'"),
+        ("fail_safe: {range: close, distance: 0.0}", "fail_safe: {range: closer, distance: 0.0}",
+         "devices.range_detector.fail_safe.range", "'closer' is not a value of signal Range"),
+        ("dbc: welding_cell.dbc", "dbc: welding.dbc", "dbc", "file not found: welding.dbc"),
+        ("    watchdog: 0.1", "    watchdog: 0.01", "devices.light_barrier.watchdog", "longer than the cycle time"),
+    ],
+)
+def test_a_configuration_that_does_not_match_its_dbc_is_one_error_naming_the_key(tmp_path, old, new, key, expected):
+    text = CONFIG.read_text()
+    assert old in text
+    (tmp_path / "welding_cell.dbc").write_text((ROOT / "bridges" / "welding_cell.dbc").read_text())
+    path = tmp_path / "bridge.yaml"
+    path.write_text(text.replace(old, new, 1))
+    with pytest.raises(ConfigError) as e:
+        load_bridge(path)
+    assert e.value.key == key and expected in str(e.value) and e.value.line is not None
