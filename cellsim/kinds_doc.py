@@ -226,7 +226,7 @@ def schema_markdown() -> str:
         "out of range is one error line naming the file, line and key, and nothing runs. Besides:",
         "",
         "- every number is finite: `.nan`, `.inf` and `-.inf` are refused everywhere;",
-        f"- a module's `period` is a whole number of plant steps (`time_step`): every event of the cell falls on a plant step;",
+        "- a module's `period` is a whole number of plant steps (`time_step`): every event of the cell falls on a plant step;",
         f"- a run (the scenario's `duration`, or `--duration`) takes at most {scenario.MAX_PLANT_STEPS:.0e} plant steps "
         f"(`duration / time_step`) and {scenario.MAX_MODULE_UPDATES:.0e} module updates (`duration / period`, summed over the modules);",
         f"- a coverage criterion has at most {MAX_SITUATIONS:,} situations (the product of its variables' values or bins);",

@@ -5,7 +5,6 @@ Run as a user would, as processes with a deadline: a hang or a segfault fails th
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys

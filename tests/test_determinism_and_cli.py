@@ -9,7 +9,6 @@ import pytest
 from cellsim.cli import main
 from cellsim.config.typed_yaml import to_data
 from cellsim.scenario import export_scenario, load_scenario
-from cellsim.services.blackbox import BlackBox
 
 from conftest import WELDING_CELL, run, welding_cell
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from cellsim.config.typed_yaml import load_text
 from cellsim.entities.sensors import LightBarrier

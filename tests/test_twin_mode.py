@@ -9,7 +9,7 @@ from cellsim.channels import enum_type, vector_type
 from cellsim.scenario import TwinModeChange
 from cellsim.vocabulary import SafetyMode, TwinMode
 
-from conftest import first_time, place_operator, run, welding_cell
+from conftest import place_operator, run, welding_cell
 
 
 def robot_replay(recorded, robot, time_offset):

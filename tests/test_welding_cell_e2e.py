@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from cellsim.scenario import Waypoint
 
-from conftest import first_time, place_operator, run, values_between, welding_cell
+from conftest import first_time, place_operator, run, welding_cell
 
 PHASES = ("HRW", "HS", "HC")
 

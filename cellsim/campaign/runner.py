@@ -514,9 +514,9 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
     return CampaignOutcome(results, out / RESULTS, out / REPORT, resumed, results["timing"])
 
 
-def hazard_phases(bb: BlackBox, aliases: dict[str, str]) -> dict[str, dict]:
+def hazard_phases(bb, aliases: dict[str, str]) -> dict[str, dict]:
     """Each hazard's trace variable (its alias, else its channel) -> ``{values, initial, mishap}``,
-    from the black box's record of the risk model's phases."""
+    from a run's black box (an open ``BlackBox``): its record of the risk model's phases."""
     by_channel = {channel: alias for alias, channel in aliases.items()}
     channels = bb.channels()
     found = {}

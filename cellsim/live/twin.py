@@ -33,7 +33,7 @@ import numpy as np
 
 from cellsim.channels import NO_VALUE
 from cellsim.live import keys
-from cellsim.live.codec import encode_fields, field_types
+from cellsim.live.codec import encode_fields
 from cellsim.live.sources import LiveClock, ZenohSampleSource
 from cellsim.vocabulary import TwinMode
 
