@@ -35,7 +35,7 @@ from pydrake.math import RigidTransform
 from cellsim.channels import enum_type, number_type
 from cellsim.config.typed_yaml import FieldError, Range
 from cellsim.entities.sensors import GeometrySensor, build_sensor
-from cellsim.entities.twin import valid_code
+from cellsim.entities.twin import TWIN_CHANNELS, valid_code
 from cellsim.floorplan import Box3, is_convex, is_simple, signed_area, triangulate
 from cellsim.registry import ModuleKind
 from cellsim.scenario import Distance, Period, Region, TwinSettings, Vec2, Vec3
@@ -248,7 +248,6 @@ KIND = ModuleKind(
     channels=(
         ("field", "enum", "the innermost field a person is seen in (not through fixtures), else the clear reading"),
         ("distance", "number, m", "distance to the nearest person seen, at most max_range"),
-        ("twin_mode", "enum", "model / shadow / twin"),
-        ("physical_link", "enum", "unused / ok / stale / corrupt"),
+        *TWIN_CHANNELS,
     ),
 )

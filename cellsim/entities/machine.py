@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from cellsim.channels import BOOL, NO_VALUE, enum_type, number_type
-from cellsim.entities.twin import EntitySystem, valid_code
+from cellsim.entities.twin import EntitySystem, TWIN_CHANNELS, valid_code
 from cellsim.registry import ModuleKind
 from cellsim.scenario import Period, Seconds, TwinSettings
 from cellsim.config.typed_yaml import FieldError
@@ -183,7 +183,6 @@ KIND = ModuleKind(
         ("activity", "enum", "one of its activities; its working one when shadowing with no valid sample"),
         ("cycles_completed", "number", "only with a cycle_time: cycles finished"),
         ("busy", "bool", "only with a cycle_time: a cycle is under way (paused included); false again once it ends or is abandoned"),
-        ("twin_mode", "enum", "model / shadow / twin"),
-        ("physical_link", "enum", "unused / ok / stale / corrupt"),
+        *TWIN_CHANNELS,
     ),
 )

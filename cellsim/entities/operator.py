@@ -31,7 +31,7 @@ from pydrake.geometry import (
 from pydrake.math import RigidTransform, RotationMatrix
 
 from cellsim.channels import BOOL, enum_type, vector_type
-from cellsim.entities.twin import EntitySystem
+from cellsim.entities.twin import EntitySystem, TWIN_CHANNELS
 from cellsim.floorplan import Box3, point_in_polygon, shortest_path
 from cellsim.scenario import Layout, OperatorConfig
 from cellsim.registry import ModuleKind
@@ -400,7 +400,6 @@ KIND = ModuleKind(
         ("<flag>", "bool", "for each of layout.operator_flags: standing in that volume (otab)"),
         ("waypoint", "enum", "the waypoint walked to or waited at"),
         ("position", "vector, m", "x, y of the body, every 0.1 s"),
-        ("twin_mode", "enum", "model / shadow / twin"),
-        ("physical_link", "enum", "unused / ok / stale / corrupt"),
+        *TWIN_CHANNELS,
     ),
 )

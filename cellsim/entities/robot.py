@@ -27,7 +27,7 @@ from pydrake.math import RigidTransform, RollPitchYaw
 
 from cellsim.channels import enum_type, number_type, vector_type
 from cellsim.entities.arm_geometry import add_arm_geometry, collision_shapes, model_without_collision
-from cellsim.entities.twin import EntitySystem, valid_code
+from cellsim.entities.twin import EntitySystem, TWIN_CHANNELS, valid_code
 from cellsim.registry import ModuleKind
 from cellsim.kinematics import solve_tool_target
 from cellsim.scenario import Layout, RobotConfig, ToolTarget
@@ -453,7 +453,6 @@ KIND = ModuleKind(
         ("reached_pose", "enum", "the named pose the arm rests at, or moving"),
         ("joint_positions", "vector, rad", "measured joint positions, every 0.1 s"),
         ("tool_speed", "number, m/s", "measured tool speed, every 0.1 s"),
-        ("twin_mode", "enum", "model / shadow / twin"),
-        ("physical_link", "enum", "unused / ok / stale / corrupt"),
+        *TWIN_CHANNELS,
     ),
 )

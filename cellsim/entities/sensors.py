@@ -22,7 +22,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 
 from cellsim.channels import BOOL, enum_type, number_type
-from cellsim.entities.twin import EntitySystem, valid_code
+from cellsim.entities.twin import EntitySystem, TWIN_CHANNELS, valid_code
 from cellsim.registry import ModuleKind
 from cellsim.scenario import LightBarrierConfig, RangeDetectorConfig
 from cellsim.systems import read_scalar, write_scalar
@@ -205,8 +205,7 @@ LIGHT_BARRIER = ModuleKind(
     sample_fields=("broken",),
     channels=(
         ("broken", "bool", "true while any person's geometry intersects the beams (lgtBar)"),
-        ("twin_mode", "enum", "model / shadow / twin"),
-        ("physical_link", "enum", "unused / ok / stale / corrupt"),
+        *TWIN_CHANNELS,
     ),
 )
 
@@ -220,7 +219,6 @@ RANGE_DETECTOR = ModuleKind(
     channels=(
         ("range", "enum", "far / near / close (rngDet)"),
         ("distance", "number, m", "measured distance to the nearest person"),
-        ("twin_mode", "enum", "model / shadow / twin"),
-        ("physical_link", "enum", "unused / ok / stale / corrupt"),
+        *TWIN_CHANNELS,
     ),
 )

@@ -172,6 +172,12 @@ class EntitySystem(CellSystem):
             xd.get_mutable_vector(self._command_group).SetFromVector(np.array([1.0, *values()], float))
 
 
+TWIN_CHANNELS = (
+    ("twin_mode", "enum", "model / shadow / twin"),
+    ("physical_link", "enum", "unused / ok / stale / corrupt / recovering"),
+)
+"""The channels every entity publishes about its physical twin, as ``cellsim modules`` documents them."""
+
 _MODEL_VIEW = PhysicalView(TwinMode.MODEL, PhysicalLink.UNUSED, None)
 
 
