@@ -59,6 +59,26 @@ class DeviceMapping:
 
 
 @dataclass
+class CommandMapping:
+    """One CAN frame the daemon sends a device, from the twin's commands to an entity."""
+
+    message: str
+    """The DBC message the daemon sends, every cycle_time."""
+    fields: dict[str, str]
+    """DBC signal -> the entity's command field it carries (a null command field: the signal's ``none``)."""
+    safe: dict[str, str | float | bool]
+    """DBC signal -> its value when the supervisor is lost (the twin gone, or its commands stale)."""
+    cycle_time: Seconds = 0.04
+    """How often the frame is sent (s)."""
+    watchdog: Seconds = 0.5
+    """The twin's commands older than this (s) count as lost: the safe values go out."""
+
+    def __post_init__(self):
+        if set(self.safe) != set(self.fields):
+            raise FieldError("safe", f"give a safe value for each signal, exactly: {', '.join(self.fields)}")
+
+
+@dataclass
 class BridgeConfig:
     """The bridge daemon of one cell."""
 
@@ -68,6 +88,8 @@ class BridgeConfig:
     """The cell's DBC file, relative to this file."""
     devices: dict[str, DeviceMapping]
     """Entity name -> the CAN device that is its physical twin."""
+    commands: dict[str, list[CommandMapping]] = field(default_factory=dict)
+    """Entity name -> the frames carrying the twin's commands to its device (sent in twin mode only)."""
     can: CanSettings = field(default_factory=CanSettings)
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
     recover_after: Annotated[int, Range(1, 1000)] = 3
@@ -116,4 +138,17 @@ def load_bridge(path: str | Path) -> LoadedBridge:
             if signal.choices is not None and str(safe) not in {str(v) for v in signal.choices.values()}:
                 raise error(f"{key}.fail_safe.{field_name}",
                             f"'{safe}' is not a value of signal {signal_name} ({', '.join(str(v) for v in signal.choices.values())})")
+    for entity, mappings in cfg.commands.items():
+        for i, mapping in enumerate(mappings):
+            key = f"commands.{entity}.{i}"
+            if mapping.message not in messages:
+                raise error(f"{key}.message", f"no message '{mapping.message}' in {cfg.dbc} ({', '.join(messages)})")
+            signals = {s.name: s for s in messages[mapping.message].signals}
+            for signal_name in mapping.fields:
+                if signal_name not in signals:
+                    raise error(f"{key}.fields.{signal_name}", f"no signal '{signal_name}' in message '{mapping.message}'")
+                signal, safe = signals[signal_name], mapping.safe[signal_name]
+                if signal.choices is not None and str(safe) not in {str(v) for v in signal.choices.values()}:
+                    raise error(f"{key}.safe.{signal_name}",
+                                f"'{safe}' is not a value of signal {signal_name} ({', '.join(str(v) for v in signal.choices.values())})")
     return LoadedBridge(cfg, database, path)

@@ -11,7 +11,7 @@ import zenoh
 
 from bridges.config import load_bridge
 from bridges.daemon import Bridge
-from bridges.e2e import protect
+from bridges.e2e import DeviceChecker, protect
 from cellsim.channels import BOOL, enum_type, number_type
 from cellsim.config.typed_yaml import ConfigError
 from cellsim.live.codec import decode_fields
@@ -106,6 +106,12 @@ def test_enumerations_go_out_by_name():
         def declare_publisher(self, key):
             return self
 
+        def declare_subscriber(self, *args, **kwargs):
+            return self
+
+        def liveliness(self):
+            return self
+
         def put(self, payload):
             self.payloads.append(payload)
 
@@ -127,6 +133,8 @@ def test_enumerations_go_out_by_name():
          "devices.range_detector.fail_safe.range", "'closer' is not a value of signal Range"),
         ("dbc: welding_cell.dbc", "dbc: welding.dbc", "dbc", "file not found: welding.dbc"),
         ("    watchdog: 0.1", "    watchdog: 0.01", "devices.light_barrier.watchdog", "longer than the cycle time"),
+        ("safe: {SafetyMode: stopped}", "safe: {SafetyMode: halt}", "commands.welder.0.safe.SafetyMode", "'halt' is not a value"),
+        ("fields: {SafetyMode: safety_mode_request}", "fields: {Mode: safety_mode_request}", "commands.welder.0.safe", "safe value for each signal"),
     ],
 )
 def test_a_configuration_that_does_not_match_its_dbc_is_one_error_naming_the_key(tmp_path, old, new, key, expected):
@@ -138,3 +146,69 @@ def test_a_configuration_that_does_not_match_its_dbc_is_one_error_naming_the_key
     with pytest.raises(ConfigError) as e:
         load_bridge(path)
     assert e.value.key == key and expected in str(e.value) and e.value.line is not None
+
+
+def test_commands_reach_the_bus_only_in_twin_mode_and_the_safe_ones_when_the_supervisor_is_lost(sessions):
+    import threading
+    import time
+
+    hub, twin = sessions  # the hub plays the network; the second session plays the twin
+    loaded = load_bridge(CONFIG)
+    bus = can.Bus(interface="virtual", channel="bridge-commands", receive_own_messages=False)
+    welder = can.Bus(interface="virtual", channel="bridge-commands")
+    request = loaded.database.get_message_by_name("SafetyModeRequest")
+    checker = DeviceChecker(request, timeout=1.0, recover_after=1)
+    bridge = Bridge(loaded, hub, bus=bus)
+    token = None
+    mode = twin.declare_publisher("cellsim/welding_cell/twin/welder/twin_mode")
+    command = twin.declare_publisher("cellsim/welding_cell/command/welder")
+
+    def frames_now(now: float) -> list:
+        bridge.send_commands(now)
+        out = []
+        while (frame := welder.recv(timeout=0.0)) is not None:
+            if frame.arbitration_id == request.frame_id:
+                verdict = checker.check(bytes(frame.data), now)
+                assert verdict.trusted, verdict  # protected: CRC and counter good
+                out.append(request.decode(bytes(frame.data))["SafetyMode"])
+        return [str(v) for v in out]
+
+    def until(condition, what: str):
+        """Take in what the network delivered until ``condition`` holds, polling with a deadline."""
+        deadline, pause = time.monotonic() + 10, threading.Event()
+        while True:
+            bridge._take_inbox()
+            if condition():
+                return
+            assert time.monotonic() < deadline, what
+            pause.wait(0.01)
+
+    try:
+        token = twin.liveliness().declare_token("cellsim/welding_cell/alive/twin")
+        # shadow mode: nothing goes to the bus, whatever the twin says
+        mode.put(json.dumps({"t": time.time(), "sim_time": 0.0, "value": "shadow"}))
+        until(lambda: bridge._modes.get("welder") == "shadow", "shadow mode heard")
+        assert frames_now(time.time()) == []
+        # twin mode: the twin's request goes out
+        mode.put(json.dumps({"t": time.time(), "sim_time": 0.1, "value": "twin"}))
+        command.put(json.dumps({"t": time.time(), "seq": 1, "fields": {"safety_mode_request": "ssmon", "activity_request": None, "command": 1.0}}))
+        until(lambda: "welder" in bridge._commands and bridge._twin_alive and bridge._modes.get("welder") == "twin",
+              "command heard")
+        assert frames_now(time.time()) == ["ssmon"]
+        # its commands stop for longer than the watchdog: the safe request, stopped
+        assert frames_now(time.time() + 0.6) == ["stopped"]
+        # a fresh command again; then the twin goes: stopped
+        command.put(json.dumps({"t": time.time(), "seq": 2, "fields": {"safety_mode_request": "normal", "activity_request": None, "command": 0.0}}))
+        until(lambda: bridge._commands["welder"][1]["safety_mode_request"] == "normal", "second command")
+        assert frames_now(time.time()) == ["normal"]
+        token.undeclare()
+        token = None
+        until(lambda: not bridge._twin_alive, "the twin's token gone")
+        assert frames_now(time.time()) == ["stopped"]
+        assert bridge.safe_frames_sent >= 2 * 2  # both the request and the welder command each time
+    finally:
+        if token is not None:
+            token.undeclare()
+        bridge.close()
+        bus.shutdown()
+        welder.shutdown()
