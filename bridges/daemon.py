@@ -189,3 +189,27 @@ class Bridge:
         device.seq += 1
         device.published += 1
         device.publisher.put(encode_fields(now, device.seq, fields))
+
+
+def run_bridge(bridge: Bridge, bus, stop, poll: float | None = None) -> None:
+    """The daemon's loop until ``stop`` (a threading.Event) is set: frames in, watchdogs, commands out.
+
+    Commands go out every shortest command cycle; watchdogs are checked at least
+    that often. A frame python-can cannot deliver is skipped, never fatal.
+    """
+    cfg = bridge.loaded.config
+    cycles = [m.cycle_time for mappings in cfg.commands.values() for m in mappings] + [d.cycle_time for d in cfg.devices.values()]
+    period = min(cycles) if cycles else 0.02
+    poll = period / 4 if poll is None else poll
+    next_cycle = time.monotonic()
+    while not stop.is_set():
+        try:
+            frame = bus.recv(timeout=poll)
+        except Exception:  # noqa: BLE001 - a bus error on one frame must not stop the daemon
+            frame = None
+        if frame is not None and not frame.is_error_frame and not frame.is_remote_frame:
+            bridge.handle(frame.arbitration_id, bytes(frame.data))
+        if time.monotonic() >= next_cycle:
+            next_cycle += period
+            bridge.check_watchdogs()
+            bridge.send_commands()

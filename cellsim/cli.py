@@ -222,6 +222,19 @@ def build_parser() -> argparse.ArgumentParser:
     )
     emu.set_defaults(handler=cmd_emulate)
 
+    bridge = sub.add_parser(
+        "bridge",
+        help="run the bridge daemon: a cell's CAN devices to the twin and back",
+        description="Map the CAN devices of a cell (a bridge configuration, e.g. bridges/welding_cell.yaml, and its "
+        "DBC) to the twin's physical samples, checking every frame end to end, and send the twin's commands to the "
+        "devices of entities in twin mode (safe ones when the twin is lost). Runs until interrupted.",
+    )
+    bridge.add_argument("config", type=Path, help="bridge configuration YAML file")
+    bridge.add_argument("--can", metavar="INTERFACE:CHANNEL",
+                        help="the CAN bus, e.g. socketcan:can0 (default: the configuration's)")
+    _add_network_args(bridge)
+    bridge.set_defaults(handler=cmd_bridge)
+
     mode = sub.add_parser(
         "twin-mode",
         help="switch an entity of the running twin to model, shadow or twin",
@@ -376,6 +389,42 @@ def cmd_emulate(args) -> int:
         return EXIT_FINDING if summary.mishap else EXIT_OK
 
     return _live_run(args, "emulator", False, run, check)
+
+
+def cmd_bridge(args) -> int:
+    import threading
+
+    import can
+
+    from bridges.config import load_bridge
+    from bridges.daemon import Bridge, run_bridge
+
+    loaded = load_bridge(args.config)
+    interface, channel = loaded.config.can.interface, loaded.config.can.channel
+    if args.can:
+        interface, sep, channel = args.can.partition(":")
+        if not sep or not interface or not channel:
+            raise InputError(f"--can {args.can!r}: expected INTERFACE:CHANNEL, e.g. socketcan:can0")
+    try:
+        bus = can.Bus(interface=interface, channel=channel)
+    except Exception as e:  # noqa: BLE001 - python-can raises many kinds for a bus it cannot open
+        raise InputError(f"cannot open CAN bus {interface}:{channel}: {' '.join(str(e).split())[:200]}") from None
+    try:
+        session = _open_session(args, listen_by_default=False)
+        try:
+            bridge = Bridge(loaded, session, bus=bus)
+            stop = threading.Event()
+            print(f"cellsim bridge: {loaded.config.cell} on {interface}:{channel}", file=sys.stderr)
+            with _terminate_as_interrupt():
+                try:
+                    run_bridge(bridge, bus, stop)
+                finally:
+                    bridge.close()
+        finally:
+            session.close()
+    finally:
+        bus.shutdown()
+    return EXIT_OK
 
 
 def cmd_twin_mode(args) -> int:

@@ -212,3 +212,64 @@ def test_commands_reach_the_bus_only_in_twin_mode_and_the_safe_ones_when_the_sup
         bridge.close()
         bus.shutdown()
         welder.shutdown()
+
+
+def test_the_daemon_loop_publishes_device_frames_until_stopped(sessions):
+    import threading
+
+    from bridges.daemon import run_bridge
+
+    hub, watcher = sessions
+    loaded = load_bridge(CONFIG)
+    bus = can.Bus(interface="virtual", channel="bridge-loop")
+    device = can.Bus(interface="virtual", channel="bridge-loop")
+    heard = threading.Event()
+    subscriber = watcher.declare_subscriber(
+        "cellsim/welding_cell/physical/range_detector",
+        lambda s: heard.set() if json.loads(s.payload.to_bytes())["fields"] == {"range": "near", "distance": 1.25} else None,
+    )
+    bridge = Bridge(loaded, hub, bus=bus)
+    stop = threading.Event()
+    loop = threading.Thread(target=run_bridge, args=(bridge, bus, stop), daemon=True)
+    loop.start()
+    scanner = loaded.database.get_message_by_name("ScannerState")
+    try:
+        counter = 0
+        while not heard.is_set():  # the device sends every 40 ms until the twin's side hears it
+            assert counter < 500, "no sample heard"
+            device.send(can.Message(arbitration_id=scanner.frame_id, is_extended_id=False,
+                                    data=protect(scanner, {"Range": "near", "Distance": 1.25}, counter)))
+            counter += 1
+            heard.wait(0.04)
+        # junk on the bus (an unknown identifier, an FD frame too long for any device) does not stop the loop
+        device.send(can.Message(arbitration_id=0x7FF, data=bytes(range(48)), is_extended_id=False, is_fd=True))
+        device.send(can.Message(arbitration_id=scanner.frame_id, data=b"\x00", is_extended_id=False))
+        before = bridge.devices[scanner.frame_id].published
+        while bridge.devices[scanner.frame_id].published <= before + 3:
+            assert counter < 1000 and loop.is_alive(), "the loop stopped hearing frames"
+            device.send(can.Message(arbitration_id=scanner.frame_id, is_extended_id=False,
+                                    data=protect(scanner, {"Range": "near", "Distance": 1.25}, counter)))
+            counter += 1
+            heard.wait(0.04)
+    finally:
+        stop.set()
+        loop.join(5)
+        subscriber.undeclare()
+        bridge.close()
+        bus.shutdown()
+        device.shutdown()
+    assert not loop.is_alive()  # it ends when asked
+    assert bridge.unknown_frames == 1 and bridge.devices[scanner.frame_id].checker.counts["length"] == 1
+
+
+def test_cellsim_bridge_refuses_a_bad_configuration_in_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    path = tmp_path / "bridge.yaml"
+    path.write_text(CONFIG.read_text().replace("dbc: welding_cell.dbc", "dbc: missing.dbc"))
+    proc = subprocess.run([sys.executable, "-m", "cellsim", "bridge", str(path)], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and "file not found: missing.dbc" in proc.stderr
+    proc = subprocess.run([sys.executable, "-m", "cellsim", "bridge", str(CONFIG), "--can", "socketcan"],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "expected INTERFACE:CHANNEL" in proc.stderr
