@@ -123,32 +123,43 @@ def load_bridge(path: str | Path) -> LoadedBridge:
     except Exception as e:  # noqa: BLE001 - cantools raises several kinds on a bad file
         raise error("dbc", f"not a DBC file cantools can read: {' '.join(str(e).split())[:200]}") from None
     messages = {m.name: m for m in database.messages}
+
+    def protected_message(key: str, name: str):
+        """The DBC message ``name``, which must exist and carry the end-to-end protection."""
+        if name not in messages:
+            raise error(f"{key}.message", f"no message '{name}' in {cfg.dbc} ({', '.join(messages)})")
+        if not {"Crc", "Counter"} <= {s.name for s in messages[name].signals}:
+            raise error(f"{key}.message", f"'{name}' has no Crc and Counter signals: it is not end-to-end protected")
+        return messages[name]
+
+    def check_signal(key: str, message, signal_name: str, value_key: str, value) -> None:
+        """The signal exists in the message, and ``value`` (a fail-safe or safe value) is one of its values."""
+        signals = {s.name: s for s in message.signals}
+        if signal_name not in signals:
+            raise error(key, f"no signal '{signal_name}' in message '{message.name}'")
+        if not accepts(signals[signal_name], value):
+            raise error(value_key, f"'{value}' is not a value of signal {signal_name} ({choices_text(signals[signal_name])})")
+
     for name, device in cfg.devices.items():
         key = f"devices.{name}"
-        if device.message not in messages:
-            raise error(f"{key}.message", f"no message '{device.message}' in {cfg.dbc} ({', '.join(messages)})")
-        message = messages[device.message]
-        signals = {s.name: s for s in message.signals}
-        if not {"Crc", "Counter"} <= set(signals):
-            raise error(f"{key}.message", f"'{device.message}' has no Crc and Counter signals: it is not end-to-end protected")
+        message = protected_message(key, device.message)
         for field_name, signal_name in device.fields.items():
-            if signal_name not in signals:
-                raise error(f"{key}.fields.{field_name}", f"no signal '{signal_name}' in message '{device.message}'")
-            signal, safe = signals[signal_name], device.fail_safe[field_name]
-            if signal.choices is not None and str(safe) not in {str(v) for v in signal.choices.values()}:
-                raise error(f"{key}.fail_safe.{field_name}",
-                            f"'{safe}' is not a value of signal {signal_name} ({', '.join(str(v) for v in signal.choices.values())})")
+            check_signal(f"{key}.fields.{field_name}", message, signal_name, f"{key}.fail_safe.{field_name}",
+                         device.fail_safe[field_name])
     for entity, mappings in cfg.commands.items():
         for i, mapping in enumerate(mappings):
             key = f"commands.{entity}.{i}"
-            if mapping.message not in messages:
-                raise error(f"{key}.message", f"no message '{mapping.message}' in {cfg.dbc} ({', '.join(messages)})")
-            signals = {s.name: s for s in messages[mapping.message].signals}
+            message = protected_message(key, mapping.message)
             for signal_name in mapping.fields:
-                if signal_name not in signals:
-                    raise error(f"{key}.fields.{signal_name}", f"no signal '{signal_name}' in message '{mapping.message}'")
-                signal, safe = signals[signal_name], mapping.safe[signal_name]
-                if signal.choices is not None and str(safe) not in {str(v) for v in signal.choices.values()}:
-                    raise error(f"{key}.safe.{signal_name}",
-                                f"'{safe}' is not a value of signal {signal_name} ({', '.join(str(v) for v in signal.choices.values())})")
+                check_signal(f"{key}.fields.{signal_name}", message, signal_name, f"{key}.safe.{signal_name}",
+                             mapping.safe[signal_name])
     return LoadedBridge(cfg, database, path)
+
+
+def accepts(signal, value) -> bool:
+    """Whether an enumerated signal has ``value`` among its named values (any value, for a number)."""
+    return signal.choices is None or str(value) in {str(v) for v in signal.choices.values()}
+
+
+def choices_text(signal) -> str:
+    return ", ".join(str(v) for v in signal.choices.values())

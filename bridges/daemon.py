@@ -28,7 +28,7 @@ import queue
 import time
 from dataclasses import dataclass, field
 
-from bridges.config import LoadedBridge
+from bridges.config import LoadedBridge, accepts
 from bridges.e2e import DeviceChecker, Verdict, protect
 from cellsim.live import keys
 from cellsim.live.codec import encode_fields
@@ -151,7 +151,7 @@ class Bridge:
             signal = message.get_signal_by_name(signal_name)
             if value is None and signal.choices is not None:
                 value = "none"
-            if signal.choices is not None and str(value) not in {str(v) for v in signal.choices.values()}:
+            if not accepts(signal, value):
                 value = mapping.safe[signal_name]  # not a value of the signal: the safe one
             values[signal_name] = value if signal.choices is not None else float(value)
         return values

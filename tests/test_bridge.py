@@ -273,3 +273,17 @@ def test_cellsim_bridge_refuses_a_bad_configuration_in_one_line(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "cellsim", "bridge", str(CONFIG), "--can", "socketcan"],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "expected INTERFACE:CHANNEL" in proc.stderr
+
+
+def test_a_command_frame_without_end_to_end_protection_is_refused_at_load(tmp_path):
+    dbc = (ROOT / "bridges" / "welding_cell.dbc").read_text()
+    dbc = dbc.replace('''BO_ 512 SafetyModeRequest: 4 Bridge
+ SG_ Crc : 0|8@1+ (1,0) [0|255] "" Welder
+ SG_ Counter : 8|4@1+ (1,0) [0|15] "" Welder
+''', "BO_ 512 SafetyModeRequest: 4 Bridge\n")
+    (tmp_path / "welding_cell.dbc").write_text(dbc)
+    path = tmp_path / "bridge.yaml"
+    path.write_text(CONFIG.read_text())
+    with pytest.raises(ConfigError) as e:
+        load_bridge(path)
+    assert e.value.key == "commands.welder.0.message" and "not end-to-end protected" in str(e.value)

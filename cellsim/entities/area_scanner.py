@@ -28,13 +28,12 @@ from pydrake.geometry import (
     GeometryInstance,
     MakePhongIllustrationProperties,
     ProximityProperties,
-    Sphere,
 )
 from pydrake.math import RigidTransform
 
 from cellsim.channels import enum_type, number_type
 from cellsim.config.typed_yaml import FieldError, Range
-from cellsim.entities.sensors import GeometrySensor, build_sensor
+from cellsim.entities.sensors import HEAD_RADIUS, GeometrySensor, build_sensor
 from cellsim.entities.twin import TWIN_CHANNELS, valid_code
 from cellsim.floorplan import Box3, is_convex, is_simple, signed_area, triangulate
 from cellsim.registry import ModuleKind
@@ -42,7 +41,6 @@ from cellsim.scenario import Distance, Period, Region, TwinSettings, Vec2, Vec3
 from cellsim.systems import write_changed
 from cellsim.vocabulary import TwinMode, value_set
 
-_HEAD_RADIUS = 0.05  # m, the scanner head's sphere
 Height = Annotated[float, Range(0.0, 10.0, unit="m")]
 
 
@@ -150,10 +148,7 @@ class AreaScanner(GeometrySensor):
 
     def register_geometry(self, scene_graph) -> list:
         source = scene_graph.RegisterSource(self.module)
-        head = GeometryInstance(RigidTransform(self.position), Sphere(_HEAD_RADIUS), f"{self.module}/head")
-        head.set_proximity_properties(ProximityProperties())
-        head.set_illustration_properties(MakePhongIllustrationProperties([0.9, 0.9, 0.1, 1.0]))
-        self.head_id = scene_graph.RegisterAnchoredGeometry(source, head)
+        self.head_id = self.register_head(scene_graph, source, self.position)
         ids = [self.head_id]
         for k, (name, spec) in enumerate(self.cfg.fields.items()):
             shade = [1.0, 0.2 + 0.6 * k / max(1, len(self.cfg.fields) - 1), 0.1, 0.12]
@@ -184,7 +179,7 @@ class AreaScanner(GeometrySensor):
         nearest = self.cfg.max_range
         for target in self.targets:
             pair = query.ComputeSignedDistancePairClosestPoints(self.head_id, target)
-            distance = pair.distance + _HEAD_RADIUS
+            distance = pair.distance + HEAD_RADIUS
             if distance < nearest and self.seen(_witness_on(query, pair, target)):
                 nearest = distance
         return reading, nearest

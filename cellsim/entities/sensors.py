@@ -29,7 +29,7 @@ from cellsim.systems import read_scalar, write_scalar
 from cellsim.vocabulary import Range, TwinMode
 
 
-_HEAD_RADIUS = 0.05  # m, the scanner head's sphere
+HEAD_RADIUS = 0.05  # m, the scanner head's sphere
 
 
 class GeometrySensor(EntitySystem):
@@ -39,6 +39,13 @@ class GeometrySensor(EntitySystem):
         super().__init__(module, period, twin, sample_fields)
         self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
         self.targets: tuple = ()
+
+    def register_head(self, scene_graph, source, position) -> object:
+        """The sensor head: a small sphere at ``position`` that distances are measured from; its GeometryId."""
+        head = GeometryInstance(RigidTransform(position), Sphere(HEAD_RADIUS), f"{self.module}/head")
+        head.set_proximity_properties(ProximityProperties())
+        head.set_illustration_properties(MakePhongIllustrationProperties([0.9, 0.9, 0.1, 1.0]))
+        return scene_graph.RegisterAnchoredGeometry(source, head)
 
     def set_targets(self, geometry_ids) -> None:
         """The geometries this sensor detects (people)."""
@@ -141,10 +148,7 @@ class RangeDetector(GeometrySensor):
 
     def register_geometry(self, scene_graph) -> list:
         source = scene_graph.RegisterSource(self.module)
-        head = GeometryInstance(RigidTransform(self.position), Sphere(_HEAD_RADIUS), f"{self.module}/head")
-        head.set_proximity_properties(ProximityProperties())
-        head.set_illustration_properties(MakePhongIllustrationProperties([0.9, 0.9, 0.1, 1.0]))
-        self.head_id = scene_graph.RegisterAnchoredGeometry(source, head)
+        self.head_id = self.register_head(scene_graph, source, self.position)
         return [self.head_id]
 
     def classify(self, distance: float) -> Range:
@@ -160,7 +164,7 @@ class RangeDetector(GeometrySensor):
         query = self.query_port.Eval(context)
         nearest = self.reach
         for target in self.targets:
-            distance = query.ComputeSignedDistancePairClosestPoints(self.head_id, target).distance + _HEAD_RADIUS
+            distance = query.ComputeSignedDistancePairClosestPoints(self.head_id, target).distance + HEAD_RADIUS
             if distance < nearest:
                 nearest = distance
         if self._noise is not None:
