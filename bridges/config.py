@@ -79,6 +79,48 @@ class CommandMapping:
 
 
 @dataclass
+class RobotLinkConfig:
+    """A robot controller streaming its joint state over Zenoh (``bridges/robot.py`` says the format)."""
+
+    joints: list[str]
+    """The joint names, in the order of the robot entity's q0..q5 (as sensor_msgs/JointState names them)."""
+    cycle_time: Seconds = 0.002
+    """How often the controller sends its state (s): 500 Hz for a UR e-Series."""
+    watchdog: Seconds = 0.05
+    """With no good state for this long, or a state older than this on arrival, the link is failed (s)."""
+    joint_limit: Annotated[float, Range(0.0, 20.0, lo_open=True, unit="rad")] = 6.2832
+    """A joint position beyond +/- this is out of range (rad)."""
+    max_joint_speed: Annotated[float, Range(0.0, 20.0, lo_open=True, unit="rad/s")] = 6.2832
+    """A joint speed beyond +/- this is out of range (rad/s)."""
+    command_cycle_time: Seconds = 0.02
+    """How often the robot's requests are sent to the controller in twin mode (s)."""
+    command_watchdog: Seconds = 0.5
+    """The twin's commands older than this (s) count as lost: a stop is requested."""
+    ros_topic: str | None = "/joint_states"
+    """The ROS 2 topic the checked joint state is also published on, as CDR sensor_msgs/JointState
+    (null: not published)."""
+    ros_namespace: str = ""
+    """The namespace zenoh-bridge-ros2dds runs with (its key is <namespace>/<topic>)."""
+
+    def __post_init__(self):
+        if len(self.joints) != 6 or len(set(self.joints)) != 6:
+            raise FieldError("joints", "name the robot's six joints, each once")
+        if self.watchdog <= self.cycle_time:
+            raise FieldError("watchdog", "the watchdog must be longer than the cycle time")
+        for key, name in (("ros_topic", self.ros_topic), ("ros_namespace", self.ros_namespace)):
+            if name and not all(part.replace("_", "a").isalnum() for part in name.strip("/").split("/")):
+                raise FieldError(key, f"'{name}' is not a ROS 2 name (letters, digits, _ and /)")
+
+    @property
+    def ros_key(self) -> str | None:
+        """The Zenoh key zenoh-bridge-ros2dds maps to the ROS topic: the name without its leading /,
+        after the bridge's namespace."""
+        if not self.ros_topic:
+            return None
+        return "/".join(p for p in (self.ros_namespace.strip("/"), self.ros_topic.strip("/")) if p)
+
+
+@dataclass
 class BridgeConfig:
     """The bridge daemon of one cell."""
 
@@ -90,10 +132,21 @@ class BridgeConfig:
     """Entity name -> the CAN device that is its physical twin."""
     commands: dict[str, list[CommandMapping]] = field(default_factory=dict)
     """Entity name -> the frames carrying the twin's commands to its device (sent in twin mode only)."""
+    robots: dict[str, RobotLinkConfig] = field(default_factory=dict)
+    """Robot entity name -> its controller's link over Zenoh."""
     can: CanSettings = field(default_factory=CanSettings)
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
     recover_after: Annotated[int, Range(1, 1000)] = 3
     """Good frames in a row before a failed device is trusted again."""
+    diagnostics_period: Annotated[float, Range(0.05, 60.0, unit="s")] = 1.0
+    """How often each device's diagnostics are published (s); a change of level is published at once."""
+
+    def __post_init__(self):
+        for entity in self.robots:
+            if entity in self.devices:
+                raise FieldError("robots", f"'{entity}' is both a CAN device and a robot link: it has one physical twin")
+            if entity in self.commands:
+                raise FieldError("robots", f"'{entity}' has CAN command frames and a robot link: give it one")
 
 
 @dataclass

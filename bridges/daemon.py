@@ -1,24 +1,29 @@
-"""The bridge daemon's CAN side: device frames in, the twin's physical samples out.
+"""The bridge daemon: a cell's CAN devices and robot controller to its twin, and the twin's commands back.
 
-Every frame of a configured device passes the black-channel checks of
-``bridges.e2e``; a trusted frame becomes the entity's physical sample on
+**In.** Every frame of a configured CAN device passes the black-channel checks
+of ``bridges.e2e``; a trusted frame becomes the entity's physical sample on
 ``cellsim/<cell>/physical/<entity>`` in the live format (``docs/live.md``). Any
-failure (length, CRC, counter, range, watchdog), and every frame while the device
-recovers, publishes the device's fail-safe sample at once instead: the twin sees
-the state it must assume. Frames of unknown identifiers are counted and
-dropped; nothing a frame holds stops the daemon.
+failure (length, CRC, counter, range, watchdog), and every frame while the
+device recovers, publishes the device's fail-safe sample at once instead: the
+twin sees the state it must assume. Frames of unknown identifiers are counted
+and dropped; nothing a frame holds stops the daemon. A robot controller's
+state stream over Zenoh is checked and published the same way
+(``bridges.robot``).
 
-The twin's commands go the other way (:meth:`Bridge.send_commands`, every
-cycle): a device whose entity is in twin mode (the twin's ``twin_mode`` channel)
-gets the twin's latest command in its protected frames; when that command is
-older than the mapping's watchdog, or the twin's liveliness token is gone while
-the entity was in twin mode, it gets the mapping's *safe* values: losing the
-supervisor makes the cell safer. In model or shadow mode nothing is sent: the
-device answers to its own controls. Network callbacks only queue what arrives;
-``send_commands`` takes it in.
+**Out.** A device whose entity is in twin mode (the twin's ``twin_mode``
+channel) gets the twin's latest command in its protected frames, every cycle
+and at once when the command changes; when that command is older than the
+mapping's watchdog, or the twin's liveliness token is gone, it gets the
+mapping's *safe* values: losing the supervisor makes the cell safer. In model
+or shadow mode nothing is sent: the device answers to its own controls. A
+robot gets requests on its controller's request key the same way.
 
-Still to come (issue "The bridge daemon"): the robot over Zenoh, diagnostics,
-the daemon's command line.
+**Diagnostics** per device (``bridges.diagnostics``) and the daemon's own
+status (frames, added latency) go out on ``cellsim/<cell>/diagnostics/...``.
+
+Threads: python-can's notifier and Zenoh's callbacks only put what arrives in
+one queue; the daemon's loop (:func:`run_bridge`) takes it from there, so all
+of the daemon's state belongs to one thread.
 """
 
 from __future__ import annotations
@@ -26,12 +31,18 @@ from __future__ import annotations
 import json
 import queue
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 from bridges.config import LoadedBridge, accepts
+from bridges.diagnostics import DeviceDiagnostics
 from bridges.e2e import DeviceChecker, Verdict, protect
+from bridges.robot import RobotLink
 from cellsim.live import keys
 from cellsim.live.codec import encode_fields
+
+LATENCY_WINDOW = 100_000
+"""Latencies kept for the daemon's status (the newest)."""
 
 
 @dataclass
@@ -41,6 +52,7 @@ class Device:
     message: object
     checker: DeviceChecker
     publisher: object
+    diagnostics: DeviceDiagnostics = None
     seq: int = 0
     published: int = 0
     fail_safe_published: int = 0
@@ -48,7 +60,7 @@ class Device:
 
 @dataclass
 class Bridge:
-    """Maps one cell's CAN devices to its twin's physical samples."""
+    """Maps one cell's CAN devices and robot controllers to its twin's physical samples, and back."""
 
     loaded: LoadedBridge
     session: object
@@ -56,33 +68,54 @@ class Bridge:
     """The python-can bus commands are sent on (None: no commands)."""
     clock: object = time.time
     devices: dict = field(default_factory=dict)
+    robots: dict = field(default_factory=dict)
     unknown_frames: int = 0
     frames_sent: int = 0
     safe_frames_sent: int = 0
+    frame_latencies: deque = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
+    """Seconds from a frame's arrival to its sample published."""
+    command_latencies: deque = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
+    """Seconds from a changed command's arrival to its frames sent."""
 
     def __post_init__(self):
         cfg, database = self.loaded.config, self.loaded.database
+        self.inbox: queue.SimpleQueue = queue.SimpleQueue()
+        """What the network threads hand over: (kind, entity, payload, arrival time)."""
         for entity, mapping in cfg.devices.items():
             message = database.get_message_by_name(mapping.message)
-            checker = DeviceChecker(message, mapping.watchdog, recover_after=cfg.recover_after)
+            checker = DeviceChecker(message=message, timeout=mapping.watchdog, recover_after=cfg.recover_after)
             publisher = self.session.declare_publisher(keys.physical(cfg.cell, entity))
-            self.devices[message.frame_id] = Device(entity, mapping, message, checker, publisher)
-        # the command side: what arrives is queued by the network callbacks
-        self._inbox: queue.SimpleQueue = queue.SimpleQueue()
-        self._commands: dict[str, tuple[float, dict]] = {}  # entity -> (wall time, fields)
+            device = Device(entity, mapping, message, checker, publisher)
+            device.diagnostics = DeviceDiagnostics(entity, mapping.message, checker, 1.0 / mapping.cycle_time,
+                                                   self.session.declare_publisher(keys.diagnostics(cfg.cell, entity)))
+            self.devices[message.frame_id] = device
+        for entity, link_cfg in cfg.robots.items():
+            link = RobotLink(cfg.cell, entity, link_cfg, self.session, recover_after=cfg.recover_after)
+            link.diagnostics = DeviceDiagnostics(entity, "robot controller", link.checker, 1.0 / link_cfg.cycle_time,
+                                                 self.session.declare_publisher(keys.diagnostics(cfg.cell, entity)))
+            self.robots[entity] = link
+        self._status = self.session.declare_publisher(keys.diagnostics(cfg.cell, "bridge"))
+        self._token = self.session.liveliness().declare_token(keys.alive(cfg.cell, "bridge"))
+        self._commands: dict[str, tuple[float, dict]] = {}  # entity -> (the twin's wall time, fields)
         self._modes: dict[str, str] = {}  # entity -> its twin mode, as the twin publishes it
         self._twin_alive = False
         self._counters: dict[str, int] = {}
+        self._due: dict[tuple, float] = {}  # (entity, frame) -> when it is next sent
         self._subscribers = []
-        for entity in cfg.commands:
+        put = self.inbox.put
+        for entity in [*cfg.commands, *cfg.robots]:
             self._subscribers.append(self.session.declare_subscriber(
-                keys.command(cfg.cell, entity), lambda s, e=entity: self._inbox.put(("command", e, s.payload.to_bytes()))))
+                keys.command(cfg.cell, entity), lambda s, e=entity: put(("command", e, s.payload.to_bytes(), time.perf_counter()))))
             self._subscribers.append(self.session.declare_subscriber(
-                keys.channel(cfg.cell, entity, "twin_mode"), lambda s, e=entity: self._inbox.put(("mode", e, s.payload.to_bytes()))))
-        if cfg.commands:
+                keys.channel(cfg.cell, entity, "twin_mode"), lambda s, e=entity: put(("mode", e, s.payload.to_bytes(), 0.0))))
+        for entity in cfg.robots:
+            self._subscribers.append(self.session.declare_subscriber(
+                keys.controller_state(cfg.cell, entity), lambda s, e=entity: put(("robot", e, s.payload.to_bytes(), 0.0))))
+        if cfg.commands or cfg.robots:
             self._subscribers.append(self.session.liveliness().declare_subscriber(
-                keys.alive(cfg.cell, "twin"), lambda s: self._inbox.put(("alive", None, str(s.kind).endswith("PUT"))), history=True))
+                keys.alive(cfg.cell, "twin"), lambda s: put(("alive", None, str(s.kind).endswith("PUT"), 0.0)), history=True))
 
+    # -- in --------------------------------------------------------------------------
     def handle(self, frame_id: int, data: bytes, now: float | None = None) -> Verdict | None:
         """Check one received frame and publish what it means for the twin."""
         now = self.clock() if now is None else now
@@ -90,6 +123,7 @@ class Bridge:
         if device is None:
             self.unknown_frames += 1
             return None
+        device.diagnostics.frame()
         verdict = device.checker.check(bytes(data), now)
         if verdict.trusted:
             self._publish(device, self._fields(device, verdict.values), now)
@@ -97,51 +131,117 @@ class Bridge:
             self._publish_fail_safe(device, now)
         return verdict
 
+    def handle_robot(self, entity: str, payload: bytes, now: float | None = None) -> Verdict:
+        """Check one robot controller state and publish what it means for the twin."""
+        link = self.robots[entity]
+        link.diagnostics.frame()
+        return link.handle(payload, self.clock() if now is None else now)
+
     def check_watchdogs(self, now: float | None = None) -> None:
         """Fail every device whose frames stopped (call it at least every cycle time)."""
         now = self.clock() if now is None else now
         for device in self.devices.values():
             if device.checker.watchdog(now) is not None:
                 self._publish_fail_safe(device, now)
+        for link in self.robots.values():
+            link.check_watchdog(now)
 
-    def send_commands(self, now: float | None = None) -> None:
-        """Send each commanded device its frame: the twin's command in twin mode, safe values when it is lost."""
+    # -- out -------------------------------------------------------------------------
+    def send_commands(self, now: float | None = None, due_only: bool = False, only: str | None = None) -> None:
+        """Send each commanded device its frames: the twin's command in twin mode, safe values when it is lost.
+
+        ``due_only``: only the frames whose cycle time has come round; ``only``: one entity's frames.
+        """
         now = self.clock() if now is None else now
-        self._take_inbox()
-        for entity, mappings in self.loaded.config.commands.items():
-            if self._modes.get(entity) != "twin":
+        self.take_inbox()
+        cfg = self.loaded.config
+        for entity in [*cfg.commands, *cfg.robots]:
+            if (only is not None and entity != only) or self._modes.get(entity) != "twin":
                 continue  # not in twin mode (or never heard of): the device answers to its own controls
             stamp, fields = self._commands.get(entity, (None, {}))
-            for mapping in mappings:
-                lost = not self._twin_alive or stamp is None or now - stamp > mapping.watchdog
-                values = dict(mapping.safe) if lost else self._signals(mapping, fields)
-                self._send(mapping, values, safe=lost)
+            targets = [(m.message, m.cycle_time, m.watchdog, m) for m in cfg.commands.get(entity, [])]
+            if entity in cfg.robots:
+                robot = cfg.robots[entity]
+                targets.append(("request", robot.command_cycle_time, robot.command_watchdog, None))
+            for name, cycle, watchdog, mapping in targets:
+                key = (entity, name)
+                if due_only and now < self._due.get(key, now):
+                    continue
+                self._due[key] = max(self._due.get(key, now) + cycle, now)
+                lost = not self._twin_alive or stamp is None or now - stamp > watchdog
+                if mapping is None:
+                    self.robots[entity].send(None if lost else fields, now)
+                else:
+                    self._send(mapping, dict(mapping.safe) if lost else self._signals(mapping, fields), safe=lost)
+
+    def take_inbox(self) -> None:
+        """Take in everything the network threads handed over (see :meth:`take`)."""
+        while True:
+            try:
+                item = self.inbox.get_nowait()
+            except queue.Empty:
+                return
+            self.take(item)
+
+    def take(self, item: tuple) -> None:
+        """Take in one item of the inbox: a frame, a robot state, a command, a twin mode, the twin's liveliness."""
+        kind, entity, payload, arrived = item
+        if kind == "frame":
+            self.handle(payload.arbitration_id, bytes(payload.data))
+            self.frame_latencies.append(time.perf_counter() - arrived)
+            return
+        if kind == "robot":
+            self.handle_robot(entity, payload)
+            return
+        if kind == "alive":
+            self._twin_alive = payload
+            return
+        try:
+            message = json.loads(payload)
+        except ValueError:
+            return  # a malformed message changes nothing
+        if not isinstance(message, dict):
+            return
+        if kind == "mode" and isinstance(message.get("value"), str):
+            self._modes[entity] = message["value"]
+        elif kind == "command" and isinstance(message.get("fields"), dict) and isinstance(message.get("t"), (int, float)):
+            previous = self._commands.get(entity, (float("-inf"), None))
+            if message["t"] > previous[0]:
+                self._commands[entity] = (float(message["t"]), message["fields"])
+                if message["fields"] != previous[1] and self._modes.get(entity) == "twin" and self._twin_alive:
+                    self.send_commands(only=entity)  # a changed command goes out at once
+                    self.command_latencies.append(time.perf_counter() - arrived)
+
+    # -- status ----------------------------------------------------------------------
+    def publish_diagnostics(self, now: float | None = None) -> None:
+        """Each device's diagnostics (on a change of level at once, else every diagnostics period),
+        and the daemon's own status every period."""
+        now = self.clock() if now is None else now
+        period = self.loaded.config.diagnostics_period
+        for device in [*self.devices.values(), *self.robots.values()]:
+            device.diagnostics.publish(now, period)
+        if now - getattr(self, "_status_at", float("-inf")) >= period:
+            self._status_at = now
+            self._status.put(json.dumps(self.status(now), separators=(",", ":")))
+
+    def status(self, now: float) -> dict:
+        """The daemon's own figures: frames, commands, the latency it adds (ms)."""
+        return {
+            "t": now, "unknown_frames": self.unknown_frames, "frames_sent": self.frames_sent,
+            "safe_frames_sent": self.safe_frames_sent, "twin_alive": self._twin_alive,
+            "received": {d.entity: d.diagnostics.received for d in [*self.devices.values(), *self.robots.values()]},
+            "frame_latency_ms": _percentiles(self.frame_latencies),
+            "command_latency_ms": _percentiles(self.command_latencies),
+        }
 
     def close(self) -> None:
-        for subscriber in self._subscribers:
+        for handle in [*self._subscribers, *(r for r in self.robots.values()), self._token]:
             try:
-                subscriber.undeclare()
+                (handle.close if isinstance(handle, RobotLink) else handle.undeclare)()
             except Exception:  # noqa: BLE001 - closing anyway
                 pass
 
-    def _take_inbox(self) -> None:
-        while not self._inbox.empty():
-            kind, entity, payload = self._inbox.get_nowait()
-            if kind == "alive":
-                self._twin_alive = payload
-                continue
-            try:
-                message = json.loads(payload)
-            except ValueError:
-                continue  # a malformed message changes nothing
-            if not isinstance(message, dict):
-                continue
-            if kind == "mode" and isinstance(message.get("value"), str):
-                self._modes[entity] = message["value"]
-            elif kind == "command" and isinstance(message.get("fields"), dict) and isinstance(message.get("t"), (int, float)):
-                if message["t"] > self._commands.get(entity, (float("-inf"), None))[0]:
-                    self._commands[entity] = (float(message["t"]), message["fields"])
-
+    # -- helpers ---------------------------------------------------------------------
     def _signals(self, mapping, fields: dict) -> dict:
         """The frame's signal values for the twin's command ``fields`` (safe values for what is missing)."""
         message = self.loaded.database.get_message_by_name(mapping.message)
@@ -191,25 +291,59 @@ class Bridge:
         device.publisher.put(encode_fields(now, device.seq, fields))
 
 
-def run_bridge(bridge: Bridge, bus, stop, poll: float | None = None) -> None:
-    """The daemon's loop until ``stop`` (a threading.Event) is set: frames in, watchdogs, commands out.
+def _percentiles(seconds) -> dict:
+    if not seconds:
+        return {"n": 0}
+    import numpy as np
 
-    Commands go out every shortest command cycle; watchdogs are checked at least
-    that often. A frame python-can cannot deliver is skipped, never fatal.
+    ms = np.asarray(seconds) * 1e3
+    return {"n": int(ms.size), "p50": round(float(np.percentile(ms, 50)), 3), "p99": round(float(np.percentile(ms, 99)), 3),
+            "max": round(float(ms.max()), 3)}
+
+
+def run_bridge(bridge: Bridge, bus, stop, on_cycle=None) -> None:
+    """The daemon's loop until ``stop`` (a threading.Event) is set.
+
+    python-can's notifier hands each received frame to the bridge's inbox; the
+    loop takes each item as it comes and, every cycle (the shortest cycle time
+    of a command frame, a device, or half a robot watchdog), checks the
+    watchdogs, sends the frames due and publishes diagnostics. A frame that
+    python-can cannot deliver is skipped, never fatal.
     """
+    import can
+
     cfg = bridge.loaded.config
-    cycles = [m.cycle_time for mappings in cfg.commands.values() for m in mappings] + [d.cycle_time for d in cfg.devices.values()]
+    cycles = [m.cycle_time for mappings in cfg.commands.values() for m in mappings]
+    cycles += [d.cycle_time for d in cfg.devices.values()]
+    cycles += [min(r.command_cycle_time, r.watchdog / 2) for r in cfg.robots.values()]
     period = min(cycles) if cycles else 0.02
-    poll = period / 4 if poll is None else poll
-    next_cycle = time.monotonic()
-    while not stop.is_set():
-        try:
-            frame = bus.recv(timeout=poll)
-        except Exception:  # noqa: BLE001 - a bus error on one frame must not stop the daemon
-            frame = None
-        if frame is not None and not frame.is_error_frame and not frame.is_remote_frame:
-            bridge.handle(frame.arbitration_id, bytes(frame.data))
-        if time.monotonic() >= next_cycle:
-            next_cycle += period
-            bridge.check_watchdogs()
-            bridge.send_commands()
+
+    def on_frame(frame) -> None:  # python-can's thread: queue it, nothing more
+        if not frame.is_error_frame and not frame.is_remote_frame:
+            bridge.inbox.put(("frame", None, frame, time.perf_counter()))
+
+    notifier = can.Notifier(bus, [on_frame], timeout=0.1) if bus is not None else None
+    try:
+        next_cycle = time.monotonic()
+        while not stop.is_set():
+            try:
+                item = bridge.inbox.get(timeout=max(0.0, next_cycle - time.monotonic()))
+            except queue.Empty:
+                item = None
+            if item is not None:
+                try:
+                    bridge.take(item)
+                except Exception as e:  # noqa: BLE001 - nothing one message holds may stop the daemon
+                    import logging
+
+                    logging.getLogger("cellsim.bridge").error("dropped a %s: %s", item[0], e)
+            if time.monotonic() >= next_cycle:
+                next_cycle = max(next_cycle + period, time.monotonic() - period)
+                bridge.check_watchdogs()
+                bridge.send_commands(due_only=True)
+                bridge.publish_diagnostics()
+                if on_cycle is not None:
+                    on_cycle()
+    finally:
+        if notifier is not None:
+            notifier.stop()

@@ -50,6 +50,10 @@ class Fault(str, Enum):
     COUNTER = "counter"
     RANGE = "range"
     TIMEOUT = "timeout"
+    CORRUPT = "corrupt"
+    """A message that does not decode (a Zenoh link's counterpart of a bad CRC)."""
+    LATE = "late"
+    """A message older than the watchdog when it arrived (a link with time stamps)."""
 
 
 @dataclass
@@ -64,21 +68,66 @@ class Verdict:
 
 
 @dataclass
-class DeviceChecker:
+class LinkTrust:
+    """Whether a link's data is trusted: failed by any fault, trusted again after
+    ``recover_after`` good messages in a row, failed by its watchdog when good ones stop.
+
+    The checks of one kind of link (CAN frames, a robot controller's state) subclass it.
+    """
+
+    timeout: float
+    """Watchdog (s): with no good message for this long the link is failed."""
+    recover_after: int = 3
+    faults: tuple = ()
+    """The faults this kind of link can have (its diagnostics count each)."""
+    counts: dict = field(default_factory=dict)
+    good_in_a_row: int = 0
+    last_good: float | None = None
+    """When the last good message came (s)."""
+    timed_out_at: float | None = None
+    failed: bool = True
+    """Untrusted until ``recover_after`` good messages came (also at start)."""
+
+    def __post_init__(self):
+        self.counts = {f.value: 0 for f in self.faults}
+
+    def watchdog(self, now: float) -> Verdict | None:
+        """The timeout verdict when no good message came within ``timeout`` (call it periodically)."""
+        if self.last_good is None:
+            return None
+        since = max(self.last_good, self.timed_out_at if self.timed_out_at is not None else self.last_good)
+        if now - since <= self.timeout:
+            return None
+        self.timed_out_at = now  # counted once per timeout period
+        return self._fail(Fault.TIMEOUT)
+
+    def _good(self, now: float, values: dict) -> Verdict:
+        self.last_good = now
+        self.good_in_a_row += 1
+        if self.failed and self.good_in_a_row < self.recover_after:
+            return Verdict(False, None, None, recovering=True)
+        self.failed = False
+        return Verdict(True, values)
+
+    def _fail(self, fault: Fault) -> Verdict:
+        self.counts[fault.value] = self.counts.get(fault.value, 0) + 1
+        self.good_in_a_row = 0
+        self.failed = True
+        return Verdict(False, None, fault)
+
+
+CAN_FAULTS = (Fault.LENGTH, Fault.CRC, Fault.COUNTER, Fault.RANGE, Fault.TIMEOUT)
+
+
+@dataclass
+class DeviceChecker(LinkTrust):
     """The black-channel checks of one device's frames (one DBC message)."""
 
-    message: object
-    timeout: float
-    """Watchdog (s): with no good frame for this long the device is failed."""
+    message: object = None
     max_delta: int = 2
     """How far ahead the counter may jump (1: no frame lost; 2: one lost frame tolerated)."""
-    recover_after: int = 3
-    counts: dict = field(default_factory=lambda: {f.value: 0 for f in Fault})
-    good_in_a_row: int = 0
+    faults: tuple = CAN_FAULTS
     last_counter: int | None = None
-    last_good: float | None = None
-    failed: bool = True
-    """Untrusted until ``recover_after`` good frames came (also at start)."""
 
     def check(self, data: bytes, now: float) -> Verdict:
         """Judge one frame received at ``now`` (s, any monotonic clock)."""
@@ -100,19 +149,7 @@ class DeviceChecker:
             return self._fail(Fault.RANGE)
         if not self._in_range(values):
             return self._fail(Fault.RANGE)
-        self.last_good = now
-        self.good_in_a_row += 1
-        if self.failed and self.good_in_a_row < self.recover_after:
-            return Verdict(False, None, None, recovering=True)
-        self.failed = False
-        return Verdict(True, {k: v for k, v in values.items() if k not in ("Crc", "Counter")})
-
-    def watchdog(self, now: float) -> Verdict | None:
-        """The timeout verdict when no good frame came within ``timeout`` (call it periodically)."""
-        if self.last_good is None or now - self.last_good <= self.timeout:
-            return None
-        self.last_good = now  # counted once per timeout period
-        return self._fail(Fault.TIMEOUT)
+        return self._good(now, {k: v for k, v in values.items() if k not in ("Crc", "Counter")})
 
     def _in_range(self, values: dict) -> bool:
         for signal in self.message.signals:
@@ -124,9 +161,3 @@ class DeviceChecker:
             if (lo is not None and value < lo - 1e-9) or (hi is not None and value > hi + 1e-9):
                 return False
         return True
-
-    def _fail(self, fault: Fault) -> Verdict:
-        self.counts[fault.value] += 1
-        self.good_in_a_row = 0
-        self.failed = True
-        return Verdict(False, None, fault)

@@ -209,7 +209,17 @@ def build_parser() -> argparse.ArgumentParser:
     emu.add_argument(
         "--fault", action="append", default=[], metavar="ENTITY=KIND[@T0[-T1]]",
         help="inject a fault from simulated time T0 (default 0) to T1 (default: the end): silence, freeze, "
-        "corrupt, delay or replay (repeatable)",
+        "corrupt, delay or replay on Zenoh; drop, crc, replay, length, flood or delay for a device on CAN (repeatable)",
+    )
+    emu.add_argument(
+        "--can", metavar="INTERFACE:CHANNEL",
+        help="speak the real protocols: the cell's CAN devices send protected frames on this bus (e.g. "
+        "remote:ws://127.0.0.1:54701/), its robot controllers stream their state, all for the bridge daemon",
+    )
+    emu.add_argument(
+        "--bridge", type=Path, metavar="FILE",
+        help="with --can: the bridge configuration naming the devices and their DBC "
+        "(default: bridges/<scenario file name> beside the scenario's folder)",
     )
     emu.add_argument(
         "--commanded-by-twin", action="store_true",
@@ -224,12 +234,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     bridge = sub.add_parser(
         "bridge",
-        help="run the bridge daemon: a cell's CAN devices to the twin and back",
+        help="run the bridge daemon: a cell's CAN devices and robot controller to the twin and back",
         description="Map the CAN devices of a cell (a bridge configuration, e.g. bridges/welding_cell.yaml, and its "
-        "DBC) to the twin's physical samples, checking every frame end to end, and send the twin's commands to the "
-        "devices of entities in twin mode (safe ones when the twin is lost). Runs until interrupted.",
+        "DBC) and its robot controller's state stream to the twin's physical samples, checking every frame end to "
+        "end, and send the twin's commands to the devices of entities in twin mode (safe ones when the twin is "
+        "lost). Publishes each device's diagnostics on cellsim/<cell>/diagnostics/<entity>. Runs until interrupted "
+        "(also as cellsim-bridge or python -m bridges).",
     )
-    bridge.add_argument("config", type=Path, help="bridge configuration YAML file")
+    bridge.add_argument("bridge_config", type=Path, metavar="CONFIG", help="bridge configuration YAML file")
     bridge.add_argument("--can", metavar="INTERFACE:CHANNEL",
                         help="the CAN bus, e.g. socketcan:can0 (default: the configuration's)")
     _add_network_args(bridge)
@@ -349,6 +361,20 @@ def cmd_live(args) -> int:
 def cmd_emulate(args) -> int:
     from cellsim.live.emulator import FAULTS, Fault, run_emulator
 
+    loaded = None
+    if args.can:
+        from bridges.config import load_bridge
+        from bridges.devices import CAN_FAULTS
+
+        FAULTS = (*FAULTS, *(k for k in CAN_FAULTS if k not in FAULTS))  # noqa: N806 - the kinds any outlet knows
+        bridge = args.bridge or args.scenario.resolve().parent.parent / "bridges" / args.scenario.name
+        if not bridge.is_file():
+            raise InputError(f"--can needs the cell's bridge configuration (its devices and DBC): no {bridge}; "
+                             "name it with --bridge FILE")
+        loaded = load_bridge(bridge)
+        _can_bus_spec(args.can, "--can")
+    elif args.bridge:
+        raise InputError("--bridge is for --can: name the CAN bus the devices speak on")
     faults = []
     for text in args.fault:
         entity, _, rest = text.partition("=")
@@ -380,40 +406,84 @@ def cmd_emulate(args) -> int:
         unknown += [e for e in rates if e not in sf.scenario.entities]
         if unknown:
             raise InputError(f"--fault/--rate: no entity named {unknown[0]!r} (entities: {', '.join(sf.scenario.entities)})")
+        if loaded is not None:
+            from bridges.devices import CAN_FAULTS
+            from cellsim.live.emulator import FAULTS as ZENOH_FAULTS
+
+            if loaded.config.cell != sf.scenario.name:
+                raise InputError(f"--bridge {loaded.source}: it is the bridge of cell '{loaded.config.cell}', "
+                                 f"not of '{sf.scenario.name}'")
+            for f in faults:
+                kinds = CAN_FAULTS if f.entity in loaded.config.devices else ZENOH_FAULTS
+                if f.kind not in kinds:
+                    raise InputError(f"--fault {f.entity}={f.kind}: {f.entity} is "
+                                     f"{'a CAN device' if kinds is CAN_FAULTS else 'on Zenoh'}; its faults: {', '.join(kinds)}")
+        elif any(f.kind not in FAULTS for f in faults):
+            bad = next(f for f in faults if f.kind not in FAULTS)
+            raise InputError(f"--fault {bad.entity}={bad.kind}: a bus fault needs --can; on Zenoh: {', '.join(FAULTS)}")
 
     def run(sf, out, session, duration):
-        if not args.quiet:
-            print(f"cellsim emulate: playing the physical {sf.scenario.name}, recording to {out}", file=sys.stderr)
-        summary, _ = run_emulator(sf, out, session=session, duration=duration, seed=args.seed, faults=faults,
-                                  commanded_by_twin=args.commanded_by_twin, rates=rates)
+        devices = bus = None
+        if loaded is not None:
+            from bridges.devices import EmulatedDevices
+
+            bus = _open_can_bus(args.can)
+            devices = EmulatedDevices(loaded, bus, session)
+        try:
+            if not args.quiet:
+                on = f" on {args.can}" if bus is not None else ""
+                print(f"cellsim emulate: playing the physical {sf.scenario.name}{on}, recording to {out}", file=sys.stderr)
+            summary, _ = run_emulator(sf, out, session=session, duration=duration, seed=args.seed, faults=faults,
+                                      commanded_by_twin=args.commanded_by_twin, rates=rates, devices=devices)
+        finally:
+            if bus is not None:
+                bus.shutdown()
         return EXIT_FINDING if summary.mishap else EXIT_OK
 
     return _live_run(args, "emulator", False, run, check)
 
 
-def cmd_bridge(args) -> int:
-    import threading
+def _can_bus_spec(text: str, option: str) -> tuple[str, str]:
+    """(interface, channel) of an INTERFACE:CHANNEL argument."""
+    interface, sep, channel = text.partition(":")
+    if not sep or not interface or not channel:
+        raise InputError(f"{option} {text!r}: expected INTERFACE:CHANNEL, e.g. socketcan:can0")
+    return interface, channel
 
+
+def _open_can_bus(text: str | None, default: tuple[str, str] | None = None, option: str = "--can"):
+    """A python-can bus for INTERFACE:CHANNEL (or the default pair), or one clear error."""
     import can
+
+    interface, channel = _can_bus_spec(text, option) if text else default
+    try:
+        return can.Bus(interface=interface, channel=channel)
+    except Exception as e:  # noqa: BLE001 - python-can raises many kinds for a bus it cannot open
+        raise InputError(f"cannot open CAN bus {interface}:{channel}: {' '.join(str(e).split())[:200]}") from None
+
+
+def cmd_bridge(args) -> int:
+    import logging
+    import threading
 
     from bridges.config import load_bridge
     from bridges.daemon import Bridge, run_bridge
 
-    loaded = load_bridge(args.config)
-    interface, channel = loaded.config.can.interface, loaded.config.can.channel
-    if args.can:
-        interface, sep, channel = args.can.partition(":")
-        if not sep or not interface or not channel:
-            raise InputError(f"--can {args.can!r}: expected INTERFACE:CHANNEL, e.g. socketcan:can0")
-    try:
-        bus = can.Bus(interface=interface, channel=channel)
-    except Exception as e:  # noqa: BLE001 - python-can raises many kinds for a bus it cannot open
-        raise InputError(f"cannot open CAN bus {interface}:{channel}: {' '.join(str(e).split())[:200]}") from None
+    loaded = load_bridge(args.bridge_config)
+    default = (loaded.config.can.interface, loaded.config.can.channel)
+    interface, channel = _can_bus_spec(args.can, "--can") if args.can else default
+    zenoh_settings = loaded.config.zenoh  # the command line's network options win over the configuration's
+    if not args.connect and not args.listen:
+        args.connect = list(zenoh_settings.connect)
+    if args.config is None and zenoh_settings.config:
+        args.config = loaded.source.parent / zenoh_settings.config
+    bus = _open_can_bus(args.can, default)
     try:
         session = _open_session(args, listen_by_default=False)
         try:
             bridge = Bridge(loaded, session, bus=bus)
             stop = threading.Event()
+            logging.basicConfig(level=logging.INFO, format="cellsim bridge: %(message)s", stream=sys.stderr)
             print(f"cellsim bridge: {loaded.config.cell} on {interface}:{channel}", file=sys.stderr)
             with _terminate_as_interrupt():
                 try:
@@ -842,3 +912,8 @@ def cmd_modules(args) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def bridge_main(argv: list[str] | None = None) -> int:
+    """``cellsim-bridge`` and ``python -m bridges``: the bridge daemon on its own (as ``cellsim bridge``)."""
+    return main(["bridge", *(sys.argv[1:] if argv is None else argv)])

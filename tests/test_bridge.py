@@ -103,10 +103,13 @@ def test_enumerations_go_out_by_name():
         def __init__(self):
             self.payloads = []
 
-        def declare_publisher(self, key):
+        def declare_publisher(self, key, **kwargs):
             return self
 
         def declare_subscriber(self, *args, **kwargs):
+            return self
+
+        def declare_token(self, key):
             return self
 
         def liveliness(self):
@@ -157,7 +160,7 @@ def test_commands_reach_the_bus_only_in_twin_mode_and_the_safe_ones_when_the_sup
     bus = can.Bus(interface="virtual", channel="bridge-commands", receive_own_messages=False)
     welder = can.Bus(interface="virtual", channel="bridge-commands")
     request = loaded.database.get_message_by_name("SafetyModeRequest")
-    checker = DeviceChecker(request, timeout=1.0, recover_after=1)
+    checker = DeviceChecker(message=request, timeout=1.0, recover_after=1)
     bridge = Bridge(loaded, hub, bus=bus)
     token = None
     mode = twin.declare_publisher("cellsim/welding_cell/twin/welder/twin_mode")
@@ -177,7 +180,7 @@ def test_commands_reach_the_bus_only_in_twin_mode_and_the_safe_ones_when_the_sup
         """Take in what the network delivered until ``condition`` holds, polling with a deadline."""
         deadline, pause = time.monotonic() + 10, threading.Event()
         while True:
-            bridge._take_inbox()
+            bridge.take_inbox()
             if condition():
                 return
             assert time.monotonic() < deadline, what
@@ -194,13 +197,14 @@ def test_commands_reach_the_bus_only_in_twin_mode_and_the_safe_ones_when_the_sup
         command.put(json.dumps({"t": time.time(), "seq": 1, "fields": {"safety_mode_request": "ssmon", "activity_request": None, "command": 1.0}}))
         until(lambda: "welder" in bridge._commands and bridge._twin_alive and bridge._modes.get("welder") == "twin",
               "command heard")
-        assert frames_now(time.time()) == ["ssmon"]
+        assert set(frames_now(time.time())) == {"ssmon"}
         # its commands stop for longer than the watchdog: the safe request, stopped
         assert frames_now(time.time() + 0.6) == ["stopped"]
         # a fresh command again; then the twin goes: stopped
         command.put(json.dumps({"t": time.time(), "seq": 2, "fields": {"safety_mode_request": "normal", "activity_request": None, "command": 0.0}}))
         until(lambda: bridge._commands["welder"][1]["safety_mode_request"] == "normal", "second command")
-        assert frames_now(time.time()) == ["normal"]
+        # a changed command went out at once, as it was taken in; and again on the cycle
+        assert frames_now(time.time()) == ["normal", "normal"]
         token.undeclare()
         token = None
         until(lambda: not bridge._twin_alive, "the twin's token gone")
@@ -287,3 +291,140 @@ def test_a_command_frame_without_end_to_end_protection_is_refused_at_load(tmp_pa
     with pytest.raises(ConfigError) as e:
         load_bridge(path)
     assert e.value.key == "commands.welder.0.message" and "not end-to-end protected" in str(e.value)
+
+
+def _state(seq: int, t: float, q0: float = 0.5, **over) -> bytes:
+    state = {"t": t, "seq": seq, "position": [q0, -1.0, 1.2, 0.0, 1.57, 0.0], "velocity": [0.1, 0, 0, 0, 0, 0],
+             "safety_mode": "normal", "activity": "moving", "reached_pose": None, **over}
+    return json.dumps(state).encode()
+
+
+def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_state(sessions):
+    """States at 500 Hz over Zenoh: checked, published as the robot's physical sample and as a CDR
+    sensor_msgs/JointState on the key zenoh-bridge-ros2dds maps to /welding_cell/joint_states."""
+    import threading
+    import time
+
+    from bridges.daemon import run_bridge
+    from bridges.ros import decode_joint_state
+
+    hub, controller = sessions
+    samples: queue.Queue = queue.Queue()
+    joint_states: queue.Queue = queue.Queue()
+    statuses: queue.Queue = queue.Queue()
+    subscribers = [
+        controller.declare_subscriber("cellsim/welding_cell/physical/robot", lambda s: samples.put(json.loads(s.payload.to_bytes()))),
+        controller.declare_subscriber("welding_cell/joint_states", lambda s: joint_states.put((s.payload.to_bytes(), str(s.encoding)))),
+        controller.declare_subscriber("cellsim/welding_cell/diagnostics/robot", lambda s: statuses.put(json.loads(s.payload.to_bytes()))),
+    ]
+    state = controller.declare_publisher("cellsim/welding_cell/controller/robot/state")
+    bridge = Bridge(load_bridge(CONFIG), hub)
+    stop = threading.Event()
+    loop = threading.Thread(target=run_bridge, args=(bridge, None, stop), daemon=True)
+    loop.start()
+    seq = [0]
+
+    def send(**over) -> None:
+        seq[0] += 1
+        state.put(_state(seq[0], time.time(), **over))
+
+    def next_sample() -> dict:
+        return samples.get(timeout=5)
+
+    try:
+        deadline = time.monotonic() + 10
+        while True:  # until the daemon's subscription is in place and three good states came in a row
+            assert time.monotonic() < deadline, "no robot sample"
+            send(q0=0.5)
+            try:
+                sample = samples.get(timeout=0.002)
+            except queue.Empty:
+                continue
+            if "fields" in sample:
+                break
+            assert sample["failed"] == "corrupt" or sample["failed"] == "stale"  # not yet trusted
+        assert sample["fields"] == {"q0": 0.5, "q1": -1.0, "q2": 1.2, "q3": 0.0, "q4": 1.57, "q5": 0.0,
+                                    "safety_mode": "normal", "activity": "moving", "reached_pose": None}
+        payload, encoding = joint_states.get(timeout=5)
+        message = decode_joint_state(payload)  # a ROS 2 tool reads it as sensor_msgs/msg/JointState
+        assert message.name == ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint",
+                                "wrist_2_joint", "wrist_3_joint"]
+        assert list(message.position) == [0.5, -1.0, 1.2, 0.0, 1.57, 0.0] and message.velocity[0] == 0.1
+        assert abs(message.header.stamp.sec + message.header.stamp.nanosec * 1e-9 - time.time()) < 5
+        assert payload[:4] == b"\x00\x01\x00\x00" and "cdr" in encoding.lower()  # CDR little endian, as ROS 2 sends
+        # a replayed state (its seq again), one out of range, one late: the failure at once, each counted
+        for over, failure in (({"seq_back": True}, "corrupt"), ({"q0": 9.0}, "corrupt"), ({"late": True}, "stale")):
+            while not samples.empty():
+                samples.get_nowait()
+            if over.get("seq_back"):
+                state.put(_state(seq[0], time.time()))
+            elif over.get("late"):
+                seq[0] += 1
+                state.put(_state(seq[0], time.time() - 1.0))
+            else:
+                send(**over)
+            assert next_sample() == {"t": pytest.approx(time.time(), abs=2), "seq": pytest.approx(0, abs=10**9), "failed": failure}
+            while "fields" not in next_sample():  # trusted again after three good states in a row
+                send()
+        # silence: the watchdog (50 ms) says stale
+        while "fields" in (sample := next_sample()):
+            pass
+        assert sample["failed"] == "stale"
+        counts = bridge.robots["robot"].checker.counts
+        assert (counts["counter"], counts["range"], counts["late"]) == (1, 1, 1) and counts["timeout"] >= 1
+        # its diagnostics went stale, and said so
+        deadline = time.monotonic() + 5
+        while (status := statuses.get(timeout=5))["counts"]["late"] < 1 or status["level"] != "STALE":
+            assert time.monotonic() < deadline
+        assert status["entity"] == "robot" and status["counts"]["range"] == 1 and status["received"] > 6
+    finally:
+        stop.set()
+        loop.join(5)
+        for subscriber in subscribers:
+            subscriber.undeclare()
+        bridge.close()
+    assert not loop.is_alive()
+
+
+def test_robot_requests_go_to_the_controller_in_twin_mode_and_a_stop_when_the_twin_is_lost(sessions):
+    import time
+
+    hub, twin = sessions
+    requests: queue.Queue = queue.Queue()
+    subscriber = twin.declare_subscriber("cellsim/welding_cell/controller/robot/request",
+                                         lambda s: requests.put(json.loads(s.payload.to_bytes())))
+    bridge = Bridge(load_bridge(CONFIG), hub)
+    mode = twin.declare_publisher("cellsim/welding_cell/twin/robot/twin_mode")
+    command = twin.declare_publisher("cellsim/welding_cell/command/robot")
+    token = twin.liveliness().declare_token("cellsim/welding_cell/alive/twin")
+    fields = {"safety_mode_request": "ssmon", "activity": "moving", "target_pose": "weld_start"}
+
+    def take_until(condition) -> None:
+        deadline = time.monotonic() + 10
+        while not condition():
+            assert time.monotonic() < deadline
+            try:
+                bridge.take(bridge.inbox.get(timeout=0.05))
+            except queue.Empty:
+                pass
+
+    try:
+        mode.put(json.dumps({"t": time.time(), "sim_time": 0.0, "value": "shadow"}))
+        take_until(lambda: bridge._modes.get("robot") == "shadow" and bridge._twin_alive)
+        bridge.send_commands()
+        assert bridge.robots["robot"].requests_sent == 0  # shadow: the controller answers to its own program
+        mode.put(json.dumps({"t": time.time(), "sim_time": 0.1, "value": "twin"}))
+        take_until(lambda: bridge._modes.get("robot") == "twin")
+        command.put(json.dumps({"t": time.time(), "seq": 1, "fields": fields}))
+        take_until(lambda: "robot" in bridge._commands)  # a changed command goes out at once
+        assert requests.get(timeout=5)["fields"] == fields
+        token.undeclare()
+        token = None
+        take_until(lambda: not bridge._twin_alive)
+        bridge.send_commands()
+        assert requests.get(timeout=5)["fields"] == {"safety_mode_request": "stopped", "activity": None, "target_pose": None}
+    finally:
+        if token is not None:
+            token.undeclare()
+        subscriber.undeclare()
+        bridge.close()

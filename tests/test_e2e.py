@@ -32,7 +32,7 @@ def test_frames_are_profile_2_protected_and_decode_with_any_dbc_tool():
 
 
 def test_a_device_is_trusted_only_after_three_good_frames_in_a_row():
-    checker = DeviceChecker(SCANNER, timeout=0.1)
+    checker = DeviceChecker(message=SCANNER, timeout=0.1)
     verdicts = [checker.check(f, t * 0.04) for t, f in enumerate(frames(4))]
     assert [v.trusted for v in verdicts] == [False, False, True, True]
     assert verdicts[0].recovering and verdicts[2].values == {"Range": 1, "Distance": pytest.approx(1.5)}
@@ -47,7 +47,7 @@ def test_a_device_is_trusted_only_after_three_good_frames_in_a_row():
     ],
 )
 def test_a_spoiled_frame_fails_the_device_at_once(spoil, fault):
-    checker = DeviceChecker(SCANNER, timeout=0.1)
+    checker = DeviceChecker(message=SCANNER, timeout=0.1)
     good = frames(5)
     for t, f in enumerate(good[:3]):
         checker.check(f, t * 0.04)
@@ -56,7 +56,7 @@ def test_a_spoiled_frame_fails_the_device_at_once(spoil, fault):
 
 
 def test_a_replayed_or_repeated_counter_is_refused_and_recovery_needs_good_frames_again():
-    checker = DeviceChecker(SCANNER, timeout=0.1)
+    checker = DeviceChecker(message=SCANNER, timeout=0.1)
     good = frames(8)
     for t, f in enumerate(good[:4]):
         assert checker.check(f, t * 0.04).trusted == (t >= 2)
@@ -69,7 +69,7 @@ def test_a_replayed_or_repeated_counter_is_refused_and_recovery_needs_good_frame
 
 
 def test_a_value_outside_its_range_or_choices_is_refused():
-    checker = DeviceChecker(SCANNER, timeout=0.1)
+    checker = DeviceChecker(message=SCANNER, timeout=0.1)
     for t, f in enumerate(frames(3)):
         checker.check(f, t * 0.04)
     # range code 3 is no reading (the DBC names 0 far, 1 near, 2 close): encode it around cantools' checks
@@ -82,7 +82,7 @@ def test_a_value_outside_its_range_or_choices_is_refused():
 
 
 def test_the_watchdog_fails_a_silent_device_once_per_timeout():
-    checker = DeviceChecker(SCANNER, timeout=0.1)
+    checker = DeviceChecker(message=SCANNER, timeout=0.1)
     for t, f in enumerate(frames(3)):
         checker.check(f, t * 0.04)
     assert checker.watchdog(0.15) is None
@@ -95,7 +95,7 @@ def test_protected_frames_cross_a_python_can_bus_intact():
     sender = can.Bus(interface="virtual", channel="e2e-test", receive_own_messages=False)
     receiver = can.Bus(interface="virtual", channel="e2e-test")
     try:
-        checker = DeviceChecker(SCANNER, timeout=0.1)
+        checker = DeviceChecker(message=SCANNER, timeout=0.1)
         for t, data in enumerate(frames(3, Range=2, Distance=0.4)):
             sender.send(can.Message(arbitration_id=SCANNER.frame_id, data=data, is_extended_id=False))
             received = receiver.recv(timeout=1.0)

@@ -10,6 +10,12 @@ is dropped), ``fields`` names each field as ``cellsim modules KIND`` lists it
 (physical-sample fields, command fields), enums by name, booleans as true/false,
 numbers in SI units; a command field with no request is null.
 
+A physical link that failed (the bridge daemon's checks refused its physical twin's
+data, or its watchdog expired) is said with a failure in place of the fields, so the
+entity fails safe at once instead of after its ``stale_after``::
+
+    {"t": 1795000000.125, "seq": 43, "failed": "stale"}     # or "corrupt"
+
 A twin channel's value: ``{"t": ..., "sim_time": ..., "value": ...}``, the value as
 the black box writes it.
 """
@@ -39,19 +45,56 @@ def encode_fields(t: float, seq: int, fields: dict) -> bytes:
     return json.dumps({"t": t, "seq": seq, "fields": fields}, separators=(",", ":")).encode()
 
 
-def decode_fields(payload: bytes, names: tuple[str, ...], types: list[ChannelType]) -> tuple[float, int, list[float]]:
-    """(wall time, sequence number, the fields as port codes) of a message, or CodecError."""
+FAILURES = ("stale", "corrupt")
+"""What a failure message may say of a physical link (``PhysicalLink`` values)."""
+
+
+def encode_failure(t: float, seq: int, failure: str) -> bytes:
+    """The message saying the physical link failed (``failure``: one of FAILURES)."""
+    assert failure in FAILURES
+    return json.dumps({"t": t, "seq": seq, "failed": failure}, separators=(",", ":")).encode()
+
+
+def decode_sample(payload: bytes, names: tuple[str, ...], types: list[ChannelType]) -> tuple[float, int, str | None, list[float]]:
+    """(wall time, sequence number, failure or None, the fields as port codes) of a sample or a
+    failure message (whose codes are NaN), or CodecError."""
+    message = _object(payload)
+    failure = message.get("failed")
+    if failure is None:
+        t, seq, codes = decode_fields(payload, names, types, message)
+        return t, seq, None, codes
+    if failure not in FAILURES:
+        raise CodecError(f"'failed' is not one of {', '.join(FAILURES)}")
+    t, seq = _stamp(message)
+    return t, seq, failure, [math.nan] * len(names)
+
+
+def _object(payload: bytes) -> dict:
     try:
         message = json.loads(payload)
     except (ValueError, UnicodeDecodeError) as e:
         raise CodecError(f"not JSON: {e}") from None
     if not isinstance(message, dict):
         raise CodecError("not a JSON object")
-    t, seq, fields = message.get("t"), message.get("seq"), message.get("fields")
+    return message
+
+
+def _stamp(message: dict) -> tuple[float, int]:
+    t, seq = message.get("t"), message.get("seq")
     if not isinstance(t, (int, float)) or isinstance(t, bool) or not math.isfinite(t):
         raise CodecError("'t' is not a time")
     if not isinstance(seq, int) or isinstance(seq, bool) or seq < 0:
         raise CodecError("'seq' is not a count")
+    return float(t), seq
+
+
+def decode_fields(payload: bytes, names: tuple[str, ...], types: list[ChannelType],
+                  message: dict | None = None) -> tuple[float, int, list[float]]:
+    """(wall time, sequence number, the fields as port codes) of a sample message, or CodecError."""
+    if message is None:
+        message = _object(payload)
+    t, seq = _stamp(message)
+    fields = message.get("fields")
     if not isinstance(fields, dict):
         raise CodecError("'fields' is not an object")
     codes = []

@@ -48,3 +48,19 @@ def alive(cell: str, process: str) -> str:
 def fault_control(cell: str) -> str:
     """Queryable of the emulator: inject a fault at run time."""
     return f"{ROOT}/{cell}/control/fault"
+
+
+def controller_state(cell: str, robot: str) -> str:
+    """A robot controller's state stream (joint state at its own rate: 500 Hz for a UR e-Series);
+    the bridge daemon turns it into the robot's physical samples."""
+    return f"{ROOT}/{cell}/controller/{robot}/state"
+
+
+def controller_request(cell: str, robot: str) -> str:
+    """Requests to a robot controller (safety mode, activity, target pose), from the bridge daemon."""
+    return f"{ROOT}/{cell}/controller/{robot}/request"
+
+
+def diagnostics(cell: str, device: str) -> str:
+    """The bridge daemon's diagnostics of one device (level OK/WARN/ERROR/STALE, rates, error counts)."""
+    return f"{ROOT}/{cell}/diagnostics/{device}"

@@ -13,6 +13,9 @@ message is dropped, so a frozen, replayed or duplicated stream goes stale,
 while a restarted sender (its ``seq`` counting from 1 again) is heard at once. The
 sample's time stamp is its sender's wall-clock time on the twin's simulation
 clock (``LiveClock``), so an entity judges its age as in any run.
+
+A failure message (the bridge daemon refused its device's data, ``codec``) is
+taken like a sample: the entity reads its link stale or corrupt at once.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from cellsim.live.codec import CodecError, decode_fields, field_types
+from cellsim.live.codec import CodecError, decode_sample, field_types
 
 
 @dataclass
@@ -42,7 +45,8 @@ class ZenohSampleSource(LeafSystem):
 
     Ports:
       physical_sample (output): [t (s, simulation clock), valid (0/1), *fields]; fields
-        NaN when the newest message was malformed (the entity reads its link corrupt).
+        NaN when the newest message was malformed or said the link failed (the entity
+        reads its link corrupt; stale, valid 0, for a failure saying so).
     """
 
     def __init__(self, entity, clock: LiveClock, time_step: float):
@@ -73,16 +77,18 @@ class ZenohSampleSource(LeafSystem):
         corrupt = False
         for payload in _received(self.inbox):
             try:
-                wall, seq, codes = decode_fields(payload, self.names, self.types)
+                wall, seq, failure, codes = decode_sample(payload, self.names, self.types)
             except CodecError:
                 corrupt, self.rejected = True, self.rejected + 1
                 continue
             if wall <= last_wall:  # a repeat, or back in time
                 self.rejected += 1
                 continue
-            taken, last_seq, last_wall, corrupt = (wall, codes), seq, wall, False
+            valid = 0.0 if failure == "stale" else 1.0
+            taken, last_seq, last_wall, corrupt = (wall, valid, codes), seq, wall, False
         if taken is not None:
-            xd.get_mutable_vector(self._sample).SetFromVector(np.array([self.clock.sim_time(taken[0]), 1.0, *taken[1]]))
+            wall, valid, codes = taken
+            xd.get_mutable_vector(self._sample).SetFromVector(np.array([self.clock.sim_time(wall), valid, *codes]))
             xd.get_mutable_vector(self._memory).SetFromVector(np.array([last_seq, last_wall]))
         elif corrupt:  # the newest message was malformed: fresh, but unusable
             sample = np.full(2 + len(self.names), math.nan)

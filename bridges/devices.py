@@ -1,0 +1,227 @@
+"""The emulated cell's devices speaking the real protocols (``cellsim emulate --can``).
+
+Given the bridge daemon's configuration, the emulator plays
+
+* each CAN device as a node following the DBC: its frames at the device's cycle
+  time, with the alive counter and CRC of the end-to-end protection
+  (``bridges.e2e.protect``); a device with command frames takes them from the
+  bus and checks them as the real device would (a bad or stale frame: the
+  frame's *safe* values);
+* each robot's controller over Zenoh: its state stream (``bridges.robot``) at
+  the controller's rate, and its requests from the controller's request key.
+
+Everything else stays on its physical key. Faults on the bus
+(``--fault welder=crc@3-5``): ``drop`` (frames not sent), ``crc`` (a corrupted
+CRC byte), ``replay`` (the previous frame again, its counter repeated),
+``length`` (a byte short), ``flood`` (a babbling node floods the bus with
+highest-priority frames, so the device's own frames lose arbitration and never
+get through), ``delay`` (frames held back ``DELAY`` s; the held ones are
+dropped when it ends). A robot controller has the Zenoh faults of
+``cellsim.live.emulator``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+from collections import deque
+
+from bridges.config import LoadedBridge
+from bridges.e2e import DeviceChecker, protect
+from cellsim.live import keys
+from cellsim.live.emulator import ZenohOutlet
+
+CAN_FAULTS = ("drop", "crc", "replay", "length", "flood", "delay")
+DELAY = 0.5
+"""How long (s) the ``delay`` fault holds a frame back: longer than any device's watchdog."""
+FLOOD_FRAMES = 20
+"""Frames the ``flood`` fault puts on the bus per frame of the device it silences."""
+
+
+class CanOutlet:
+    """One CAN device of the emulated cell: its samples as protected frames, with the bus faults."""
+
+    faults = CAN_FAULTS
+
+    def __init__(self, bus, message, fields: dict[str, str]):
+        self.bus, self.message, self.fields = bus, message, fields
+        self.counter = 0
+        self.last: bytes | None = None
+        self.held: deque = deque()  # (release time, frame) while delayed
+        self.sent = 0
+
+    def send(self, fields: dict, fault: str | None, sim_time: float) -> int:
+        import can
+
+        if fault != "delay" and self.held:
+            self.held.clear()  # the delay ended: what it held back is lost
+        data = self._frame(fields)
+        if fault == "replay" and self.last is not None:
+            data = self.last
+        elif fault == "crc":
+            data = bytes([data[0] ^ 0x5A]) + data[1:]
+        elif fault == "length":
+            data = data[:-1]
+        self.last = data if fault not in ("crc", "length") else self.last
+        frames = []
+        if fault == "flood":
+            frames = [can.Message(arbitration_id=0x000, data=bytes(8), is_extended_id=False)] * FLOOD_FRAMES
+        elif fault == "delay":
+            self.held.append((time.monotonic() + DELAY, data))
+            while self.held and self.held[0][0] <= time.monotonic():
+                frames.append(self._message(self.held.popleft()[1]))
+        elif fault != "drop":
+            frames = [self._message(data)]
+        for frame in frames:
+            try:
+                self.bus.send(frame)
+            except Exception:  # noqa: BLE001 - a full or lost bus loses the frame, as on a real one
+                continue
+            self.sent += 1
+        return len(frames)
+
+    def _frame(self, fields: dict) -> bytes:
+        values = {}
+        for field_name, signal_name in self.fields.items():
+            signal = self.message.get_signal_by_name(signal_name)
+            value = fields[field_name]
+            if signal.choices is not None:
+                values[signal_name] = str(value)
+            elif isinstance(value, bool):
+                values[signal_name] = int(value)
+            else:  # a number: within the signal's range (a scanner's "nobody in range" distance is its maximum)
+                lo = signal.minimum if signal.minimum is not None else -math.inf
+                hi = signal.maximum if signal.maximum is not None else math.inf
+                values[signal_name] = min(max(float(value), lo), hi) if math.isfinite(float(value)) else hi
+        data = protect(self.message, values, self.counter)
+        self.counter += 1
+        return data
+
+    def _message(self, data: bytes):
+        import can
+
+        return can.Message(arbitration_id=self.message.frame_id, data=data, is_extended_id=False)
+
+
+class RobotStateEncoder:
+    """A robot entity's sample as its controller's state message (velocities by difference over
+    simulated time: the wall-clock times of two states of a run catching up may be microseconds apart)."""
+
+    def __init__(self):
+        self._last: tuple[float, list[float]] | None = None
+
+    def __call__(self, t: float, seq: int, fields: dict, sim_time: float) -> bytes:
+        position = [float(fields[f"q{i}"]) for i in range(6)]
+        velocity = [0.0] * 6
+        if self._last is not None and sim_time > self._last[0]:
+            dt = sim_time - self._last[0]
+            velocity = [(q - q0) / dt for q, q0 in zip(position, self._last[1])]
+        self._last = (sim_time, position)
+        state = {"t": t, "seq": seq, "position": position, "velocity": velocity,
+                 "safety_mode": fields["safety_mode"], "activity": fields["activity"], "reached_pose": fields["reached_pose"]}
+        return json.dumps(state, separators=(",", ":")).encode()
+
+
+class EmulatedDevices:
+    """The emulated cell's CAN devices and robot controllers, as the bridge configuration describes them."""
+
+    def __init__(self, loaded: LoadedBridge, bus, session):
+        self.loaded, self.bus, self.session = loaded, bus, session
+        self.config = loaded.config
+        self._feeds: dict[int, tuple] = {}  # frame id -> (entity, mapping, checker)
+        self._entities: dict[str, dict] = {}  # entity -> {"source", "types", "inputs", "values": {mapping: fields}}
+        self._subscribers = []
+        self._lock = threading.Lock()
+        self._notifier = None
+        self.command_frames = 0
+
+    def rates(self) -> dict[str, float]:
+        """Each device's sending rate (Hz): its cycle time."""
+        cfg = self.config
+        return {**{e: 1.0 / d.cycle_time for e, d in cfg.devices.items()}, **{e: 1.0 / r.cycle_time for e, r in cfg.robots.items()}}
+
+    def fault_kinds(self, entity: str) -> tuple[str, ...] | None:
+        return CAN_FAULTS if entity in self.config.devices else None
+
+    def outlet(self, name: str, entity):
+        cfg = self.config
+        if name in cfg.devices:
+            device = cfg.devices[name]
+            return CanOutlet(self.bus, self.loaded.database.get_message_by_name(device.message), device.fields)
+        if name in cfg.robots:
+            return ZenohOutlet(self.session.declare_publisher(keys.controller_state(cfg.cell, name)), RobotStateEncoder())
+        return None
+
+    def feed_commands(self, entity, source) -> bool:
+        """Feed ``source`` (a ZenohCommandSource) from the entity's device protocol, if it has one."""
+        cfg, name = self.config, entity.module
+        if name in cfg.robots:
+            self._subscribers.append(self.session.declare_subscriber(
+                keys.controller_request(cfg.cell, name), lambda sample: source.deliver(sample.payload.to_bytes())))
+            return True
+        if name not in cfg.commands:
+            return False
+        mappings = cfg.commands[name]
+        types = dict(zip(source.inputs, source.types))
+        self._entities[name] = {"source": source, "types": types, "seq": 0,
+                                "values": {m.message: self._command_fields(m, dict(m.safe), types) for m in mappings}}
+        for mapping in mappings:
+            message = self.loaded.database.get_message_by_name(mapping.message)
+            checker = DeviceChecker(message=message, timeout=mapping.watchdog, recover_after=cfg.recover_after)
+            self._feeds[message.frame_id] = (name, mapping, checker)
+        if self._notifier is None:
+            import can
+
+            self._notifier = can.Notifier(self.bus, [self._on_frame], timeout=0.1)
+        return True
+
+    def _on_frame(self, frame) -> None:
+        """On python-can's thread: check a command frame as the device would, hand the command over."""
+        feed = self._feeds.get(frame.arbitration_id)
+        if feed is None or frame.is_error_frame or frame.is_remote_frame:
+            return
+        name, mapping, checker = feed
+        verdict = checker.check(bytes(frame.data), time.monotonic())
+        signals = dict(verdict.values) if verdict.trusted else dict(mapping.safe)
+        if verdict.trusted:  # numbers as decoded; enumerations by name
+            message = checker.message
+            for signal_name in list(signals):
+                choices = message.get_signal_by_name(signal_name).choices
+                if choices is not None:
+                    signals[signal_name] = str(choices[int(signals[signal_name])])
+        with self._lock:
+            state = self._entities[name]
+            self.command_frames += 1
+            state["values"][mapping.message] = self._command_fields(mapping, signals, state["types"])
+            state["seq"] += 1
+            fields = {k: v for values in state["values"].values() for k, v in values.items()}
+            fields = {n: fields.get(n) for n in state["types"]}
+            payload = json.dumps({"t": time.time(), "seq": state["seq"], "fields": fields}, separators=(",", ":")).encode()
+        state["source"].deliver(payload)
+
+    @staticmethod
+    def _command_fields(mapping, signals: dict, types: dict | None = None) -> dict:
+        """The entity's command fields a frame's signals carry (``none``: no request)."""
+        fields = {}
+        for signal_name, field_name in mapping.fields.items():
+            value = signals[signal_name]
+            ctype = (types or {}).get(field_name)
+            if value == "none":
+                value = None
+            elif ctype is not None and ctype.kind == "bool":
+                value = bool(value)
+            elif ctype is not None and ctype.kind != "enum":
+                value = float(value)
+            fields[field_name] = value
+        return fields
+
+    def close(self) -> None:
+        if self._notifier is not None:
+            self._notifier.stop()
+        for subscriber in self._subscribers:
+            try:
+                subscriber.undeclare()
+            except Exception:  # noqa: BLE001 - closing anyway
+                pass
