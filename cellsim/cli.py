@@ -359,14 +359,15 @@ def cmd_live(args) -> int:
 
 
 def cmd_emulate(args) -> int:
-    from cellsim.live.emulator import FAULTS, Fault, run_emulator
+    from bridges.devices import CAN_FAULTS
+    from cellsim.live.emulator import FAULTS as ZENOH_FAULTS
+    from cellsim.live.emulator import Fault, run_emulator
 
+    FAULTS = (*ZENOH_FAULTS, *(k for k in CAN_FAULTS if k not in ZENOH_FAULTS))  # noqa: N806 - any outlet's kinds
     loaded = None
     if args.can:
         from bridges.config import load_bridge
-        from bridges.devices import CAN_FAULTS
 
-        FAULTS = (*FAULTS, *(k for k in CAN_FAULTS if k not in FAULTS))  # noqa: N806 - the kinds any outlet knows
         bridge = args.bridge or args.scenario.resolve().parent.parent / "bridges" / args.scenario.name
         if not bridge.is_file():
             raise InputError(f"--can needs the cell's bridge configuration (its devices and DBC): no {bridge}; "
@@ -407,9 +408,6 @@ def cmd_emulate(args) -> int:
         if unknown:
             raise InputError(f"--fault/--rate: no entity named {unknown[0]!r} (entities: {', '.join(sf.scenario.entities)})")
         if loaded is not None:
-            from bridges.devices import CAN_FAULTS
-            from cellsim.live.emulator import FAULTS as ZENOH_FAULTS
-
             if loaded.config.cell != sf.scenario.name:
                 raise InputError(f"--bridge {loaded.source}: it is the bridge of cell '{loaded.config.cell}', "
                                  f"not of '{sf.scenario.name}'")
@@ -418,9 +416,9 @@ def cmd_emulate(args) -> int:
                 if f.kind not in kinds:
                     raise InputError(f"--fault {f.entity}={f.kind}: {f.entity} is "
                                      f"{'a CAN device' if kinds is CAN_FAULTS else 'on Zenoh'}; its faults: {', '.join(kinds)}")
-        elif any(f.kind not in FAULTS for f in faults):
-            bad = next(f for f in faults if f.kind not in FAULTS)
-            raise InputError(f"--fault {bad.entity}={bad.kind}: a bus fault needs --can; on Zenoh: {', '.join(FAULTS)}")
+        elif any(f.kind not in ZENOH_FAULTS for f in faults):
+            bad = next(f for f in faults if f.kind not in ZENOH_FAULTS)
+            raise InputError(f"--fault {bad.entity}={bad.kind}: a bus fault needs --can; on Zenoh: {', '.join(ZENOH_FAULTS)}")
 
     def run(sf, out, session, duration):
         devices = bus = None

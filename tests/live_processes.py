@@ -23,13 +23,13 @@ def free_port() -> int:
 
 
 class Process:
-    """A cellsim command run as a process; ``stop()`` ends it by its PID."""
+    """A cellsim command (or another Python module's) run as a process; ``stop()`` ends it by its PID."""
 
-    def __init__(self, args: list[str], log: Path):
+    def __init__(self, args: list[str], log: Path, module: str = "cellsim"):
         self.log = log
         self._file = open(log, "w")
         self.popen = subprocess.Popen(
-            [sys.executable, "-m", "cellsim", *args], stdout=self._file, stderr=subprocess.STDOUT, cwd=ROOT
+            [sys.executable, "-m", module, *args], stdout=self._file, stderr=subprocess.STDOUT, cwd=ROOT
         )
         self.pid = self.popen.pid
 
@@ -62,8 +62,8 @@ def processes():
     """Collects processes and stops every one still running at the end, by its PID."""
     started: list[Process] = []
 
-    def start(args: list[str], log: Path) -> Process:
-        process = Process(args, log)
+    def start(args: list[str], log: Path, module: str = "cellsim") -> Process:
+        process = Process(args, log, module)
         started.append(process)
         return process
 
@@ -72,6 +72,22 @@ def processes():
     finally:
         for process in started:
             process.stop(signal.SIGKILL if process.popen.poll() is None else signal.SIGINT)
+
+
+def can_server(start, log: Path, timeout: float = 30.0) -> str:
+    """Start a python-can-remote server of a virtual bus on a free loopback port (never every interface);
+    its channel for ``can.Bus(interface="remote", channel=...)`` once it accepts connections."""
+    port = free_port()
+    server = start(["-i", "virtual", "-c", "0", "-H", "127.0.0.1", "-p", str(port)], log, module="can_remote")
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+            return f"ws://127.0.0.1:{port}/"
+        except OSError:
+            if server.popen.poll() is not None or time.monotonic() > deadline:
+                raise AssertionError(f"the CAN server did not start: {server.output()}") from None
+            threading.Event().wait(0.05)
 
 
 @contextmanager

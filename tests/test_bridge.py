@@ -428,3 +428,55 @@ def test_robot_requests_go_to_the_controller_in_twin_mode_and_a_stop_when_the_tw
             token.undeclare()
         subscriber.undeclare()
         bridge.close()
+
+
+def test_an_emulated_device_fails_safe_on_a_bad_command_frame_as_the_real_one_would():
+    from types import SimpleNamespace
+
+    from bridges.devices import EmulatedDevices
+
+    loaded = load_bridge(CONFIG)
+    bus = can.Bus(interface="virtual", channel="emulated-welder")
+    daemon = can.Bus(interface="virtual", channel="emulated-welder")
+    delivered: queue.Queue = queue.Queue()
+    enum, number = SimpleNamespace(kind="enum"), number_type(None)
+    source = SimpleNamespace(inputs=["safety_mode_request", "activity_request", "command"], types=[enum, enum, number],
+                             deliver=lambda payload: delivered.put(json.loads(payload)["fields"]))
+    devices = EmulatedDevices(loaded, bus, session=None)
+    request = loaded.database.get_message_by_name("SafetyModeRequest")
+    try:
+        assert devices.feed_commands(SimpleNamespace(module="welder"), source)
+        frame = lambda data: can.Message(arbitration_id=request.frame_id, data=data, is_extended_id=False)  # noqa: E731
+        for counter in range(3):  # trusted after three good frames in a row
+            daemon.send(frame(protect(request, {"SafetyMode": "ssmon"}, counter)))
+            fields = delivered.get(timeout=5)
+        assert fields == {"safety_mode_request": "ssmon", "activity_request": "off", "command": 0.0}
+        bad = bytearray(protect(request, {"SafetyMode": "normal"}, 3))
+        bad[0] ^= 0x01  # a corrupted CRC: the frame's safe values, not what it says
+        daemon.send(frame(bytes(bad)))
+        assert delivered.get(timeout=5)["safety_mode_request"] == "stopped"
+        daemon.send(frame(protect(request, {"SafetyMode": "normal"}, 4)))
+        assert delivered.get(timeout=5)["safety_mode_request"] == "stopped"  # recovering: still safe
+    finally:
+        devices.close()
+        bus.shutdown()
+        daemon.shutdown()
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["--can", "virtual:x", "--fault", "welder=freeze"], "welder is a CAN device; its faults: drop, crc"),
+    (["--can", "virtual:x", "--fault", "robot=crc"], "robot is on Zenoh; its faults: silence"),
+    (["--fault", "welder=flood"], "a bus fault needs --can"),
+    (["--bridge", "bridges/welding_cell.yaml"], "--bridge is for --can"),
+    (["--can", "virtual:x", "--bridge", "nowhere.yaml"], "nowhere.yaml"),
+    (["--can", "virtual"], "expected INTERFACE:CHANNEL"),
+])
+def test_bad_emulate_can_arguments_are_one_line_exit_2(tmp_path, args, expected):
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "cellsim", "emulate", str(ROOT / "scenarios" / "welding_cell.yaml"),
+                           "--out", str(tmp_path / "out"), "--connect", f"tcp/127.0.0.1:{free_port()}", *args],
+                          capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and expected in proc.stderr, proc.stderr
+    assert not (tmp_path / "out").exists()

@@ -1,0 +1,278 @@
+"""The twin, the bridge daemon and the emulated cell speaking CAN and Zenoh: processes on loopback.
+
+A python-can-remote server carries the CAN bus between processes; every process
+is started and stopped by the test, by its PID.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import can
+import pytest
+
+from cellsim.services.blackbox import BlackBox
+
+from live_processes import ROOT, can_server, free_port, observer, processes, wait_alive
+
+WELDING_CELL = str(ROOT / "scenarios" / "welding_cell.yaml")
+BRIDGE = str(ROOT / "bridges" / "welding_cell.yaml")
+ENTITIES = ("robot", "welder", "light_barrier", "range_detector", "operator")
+ALL_SHADOW = [arg for e in ENTITIES for arg in ("--set", f"{e}.twin.mode=shadow")]
+TWIN_SUPERVISES = ["--set", "robot.twin.mode=twin", "--set", "welder.twin.mode=twin",
+                   *[arg for e in ("light_barrier", "range_detector", "operator") for arg in ("--set", f"{e}.twin.mode=shadow")]]
+TWIN_PERIOD = {"light_barrier": 0.04, "range_detector": 0.04, "welder": 0.04, "robot": 0.02}
+DEVICE = {  # entity: (cycle time, watchdog) as bridges/welding_cell.yaml sets them
+    "light_barrier": (0.02, 0.1), "range_detector": (0.04, 0.2), "welder": (0.04, 0.2), "robot": (0.002, 0.05),
+}
+# every bus fault, and two of the robot controller's link, each in a window of emulator time
+FAULTS = [
+    ("light_barrier", "drop", 1.5, 2.5), ("light_barrier", "length", 3.5, 4.5),
+    ("range_detector", "crc", 1.5, 2.5), ("range_detector", "flood", 3.5, 4.5),
+    ("welder", "replay", 1.5, 2.5), ("welder", "delay", 3.5, 4.5),
+    ("robot", "freeze", 1.5, 2.5), ("robot", "delay", 3.5, 4.5),
+]
+# what the twin shows of each entity: (channel, its value in the emulated cell then, its fail-safe value)
+SHOWN = {
+    "light_barrier": ("light_barrier.broken", False, True),
+    "range_detector": ("range_detector.range", "far", "close"),
+    "welder": ("welder.safety_mode", "normal", "unknown"),
+    "robot": ("robot.physical_link", "ok", {"freeze": "corrupt", "delay": "stale"}),
+}
+COUNTED = {"drop": "timeout", "length": "length", "crc": "crc", "flood": "timeout", "replay": "counter",
+           "delay": "timeout", "freeze": "counter"}
+ROBOT_DELAY_COUNTED = "late"
+
+
+def _offset(twin: BlackBox, emulator: BlackBox) -> float:
+    """Emulator time + offset = twin time of the same wall-clock instant."""
+    return emulator.metadata()["live"]["wall_at_zero"] - twin.metadata()["live"]["wall_at_zero"]
+
+
+class Diagnostics:
+    """The latest diagnostics of each device, as the daemon publishes them."""
+
+    def __init__(self, session):
+        self.latest: dict[str, dict] = {}
+        self.heard: dict[str, int] = {}
+        self.subscriber = session.declare_subscriber("cellsim/welding_cell/diagnostics/*", self._on_status)
+
+    def _on_status(self, sample) -> None:
+        device = str(sample.key_expr).rsplit("/", 1)[1]
+        self.latest[device] = json.loads(sample.payload.to_bytes())
+        self.heard[device] = self.heard.get(device, 0) + 1
+
+
+def _start_twin_and_bridge(start, tmp, twin_args, bus: str, endpoint: str, port: int):
+    """The twin, then the daemon, each once it is up; returns (twin, bridge)."""
+    twin = start(["live", WELDING_CELL, "--out", str(tmp / "twin"), "--listen", endpoint, "--quiet", *twin_args],
+                 tmp / "twin.log")
+    with observer(port) as session:
+        wait_alive(session, "cellsim/welding_cell/alive/twin")
+    bridge = start(["bridge", BRIDGE, "--can", f"remote:{bus}", "--connect", endpoint], tmp / "bridge.log")
+    with observer(port) as session:
+        wait_alive(session, "cellsim/welding_cell/alive/bridge")
+    return twin, bridge
+
+
+def _start_emulator(start, tmp, args, bus: str, endpoint: str):
+    return start(["emulate", WELDING_CELL, "--can", f"remote:{bus}", "--out", str(tmp / "emulator"),
+                  "--connect", endpoint, "--quiet", *args], tmp / "emulator.log")
+
+
+def test_each_bus_fault_drives_its_entity_to_fail_safe_within_its_watchdog_and_back(tmp_path):
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    faults = [arg for entity, kind, t0, t1 in FAULTS for arg in ("--fault", f"{entity}={kind}@{t0}-{t1}")]
+    with processes() as start:
+        bus = can_server(start, tmp_path / "can.log")
+        twin, bridge = _start_twin_and_bridge(start, tmp_path, ALL_SHADOW, bus, endpoint, port)
+        with observer(port) as session:
+            diagnostics = Diagnostics(session)
+            emulator = _start_emulator(start, tmp_path, ["--duration", "6.5", *faults], bus, endpoint)
+            assert emulator.wait(timeout=120) == 0, emulator.output()
+            twin.stop()  # SIGINT: the twin closes its black box cleanly
+            assert bridge.popen.poll() is None, bridge.output()  # nothing on the bus stopped the daemon
+            latest = dict(diagnostics.latest)
+            diagnostics.subscriber.undeclare()
+        bridge.stop()
+        assert bridge.popen.returncode == 130, bridge.output()
+    with BlackBox(tmp_path / "twin" / "blackbox.sqlite") as twin, BlackBox(tmp_path / "emulator" / "blackbox.sqlite") as emu:
+        offset = _offset(twin, emu)
+        for entity, kind, t0, t1 in FAULTS:
+            channel, normal, safe = SHOWN[entity]
+            safe = safe[kind] if isinstance(safe, dict) else safe
+            cycle, watchdog = DEVICE[entity]
+            series = twin.series(channel)
+            assert series.value_at(t0 + offset - 0.1) == normal, (entity, kind)
+            # failed safe within the device's watchdog plus one twin update period (and the way of a frame)
+            failed = t0 + offset + watchdog + cycle + TWIN_PERIOD[entity] + 0.1
+            during = {v for t, v in zip(series.times, series.values) if t0 + offset < t <= failed}
+            assert safe in during and series.value_at(failed) == safe, (entity, kind, series.value_at(failed))
+            # trusted again once recover_after good frames came in a row
+            recovered = t1 + offset + 5 * cycle + TWIN_PERIOD[entity] + 0.15
+            assert series.value_at(recovered) == normal, (entity, kind, series.value_at(recovered))
+    # the daemon counted each fault, by kind, in its diagnostics
+    for entity, kind, *_ in FAULTS:
+        counted = ROBOT_DELAY_COUNTED if (entity, kind) == ("robot", "delay") else COUNTED[kind]
+        assert latest[entity]["counts"][counted] >= 1, (entity, kind, latest[entity])
+        assert latest[entity]["level"] in ("OK", "STALE")  # recovered, or stale once the emulator ended
+    assert latest["bridge"]["unknown_frames"] >= 20 * 10  # the flood: counted, dropped, survived
+
+
+def test_the_twin_supervises_the_emulated_cell_through_the_bus(tmp_path):
+    """The live issue's supervision test, with the welder's commands and states as CAN frames and the
+    robot's through its controller's stream: the same outcomes."""
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    reached = threading.Event()
+
+    def on_status(sample) -> None:
+        if json.loads(sample.payload.to_bytes())["sim_time"] >= 30.0:
+            reached.set()
+
+    with processes() as start:
+        bus = can_server(start, tmp_path / "can.log")
+        twin, bridge = _start_twin_and_bridge(start, tmp_path, TWIN_SUPERVISES, bus, endpoint, port)
+        with observer(port) as session:
+            status = session.declare_subscriber("cellsim/welding_cell/status/twin", on_status)
+            emulator = _start_emulator(start, tmp_path, ["--duration", "36", "--commanded-by-twin"], bus, endpoint)
+            assert reached.wait(90), twin.output()
+            status.undeclare()
+        twin.stop()  # after the scenario's 30 s, while the emulated cell still runs
+        assert emulator.wait(timeout=60) == 0, emulator.output()
+        bridge.stop()
+    with BlackBox(tmp_path / "twin" / "blackbox.sqlite") as twin, BlackBox(tmp_path / "emulator" / "blackbox.sqlite") as emu:
+        offset = _offset(twin, emu)
+        assert "safety_controller.HS" not in emu.channels()  # the emulated cell has no supervisor of its own
+        hs = twin.series("safety_controller.HS")
+        raised = next(t for t, v in zip(hs.times, hs.values) if v == "act" and t > offset + 5.0)
+        assert raised - offset > 13.0  # the default walk reaches the cell after 14 s
+        # the twin's ssmon request reaches the emulated robot through the daemon and its controller link
+        mode, speed = emu.series("robot.safety_mode"), emu.series("robot.tool_speed")
+        slowed = next(t for t, v in zip(mode.times, mode.values) if v == "ssmon" and t > raised - offset - 0.5)
+        assert slowed - (raised - offset) < 0.35  # twin's update, the daemon, the controller's update
+        after = [v for t, v in zip(speed.times, speed.values) if slowed + 0.6 <= t and mode.value_at(t) == "ssmon"]
+        assert after and max(after) <= 0.5 + 0.05  # ssmon's tool speed cap, once braked
+        # the welder's requests came as CAN frames: the emulated welder stops when the twin's controller says so
+        demand = twin.series("safety_controller.safmod")
+        stop = next(t for t, v in zip(demand.times, demand.values) if v == "stopped" and t > offset + 5.0)
+        resume = next(t for t, v in zip(demand.times, demand.values) if v != "stopped" and t > stop)
+        welder = emu.series("welder.safety_mode")
+        stopped = next(t for t, v in zip(welder.times, welder.values) if v == "stopped" and t > stop - offset - 0.5)
+        assert 0 < stopped - (stop - offset) < 0.25  # twin's update, the daemon at once, the welder's update
+        assert welder.value_at(resume - offset + 0.25) == "normal" and emu.series("welder.activity").value_at(stopped + 0.1) == "off"
+    proc = subprocess.run([sys.executable, "-m", "cellsim", "check", str(tmp_path / "twin"), "--json"],
+                          capture_output=True, text=True, timeout=120, cwd=ROOT)
+    verdicts = json.loads(proc.stdout)
+    assert proc.returncode == 0 and verdicts["holds"] and verdicts["complete"], verdicts["violations"]
+    assert len(verdicts["verdicts"]) == 14
+
+
+def test_a_killed_twin_gets_every_commanded_device_its_safe_command_within_the_watchdog(tmp_path):
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    with processes() as start:
+        bus = can_server(start, tmp_path / "can.log")
+        listener = can.Bus(interface="remote", channel=bus)
+        try:
+            twin, bridge = _start_twin_and_bridge(start, tmp_path, TWIN_SUPERVISES, bus, endpoint, port)
+            emulator = _start_emulator(start, tmp_path, ["--commanded-by-twin"], bus, endpoint)
+            from bridges.config import load_bridge
+            from bridges.e2e import DeviceChecker
+
+            database = load_bridge(BRIDGE).database
+            request = database.get_message_by_name("SafetyModeRequest")
+            checker = DeviceChecker(message=request, timeout=1.0, recover_after=1)
+
+            def next_request(deadline: float) -> tuple[float, str]:
+                while time.monotonic() < deadline:
+                    frame = listener.recv(timeout=max(0.0, deadline - time.monotonic()))
+                    if frame is not None and frame.arbitration_id == request.frame_id:
+                        assert checker.check(bytes(frame.data), time.monotonic()).trusted
+                        return time.monotonic(), str(request.decode(bytes(frame.data))["SafetyMode"])
+                raise AssertionError("no SafetyModeRequest frame before the deadline")
+
+            deadline = time.monotonic() + 90
+            normal_in_a_row = 0
+            while normal_in_a_row < 25:  # a second of the twin supervising, the welder free to work
+                normal_in_a_row = normal_in_a_row + 1 if next_request(deadline)[1] == "normal" else 0
+            twin.stop(signal.SIGKILL)
+            killed = time.monotonic()
+            seen = []
+            while not seen or seen[-1][1] != "stopped":
+                seen.append(next_request(killed + 5))
+            # the commands' watchdog (0.5 s) and a frame's cycle, whichever sees it first
+            assert seen[-1][0] - killed <= 0.5 + 0.04 + 0.1, seen
+            for _ in range(10):  # and it stays safe
+                assert next_request(killed + 10)[1] == "stopped"
+            assert bridge.popen.poll() is None  # the daemon outlives the twin
+        finally:
+            listener.shutdown()
+        emulator.stop()
+        bridge.stop()
+    with BlackBox(tmp_path / "emulator" / "blackbox.sqlite") as emu:
+        assert emu.series("welder.safety_mode").values[-1] == "stopped"  # the device did as the safe command said
+
+
+def test_with_the_shipped_access_control_the_daemon_feeds_the_twin_and_observers_see_its_diagnostics(tmp_path):
+    """The daemon as user "cell": a robot controller's states (also "cell") reach the twin as the robot's
+    samples through it; an observer sees its diagnostics but cannot feed the controller stream."""
+    import zenoh
+
+    from cellsim.live.session import session_config
+
+    from live_processes import ChannelWatch
+
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+
+    def session(user: str):
+        return zenoh.open(session_config(connect=[endpoint], config_file=ROOT / "config" / "zenoh" / f"client-{user}.json5"))
+
+    def stream(publisher, seq0: int, until, timeout: float) -> int:
+        """Robot controller states at about 500 Hz until ``until()`` holds."""
+        deadline, pause, seq = time.monotonic() + timeout, threading.Event(), seq0
+        while not until():
+            assert time.monotonic() < deadline, "not within the deadline"
+            seq += 1
+            publisher.put(json.dumps({"t": time.time(), "seq": seq, "position": [0.1, -1.2, 1.0, 0.0, 1.5, 0.0],
+                                      "velocity": [0.0] * 6, "safety_mode": "normal", "activity": "exchWrkp",
+                                      "reached_pose": "moving"}))
+            pause.wait(0.002)
+        return seq
+
+    with processes() as start:
+        twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet",
+                      "--config", "config/zenoh/twin-acl.json5", "--set", "robot.twin.mode=shadow", "--wait-physical", "0"],
+                     tmp_path / "twin.log")
+        observer_session = session("observer")
+        try:
+            wait_alive(observer_session, "cellsim/welding_cell/alive/twin")
+            bridge = start(["bridge", BRIDGE, "--can", "virtual:acl", "--connect", endpoint,
+                            "--config", "config/zenoh/client-cell.json5"], tmp_path / "bridge.log")
+            wait_alive(observer_session, "cellsim/welding_cell/alive/bridge")
+            diagnostics = Diagnostics(observer_session)
+            link = ChannelWatch(observer_session, "cellsim/welding_cell/twin/robot/physical_link")
+            # the observer's controller states do not count
+            forged = observer_session.declare_publisher("cellsim/welding_cell/controller/robot/state")
+            stream(forged, 0, lambda: diagnostics.heard.get("robot", 0) >= 3, 30)  # two diagnostics periods of it
+            assert diagnostics.latest["robot"]["received"] == 0 and diagnostics.latest["robot"]["level"] == "STALE"
+            controller_session = session("cell")
+            try:
+                controller = controller_session.declare_publisher("cellsim/welding_cell/controller/robot/state")
+                stream(controller, 0, lambda: link.values[-1:] == ["ok"], 60)
+            finally:
+                controller_session.close()
+            link.close()
+            assert diagnostics.latest["robot"]["received"] > 0
+            diagnostics.subscriber.undeclare()
+        finally:
+            observer_session.close()
+        twin.stop()
+        bridge.stop()
