@@ -61,32 +61,47 @@ class DeviceDiagnostics:
     def status(self, now: float) -> dict:
         """The device's status now (the rate is over the time since the last status)."""
         checker = self.checker
-        if self._window_start is None:
-            self._window_start = now
-        span = now - self._window_start
-        rate = self._window_received / span if span > 0 else 0.0
-        new_errors = {k: v - self._window_counts.get(k, 0) for k, v in checker.counts.items() if v > self._window_counts.get(k, 0)}
-        age = None if checker.last_good is None else max(0.0, now - checker.last_good)
-        if age is None or age > checker.timeout:
-            level, message = "STALE", "no good message yet" if age is None else f"no good message for {age:.3f} s"
-        elif checker.failed:
-            level, message = "ERROR", "failed: " + (", ".join(f"{k} {v}" for k, v in new_errors.items()) or "recovering")
+        level, span, rate, age, new_errors = self._assess(now)
+        if level == "STALE":
+            message = "no good message yet" if age is None else f"no good message for {age:.3f} s"
+        elif level == "ERROR":
+            message = "failed: " + (", ".join(f"{k} {v}" for k, v in new_errors.items()) or "recovering")
         elif new_errors:
-            level, message = "WARN", "errors: " + ", ".join(f"{k} {v}" for k, v in new_errors.items())
-        elif span >= 0.5 and rate < RATE_WARNING * self.nominal_hz:
-            level, message = "WARN", f"rate {rate:.1f} Hz of {self.nominal_hz:g}"
+            message = "errors: " + ", ".join(f"{k} {v}" for k, v in new_errors.items())
+        elif level == "WARN":
+            message = f"rate {rate:.1f} Hz of {self.nominal_hz:g}"
         else:
-            level, message = "OK", "trusted"
+            message = "trusted"
         return {"t": now, "entity": self.entity, "device": self.device, "level": level, "message": message,
                 "rate_hz": round(rate, 2), "nominal_hz": self.nominal_hz,
                 "age_s": None if age is None else round(age, 4), "received": self.received, "counts": dict(checker.counts)}
 
+    def _assess(self, now: float) -> tuple[str, float, float, float | None, dict]:
+        """(level, span of the window (s), rate (Hz), age of the last good message (s), errors in the window)."""
+        checker = self.checker
+        if self._window_start is None:
+            self._window_start = now
+        span = now - self._window_start
+        rate = self._window_received / span if span > 0 else 0.0
+        counted = self._window_counts
+        new_errors = {k: v - counted.get(k, 0) for k, v in checker.counts.items() if v > counted.get(k, 0)}
+        age = None if checker.last_good is None else max(0.0, now - checker.last_good)
+        if age is None or age > checker.timeout:
+            level = "STALE"
+        elif checker.failed:
+            level = "ERROR"
+        elif new_errors or (span >= 0.5 and rate < RATE_WARNING * self.nominal_hz):
+            level = "WARN"
+        else:
+            level = "OK"
+        return level, span, rate, age, new_errors
+
     def publish(self, now: float, every: float) -> None:
         """Publish the status if ``every`` s passed since the last one, or at once if its level changed."""
-        status = self.status(now)
         due = self._window_start is not None and now - self._window_start >= every
-        if status["level"] == self.level and not due and self.last:
+        if not due and self.last and self._assess(now)[0] == self.level:
             return
+        status = self.status(now)
         if status["level"] != self.level:
             log.log(logging.INFO if status["level"] == "OK" else logging.WARNING, "%s (%s): %s -> %s, %s",
                     self.entity, self.device, self.level, status["level"], status["message"])

@@ -103,6 +103,8 @@ class RobotLink:
     requests_sent: int = 0
     safe_requests_sent: int = 0
     received: int = 0
+    diagnostics: object = None
+    """Its DeviceDiagnostics (counted under the link's lock)."""
     _seq: int = 0
     _request_seq: int = 0
     _last_t: float = 0.0
@@ -123,22 +125,14 @@ class RobotLink:
             self._encoder = JointStateEncoder(cfg.joints)
             self._joint_state = self.session.declare_publisher(cfg.ros_key, encoding=zenoh.Encoding.APPLICATION_CDR)
 
-    def subscribe(self, on_state=None):
-        """Take the controller's states as they arrive (on Zenoh's thread, one at a time)."""
-        def deliver(sample):
-            self.handle(sample.payload.to_bytes())
-            if on_state is not None:
-                on_state()
-
-        self._subscriber = self.session.declare_subscriber(keys.controller_state(self.cell, self.entity), deliver)
-        return self._subscriber
-
     def handle(self, payload: bytes, now: float | None = None) -> Verdict:
         import time
 
         now = time.time() if now is None else now
         with self._lock:
             self.received += 1
+            if self.diagnostics is not None:
+                self.diagnostics.frame()
             verdict = self.checker.check(payload, now)
             if verdict.trusted:
                 state = verdict.values
@@ -157,6 +151,10 @@ class RobotLink:
             if verdict is not None:
                 self._fail(now, verdict.fault)
 
+    def publish_diagnostics(self, now: float, every: float) -> None:
+        with self._lock:
+            self.diagnostics.publish(now, every)
+
     def send(self, fields: dict | None, now: float) -> None:
         """Send a request: the twin's command ``fields``, or the stop when None (the supervisor is lost)."""
         self._request_seq += 1
@@ -165,11 +163,6 @@ class RobotLink:
             self.safe_requests_sent += 1
             fields = SAFE_REQUEST
         self._request.put(encode_fields(now, self._request_seq, {**SAFE_REQUEST, **fields}))
-
-    def close(self) -> None:
-        subscriber = getattr(self, "_subscriber", None)
-        if subscriber is not None:
-            subscriber.undeclare()
 
     def _fail(self, now: float, fault: Fault | None) -> None:
         # a timeout or a late state: the controller's data is stale; anything else: corrupt

@@ -480,3 +480,22 @@ def test_bad_emulate_can_arguments_are_one_line_exit_2(tmp_path, args, expected)
                           capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and expected in proc.stderr, proc.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_the_packed_joint_state_is_byte_for_byte_what_rosbags_serialises():
+    import numpy as np
+
+    from bridges.ros import JOINT_STATE, JointStateEncoder, typestore
+
+    store = typestore()
+    joints = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]
+    encoder = JointStateEncoder(joints)
+    rng = np.random.default_rng(7)
+    JointState, Header, Time = (store.types[t] for t in (JOINT_STATE, "std_msgs/msg/Header", "builtin_interfaces/msg/Time"))
+    for t in (0.0, 1795000000.25, 1795000123.999999):
+        q, qd = rng.uniform(-6, 6, 6), rng.uniform(-3, 3, 6)
+        sec = int(t // 1)
+        expected = store.serialize_cdr(JointState(
+            header=Header(stamp=Time(sec=sec, nanosec=min(round((t - sec) * 1e9), 999_999_999)), frame_id=""),
+            name=joints, position=q, velocity=qd, effort=np.array([], dtype=np.float64)), JOINT_STATE)
+        assert encoder.encode(t, q, qd) == bytes(expected)

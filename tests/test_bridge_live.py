@@ -14,7 +14,6 @@ import threading
 import time
 
 import can
-import pytest
 
 from cellsim.services.blackbox import BlackBox
 
