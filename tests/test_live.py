@@ -362,7 +362,7 @@ def test_a_fault_injected_at_run_time_fails_the_shadow_safe_and_sigterm_ends_the
             wait_alive(session, "cellsim/welding_cell/alive/emulator")
             link.wait_for("ok", 60)
             assert inject(session, {"entity": "light_barrier", "kind": "melt", "seconds": 1}) == {
-                "accepted": False, "reason": "'melt' is not a fault (silence, freeze, corrupt, delay, replay)"}
+                "accepted": False, "reason": "'melt' is not a fault of light_barrier (silence, freeze, corrupt, delay, replay)"}
             assert inject(session, {"entity": "light_barrier", "kind": "corrupt", "seconds": 1.0})["accepted"]
             link.wait_for("corrupt", 5)
             link.wait_for("ok", 10)  # the fault ends after a second; trusted again after good samples in a row
