@@ -13,7 +13,7 @@
   posed only when a sensor or the ground truth queries SceneGraph; all contact
   between them is filtered out (the arm is position controlled and collisions
   are *measured*, by sensors and ground truth, not simulated);
-* every entity's physical-twin input wired by ``bridges.physical``;
+* every entity's physical-twin input wired by ``cellsim.physical``;
 * the recorder tapping every channel, and optionally Meshcat.
 """
 
@@ -37,7 +37,7 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, Multibody
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, OutputPort
 
-from bridges.physical import connect_physical_twins
+from cellsim.physical import connect_physical_twins
 from cellsim import registry
 from cellsim.channels import ChannelSpec
 from cellsim.entities.twin import EntitySystem

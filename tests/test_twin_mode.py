@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bridges.physical import BlackBoxReplay
+from cellsim.physical import BlackBoxReplay
 from cellsim.channels import enum_type, vector_type
 from cellsim.scenario import TwinModeChange
 from cellsim.vocabulary import SafetyMode, TwinMode

@@ -4,9 +4,9 @@ Every entity is an ``EntitySystem``. Besides its digital behaviour it has
 
 * input ``physical_sample``: the latest sample from its physical twin, a vector
   ``[timestamp (s, simulation clock), valid (0/1), *sample_fields]``. In
-  simulation nothing is connected to it but a source that says "no sample"
-  (``bridges.physical.NoPhysicalTwin``); beside the real cell the bridge daemon
-  feeds it; tests replay a black box into it.
+  simulation it is fixed to "no sample" (``cellsim.physical.no_sample``); beside
+  the real cell the live twin feeds it from Zenoh (the emulator's or the bridge
+  daemon's samples); tests replay a black box into it.
 * output ``physical_command``: ``[active (0/1), *command_fields]``, the commands
   addressed to this entity; ``active`` is 1 only in ``twin`` mode, so a
   network bridge forwards them to the physical twin only then.

@@ -7,7 +7,8 @@ feeds it decides whether the entity can shadow a physical twin:
   shadow or twin mode then reads its physical link as stale and fails safe.
 * ``BlackBoxReplay``: replays channels of a recorded black box as the physical
   twin's samples (a recorded real cell, or another simulated run).
-* the bridge daemon (CAN, Zenoh) provides network-fed sources.
+* ``cellsim.live.sources.ZenohSampleSource``: samples from Zenoh (the emulator's,
+  or the bridge daemon's from the real cell's CAN devices and robot controller).
 
 ``connect_physical_twins`` is the single place where a diagram's entities are
 connected to their sources.
