@@ -138,6 +138,9 @@ def test_enumerations_go_out_by_name():
         ("    watchdog: 0.1", "    watchdog: 0.01", "devices.light_barrier.watchdog", "longer than the cycle time"),
         ("safe: {SafetyMode: stopped}", "safe: {SafetyMode: halt}", "commands.welder.0.safe.SafetyMode", "'halt' is not a value"),
         ("fields: {SafetyMode: safety_mode_request}", "fields: {Mode: safety_mode_request}", "commands.welder.0.safe", "safe value for each signal"),
+        ("wrist_2_joint, wrist_3_joint]", "wrist_2_joint]", "robots.robot.joints", "six joints"),
+        ("    watchdog: 0.05", "    watchdog: 0.001", "robots.robot.watchdog", "longer than the cycle time"),
+        ("ros_namespace: /welding_cell", "ros_namespace: /welding cell", "robots.robot.ros_namespace", "not a ROS 2 name"),
     ],
 )
 def test_a_configuration_that_does_not_match_its_dbc_is_one_error_naming_the_key(tmp_path, old, new, key, expected):
