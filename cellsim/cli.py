@@ -247,6 +247,21 @@ def build_parser() -> argparse.ArgumentParser:
     _add_network_args(bridge)
     bridge.set_defaults(handler=cmd_bridge)
 
+    dash = sub.add_parser(
+        "dashboard",
+        help="watch the cell in operation in the terminal (the running twin, or a recorded run)",
+        description="A terminal dashboard of the running twin (found on the network, or --cell) or, with --replay, "
+        "of a recorded run: safety modes, hazards, every entity's twin mode and link health with twin and physical "
+        "values side by side, the robot, the safety conditions over the trace so far, the bridge daemon's "
+        "diagnostics and an event log. Keys: m switches an entity's twin mode (with a confirmation), q quits.",
+    )
+    dash.add_argument("--cell", default=None, help="the running twin's cell (default: the first twin that answers)")
+    dash.add_argument("--replay", type=Path, metavar="RUN", help="play a recorded run (a run folder or black box) instead")
+    dash.add_argument("--speed", type=float, default=1.0, help="with --replay: times real time (default 1)")
+    dash.add_argument("--start", type=float, default=0.0, help="with --replay: the simulated time to start from (s)")
+    _add_network_args(dash)
+    dash.set_defaults(handler=cmd_dashboard)
+
     mode = sub.add_parser(
         "twin-mode",
         help="switch an entity of the running twin to model, shadow or twin",
@@ -492,6 +507,38 @@ def cmd_bridge(args) -> int:
             session.close()
     finally:
         bus.shutdown()
+    return EXIT_OK
+
+
+def cmd_dashboard(args) -> int:
+    import math
+
+    from cellsim.dashboard.app import Dashboard
+    from cellsim.dashboard.feeds import LiveFeed, ReplayFeed
+
+    if not (math.isfinite(args.speed) and 0.01 <= args.speed <= 1000.0):
+        raise InputError(f"--speed {args.speed:g}: expected from 0.01 to 1000 times real time")
+    if not (math.isfinite(args.start) and args.start >= 0.0):
+        raise InputError(f"--start {args.start:g}: expected a time from 0 s")
+    if args.replay is not None:
+        from cellsim.services.blackbox import BlackBoxError
+        from cellsim.validation.check import CheckError
+
+        try:
+            feed = ReplayFeed(args.replay, args.speed, args.start)
+        except (CheckError, BlackBoxError) as e:
+            raise InputError(str(e)) from None
+        Dashboard(feed).run()
+        return EXIT_OK
+    session = _open_session(args, listen_by_default=False)
+    try:
+        feed = LiveFeed(session, args.cell)
+        try:
+            Dashboard(feed).run()
+        finally:
+            feed.close()
+    finally:
+        session.close()
     return EXIT_OK
 
 

@@ -64,3 +64,9 @@ def controller_request(cell: str, robot: str) -> str:
 def diagnostics(cell: str, device: str) -> str:
     """The bridge daemon's diagnostics of one device (level OK/WARN/ERROR/STALE, rates, error counts)."""
     return f"{ROOT}/{cell}/diagnostics/{device}"
+
+
+def describe(cell: str) -> str:
+    """Queryable of the running twin: what it runs (the resolved scenario, its channels and hazards),
+    for a dashboard that has only the network."""
+    return f"{ROOT}/{cell}/describe"

@@ -125,6 +125,9 @@ class LiveTwin:
         self._command_seq = 0
         self._status = self.session.declare_publisher(keys.status(name, self.process))
         self._queryable = self.session.declare_queryable(keys.twin_mode_control(name), self._on_mode_query)
+        self._description = json.dumps(describe(self.sf, cell))
+        self._describe = self.session.declare_queryable(
+            keys.describe(name), lambda query: query.reply(query.key_expr, self._description))
         self._token = self.session.liveliness().declare_token(keys.alive(name, self.process))
 
     def hooks(self):
@@ -166,7 +169,8 @@ class LiveTwin:
         }
 
     def close(self) -> None:
-        for thing in [*getattr(self, "_subscribers", []), getattr(self, "_queryable", None), getattr(self, "_token", None)]:
+        for thing in [*getattr(self, "_subscribers", []), getattr(self, "_queryable", None), getattr(self, "_describe", None),
+                      getattr(self, "_token", None)]:
             if thing is not None:
                 try:
                     thing.undeclare()
@@ -239,6 +243,20 @@ class LiveTwin:
 
 
 _UNSET = object()
+
+
+def describe(sf, cell) -> dict:
+    """What a running twin tells a dashboard about itself (the ``describe`` query's answer): the
+    resolved scenario, every channel as the black box lists it, and the hazards' phases."""
+    from cellsim.config.typed_yaml import to_data
+    from cellsim.simulation import hazard_channels
+
+    channels = {
+        spec.name: {"source": spec.module, "kind": spec.type.kind, "domain": spec.type.domain(), "unit": spec.type.unit,
+                    "period": spec.sample_period, "description": spec.description}
+        for spec, _ in cell.channels.values()
+    }
+    return {"scenario": to_data(sf.scenario), "channels": channels, "hazards": hazard_channels(cell)}
 
 
 def run_live(sf, out_dir, *, session, duration: float, seed: int | None = None, on_progress=None, wait_physical: float = 10.0):

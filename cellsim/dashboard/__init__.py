@@ -1,0 +1,1 @@
+"""The terminal dashboard of a cell in operation (``cellsim dashboard``)."""

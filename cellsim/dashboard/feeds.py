@@ -1,0 +1,162 @@
+"""What feeds the dashboard's model: the running twin over Zenoh, or a recorded run.
+
+Both have one method the dashboard calls several times a second, ``drain()``,
+which takes in whatever arrived since. A live feed's network callbacks only
+append the raw message to a queue; ``drain`` decodes it then, and of a stream
+faster than the dashboard refreshes (a robot's physical state at 500 Hz) it
+decodes only the newest message: the dashboard never renders every message.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections import deque
+from pathlib import Path
+
+from cellsim.dashboard.model import CellModel
+from cellsim.live import keys
+
+
+class ReplayFeed:
+    """A recorded run played back at ``speed`` times real time, from ``start`` (s)."""
+
+    def __init__(self, run: str | Path, speed: float = 1.0, start: float = 0.0, clock=time.monotonic):
+        from cellsim.services.blackbox import BlackBox
+        from cellsim.validation.check import locate_run
+
+        blackbox, _ = locate_run(run)
+        with BlackBox(blackbox) as bb:
+            self.model = CellModel.from_blackbox(bb)
+            self.messages = list(bb.iter_values(list(bb.channels())))
+            metadata = bb.metadata()
+        self.end = float(metadata.get("duration") or metadata.get("recorded_until") or (self.messages[-1][0] if self.messages else 0.0))
+        self.complete = metadata.get("status") in ("completed", "stopped")
+        self.speed, self.start, self.clock = speed, start, clock
+        self.source = str(run)
+        self._next = 0
+        self._wall0: float | None = None
+        self.model.set_twin("replay")
+
+    @property
+    def position(self) -> float:
+        """The replay's simulated time now (s)."""
+        if self._wall0 is None:
+            return self.start
+        return min(self.end, self.start + (self.clock() - self._wall0) * self.speed)
+
+    def drain(self) -> None:
+        if self._wall0 is None:
+            self._wall0 = self.clock()
+        now = self.position
+        messages, model = self.messages, self.model
+        while self._next < len(messages) and messages[self._next][0] <= now:
+            t, channel, value = messages[self._next]
+            model.apply_channel(channel, t, value)
+            self._next += 1
+        model.sim_time = max(model.sim_time, now)
+        if now >= self.end and model.twin != "ended":
+            model.complete = self.complete
+            model.conditions(force=True)
+            model.set_twin("ended")
+
+    def close(self) -> None:
+        pass
+
+
+class LiveFeed:
+    """The running twin of ``cell`` (None: the first twin found) on a Zenoh session."""
+
+    def __init__(self, session, cell: str | None = None):
+        self.session = session
+        self.cell = cell
+        self.model: CellModel | None = None
+        self._inbox: deque = deque()
+        self._alive: deque = deque()
+        self._subscribers = []
+        self._next_try = 0.0
+        self.source = "the running twin"
+
+    def drain(self) -> None:
+        if self.model is None:
+            self._connect()
+            return
+        latest_physical: dict[str, bytes] = {}
+        inbox, model = self._inbox, self.model
+        while inbox:
+            key, payload = inbox.popleft()
+            parts = key.split("/")
+            kind = parts[2] if len(parts) > 2 else ""
+            if kind == "physical":
+                latest_physical[parts[3]] = payload  # only the newest of a fast stream is decoded
+                continue
+            try:
+                message = json.loads(payload)
+            except (ValueError, UnicodeDecodeError):
+                model.dropped += 1
+                continue
+            if kind == "twin" and len(parts) == 5 and isinstance(message, dict):
+                model.apply_channel(f"{parts[3]}.{parts[4]}", message.get("sim_time"), message.get("value"))
+            elif kind == "status":
+                model.apply_status(message)
+            elif kind == "diagnostics" and len(parts) == 4:
+                model.apply_diagnostics(parts[3], message)
+            else:
+                model.dropped += 1
+        for entity, payload in latest_physical.items():
+            try:
+                model.apply_physical(entity, json.loads(payload))
+            except (ValueError, UnicodeDecodeError):
+                model.dropped += 1
+        while self._alive:
+            model.set_twin("running" if self._alive.popleft() else "gone")
+
+    def _connect(self) -> None:
+        """Find the twin (its liveliness token), ask what it runs, subscribe to everything it says."""
+        now = time.monotonic()
+        if now < self._next_try:
+            return
+        self._next_try = now + 1.0
+        if self.cell is None:
+            for reply in self.session.liveliness().get(f"{keys.ROOT}/*/alive/twin", timeout=0.5):
+                if reply.ok is not None:
+                    self.cell = str(reply.ok.key_expr).split("/")[1]
+                    break
+            if self.cell is None:
+                return
+        description = None
+        for reply in self.session.get(keys.describe(self.cell), timeout=1.0):
+            if reply.ok is not None:
+                try:
+                    description = json.loads(reply.ok.payload.to_bytes())
+                except ValueError:
+                    description = None
+        if not isinstance(description, dict):
+            return
+        self.model = CellModel(description)
+        self.model.set_twin("running")
+        append = self._inbox.append
+        prefix = keys.cell_prefix(self.cell)
+        for selector in (f"{prefix}/twin/**", f"{prefix}/status/twin", f"{prefix}/diagnostics/*", f"{prefix}/physical/*"):
+            self._subscribers.append(self.session.declare_subscriber(
+                selector, lambda sample: append((str(sample.key_expr), sample.payload.to_bytes()))))
+        self._subscribers.append(self.session.liveliness().declare_subscriber(
+            keys.alive(self.cell, "twin"), lambda sample: self._alive.append(str(sample.kind).endswith("PUT")), history=True))
+
+    def request_mode(self, entity: str, mode: str, timeout: float = 5.0) -> dict:
+        """Ask the twin to switch ``entity`` to ``mode`` (blocking: call it off the interface's thread)."""
+        request = json.dumps({"entity": entity, "mode": mode, "by": f"cellsim dashboard ({self.session.zid()})"})
+        for reply in self.session.get(keys.twin_mode_control(self.cell), payload=request, timeout=timeout):
+            if reply.ok is not None:
+                try:
+                    return json.loads(reply.ok.payload.to_bytes())
+                except ValueError:
+                    return {"accepted": False, "reason": "the twin's answer was malformed"}
+        return {"accepted": False, "reason": f"no answer from the twin within {timeout:g} s"}
+
+    def close(self) -> None:
+        for subscriber in self._subscribers:
+            try:
+                subscriber.undeclare()
+            except Exception:  # noqa: BLE001 - closing anyway
+                pass

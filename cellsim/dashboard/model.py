@@ -1,0 +1,348 @@
+"""What the dashboard knows of a cell in operation: the latest of everything, and the trace so far.
+
+``CellModel`` is fed by a feed (``cellsim.dashboard.feeds``: the running twin over
+Zenoh, or a recorded black box) and read by the views. It keeps the latest value
+of every channel, the trace so far (each channel's changes, for the safety
+conditions), the physical samples, the twin's status, the bridge daemon's
+diagnostics and an event log. Nothing in it renders; nothing a message holds
+can break it: a message for an unknown channel, or with a value outside its
+channel's domain, is counted and dropped.
+
+Safety conditions are evaluated online over the trace so far
+(:meth:`CellModel.conditions`), with the offline checker's semantics on an
+unfinished run (docs/condition-language.md):
+
+* ``holds``: decided, whatever comes next (an eventuality that came true);
+* ``holds so far``: no violation yet, and the future could still bring one;
+* ``pending``: an obligation is open (a hazard raised and not yet mitigated):
+  on the trace so far the condition fails, but the run going on can still
+  fulfil it;
+* ``violated at T``: a violation nothing can undo, first at T;
+* ``no data yet``: a variable it reads has had no message.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+LEVELS = ("OK", "WARN", "ERROR", "STALE")
+"""Link health, as ROS diagnostics name it (a group shows its worst member)."""
+LINK_LEVEL = {"ok": "OK", "recovering": "WARN", "corrupt": "ERROR", "stale": "STALE"}
+CONDITIONS_EVERY = 1.0
+"""Simulated seconds between evaluations of the safety conditions."""
+JOINT_DIVERGENCE = math.radians(2.0)
+"""A physical joint further than this from the twin's is highlighted (rad)."""
+
+
+def worst(levels) -> str:
+    return max(levels, key=LEVELS.index, default="OK")
+
+
+@dataclass(frozen=True)
+class Event:
+    sim_time: float
+    text: str
+    level: str = "OK"
+
+
+class CellModel:
+    """The dashboard's picture of one cell."""
+
+    def __init__(self, description: dict):
+        from cellsim.validation.traces import _validator, domain_of
+
+        self.scenario: dict = description.get("scenario") or {}
+        self.name: str = self.scenario.get("name", "?")
+        self.channels: dict[str, dict] = description.get("channels") or {}
+        self.hazards: dict[str, dict] = description.get("hazards") or {}
+        self.kinds: dict[str, str] = {
+            name: cfg.get("kind", "?")
+            for section in ("entities", "behaviours", "services")
+            for name, cfg in (self.scenario.get(section) or {}).items()
+        }
+        self.entities = [name for name in (self.scenario.get("entities") or {})]
+        self._domains = {name: domain_of(c["kind"], c["domain"], c.get("unit")) for name, c in self.channels.items()}
+        self._valid = {name: _validator(d) for name, d in self._domains.items() if d is not None}
+        self.values: dict[str, object] = {}
+        self.changed_at: dict[str, float] = {}
+        self.series: dict[str, tuple[list[float], list]] = {}
+        self.sim_time = 0.0
+        self.physical: dict[str, dict] = {}
+        self.status: dict | None = None
+        self.diagnostics: dict[str, dict] = {}
+        self.twin = "waiting"
+        """waiting (no twin yet), running, gone (its liveliness token went), replay, ended."""
+        self.events: deque[Event] = deque(maxlen=500)
+        self.event_count = 0
+        """Events logged since the start (the deque keeps the newest)."""
+        self.dropped = 0
+        """Messages that were not what their key carries (counted, never fatal)."""
+        self.complete = False
+        """Whether the trace is the whole run (a replay that reached its end)."""
+        self._case = None
+        self._case_error: str | None = None
+        self._verdicts: list[tuple[str, str, str]] = []
+        self._evaluated_at = -math.inf
+
+    @classmethod
+    def from_blackbox(cls, bb) -> CellModel:
+        """A model of the run recorded in ``bb`` (an open BlackBox), before any message."""
+        metadata = bb.metadata()
+        channels = {
+            name: {"source": i.source, "kind": i.kind, "domain": i.domain, "unit": i.unit, "period": i.period,
+                   "description": i.description}
+            for name, i in bb.channels().items()
+        }
+        return cls({"scenario": metadata.get("scenario") or {}, "channels": channels, "hazards": metadata.get("hazards") or {}})
+
+    # -- in ----------------------------------------------------------------------------
+    def apply_channel(self, name: str, sim_time: float, value) -> None:
+        """A channel's value at ``sim_time`` (s, the twin's clock)."""
+        meta = self.channels.get(name)
+        if (meta is None or not isinstance(sim_time, (int, float)) or not math.isfinite(sim_time)
+                or (value is not None and name in self._valid and not self._valid[name](value))):
+            self.dropped += 1
+            return
+        self.sim_time = max(self.sim_time, float(sim_time))
+        previous = self.values.get(name, _UNSET)
+        self.values[name] = value
+        if previous == value and name in self.series:
+            return
+        self.changed_at[name] = float(sim_time)
+        if name in self._domains and self._domains[name] is not None:
+            times, values = self.series.setdefault(name, ([], []))
+            if times and sim_time <= times[-1]:
+                values[-1] = value
+            else:
+                times.append(float(sim_time))
+                values.append(value)
+        self._note_change(name, sim_time, previous, value)
+
+    def apply_physical(self, entity: str, message: dict) -> None:
+        """The latest physical sample of an entity (``{"t", "seq", "fields"}`` or a failure)."""
+        if entity in self.entities and isinstance(message, dict):
+            self.physical[entity] = message
+        else:
+            self.dropped += 1
+
+    def apply_status(self, status: dict) -> None:
+        if isinstance(status, dict) and isinstance(status.get("sim_time"), (int, float)):
+            self.status = status
+            self.sim_time = max(self.sim_time, float(status["sim_time"]))
+        else:
+            self.dropped += 1
+
+    def apply_diagnostics(self, device: str, status: dict) -> None:
+        if not isinstance(status, dict) or status.get("level", "OK") not in LEVELS and device != "bridge":
+            self.dropped += 1
+            return
+        previous = self.diagnostics.get(device, {}).get("level")
+        self.diagnostics[device] = status
+        level = status.get("level")
+        if device != "bridge" and level != previous and previous is not None:
+            self.log(f"{device}: link {previous} -> {level} ({status.get('message', '')})", level)
+
+    def set_twin(self, state: str) -> None:
+        if state != self.twin:
+            self.log({"running": "the twin is running", "gone": "the twin is gone", "ended": "the replay ended"}.get(state, state),
+                     "OK" if state in ("running", "replay", "ended") else "ERROR")
+        self.twin = state
+
+    def log(self, text: str, level: str = "OK") -> None:
+        self.events.append(Event(self.sim_time, text, level))
+        self.event_count += 1
+
+    def _note_change(self, name: str, t: float, previous, value) -> None:
+        module, _, signal = name.partition(".")
+        if previous is _UNSET:
+            return
+        if signal == "twin_mode":
+            self.log(f"{module}: twin mode {previous} -> {value}")
+        elif name in self.hazards:
+            phases = self.hazards[name]
+            level = "ERROR" if value == phases.get("mishap") else "OK" if value == phases.get("initial") else "WARN"
+            self.log(f"hazard {signal}: {previous} -> {value}", level)
+        elif signal == "physical_link":
+            self.log(f"{module}: physical link {value}", LINK_LEVEL.get(value, "WARN"))
+
+    # -- views -------------------------------------------------------------------------
+    def of_kind(self, kind: str) -> list[str]:
+        return [name for name, k in self.kinds.items() if k == kind]
+
+    def hazard_rows(self) -> list[tuple[str, str, float, str]]:
+        """(hazard, phase, seconds in that phase, level) of each hazard."""
+        rows = []
+        for channel, phases in self.hazards.items():
+            phase = self.values.get(channel, phases.get("initial"))
+            since = self.sim_time - self.changed_at.get(channel, 0.0)
+            level = "ERROR" if phase == phases.get("mishap") else "OK" if phase == phases.get("initial") else "WARN"
+            rows.append((channel.rpartition(".")[2], str(phase), max(0.0, since), level))
+        return rows
+
+    def cell_rows(self) -> list[tuple[str, str]]:
+        """The cell at a glance: safety modes, the safety controller's demands, the process."""
+        rows = []
+        for robot in self.of_kind("robot"):
+            rows.append((f"{robot} safety mode", _text(self.values.get(f"{robot}.safety_mode"))))
+        for controller in self.of_kind("safety_controller"):
+            for name, meta in self.channels.items():
+                if meta["source"] == controller and name not in self.hazards:
+                    value = self.values.get(name)
+                    if value is not None or name.rpartition(".")[2].startswith("notif"):
+                        rows.append((name.rpartition(".")[2], _text(value)))
+        for process in self.of_kind("process"):
+            rows.append(("process step", _text(self.values.get(f"{process}.step"))))
+            cycles = self.values.get(f"{process}.cycles_completed")
+            rows.append(("cycles completed", "-" if cycles is None else f"{cycles:g}"))
+        return rows
+
+    def robot_rows(self) -> list[tuple[str, str]]:
+        rows = []
+        separation = next((self.values.get(f"{g}.separation") for g in self.of_kind("ground_truth")), None)
+        for robot in self.of_kind("robot"):
+            speed = self.values.get(f"{robot}.tool_speed")
+            rows += [(f"{robot} location", _text(self.values.get(f"{robot}.location"))),
+                     (f"{robot} activity", _text(self.values.get(f"{robot}.activity"))),
+                     (f"{robot} tool speed", "-" if speed is None else f"{speed:.2f} m/s")]
+        if separation is not None:
+            rows.append(("true separation", "far" if separation > 1e3 else f"{separation:.2f} m"))
+        return rows
+
+    def entity_rows(self) -> list[dict]:
+        """Per entity: twin mode, link level and sample age, the bridge's diagnostics level, and
+        twin-versus-physical values (``diverges`` where they differ)."""
+        ages = (self.status or {}).get("sample_age") or {}
+        rows = []
+        for entity in self.entities:
+            mode = self.values.get(f"{entity}.twin_mode")
+            link = self.values.get(f"{entity}.physical_link")
+            level = "-" if mode in (None, "model") else LINK_LEVEL.get(link, "STALE")
+            diagnostics = self.diagnostics.get(entity, {}).get("level")
+            if diagnostics is not None and level != "-":
+                level = worst([level, diagnostics])
+            twin_text, physical_text, diverges = self._compare(entity)
+            rows.append({"entity": entity, "kind": self.kinds.get(entity, "?"), "mode": _text(mode), "level": level,
+                         "age": ages.get(entity), "diagnostics": diagnostics, "twin": twin_text, "physical": physical_text,
+                         "diverges": diverges})
+        return rows
+
+    def _compare(self, entity: str) -> tuple[str, str, bool]:
+        """The twin's and the physical twin's values of an entity, and whether they differ."""
+        message = self.physical.get(entity)
+        fields = message.get("fields") if isinstance(message, dict) else None
+        if self.kinds.get(entity) == "robot":
+            q = self.values.get(f"{entity}.joint_positions")
+            twin = "-" if not isinstance(q, list) else " ".join(f"{math.degrees(x):.0f}" for x in q)
+            if not isinstance(fields, dict):
+                return twin, _failure(message), False
+            try:
+                physical_q = [float(fields[f"q{i}"]) for i in range(6)]
+            except (KeyError, TypeError, ValueError):
+                return twin, "malformed", True
+            physical = " ".join(f"{math.degrees(x):.0f}" for x in physical_q)
+            diverges = isinstance(q, list) and len(q) == 6 and float(np.max(np.abs(np.subtract(q, physical_q)))) > JOINT_DIVERGENCE
+            return twin + " deg", physical + " deg", diverges
+        shown = [f for f in (fields or {}) if f"{entity}.{f}" in self.channels] or \
+            [n.partition(".")[2] for n, m in self.channels.items() if m["source"] == entity
+             and n.partition(".")[2] not in ("twin_mode", "physical_link")][:2]
+        twin = ", ".join(_text(self.values.get(f"{entity}.{f}")) for f in shown[:2]) or "-"
+        if not isinstance(fields, dict):
+            return twin, _failure(message), False
+        physical = ", ".join(_text(fields.get(f)) for f in shown[:2])
+        diverges = any(_differs(self.values.get(f"{entity}.{f}"), fields.get(f)) for f in shown[:2])
+        return twin, physical, diverges
+
+    # -- safety conditions ---------------------------------------------------------------
+    def conditions(self, force: bool = False) -> list[tuple[str, str, str]]:
+        """(condition, verdict, level) over the trace so far; re-evaluated every CONDITIONS_EVERY s."""
+        if not force and self.sim_time - self._evaluated_at < CONDITIONS_EVERY:
+            return self._verdicts
+        self._evaluated_at = self.sim_time
+        case = self._safety_case()
+        if case is None:
+            return self._verdicts
+        from cellsim.logic.trace import Signal, Trace
+        from cellsim.validation.conditions import HOLDS, INCONCLUSIVE, MISSING, VIOLATED
+
+        if self.sim_time <= 0.0:
+            return self._verdicts
+        signals = {name: Signal(np.asarray(times, dtype=np.float64), list(values)) for name, (times, values) in self.series.items()}
+        for name in self._domains:
+            signals.setdefault(name, Signal(np.zeros(0), []))
+        for variable, channel in case.validation.variables.items():
+            signals[variable] = signals.get(channel, Signal(np.zeros(0), []))
+        try:
+            result = case.check(Trace(signals, 0.0, self.sim_time), complete=self.complete)
+        except Exception as e:  # noqa: BLE001 - a trace the checker refuses is shown, never fatal
+            self._verdicts = [("(conditions)", f"cannot evaluate: {e}", "ERROR")]
+            return self._verdicts
+        rows = []
+        for name, verdict in result.verdicts.items():
+            if verdict.status == VIOLATED:
+                at = "" if verdict.violated_at is None else f" at {verdict.violated_at:.2f} s"
+                rows.append((name, f"violated{at}", "ERROR"))
+            elif verdict.status == INCONCLUSIVE:
+                rows.append((name, "holds so far" if verdict.reading == "holds so far" else "pending", "OK" if verdict.reading == "holds so far" else "WARN"))
+            elif verdict.status == MISSING:
+                rows.append((name, f"no data yet ({', '.join(verdict.missing)})", "STALE"))
+            elif verdict.status == HOLDS:
+                rows.append((name, "holds", "OK"))
+        for name, text, level in rows:
+            before = next((t for n, t, _ in self._verdicts if n == name), None)
+            if level == "ERROR" and (before is None or not before.startswith("violated")):
+                self.log(f"condition {name} {text}", "ERROR")
+        self._verdicts = rows
+        return rows
+
+    def _safety_case(self):
+        if self._case is not None or self._case_error is not None:
+            return self._case
+        from cellsim.config.typed_yaml import from_data
+        from cellsim.validation.conditions import SafetyCase
+        from cellsim.validation.config import Validation
+        from cellsim.validation.traces import with_aliases
+
+        data = self.scenario.get("validation") or {}
+        if not data.get("conditions"):
+            self._case_error = "no safety conditions"
+            return None
+        try:
+            validation = from_data(Validation, data, "the twin's scenario")
+            domains = {n: d for n, d in self._domains.items() if d is not None}
+            vocabulary = with_aliases(domains, validation.variables, self.channels)
+            self._case = SafetyCase.compile(validation, vocabulary, lambda key: ("the twin's scenario", None, key))
+        except Exception as e:  # noqa: BLE001 - shown, never fatal
+            self._case_error = str(e)
+            self._verdicts = [("(conditions)", f"cannot compile: {e}", "ERROR")]
+        return self._case
+
+
+_UNSET = object()
+
+
+def _text(value) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:.3g}"
+    return str(value)
+
+
+def _failure(message) -> str:
+    if isinstance(message, dict) and message.get("failed"):
+        return f"link {message['failed']}"
+    return "-"
+
+
+def _differs(a, b) -> bool:
+    if a is None or b is None:
+        return False
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
+        return abs(float(a) - float(b)) > 1e-3 * max(1.0, abs(float(a)))
+    return a != b
