@@ -530,15 +530,21 @@ def cmd_dashboard(args) -> int:
             raise InputError(str(e)) from None
         Dashboard(feed).run()
         return EXIT_OK
-    session = _open_session(args, listen_by_default=False)
+    from cellsim.live.session import session_config
+
+    config = dict(listen=args.listen, connect=args.connect, config_file=args.config, listen_by_default=False, wait=2.0)
+    session_config(**config)  # a bad endpoint or configuration file: one line, exit 2, before the screen opens
+
+    def open_session():
+        import zenoh
+
+        return zenoh.open(session_config(**config))
+
+    feed = LiveFeed(open_session, args.cell)  # waits for a twin to be reachable, saying so
     try:
-        feed = LiveFeed(session, args.cell)
-        try:
-            Dashboard(feed).run()
-        finally:
-            feed.close()
+        Dashboard(feed).run()
     finally:
-        session.close()
+        feed.close()
     return EXIT_OK
 
 

@@ -161,3 +161,64 @@ class ChannelWatch:
 
     def close(self) -> None:
         self.subscriber.undeclare()
+
+
+class TmuxScreen:
+    """A cellsim command running in a terminal of its own (tmux, a private server), read as the user sees it.
+
+    ``stop()`` ends the program by its PID, then the tmux server.
+    """
+
+    def __init__(self, args: list[str], width: int = 120, height: int = 40, env: dict | None = None):
+        import shlex
+        import uuid
+
+        self.socket = f"cellsim-test-{uuid.uuid4().hex[:8]}"
+        exports = " ".join(f"{k}={shlex.quote(v)}" for k, v in (env or {}).items())
+        # (without the COLUMNS and LINES a test runner may export: they would override the terminal's size)
+        command = f"cd {shlex.quote(str(ROOT))} && exec env -u COLUMNS -u LINES {exports} {shlex.quote(sys.executable)} -m cellsim " + " ".join(
+            shlex.quote(a) for a in args)
+        # the pane stays when the program ends, so that a test failing then still shows its last words
+        self._tmux("new-session", "-d", "-s", "main", "-x", str(width), "-y", str(height), "cat")
+        self._tmux("set-option", "-t", "main", "remain-on-exit", "on")
+        self._tmux("respawn-pane", "-k", "-t", "main", command)
+        self.pid = int(self._tmux("display-message", "-p", "-t", "main", "#{pane_pid}").strip())
+
+    def _tmux(self, *args: str) -> str:
+        return subprocess.run(["tmux", "-L", self.socket, *args], capture_output=True, text=True, check=True, timeout=10).stdout
+
+    def text(self) -> str:
+        """The screen now, as text."""
+        return self._tmux("capture-pane", "-p", "-t", "main")
+
+    def keys(self, *keys: str) -> None:
+        self._tmux("send-keys", "-t", "main", *keys)
+
+    def wait_for(self, predicate, timeout: float, what: str) -> str:
+        """The screen once ``predicate(screen)`` holds, polling it every 50 ms, with a deadline."""
+        deadline = time.monotonic() + timeout
+        pause = threading.Event()
+        while True:
+            screen = self.text()
+            if predicate(screen):
+                return screen
+            if time.monotonic() > deadline:
+                raise AssertionError(f"{what}: not within {timeout} s; the screen:\n{screen}")
+            pause.wait(0.05)
+
+    def running(self) -> bool:
+        try:
+            os.kill(self.pid, 0)
+            return True
+        except ProcessLookupError:
+            return False
+
+    def stop(self) -> None:
+        if self.running():
+            os.kill(self.pid, signal.SIGTERM)
+            deadline = time.monotonic() + 10
+            while self.running() and time.monotonic() < deadline:
+                threading.Event().wait(0.05)
+            if self.running():
+                os.kill(self.pid, signal.SIGKILL)
+        subprocess.run(["tmux", "-L", self.socket, "kill-server"], capture_output=True, timeout=10)

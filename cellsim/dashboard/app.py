@@ -133,14 +133,14 @@ class Dashboard(App):
                  "replay": f"replay of {self.feed.source}", "ended": f"replay of {self.feed.source} (ended)"}[model.twin]
         lag = (model.status or {}).get("lag")
         lag_text = f"  lag {lag * 1000:.1f} ms" if isinstance(lag, (int, float)) else ""
-        header.update(Text(f"{model.name}  |  {state}  |  t = {model.sim_time:7.2f} s{lag_text}",
+        header.update(Text(f"t = {model.sim_time:7.2f} s  |  {model.name}  |  {state}{lag_text}",
                            style="bold red" if model.twin == "gone" else "bold"))
-        self._cell(model)
-        self._hazards(model)
-        self._entities(model)
-        self._conditions(model)
-        self._robot_and_links(model)
         log = self.query_one("#events", RichLog)
+        for view in (self._cell, self._hazards, self._entities, self._conditions, self._robot_and_links):
+            try:
+                view(model)
+            except Exception as e:  # noqa: BLE001 - one panel's trouble is shown, never fatal
+                model.log(f"cannot show {view.__name__.strip('_')}: {type(e).__name__}: {e}", "ERROR")
         new = min(model.event_count - self._logged, len(model.events))
         for event in list(model.events)[len(model.events) - new:]:
             log.write(Text(f"{event.sim_time:8.2f} s  {event.text}", style=STYLE.get(event.level, "")))

@@ -33,7 +33,7 @@ class ReplayFeed:
         self.end = float(metadata.get("duration") or metadata.get("recorded_until") or (self.messages[-1][0] if self.messages else 0.0))
         self.complete = metadata.get("status") in ("completed", "stopped")
         self.speed, self.start, self.clock = speed, start, clock
-        self.source = str(run)
+        self.source = Path(run).name
         self._next = 0
         self._wall0: float | None = None
         self.model.set_twin("replay")
@@ -65,10 +65,24 @@ class ReplayFeed:
 
 
 class LiveFeed:
-    """The running twin of ``cell`` (None: the first twin found) on a Zenoh session."""
+    """The running twin of ``cell`` (None: the first twin found) on a Zenoh session.
+
+    ``session`` is an open session, or a function opening one: it is then called
+    on a thread of its own, again every second until a twin is reachable, so the
+    dashboard can say that it waits instead of blocking.
+    """
 
     def __init__(self, session, cell: str | None = None):
-        self.session = session
+        self.session = None
+        self._opening = None
+        if callable(session):
+            import threading
+
+            self._closed = threading.Event()
+            self._opening = threading.Thread(target=self._open, args=(session,), daemon=True)
+            self._opening.start()
+        else:
+            self.session = session
         self.cell = cell
         self.model: CellModel | None = None
         self._inbox: deque = deque()
@@ -77,9 +91,18 @@ class LiveFeed:
         self._next_try = 0.0
         self.source = "the running twin"
 
+    def _open(self, opener) -> None:
+        while not self._closed.is_set():
+            try:
+                self.session = opener()
+                return
+            except Exception:  # noqa: BLE001 - no twin reachable yet: try again
+                self._closed.wait(1.0)
+
     def drain(self) -> None:
         if self.model is None:
-            self._connect()
+            if self.session is not None:
+                self._connect()
             return
         latest_physical: dict[str, bytes] = {}
         inbox, model = self._inbox, self.model
@@ -160,3 +183,8 @@ class LiveFeed:
                 subscriber.undeclare()
             except Exception:  # noqa: BLE001 - closing anyway
                 pass
+        if self._opening is not None:
+            self._closed.set()
+            self._opening.join(timeout=5)
+            if self.session is not None:
+                self.session.close()

@@ -34,8 +34,9 @@ LEVELS = ("OK", "WARN", "ERROR", "STALE")
 LINK_LEVEL = {"ok": "OK", "recovering": "WARN", "corrupt": "ERROR", "stale": "STALE"}
 CONDITIONS_EVERY = 1.0
 """Simulated seconds between evaluations of the safety conditions."""
-JOINT_DIVERGENCE = math.radians(2.0)
-"""A physical joint further than this from the twin's is highlighted (rad)."""
+JOINT_DIVERGENCE = math.radians(20.0)
+"""A physical joint further than this from the twin's is highlighted (rad): beyond what the 0.1 s
+between two of the twin's joint-position messages explains at a cobot's joint speeds."""
 
 
 def worst(levels) -> str:
@@ -235,17 +236,16 @@ class CellModel:
         message = self.physical.get(entity)
         fields = message.get("fields") if isinstance(message, dict) else None
         if self.kinds.get(entity) == "robot":
-            q = self.values.get(f"{entity}.joint_positions")
-            twin = "-" if not isinstance(q, list) else " ".join(f"{math.degrees(x):.0f}" for x in q)
+            q = _joints(self.values.get(f"{entity}.joint_positions"))
+            twin = "-" if q is None else " ".join(f"{math.degrees(x):.0f}" for x in q) + " deg"
             if not isinstance(fields, dict):
                 return twin, _failure(message), False
-            try:
-                physical_q = [float(fields[f"q{i}"]) for i in range(6)]
-            except (KeyError, TypeError, ValueError):
+            physical_q = _joints([fields.get(f"q{i}") for i in range(6)])
+            if physical_q is None:
                 return twin, "malformed", True
-            physical = " ".join(f"{math.degrees(x):.0f}" for x in physical_q)
-            diverges = isinstance(q, list) and len(q) == 6 and float(np.max(np.abs(np.subtract(q, physical_q)))) > JOINT_DIVERGENCE
-            return twin + " deg", physical + " deg", diverges
+            physical = " ".join(f"{math.degrees(x):.0f}" for x in physical_q) + " deg"
+            diverges = q is not None and len(q) == 6 and float(np.max(np.abs(np.subtract(q, physical_q)))) > JOINT_DIVERGENCE
+            return twin, physical, diverges
         shown = [f for f in (fields or {}) if f"{entity}.{f}" in self.channels] or \
             [n.partition(".")[2] for n, m in self.channels.items() if m["source"] == entity
              and n.partition(".")[2] not in ("twin_mode", "physical_link")][:2]
@@ -332,6 +332,15 @@ def _text(value) -> str:
     if isinstance(value, float):
         return f"{value:.3g}"
     return str(value)
+
+
+def _joints(values) -> list[float] | None:
+    """Joint positions (rad) if ``values`` is a list of finite numbers, else None (a stale link's NaNs are None)."""
+    if not isinstance(values, list) or not values:
+        return None
+    if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in values):
+        return None
+    return [float(x) for x in values]
 
 
 def _failure(message) -> str:

@@ -1,0 +1,206 @@
+"""The terminal dashboard, driven as a user drives it: in a terminal (tmux) and with Textual's pilot."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import re
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from cellsim.services.blackbox import BlackBox
+
+from live_processes import ROOT, ChannelWatch, TmuxScreen, free_port, observer, processes, wait_alive
+
+WELDING_CELL = str(ROOT / "scenarios" / "welding_cell.yaml")
+TWO_OPERATORS = str(ROOT / "scenarios" / "two_operators.yaml")
+# a run of the misuse scenario the campaign found violating HRW:detected (its first run with --seed 0)
+VIOLATING = ["--set", "operator.waypoints.bench_entrance.wait=5.985453", "--set", "operator.waypoints.bench.wait=8.975532",
+             "--set", "operator.waypoints.cell_entrance.wait=0.174359", "--set", "operator.waypoints.cell.wait=0.019977",
+             "--set", "operator.waypoints.exit.wait=4.844679", "--set", "visitor.waypoints.cell.position.0=0.7167867122832157",
+             "--set", "visitor.start_delay=7.279629309206158", "--set", "visitor.waypoints.cell_entrance.wait=1.009817",
+             "--set", "visitor.waypoints.cell.wait=2.401289", "--set", "visitor.waypoints.exit.wait=4.588894",
+             "--seed", "1384040912"]
+def _entity(screen: str, name: str) -> list[str]:
+    """The entity table's row of ``name``: [name, mode, link level, ...]."""
+    for line in screen.splitlines():
+        words = line.split()
+        if len(words) > 2 and words[0] == name and words[1] in ("model", "shadow", "twin"):
+            return words
+    return []
+
+
+SHOWN_TIME = re.compile(r"t =\s+([0-9.]+) s")
+
+
+def _simulate(out, scenario: str, *args: str) -> None:
+    proc = subprocess.run([sys.executable, "-m", "cellsim", "simulate", scenario, "--out", str(out), "--quiet", *args],
+                          capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert proc.returncode in (0, 1), proc.stderr
+
+
+@pytest.fixture(scope="module")
+def welding_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("dashboard") / "weld"
+    _simulate(out, WELDING_CELL)
+    return out
+
+
+def _row(screen: str, first: str) -> list[str]:
+    """The words of a table row that starts with the word ``first`` (panels stand side by side:
+    the row is the rest of the line from that word on)."""
+    for line in screen.splitlines():
+        words = line.split()
+        if first in words:
+            return words[words.index(first):]
+    return []
+
+
+def test_a_replay_shows_each_hazard_in_its_recorded_phase_at_the_time_it_shows(welding_run):
+    with BlackBox(welding_run / "blackbox.sqlite") as bb:
+        hs = bb.series("safety_controller.HS")
+    raised = next(t for t, v in zip(hs.times, hs.values) if v != "inact" and t > 1.0)
+    screen = TmuxScreen(["dashboard", "--replay", str(welding_run), "--start", f"{raised - 1.0:.2f}"])
+    try:
+        seen = []
+
+        def note(text: str) -> bool:
+            shown, row = SHOWN_TIME.search(text), _row(text, "HS")
+            if shown and len(row) >= 2:
+                seen.append((float(shown.group(1)), row[1]))
+            return bool(seen) and seen[-1][0] >= raised + 1.0
+
+        screen.wait_for(note, 30, "the replay passing HS being raised")
+        for t, phase in seen:  # what the screen says at the time it shows (to its 0.01 s) is what was recorded then
+            assert phase in {hs.value_at(t + d) for d in (-0.006, -0.003, 0.0, 0.003, 0.005)}, (t, phase)
+        first_raised = next(t for t, phase in seen if phase != "inact")
+        assert raised <= first_raised <= raised + 0.6  # shown within a refresh (0.25 s) and a look at the screen
+        assert "hazard HS: inact -> act" in screen.text()  # the event log
+    finally:
+        screen.stop()
+    assert not screen.running()
+
+
+def test_a_replayed_violating_misuse_run_shows_the_condition_violated_when_the_check_does(tmp_path):
+    run = tmp_path / "misuse"
+    _simulate(run, TWO_OPERATORS, *VIOLATING)
+    proc = subprocess.run([sys.executable, "-m", "cellsim", "check", str(run), "--json"], capture_output=True, text=True,
+                          timeout=120, cwd=ROOT)
+    violated_at = json.loads(proc.stdout)["verdicts"]["HRW:detected"]["violated_at"]
+    screen = TmuxScreen(["dashboard", "--replay", str(run), "--start", f"{violated_at - 1.5:.2f}", "--speed", "2"])
+    try:
+        before = screen.wait_for(lambda s: _row(s, "HRW:detected")[1:3] == ["holds", "so"], 30, "HRW:detected holding so far")
+        assert float(SHOWN_TIME.search(before).group(1)) < violated_at
+        shown = screen.wait_for(lambda s: _row(s, "HRW:detected")[1:2] == ["violated"], 30, "HRW:detected violated")
+        assert _row(shown, "HRW:detected")[1:5] == ["violated", "at", f"{violated_at:.2f}", "s"]
+        assert f"condition HRW:detected violated at {violated_at:.2f} s" in screen.text()
+    finally:
+        screen.stop()
+
+
+def test_on_a_small_terminal_without_colour_the_cell_and_its_hazards_still_show(welding_run):
+    screen = TmuxScreen(["dashboard", "--replay", str(welding_run), "--start", "16"], width=80, height=24,
+                        env={"NO_COLOR": "1"})
+    try:
+        text = screen.wait_for(lambda s: _row(s, "HS") and _entity(s, "robot"), 30, "the cell and hazard panels")
+        assert _row(text, "HS")[1] in ("mit", "act") and _row(text, "HS")[-1] == "WARN"  # a level in words, not colour
+        assert "cycles completed" in text and "safety mode" in text
+    finally:
+        screen.stop()
+
+
+def test_the_dashboard_follows_the_live_twin_sees_a_link_go_stale_and_switches_a_twin_mode(tmp_path):
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    modes = [arg for e in ("robot", "welder", "light_barrier", "range_detector", "operator") for arg in ("--set", f"{e}.twin.mode=shadow")]
+    with processes() as start:
+        screen = TmuxScreen(["dashboard", "--connect", endpoint])  # before the twin: it says it waits
+        try:
+            screen.wait_for(lambda s: "no twin running" in s, 30, "saying no twin runs")
+            twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet", *modes],
+                         tmp_path / "twin.log")
+            emulator = start(["emulate", WELDING_CELL, "--out", str(tmp_path / "emulator"), "--connect", endpoint, "--quiet"],
+                             tmp_path / "emulator.log")
+            screen.wait_for(lambda s: _entity(s, "robot")[1:3] == ["shadow", "OK"], 90, "the robot's link OK")
+            emulator.stop(signal.SIGKILL)
+            screen.wait_for(lambda s: _entity(s, "robot")[1:3] == ["shadow", "STALE"], 10, "the robot's link STALE")
+            with observer(port) as session:
+                mode = ChannelWatch(session, "cellsim/welding_cell/twin/light_barrier/twin_mode")
+                wait_alive(session, "cellsim/welding_cell/alive/twin")
+                screen.keys("m")  # switch a twin mode: the entity, the mode, then confirm
+                screen.wait_for(lambda s: "Switch which entity" in s, 10, "the entity choice")
+                screen.keys("Down", "Down", "Enter")  # robot, welder, light_barrier
+                screen.wait_for(lambda s: "light_barrier: which mode?" in s, 10, "the mode choice")
+                screen.keys("Enter")  # model
+                screen.wait_for(lambda s: "Switch light_barrier to model mode?" in s, 10, "the confirmation")
+                screen.keys("y")
+                mode.wait_for("model", 10)  # the twin took it
+                mode.close()
+            screen.wait_for(lambda s: "light_barrier -> model: accepted" in s, 10, "the twin's answer")
+            screen.wait_for(lambda s: _entity(s, "light_barrier")[1:2] == ["model"], 10, "the entity shown in model mode")
+            twin.stop()  # the twin goes: shown as gone
+            screen.wait_for(lambda s: "TWIN GONE" in s, 20, "the twin shown gone")
+        finally:
+            screen.stop()
+
+
+def test_a_twin_mode_switch_asks_for_confirmation_and_no_cancels(welding_run):
+    from cellsim.dashboard.app import Dashboard
+    from cellsim.dashboard.feeds import ReplayFeed
+
+    class Feed(ReplayFeed):
+        requests: list = []
+
+        def request_mode(self, entity: str, mode: str) -> dict:
+            self.requests.append((entity, mode))
+            return {"accepted": True, "reason": "taken"}
+
+    async def drive() -> list:
+        feed = Feed(welding_run, speed=1.0, start=5.0)
+        app = Dashboard(feed)
+        async with app.run_test(size=(120, 40)) as pilot:
+            for answer in ("n", "y"):
+                await pilot.press("m")
+                await pilot.press("down", "enter")  # welder
+                await pilot.press("down", "down", "enter")  # twin
+                await pilot.pause()
+                assert "Switch welder to twin mode?" in str(app.screen.query_one("Static").render())
+                await pilot.press(answer)
+                await app.workers.wait_for_complete()
+                await pilot.pause()
+        return feed.requests
+
+    assert asyncio.run(drive()) == [("welder", "twin")]  # only the confirmed one was asked
+
+
+def test_malformed_messages_are_counted_never_fatal(welding_run):
+    from cellsim.dashboard.feeds import LiveFeed
+    from cellsim.dashboard.model import CellModel
+
+    with BlackBox(welding_run / "blackbox.sqlite") as bb:
+        model = CellModel.from_blackbox(bb)
+    feed = LiveFeed(session=object(), cell="welding_cell")
+    feed.model = model
+    for key, payload in [
+        ("cellsim/welding_cell/twin/robot/safety_mode", b"{not json"),
+        ("cellsim/welding_cell/twin/robot/safety_mode", b'{"sim_time": 1.0, "value": "flying"}'),  # not a safety mode
+        ("cellsim/welding_cell/twin/nobody/x", b'{"sim_time": 1.0, "value": 3}'),
+        ("cellsim/welding_cell/twin/robot/safety_mode", b'{"sim_time": "soon", "value": "normal"}'),
+        ("cellsim/welding_cell/status/twin", b"[1, 2]"),
+        ("cellsim/welding_cell/diagnostics/light_barrier", b'{"level": "PURPLE"}'),
+        ("cellsim/welding_cell/physical/robot", b"\xff\xfe"),
+        ("cellsim/welding_cell/twin/robot/safety_mode", b'{"sim_time": 2.0, "value": "ssmon"}'),
+        # a stale robot: its joints unknown (NaN, null in JSON), its physical link failed
+        ("cellsim/welding_cell/twin/robot/joint_positions", b'{"sim_time": 2.5, "value": [null, null, null, null, null, null]}'),
+        ("cellsim/welding_cell/physical/robot", b'{"t": 1.0, "seq": 3, "failed": "stale"}'),
+    ]:
+        feed._inbox.append((key, payload))
+    feed.drain()
+    # (the malformed physical sample was followed by a newer one: only the newest is decoded)
+    assert model.dropped == 6 and model.values["robot.safety_mode"] == "ssmon"
+    robot = next(row for row in model.entity_rows() if row["entity"] == "robot")
+    assert (robot["twin"], robot["physical"]) == ("-", "link stale")
+    assert model.hazard_rows() and model.conditions(force=True)
