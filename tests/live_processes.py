@@ -169,14 +169,14 @@ class TmuxScreen:
     ``stop()`` ends the program by its PID, then the tmux server.
     """
 
-    def __init__(self, args: list[str], width: int = 120, height: int = 40, env: dict | None = None):
+    def __init__(self, args: list[str], width: int = 120, height: int = 40, env: dict | None = None, module: str = "cellsim"):
         import shlex
         import uuid
 
         self.socket = f"cellsim-test-{uuid.uuid4().hex[:8]}"
         exports = " ".join(f"{k}={shlex.quote(v)}" for k, v in (env or {}).items())
         # (without the COLUMNS and LINES a test runner may export: they would override the terminal's size)
-        command = f"cd {shlex.quote(str(ROOT))} && exec env -u COLUMNS -u LINES {exports} {shlex.quote(sys.executable)} -m cellsim " + " ".join(
+        command = f"cd {shlex.quote(str(ROOT))} && exec env -u COLUMNS -u LINES {exports} {shlex.quote(sys.executable)} -m {module} " + " ".join(
             shlex.quote(a) for a in args)
         # the pane stays when the program ends, so that a test failing then still shows its last words
         self._tmux("new-session", "-d", "-s", "main", "-x", str(width), "-y", str(height), "cat")
@@ -207,11 +207,12 @@ class TmuxScreen:
             pause.wait(0.05)
 
     def running(self) -> bool:
+        """Whether the program still runs (a zombie waiting for tmux to reap it does not)."""
         try:
-            os.kill(self.pid, 0)
-            return True
-        except ProcessLookupError:
+            state = Path(f"/proc/{self.pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except (FileNotFoundError, ProcessLookupError, IndexError):
             return False
+        return state != "Z"
 
     def stop(self) -> None:
         if self.running():

@@ -15,13 +15,13 @@ written out as words as well as coloured, so ``NO_COLOR`` loses nothing.
 
 from __future__ import annotations
 
-from rich.table import Table
 from rich.text import Text
 from textual import work
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
 from textual.screen import ModalScreen
+from textual.widget import Widget
 from textual.widgets import Footer, OptionList, RichLog, Static
 from textual.widgets.option_list import Option
 
@@ -31,15 +31,46 @@ STYLE = {"OK": "green", "WARN": "yellow", "ERROR": "bold red", "STALE": "magenta
 MODES = ("model", "shadow", "twin")
 
 
-def _table(title: str, *columns: str) -> Table:
-    table = Table(title=title, title_justify="left", expand=True, box=None, padding=(0, 1), show_edge=False)
-    for column in columns:
-        table.add_column(column, overflow="ellipsis", no_wrap=True)
-    return table
+def _grid(title: str, columns: tuple[str, ...], rows: list[tuple]) -> Text:
+    """A table as plain text in columns: rich's Table measures and wraps every cell on every
+    redraw (milliseconds a panel), this is one pass. A cell is a string or (string, style)."""
+    cells = [[c if isinstance(c, tuple) else (str(c), "") for c in row] for row in rows]
+    widths = [max([len(columns[i])] + [len(row[i][0]) for row in cells]) for i in range(len(columns))]
+    widths = [min(w, 40) for w in widths]
+    text = Text(title, style="bold")
+    text.append("\n " + " ".join(h.ljust(w) for h, w in zip(columns, widths)).rstrip(), style="dim")
+    for row in cells:
+        text.append("\n")
+        for (value, style), width in zip(row, widths):
+            value = value if len(value) <= width else value[: width - 1] + "…"
+            text.append(" ")
+            text.append(value.ljust(width), style=style)
+    text.no_wrap, text.overflow = True, "ellipsis"
+    return text
 
 
-def _level(level: str) -> Text:
-    return Text(level, style=STYLE.get(level, ""))
+def _level(level: str) -> tuple[str, str]:
+    return level, STYLE.get(level, "")
+
+
+class Panel(Widget):
+    """A panel whose height is its number of lines: a new content repaints it alone, and the screen is
+    laid out again only when that height changes (a Static lays the whole screen out on every update)."""
+
+    def __init__(self, id: str):  # noqa: A002 - Textual's name
+        super().__init__(id=id)
+        self._renderable = Text("")
+        self._lines = 0
+
+    def render(self):
+        return self._renderable
+
+    def show(self, renderable, lines: int) -> None:
+        self._renderable = renderable
+        if lines != self._lines:
+            self._lines = lines
+            self.styles.height = lines
+        self.refresh()
 
 
 class ChoiceScreen(ModalScreen):
@@ -85,10 +116,10 @@ class Dashboard(App):
     Screen { overflow: hidden; }
     #header { height: 1; background: $boost; }
     #top { height: auto; max-height: 10; }
-    #top > Static { width: 1fr; }
-    #entities { height: auto; max-height: 9; }
+    #top > Panel { width: 1fr; }
+    #entities { max-height: 9; }
     #middle { height: 1fr; min-height: 0; overflow: hidden; }
-    #middle > Static { width: 1fr; }
+    #middle > Panel { width: 1fr; }
     RichLog { height: 6; border-top: solid $primary; }
     ChoiceScreen, ConfirmScreen { align: center middle; }
     #dialog { width: 60; height: auto; max-height: 20; border: thick $primary; background: $surface; padding: 1; }
@@ -99,17 +130,24 @@ class Dashboard(App):
         super().__init__()
         self.feed = feed
         self._logged = 0
+        self._shown: dict[str, object] = {}
+
+    def _show(self, panel: str, rows, draw) -> None:
+        """Redraw a panel only when what it shows changed: a title, a header and a line per row."""
+        if self._shown.get(panel) != rows:
+            self._shown[panel] = rows
+            self.query_one(f"#{panel}", Panel).show(draw(rows), len(rows) + 2)
 
     def compose(self) -> ComposeResult:
-        yield Static(id="header")
+        yield Panel(id="header")
         with Horizontal(id="top"):
-            yield Static(id="cell")
-            yield Static(id="hazards")
-        yield Static(id="entities")
+            yield Panel(id="cell")
+            yield Panel(id="hazards")
+        yield Panel(id="entities")
         with Horizontal(id="middle"):
-            yield Static(id="conditions")
-            yield Static(id="robot")
-            yield Static(id="links")
+            yield Panel(id="conditions")
+            yield Panel(id="robot")
+            yield Panel(id="links")
         yield RichLog(id="events", max_lines=500, markup=False)
         yield Footer()
 
@@ -123,18 +161,18 @@ class Dashboard(App):
         except Exception as e:  # noqa: BLE001 - the network or a message: shown, never fatal
             self.query_one("#events", RichLog).write(f"feed error: {e}")
         model = self.feed.model
-        header = self.query_one("#header", Static)
+        header = self.query_one("#header", Panel)
         if model is None:
             cell = getattr(self.feed, "cell", None)
-            header.update(Text(f"cellsim dashboard: no twin running{' of ' + cell if cell else ''}; waiting for one ...",
-                               style="bold"))
+            header.show(Text(f"cellsim dashboard: no twin running{' of ' + cell if cell else ''}; waiting for one ...",
+                             style="bold"), 1)
             return
         state = {"running": "twin running", "gone": "TWIN GONE", "waiting": "waiting for the twin",
                  "replay": f"replay of {self.feed.source}", "ended": f"replay of {self.feed.source} (ended)"}[model.twin]
         lag = (model.status or {}).get("lag")
         lag_text = f"  lag {lag * 1000:.1f} ms" if isinstance(lag, (int, float)) else ""
-        header.update(Text(f"t = {model.sim_time:7.2f} s  |  {model.name}  |  {state}{lag_text}",
-                           style="bold red" if model.twin == "gone" else "bold"))
+        header.show(Text(f"t = {model.sim_time:7.2f} s  |  {model.name}  |  {state}{lag_text}",
+                         style="bold red" if model.twin == "gone" else "bold"), 1)
         log = self.query_one("#events", RichLog)
         for view in (self._cell, self._hazards, self._entities, self._conditions, self._robot_and_links):
             try:
@@ -147,47 +185,35 @@ class Dashboard(App):
         self._logged = model.event_count
 
     def _cell(self, model) -> None:
-        table = _table("cell", "", "")
-        for name, value in model.cell_rows():
-            table.add_row(name, value)
-        self.query_one("#cell", Static).update(table)
+        self._show("cell", model.cell_rows(), lambda rows: _grid("cell", ("", ""), rows))
 
     def _hazards(self, model) -> None:
-        table = _table("hazards", "hazard", "phase", "for", "")
-        for name, phase, since, level in model.hazard_rows():
-            table.add_row(name, Text(phase, style=STYLE[level]), f"{since:.1f} s", _level(level))
-        self.query_one("#hazards", Static).update(table)
+        rows = [(n, (p, STYLE[lv]), f"{s:.0f} s", _level(lv)) for n, p, s, lv in model.hazard_rows()]
+        self._show("hazards", rows, lambda rows: _grid("hazards", ("hazard", "phase", "for", ""), rows))
 
     def _entities(self, model) -> None:
-        table = _table("entities", "entity", "mode", "link", "age", "twin", "physical")
-        for row in model.entity_rows():
-            age = "-" if row["age"] is None else f"{row['age'] * 1000:.0f} ms"
-            style = "bold yellow" if row["diverges"] else ""
-            table.add_row(row["entity"], row["mode"], _level(row["level"]), age, Text(row["twin"], style=style),
-                          Text(row["physical"] + (" (differs)" if row["diverges"] else ""), style=style))
-        self.query_one("#entities", Static).update(table)
+        rows = []
+        for r in model.entity_rows():
+            style = "bold yellow" if r["diverges"] else ""
+            rows.append((r["entity"], r["mode"], _level(r["level"]), "-" if r["age"] is None else f"{r['age'] * 1000:.0f} ms",
+                         (r["twin"], style), (r["physical"] + (" (differs)" if r["diverges"] else ""), style)))
+        self._show("entities", rows, lambda rows: _grid("entities", ("entity", "mode", "link", "age", "twin", "physical"), rows))
 
     def _conditions(self, model) -> None:
-        table = _table("safety conditions (so far)", "condition", "verdict")
-        for name, verdict, level in model.conditions():
-            table.add_row(name, Text(verdict, style=STYLE.get(level, "")))
-        self.query_one("#conditions", Static).update(table)
+        rows = [(name, (verdict, STYLE.get(level, ""))) for name, verdict, level in model.conditions()]
+        self._show("conditions", rows, lambda rows: _grid("safety conditions (so far)", ("condition", "verdict"), rows))
 
     def _robot_and_links(self, model) -> None:
-        table = _table("robot", "", "")
-        for name, value in model.robot_rows():
-            table.add_row(name, value)
-        self.query_one("#robot", Static).update(table)
-        links = _table("bridge diagnostics", "device", "level", "rate", "errors")
+        self._show("robot", model.robot_rows(), lambda rows: _grid("robot", ("", ""), rows))
+        rows = []
         for device, status in sorted(model.diagnostics.items()):
             if device == "bridge":
                 continue
             errors = sum(v for v in (status.get("counts") or {}).values() if isinstance(v, int))
             rate = status.get("rate_hz")
-            links.add_row(device, _level(str(status.get("level"))), "-" if rate is None else f"{rate:.0f} Hz", str(errors))
-        if len(links.rows) == 0:
-            links.add_row("(no bridge daemon)", "", "", "")
-        self.query_one("#links", Static).update(links)
+            rows.append((device, _level(str(status.get("level"))), "-" if rate is None else f"{rate:.0f} Hz", str(errors)))
+        self._show("links", rows or [("(no bridge daemon)", "-", "", "")],
+                   lambda rows: _grid("bridge diagnostics", ("device", "level", "rate", "errors"), rows))
 
     # -- interaction -----------------------------------------------------------------
     def action_switch_mode(self) -> None:

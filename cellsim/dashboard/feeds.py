@@ -1,10 +1,11 @@
 """What feeds the dashboard's model: the running twin over Zenoh, or a recorded run.
 
 Both have one method the dashboard calls several times a second, ``drain()``,
-which takes in whatever arrived since. A live feed's network callbacks only
-append the raw message to a queue; ``drain`` decodes it then, and of a stream
-faster than the dashboard refreshes (a robot's physical state at 500 Hz) it
-decodes only the newest message: the dashboard never renders every message.
+which takes in whatever arrived since. A live feed runs no Python per message
+on the network's threads: Zenoh's own channels hold what arrives (every twin
+channel message in order, for the trace; of each physical sample stream, a
+robot's state at 500 Hz, only the newest: a ring of one), and ``drain`` takes
+them out: the dashboard never decodes, let alone renders, every message.
 """
 
 from __future__ import annotations
@@ -16,6 +17,9 @@ from pathlib import Path
 
 from cellsim.dashboard.model import CellModel
 from cellsim.live import keys
+
+CHANNEL_BACKLOG = 100_000
+"""Twin channel messages held between two drains (minutes of a busy cell, should the screen stall)."""
 
 
 class ReplayFeed:
@@ -86,6 +90,7 @@ class LiveFeed:
         self.cell = cell
         self.model: CellModel | None = None
         self._inbox: deque = deque()
+        self._channels: list = []
         self._alive: deque = deque()
         self._subscribers = []
         self._next_try = 0.0
@@ -106,6 +111,9 @@ class LiveFeed:
             return
         latest_physical: dict[str, bytes] = {}
         inbox, model = self._inbox, self.model
+        for channel in self._channels:
+            while (sample := channel.try_recv()) is not None:
+                inbox.append((str(sample.key_expr), sample.payload.to_bytes()))
         while inbox:
             key, payload = inbox.popleft()
             parts = key.split("/")
@@ -158,11 +166,15 @@ class LiveFeed:
             return
         self.model = CellModel(description)
         self.model.set_twin("running")
-        append = self._inbox.append
+        import zenoh
+
         prefix = keys.cell_prefix(self.cell)
-        for selector in (f"{prefix}/twin/**", f"{prefix}/status/twin", f"{prefix}/diagnostics/*", f"{prefix}/physical/*"):
-            self._subscribers.append(self.session.declare_subscriber(
-                selector, lambda sample: append((str(sample.key_expr), sample.payload.to_bytes()))))
+        channels = [(f"{prefix}/twin/**", zenoh.handlers.FifoChannel(CHANNEL_BACKLOG)),
+                    (f"{prefix}/diagnostics/*", zenoh.handlers.FifoChannel(1000)),
+                    (keys.status(self.cell, "twin"), zenoh.handlers.RingChannel(1))]
+        channels += [(keys.physical(self.cell, entity), zenoh.handlers.RingChannel(1)) for entity in self.model.entities]
+        self._channels = [self.session.declare_subscriber(selector, handler) for selector, handler in channels]
+        self._subscribers.extend(self._channels)
         self._subscribers.append(self.session.liveliness().declare_subscriber(
             keys.alive(self.cell, "twin"), lambda sample: self._alive.append(str(sample.kind).endswith("PUT")), history=True))
 

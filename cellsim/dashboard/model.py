@@ -32,8 +32,10 @@ import numpy as np
 LEVELS = ("OK", "WARN", "ERROR", "STALE")
 """Link health, as ROS diagnostics name it (a group shows its worst member)."""
 LINK_LEVEL = {"ok": "OK", "recovering": "WARN", "corrupt": "ERROR", "stale": "STALE"}
-CONDITIONS_EVERY = 1.0
-"""Simulated seconds between evaluations of the safety conditions."""
+CONDITIONS_EVERY = 0.5
+"""Simulated seconds at least between evaluations of the safety conditions, when a variable they read changed."""
+CONDITIONS_AT_LEAST_EVERY = 2.0
+"""... and at most between two evaluations (time passing alone can close an obligation: a deadline)."""
 JOINT_DIVERGENCE = math.radians(20.0)
 """A physical joint further than this from the twin's is highlighted (rad): beyond what the 0.1 s
 between two of the twin's joint-position messages explains at a cobot's joint speeds."""
@@ -88,6 +90,9 @@ class CellModel:
         self._case_error: str | None = None
         self._verdicts: list[tuple[str, str, str]] = []
         self._evaluated_at = -math.inf
+        self._read: set[str] | None = None
+        """The channels the conditions read (None: not compiled yet)."""
+        self._read_changed = True
 
     @classmethod
     def from_blackbox(cls, bb) -> CellModel:
@@ -114,6 +119,8 @@ class CellModel:
         if previous == value and name in self.series:
             return
         self.changed_at[name] = float(sim_time)
+        if self._read is None or name in self._read:
+            self._read_changed = True
         if name in self._domains and self._domains[name] is not None:
             times, values = self.series.setdefault(name, ([], []))
             if times and sim_time <= times[-1]:
@@ -208,7 +215,7 @@ class CellModel:
             speed = self.values.get(f"{robot}.tool_speed")
             rows += [(f"{robot} location", _text(self.values.get(f"{robot}.location"))),
                      (f"{robot} activity", _text(self.values.get(f"{robot}.activity"))),
-                     (f"{robot} tool speed", "-" if speed is None else f"{speed:.2f} m/s")]
+                     (f"{robot} tool speed", "-" if speed is None else f"{speed:.1f} m/s")]
         if separation is not None:
             rows.append(("true separation", "far" if separation > 1e3 else f"{separation:.2f} m"))
         return rows
@@ -259,9 +266,10 @@ class CellModel:
     # -- safety conditions ---------------------------------------------------------------
     def conditions(self, force: bool = False) -> list[tuple[str, str, str]]:
         """(condition, verdict, level) over the trace so far; re-evaluated every CONDITIONS_EVERY s."""
-        if not force and self.sim_time - self._evaluated_at < CONDITIONS_EVERY:
+        since = self.sim_time - self._evaluated_at
+        if not force and (since < CONDITIONS_EVERY or (not self._read_changed and since < CONDITIONS_AT_LEAST_EVERY)):
             return self._verdicts
-        self._evaluated_at = self.sim_time
+        self._evaluated_at, self._read_changed = self.sim_time, False
         case = self._safety_case()
         if case is None:
             return self._verdicts
@@ -315,6 +323,10 @@ class CellModel:
             domains = {n: d for n, d in self._domains.items() if d is not None}
             vocabulary = with_aliases(domains, validation.variables, self.channels)
             self._case = SafetyCase.compile(validation, vocabulary, lambda key: ("the twin's scenario", None, key))
+            from cellsim.logic.syntax import variables_of
+
+            read = set().union(*(variables_of(f) for f in self._case.conditions.values()))
+            self._read = {validation.variables.get(v, v) for v in read}
         except Exception as e:  # noqa: BLE001 - shown, never fatal
             self._case_error = str(e)
             self._verdicts = [("(conditions)", f"cannot compile: {e}", "ERROR")]
