@@ -204,3 +204,18 @@ def test_malformed_messages_are_counted_never_fatal(welding_run):
     robot = next(row for row in model.entity_rows() if row["entity"] == "robot")
     assert (robot["twin"], robot["physical"]) == ("-", "link stale")
     assert model.hazard_rows() and model.conditions(force=True)
+
+
+def test_the_bridge_daemons_diagnostics_set_an_entitys_link_level_and_are_logged(welding_run):
+    from cellsim.dashboard.model import CellModel
+
+    with BlackBox(welding_run / "blackbox.sqlite") as bb:
+        model = CellModel.from_blackbox(bb)
+    model.apply_channel("light_barrier.twin_mode", 1.0, "shadow")
+    model.apply_channel("light_barrier.physical_link", 1.0, "ok")
+    row = lambda: next(r for r in model.entity_rows() if r["entity"] == "light_barrier")  # noqa: E731
+    assert row()["level"] == "OK"
+    model.apply_diagnostics("light_barrier", {"level": "OK", "message": "trusted", "counts": {"crc": 0}})
+    model.apply_diagnostics("light_barrier", {"level": "ERROR", "message": "failed: crc 1", "counts": {"crc": 1}})
+    assert row()["level"] == "ERROR" and row()["diagnostics"] == "ERROR"  # the worse of the twin's and the daemon's
+    assert model.events[-1].text == "light_barrier: link OK -> ERROR (failed: crc 1)"
