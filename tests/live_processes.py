@@ -223,3 +223,16 @@ class TmuxScreen:
             if self.running():
                 os.kill(self.pid, signal.SIGKILL)
         subprocess.run(["tmux", "-L", self.socket, "kill-server"], capture_output=True, timeout=10)
+
+
+def sim_time_reached(t: float):
+    """(an event, a callback for the twin's status key that sets it once the twin's clock reaches ``t``)."""
+    import json
+
+    reached = threading.Event()
+
+    def on_status(sample) -> None:
+        if json.loads(sample.payload.to_bytes())["sim_time"] >= t:
+            reached.set()
+
+    return reached, on_status

@@ -17,7 +17,7 @@ import can
 
 from cellsim.services.blackbox import BlackBox
 
-from live_processes import ROOT, can_server, free_port, observer, processes, wait_alive
+from live_processes import ROOT, can_server, free_port, observer, processes, sim_time_reached, wait_alive
 
 WELDING_CELL = str(ROOT / "scenarios" / "welding_cell.yaml")
 BRIDGE = str(ROOT / "bridges" / "welding_cell.yaml")
@@ -129,11 +129,7 @@ def test_the_twin_supervises_the_emulated_cell_through_the_bus(tmp_path):
     robot's through its controller's stream: the same outcomes."""
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    reached = threading.Event()
-
-    def on_status(sample) -> None:
-        if json.loads(sample.payload.to_bytes())["sim_time"] >= 30.0:
-            reached.set()
+    reached, on_status = sim_time_reached(30.0)
 
     with processes() as start:
         bus = can_server(start, tmp_path / "can.log")

@@ -11,7 +11,7 @@ import pytest
 
 from cellsim.services.blackbox import BlackBox
 
-from live_processes import ROOT, ChannelWatch, free_port, observer, processes, wait_alive
+from live_processes import ROOT, ChannelWatch, free_port, observer, processes, sim_time_reached, wait_alive
 
 WELDING_CELL = str(ROOT / "scenarios" / "welding_cell.yaml")
 ENTITIES = ("robot", "welder", "light_barrier", "range_detector", "operator")
@@ -201,15 +201,9 @@ TWIN_SUPERVISES = ["--set", "robot.twin.mode=twin", "--set", "welder.twin.mode=t
 
 def test_the_twins_safety_controller_supervises_the_emulated_cell(tmp_path):
     """The published twin test: the welding cell's full 30 s, the twin supervising the emulated cell."""
-    import threading
-
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    reached = threading.Event()
-
-    def on_status(sample) -> None:
-        if json.loads(sample.payload.to_bytes())["sim_time"] >= 30.0:
-            reached.set()
+    reached, on_status = sim_time_reached(30.0)
 
     with processes() as start:
         twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet", *TWIN_SUPERVISES],
