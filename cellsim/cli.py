@@ -165,7 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Load a scenario, apply --set overrides, and write it back with every default "
         "filled in. Loading the export gives the same scenario.",
     )
-    export.add_argument("scenario", type=Path)
+    export.add_argument("scenario", type=Path, help="scenario YAML file")
     _add_set(export)
     export.add_argument("--out", type=Path, help="write to this file instead of standard output")
     export.set_defaults(handler=cmd_export)
@@ -174,7 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="check a scenario without running it",
         description="Load and wire a scenario and compile its safety conditions; report the first problem.",
     )
-    check.add_argument("scenario", type=Path)
+    check.add_argument("scenario", type=Path, help="scenario YAML file")
     _add_set(check)
     check.set_defaults(handler=cmd_scenario_check)
 

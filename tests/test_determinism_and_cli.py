@@ -219,3 +219,33 @@ def _digest(tmp_path, name: str, straight: bool) -> tuple[int, str]:
 def test_the_shipped_scenarios_give_the_reference_black_box_row_for_row(tmp_path, name):
     assert _digest(tmp_path / "straight", name, straight=True) == REFERENCE_ROWS[name]
     assert _digest(tmp_path / "round", name, straight=False) == WALKING_ROUND[name]
+
+
+def test_every_argument_of_every_command_says_what_it_is_for():
+    import argparse
+
+    from cellsim.cli import build_parser
+
+    silent = []
+
+    def walk(parser, path):
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    walk(sub, [*path, name])
+            elif not action.help or action.help == argparse.SUPPRESS:
+                silent.append(" ".join([*path, *(action.option_strings or [action.dest])]))
+
+    walk(build_parser(), ["cellsim"])
+    assert silent == []
+    assert "130 interrupted" in build_parser().format_help()
+
+
+def test_check_on_a_campaign_folder_points_at_its_runs(tmp_path, capsys):
+    from cellsim.cli import main
+
+    (tmp_path / "c" / "runs" / "0000").mkdir(parents=True)
+    (tmp_path / "c" / "runs" / "0000" / "blackbox.sqlite").write_bytes(b"")
+    assert main(["check", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err
+    assert "a campaign folder, not a run" in err and str(tmp_path / "c" / "runs" / "0000") in err

@@ -72,6 +72,11 @@ def locate_run(path: str | os.PathLike) -> tuple[Path, Path | None]:
     if path.is_dir():
         blackbox, scenario = path / BLACKBOX, path / RESOLVED_SCENARIO
         if not blackbox.is_file():
+            runs = sorted(p.parent for p in path.glob(f"runs/*/{BLACKBOX}"))
+            if runs:  # a campaign folder: point at its runs
+                shown = ", ".join(str(r) for r in runs[:3]) + (", ..." if len(runs) > 3 else "")
+                raise CheckError(f"{path}: a campaign folder, not a run: check one of its {len(runs)} runs ({shown}); "
+                                 f"its report is {path / 'report.html'}")
             raise CheckError(f"{path}: not a run folder (no {BLACKBOX})")
         return blackbox, scenario if scenario.is_file() else None
     if path.is_file():
