@@ -750,6 +750,12 @@ def print_verdicts(run: Path, checked) -> None:
             "verdicts that a longer run could change are inconclusive[/yellow]"
         )
     console.print(table)
+    for name, verdict in result.verdicts.items():  # pytest-style: each violation and why
+        if verdict.explanation:
+            from rich.markup import escape
+
+            console.print(f"[red]{escape(name)}[/red] violated at {verdict.violated_at:.2f} s: {escape(verdict.explanation)}",
+                          highlight=False)
     console.print(f"use cases exercised: {', '.join(result.use_cases) or 'none'}")
     console.print(_conditions_line(result))
 

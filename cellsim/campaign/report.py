@@ -865,8 +865,10 @@ def _run_timeline_section(
     formulas = _dict(run.get("verdicts"))
     items = []
     for name in _violated(run):
-        t = _dict(formulas.get(name)).get("violated_at")
-        items.append(f"<li><strong>{_e(name)}</strong> violated at {_seconds(t)} s</li>")
+        verdict = _dict(formulas.get(name))
+        why = verdict.get("explanation")
+        why = f": {_e(why)}" if isinstance(why, str) and why else ""
+        items.append(f"<li><strong>{_e(name)}</strong> violated at {_seconds(verdict.get('violated_at'))} s{why}</li>")
     rerun = f'<p>Rerun: <code>{_e(run["rerun"])}</code></p>' if run.get("rerun") else ""
     out = f'<p class="muted">Output folder: <code>{_e(run["out"])}</code></p>' if run.get("out") else ""
     if timeline:

@@ -50,6 +50,8 @@ class ConditionVerdict:
     missing: tuple[str, ...] = ()
     reading: str | None = None
     """For an inconclusive verdict: ``holds so far`` or ``violated so far``."""
+    explanation: str | None = None
+    """For a violation: why, at the first violation, in one sentence (``cellsim.validation.explain``)."""
 
     @property
     def holds(self) -> bool:
@@ -61,6 +63,8 @@ class ConditionVerdict:
             data["missing"] = list(self.missing)
         if self.reading:
             data["reading"] = self.reading
+        if self.explanation:
+            data["explanation"] = self.explanation
         return data
 
     def describe(self) -> str:
@@ -105,6 +109,8 @@ class SafetyCase:
     conditions: dict[str, Formula]
     use_cases: dict[str, Formula]
     coverage: CoverageModel
+    macros: dict[str, Formula] | None = None
+    """Each macro, expanded: the names explanations give the sub-formulas of a condition."""
 
     @classmethod
     def compile(cls, validation: Validation, vocabulary: dict, locate: Locate) -> SafetyCase:
@@ -117,8 +123,7 @@ class SafetyCase:
                 where = f"column {e.column} of the formula: " if e.column is not None else ""
                 raise ConfigError(*locate(key), where + e.message) from None
 
-        for name, text in validation.macros.items():
-            formula(f"validation.macros.{name}", text)
+        macros = {name: formula(f"validation.macros.{name}", text) for name, text in validation.macros.items()}
         conditions = {name: formula(f"validation.conditions.{name}", t) for name, t in validation.conditions.items()}
         use_cases = {name: formula(f"validation.use_cases.{name}", t) for name, t in validation.use_cases.items()}
         for name, criterion in validation.coverage.items():
@@ -133,7 +138,7 @@ class SafetyCase:
             raise ConfigError(*locate(f"validation.{e.key}"), str(e)) from None
         except ValueError as e:
             raise ConfigError(*locate("validation.coverage"), str(e)) from None
-        return cls(validation, conditions, use_cases, coverage)
+        return cls(validation, conditions, use_cases, coverage, macros)
 
     def check(self, trace: Trace, *, complete: bool = True, recorded: set[str] | None = None) -> CheckResult:
         """Verdicts, use cases and covered situations of one trace.
@@ -160,4 +165,9 @@ class SafetyCase:
             return ConditionVerdict(
                 INCONCLUSIVE, verdict.violated_at, reading="holds so far" if verdict.holds else "violated so far"
             )
-        return ConditionVerdict(HOLDS if verdict.holds else VIOLATED, verdict.violated_at)
+        if verdict.holds:
+            return ConditionVerdict(HOLDS, None)
+        from cellsim.validation.explain import Explainer
+
+        why = Explainer(evaluator, self.macros).explain(formula, verdict.violated_at)
+        return ConditionVerdict(VIOLATED, verdict.violated_at, explanation=why)

@@ -1,0 +1,68 @@
+"""Each violated condition is explained in one sentence, read off the record at its first violation."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+from cellsim.logic.mtl import TraceEvaluator
+from cellsim.logic.syntax import BoolDomain, EnumDomain, parse
+from cellsim.logic.trace import Signal, Trace
+from cellsim.validation.explain import Explainer
+
+from conftest import ROOT
+
+PHASES = EnumDomain(("inact", "act", "mit"))
+VOCABULARY = {"HZ": PHASES, "curtain": BoolDomain(), "mode": EnumDomain(("normal", "stopped"))}
+MACROS = {"exposed": "curtain and mode == normal"}
+
+
+def _explain(text: str, signals: dict, end: float = 10.0) -> str:
+    trace = Trace({n: Signal(np.array([t for t, _ in s], float), [v for _, v in s]) for n, s in signals.items()}, 0.0, end)
+    evaluator = TraceEvaluator(trace)
+    macros = {name: parse(body, VOCABULARY) for name, body in MACROS.items()}
+    formula = parse(text, VOCABULARY, MACROS)
+    verdict = evaluator.evaluate(formula)
+    assert not verdict.holds
+    return Explainer(evaluator, macros).explain(formula, verdict.violated_at)
+
+
+def test_a_missed_detection_names_the_macro_its_atoms_and_the_deadline():
+    why = _explain("G((exposed and HZ == inact) -> (exposed U[0, 0.5s] HZ == act))",
+                   {"curtain": [(0, False), (2.0, True)], "mode": [(0, "normal")], "HZ": [(0, "inact")]})
+    assert why == ("exposed true from 2.00 s (curtain, mode = normal); HZ = inact; "
+                   "HZ stayed inact; HZ == act required by 2.50 s")
+
+
+def test_an_obligation_cut_short_by_its_condition_ending_says_when():
+    why = _explain("G((exposed and HZ == inact) -> (exposed U[0, 0.5s] HZ == act))",
+                   {"curtain": [(0, False), (2.0, True), (2.2, False)], "mode": [(0, "normal")],
+                    "HZ": [(0, "inact"), (2.3, "act")]})
+    assert why.endswith("exposed ended at 2.20 s, before HZ == act")
+
+
+def test_an_unmet_eventuality_and_a_forbidden_state_say_what_the_record_shows():
+    assert _explain("G(HZ == act -> F HZ == mit)", {"HZ": [(0, "inact"), (4.0, "act")]}) == (
+        "HZ = act; HZ stayed act; HZ == mit never held from 4.00 s to the end of the run")
+    assert _explain("G(not HZ == mit)", {"HZ": [(0, "inact"), (3.0, "mit")]}) == "HZ = mit"
+    assert _explain("F G(not curtain)", {"curtain": [(0, False), (9.0, True)]}) == (
+        "curtain went false -> true; G(not curtain) never held from 0.00 s to the end of the run")
+
+
+def test_check_explains_the_misuse_runs_violation_in_the_table_and_the_json(tmp_path):
+    from test_dashboard import VIOLATING
+
+    run = tmp_path / "misuse"
+    subprocess.run([sys.executable, "-m", "cellsim", "simulate", str(ROOT / "scenarios" / "two_operators.yaml"),
+                    "--out", str(run), "--quiet", *VIOLATING], capture_output=True, timeout=300, cwd=ROOT)
+    expected = ("HRW_e true from 12.10 s (permissive, working, rloc = sharedTbl, lgtBar); HRW = inact; "
+                "HRW stayed inact; HRW == act required by 12.60 s")
+    proc = subprocess.run([sys.executable, "-m", "cellsim", "check", str(run), "--json"], capture_output=True, text=True,
+                          timeout=120, cwd=ROOT)
+    assert proc.returncode == 1 and json.loads(proc.stdout)["verdicts"]["HRW:detected"]["explanation"] == expected
+    proc = subprocess.run([sys.executable, "-m", "cellsim", "check", str(run)], capture_output=True, text=True, timeout=120,
+                          cwd=ROOT, env={**__import__("os").environ, "COLUMNS": "400"})
+    assert f"HRW:detected violated at 12.10 s: {expected}" in proc.stdout
