@@ -117,3 +117,15 @@ class ChannelSpec:
     @property
     def name(self) -> str:
         return f"{self.module}.{self.signal}"
+
+
+def value_text(value, *, none: str = "-", true: str = "true", false: str = "false") -> str:
+    """A channel's value as short text for people: enums by name, booleans in words, numbers to
+    three significant figures, no value as ``none``."""
+    if value is None:
+        return none
+    if isinstance(value, bool):
+        return true if value else false
+    if isinstance(value, float):
+        return f"{value:.3g}"
+    return str(value)

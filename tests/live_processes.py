@@ -236,3 +236,26 @@ def sim_time_reached(t: float):
             reached.set()
 
     return reached, on_status
+
+
+def offset_of(twin, emulator) -> float:
+    """Emulator time + offset = twin time of the same wall-clock instant (two open black boxes of a live run)."""
+    return emulator.metadata()["live"]["wall_at_zero"] - twin.metadata()["live"]["wall_at_zero"]
+
+
+def assert_supervised(twin, emulator, within: float) -> float:
+    """The welding cell's supervision outcome, on the black boxes of the twin and of the emulated cell it
+    commanded: HS raised when the operator arrives, its ssmon request taken by the emulated robot within
+    ``within`` s, which slows to ssmon's cap. Returns the clocks' offset."""
+    offset = offset_of(twin, emulator)
+    assert "safety_controller.HS" not in emulator.channels()  # the emulated cell has no supervisor of its own
+    hs = twin.series("safety_controller.HS")
+    # (the twin fails safe for its first updates, until recover_after samples came: HS may be raised then)
+    raised = next(t for t, v in zip(hs.times, hs.values) if v == "act" and t > offset + 5.0)
+    assert raised - offset > 13.0  # the default walk reaches the cell after 14 s
+    mode, speed = emulator.series("robot.safety_mode"), emulator.series("robot.tool_speed")
+    slowed = next(t for t, v in zip(mode.times, mode.values) if v == "ssmon" and t > raised - offset - 0.5)
+    assert slowed - (raised - offset) < within
+    after = [v for t, v in zip(speed.times, speed.values) if slowed + 0.6 <= t and mode.value_at(t) == "ssmon"]
+    assert after and max(after) <= 0.5 + 0.05  # ssmon's tool speed cap, once braked
+    return offset

@@ -17,7 +17,8 @@ import can
 
 from cellsim.services.blackbox import BlackBox
 
-from live_processes import ROOT, can_server, free_port, observer, processes, sim_time_reached, wait_alive
+from live_processes import (ROOT, assert_supervised, can_server, free_port, observer, offset_of, processes,
+                            sim_time_reached, wait_alive)
 
 WELDING_CELL = str(ROOT / "scenarios" / "welding_cell.yaml")
 BRIDGE = str(ROOT / "bridges" / "welding_cell.yaml")
@@ -48,9 +49,7 @@ COUNTED = {"drop": "timeout", "length": "length", "crc": "crc", "flood": "timeou
 ROBOT_DELAY_COUNTED = "late"
 
 
-def _offset(twin: BlackBox, emulator: BlackBox) -> float:
-    """Emulator time + offset = twin time of the same wall-clock instant."""
-    return emulator.metadata()["live"]["wall_at_zero"] - twin.metadata()["live"]["wall_at_zero"]
+_offset = offset_of
 
 
 class Diagnostics:
@@ -143,17 +142,8 @@ def test_the_twin_supervises_the_emulated_cell_through_the_bus(tmp_path):
         assert emulator.wait(timeout=60) == 0, emulator.output()
         bridge.stop()
     with BlackBox(tmp_path / "twin" / "blackbox.sqlite") as twin, BlackBox(tmp_path / "emulator" / "blackbox.sqlite") as emu:
-        offset = _offset(twin, emu)
-        assert "safety_controller.HS" not in emu.channels()  # the emulated cell has no supervisor of its own
-        hs = twin.series("safety_controller.HS")
-        raised = next(t for t, v in zip(hs.times, hs.values) if v == "act" and t > offset + 5.0)
-        assert raised - offset > 13.0  # the default walk reaches the cell after 14 s
         # the twin's ssmon request reaches the emulated robot through the daemon and its controller link
-        mode, speed = emu.series("robot.safety_mode"), emu.series("robot.tool_speed")
-        slowed = next(t for t, v in zip(mode.times, mode.values) if v == "ssmon" and t > raised - offset - 0.5)
-        assert slowed - (raised - offset) < 0.35  # twin's update, the daemon, the controller's update
-        after = [v for t, v in zip(speed.times, speed.values) if slowed + 0.6 <= t and mode.value_at(t) == "ssmon"]
-        assert after and max(after) <= 0.5 + 0.05  # ssmon's tool speed cap, once braked
+        offset = assert_supervised(twin, emu, within=0.35)
         # the welder's requests came as CAN frames: the emulated welder stops when the twin's controller says so
         demand = twin.series("safety_controller.safmod")
         stop = next(t for t, v in zip(demand.times, demand.values) if v == "stopped" and t > offset + 5.0)

@@ -11,7 +11,8 @@ import pytest
 
 from cellsim.services.blackbox import BlackBox
 
-from live_processes import ROOT, ChannelWatch, free_port, observer, processes, sim_time_reached, wait_alive
+from live_processes import (ROOT, ChannelWatch, assert_supervised, free_port, observer, offset_of, processes,
+                            sim_time_reached, wait_alive)
 
 WELDING_CELL = str(ROOT / "scenarios" / "welding_cell.yaml")
 ENTITIES = ("robot", "welder", "light_barrier", "range_detector", "operator")
@@ -25,9 +26,7 @@ FOLLOWED = {  # channel: its publisher's update period (s)
 }
 
 
-def _offset(twin: BlackBox, emulator: BlackBox) -> float:
-    """Emulator time + offset = twin time of the same wall-clock instant."""
-    return emulator.metadata()["live"]["wall_at_zero"] - twin.metadata()["live"]["wall_at_zero"]
+_offset = offset_of
 
 
 @pytest.fixture(scope="module")
@@ -218,19 +217,9 @@ def test_the_twins_safety_controller_supervises_the_emulated_cell(tmp_path):
         twin.stop()  # after the scenario's 30 s, while the emulated cell still runs
         assert emulator.wait(timeout=60) == 0, emulator.output()
     with BlackBox(tmp_path / "twin" / "blackbox.sqlite") as twin, BlackBox(tmp_path / "emulator" / "blackbox.sqlite") as emu:
-        offset = _offset(twin, emu)
-        assert "safety_controller.HS" not in emu.channels()  # the emulated cell has no supervisor of its own
-        # the operator walks into the emulated cell; the twin detects HS from the emulated scanner
-        hs = twin.series("safety_controller.HS")
-        # (the twin fails safe for its first updates, until recover_after samples came: HS may be raised then)
-        raised = next(t for t, v in zip(hs.times, hs.values) if v == "act" and t > offset + 5.0)
-        assert raised - offset > 13.0  # the default walk reaches the cell after 14 s
-        # its ssmon request reaches the emulated robot, which slows down
-        mode, speed = emu.series("robot.safety_mode"), emu.series("robot.tool_speed")
-        slowed = next(t for t, v in zip(mode.times, mode.values) if v == "ssmon" and t > raised - offset - 0.5)
-        assert slowed - (raised - offset) < 0.3  # twin's update, the command's way, the robot's update
-        after = [v for t, v in zip(speed.times, speed.values) if slowed + 0.6 <= t and mode.value_at(t) == "ssmon"]
-        assert after and max(after) <= 0.5 + 0.05  # ssmon's tool speed cap, once braked
+        # the operator walks into the emulated cell; the twin detects HS from the emulated scanner and
+        # its ssmon request reaches the emulated robot (twin's update, the command's way, the robot's update)
+        assert_supervised(twin, emu, within=0.3)
     proc = subprocess.run([sys.executable, "-m", "cellsim", "check", str(tmp_path / "twin"), "--json"],
                           capture_output=True, text=True, timeout=120, cwd=ROOT)
     verdicts = json.loads(proc.stdout)

@@ -29,6 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cellsim.channels import value_text
+
 LEVELS = ("OK", "WARN", "ERROR", "STALE")
 """Link health, as ROS diagnostics name it (a group shows its worst member)."""
 LINK_LEVEL = {"ok": "OK", "recovering": "WARN", "corrupt": "ERROR", "stale": "STALE"}
@@ -337,13 +339,7 @@ _UNSET = object()
 
 
 def _text(value) -> str:
-    if value is None:
-        return "-"
-    if isinstance(value, bool):
-        return "yes" if value else "no"
-    if isinstance(value, float):
-        return f"{value:.3g}"
-    return str(value)
+    return value_text(value, true="yes", false="no")
 
 
 def _joints(values) -> list[float] | None:

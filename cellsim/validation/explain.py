@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 
+from cellsim.channels import value_text
 from cellsim.logic.mtl import TraceEvaluator
 from cellsim.logic.syntax import (
     Always, And, BoolVar, Compare, Const, Eventually, Formula, Implies, InSet, Not, Or, Until, format_formula,
@@ -162,10 +163,4 @@ def _conjuncts(f: Formula) -> tuple[Formula, ...]:
 
 
 def _text(value) -> str:
-    if value is None:
-        return "no value"
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, float):
-        return f"{value:.3g}"
-    return str(value)
+    return value_text(value, none="no value")
