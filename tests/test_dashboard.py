@@ -125,22 +125,22 @@ def test_the_dashboard_follows_the_live_twin_sees_a_link_go_stale_and_switches_a
             emulator = start(["emulate", WELDING_CELL, "--out", str(tmp_path / "emulator"), "--connect", endpoint, "--quiet"],
                              tmp_path / "emulator.log")
             screen.wait_for(lambda s: _entity(s, "robot")[1:3] == ["shadow", "OK"], 90, "the robot's link OK")
-            emulator.stop(signal.SIGKILL)
-            screen.wait_for(lambda s: _entity(s, "robot")[1:3] == ["shadow", "STALE"], 10, "the robot's link STALE")
             with observer(port) as session:
                 mode = ChannelWatch(session, "cellsim/welding_cell/twin/light_barrier/twin_mode")
                 wait_alive(session, "cellsim/welding_cell/alive/twin")
                 screen.keys("m")  # switch a twin mode: the entity, the mode, then confirm
                 screen.wait_for(lambda s: "Switch which entity" in s, 10, "the entity choice")
-                screen.keys("Down", "Down", "Enter")  # robot, welder, light_barrier
+                screen.keys("3")  # 1 robot, 2 welder, 3 light_barrier
                 screen.wait_for(lambda s: "light_barrier: which mode?" in s, 10, "the mode choice")
-                screen.keys("Enter")  # model
+                screen.keys("Enter")  # the first: model
                 screen.wait_for(lambda s: "Switch light_barrier to model mode?" in s, 10, "the confirmation")
                 screen.keys("y")
                 mode.wait_for("model", 10)  # the twin took it
                 mode.close()
             screen.wait_for(lambda s: "light_barrier -> model: accepted" in s, 10, "the twin's answer")
             screen.wait_for(lambda s: _entity(s, "light_barrier")[1:2] == ["model"], 10, "the entity shown in model mode")
+            emulator.stop(signal.SIGKILL)  # the physical cell goes: the shadowed robot's link goes stale
+            screen.wait_for(lambda s: _entity(s, "robot")[1:3] == ["shadow", "STALE"], 10, "the robot's link STALE")
             twin.stop()  # the twin goes: shown as gone
             screen.wait_for(lambda s: "TWIN GONE" in s, 20, "the twin shown gone")
         finally:

@@ -8,8 +8,9 @@ values side by side, divergence highlighted), the robot (location, activity,
 tool speed, true separation), the safety conditions over the trace so far, the
 bridge daemon's diagnostics and the twin's pacing lag, and an event log.
 
-Keys: ``m`` switches an entity's twin mode (choose the entity, the mode, then
-confirm; the twin's answer goes to the event log), ``q`` quits. Levels are
+Keys: ``m`` switches an entity's twin mode (choose the entity, then the mode, by
+number or arrows and Enter, then confirm with ``y``; the twin's answer goes to the
+event log), ``q`` quits. Levels are
 written out as words as well as coloured, so ``NO_COLOR`` loses nothing.
 """
 
@@ -74,7 +75,7 @@ class Panel(Widget):
 
 
 class ChoiceScreen(ModalScreen):
-    """Pick one of some options (Escape: none)."""
+    """Pick one of some options: its number key, or the arrows and Enter (Escape: none)."""
 
     BINDINGS = [Binding("escape", "dismiss(None)", "cancel")]
 
@@ -85,7 +86,15 @@ class ChoiceScreen(ModalScreen):
     def compose(self) -> ComposeResult:
         with Vertical(id="dialog"):
             yield Static(self.prompt)
-            yield OptionList(*[Option(o, id=o) for o in self.options])
+            yield OptionList(*[Option(f"{i + 1}  {o}", id=o) for i, o in enumerate(self.options)])
+
+    def on_mount(self) -> None:
+        self.query_one(OptionList).focus()
+
+    def on_key(self, event) -> None:
+        if event.character and event.character.isdigit() and 1 <= int(event.character) <= min(9, len(self.options)):
+            event.stop()
+            self.dismiss(self.options[int(event.character) - 1])
 
     def on_option_list_option_selected(self, event: OptionList.OptionSelected) -> None:
         self.dismiss(event.option.id)
