@@ -171,9 +171,11 @@ class TmuxScreen:
 
     def __init__(self, args: list[str], width: int = 120, height: int = 40, env: dict | None = None, module: str = "cellsim"):
         import shlex
-        import uuid
 
-        self.socket = f"cellsim-test-{uuid.uuid4().hex[:8]}"
+        import tempfile
+
+        self._folder = tempfile.mkdtemp(prefix="cellsim-tmux-")
+        self.socket = str(Path(self._folder) / "tmux.sock")  # a server of its own, its socket removed at stop()
         exports = " ".join(f"{k}={shlex.quote(v)}" for k, v in (env or {}).items())
         # (without the COLUMNS and LINES a test runner may export: they would override the terminal's size)
         command = f"cd {shlex.quote(str(ROOT))} && exec env -u COLUMNS -u LINES {exports} {shlex.quote(sys.executable)} -m {module} " + " ".join(
@@ -185,7 +187,7 @@ class TmuxScreen:
         self.pid = int(self._tmux("display-message", "-p", "-t", "main", "#{pane_pid}").strip())
 
     def _tmux(self, *args: str) -> str:
-        return subprocess.run(["tmux", "-L", self.socket, *args], capture_output=True, text=True, check=True, timeout=10).stdout
+        return subprocess.run(["tmux", "-S", self.socket, *args], capture_output=True, text=True, check=True, timeout=10).stdout
 
     def text(self) -> str:
         """The screen now, as text."""
@@ -222,7 +224,10 @@ class TmuxScreen:
                 threading.Event().wait(0.05)
             if self.running():
                 os.kill(self.pid, signal.SIGKILL)
-        subprocess.run(["tmux", "-L", self.socket, "kill-server"], capture_output=True, timeout=10)
+        subprocess.run(["tmux", "-S", self.socket, "kill-server"], capture_output=True, timeout=10)
+        import shutil
+
+        shutil.rmtree(self._folder, ignore_errors=True)
 
 
 def sim_time_reached(t: float):
