@@ -77,37 +77,36 @@ class LiveFeed:
     """
 
     def __init__(self, session, cell: str | None = None):
-        self.session = None
-        self._opening = None
-        if callable(session):
-            import threading
+        import threading
 
-            self._closed = threading.Event()
-            self._opening = threading.Thread(target=self._open, args=(session,), daemon=True)
-            self._opening.start()
-        else:
-            self.session = session
+        self.session = None if callable(session) else session
         self.cell = cell
         self.model: CellModel | None = None
         self._inbox: deque = deque()
         self._channels: list = []
         self._alive: deque = deque()
         self._subscribers = []
-        self._next_try = 0.0
         self.source = "the running twin"
+        # Finding the twin (opening the session, its liveliness token, its describe answer) blocks for
+        # seconds while no twin runs: a thread of its own does it, and the screen keeps saying it waits.
+        self._owns_session = callable(session)
+        self._closed = threading.Event()
+        self._finding = threading.Thread(target=self._find, args=(session if callable(session) else None,), daemon=True)
+        self._finding.start()
 
-    def _open(self, opener) -> None:
-        while not self._closed.is_set():
+    def _find(self, opener) -> None:
+        while not self._closed.is_set() and self.model is None:
             try:
-                self.session = opener()
-                return
+                if self.session is None:
+                    self.session = opener()
+                self._connect()
             except Exception:  # noqa: BLE001 - no twin reachable yet: try again
+                pass
+            if self.model is None:
                 self._closed.wait(1.0)
 
     def drain(self) -> None:
         if self.model is None:
-            if self.session is not None:
-                self._connect()
             return
         latest_physical: dict[str, bytes] = {}
         inbox, model = self._inbox, self.model
@@ -144,10 +143,6 @@ class LiveFeed:
 
     def _connect(self) -> None:
         """Find the twin (its liveliness token), ask what it runs, subscribe to everything it says."""
-        now = time.monotonic()
-        if now < self._next_try:
-            return
-        self._next_try = now + 1.0
         if self.cell is None:
             for reply in self.session.liveliness().get(f"{keys.ROOT}/*/alive/twin", timeout=0.5):
                 if reply.ok is not None:
@@ -164,19 +159,20 @@ class LiveFeed:
                     description = None
         if not isinstance(description, dict):
             return
-        self.model = CellModel(description)
-        self.model.set_twin("running")
+        model = CellModel(description)
+        model.set_twin("running")
         import zenoh
 
         prefix = keys.cell_prefix(self.cell)
         channels = [(f"{prefix}/twin/**", zenoh.handlers.FifoChannel(CHANNEL_BACKLOG)),
                     (f"{prefix}/diagnostics/*", zenoh.handlers.FifoChannel(1000)),
                     (keys.status(self.cell, "twin"), zenoh.handlers.RingChannel(1))]
-        channels += [(keys.physical(self.cell, entity), zenoh.handlers.RingChannel(1)) for entity in self.model.entities]
+        channels += [(keys.physical(self.cell, entity), zenoh.handlers.RingChannel(1)) for entity in model.entities]
         self._channels = [self.session.declare_subscriber(selector, handler) for selector, handler in channels]
         self._subscribers.extend(self._channels)
         self._subscribers.append(self.session.liveliness().declare_subscriber(
             keys.alive(self.cell, "twin"), lambda sample: self._alive.append(str(sample.kind).endswith("PUT")), history=True))
+        self.model = model  # last: the screen's thread takes it from here
 
     def request_mode(self, entity: str, mode: str, timeout: float = 5.0) -> dict:
         """Ask the twin to switch ``entity`` to ``mode`` (blocking: call it off the interface's thread)."""
@@ -195,8 +191,7 @@ class LiveFeed:
                 subscriber.undeclare()
             except Exception:  # noqa: BLE001 - closing anyway
                 pass
-        if self._opening is not None:
-            self._closed.set()
-            self._opening.join(timeout=5)
-            if self.session is not None:
-                self.session.close()
+        self._closed.set()
+        self._finding.join(timeout=5)
+        if self._owns_session and self.session is not None:
+            self.session.close()
