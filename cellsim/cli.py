@@ -696,6 +696,7 @@ def cmd_check(args) -> int:
     from cellsim.scenario import load_scenario
     from cellsim.services.blackbox import BlackBoxError
     from cellsim.validation.check import CheckError, check_run
+    from cellsim.validation.config import description_of
     from cellsim.validation.traces import TraceError, write_trace_json
 
     try:
@@ -713,6 +714,8 @@ def cmd_check(args) -> int:
                 "holds": result.all_hold,
                 "complete": checked.trace.complete,
                 "verdicts": result.verdicts_json(),
+                "descriptions": {n: description_of(c) for n, c in checked.case.validation.conditions.items()
+                                 if description_of(c)},
                 "violations": result.violations,
                 "undecided": result.undecided,
                 "use_cases": result.use_cases,
@@ -729,7 +732,10 @@ def cmd_check(args) -> int:
 
 def print_verdicts(run: Path, checked) -> None:
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
+
+    from cellsim.validation.config import description_of, formula_of
 
     result, conditions = checked.result, checked.case.validation.conditions
     table = Table(title=f"Safety conditions on {run}", title_justify="left")
@@ -742,7 +748,9 @@ def print_verdicts(run: Path, checked) -> None:
             verdict.status, f"[yellow]{verdict.describe()}[/yellow]"
         )
         when = "" if verdict.violated_at is None or verdict.holds else f"t = {verdict.violated_at:.2f} s"
-        table.add_row(name, mark, when, conditions[name])
+        description = description_of(conditions[name])
+        table.add_row(name, mark, when,
+                      escape(formula_of(conditions[name])) + (f"\n[italic]{escape(description)}[/italic]" if description else ""))
     console = Console()
     if not checked.trace.complete:
         console.print(
@@ -752,8 +760,6 @@ def print_verdicts(run: Path, checked) -> None:
     console.print(table)
     for name, verdict in result.verdicts.items():  # pytest-style: each violation and why
         if verdict.explanation:
-            from rich.markup import escape
-
             console.print(f"[red]{escape(name)}[/red] violated at {verdict.violated_at:.2f} s: {escape(verdict.explanation)}",
                           highlight=False)
     console.print(f"use cases exercised: {', '.join(result.use_cases) or 'none'}")

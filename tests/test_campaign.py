@@ -443,3 +443,12 @@ def test_workers_end_when_the_campaign_process_is_killed(tmp_path):
         for pid, started in workers.items():
             if _alive(pid, started):
                 os.kill(pid, signal.SIGKILL)
+
+
+def test_a_conditions_description_is_shown_in_the_campaign_report(campaign):
+    _, out = campaign
+    report = (out / "report.html").read_text()
+    section = report[report.index('id="conditions"'):report.index("</section>", report.index('id="conditions"'))]
+    row = section[section.index("<strong>HRW:detected</strong>"):]
+    row = row[: row.index("</tr>")]
+    assert "A person reaching across the shared table while the robot works there is detected within 0.5 s." in row

@@ -184,7 +184,7 @@ def _scenario_with_validation(tmp_path, validation_text: str):
 @pytest.mark.parametrize(
     "edit, expected",
     [
-        (("HS == act))", "HS == akt))"), "welding_cell_validation.yaml:49: conditions.HS:detected: column 52 of the formula: 'akt' is not a value of HS"),
+        (("HS == act))", "HS == akt))"), "welding_cell_validation.yaml:52: conditions.HS:detected.formula: column 52 of the formula: 'akt' is not a value of HS"),
         (("HC_e: permissive", "HC_e: permisive"), "welding_cell_validation.yaml:39: macros.HC_e: column 1 of the formula"),
         (("sep: ground_truth.separation", "sep: ground_truth.distance"), "welding_cell_validation.yaml:28: variables.sep: there is no channel 'ground_truth.distance'"),
         (("variables: [rloc, rngDet]", "variables: [rloc, rngdet]"), "coverage"),
@@ -293,3 +293,12 @@ def test_a_corrupt_black_box_is_one_line_and_exit_2(default_run, tmp_path, capsy
     assert main(["check", str(copy)]) == 2
     err = _one_error_line(capsys)
     assert "corrupt black box" in err and expected in err, err
+
+
+def test_a_conditions_description_is_shown_by_check_and_in_its_json(default_run, capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "250")  # a wide terminal: the table's cells are not wrapped
+    described = "A person the scanner sees near the working cell is detected within 0.5 s."
+    assert main(["check", str(default_run), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["descriptions"]["HS:detected"] == described
+    assert main(["check", str(default_run)]) == 0
+    assert described in capsys.readouterr().out

@@ -683,6 +683,9 @@ def _condition_rows(results: Mapping, runs: Sequence[Mapping]) -> str:
             links += f' <span class="muted">and {len(violating) - FIRST_VIOLATING_SHOWN} more</span>'
         formula = formulas.get(name)
         formula_html = f'<code class="formula">{_e(formula)}</code>' if formula is not None else ""
+        description = _dict(_dict(results.get("campaign")).get("descriptions")).get(name)
+        if isinstance(description, str) and description:
+            formula_html += f'<br><span class="muted">{_e(description)}</span>'
         cls = ' class="violating"' if violating else ""
         rows.append(
             f"<tr{cls}><td><strong>{_e(name)}</strong></td><td>{formula_html}</td>"

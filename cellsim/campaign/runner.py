@@ -61,6 +61,7 @@ from pathlib import Path
 from typing import Callable
 
 from cellsim.atomic import LOCK, FolderBusy, folder_lock, write_text
+from cellsim.validation.config import description_of, formula_of
 from cellsim.campaign.samplers import draw_configuration, run_seed
 from cellsim.config.typed_yaml import to_data
 from cellsim.provenance import INPUTS, SnapshotError, changes, command_line, provenance, read_inputs, snapshot_scenario
@@ -468,8 +469,10 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
             "seed": plan.seed,
             "duration": plan.duration if plan.duration is not None else sc.duration,
             "created": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-            "conditions": dict(sc.validation.conditions),
-            "use_cases": dict(sc.validation.use_cases),
+            "conditions": {n: formula_of(c) for n, c in sc.validation.conditions.items()},
+            "use_cases": {n: formula_of(u) for n, u in sc.validation.use_cases.items()},
+            "descriptions": {n: description_of(e) for n, e in {**sc.validation.conditions, **sc.validation.use_cases}.items()
+                             if description_of(e)},
             "samplers": {name: to_data(s) for name, s in sc.campaign.samplers.items()},
         },
         "provenance": record,

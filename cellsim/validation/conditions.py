@@ -124,8 +124,13 @@ class SafetyCase:
                 raise ConfigError(*locate(key), where + e.message) from None
 
         macros = {name: formula(f"validation.macros.{name}", text) for name, text in validation.macros.items()}
-        conditions = {name: formula(f"validation.conditions.{name}", t) for name, t in validation.conditions.items()}
-        use_cases = {name: formula(f"validation.use_cases.{name}", t) for name, t in validation.use_cases.items()}
+        from cellsim.validation.config import Described, formula_of
+
+        def entry(key: str, written) -> Formula:  # a bare formula, or {formula, description}: the formula's line
+            return formula(key + (".formula" if isinstance(written, Described) else ""), formula_of(written))
+
+        conditions = {name: entry(f"validation.conditions.{name}", t) for name, t in validation.conditions.items()}
+        use_cases = {name: entry(f"validation.use_cases.{name}", t) for name, t in validation.use_cases.items()}
         for name, criterion in validation.coverage.items():
             if criterion.use_case and criterion.use_case not in use_cases:
                 hint = suggest(criterion.use_case, use_cases) or f" (use cases: {', '.join(use_cases) or 'none'})"

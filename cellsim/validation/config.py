@@ -11,6 +11,9 @@ written beside ``file`` are added to the file's)::
       HS_e: safmod in {normal, hguid, ssmon, pflim} and rngDet in {near, close}
     conditions:              # safety conditions: must hold on every run
       "HS:detected": G((HS_e and HS == inact) -> (HS_e U[0, 0.5s] HS == act))
+      "HS:not_mis":            # ... or a formula with a description, shown wherever the condition is
+        formula: G(not HS == mis)
+        description: The operator is never harmed near the welder.
     use_cases:               # classifiers: a run exercises the use case iff it holds
       U2: F(otab and lgtBar)
     coverage:                # situation coverage criteria
@@ -33,6 +36,25 @@ from cellsim.validation.coverage import CoverageCriterion, NumberBins
 
 
 @dataclass
+class Described:
+    """A formula with a sentence saying what it means (for a condition or a use case)."""
+
+    formula: str
+    """The MTL formula."""
+    description: str = ""
+    """What it means, in the cell's words: shown wherever the formula is."""
+
+
+def formula_of(entry: str | Described) -> str:
+    """The formula text of a condition or use case, written bare or with a description."""
+    return entry.formula if isinstance(entry, Described) else entry
+
+
+def description_of(entry: str | Described) -> str:
+    return entry.description if isinstance(entry, Described) else ""
+
+
+@dataclass
 class Validation:
     """Safety conditions, use-case classifiers and coverage criteria of a scenario."""
 
@@ -43,10 +65,10 @@ class Validation:
     """Trace variable name -> recorded channel (``<module>.<signal>``)."""
     macros: dict[str, str] = field(default_factory=dict)
     """Name -> a sub-formula, usable by name in every formula of the section."""
-    conditions: dict[str, str] = field(default_factory=dict)
-    """Condition name -> MTL formula that must hold on every run."""
-    use_cases: dict[str, str] = field(default_factory=dict)
-    """Use-case name -> MTL formula that holds iff a run exercises the use case."""
+    conditions: dict[str, str | Described] = field(default_factory=dict)
+    """Condition name -> MTL formula that must hold on every run (or ``{formula, description}``)."""
+    use_cases: dict[str, str | Described] = field(default_factory=dict)
+    """Use-case name -> MTL formula that holds iff a run exercises the use case (or ``{formula, description}``)."""
     coverage: dict[str, CoverageCriterion] = field(default_factory=dict)
     """Criterion name -> the variables whose value combinations (situations) should be seen;
     at most 100,000 situations each."""
