@@ -353,9 +353,14 @@ def run_bridge(bridge: Bridge, bus, stop, on_cycle=None) -> None:
                     logging.getLogger("cellsim.bridge").error("dropped a %s: %s", item[0], e)
             if time.monotonic() >= next_cycle:
                 next_cycle = max(next_cycle + period, time.monotonic() - period)
-                bridge.check_watchdogs()
-                bridge.send_commands(due_only=True)
-                bridge.publish_diagnostics()
+                try:
+                    bridge.check_watchdogs()
+                    bridge.send_commands(due_only=True)
+                    bridge.publish_diagnostics()
+                except Exception as e:  # noqa: BLE001 - a full bus or a lost session: said, and the next cycle tries again
+                    import logging
+
+                    logging.getLogger("cellsim.bridge").error("cycle: %s: %s", type(e).__name__, e)
                 if on_cycle is not None:
                     on_cycle()
     finally:

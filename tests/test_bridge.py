@@ -504,3 +504,35 @@ def test_the_packed_joint_state_is_byte_for_byte_what_rosbags_serialises():
             header=Header(stamp=Time(sec=sec, nanosec=min(round((t - sec) * 1e9), 999_999_999)), frame_id=""),
             name=joints, position=q, velocity=qd, effort=np.array([], dtype=np.float64)), JOINT_STATE)
         assert encoder.encode(t, q, qd) == bytes(expected)
+
+
+def test_a_bus_that_refuses_a_frame_does_not_stop_the_daemons_loop(sessions):
+    import threading
+
+    from bridges.daemon import run_bridge
+
+    hub, twin = sessions
+
+    class FullBus:
+        """A bus whose transmit buffer is full: every send fails, as python-can says it."""
+
+        sends = 0
+
+        def send(self, message, timeout=None):
+            FullBus.sends += 1
+            raise can.CanOperationError("transmit buffer full")
+
+    bridge = Bridge(load_bridge(CONFIG), hub, bus=FullBus())
+    bridge._twin_alive, bridge._modes = True, {"welder": "twin"}  # commands are due every cycle
+    stop, cycles = threading.Event(), [0]
+
+    def on_cycle():
+        cycles[0] += 1
+        if cycles[0] >= 5:
+            stop.set()
+
+    loop = threading.Thread(target=run_bridge, args=(bridge, None, stop, on_cycle), daemon=True)
+    loop.start()
+    loop.join(10)
+    bridge.close()
+    assert not loop.is_alive() and cycles[0] >= 5 and FullBus.sends >= 5  # it kept going, trying each cycle
