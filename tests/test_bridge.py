@@ -535,4 +535,5 @@ def test_a_bus_that_refuses_a_frame_does_not_stop_the_daemons_loop(sessions):
     loop.start()
     loop.join(10)
     bridge.close()
-    assert not loop.is_alive() and cycles[0] >= 5 and FullBus.sends >= 5  # it kept going, trying each cycle
+    # it kept going after the first refusal, and tried again on a later cycle (frames are due every 40 ms)
+    assert not loop.is_alive() and cycles[0] >= 5 and FullBus.sends >= 2
