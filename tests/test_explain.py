@@ -66,3 +66,29 @@ def test_check_explains_the_misuse_runs_violation_in_the_table_and_the_json(tmp_
     proc = subprocess.run([sys.executable, "-m", "cellsim", "check", str(run)], capture_output=True, text=True, timeout=120,
                           cwd=ROOT, env={**__import__("os").environ, "COLUMNS": "400"})
     assert f"HRW:detected violated at 12.10 s: {expected}" in proc.stdout
+
+
+def _evidence(text: str, signals: dict, end: float = 10.0) -> dict:
+    trace = Trace({n: Signal(np.array([t for t, _ in s], float), [v for _, v in s]) for n, s in signals.items()}, 0.0, end)
+    evaluator = TraceEvaluator(trace)
+    macros = {name: parse(body, VOCABULARY) for name, body in MACROS.items()}
+    formula = parse(text, VOCABULARY, MACROS)
+    verdict = evaluator.evaluate(formula)
+    assert not verdict.holds
+    return Explainer(evaluator, macros).evidence(formula, verdict.violated_at)
+
+
+def test_evidence_gives_the_required_window_and_where_each_macro_and_atom_held():
+    evidence = _evidence("G((exposed and HZ == inact) -> (exposed U[0, 0.5s] HZ == act))",
+                         {"curtain": [(0, False), (2.0, True), (6.0, False)], "mode": [(0, "normal")],
+                          "HZ": [(0, "inact"), (7.0, "act")]})
+    assert evidence["at"] == 2.0 and evidence["window"] == [2.0, 2.5]
+    # the macro by its name, then its own atoms, then the condition's atoms, in the order written
+    assert list(evidence["rows"]) == ["exposed", "curtain", "mode == normal", "HZ == inact", "HZ == act"]
+    assert evidence["rows"]["exposed"] == [[2.0, 6.0]]
+    assert evidence["rows"]["HZ == act"] == [[7.0, 10.0]]
+
+
+def test_evidence_window_of_an_eventuality_runs_to_the_end_and_of_a_forbidden_state_is_an_instant():
+    assert _evidence("G(HZ == act -> F HZ == mit)", {"HZ": [(0, "inact"), (4.0, "act")]})["window"] == [4.0, 10.0]
+    assert _evidence("G(not HZ == mit)", {"HZ": [(0, "inact"), (3.0, "mit")]})["window"] == [3.0, 3.0]

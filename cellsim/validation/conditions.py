@@ -52,6 +52,8 @@ class ConditionVerdict:
     """For an inconclusive verdict: ``holds so far`` or ``violated so far``."""
     explanation: str | None = None
     """For a violation: why, at the first violation, in one sentence (``cellsim.validation.explain``)."""
+    evidence: dict | None = None
+    """For a violation: the required window and its macros' and atoms' intervals (``Explainer.evidence``)."""
 
     @property
     def holds(self) -> bool:
@@ -65,6 +67,8 @@ class ConditionVerdict:
             data["reading"] = self.reading
         if self.explanation:
             data["explanation"] = self.explanation
+        if self.evidence:
+            data["evidence"] = self.evidence
         return data
 
     def describe(self) -> str:
@@ -174,5 +178,9 @@ class SafetyCase:
             return ConditionVerdict(HOLDS, None)
         from cellsim.validation.explain import Explainer
 
-        why = Explainer(evaluator, self.macros).explain(formula, verdict.violated_at)
-        return ConditionVerdict(VIOLATED, verdict.violated_at, explanation=why)
+        explainer = Explainer(evaluator, self.macros)
+        return ConditionVerdict(
+            VIOLATED, verdict.violated_at,
+            explanation=explainer.explain(formula, verdict.violated_at),
+            evidence=explainer.evidence(formula, verdict.violated_at),
+        )

@@ -11,6 +11,10 @@ failed to come in the window the condition required, for example::
 
 The explanation is read off the same satisfaction sets the verdict came from
 (``TraceEvaluator``), so it cannot disagree with the verdict.
+
+:meth:`Explainer.evidence` gives the same reading as data, for a timeline to
+draw: the window the condition required (``[lo, hi]``, seconds) and, for each
+macro and atom of the condition, the intervals over which it held.
 """
 
 from __future__ import annotations
@@ -25,6 +29,8 @@ from cellsim.logic.syntax import (
 )
 
 _ATOMS = (Compare, InSet, BoolVar, Const)
+MAX_EVIDENCE_ROWS = 8
+"""A timeline shows at most this many of a condition's macros and atoms."""
 
 
 class Explainer:
@@ -41,6 +47,45 @@ class Explainer:
         if isinstance(formula, Always):
             return self._false(formula.arg, at)
         return self._false(formula, self.trace.start)
+
+    def evidence(self, formula: Formula, at: float) -> dict:
+        """What a timeline draws beside the sentence: ``{"at", "window", "rows"}``.
+
+        ``window`` is ``[lo, hi]`` (s): where the condition required something at its
+        first violation ``at`` (an instant, ``lo == hi``, for a state it forbids);
+        ``rows`` maps each macro (by name) and atom (as written) of the condition, in
+        the order they appear, to the intervals ``[[from, to], ...]`` (s) where it held.
+        """
+        t = at if isinstance(formula, Always) else self.trace.start
+        body = formula.arg if isinstance(formula, Always) else formula
+        lo, hi = self._window(body, t) or (t, t)
+        rows = {}
+        for part in self._parts(formula):
+            name = self._name(part)
+            if name not in rows and len(rows) < MAX_EVIDENCE_ROWS:
+                rows[name] = [[round(a, 6), round(b, 6)] for a, b in self.evaluator.satisfaction(part)]
+        return {"at": at, "window": [round(lo, 6), round(min(hi, self.trace.end), 6)], "rows": rows}
+
+    def _window(self, f: Formula, t: float) -> tuple[float, float] | None:
+        """The first temporal window of ``f`` evaluated at ``t`` (the consequent's, for ``->``)."""
+        if isinstance(f, Implies):
+            return self._window(f.rhs, t)
+        if isinstance(f, (Until, Eventually, Always)):
+            return t + f.lo, min(t + f.hi, self.trace.end)
+        if isinstance(f, Not):
+            return self._window(f.arg, t)
+        if isinstance(f, (And, Or)):
+            return next((w for w in (self._window(a, t) for a in f.args) if w), None)
+        return None
+
+    def _parts(self, f: Formula):
+        """The macros and atoms of ``f``, outermost first (a macro's own parts follow it)."""
+        if f in self.names or (isinstance(f, _ATOMS) and not isinstance(f, Const)):
+            yield f
+        if isinstance(f, _ATOMS):
+            return
+        for child in _children(f):
+            yield from self._parts(child)
 
     # -- what held --------------------------------------------------------------------------
     def _true(self, f: Formula, t: float) -> str:
@@ -156,6 +201,16 @@ class Explainer:
     def _at(self, name: str, t: float):
         signal = self.trace.signals.get(name)
         return None if signal is None else signal.value_at(t)
+
+
+def _children(f: Formula) -> tuple[Formula, ...]:
+    if isinstance(f, (And, Or)):
+        return f.args
+    if isinstance(f, (Implies, Until)):
+        return (f.lhs, f.rhs)
+    if isinstance(f, (Not, Always, Eventually)):
+        return (f.arg,)
+    return ()
 
 
 def _conjuncts(f: Formula) -> tuple[Formula, ...]:
