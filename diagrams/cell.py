@@ -14,7 +14,8 @@
   between them is filtered out (the arm is position controlled and collisions
   are *measured*, by sensors and ground truth, not simulated);
 * every entity's physical-twin input wired by ``cellsim.physical``;
-* the recorder tapping every channel, and optionally Meshcat.
+* the recorder tapping every channel, and optionally Meshcat: the geometry
+  (MeshcatVisualizer) and the modules' drawn state (``cellsim.visual``).
 """
 
 from __future__ import annotations
@@ -63,6 +64,8 @@ class CellDiagram:
     meshcat_visualizer: MeshcatVisualizer | None = None
     fixed_inputs: list[tuple] = field(default_factory=list)
     """(input port, value) of inputs nothing drives; ``set_initial_state`` fixes them."""
+    cue_visualizer: LeafSystem | None = None
+    """With Meshcat: the system drawing the modules' state (``cellsim.visual.live``)."""
 
     def entity(self, name: str) -> EntitySystem:
         return self.modules[name]
@@ -202,15 +205,21 @@ def build_cell(
         physical_sources = physical_sources(cell.entities)
     fixed_inputs += connect_physical_twins(builder, cell.entities, physical_sources)
 
-    visualizer = None
-    if meshcat is not None:
+    visualizer = cues = None
+    if meshcat is not None:  # the cell drawn (cellsim.visual): geometry, then the modules' drawn state
+        from cellsim.visual.live import add_cue_visualizer
+
         visualizer = MeshcatVisualizer.AddToBuilder(
             builder, scene_graph, meshcat, MeshcatVisualizerParams(role=Role.kIllustration)
+        )
+        cues = add_cue_visualizer(
+            builder, meshcat, cell.modules, cell.channels(), scene_graph, plant, sc.layout.extent()
         )
     diagram = builder.Build()
     diagram.set_name(sc.name)
     return CellDiagram(
-        diagram, plant, scene_graph, cell.modules, cell.channels(), cell.robots, cell.recorder, visualizer, fixed_inputs
+        diagram, plant, scene_graph, cell.modules, cell.channels(), cell.robots, cell.recorder, visualizer, fixed_inputs,
+        cues,
     )
 
 

@@ -28,6 +28,7 @@ from pydrake.geometry import (
     GeometryInstance,
     MakePhongIllustrationProperties,
     ProximityProperties,
+    Rgba,
 )
 from pydrake.math import RigidTransform
 
@@ -162,6 +163,40 @@ class AreaScanner(GeometrySensor):
             ids += pieces
         return ids
 
+    # -- in Meshcat (cellsim.visual.cues) ------------------------------------------------
+    def visual_cues(self, view) -> list:
+        """Each field shaded faint while free, strong while it is the field the scanner reports."""
+        from cellsim.visual.cues import Cue, parts_of
+
+        channel = f"{self.module}.field"
+        cues = []
+        for k, (name, spec) in enumerate(self.cfg.fields.items()):
+            hue = 0.2 + 0.6 * k / max(1, len(self.cfg.fields) - 1)
+            shapes = spec.shapes(f"{self.module}/{name}/cue")
+            looks = {
+                "free": parts_of(f"{self.module}/{name}/free", shapes, Rgba(1.0, hue, 0.1, 0.08)),
+                "occupied": parts_of(f"{self.module}/{name}/occupied", shapes, Rgba(1.0, hue, 0.1, 0.45)),
+            }
+            replaces = tuple(view.geometry_path(piece) for piece in self.field_ids[k])
+            cues.append(Cue(f"{self.module}/{name}", (channel,), looks, _occupied_look(channel, name), replaces))
+        return cues
+
+    def sight(self):
+        """A field reported occupied sees whoever stands within 0.3 m of its footprint's bounding box."""
+        from cellsim.visual.cues import Sight
+
+        channel = f"{self.module}.field"
+        boxes = {}
+        for name, spec in self.cfg.fields.items():
+            corners = np.array(spec.corners())
+            boxes[name] = (corners[:, :2].min(axis=0) - 0.3, corners[:, :2].max(axis=0) + 0.3)
+
+        def sees(values, xy) -> bool:
+            box = boxes.get(values.get(channel))
+            return box is not None and bool(np.all((box[0] <= xy) & (np.asarray(xy) <= box[1])))
+
+        return Sight((channel,), sees)
+
     def seen(self, point) -> bool:
         """Whether the beams reach ``point``: within the heights they sweep, through no fixture."""
         if not self.band[0] <= point[2] <= self.band[1]:
@@ -205,6 +240,10 @@ class AreaScanner(GeometrySensor):
             reading, distance = int(view.sample[0]), float(view.sample[1])
         published = [context.get_discrete_state(g)[0] for g in self._outputs]
         write_changed(xd, self._outputs, [float(reading), distance], published)
+
+
+def _occupied_look(channel: str, field_name: str):
+    return lambda values: None if values.get(channel) is None else ("occupied" if values[channel] == field_name else "free")
 
 
 def _witness_on(query, pair, geometry) -> np.ndarray:

@@ -26,6 +26,7 @@ from pydrake.geometry import (
     GeometryInstance,
     MakePhongIllustrationProperties,
     ProximityProperties,
+    Rgba,
     Sphere,
 )
 from pydrake.math import RigidTransform, RotationMatrix
@@ -45,6 +46,8 @@ CLEARANCE = 0.05
 """How far (m) a person keeps their body from a fixture when walking round it."""
 SKIN = (0.85, 0.65, 0.5, 1.0)
 CLOTHES = (0.1, 0.35, 0.8, 1.0)
+SEEN = Rgba(1.0, 0.2, 0.1, 0.9)
+"""The marker above a person's head in Meshcat while a sensor sees them."""
 
 
 @dataclass(frozen=True)
@@ -304,6 +307,39 @@ class Operator(EntitySystem):
     def physical_state(self, root_context) -> list[float]:
         """x, y (m), yaw (rad), reach fraction and reach point (m): the pose state."""
         return self.GetMyContextFromRoot(root_context).get_discrete_state(self._pose).get_value().tolist()
+
+    # -- in Meshcat (cellsim.visual.cues) --------------------------------------------
+    def visual_cues(self, view) -> list:
+        """A marker above the head while a sensor sees this person (a sensor's sight, at their position)."""
+        from cellsim.visual.cues import Cue, Part
+
+        position = f"{self.module}.position"
+        sights = list(view.sights)
+        marker = Part(
+            f"{view.frame_path(self.body_frame)}/seen", Sphere(0.09), SEEN, RigidTransform([0.0, 0.0, self.cfg.height + 0.2])
+        )
+        channels = tuple(dict.fromkeys([position, *(c for sight in sights for c in sight.channels)]))
+
+        def choose(values):
+            xy = values.get(position)
+            if xy is None or any(v is None for v in xy):
+                return None
+            return "seen" if any(sight.sees(values, tuple(xy)) for sight in sights) else None
+
+        return [Cue(f"{self.module}/seen", channels, {"seen": (marker,)}, choose)]
+
+    replay_channels = ("position",)
+
+    def show_recorded(self, cell, root_context, values: dict) -> None:
+        """Stand the body at its recorded position (m), facing the way it last walked (arm down)."""
+        xy = values.get(f"{self.module}.position")
+        if xy is None or any(v is None for v in xy):
+            return
+        state = self.GetMyMutableContextFromRoot(root_context).get_mutable_discrete_state(self._pose)
+        x0, y0, yaw = state.get_value()[:3]
+        if np.hypot(xy[0] - x0, xy[1] - y0) > 0.01:
+            yaw = float(np.arctan2(xy[1] - y0, xy[0] - x0))
+        state.SetFromVector(np.array([xy[0], xy[1], yaw, 0.0, 0.0, 0.0, 0.0]))
 
     # -- behaviour ---------------------------------------------------------------
     def _press_buttons(self, context, xd, digital: bool) -> None:

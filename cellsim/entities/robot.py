@@ -23,6 +23,7 @@ import math
 import numpy as np
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
+from pydrake.geometry import Rgba
 from pydrake.math import RigidTransform, RollPitchYaw
 
 from cellsim.channels import enum_type, number_type, vector_type
@@ -45,6 +46,21 @@ _MODES = tuple(SafetyMode)
 _SEGMENT_SAMPLES = 24
 TELEMETRY_PERIOD = 0.1
 """Joint positions and tool speed are published every 0.1 s (s)."""
+
+
+def _shell(r: float, g: float, b: float) -> Rgba:
+    return Rgba(r, g, b, 0.85)
+
+
+SAFETY_MODE_COLORS = {
+    SafetyMode.HAND_GUIDED.value: _shell(0.2, 0.5, 1.0),  # blue
+    SafetyMode.SPEED_SEPARATION.value: _shell(1.0, 0.85, 0.1),  # yellow
+    SafetyMode.POWER_FORCE_LIMITING.value: _shell(1.0, 0.55, 0.0),  # orange
+    SafetyMode.MONITORED_STOP.value: _shell(0.95, 0.25, 0.1),  # red-orange
+    SafetyMode.STOPPED.value: _shell(0.8, 0.0, 0.0),  # red
+    SafetyMode.UNKNOWN.value: _shell(0.7, 0.0, 0.8),  # magenta: no valid sample, assume the worst
+}
+"""The shell the arm wears in Meshcat per safety mode (normal: none, the arm's own colours)."""
 
 
 def robot_base_pose(cfg: RobotConfig) -> RigidTransform:
@@ -161,6 +177,28 @@ class Robot(EntitySystem):
         self._tool_speed = self.declare_channel(
             "tool_speed", number_type("m/s"), 0.0, record="every_sample", every=self._telemetry_every
         )
+
+    # -- in Meshcat (cellsim.visual.cues) ------------------------------------------------
+    def visual_cues(self, view) -> list:
+        """The arm wears a shell coloured by its safety mode (none in normal)."""
+        from cellsim.visual.cues import Cue
+
+        frames = [f for f in getattr(self, "body_frames", []) if f is not None]
+        channel = f"{self.module}.safety_mode"
+        looks = {
+            mode: view.shells(frames, color, f"safety_mode_{mode}")
+            for mode, color in SAFETY_MODE_COLORS.items()
+        }
+        return [Cue(f"{self.module}/safety_mode", (channel,), looks, lambda values: values.get(channel))]
+
+    replay_channels = ("joint_positions",)
+
+    def show_recorded(self, cell, root_context, values: dict) -> None:
+        """Put the arm at its recorded joint positions (rad)."""
+        q = values.get(f"{self.module}.joint_positions")
+        if q is not None and all(x is not None for x in q):
+            plant_context = cell.plant.GetMyMutableContextFromRoot(root_context)
+            cell.plant.SetPositions(plant_context, self.model_instance, np.asarray(q, float))
 
     def physical_state(self, root_context) -> list[float]:
         """q (rad, measured), safety mode, activity and reached pose codes."""
@@ -370,6 +408,8 @@ def build_robot(cell, name: str, cfg: RobotConfig) -> Robot:
     poses = resolve_poses(cell.sf, name, cfg)
     robot = cell.add(name, Robot(name, cfg, str(_model_path(cell.sf, name, cfg)), cell.scenario.layout, poses))
     instance, plant, builder = cell.robots[name], cell.plant, cell.builder
+    robot.model_instance = instance
+    robot.body_frames = [plant.GetBodyFrameIdIfExists(b) for b in plant.GetBodyIndices(instance)]
     controller = builder.AddNamedSystem(
         f"{name}.joint_controller",
         InverseDynamicsController(robot.kinematics.plant, [KP] * 6, [KI] * 6, [KD] * 6, False),

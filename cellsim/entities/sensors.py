@@ -16,6 +16,7 @@ from pydrake.geometry import (
     MakePhongIllustrationProperties,
     ProximityProperties,
     QueryObject,
+    Rgba,
     Sphere,
 )
 from pydrake.common.value import AbstractValue
@@ -30,6 +31,11 @@ from cellsim.vocabulary import Range, TwinMode
 
 
 HEAD_RADIUS = 0.05  # m, the scanner head's sphere
+REACH = 1.0
+"""How far (m) from a sensor's volume a person may stand and still be the one it sees
+(an arm reaching in): used only to mark people in Meshcat."""
+BEAMS_CLEAR = Rgba(1.0, 0.15, 0.1, 0.12)
+BEAMS_BROKEN = Rgba(1.0, 0.0, 0.0, 0.7)
 
 
 class GeometrySensor(EntitySystem):
@@ -82,6 +88,29 @@ class LightBarrier(GeometrySensor):
         beams.set_illustration_properties(MakePhongIllustrationProperties([1.0, 0.15, 0.1, 0.25]))
         self.beam_id = scene_graph.RegisterAnchoredGeometry(source, beams)
         return [self.beam_id]
+
+    # -- in Meshcat (cellsim.visual.cues) ------------------------------------------------
+    def visual_cues(self, view) -> list:
+        """The beams: faint while clear, red while broken."""
+        from cellsim.visual.cues import Cue, parts_of
+
+        box = [(RigidTransform(list(self.cfg.center)), Box(*self.cfg.size))]
+        channel = f"{self.module}.broken"
+        looks = {
+            "clear": parts_of(f"{self.module}/beams/clear", box, BEAMS_CLEAR),
+            "broken": parts_of(f"{self.module}/beams/broken", box, BEAMS_BROKEN),
+        }
+        choose = lambda values: None if values.get(channel) is None else ("broken" if values[channel] else "clear")  # noqa: E731
+        return [Cue(f"{self.module}/beams", (channel,), looks, choose, (view.geometry_path(self.beam_id),))]
+
+    def sight(self):
+        """Broken beams see whoever stands within REACH of their footprint."""
+        from cellsim.visual.cues import Sight
+
+        channel = f"{self.module}.broken"
+        (x, y, _), (sx, sy, _) = self.cfg.center, self.cfg.size
+        near = lambda xy: abs(xy[0] - x) <= sx / 2 + REACH and abs(xy[1] - y) <= sy / 2 + REACH  # noqa: E731
+        return Sight((channel,), lambda values, xy: bool(values.get(channel)) and near(xy))
 
     def measure(self, context) -> bool:
         query = self.query_port.Eval(context)
@@ -150,6 +179,19 @@ class RangeDetector(GeometrySensor):
         source = scene_graph.RegisterSource(self.module)
         self.head_id = self.register_head(scene_graph, source, self.position)
         return [self.head_id]
+
+    def sight(self):
+        """Near or close sees whoever stands within that range of the sensor (plus REACH / 2)."""
+        from cellsim.visual.cues import Sight
+
+        channel = f"{self.module}.range"
+        within = {Range.NEAR.value: self.cfg.near_below, Range.CLOSE.value: self.cfg.close_below}
+
+        def sees(values, xy) -> bool:
+            limit = within.get(values.get(channel))
+            return limit is not None and math.hypot(xy[0] - self.position[0], xy[1] - self.position[1]) <= limit + REACH / 2
+
+        return Sight((channel,), sees)
 
     def classify(self, distance: float) -> Range:
         if distance < self.cfg.close_below:
