@@ -624,6 +624,19 @@ def _check_sampler_range(sf: ScenarioFile, name: str, sampler, paths: list[str])
                 )
 
 
+def unit_of(scenario: Scenario, dotted: str) -> str:
+    """The unit of the number at ``dotted`` (``--set`` spelling; a list's element by index), or ''."""
+    parts = _shortcut(scenario)(dotted.split("."))
+    for n in (len(parts), len(parts) - 1):  # an element of a list of numbers: the list's range
+        try:
+            valid = range_of(type_at(scenario, parts[:n]))
+        except ConfigError:
+            continue
+        if valid is not None:
+            return valid.unit
+    return ""
+
+
 def _whole_steps(period: float, step: float) -> bool:
     ratio = period / step
     return round(ratio) >= 1 and abs(ratio - round(ratio)) <= 1e-6 * ratio

@@ -75,7 +75,9 @@ def test_check_exits_1_and_names_the_violated_condition(operator_stays_in_cell, 
     assert set(report["violations"]) == {"Final:Cell", "HS:handled", "HC:handled"}
     assert report["verdicts"]["Final:Cell"] == {
         "holds": False, "status": "violated", "violated_at": 0.0,
-        "explanation": "oloc went none -> inCell; G oloc == none never held from 0.00 s to the end of the run"}
+        "explanation": "oloc went none -> inCell; G oloc == none never held from 0.00 s to the end of the run",
+        # what a timeline draws: the whole run was the window; the operator was out only until 14.4 s
+        "evidence": {"at": 0.0, "window": [0.0, 25.0], "rows": {"oloc == none": [[0.0, 14.4]]}}}
     # HS (and HC) are mitigated when the operator comes near, never handled: the first
     # violation is the instant the mitigation starts
     with BlackBox(operator_stays_in_cell / "blackbox.sqlite") as bb:

@@ -239,6 +239,9 @@ def test_merge_is_the_union_with_named_missing_situations():
         "total": 6,
         "fraction": 0.5,
         "missing": combo.missing,
+        # the heat map's data: how many runs saw each situation, first variable slowest
+        "axes": [["idle", "welding", "exchWrkp"], ["false", "true"]],
+        "runs": [1, 0, 2, 1, 0, 0],
     }
     assert m.merge([]).criteria["loc"].missing == [f"oloc={v}" for v in OLOC]
 

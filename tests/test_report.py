@@ -10,10 +10,12 @@ import pytest
 
 from cellsim.campaign.report import (
     PHASE_COLOURS,
+    MIN_PIECE_WIDTH,
     PLOT_LEFT,
     PLOT_WIDTH,
     pieces,
     render_report,
+    sig3,
     time_to_x,
     write_report,
 )
@@ -133,10 +135,10 @@ def parsed(page) -> Collector:
 
 
 def run_svg_elements(parsed: Collector, index: int) -> list[tuple[str, dict]]:
-    """The elements inside the SVG of the section ``run-<index>``."""
+    """The elements inside the SVG of the section ``timeline-<index>`` (a run drawn in full)."""
     inside, out = False, []
     for tag, attrs, ancestors in parsed.elements:
-        if tag == "section" and attrs.get("id") == f"run-{index}":
+        if tag == "section" and attrs.get("id") == f"timeline-{index}":
             inside, depth = True, len(ancestors)
             continue
         if inside and len(ancestors) <= depth:
@@ -155,8 +157,10 @@ def test_page_parses_and_tags_balance(parsed):
 
 
 def test_page_is_self_contained(page):
-    for needle in ("http://", "https://", "src=", "<link", "<script"):
+    for needle in ("http://", "https://", "src=", "<link"):
         assert needle not in page
+    # scripts only inline: the page's data and the code that sorts, filters and draws
+    assert page.count("<script") == 2 and '<script type="application/json" id="report-data">' in page
 
 
 def test_header_badge_and_summary(page):
@@ -172,19 +176,21 @@ def test_no_violations_badge():
     results["runs"] = [results["runs"][0]]
     page = render_report(results, {})
     assert "no violations" in page
-    assert 'id="run-' not in page
+    assert 'id="timeline-' not in page
     assert parse(page).errors == []
 
 
 def test_violating_run_has_timeline_section(parsed):
-    sections = [a for t, a, _ in parsed.elements if t == "section" and a.get("id", "").startswith("run-")]
-    assert [s["id"] for s in sections] == ["run-1"]
+    sections = [a for t, a, _ in parsed.elements if t == "section" and a.get("id", "").startswith("timeline-")]
+    assert [s["id"] for s in sections] == ["timeline-1"]
     elements = run_svg_elements(parsed, 1)
-    assert elements, "no svg in run-1"
+    assert elements, "no svg in timeline-1"
 
 
-def test_first_violating_runs_link_to_timelines(page):
+def test_first_violating_runs_link_to_their_rows_and_every_run_has_one(parsed, page):
     assert '<a href="#run-1">1</a>' in page
+    rows = [a["id"] for t, a, _ in parsed.elements if t == "tr" and a.get("id", "").startswith("run-")]
+    assert rows == ["run-0", "run-1", "run-2"]
 
 
 def test_pieces_cut_merge_and_clip():
@@ -205,7 +211,8 @@ def test_one_rect_per_defined_piece(parsed, var):
     assert var != "HS" or len(rects) == HS_PIECES
     for rect, (t0, t1, _) in zip(rects, expected, strict=True):
         assert float(rect["x"]) == pytest.approx(time_to_x(t0, DURATION), abs=0.01)
-        assert float(rect["width"]) == pytest.approx(time_to_x(t1, DURATION) - time_to_x(t0, DURATION), abs=0.02)
+        width = max(time_to_x(t1, DURATION) - time_to_x(t0, DURATION), MIN_PIECE_WIDTH)
+        assert float(rect["width"]) == pytest.approx(width, abs=0.02)
 
 
 def test_piece_colours_and_tooltips(parsed, page):
@@ -215,7 +222,7 @@ def test_piece_colours_and_tooltips(parsed, page):
     assert hc[-1]["fill"] == PHASE_COLOURS["mis"]
     lgt = [a["fill"] for t, a in run_svg_elements(parsed, 1) if t == "rect" and a.get("data-var") == "lgtBar"]
     assert lgt[0] == lgt[2] != lgt[1]
-    assert "<title>HS = mit from 4.5 to 12 s</title>" in page
+    assert "<title>HS = mit from 4.50 to 12.0 s</title>" in page
 
 
 def test_numeric_variable_is_a_step_plot(parsed, page):
@@ -224,7 +231,9 @@ def test_numeric_variable_is_a_step_plot(parsed, page):
     lines = [a for t, a in elements if t == "polyline" and a.get("data-var") == "speed"]
     assert len(lines) == 1
     assert len(lines[0]["points"].split()) == 2 * 3
-    assert "max 1.5" in page and "min 0" in page
+    labels = [a for t, a in elements if t == "text" and a.get("class") == "y-label"]
+    assert len(labels) == 2  # an axis: its top and bottom values
+    assert ">1.50<" in page and ">0<" in page
 
 
 def test_violation_marker_at_violation_time(parsed):
@@ -263,9 +272,16 @@ def test_failed_run_error_shown(page):
 def test_runs_table_rows_and_rerun(parsed, page):
     rows = [a.get("class") for t, a, _ in parsed.elements if t == "tr" and a.get("class") is not None]
     assert rows.count("violating") >= 2  # the run row and the condition row
-    assert "failed" in rows and "rerun" in rows
-    assert "runs/0001/scenario.yaml --out rerun1" in page
-    assert "runs/0000/scenario.yaml --out rerun0" not in page  # no rerun shown for a passing run
+    assert "failed" in rows
+    verdicts = [a.get("data-verdict") for t, a, _ in parsed.elements if t == "tr" and a.get("data-verdict")]
+    assert verdicts == ["holds", "violated", "failed"]
+    timeline = page[page.index('id="timeline-1"'):]
+    assert "runs/0001/scenario.yaml --out rerun1" in timeline
+    # a passing run's re-run command waits in the page's data, for when its row is opened
+    body = page[:page.index('id="report-data"')]
+    assert "--out rerun0" not in body and "--out rerun0" in page
+    assert '<a href="runs/0001/blackbox.sqlite">black box</a>' in page
+    assert '<a href="runs/0001/scenario.yaml">scenario</a>' in page
 
 
 def test_missing_optional_keys_and_string_keys():
@@ -274,7 +290,7 @@ def test_missing_optional_keys_and_string_keys():
     page = render_report(minimal, {"0": {"x": [[0, "a"], [0.5, "b"]]}})
     parsed = parse(page)
     assert parsed.errors == [] and parsed.stack == []
-    assert 'id="run-0"' in page
+    assert 'id="run-0"' in page and 'id="timeline-0"' in page
     assert len([a for t, a in run_svg_elements(parsed, 0) if t == "rect" and a.get("class") == "piece"]) == 2
     assert "No trace available" in render_report(minimal, {})
 
@@ -319,3 +335,100 @@ def test_a_cells_own_hazard_phases_get_the_hazard_lanes_and_colours_of_its_risk_
     assert page.index(">Hazard phases<") < page.index('data-var="PALLET"') < page.index(">Other variables<")
     legend = page[page.index('class="legend"'):page.index("Red lines")]
     assert "guarded" in legend and "harm" in legend and "inact" not in legend
+
+
+EVIDENCE = {"at": 12.34, "window": [12.34, 12.84],
+            "rows": {"HC_e": [[12.0, 20.0]], "rngDet == close": [[11.5, 20.0]], "HC == act": [[12.0, 12.34]]}}
+
+
+def _explained_results() -> dict:
+    results = copy.deepcopy(RESULTS)
+    results["runs"][1]["verdicts"]["HC:not_mis"]["evidence"] = EVIDENCE
+    results["runs"][1]["verdicts"]["HC:not_mis"]["explanation"] = "HC = mis"
+    return results
+
+
+def test_a_violations_macros_and_atoms_are_rows_and_its_required_window_is_shaded():
+    page = render_report(_explained_results(), {1: TIMELINE})
+    parsed = parse(page)
+    elements = run_svg_elements(parsed, 1)
+    assert ">Why HC:not_mis<" in page
+    for row, intervals in EVIDENCE["rows"].items():
+        rects = [a for t, a in elements if t == "rect" and a.get("data-var") == row]
+        truths = [a for a in rects if a["fill"] == "#37474f"]  # true: the boolean colour, as everywhere
+        assert [float(a["x"]) for a in truths] == pytest.approx([time_to_x(lo, DURATION) for lo, _ in intervals], abs=0.01)
+    window = [a for t, a in elements if t == "rect" and a.get("class") == "window"]
+    assert len(window) == 1 and window[0]["data-condition"] == "HC:not_mis"
+    assert float(window[0]["x"]) == pytest.approx(time_to_x(12.34, DURATION), abs=0.01)
+    assert float(window[0]["width"]) == pytest.approx(time_to_x(12.84, DURATION) - time_to_x(12.34, DURATION), abs=0.01)
+    # the window spans the lanes, from the first lane's top to the last one's bottom
+    lanes = [a for t, a in elements if t == "rect" and a.get("class") == "lane"]
+    assert float(window[0]["y"]) == pytest.approx(float(lanes[0]["y"]))
+    assert "HC:not_mis: required between 12.3 s and 12.8 s" in page
+
+
+def test_a_value_has_one_colour_in_every_lane_and_the_legend_lists_it():
+    timeline = {"ract": [[0.0, "idle"], [5.0, "welding"]], "wact": [[0.0, "welding"], [3.0, "idle"]]}
+    page = render_report(RESULTS, {1: timeline})
+    elements = run_svg_elements(parse(page), 1)
+    fills = {(a["data-var"], i): a["fill"] for i, (t, a) in enumerate(e for e in elements if e[0] == "rect" and e[1].get("data-var"))}
+    ract, wact = [f for (v, _), f in fills.items() if v == "ract"], [f for (v, _), f in fills.items() if v == "wact"]
+    assert ract == wact[::-1] and ract[0] != ract[1]  # idle and welding: the same colours in both lanes
+    legend = page[page.index('class="legend"'):page.index("Red lines")]
+    assert f'background: {ract[0]}"></span>idle' in legend and f'background: {ract[1]}"></span>welding' in legend
+
+
+def test_numeric_lanes_name_their_unit_on_the_label_and_the_axis():
+    page = render_report(RESULTS, {1: TIMELINE}, units={"speed": "m/s"})
+    assert ">speed (m/s)<" in page and ">1.50 m/s<" in page and ">0 m/s<" in page
+
+
+def test_a_piece_of_a_few_milliseconds_keeps_a_visible_width():
+    page = render_report(RESULTS, {1: {"HS": [[0.0, "inact"], [4.0, "act"], [4.002, "mit"]]}})
+    widths = [float(a["width"]) for t, a in run_svg_elements(parse(page), 1) if t == "rect" and a.get("data-var") == "HS"]
+    assert min(widths) == pytest.approx(MIN_PIECE_WIDTH)
+
+
+def test_two_variable_criteria_get_a_heat_map_of_runs_per_situation():
+    results = copy.deepcopy(RESULTS)
+    criterion = results["totals"]["coverage"]["criteria"]["wact x oloc"]
+    criterion.update(axes=[["idle", "welding", "off"], ["none", "inCell"]], runs=[2, 1, 0, 3, 1, 0])
+    page = render_report(results, {1: TIMELINE})
+    heat = page[page.index('<table class="heatmap" data-criterion="wact x oloc">'):]
+    heat = heat[:heat.index("</table>")]
+    cells = parse(heat)
+    values = [a.get("title") for t, a, _ in cells.elements if t == "td"]
+    assert values == [f"wact={w}, oloc={o}: {n} run{'s' if n != 1 else ''}"
+                      for (w, o), n in zip([(w, o) for w in ("idle", "welding", "off") for o in ("none", "inCell")], [2, 1, 0, 3, 1, 0])]
+    assert heat.count('class="never"') == 2  # never reached: marked, not merely pale
+
+
+def test_configuration_values_against_verdicts_split_each_bin_by_verdict():
+    results = copy.deepcopy(RESULTS)
+    results["campaign"]["configuration_units"] = {"operator.waypoints.bench.wait": "s"}
+    page = render_report(results, {1: TIMELINE})
+    figure = page[page.index('<figure class="histogram" data-key="operator.waypoints.bench.wait">'):]
+    figure = figure[:figure.index("</figure>")]
+    assert "<code>wait (s)</code>" in figure and "1 violating run" in figure
+    bins = [a["class"] for t, a, _ in parse(figure).elements if t == "rect"]
+    assert sorted(bins) == ["bin failed", "bin holds", "bin violated"]  # 1.0 failed, 3.2 held, 7.5 violated
+    # the runs table's column: the same value, its unit, three significant figures, sortable by its exact value
+    assert '<code>wait (s)</code></th>' in page and '<td class="num" data-value="3.2">3.20</td>' in page
+
+
+@pytest.mark.parametrize("value, text", [
+    (0, "0"), (3.2, "3.20"), (12.345, "12.3"), (0.04567, "0.0457"), (123456.0, "1.23e+05"), (-2.5, "-2.50"),
+    (7, "7.00"), ("welding", "welding"), (True, "true"),
+])
+def test_numbers_are_shown_with_three_significant_figures(value, text):
+    assert sig3(value) == text
+
+
+def test_the_provenance_header_shows_versions_command_and_input_hash():
+    results = copy.deepcopy(RESULTS)
+    results["provenance"] = {"versions": {"cellsim": "0.1.0", "drake": "1.51.1"}, "command": "cellsim campaign x.yaml --runs 3",
+                             "inputs": {"hash": "ab" * 32}}
+    header = render_report(results, {})
+    header = header[:header.index("</header>")]
+    assert "cellsim 0.1.0, drake 1.51.1" in header and "<code>cellsim campaign x.yaml --runs 3</code>" in header
+    assert f'<code title="{"ab" * 32}">{"ab" * 8}</code>' in header

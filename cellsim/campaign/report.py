@@ -1,57 +1,57 @@
-"""A self-contained HTML report of a test campaign.
+"""A self-contained HTML report of a test campaign, readable at thousands of runs.
 
 :func:`render_report` turns a campaign's results dictionary (exactly what is written
-to ``OUT/results.json``) and the reconstructed traces of its violating runs into one
-HTML document; :func:`write_report` writes it atomically.  The page needs nothing
-but a browser: CSS is inline, plots are inline SVG, there are no scripts, no
-external assets and no links out of the page.  It stays readable printed (colours
-are kept, timelines scale to the page width and are not split across pages).
+to ``OUT/results.json``) and the traces of its runs into one HTML document;
+:func:`write_report` writes it atomically.  The page needs nothing but a browser:
+CSS and a small script are inline, plots are inline SVG, there are no external
+assets.  Links point at files of the campaign folder beside it (a run's black box
+and scenario).  It stays readable printed (colours are kept, timelines scale to the
+page width and are not split across pages, short pieces keep a visible width).
 
 The page, top to bottom:
 
-* **header** - scenario, number of runs, seed, duration, creation date and an
-  overall badge: ``no violations`` or ``N runs violate M conditions`` (plus
-  ``K runs failed`` when some runs did not complete);
-* **summary** - the totals (runs, completed, failed, violating, overall coverage)
-  and the time spent per stage (``simulate``, ``trace``, ``check``, ``coverage``,
-  ``report``, ``wall``);
-* **conditions** - one row per safety condition: its formula, how many runs hold
-  it, violate it or did not check it (failed runs), and the first violating runs
-  as links to their timelines;
+* **header** - scenario, number of runs, seed, duration, creation date, the
+  provenance (versions, command line, input hash) and an overall badge;
+* **summary** - the totals and the time spent per stage;
+* **conditions** - one row per safety condition: formula and description, how many
+  runs hold it, violate it or leave it undecided, and the first violating runs;
 * **use cases** - how many runs exercised each use case;
 * **coverage** - per criterion: a bar, ``covered/total`` and the situations never
-  reached, by name;
-* **runs** - every run: index, seed, sampled configuration, use cases, violated
-  conditions and status (a failed run shows its error); violating rows are
-  highlighted and followed by the command that reruns them;
-* **timelines** - one section per violating run, with anchor ``id="run-<index>"``,
-  holding an SVG timeline of its trace.
+  reached; a heat map of runs per situation for each two-variable criterion;
+* **configurations** - per sampled configuration value, a histogram of its values
+  with each bar split by verdict: which settings lead to violations;
+* **runs** - one compact row per run: verdict (coloured), seed, one column per
+  configuration value (unit in the header, three significant figures), use cases,
+  violated conditions, links to its black box and scenario.  The table sorts by a
+  click on a column header and filters by text and verdict; clicking a run opens
+  its timeline, explanations and the command that re-runs it (drawn by the script
+  from the run's trace embedded in the page);
+* **timelines** - the first violating run of each violated condition, drawn in full
+  (as SVG in the page, so it prints): the trace, the condition's macros and atoms
+  as extra rows, the window it required shaded, and a legend of every value.
 
-Timeline geometry (all lengths in SVG user units; the SVG has a ``viewBox`` and
-scales to the page width): the plot spans ``x`` from :data:`PLOT_LEFT` to
-:data:`PLOT_LEFT` + :data:`PLOT_WIDTH`; time ``t`` in ``[0, duration]`` maps to
-``x = PLOT_LEFT + PLOT_WIDTH * t / duration`` (:func:`time_to_x`, ``t`` clamped to
-the domain), printed with two decimals.  Ticks every 5 s (labels thinned when they
-would crowd).  One lane per variable, grouped under titles (see
-:data:`DEFAULT_LANES`).  A trace ``{variable: [[t, value], ...]}`` is cut into
-constant pieces by :func:`pieces` (a value holds from its ``t`` to the next
-sample; repeats merge; the domain is ``[0, duration)``).  Each defined piece of an
-enumerated or boolean variable is one ``<rect class="piece" data-var="...">``
-inside a ``<g>`` whose ``<title>`` reads ``var = value from t0 to t1 s``, with the
-value written inside when the piece is wide enough; ``null`` pieces (undefined)
-are left empty.  Numeric variables are drawn as a step ``<polyline>`` with min/max
-labels instead.  Each violation of the run is a red ``<line class="violation"
-data-condition="...">`` at ``x = time_to_x(violated_at)`` labelled with the
-condition's name.
+Timeline geometry (SVG user units; the SVG has a ``viewBox`` and scales to the page
+width): time ``t`` in ``[0, duration]`` maps to ``x = PLOT_LEFT + PLOT_WIDTH * t /
+duration`` (:func:`time_to_x`, clamped), printed with two decimals.  Ticks every 5 s
+(labels thinned when crowded).  One lane per variable, grouped under titles (see
+:data:`DEFAULT_LANES`).  A trace ``{variable: [[t, value], ...]}`` is cut into constant
+pieces by :func:`pieces`.  Each defined piece of an enumerated or boolean variable is a
+``<rect class="piece" data-var="...">`` (at least :data:`MIN_PIECE_WIDTH` wide) in a
+``<g>`` whose ``<title>`` reads ``var = value from t0 to t1 s``; numeric variables are a
+step ``<polyline class="step">`` with a labelled axis in the variable's unit.  Each
+violation is a red ``<line class="violation" data-condition="...">`` at its time; each
+explained violation adds a group "Why <condition>" whose lanes are the condition's
+macros and atoms (true/false pieces, ``data-var`` the macro's name or the atom as
+written) and a ``<rect class="window" data-condition="...">`` shading the window the
+condition required.
 
-Colours are deterministic: hazard phases have fixed colours (:data:`PHASE_COLOURS`:
-``inact`` grey, ``act`` orange, ``mit``/``mit1``/``mit2`` yellow-green, ``res`` blue,
-``mis`` red), booleans are dark (true) or light (false), and other enumerations take
-:data:`ENUM_PALETTE` colours by the value's position in the sorted set of values the
-variable takes over all traces of the report (so a value has one colour on the page).
+Colours are deterministic and one per value on the whole page: hazard phases have
+fixed colours (:data:`PHASE_COLOURS`), booleans dark (true) or light (false), and every
+other value takes an :data:`ENUM_PALETTE` colour by its position in the sorted set of
+all values of all variables of the report, so ``idle`` is the same colour in every lane.
 
-Every string from the data is escaped (condition formulas contain ``<``, ``>`` and
-``&``).
+Every string from the data is escaped (formulas contain ``<``, ``>`` and ``&``; the
+embedded data escapes ``<`` so no string can end the script).
 """
 
 from __future__ import annotations
@@ -76,6 +76,7 @@ __all__ = [
     "pieces",
     "render_timeline",
     "render_report",
+    "sig3",
     "time_to_x",
     "write_report",
 ]
@@ -83,19 +84,21 @@ __all__ = [
 # --------------------------------------------------------------------------- layout
 
 SVG_WIDTH = 1000.0
-PLOT_LEFT = 150.0  # the lane labels sit left of this
+PLOT_LEFT = 170.0  # the lane labels sit left of this
 PLOT_RIGHT_MARGIN = 20.0
 PLOT_WIDTH = SVG_WIDTH - PLOT_LEFT - PLOT_RIGHT_MARGIN
 TICK_STEP = 5.0  # seconds between ticks
 MIN_LABEL_SPACING = 36.0  # tick labels closer than this are thinned
 LANE_HEIGHT = 20.0
-NUMERIC_LANE_HEIGHT = 34.0
+NUMERIC_LANE_HEIGHT = 40.0
 LANE_GAP = 4.0
 GROUP_HEADER = 18.0
 AXIS_HEIGHT = 22.0  # tick labels above the lanes
 MARKER_ROW = 13.0  # one row of violation labels
 CHAR_WIDTH = 6.4  # approximate width of a character at font-size 11
+MIN_PIECE_WIDTH = 1.5  # a piece of a few milliseconds stays visible on screen and on paper
 FIRST_VIOLATING_SHOWN = 10  # violating runs linked per condition
+MAX_DRAWN_TIMELINES = 20  # full SVG timelines in the page; every other run's is drawn on demand
 
 DEFAULT_LANES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("Safety mode", ("safmod",)),
@@ -119,11 +122,17 @@ PHASE_SEQUENCE = ("#fb8c00", "#c0ca33", "#aed581", "#7cb342", "#42a5f5", "#ab47b
 """Colours of a risk model's own phases in declared order, between its initial (grey) and mishap (red)."""
 BOOL_COLOURS = {True: "#37474f", False: "#cfd8dc"}
 ENUM_PALETTE = (
-    "#8dd3c7", "#bebada", "#80b1d3", "#fdb462", "#b3de69", "#fccde5",
-    "#d9d9d9", "#bc80bd", "#ccebc5", "#ffed6f",
-)  # ColorBrewer Set3 without its red (red means mishap or violation here)
+    "#8dd3c7", "#ffed6f", "#bebada", "#fdb462", "#80b1d3", "#b3de69", "#fccde5", "#d9d9d9", "#bc80bd",
+    "#ccebc5", "#e5c494", "#8da0cb", "#e78ac3", "#a6d854", "#66c2a5", "#fed9a6", "#b3cde3", "#decbe4",
+    "#ffffcc", "#e5d8bd",
+)
+"""ColorBrewer Set3, then Set2 and Pastel1, without red (red means mishap or violation here); the
+most distinct first, as values are given the first colour no value sharing a variable with them has."""
 VIOLATION_COLOUR = "#d32f2f"
+VERDICT_COLOURS = {"violated": "#d32f2f", "undecided": "#fb8c00", "failed": "#757575", "holds": "#43a047"}
+VERDICTS = ("holds", "undecided", "violated", "failed")
 STAGES = ("simulate", "trace", "check", "coverage", "report", "wall")
+HISTOGRAM_BINS = 12
 
 Samples = Sequence[Sequence[object]]
 Timeline = Mapping[str, Samples]
@@ -149,13 +158,30 @@ def _fmt(value: object) -> str:
     return json.dumps(value, sort_keys=True, default=str)
 
 
+def sig3(value: object) -> str:
+    """A number with three significant figures (``12.3``, ``0.0456``, ``1.23e+04``); other values as text."""
+    if not _is_number(value):
+        return _fmt(value)
+    x = float(value)  # type: ignore[arg-type]
+    if not math.isfinite(x):
+        return _fmt(x)
+    if x == 0:
+        return "0"
+    if 1e-3 <= abs(x) < 1e5:
+        decimals = max(0, 2 - int(math.floor(math.log10(abs(x)))))
+        text = f"{x:.{decimals}f}"
+        return text
+    return f"{x:.2e}"
+
+
 def _num(x: float) -> str:
     """An SVG coordinate."""
     return f"{x:.2f}"
 
 
 def _seconds(t: object) -> str:
-    return "&mdash;" if not _is_number(t) else f"{float(t):.6g}"  # type: ignore[arg-type]
+    """Seconds with their unit, three significant figures, or a dash."""
+    return "&mdash;" if not _is_number(t) else f"{sig3(t)} s"
 
 
 def _is_number(value: object) -> bool:
@@ -188,6 +214,18 @@ def _violated(run: Mapping) -> list[str]:
     return listed + [c for c in from_verdicts if c not in listed]
 
 
+def _verdict_of(run: Mapping) -> str:
+    """One word for a run: ``failed``, ``violated``, ``undecided`` (a condition inconclusive or missing data) or ``holds``."""
+    if _is_failed(run):
+        return "failed"
+    if _violated(run):
+        return "violated"
+    verdicts = [_status(_dict(v)) for v in _dict(run.get("verdicts")).values()]
+    if _list(run.get("undecided")) or any(v not in ("holds", None) for v in verdicts):
+        return "undecided"
+    return "holds"
+
+
 def _status(verdict: Mapping) -> str | None:
     """A verdict's status; results written before statuses existed have only ``holds``."""
     status = verdict.get("status")
@@ -202,7 +240,13 @@ def _plural(n: int, noun: str) -> str:
 
 
 def _anchor(index: int) -> str:
+    """The run's row in the runs table."""
     return f"run-{index}"
+
+
+def _timeline_anchor(index: int) -> str:
+    """The run's full timeline, for the runs drawn in the page."""
+    return f"timeline-{index}"
 
 
 def _overall(coverage: Mapping) -> object:
@@ -217,7 +261,22 @@ def _overall(coverage: Mapping) -> object:
 
 
 def _fraction_text(fraction: object) -> str:
-    return "n/a" if not _is_number(fraction) else f"{100.0 * float(fraction):.1f}%"  # type: ignore[arg-type]
+    return "n/a" if not _is_number(fraction) else f"{sig3(100.0 * float(fraction))}%"  # type: ignore[arg-type]
+
+
+def _fit(label: str) -> str:
+    """A lane label cut to the room left of the plot (the whole label is the element's title)."""
+    room = int((PLOT_LEFT - 10) / CHAR_WIDTH)
+    return label if len(label) <= room else label[: room - 1] + "\u2026"
+
+
+def _breakable(key: str) -> str:
+    """A dotted key, escaped, that may wrap after each dot."""
+    return ".<wbr>".join(_e(part) for part in key.split("."))
+
+
+def _with_unit(name: str, unit: object) -> str:
+    return f"{name} ({unit})" if isinstance(unit, str) and unit else name
 
 
 # --------------------------------------------------------------------------- pieces
@@ -257,6 +316,15 @@ def pieces(samples: Samples, duration: float) -> list[tuple[float, float, object
     return result
 
 
+def _held_samples(intervals: Iterable[Sequence[float]]) -> list[list]:
+    """Intervals where something held, as a boolean trace ``[[t, true|false], ...]`` from 0."""
+    samples: list[list] = [[0.0, False]]
+    for interval in intervals:
+        if len(interval) == 2 and _is_number(interval[0]) and _is_number(interval[1]):
+            samples += [[float(interval[0]), True], [float(interval[1]), False]]
+    return samples
+
+
 # --------------------------------------------------------------------------- colours
 
 
@@ -272,16 +340,12 @@ def _kind(values: Iterable[object]) -> str:
     return "enum"
 
 
-def _sort_key(value: object) -> tuple[str, str]:
-    return (type(value).__name__, _fmt(value))
-
-
 class _Palette:
     """Kinds and colours of the variables over all the report's traces.
 
-    A variable's kind (see :func:`_kind`) and its enumeration order (the sorted set
-    of its values) are computed once over every trace, so that a value has the same
-    colour in every timeline of the page.
+    A variable's kind (see :func:`_kind`) is computed once over every trace, and every
+    enumeration value of every variable gets one colour by its place in the sorted set
+    of all of them, so that a value has the same colour in every lane of the page.
     """
 
     def __init__(self, timelines: Iterable[Timeline], phases: Mapping[str, Mapping] | None = None) -> None:
@@ -289,14 +353,15 @@ class _Palette:
         self.phases = dict(phases or {})
         self.hazards = list(self.phases)
         self._phase_colours = {var: _phase_colours(spec) for var, spec in self.phases.items()}
-        values: dict[str, list] = {}
+        values: dict[str, set] = {}
         for timeline in timelines:
             for var, samples in timeline.items():
-                values.setdefault(var, []).extend(s[1] for s in samples if len(s) >= 2)
-        self._kinds = {var: _kind(vals) for var, vals in values.items()}
-        self._order = {
-            var: sorted({_sort_key(v) for v in vals if v is not None}) for var, vals in values.items()
-        }
+                seen = values.setdefault(var, set())
+                seen.update((type(s[1]), s[1]) for s in samples if len(s) >= 2 and s[1] is not None)
+        self._kinds = {var: _kind(v for _, v in vals) for var, vals in values.items()}
+        self.values = {var: sorted({_fmt(v) for _, v in vals}) for var, vals in values.items()}
+        """Each variable's values as text, sorted: what the legend lists."""
+        self._enum = _colour_values([vals for var, vals in self.values.items() if self.kind(var) == "enum"])
 
     def kind(self, var: str) -> str:
         if var in self.phases:
@@ -309,12 +374,38 @@ class _Palette:
             return self._phase_colours[var].get(str(value), "#9e9e9e")
         if kind == "phase":
             return PHASE_COLOURS.get(str(value), "#9e9e9e")
-        if kind == "bool":
+        if kind == "bool" or isinstance(value, bool):
             return BOOL_COLOURS[bool(value)]
-        order = self._order.get(var, [])
-        key = _sort_key(value)
-        i = order.index(key) if key in order else len(order)
-        return ENUM_PALETTE[i % len(ENUM_PALETTE)]
+        return self._enum.get(_fmt(value), ENUM_PALETTE[-1])
+
+    def colours(self) -> dict[str, dict[str, str]]:
+        """Variable -> value text -> colour, for every drawn (non-numeric) variable: the script's palette."""
+        return {
+            var: {text: self._colour_of_text(var, text) for text in texts}
+            for var, texts in self.values.items()
+            if self.kind(var) != "numeric"
+        }
+
+    def _colour_of_text(self, var: str, text: str) -> str:
+        if self.kind(var) == "bool":
+            return BOOL_COLOURS[text == "true"]
+        return self.colour(var, text)
+
+
+def _colour_values(variables: Iterable[Sequence[str]]) -> dict[str, str]:
+    """One colour per value text, different from every value it shares a variable with.
+
+    Values are taken in sorted order and given the first :data:`ENUM_PALETTE` colour not
+    yet used by a value of any of their variables (a greedy colouring), so ``idle`` is one
+    colour in every lane, and ``near`` and ``close`` never look alike in theirs.
+    """
+    variables = [list(v) for v in variables]
+    colours: dict[str, str] = {}
+    for value in sorted({v for vals in variables for v in vals}):
+        taken = {colours[other] for vals in variables if value in vals for other in vals if other in colours}
+        free = [c for c in ENUM_PALETTE if c not in taken]
+        colours[value] = free[0] if free else ENUM_PALETTE[len(colours) % len(ENUM_PALETTE)]
+    return colours
 
 
 def _phase_colours(spec: Mapping) -> dict[str, str]:
@@ -377,19 +468,21 @@ def _axis(duration: float, top: float, bottom: float) -> list[str]:
     return out
 
 
-def _piece_rects(var: str, var_pieces, palette: _Palette, duration: float, top: float) -> list[str]:
+def _piece_rects(var: str, var_pieces, colour, duration: float, top: float) -> list[str]:
+    """One ``rect.piece`` per defined piece, at least :data:`MIN_PIECE_WIDTH` wide; ``colour(value)``."""
     out = []
     for t0, t1, value in var_pieces:
         if value is None:
             continue
         x0, x1 = time_to_x(t0, duration), time_to_x(t1, duration)
-        fill = palette.colour(var, value)
+        width = max(x1 - x0, MIN_PIECE_WIDTH)
+        fill = colour(value)
         text = _fmt(value)
-        tip = f"{var} = {text} from {t0:.6g} to {t1:.6g} s"
+        tip = f"{var} = {text} from {sig3(t0)} to {sig3(t1)} s"
         parts = [
             f"<g><title>{_e(tip)}</title>",
             f'<rect class="piece" data-var="{_e(var)}" x="{_num(x0)}" y="{_num(top)}" '
-            f'width="{_num(x1 - x0)}" height="{_num(LANE_HEIGHT)}" fill="{fill}"/>',
+            f'width="{_num(width)}" height="{_num(LANE_HEIGHT)}" fill="{fill}"/>',
         ]
         if x1 - x0 >= len(text) * CHAR_WIDTH + 6:
             parts.append(
@@ -401,18 +494,19 @@ def _piece_rects(var: str, var_pieces, palette: _Palette, duration: float, top: 
     return out
 
 
-def _step_plot(var: str, var_pieces, duration: float, top: float) -> list[str]:
-    """A step polyline (one per defined stretch) scaled to the lane, with min/max labels."""
+def _step_plot(var: str, var_pieces, duration: float, top: float, unit: str = "") -> list[str]:
+    """A step polyline (one per defined stretch) scaled to the lane, with a labelled axis in ``unit``."""
     defined = [v for _, _, v in var_pieces if _is_number(v) and math.isfinite(v)]
     if not defined:
         return []
     lo, hi = min(defined), max(defined)
-    inner_top, inner_h = top + 3, NUMERIC_LANE_HEIGHT - 6
+    inner_top, inner_h = top + 4, NUMERIC_LANE_HEIGHT - 8
 
     def y(v: float) -> float:
         return inner_top + inner_h / 2 if hi == lo else inner_top + inner_h * (hi - v) / (hi - lo)
 
-    tip = _e(f"{var}: min {_fmt(lo)}, max {_fmt(hi)}")
+    suffix = f" {unit}" if unit else ""
+    tip = _e(f"{var}: min {sig3(lo)}{suffix}, max {sig3(hi)}{suffix}")
     out, points = [], []
 
     def flush() -> None:
@@ -427,11 +521,13 @@ def _step_plot(var: str, var_pieces, duration: float, top: float) -> list[str]:
         yy = _num(y(v))
         points.extend((f"{_num(time_to_x(t0, duration))},{yy}", f"{_num(time_to_x(t1, duration))},{yy}"))
     flush()
-    out.append(f'<text class="minmax" x="{_num(PLOT_LEFT + 3)}" y="{_num(top + 10)}">max {_e(_fmt(hi))}</text>')
-    out.append(
-        f'<text class="minmax" x="{_num(PLOT_LEFT + 3)}" y="{_num(top + NUMERIC_LANE_HEIGHT - 3)}">min {_e(_fmt(lo))}</text>'
-    )
-    return out
+    ticks = [hi] if hi == lo else [hi, lo]
+    axis = [f'<line class="y-axis" x1="{_num(PLOT_LEFT)}" x2="{_num(PLOT_LEFT)}" y1="{_num(inner_top)}" y2="{_num(inner_top + inner_h)}"/>']
+    for v in ticks:
+        yy = y(v)
+        axis.append(f'<line class="y-tick" x1="{_num(PLOT_LEFT - 3)}" x2="{_num(PLOT_LEFT + PLOT_WIDTH)}" y1="{_num(yy)}" y2="{_num(yy)}"/>')
+        axis.append(f'<text class="y-label" x="{_num(PLOT_LEFT + 3)}" y="{_num(yy + (9 if v == hi else -2))}">{_e(sig3(v) + suffix)}</text>')
+    return axis + out
 
 
 def _marker_rows(markers: list[tuple[float, str]]) -> list[tuple[float, str, int, bool]]:
@@ -460,12 +556,28 @@ def _markers(violations: list[tuple[str, float]], duration: float, label_top: fl
     for x, name, row, anchor_end in _marker_rows(xs):
         label_y = label_top + (row + 1) * MARKER_ROW - 3
         tx, anchor = (x - 3, "end") if anchor_end else (x + 3, "start")
-        tip = f"{name} violated at {by_name[name]:.6g} s"
+        tip = f"{name} violated at {sig3(by_name[name])} s"
         out.append(
             f'<g><title>{_e(tip)}</title>'
             f'<line class="violation" data-condition="{_e(name)}" x1="{_num(x)}" x2="{_num(x)}" '
             f'y1="{_num(label_y - 9)}" y2="{_num(bottom)}" stroke="{VIOLATION_COLOUR}"/>'
             f'<text class="violation-label" x="{_num(tx)}" y="{_num(label_y)}" text-anchor="{anchor}">{_e(name)}</text></g>'
+        )
+    return out
+
+
+def _windows(evidence: Mapping[str, Mapping], duration: float, top: float, bottom: float) -> list[str]:
+    """A shaded ``rect.window`` per explained violation: where the condition required something."""
+    out = []
+    for name, ev in evidence.items():
+        window = _list(ev.get("window"))
+        if len(window) != 2 or not all(_is_number(w) for w in window):
+            continue
+        x0, x1 = time_to_x(window[0], duration), time_to_x(window[1], duration)
+        tip = f"{name}: required between {sig3(window[0])} s and {sig3(window[1])} s"
+        out.append(
+            f'<g><title>{_e(tip)}</title><rect class="window" data-condition="{_e(name)}" x="{_num(x0)}" '
+            f'y="{_num(top)}" width="{_num(max(x1 - x0, 2 * MIN_PIECE_WIDTH))}" height="{_num(bottom - top)}"/></g>'
         )
     return out
 
@@ -481,43 +593,68 @@ def _run_violation_times(run: Mapping) -> list[tuple[str, float]]:
     return out
 
 
+def _run_evidence(run: Mapping) -> dict[str, dict]:
+    """Violated condition -> its evidence (``{at, window, rows}``), for the conditions that carry one."""
+    verdicts = _dict(run.get("verdicts"))
+    return {name: ev for name in _violated(run) if (ev := _dict(_dict(verdicts.get(name)).get("evidence")))}
+
+
 def render_timeline(
     timeline: Timeline,
     duration: float,
     violations: Sequence[tuple[str, float]] = (),
     lanes: Sequence[tuple[str, Sequence[str]]] | None = None,
     palette: _Palette | None = None,
+    evidence: Mapping[str, Mapping] | None = None,
+    units: Mapping[str, str] | None = None,
 ) -> str:
-    """One run's trace as an inline SVG (see the module docstring for the geometry)."""
+    """One run's trace as an inline SVG (see the module docstring for the geometry).
+
+    ``evidence`` maps a violated condition to its ``{window, rows}``
+    (:meth:`cellsim.validation.explain.Explainer.evidence`): its rows are drawn under
+    "Why <condition>" and its window shaded; ``units`` gives numeric variables their unit.
+    """
     palette = palette or _Palette([timeline])
-    groups = _lane_groups(timeline, lanes, palette.hazards)
+    units = units or {}
+    groups = [(title, [(v, timeline[v]) for v in names]) for title, names in _lane_groups(timeline, lanes, palette.hazards)]
+    for name, ev in (evidence or {}).items():
+        rows = [(row, _held_samples(_list(intervals))) for row, intervals in _dict(ev.get("rows")).items()]
+        if rows:
+            groups.append((f"Why {name}", rows))
     placed = _marker_rows([(time_to_x(t, duration), name) for name, t in violations])
     n_rows = 1 + max((row for _, _, row, _ in placed), default=-1)
     label_top = 2.0
     axis_top = label_top + n_rows * MARKER_ROW + AXIS_HEIGHT
     body: list[str] = []
     y = axis_top
-    for title, names in groups:
+    for title, lanes_of_group in groups:
         body.append(f'<text class="group" x="4" y="{_num(y + 12)}">{_e(title)}</text>')
         y += GROUP_HEADER
-        for var in names:
-            numeric = palette.kind(var) == "numeric"
+        explaining = title.startswith("Why ")
+        for var, samples in lanes_of_group:
+            numeric = not explaining and palette.kind(var) == "numeric"
             h = NUMERIC_LANE_HEIGHT if numeric else LANE_HEIGHT
-            var_pieces = pieces(timeline[var], duration)
-            body.append(f'<text class="lane-label" x="{_num(PLOT_LEFT - 6)}" y="{_num(y + h / 2 + 4)}">{_e(var)}</text>')
+            var_pieces = pieces(samples, duration)
+            label = var if explaining or not numeric else _with_unit(var, units.get(var))
+            body.append(
+                f'<text class="lane-label" x="{_num(PLOT_LEFT - 6)}" y="{_num(y + h / 2 + 4)}">'
+                f"<title>{_e(label)}</title>{_e(_fit(label))}</text>"
+            )
             body.append(
                 f'<rect class="lane" x="{_num(PLOT_LEFT)}" y="{_num(y)}" width="{_num(PLOT_WIDTH)}" height="{_num(h)}"/>'
             )
             if numeric:
-                body.extend(_step_plot(var, var_pieces, duration, y))
+                body.extend(_step_plot(var, var_pieces, duration, y, units.get(var, "")))
             else:
-                body.extend(_piece_rects(var, var_pieces, palette, duration, y))
+                colour = (lambda v: BOOL_COLOURS[bool(v)]) if explaining else (lambda v, var=var: palette.colour(var, v))
+                body.extend(_piece_rects(var, var_pieces, colour, duration, y))
             y += h + LANE_GAP
     height = y + 4
     parts = [
         f'<svg class="timeline" viewBox="0 0 {_num(SVG_WIDTH)} {_num(height)}" '
         f'width="100%" role="img" aria-label="timeline">',
         *_axis(duration, axis_top, y - LANE_GAP),
+        *_windows(evidence or {}, duration, axis_top + GROUP_HEADER, y - LANE_GAP),
         *body,
         *_markers(list(violations), duration, label_top, y - LANE_GAP),
         "</svg>",
@@ -529,13 +666,13 @@ def render_timeline(
 
 CSS = """
 body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; margin: 1.5em auto;
-       max-width: 1100px; padding: 0 1em; color: #212121; line-height: 1.4;
+       max-width: 1200px; padding: 0 1em; color: #212121; line-height: 1.4;
        -webkit-print-color-adjust: exact; print-color-adjust: exact; }
 h1 { margin-bottom: 0.2em; }
 h2 { border-bottom: 2px solid #e0e0e0; padding-bottom: 0.2em; margin-top: 1.6em; }
 dl.meta { display: grid; grid-template-columns: max-content auto; gap: 0.1em 1em; }
 dl.meta dt { font-weight: 600; }
-dl.meta dd { margin: 0; }
+dl.meta dd { margin: 0; word-break: break-all; }
 .badge { display: inline-block; padding: 0.25em 0.7em; border-radius: 1em; font-weight: 600;
          margin-right: 0.5em; border: 1px solid transparent; }
 .badge.ok { background: #e8f5e9; color: #1b5e20; border-color: #66bb6a; }
@@ -550,33 +687,59 @@ pre { white-space: pre-wrap; word-break: break-all; margin: 0; }
 code.formula { white-space: pre-wrap; word-break: break-word; }
 tr.violating td { background: #ffebee; }
 tr.failed td { background: #fff8e1; }
-tr.rerun td { background: #fff5f5; font-size: 0.9em; }
 .error { color: #b71c1c; }
 .bar { display: inline-block; width: 160px; height: 0.8em; background: #eeeeee;
        border: 1px solid #bdbdbd; vertical-align: middle; }
 .bar span { display: block; height: 100%; background: #43a047; }
 ul.missing { margin: 0.2em 0; padding-left: 1.2em; }
 .muted { color: #757575; }
+.legend { line-height: 1.9; }
 .legend span.swatch { display: inline-block; width: 0.9em; height: 0.9em; border: 1px solid #9e9e9e;
                       vertical-align: middle; margin: 0 0.25em 0 0.8em; }
-section.run { margin-top: 1.2em; }
-svg.timeline { max-width: 1000px; display: block; margin: 0.5em 0; }
+.verdict { font-weight: 600; }
+.verdict.holds { color: #1b5e20; } .verdict.violated { color: #b71c1c; }
+.verdict.undecided { color: #e65100; } .verdict.failed { color: #616161; }
+table.runs { font-size: 0.85em; }
+table.runs td, table.runs th { padding: 0.15em 0.4em; white-space: nowrap; }
+table.runs th { white-space: normal; vertical-align: bottom; max-width: 9em; }
+table.timing caption { white-space: nowrap; text-align: left; }
+table.runs th[data-sort] { cursor: pointer; user-select: none; }
+table.runs th[data-sort]::after { content: " \\2195"; color: #bdbdbd; }
+table.runs th.sorted-asc::after { content: " \\25B2"; color: #424242; }
+table.runs th.sorted-desc::after { content: " \\25BC"; color: #424242; }
+table.runs a.open { font-weight: 600; }
+tr.details > td { background: #fafafa; white-space: normal; }
+.filters { margin: 0.5em 0; }
+.filters input, .filters select { font: inherit; padding: 0.15em 0.4em; }
+table.heatmap td { text-align: center; min-width: 3.2em; font-variant-numeric: tabular-nums; }
+table.heatmap td.never { background: #ffebee; color: #b71c1c; }
+.plots { display: flex; flex-wrap: wrap; gap: 0.5em 1.5em; }
+figure.histogram { margin: 0; }
+figure.histogram figcaption { font-size: 0.85em; }
+svg.histogram { width: 340px; height: auto; }
+svg.histogram text { font-size: 10px; font-family: system-ui, sans-serif; fill: #424242; }
+svg.histogram .axis { stroke: #9e9e9e; }
+section.run { margin-top: 1.2em; break-inside: avoid; }
+svg.timeline { max-width: 1100px; display: block; margin: 0.5em 0; }
 svg.timeline text { font-size: 11px; font-family: system-ui, sans-serif; }
 svg.timeline .tick { stroke: #e0e0e0; stroke-width: 1; }
 svg.timeline .tick-label { fill: #616161; text-anchor: middle; }
 svg.timeline .group { font-weight: 600; fill: #424242; }
 svg.timeline .lane { fill: none; stroke: #e0e0e0; }
 svg.timeline .lane-label { text-anchor: end; fill: #212121; }
-svg.timeline .piece { stroke: #ffffff; stroke-width: 0.5; }
+svg.timeline .piece { shape-rendering: crispEdges; }
 svg.timeline .piece-label { text-anchor: middle; pointer-events: none; }
 svg.timeline .step { fill: none; stroke: #1565c0; stroke-width: 1.5; }
-svg.timeline .minmax { fill: #757575; font-size: 9px; }
+svg.timeline .y-axis { stroke: #9e9e9e; }
+svg.timeline .y-tick { stroke: #eeeeee; stroke-dasharray: 2 3; }
+svg.timeline .y-label { fill: #616161; font-size: 9px; }
+svg.timeline .window { fill: #ffe082; fill-opacity: 0.45; stroke: #ff8f00; stroke-dasharray: 4 2; }
 svg.timeline .violation { stroke: #d32f2f; stroke-width: 1.5; }
 svg.timeline .violation-label { fill: #d32f2f; font-weight: 600; }
 nav a { margin-right: 1em; }
 @media print {
   body { max-width: none; margin: 0; }
-  nav { display: none; }
+  nav, .filters { display: none; }
   section.run, table tr { break-inside: avoid; }
   svg.timeline { max-width: 100%; }
 }
@@ -600,6 +763,18 @@ def _violating_runs(runs: Sequence[Mapping]) -> list[tuple[int, Mapping]]:
     return [(_run_index(r, i), r) for i, r in enumerate(runs) if _violated(r)]
 
 
+def _provenance_rows(results: Mapping) -> list[tuple[str, str | None]]:
+    """Versions, command line and input hash of the campaign (``results["provenance"]``), as HTML."""
+    record = _dict(results.get("provenance"))
+    versions = ", ".join(f"{k} {v}" for k, v in _dict(record.get("versions")).items())
+    digest = _dict(record.get("inputs")).get("hash")
+    return [
+        ("Versions", _e(versions) if versions else None),
+        ("Command", f"<code>{_e(record['command'])}</code>" if record.get("command") else None),
+        ("Input hash", f'<code title="{_e(digest)}">{_e(str(digest)[:16])}</code>' if digest else None),
+    ]
+
+
 def _header(results: Mapping, runs: Sequence[Mapping]) -> str:
     campaign = _dict(results.get("campaign"))
     name = campaign.get("scenario_name") or campaign.get("scenario") or "campaign"
@@ -616,18 +791,21 @@ def _header(results: Mapping, runs: Sequence[Mapping]) -> str:
         badge = '<span class="badge ok">no violations</span>'
     if failed:
         badge += f'<span class="badge warn">{_plural(failed, "run")} failed</span>'
+    text = lambda key: _e(campaign[key]) if campaign.get(key) is not None else None  # noqa: E731
     meta = [
-        ("Scenario", campaign.get("scenario")),
-        ("Runs", campaign.get("runs", len(runs))),
-        ("Seed", campaign.get("seed")),
-        ("Duration", f"{_fmt(campaign['duration'])} s" if _is_number(campaign.get("duration")) else None),
-        ("Created", campaign.get("created")),
+        ("Scenario", text("scenario")),
+        ("Runs", _e(campaign.get("runs", len(runs)))),
+        ("Seed", text("seed")),
+        ("Duration", _seconds(campaign["duration"]) if _is_number(campaign.get("duration")) else None),
+        ("Created", text("created")),
+        *_provenance_rows(results),
     ]
-    rows = "".join(f"<dt>{k}</dt><dd>{_e(v)}</dd>" for k, v in meta if v is not None)
+    rows = "".join(f"<dt>{k}</dt><dd>{v}</dd>" for k, v in meta if v is not None)
     nav = "".join(
         f'<a href="#{a}">{t}</a>'
         for a, t in (("summary", "Summary"), ("conditions", "Conditions"), ("use-cases", "Use cases"),
-                     ("coverage", "Coverage"), ("runs", "Runs"), ("timelines", "Timelines"))
+                     ("coverage", "Coverage"), ("configurations", "Configurations"), ("runs", "Runs"),
+                     ("timelines", "Timelines"))
     )
     return (
         f"<header><h1>Test campaign: {_e(name)}</h1>\n<p>{badge}</p>\n"
@@ -646,14 +824,14 @@ def _summary(results: Mapping, runs: Sequence[Mapping]) -> str:
     ]
     rows = "".join(f'<tr><th>{k}</th><td class="num">{_e(v)}</td></tr>' for k, v in figures)
     if "overall" in coverage:
-        rows += f'<tr><th>Coverage</th><td class="num">{_fraction_text(_overall(coverage))}</td></tr>'
+        rows += f'<tr><th>Coverage</th><td class="num" id="coverage-figure">{_fraction_text(_overall(coverage))}</td></tr>'
     timing = _dict(results.get("timing"))
     stages = [s for s in STAGES if s in timing] + [s for s in timing if s not in STAGES]
     timing_rows = "".join(
         f'<tr><th>{_e(s)}</th><td class="num">{_seconds(timing[s])}</td></tr>' for s in stages
     )
     timing_table = (
-        '<table class="timing"><caption>Time per stage (s; stages are summed over workers, '
+        '<table class="timing"><caption>Time per stage (stages are summed over workers, '
         '"wall" is elapsed)</caption>'
         f"<tbody>{timing_rows}</tbody></table>"
         if stages
@@ -665,8 +843,16 @@ def _summary(results: Mapping, runs: Sequence[Mapping]) -> str:
     )
 
 
+def _formula_cell(formula: object, description: object) -> str:
+    html = f'<code class="formula">{_e(formula)}</code>' if formula is not None else ""
+    if isinstance(description, str) and description:
+        html += f'<br><span class="muted">{_e(description)}</span>'
+    return html
+
+
 def _condition_rows(results: Mapping, runs: Sequence[Mapping]) -> str:
-    formulas = _dict(_dict(results.get("campaign")).get("conditions"))
+    campaign = _dict(results.get("campaign"))
+    formulas, descriptions = _dict(campaign.get("conditions")), _dict(campaign.get("descriptions"))
     rows = []
     for name in _conditions(results):
         holding, violating, unchecked = 0, [], 0
@@ -681,14 +867,9 @@ def _condition_rows(results: Mapping, runs: Sequence[Mapping]) -> str:
         links = ", ".join(f'<a href="#{_anchor(i)}">{i}</a>' for i in violating[:FIRST_VIOLATING_SHOWN])
         if len(violating) > FIRST_VIOLATING_SHOWN:
             links += f' <span class="muted">and {len(violating) - FIRST_VIOLATING_SHOWN} more</span>'
-        formula = formulas.get(name)
-        formula_html = f'<code class="formula">{_e(formula)}</code>' if formula is not None else ""
-        description = _dict(_dict(results.get("campaign")).get("descriptions")).get(name)
-        if isinstance(description, str) and description:
-            formula_html += f'<br><span class="muted">{_e(description)}</span>'
         cls = ' class="violating"' if violating else ""
         rows.append(
-            f"<tr{cls}><td><strong>{_e(name)}</strong></td><td>{formula_html}</td>"
+            f"<tr{cls}><td><strong>{_e(name)}</strong></td><td>{_formula_cell(formulas.get(name), descriptions.get(name))}</td>"
             f'<td class="num">{holding}</td><td class="num">{len(violating)}</td>'
             f'<td class="num">{unchecked}</td><td>{links}</td></tr>'
         )
@@ -707,7 +888,8 @@ def _conditions_section(results: Mapping, runs: Sequence[Mapping]) -> str:
 
 
 def _use_cases_section(results: Mapping, runs: Sequence[Mapping]) -> str:
-    formulas = _dict(_dict(results.get("campaign")).get("use_cases"))
+    campaign = _dict(results.get("campaign"))
+    formulas, descriptions = _dict(campaign.get("use_cases")), _dict(campaign.get("descriptions"))
     counts = dict(_dict(_dict(results.get("totals")).get("use_cases")))
     if not counts:
         for run in runs:
@@ -721,11 +903,9 @@ def _use_cases_section(results: Mapping, runs: Sequence[Mapping]) -> str:
     for name in names:
         n = counts.get(name, 0)
         share = _fraction_text(n / total) if total and _is_number(n) else "n/a"
-        formula = formulas.get(name)
-        formula_html = f'<code class="formula">{_e(formula)}</code>' if formula is not None else ""
         cls = ' class="failed"' if n == 0 else ""
         rows.append(
-            f"<tr{cls}><td><strong>{_e(name)}</strong></td><td>{formula_html}</td>"
+            f"<tr{cls}><td><strong>{_e(name)}</strong></td><td>{_formula_cell(formulas.get(name), descriptions.get(name))}</td>"
             f'<td class="num">{_e(n)}</td><td class="num">{share}</td></tr>'
         )
     return (
@@ -741,6 +921,35 @@ def _bar(fraction: object) -> str:
     return f'<span class="bar"><span style="width: {width:.1f}%"></span></span>'
 
 
+def _heatmap(name: str, c: Mapping) -> str:
+    """Runs per situation of a two-variable criterion: rows the first variable's values, columns the second's."""
+    axes, counts, variables = _list(c.get("axes")), _list(c.get("runs")), _list(c.get("variables"))
+    if len(axes) != 2 or len(variables) != 2 or len(counts) != len(_list(axes[0])) * len(_list(axes[1])):
+        return ""
+    rows_of, cols_of = [str(v) for v in axes[0]], [str(v) for v in axes[1]]
+    top = max([n for n in counts if _is_number(n)] + [1])
+    head = "".join(f"<th>{_e(v)}</th>" for v in cols_of)
+    body = []
+    for i, r in enumerate(rows_of):
+        cells = []
+        for j, col in enumerate(cols_of):
+            n = counts[i * len(cols_of) + j]
+            tip = f"{variables[0]}={r}, {variables[1]}={col}: {_plural(n, 'run')}"
+            if not n:
+                cells.append(f'<td class="never" title="{_e(tip)}">0</td>')
+                continue
+            shade = 0.15 + 0.75 * n / top
+            colour = "#fff" if shade > 0.6 else "#1b5e20"
+            cells.append(f'<td title="{_e(tip)}" style="background: rgba(67,160,71,{shade:.2f}); color: {colour}">{n}</td>')
+        body.append(f"<tr><th>{_e(r)}</th>{''.join(cells)}</tr>")
+    return (
+        f'<figure class="heatmap-figure"><figcaption><strong>{_e(name)}</strong>: runs in each situation '
+        f'(rows {_e(variables[0])}, columns {_e(variables[1])}; red: never reached)</figcaption>'
+        f'<table class="heatmap" data-criterion="{_e(name)}"><thead><tr><th></th>{head}</tr></thead>'
+        f"<tbody>{''.join(body)}</tbody></table></figure>"
+    )
+
+
 def _coverage_section(results: Mapping) -> str:
     coverage = _dict(_dict(results.get("totals")).get("coverage"))
     criteria = _dict(coverage.get("criteria"))
@@ -749,7 +958,7 @@ def _coverage_section(results: Mapping) -> str:
         head += f"<p>Overall: {_bar(_overall(coverage))} {_fraction_text(_overall(coverage))}</p>\n"
     if not criteria:
         return head + '<p class="muted">No coverage criteria.</p></section>'
-    rows = []
+    rows, maps = [], []
     for name, c in criteria.items():
         c = _dict(c)
         covered, total = c.get("covered"), c.get("total")
@@ -770,87 +979,193 @@ def _coverage_section(results: Mapping) -> str:
             f'<td class="num">{_e(covered if covered is not None else "?")}/{_e(total if total is not None else "?")}</td>'
             f'<td class="num">{_fraction_text(fraction)}</td><td>{missing_html}</td></tr>'
         )
+        maps.append(_heatmap(name, c))
+    maps_html = "".join(m for m in maps if m)
     return (
         head
         + "<table><thead><tr><th>Criterion</th><th>Variables</th><th>Covered</th>"
         '<th class="num">Situations</th><th class="num">Fraction</th><th>Missing situations</th></tr></thead>\n<tbody>\n'
         + "\n".join(rows)
-        + "\n</tbody></table></section>"
+        + "\n</tbody></table>\n"
+        + (f'<h3>Situations by runs</h3><div class="plots">{maps_html}</div>' if maps_html else "")
+        + "</section>"
     )
 
 
+# --------------------------------------------------------------------------- configurations
+
+
 def _config_keys(runs: Sequence[Mapping]) -> list[str]:
-    keys: list[str] = []
-    for run in runs:
-        for k in _dict(run.get("configuration")):
-            if k not in keys:
-                keys.append(k)
-    return keys
+    return list(dict.fromkeys(k for run in runs for k in _dict(run.get("configuration"))))
 
 
-MAX_CONFIG_COLUMNS = 6  # more sampled values are listed in one cell
+def _short_key(key: str, keys: Sequence[str]) -> str:
+    """The shortest dotted tail of ``key`` no other key ends with (``bench.wait`` for ``operator.waypoints.bench.wait``)."""
+    parts = key.split(".")
+    for n in range(1, len(parts) + 1):
+        tail = ".".join(parts[-n:])
+        if not any(k != key and (k == tail or k.endswith("." + tail)) for k in keys):
+            return tail
+    return key
 
 
-def _config_cells(run: Mapping, keys: Sequence[str]) -> str:
-    config = _dict(run.get("configuration"))
-    if len(keys) <= MAX_CONFIG_COLUMNS:
-        return "".join(f'<td class="num">{_e(config[k]) if k in config else ""}</td>' for k in keys)
-    items = "<br>".join(f"<code>{_e(k)}</code> = {_e(v)}" for k, v in config.items())
-    return f"<td>{items}</td>"
+def _histogram(key: str, label: str, runs: Sequence[Mapping]) -> str:
+    """Values of one configuration key in bins, each bar stacked by the runs' verdicts (an SVG figure)."""
+    points = [(_dict(r.get("configuration")).get(key), _verdict_of(r)) for r in runs]
+    numeric = [(float(v), verdict) for v, verdict in points if _is_number(v) and math.isfinite(v)]
+    if numeric and len(numeric) == len([p for p in points if p[0] is not None]):
+        lo, hi = min(v for v, _ in numeric), max(v for v, _ in numeric)
+        n_bins = 1 if hi == lo else HISTOGRAM_BINS
+        width = (hi - lo) / n_bins if hi > lo else 1.0
+        labels = [sig3(lo + width * (i + 0.5)) for i in range(n_bins)] if hi > lo else [sig3(lo)]
+        counts = [dict.fromkeys(VERDICTS, 0) for _ in range(n_bins)]
+        for v, verdict in numeric:
+            counts[min(int((v - lo) / width), n_bins - 1) if hi > lo else 0][verdict] += 1
+        ends = (sig3(lo), sig3(hi))
+    else:
+        values = sorted({_fmt(v) for v, _ in points if v is not None})
+        labels, counts = values, [dict.fromkeys(VERDICTS, 0) for _ in values]
+        for v, verdict in points:
+            if v is not None:
+                counts[values.index(_fmt(v))][verdict] += 1
+        ends = (values[0], values[-1]) if values else ("", "")
+    if not counts:
+        return ""
+    w, h, left, bottom = 340.0, 120.0, 28.0, 18.0
+    plot_w, plot_h = w - left - 6, h - bottom - 6
+    top = max(sum(c.values()) for c in counts) or 1
+    bar_w = plot_w / len(counts)
+    bars = []
+    for i, c in enumerate(counts):
+        y = h - bottom
+        for verdict in VERDICTS:
+            n = c[verdict]
+            if not n:
+                continue
+            bh = plot_h * n / top
+            y -= bh
+            tip = f"{label} ~ {labels[i]}: {_plural(n, 'run')} {verdict}"
+            bars.append(
+                f'<rect class="bin {verdict}" x="{_num(left + i * bar_w + 0.5)}" y="{_num(y)}" width="{_num(max(bar_w - 1, 1))}" '
+                f'height="{_num(bh)}" fill="{VERDICT_COLOURS[verdict]}"><title>{_e(tip)}</title></rect>'
+            )
+    violated = sum(c["violated"] for c in counts)
+    axis = (
+        f'<line class="axis" x1="{_num(left)}" x2="{_num(w - 6)}" y1="{_num(h - bottom)}" y2="{_num(h - bottom)}"/>'
+        f'<text x="{_num(left)}" y="{_num(h - 5)}">{_e(ends[0])}</text>'
+        f'<text x="{_num(w - 6)}" y="{_num(h - 5)}" text-anchor="end">{_e(ends[1])}</text>'
+        f'<text x="{_num(left - 3)}" y="{_num(h - bottom - plot_h + 8)}" text-anchor="end">{top}</text>'
+        f'<text x="{_num(left - 3)}" y="{_num(h - bottom)}" text-anchor="end">0</text>'
+    )
+    return (
+        f'<figure class="histogram" data-key="{_e(key)}"><figcaption><code>{_e(label)}</code>'
+        f' <span class="muted">{_plural(violated, "violating run")}</span></figcaption>'
+        f'<svg class="histogram" viewBox="0 0 {_num(w)} {_num(h)}" role="img" aria-label="{_e(label)} against verdicts">'
+        f"{axis}{''.join(bars)}</svg></figure>"
+    )
+
+
+def _configurations_section(results: Mapping, runs: Sequence[Mapping]) -> str:
+    keys = _config_keys(runs)
+    if not keys:
+        return '<section id="configurations"><h2>Configurations</h2><p class="muted">No sampled configuration.</p></section>'
+    units = _dict(_dict(results.get("campaign")).get("configuration_units"))
+    legend = "".join(
+        f'<span class="swatch" style="background: {VERDICT_COLOURS[v]}"></span>{v}' for v in VERDICTS
+    )
+    plots = "".join(_histogram(k, _with_unit(_short_key(k, keys), units.get(k)), runs) for k in keys)
+    return (
+        '<section id="configurations"><h2>Configurations against verdicts</h2>\n'
+        f'<p class="legend">Each sampled value in bins; bars split by the runs\' verdicts:{legend}.</p>'
+        f'<div class="plots">{plots}</div></section>'
+    )
+
+
+# --------------------------------------------------------------------------- runs table
 
 
 def _status_cell(run: Mapping) -> str:
-    status = _e(run.get("status", "unknown"))
-    if _is_failed(run):
-        error = run.get("error")
-        detail = f'<pre class="error">{_e(error)}</pre>' if error is not None else ""
-        return f'<td><span class="error">{status}</span>{detail}</td>'
-    return f"<td>{status}</td>"
+    verdict = _verdict_of(run)
+    title = ""
+    if _is_failed(run) and run.get("error") is not None:
+        title = f' title="{_e(run["error"])}"'
+    return f'<td class="verdict {verdict}" data-value="{verdict}"{title}>{verdict}</td>'
 
 
-def _runs_section(runs: Sequence[Mapping]) -> str:
+def _file_links(run: Mapping) -> str:
+    out = run.get("out")
+    if not isinstance(out, str) or not out:
+        return "<td></td>"
+    folder = escape(out.rstrip("/"), quote=True)
+    return f'<td><a href="{folder}/blackbox.sqlite">black box</a> <a href="{folder}/scenario.yaml">scenario</a></td>'
+
+
+def _runs_section(results: Mapping, runs: Sequence[Mapping]) -> str:
     if not runs:
         return '<section id="runs"><h2>Runs</h2><p class="muted">No runs.</p></section>'
     keys = _config_keys(runs)
-    if len(keys) <= MAX_CONFIG_COLUMNS:
-        config_head = "".join(f'<th class="num"><code>{_e(k)}</code></th>' for k in keys)
-    else:
-        config_head = "<th>Configuration</th>"
-    n_cols = 6 + (len(keys) if len(keys) <= MAX_CONFIG_COLUMNS else 1)
+    units = _dict(_dict(results.get("campaign")).get("configuration_units"))
+    config_head = "".join(
+        f'<th class="num" data-sort="num" title="{_e(k)}"><code>{_breakable(_with_unit(_short_key(k, keys), units.get(k)))}</code></th>'
+        for k in keys
+    )
     rows = []
     for i, run in enumerate(runs):
         index = _run_index(run, i)
         violated = _violated(run)
-        cls = ' class="violating"' if violated else ' class="failed"' if _is_failed(run) else ""
-        index_html = f'<a href="#{_anchor(index)}">{index}</a>' if violated else str(index)
-        violated_html = ", ".join(f'<a href="#{_anchor(index)}">{_e(c)}</a>' for c in violated)
+        verdict = _verdict_of(run)
+        cls = ' class="violating"' if verdict == "violated" else ' class="failed"' if verdict == "failed" else ""
+        config = _dict(run.get("configuration"))
+        cells = "".join(
+            f'<td class="num" data-value="{_e(config[k])}">{_e(sig3(config[k]))}</td>' if k in config else '<td class="num"></td>'
+            for k in keys
+        )
         use_cases = ", ".join(_e(u) for u in _list(run.get("use_cases")))
         rows.append(
-            f'<tr{cls}><td class="num">{index_html}</td><td class="num">{_e(run.get("seed", ""))}</td>'
-            f"{_config_cells(run, keys)}<td>{use_cases}</td><td>{violated_html}</td>{_status_cell(run)}"
-            f'<td class="num">{_seconds(run.get("wall_time"))}</td></tr>'
+            f'<tr id="{_anchor(index)}" data-run="{index}" data-verdict="{verdict}"{cls}>'
+            f'<td class="num" data-value="{index}"><a class="open" href="#{_anchor(index)}">{index}</a></td>'
+            f'{_status_cell(run)}<td class="num" data-value="{_e(run.get("seed", ""))}">{_e(run.get("seed", ""))}</td>'
+            f"{cells}<td>{use_cases}</td><td>{', '.join(_e(c) for c in violated)}</td>"
+            f'<td class="num" data-value="{_e(run.get("wall_time", ""))}">{_seconds(run.get("wall_time"))}</td>{_file_links(run)}</tr>'
         )
-        if violated and run.get("rerun"):
-            rows.append(
-                f'<tr class="rerun"><td colspan="{n_cols}">Rerun: <code>{_e(run["rerun"])}</code></td></tr>'
-            )
+    options = "".join(f'<option value="{v}">{v}</option>' for v in VERDICTS)
     return (
-        '<section id="runs"><h2>Runs</h2>\n<table><thead><tr><th class="num">Run</th><th class="num">Seed</th>'
-        f"{config_head}<th>Use cases</th><th>Violated</th><th>Status</th>"
-        '<th class="num">Wall (s)</th></tr></thead>\n<tbody>\n'
+        '<section id="runs"><h2>Runs</h2>\n'
+        '<p class="filters"><label>Filter <input type="search" id="run-filter" placeholder="text in a row, e.g. HS:detected"></label> '
+        f'<label>Verdict <select id="verdict-filter"><option value="">all</option>{options}</select></label> '
+        f'<span id="run-count" class="muted">{_plural(len(runs), "run")}</span> '
+        '<span class="muted">Click a column to sort, a run to open its timeline.</span></p>\n'
+        '<table class="runs" id="runs-table"><thead><tr><th class="num" data-sort="num">Run</th>'
+        '<th data-sort="text">Verdict</th><th class="num" data-sort="num">Seed</th>'
+        f'{config_head}<th data-sort="text">Use cases</th><th data-sort="text">Violated</th>'
+        '<th class="num" data-sort="num">Wall</th><th>Files</th></tr></thead>\n<tbody>\n'
         + "\n".join(rows)
         + "\n</tbody></table></section>"
     )
 
 
-def _legend(palette: "_Palette") -> str:
+# --------------------------------------------------------------------------- timelines
+
+
+def _legend(palette: _Palette) -> str:
+    """Every value drawn on the page with its colour: phases, booleans, then each variable's values."""
     phases = next(iter(palette._phase_colours.values()), PHASE_COLOURS)
-    items = list(phases.items()) + [("true", BOOL_COLOURS[True]), ("false", BOOL_COLOURS[False])]
-    swatches = "".join(f'<span class="swatch" style="background: {c}"></span>{_e(n)}' for n, c in items)
+    rows = [("Hazard phases", list(phases.items())),
+            ("Booleans", [("true", BOOL_COLOURS[True]), ("false", BOOL_COLOURS[False])])]
+    for var, texts in palette.values.items():
+        if palette.kind(var) == "enum":
+            rows.append((var, [(t, palette.colour(var, t)) for t in texts]))
+    items = "".join(
+        f"<div><strong>{_e(title)}</strong>"
+        + "".join(f'<span class="swatch" style="background: {c}"></span>{_e(n)}' for n, c in entries)
+        + "</div>"
+        for title, entries in rows
+    )
     return (
-        f'<p class="legend">Hazard phases and booleans:{swatches}. '
-        f'<span style="color: {VIOLATION_COLOUR}">Red lines</span> mark violations; '
-        "hover a piece for its value and times.</p>"
+        f'<div class="legend">{items}<div><span style="color: {VIOLATION_COLOUR}">Red lines</span> mark violations; '
+        '<span style="background: #ffe08299; border: 1px dashed #ff8f00">&nbsp;shaded&nbsp;</span> the window a violated '
+        "condition required; rows under &ldquo;Why&rdquo; show where each of its macros and atoms held (dark: true). "
+        "Hover a piece for its value and times.</div></div>"
     )
 
 
@@ -861,27 +1176,31 @@ def _timeline_key(timelines: Mapping, index: int) -> Timeline | None:
     return found if isinstance(found, Mapping) else None
 
 
-def _run_timeline_section(
-    run: Mapping, index: int, timeline: Timeline | None, duration: float,
-    lanes: Sequence[tuple[str, Sequence[str]]] | None, palette: _Palette,
-) -> str:
-    formulas = _dict(run.get("verdicts"))
+def _explanations(run: Mapping) -> str:
+    verdicts = _dict(run.get("verdicts"))
     items = []
     for name in _violated(run):
-        verdict = _dict(formulas.get(name))
+        verdict = _dict(verdicts.get(name))
         why = verdict.get("explanation")
         why = f": {_e(why)}" if isinstance(why, str) and why else ""
-        items.append(f"<li><strong>{_e(name)}</strong> violated at {_seconds(verdict.get('violated_at'))} s{why}</li>")
-    rerun = f'<p>Rerun: <code>{_e(run["rerun"])}</code></p>' if run.get("rerun") else ""
-    out = f'<p class="muted">Output folder: <code>{_e(run["out"])}</code></p>' if run.get("out") else ""
+        items.append(f"<li><strong>{_e(name)}</strong> violated at {_seconds(verdict.get('violated_at'))}{why}</li>")
+    return f"<ul>{''.join(items)}</ul>"
+
+
+def _run_timeline_section(
+    run: Mapping, index: int, timeline: Timeline | None, duration: float,
+    lanes: Sequence[tuple[str, Sequence[str]]] | None, palette: _Palette, units: Mapping[str, str],
+) -> str:
+    rerun = f'<p>Re-run: <code>{_e(run["rerun"])}</code></p>' if run.get("rerun") else ""
+    out = f'<p class="muted">Run folder: <code>{_e(run["out"])}</code></p>' if run.get("out") else ""
     if timeline:
-        plot = render_timeline(timeline, duration, _run_violation_times(run), lanes, palette)
+        plot = render_timeline(timeline, duration, _run_violation_times(run), lanes, palette, _run_evidence(run), units)
     else:
         plot = '<p class="muted">No trace available for this run.</p>'
     return (
-        f'<section class="run" id="{_anchor(index)}"><h3>Run {index} '
+        f'<section class="run" id="{_timeline_anchor(index)}"><h3>Run <a href="#{_anchor(index)}">{index}</a> '
         f'<span class="muted">(seed {_e(run.get("seed", "?"))})</span></h3>\n'
-        f"<ul>{''.join(items)}</ul>\n{rerun}{out}\n{plot}\n</section>"
+        f"{_explanations(run)}\n{rerun}{out}\n{plot}\n</section>"
     )
 
 
@@ -894,21 +1213,285 @@ def _duration(results: Mapping, timelines: Iterable[Timeline]) -> float:
     return max([1.0, *last])
 
 
+def _drawn(runs: Sequence[Mapping]) -> list[tuple[int, Mapping]]:
+    """The violating runs drawn in full: the first of each violated condition, then the others, at most
+    :data:`MAX_DRAWN_TIMELINES`."""
+    violating = _violating_runs(runs)
+    first = {}
+    for index, run in violating:
+        for name in _violated(run):
+            first.setdefault(name, (index, run))
+    chosen = list({index: (index, run) for index, run in first.values()}.values())
+    chosen += [(i, r) for i, r in violating if all(i != c for c, _ in chosen)]
+    return sorted(chosen[:MAX_DRAWN_TIMELINES], key=lambda item: item[0])
+
+
 def _timelines_section(
-    results: Mapping, runs: Sequence[Mapping], timelines: Mapping,
-    lanes: Sequence[tuple[str, Sequence[str]]] | None, phases: Mapping | None = None,
+    runs: Sequence[Mapping], traces: Mapping, duration: float,
+    lanes: Sequence[tuple[str, Sequence[str]]] | None, palette: _Palette, units: Mapping[str, str],
 ) -> str:
     violating = _violating_runs(runs)
     if not violating:
-        return '<section id="timelines"><h2>Timelines</h2><p class="muted">No violating runs.</p></section>'
-    traces = {index: _timeline_key(timelines, index) for index, _ in violating}
-    present = [t for t in traces.values() if t]
-    palette = _Palette(present, phases)
-    duration = _duration(results, present)
+        return (
+            '<section id="timelines"><h2>Timelines</h2><p class="muted">No violating runs. '
+            "Open any run in the table to see its timeline.</p>" + _legend(palette) + "</section>"
+        )
+    drawn = _drawn(runs)
+    more = len(violating) - len(drawn)
+    note = (
+        f'<p class="muted">{_plural(len(drawn), "violating run")} drawn here (the first of each violated condition); '
+        f"open any other run in the table to draw its timeline ({more} more violating).</p>"
+        if more else ""
+    )
     sections = [
-        _run_timeline_section(run, index, traces[index], duration, lanes, palette) for index, run in violating
+        _run_timeline_section(run, index, _timeline_key(traces, index), duration, lanes, palette, units)
+        for index, run in drawn
     ]
-    return '<section id="timelines"><h2>Timelines of violating runs</h2>\n' + _legend(palette) + "\n" + "\n".join(sections) + "</section>"
+    return (
+        '<section id="timelines"><h2>Timelines of violating runs</h2>\n' + note + _legend(palette) + "\n"
+        + "\n".join(sections) + "</section>"
+    )
+
+
+# --------------------------------------------------------------------------- the script and its data
+
+
+def _compact(timeline: Timeline, palette: _Palette) -> dict[str, list]:
+    """A trace for the script: ``{var: [times (ms), values]}``, numbers to three significant figures."""
+    out = {}
+    for var, samples in timeline.items():
+        times, values, last = [], [], object()
+        numeric = palette.kind(var) == "numeric"
+        for s in samples:
+            if len(s) < 2 or not _is_number(s[0]):
+                continue
+            v = s[1]
+            if numeric and _is_number(v) and math.isfinite(v):
+                v = float(sig3(v))
+            elif not numeric and v is not None:
+                v = _fmt(v)
+            if v == last:
+                continue
+            times.append(round(float(s[0]) * 1000))
+            values.append(v)
+            last = v
+        out[var] = [times, values]
+    return out
+
+
+def _script_data(runs: Sequence[Mapping], traces: Mapping, duration: float,
+                 lanes: Sequence[tuple[str, Sequence[str]]] | None, palette: _Palette, units: Mapping[str, str]) -> str:
+    """The data the script draws timelines from, as JSON safe inside ``<script>``."""
+    per_run = {}
+    for i, run in enumerate(runs):
+        index = _run_index(run, i)
+        trace = _timeline_key(traces, index)
+        verdicts = _dict(run.get("verdicts"))
+        per_run[index] = {
+            "trace": _compact(trace, palette) if trace else None,
+            "violations": [[name, _dict(verdicts.get(name)).get("violated_at"), _dict(verdicts.get(name)).get("explanation")]
+                           for name in _violated(run)],
+            "evidence": _run_evidence(run),
+            "rerun": run.get("rerun"),
+            "error": run.get("error"),
+        }
+    any_trace = next((t for t in (_timeline_key(traces, i) for i in per_run) if t), {})
+    data = {
+        "duration": duration,
+        "groups": _lane_groups(any_trace, lanes, palette.hazards),
+        "kinds": {var: palette.kind(var) for var in palette.values},
+        "colours": palette.colours(),
+        "units": dict(units),
+        "runs": per_run,
+        "geometry": {"svgWidth": SVG_WIDTH, "plotLeft": PLOT_LEFT, "plotWidth": PLOT_WIDTH, "lane": LANE_HEIGHT,
+                     "numericLane": NUMERIC_LANE_HEIGHT, "gap": LANE_GAP, "group": GROUP_HEADER, "tick": TICK_STEP,
+                     "minPiece": MIN_PIECE_WIDTH, "labelRoom": int((PLOT_LEFT - 10) / CHAR_WIDTH),
+                     "charWidth": CHAR_WIDTH},
+        "boolColours": {"true": BOOL_COLOURS[True], "false": BOOL_COLOURS[False]},
+    }
+    text = json.dumps(data, separators=(",", ":"), allow_nan=False, default=str)
+    return text.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")
+
+
+SCRIPT = r"""
+(function () {
+  "use strict";
+  var table = document.getElementById("runs-table");
+  if (!table) return;
+  var data = null;
+  function load() {
+    if (!data) data = JSON.parse(document.getElementById("report-data").textContent);
+    return data;
+  }
+  var body = table.tBodies[0];
+  var rows = Array.prototype.slice.call(body.rows);
+  var count = document.getElementById("run-count");
+  function cellValue(row, col, kind) {
+    var cell = row.cells[col];
+    var v = cell.getAttribute("data-value");
+    if (v === null) v = cell.textContent;
+    if (kind === "num") { var n = parseFloat(v); return isNaN(n) ? -Infinity : n; }
+    return v.toLowerCase();
+  }
+  Array.prototype.forEach.call(table.tHead.rows[0].cells, function (th, col) {
+    var kind = th.getAttribute("data-sort");
+    if (!kind) return;
+    th.addEventListener("click", function () {
+      var asc = !th.classList.contains("sorted-asc");
+      Array.prototype.forEach.call(table.tHead.rows[0].cells, function (h) { h.classList.remove("sorted-asc", "sorted-desc"); });
+      th.classList.add(asc ? "sorted-asc" : "sorted-desc");
+      closeAll();
+      rows.sort(function (a, b) {
+        var x = cellValue(a, col, kind), y = cellValue(b, col, kind);
+        return (x < y ? -1 : x > y ? 1 : 0) * (asc ? 1 : -1);
+      });
+      rows.forEach(function (r) { body.appendChild(r); });
+    });
+  });
+  var text = document.getElementById("run-filter"), verdict = document.getElementById("verdict-filter");
+  function filter() {
+    var q = text.value.trim().toLowerCase(), want = verdict.value, shown = 0;
+    closeAll();
+    rows.forEach(function (r) {
+      var ok = (!want || r.getAttribute("data-verdict") === want) && (!q || r.textContent.toLowerCase().indexOf(q) >= 0);
+      r.hidden = !ok;
+      if (ok) shown++;
+    });
+    count.textContent = shown + " of " + rows.length + " runs";
+  }
+  text.addEventListener("input", filter);
+  verdict.addEventListener("change", filter);
+  function closeAll() {
+    Array.prototype.slice.call(body.querySelectorAll("tr.details")).forEach(function (d) { d.remove(); });
+  }
+  function esc(s) { return String(s).replace(/[&<>"]/g, function (c) { return {"&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;"}[c]; }); }
+  function sig3(x) {
+    if (typeof x !== "number" || !isFinite(x)) return String(x);
+    if (x === 0) return "0";
+    var a = Math.abs(x);
+    if (a >= 1e-3 && a < 1e5) return x.toFixed(Math.max(0, 2 - Math.floor(Math.log10(a))));
+    return x.toExponential(2);
+  }
+  function textColour(fill) {  // as the page's own _text_colour: black or white, whichever reads better
+    var r = parseInt(fill.slice(1, 3), 16), gr = parseInt(fill.slice(3, 5), 16), bl = parseInt(fill.slice(5, 7), 16);
+    return 0.299 * r + 0.587 * gr + 0.114 * bl > 140 ? "#000" : "#fff";
+  }
+  function pieces(times, values, duration) {
+    var out = [];
+    for (var i = 0; i < times.length; i++) {
+      var t0 = Math.max(times[i] / 1000, 0), t1 = Math.min(i + 1 < times.length ? times[i + 1] / 1000 : duration, duration);
+      if (t1 > t0) out.push([t0, t1, values[i]]);
+    }
+    return out;
+  }
+  function heldTrace(intervals) {
+    var t = [0], v = ["false"];
+    intervals.forEach(function (iv) { t.push(iv[0] * 1000, iv[1] * 1000); v.push("true", "false"); });
+    return [t, v];
+  }
+  function timeline(run) {
+    var d = load(), g = d.geometry, dur = d.duration, parts = [], y = 24;
+    function X(t) { return g.plotLeft + g.plotWidth * Math.min(Math.max(t, 0), dur) / dur; }
+    var groups = d.groups.map(function (grp) {
+      return [grp[0], grp[1].filter(function (v) { return run.trace[v]; }).map(function (v) { return [v, run.trace[v], false]; })];
+    });
+    Object.keys(run.evidence).forEach(function (name) {
+      var rows = run.evidence[name].rows || {};
+      groups.push(["Why " + name, Object.keys(rows).map(function (r) { return [r, heldTrace(rows[r]), true]; })]);
+    });
+    groups.forEach(function (grp) {
+      if (!grp[1].length) return;
+      parts.push('<text class="group" x="4" y="' + (y + 12) + '">' + esc(grp[0]) + "</text>");
+      y += g.group;
+      grp[1].forEach(function (lane) {
+        var v = lane[0], numeric = !lane[2] && d.kinds[v] === "numeric", h = numeric ? g.numericLane : g.lane;
+        var unit = d.units[v], label = numeric && unit ? v + " (" + unit + ")" : v;
+        var fitted = label.length <= g.labelRoom ? label : label.slice(0, g.labelRoom - 1) + "\u2026";
+        parts.push('<text class="lane-label" x="' + (g.plotLeft - 6) + '" y="' + (y + h / 2 + 4) + '"><title>' + esc(label) + "</title>" + esc(fitted) + "</text>");
+        parts.push('<rect class="lane" x="' + g.plotLeft + '" y="' + y + '" width="' + g.plotWidth + '" height="' + h + '"/>');
+        var ps = pieces(lane[1][0], lane[1][1], dur);
+        if (numeric) {
+          var nums = ps.map(function (p) { return p[2]; }).filter(function (x) { return typeof x === "number"; });
+          if (nums.length) {
+            var lo = Math.min.apply(null, nums), hi = Math.max.apply(null, nums);
+            var Y = function (x) { return hi === lo ? y + h / 2 : y + 4 + (h - 8) * (hi - x) / (hi - lo); };
+            var pts = [];
+            ps.forEach(function (p) { if (typeof p[2] === "number") pts.push(X(p[0]).toFixed(2) + "," + Y(p[2]).toFixed(2), X(p[1]).toFixed(2) + "," + Y(p[2]).toFixed(2)); });
+            var u = unit ? " " + unit : "";
+            parts.push('<polyline class="step" data-var="' + esc(v) + '" points="' + pts.join(" ") + '"/>');
+            parts.push('<text class="y-label" x="' + (g.plotLeft + 3) + '" y="' + (Y(hi) + 9) + '">' + esc(sig3(hi) + u) + "</text>");
+            if (hi !== lo) parts.push('<text class="y-label" x="' + (g.plotLeft + 3) + '" y="' + (Y(lo) - 2) + '">' + esc(sig3(lo) + u) + "</text>");
+          }
+        } else {
+          ps.forEach(function (p) {
+            if (p[2] === null) return;
+            var fill = lane[2] ? d.boolColours[p[2]] : ((d.colours[v] || {})[p[2]] || "#9e9e9e");
+            var x0 = X(p[0]), w = Math.max(X(p[1]) - x0, g.minPiece);
+            var text = String(p[2]), label = "";
+            if (X(p[1]) - x0 >= text.length * g.charWidth + 6) {
+              label = '<text class="piece-label" x="' + ((x0 + X(p[1])) / 2).toFixed(2) + '" y="' + (y + h / 2 + 4) + '" fill="' + textColour(fill) + '">' + esc(text) + "</text>";
+            }
+            parts.push('<g><title>' + esc(v + " = " + text + " from " + sig3(p[0]) + " to " + sig3(p[1]) + " s") + '</title><rect class="piece" data-var="' + esc(v) +
+              '" x="' + x0.toFixed(2) + '" y="' + y + '" width="' + w.toFixed(2) + '" height="' + h + '" fill="' + fill + '"/>' + label + "</g>");
+          });
+        }
+        y += h + g.gap;
+      });
+    });
+    var bottom = y - g.gap, under = [], over = [];
+    for (var t = 0; t <= dur + 1e-9; t += g.tick) {
+      under.push('<line class="tick" x1="' + X(t).toFixed(2) + '" x2="' + X(t).toFixed(2) + '" y1="20" y2="' + bottom + '"/>');
+      under.push('<text class="tick-label" x="' + X(t).toFixed(2) + '" y="17">' + t + " s</text>");
+    }
+    Object.keys(run.evidence).forEach(function (name) {
+      var w = run.evidence[name].window;
+      if (w) under.push('<rect class="window" data-condition="' + esc(name) + '" x="' + X(w[0]).toFixed(2) + '" y="' + (24 + g.group) + '" width="' +
+        Math.max(X(w[1]) - X(w[0]), 2 * g.minPiece).toFixed(2) + '" height="' + (bottom - 24 - g.group) + '"><title>' +
+        esc(name + ": required between " + sig3(w[0]) + " s and " + sig3(w[1]) + " s") + "</title></rect>");
+    });
+    run.violations.forEach(function (v) {
+      if (typeof v[1] !== "number") return;
+      over.push('<line class="violation" data-condition="' + esc(v[0]) + '" x1="' + X(v[1]).toFixed(2) + '" x2="' + X(v[1]).toFixed(2) + '" y1="6" y2="' + bottom + '"/>');
+      over.push('<text class="violation-label" x="' + (X(v[1]) + 3).toFixed(2) + '" y="9">' + esc(v[0]) + "</text>");
+    });
+    return '<svg class="timeline" viewBox="0 0 ' + g.svgWidth + " " + (y + 4) + '" width="100%" role="img" aria-label="timeline">' +
+      under.join("") + parts.join("") + over.join("") + "</svg>";
+  }
+  function open(row) {
+    var next = row.nextElementSibling;
+    if (next && next.classList.contains("details")) { next.remove(); return; }
+    var d = load(), index = row.getAttribute("data-run"), run = d.runs[index], html = [];
+    run.violations.forEach(function (v) {
+      html.push("<li><strong>" + esc(v[0]) + "</strong> violated at " + (typeof v[1] === "number" ? sig3(v[1]) + " s" : "?") + (v[2] ? ": " + esc(v[2]) : "") + "</li>");
+    });
+    var out = "";
+    if (html.length) out += "<ul>" + html.join("") + "</ul>";
+    if (run.error) out += '<pre class="error">' + esc(run.error) + "</pre>";
+    if (run.rerun) out += "<p>Re-run: <code>" + esc(run.rerun) + "</code></p>";
+    out += run.trace ? timeline(run) : '<p class="muted">No trace available for this run.</p>';
+    var tr = document.createElement("tr");
+    tr.className = "details";
+    tr.innerHTML = '<td colspan="' + row.cells.length + '">' + out + "</td>";
+    row.parentNode.insertBefore(tr, row.nextSibling);
+  }
+  body.addEventListener("click", function (ev) {
+    var link = ev.target.closest("a.open");
+    if (!link) return;
+    ev.preventDefault();
+    open(link.closest("tr"));
+  });
+  function openFromHash() {
+    var row = location.hash && document.getElementById(location.hash.slice(1));
+    if (row && row.parentNode === body && !(row.nextElementSibling && row.nextElementSibling.classList.contains("details"))) {
+      row.hidden = false;
+      open(row);
+      row.scrollIntoView();
+    }
+  }
+  window.addEventListener("hashchange", openFromHash);
+  openFromHash();
+})();
+"""
 
 
 # --------------------------------------------------------------------------- API
@@ -919,18 +1502,25 @@ def render_report(
     timelines: Mapping[int, Timeline] | None,
     lanes: Sequence[tuple[str, Sequence[str]]] | None = None,
     phases: Mapping[str, Mapping] | None = None,
+    units: Mapping[str, str] | None = None,
 ) -> str:
     """The whole HTML report of a campaign.
 
     ``results`` is the campaign's results dictionary (``OUT/results.json``);
-    ``timelines`` maps a violating run's index (int, or its decimal string as read
-    back from JSON) to its trace ``{variable: [[t, value], ...]}``; ``lanes`` groups
-    the timeline lanes as ``[(group title, [variable, ...]), ...]`` (default:
-    :data:`DEFAULT_LANES`, then the trace's other variables); ``phases`` gives each hazard
-    variable its risk model's ``{values, initial, mishap}`` (its lanes, colours and legend).
+    ``timelines`` maps a run's index (int, or its decimal string as read back from
+    JSON) to its trace ``{variable: [[t, value], ...]}``; ``lanes`` groups the timeline
+    lanes as ``[(group title, [variable, ...]), ...]`` (default: :data:`DEFAULT_LANES`,
+    then the trace's other variables); ``phases`` gives each hazard variable its risk
+    model's ``{values, initial, mishap}`` (its lanes, colours and legend); ``units``
+    gives variables their unit (numeric lanes' axes).
     """
     runs = [r for r in _list(results.get("runs")) if isinstance(r, Mapping)]
     campaign = _dict(results.get("campaign"))
+    traces = timelines or {}
+    units = dict(units or _dict(campaign.get("units")))
+    present = [t for t in (_timeline_key(traces, _run_index(r, i)) for i, r in enumerate(runs)) if t]
+    palette = _Palette(present, phases)
+    duration = _duration(results, present)
     title = f"Test campaign: {campaign.get('scenario_name') or campaign.get('scenario') or 'campaign'}"
     body = "\n".join(
         (
@@ -940,9 +1530,12 @@ def render_report(
             _conditions_section(results, runs),
             _use_cases_section(results, runs),
             _coverage_section(results),
-            _runs_section(runs),
-            _timelines_section(results, runs, timelines or {}, lanes, phases),
+            _configurations_section(results, runs),
+            _runs_section(results, runs),
+            _timelines_section(runs, traces, duration, lanes, palette, units),
             "</main>",
+            f'<script type="application/json" id="report-data">{_script_data(runs, traces, duration, lanes, palette, units)}</script>',
+            f"<script>{SCRIPT}</script>",
         )
     )
     return (
@@ -958,10 +1551,11 @@ def write_report(
     timelines: Mapping[int, Timeline] | None,
     lanes: Sequence[tuple[str, Sequence[str]]] | None = None,
     phases: Mapping[str, Mapping] | None = None,
+    units: Mapping[str, str] | None = None,
 ) -> None:
     """Renders the report and writes it to ``path`` atomically.
 
     Readers see the old report or the new one, never a partial one, and no
     temporary file is left behind, even on error (:func:`cellsim.atomic.write_text`).
     """
-    write_text(path, render_report(results, timelines, lanes, phases), make_folder=True)
+    write_text(path, render_report(results, timelines, lanes, phases, units), make_folder=True)

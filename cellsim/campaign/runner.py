@@ -24,6 +24,8 @@ The output folder holds::
                              inline: ``cellsim simulate OUT/runs/0007/scenario.yaml`` redoes it
         inputs/              ... copies of the risk and robot models it used, which
                              scenario.yaml refers to: the folder re-runs alone, anywhere
+        trace.json           ... its trace over the validation section's variables (the
+                             ``check --export-trace`` format), for the report's timelines
         result.json          ... its verdicts, use cases and covered situations;
                              written last, so its presence means the run is done
     OUT/results.json         every run's result, the totals and the provenance
@@ -70,6 +72,7 @@ PLAN = "campaign.json"
 RESULTS = "results.json"
 REPORT = "report.html"
 RESULT = "result.json"
+TRACE = "trace.json"
 RUNS = "runs"
 RUNS_PER_WORKER = 60
 
@@ -173,6 +176,7 @@ def execute_run(plan: CampaignPlan, out: Path, index: int, origin: dict | None =
         t1 = time.perf_counter()
         checked = case.check(trace.trace, complete=trace.complete)
         timing["trace"], timing["check"] = t1 - t0, time.perf_counter() - t1
+        _write_json(folder / TRACE, shown_variables(trace.to_json(), sc.validation.variables), indent=None)
         result.update(
             status=summary.status,
             verdicts=checked.verdicts_json(),
@@ -191,8 +195,13 @@ def execute_run(plan: CampaignPlan, out: Path, index: int, origin: dict | None =
     return result
 
 
-def _write_json(path: Path, data) -> None:
-    write_text(path, json.dumps(data, indent=1))
+def _write_json(path: Path, data, indent: int | None = 1) -> None:
+    write_text(path, json.dumps(data, indent=indent, separators=None if indent else (",", ":")))
+
+
+def shown_variables(signals: dict, variables: dict) -> dict:
+    """The variables a report draws: the validation section's short names, or every channel when it names none."""
+    return {name: signals[name] for name in (variables or signals) if name in signals}
 
 
 # --------------------------------------------------------------------------- the campaign
@@ -449,9 +458,7 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
     """Totals, results.json and report.html from the runs' results; ``record`` is the
     campaign's provenance (:func:`cellsim.provenance.provenance`)."""
     from cellsim.campaign.report import write_report
-    from cellsim.services.blackbox import BlackBox, BlackBoxError
-    from cellsim.simulation import BLACKBOX
-    from cellsim.validation.traces import TraceError, trace_of_run
+    from cellsim.scenario import unit_of
 
     sc = sf.scenario
     t0 = time.perf_counter()
@@ -496,25 +503,58 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
         },
     }
     t0 = time.perf_counter()
-    timelines, phases = {}, {}
-    for r in runs:
-        if r.get("violations"):
-            try:
-                with BlackBox(out / r["out"] / BLACKBOX) as bb:
-                    signals = trace_of_run(bb, sc.validation.variables).to_json()
-                    phases = phases or hazard_phases(bb, sc.validation.variables)
-            except (BlackBoxError, TraceError):
-                continue  # the run's black box is gone or damaged: the report says it has no trace
-            # the short names of the validation section; all channels when it names none
-            shown = sc.validation.variables or signals
-            timelines[r["index"]] = {name: signals[name] for name in shown}
+    timelines = {r["index"]: trace for r in runs if (trace := _run_trace(out, r, sc)) is not None}
+    phases, units = _channel_facts(out, runs, sc.validation.variables)
+    results["campaign"]["units"] = units
+    results["campaign"]["configuration_units"] = {
+        key: unit_of(sc, key) for key in dict.fromkeys(k for r in runs for k in r.get("configuration", {}))
+    }
     results["timing"]["report"] = time.perf_counter() - t0
     results["timing"]["wall"] = time.perf_counter() - wall_start
-    write_report(out / REPORT, results, timelines, phases=phases)
+    write_report(out / REPORT, results, timelines, phases=phases, units=units)
     results["timing"]["report"] = time.perf_counter() - t0
     results["timing"]["wall"] = time.perf_counter() - wall_start
     _write_json(out / RESULTS, results)
     return CampaignOutcome(results, out / RESULTS, out / REPORT, resumed, results["timing"])
+
+
+def _run_trace(out: Path, run: dict, sc) -> dict | None:
+    """A finished run's trace for the report: its trace.json, else (runs of older campaigns) its black box."""
+    from cellsim.services.blackbox import BlackBox, BlackBoxError
+    from cellsim.simulation import BLACKBOX
+    from cellsim.validation.traces import TraceError, trace_of_run
+
+    if run.get("status") == "failed":
+        return None
+    folder = out / run["out"]
+    try:
+        return json.loads((folder / TRACE).read_text())
+    except (OSError, ValueError):
+        pass
+    try:
+        with BlackBox(folder / BLACKBOX) as bb:
+            return shown_variables(trace_of_run(bb, sc.validation.variables).to_json(), sc.validation.variables)
+    except (BlackBoxError, TraceError):
+        return None  # the run's black box is gone or damaged: the report says it has no trace
+
+
+def _channel_facts(out: Path, runs: list[dict], aliases: dict[str, str]) -> tuple[dict, dict]:
+    """Hazard phases (see :func:`hazard_phases`) and each variable's unit, from the first readable black box."""
+    from cellsim.services.blackbox import BlackBox, BlackBoxError
+    from cellsim.simulation import BLACKBOX
+
+    for r in runs:
+        if r.get("status") == "failed":
+            continue
+        try:
+            with BlackBox(out / r["out"] / BLACKBOX) as bb:
+                channels = bb.channels()
+                units = {name: info.unit for name, info in channels.items() if info.unit}
+                units.update({alias: channels[ch].unit for alias, ch in aliases.items() if ch in channels and channels[ch].unit})
+                return hazard_phases(bb, aliases), units
+        except BlackBoxError:
+            continue
+    return {}, {}
 
 
 def hazard_phases(bb, aliases: dict[str, str]) -> dict[str, dict]:
@@ -530,5 +570,6 @@ def hazard_phases(bb, aliases: dict[str, str]) -> dict[str, dict]:
 
 
 def _rerun_command(out: Path, run: dict) -> str:
+    """Re-runs one run alone, into a folder of its own outside the campaign's (the campaign's stays as it is)."""
     folder = out / run["out"]
-    return f"cellsim simulate {folder / 'scenario.yaml'} --out {folder}-rerun"
+    return f"cellsim simulate {folder / 'scenario.yaml'} --out runs/{out.name}-run{run['index']:04d}"

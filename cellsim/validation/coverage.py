@@ -299,6 +299,10 @@ class CriterionCoverage:
     covered: int
     total: int
     missing: list[str]
+    axes: list[list[str]] = field(default_factory=list)
+    """Each variable's values (or bins), in domain order: the criterion's situations are their product."""
+    runs: list[int] = field(default_factory=list)
+    """How many runs covered each situation, in the order of the product of ``axes`` (first varies slowest)."""
 
     @property
     def fraction(self) -> float:
@@ -336,6 +340,8 @@ class CoverageSummary:
                     "total": c.total,
                     "fraction": c.fraction,
                     "missing": list(c.missing),
+                    "axes": [list(a) for a in c.axes],
+                    "runs": list(c.runs),
                 }
                 for name, c in self.criteria.items()
             },
@@ -487,11 +493,13 @@ class CoverageModel:
         """
         summary = CoverageSummary()
         for name, crit in self._criteria.items():
-            covered: set[int] = set()
+            counts = [0] * crit.total
             for i, run in enumerate(per_run):
                 if name not in run:
                     raise ValueError(f"run {i} has no coverage for criterion {name!r}")
-                covered.update(crit.key_of_labels(s) for s in run[name])
+                for k in {crit.key_of_labels(s) for s in run[name]}:
+                    counts[k] += 1
+            covered = {k for k, n in enumerate(counts) if n}
             missing = [
                 situation_name(crit.config.variables, crit.labels_of(k))
                 for k in range(crit.total)
@@ -503,6 +511,8 @@ class CoverageModel:
                 covered=len(covered),
                 total=crit.total,
                 missing=missing,
+                axes=[list(a.labels) for a in crit.axes],
+                runs=counts,
             )
         return summary
 
