@@ -94,7 +94,14 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--overwrite", action="store_true", help="replace a run already in --out")
     _add_set(sim)
     sim.add_argument(
-        "--meshcat", action="store_true", help="show the cell in Meshcat (a browser) at real-time speed"
+        "--meshcat", action="store_true",
+        help="show the cell in Meshcat (a browser, on localhost) at real-time speed; after the run, Enter closes it "
+        "(without a terminal it closes when the run ends)",
+    )
+    sim.add_argument(
+        "--meshcat-wait", type=float, default=None, metavar="SECONDS",
+        help="with --meshcat: seconds to wait for a browser to open Meshcat before simulating anyway (default: 60 "
+        "on a terminal, 0 without one, e.g. in a script; 0: do not wait)",
     )
     sim.add_argument("--quiet", action="store_true", help="print nothing but errors")
     sim.set_defaults(handler=cmd_simulate)
@@ -145,6 +152,22 @@ def build_parser() -> argparse.ArgumentParser:
     _add_set(camp)
     camp.add_argument("--quiet", action="store_true", help="print nothing but errors")
     camp.set_defaults(handler=cmd_campaign)
+
+    rep = sub.add_parser(
+        "replay",
+        help="play a recorded run in Meshcat (a browser), with a time slider",
+        description="Rebuild the run's cell from its scenario.yaml and play its black box into a Meshcat recording: "
+        "the robot's joints, the people, the light curtain, safety modes and scanner fields as recorded. Prints the "
+        "Meshcat URL (localhost only), then serves until Enter on a terminal (exit 0), or Ctrl-C or SIGTERM (exit 130).",
+    )
+    rep.add_argument("run", type=Path, metavar="RUN", help="run folder (as written by simulate) or its blackbox.sqlite")
+    rep.add_argument("--meshcat", action="store_true", help="play it in Meshcat (required: the browser player)")
+    rep.add_argument(
+        "--at", type=float, default=0.0, metavar="T",
+        help="start the animation at T seconds of the run (default 0); the animation's time 0 is then T",
+    )
+    rep.add_argument("--speed", type=float, default=1.0, help="times real time (0.01 to 100, default 1)")
+    rep.set_defaults(handler=cmd_replay)
 
     mods = sub.add_parser(
         "modules",
@@ -589,12 +612,18 @@ def cmd_simulate(args) -> int:
         check_seed(args.seed, "--seed")
     out = args.out or Path("runs") / f"{sf.scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"
     console = Console(stderr=True, quiet=args.quiet)
-    meshcat = None
+    meshcat = on_start = None
     if args.meshcat:
-        from pydrake.geometry import Meshcat, MeshcatParams
+        from cellsim.visual.serve import WAIT_DEFAULT, open_meshcat, wait_for_browser
 
-        meshcat = Meshcat(MeshcatParams(host="localhost"))
+        wait = args.meshcat_wait
+        if wait is None:
+            wait = WAIT_DEFAULT if sys.stdin is not None and sys.stdin.isatty() else 0.0
+        if not (0.0 <= wait <= 3600.0):
+            raise InputError(f"--meshcat-wait {wait:g}: expected 0 to 3600 seconds")
+        meshcat = open_meshcat()
         console.print(f"Meshcat: [link={meshcat.web_url()}]{meshcat.web_url()}[/link]")
+        on_start = lambda: wait_for_browser(meshcat, wait, console.print)  # noqa: E731
     try:
         with _progress(console, args.quiet) as report:
             summary = simulate(
@@ -606,16 +635,25 @@ def cmd_simulate(args) -> int:
                 meshcat=meshcat,
                 realtime_rate=1.0 if meshcat else 0.0,
                 on_progress=report,
+                on_start=on_start,
             )
         checked = _check_of(summary)
         if not args.quiet:
             print_summary(summary, checked)
         if meshcat is not None and sys.stdin.isatty():
-            input("Press Enter to close Meshcat. ")
+            from cellsim.visual.serve import serve_until_closed
+
+            serve_until_closed(meshcat, console.print)
     finally:
         if meshcat is not None:
             del meshcat
     return EXIT_FINDING if summary.mishap or (checked is not None and not checked.all_hold) else EXIT_OK
+
+
+def cmd_replay(args) -> int:
+    from cellsim.visual.serve import cmd_replay as replay
+
+    return replay(args, InputError)
 
 
 class _progress:

@@ -165,12 +165,15 @@ def simulate(
     live: "LiveHooks | None" = None,
     on_built: Callable[[CellDiagram], None] | None = None,
     command_sources: Callable | None = None,
+    on_start: Callable[[], None] | None = None,
 ) -> RunSummary:
     """Simulate ``sf`` headless (or at ``realtime_rate``), recording to ``out_dir``.
 
     ``live`` runs it beside the real cell (``cellsim.live``): its ``start`` is called
     once the simulator is initialised, its ``tick(context)`` after every ``period``
     of simulated time, and its ``metadata()`` is added to the black box's at each drain.
+    ``on_start`` is called once the simulator is initialised (its t = 0 published),
+    before simulated time runs: ``simulate --meshcat`` waits there for a browser.
 
     The black box's ``provenance`` metadata is :func:`cellsim.provenance.provenance`
     of the run's inputs, updated with ``provenance`` (a campaign names itself there).
@@ -203,7 +206,7 @@ def simulate(
     simulator = make_simulator(cell, realtime_rate)
     inputs.check_unchanged()  # what was built is what was read, copied and hashed
     with RunFolder(out_dir, overwrite):
-        summary = _record(sf, cell, simulator, out_dir, seed, duration, on_progress, inputs, record, live)
+        summary = _record(sf, cell, simulator, out_dir, seed, duration, on_progress, inputs, record, live, on_start)
     summary.safety_case = case
     return summary
 
@@ -218,7 +221,9 @@ class LiveHooks:
     metadata: Callable[[], dict]
 
 
-def _record(sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_progress, inputs, record, live=None) -> RunSummary:
+def _record(
+    sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_progress, inputs, record, live=None, on_start=None
+) -> RunSummary:
     """Write the resolved scenario and its input files, then simulate while recording the black box."""
     sc = sf.scenario
     write_run_scenario(sf, inputs, out_dir, RESOLVED_SCENARIO, seed, duration)
@@ -245,6 +250,9 @@ def _record(sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_p
         )
         try:
             simulator.Initialize()
+            if on_start is not None:
+                on_start()
+                simulator.ResetStatistics()  # real-time pacing counts from now
             started = time.perf_counter()
             if live is not None:
                 live.start()  # may wait for the physical cell

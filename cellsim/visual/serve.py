@@ -1,0 +1,86 @@
+"""The command line's side of Meshcat: open it on loopback, wait for a browser, serve until closed.
+
+Meshcat listens on localhost only, on the first free port from 7000. How it
+ends: on a terminal, Enter closes it (exit 0) and Ctrl-C interrupts (exit 130);
+without a terminal (a script, a test) it serves until SIGINT or SIGTERM (exit 130).
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+WAIT_DEFAULT = 60.0
+"""Seconds ``simulate --meshcat`` waits for a browser on a terminal before simulating anyway (none without one)."""
+POLL = 0.1
+"""Seconds between looks at Meshcat's connections."""
+
+
+def open_meshcat():
+    """A Meshcat server on localhost (never another interface)."""
+    from pydrake.geometry import Meshcat, MeshcatParams
+
+    return Meshcat(MeshcatParams(host="localhost"))
+
+
+def wait_for_browser(meshcat, seconds: float, say) -> bool:
+    """Wait up to ``seconds`` for a browser to open Meshcat (saying so); whether one did."""
+    if seconds <= 0 or meshcat.GetNumActiveConnections() > 0:
+        return meshcat.GetNumActiveConnections() > 0
+    say(f"waiting up to {seconds:g} s for a browser to open {meshcat.web_url()} (--meshcat-wait) ...")
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        if meshcat.GetNumActiveConnections() > 0:
+            return True
+        time.sleep(POLL)
+    say(f"no browser connected within {seconds:g} s; simulating anyway")
+    return False
+
+
+def serve_until_closed(meshcat, say) -> None:
+    """Keep Meshcat serving: until Enter on a terminal, else until SIGINT or SIGTERM (raised as KeyboardInterrupt)."""
+    if sys.stdin is not None and sys.stdin.isatty():
+        try:
+            input("Press Enter to close Meshcat (Ctrl-C also ends it). ")
+        except EOFError:
+            pass
+        return
+    say("serving Meshcat until interrupted (Ctrl-C, or SIGTERM)")
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        while not stop.wait(0.5):  # SIGINT arrives here as KeyboardInterrupt
+            pass
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    raise KeyboardInterrupt
+
+
+def cmd_replay(args, input_error) -> int:
+    """``cellsim replay RUN --meshcat [--at T] [--speed X]``: play a black box in the browser."""
+    from cellsim.visual.replay import ReplayError, replay
+
+    if not args.meshcat:
+        raise input_error("replay needs --meshcat (the only player so far; the terminal one is `cellsim dashboard --replay`)")
+    run = Path(args.run)
+    if not run.exists():
+        raise input_error(f"{run}: no such run folder or black box")
+    meshcat = open_meshcat()
+    try:
+        try:
+            played = replay(run, meshcat, at=args.at, speed=args.speed)
+        except ReplayError as e:
+            raise input_error(str(e)) from None
+        print(f"Meshcat: {meshcat.web_url()}", flush=True)
+        print(
+            f"playing {run} from t = {played.at:g} s to {played.end:g} s at {played.speed:g}x "
+            f"({played.frames} frames); the animation's time 0 is t = {played.at:g} s",
+            flush=True,
+        )
+        serve_until_closed(meshcat, lambda line: print(line, flush=True))
+    finally:
+        del meshcat
+    return 0
