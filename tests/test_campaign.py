@@ -131,14 +131,17 @@ def test_the_misuse_campaign_reveals_violations(tmp_path):
         assert f'data-var="{lane}"' in report
     assert 'data-var="robot.twin_mode"' not in report
     for r in violating:
-        assert f'id="run-{r["index"]}"' in report  # a timeline of each violating run
+        assert f'id="timeline-{r["index"]}"' in report  # a timeline of each violating run
         when = r["verdicts"][r["violations"][0]]["violated_at"]
         assert when is not None and 0.0 <= when < 30.0
 
-    # a finished campaign whose black box was lost still reports, without that timeline
+    # a finished campaign whose run lost its black box and trace still reports, without that timeline
     (out / violating[0]["out"] / "blackbox.sqlite").unlink()
+    (out / violating[0]["out"] / "trace.json").unlink()
     assert main(["campaign", str(TWO_OPERATORS), "--runs", "3", "--seed", "0", "--out", str(out), "--quiet"]) == 1
-    assert "No trace available" in (out / "report.html").read_text()
+    report = (out / "report.html").read_text()
+    section = report[report.index(f'id="timeline-{violating[0]["index"]}"'):]
+    assert "No trace available" in section[:section.index("</section>")]
 
 
 def _processes_in_group(pgid: int) -> list[int]:
