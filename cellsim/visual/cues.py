@@ -14,7 +14,7 @@ A module's system may offer, beside its channels, up to three duck-typed hooks
   a point of the floor, so people can be marked when a sensor sees them.
 * ``show_recorded(cell, root_context, values)``: put the module's drawn pose
   (a robot's joints, a person's body) in ``root_context`` from recorded channel
-  values, for replaying a black box; ``replay_channels`` names what it reads.
+  values, for replaying a black box; ``replay_channels`` names the signals it reads.
 """
 
 from __future__ import annotations
