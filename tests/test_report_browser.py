@@ -116,3 +116,23 @@ def test_the_runs_table_sorts_and_filters(page, campaign):
     page.select_option("#verdict-filter", "")
     page.fill("#run-filter", "no run has this text")
     assert not any(rows.nth(r).is_visible() for r in range(rows.count()))
+
+
+def test_a_timeline_opened_from_the_table_draws_what_the_printed_one_does(page, campaign):
+    """The script draws a run from its embedded trace; the page draws violating runs in full for print.
+    Both must show the same pieces, at the same places, in the same colours."""
+    _, results = campaign
+    run = next(r for r in results["runs"] if r["violations"])
+    pieces = """svg => Array.from(svg.querySelectorAll('rect.piece')).map(r =>
+        [r.getAttribute('data-var'), +r.getAttribute('x'), +r.getAttribute('width'), r.getAttribute('fill')])"""
+    printed = page.locator(f"#timeline-{run['index']} svg.timeline").evaluate(pieces)
+    page.locator(f"tr#run-{run['index']} a.open").click()
+    opened = page.locator("tr.details svg.timeline")
+    opened.wait_for()
+    drawn = opened.evaluate(pieces)
+    assert [(v, fill) for v, _, _, fill in drawn] == [(v, fill) for v, _, _, fill in printed]
+    for (_, x, w, _), (_, x0, w0, _) in zip(drawn, printed):
+        assert x == pytest.approx(x0, abs=0.05) and w == pytest.approx(w0, abs=0.05)  # times kept to the millisecond
+    window = "svg => Array.from(svg.querySelectorAll('rect.window')).flatMap(r => [+r.getAttribute('x'), +r.getAttribute('width')])"
+    shaded = page.locator(f"#timeline-{run['index']} svg.timeline").evaluate(window)
+    assert len(shaded) == 2 and opened.evaluate(window) == pytest.approx(shaded, abs=0.05)

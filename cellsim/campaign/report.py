@@ -1117,7 +1117,7 @@ def _runs_section(results: Mapping, runs: Sequence[Mapping]) -> str:
         cls = ' class="violating"' if verdict == "violated" else ' class="failed"' if verdict == "failed" else ""
         config = _dict(run.get("configuration"))
         cells = "".join(
-            f'<td class="num" data-value="{_e(config[k])}">{_e(sig3(config[k]))}</td>' if k in config else '<td class="num"></td>'
+            f'<td class="num">{_e(sig3(config[k]))}</td>' if k in config else '<td class="num"></td>'
             for k in keys
         )
         use_cases = ", ".join(_e(u) for u in _list(run.get("use_cases")))
@@ -1214,15 +1214,14 @@ def _duration(results: Mapping, timelines: Iterable[Timeline]) -> float:
 
 
 def _drawn(runs: Sequence[Mapping]) -> list[tuple[int, Mapping]]:
-    """The violating runs drawn in full: the first of each violated condition, then the others, at most
-    :data:`MAX_DRAWN_TIMELINES`."""
+    """The violating runs drawn in full: the first of each violated condition, at most
+    :data:`MAX_DRAWN_TIMELINES` (a drawn timeline is some 35 kB; every run's opens on demand)."""
     violating = _violating_runs(runs)
     first = {}
     for index, run in violating:
         for name in _violated(run):
             first.setdefault(name, (index, run))
     chosen = list({index: (index, run) for index, run in first.values()}.values())
-    chosen += [(i, r) for i, r in violating if all(i != c for c, _ in chosen)]
     return sorted(chosen[:MAX_DRAWN_TIMELINES], key=lambda item: item[0])
 
 
@@ -1257,10 +1256,14 @@ def _timelines_section(
 
 
 def _compact(timeline: Timeline, palette: _Palette) -> dict[str, list]:
-    """A trace for the script: ``{var: [times (ms), values]}``, numbers to three significant figures."""
+    """A trace for the script: ``{var: [time steps (ms), values]}``, numbers to three significant figures.
+
+    Each time is the step from the previous sample's (the first from 0), in whole
+    milliseconds: a 0.1-s series costs four characters a sample instead of six.
+    """
     out = {}
     for var, samples in timeline.items():
-        times, values, last = [], [], object()
+        times, values, last, previous = [], [], object(), 0
         numeric = palette.kind(var) == "numeric"
         for s in samples:
             if len(s) < 2 or not _is_number(s[0]):
@@ -1272,9 +1275,10 @@ def _compact(timeline: Timeline, palette: _Palette) -> dict[str, list]:
                 v = _fmt(v)
             if v == last:
                 continue
-            times.append(round(float(s[0]) * 1000))
+            now = round(float(s[0]) * 1000)
+            times.append(now - previous)
             values.append(v)
-            last = v
+            last, previous = v, now
         out[var] = [times, values]
     return out
 
@@ -1376,17 +1380,22 @@ SCRIPT = r"""
     var r = parseInt(fill.slice(1, 3), 16), gr = parseInt(fill.slice(3, 5), 16), bl = parseInt(fill.slice(5, 7), 16);
     return 0.299 * r + 0.587 * gr + 0.114 * bl > 140 ? "#000" : "#fff";
   }
-  function pieces(times, values, duration) {
-    var out = [];
+  function pieces(steps, values, duration) {
+    var out = [], times = [], t = 0;
+    steps.forEach(function (step) { t += step; times.push(t); });
     for (var i = 0; i < times.length; i++) {
       var t0 = Math.max(times[i] / 1000, 0), t1 = Math.min(i + 1 < times.length ? times[i + 1] / 1000 : duration, duration);
       if (t1 > t0) out.push([t0, t1, values[i]]);
     }
     return out;
   }
-  function heldTrace(intervals) {
-    var t = [0], v = ["false"];
-    intervals.forEach(function (iv) { t.push(iv[0] * 1000, iv[1] * 1000); v.push("true", "false"); });
+  function heldTrace(intervals) {  // as a compact trace: steps in ms from the previous sample
+    var t = [0], v = ["false"], last = 0;
+    intervals.forEach(function (iv) {
+      t.push(Math.round(iv[0] * 1000) - last, Math.round((iv[1] - iv[0]) * 1000));
+      last = Math.round(iv[0] * 1000) + Math.round((iv[1] - iv[0]) * 1000);
+      v.push("true", "false");
+    });
     return [t, v];
   }
   function timeline(run) {
