@@ -20,6 +20,7 @@ from typing import Literal
 
 import numpy as np
 
+from cellsim.numbers import sig3
 from cellsim.vocabulary import CodedEnum
 
 Kind = Literal["enum", "bool", "number", "vector"]
@@ -127,5 +128,5 @@ def value_text(value, *, none: str = "-", true: str = "true", false: str = "fals
     if isinstance(value, bool):
         return true if value else false
     if isinstance(value, float):
-        return f"{value:.3g}"
+        return sig3(value)
     return str(value)

@@ -15,6 +15,8 @@ import sys
 from datetime import datetime
 from pathlib import Path
 
+from cellsim.numbers import instant, measure, percent
+
 EXIT_OK, EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
@@ -721,9 +723,9 @@ def print_summary(summary, checked=None) -> None:
         line = _conditions_line(checked)
         table.add_row("safety conditions", line if checked.all_hold else f"{line} (details: cellsim check {summary.out_dir})")
         table.add_row("use cases exercised", ", ".join(checked.use_cases) or "none")
-    table.add_row("simulated time", f"{summary.sim_time:.1f} s")
-    table.add_row("wall time", f"{summary.wall_time:.2f} s")
-    table.add_row("real-time factor", f"{summary.real_time_factor:.1f}x")
+    table.add_row("simulated time", measure(summary.sim_time, "s"))
+    table.add_row("wall time", measure(summary.wall_time, "s"))
+    table.add_row("real-time factor", measure(summary.real_time_factor, "x"))
     table.add_row("black box", str(Path(summary.out_dir) / "blackbox.sqlite"))
     console.print(table)
 
@@ -785,20 +787,20 @@ def print_verdicts(run: Path, checked) -> None:
         mark = {"holds": "[green]holds[/green]", "violated": "[red]VIOLATED[/red]"}.get(
             verdict.status, f"[yellow]{verdict.describe()}[/yellow]"
         )
-        when = "" if verdict.violated_at is None or verdict.holds else f"t = {verdict.violated_at:.2f} s"
+        when = "" if verdict.violated_at is None or verdict.holds else f"t = {instant(verdict.violated_at)}"
         description = description_of(conditions[name])
         table.add_row(name, mark, when,
                       escape(formula_of(conditions[name])) + (f"\n[italic]{escape(description)}[/italic]" if description else ""))
     console = Console()
     if not checked.trace.complete:
         console.print(
-            f"[yellow]the run did not complete: its record ends at t = {checked.trace.trace.end:.2f} s; "
+            f"[yellow]the run did not complete: its record ends at t = {instant(checked.trace.trace.end)}; "
             "verdicts that a longer run could change are inconclusive[/yellow]"
         )
     console.print(table)
     for name, verdict in result.verdicts.items():  # pytest-style: each violation and why
         if verdict.explanation:
-            console.print(f"[red]{escape(name)}[/red] violated at {verdict.violated_at:.2f} s: {escape(verdict.explanation)}",
+            console.print(f"[red]{escape(name)}[/red] violated at {instant(verdict.violated_at)}: {escape(verdict.explanation)}",
                           highlight=False)
     console.print(f"use cases exercised: {', '.join(result.use_cases) or 'none'}")
     console.print(_conditions_line(result))
@@ -911,8 +913,8 @@ def print_campaign(outcome) -> None:
             "[yellow]" + "\n".join(f"{c}: {_run_list(runs)}" for c, runs in undecided.items()) + "[/yellow]",
         )
     table.add_row("use cases", ", ".join(f"{u} {n}" for u, n in totals["use_cases"].items()) or "-")
-    table.add_row("coverage", f"{totals['coverage']['overall']['fraction']:.0%} of situations")
-    table.add_row("time per stage", ", ".join(f"{k} {v:.1f} s" for k, v in timing.items()))
+    table.add_row("coverage", f"{percent(totals['coverage']['overall']['fraction'])} of situations")
+    table.add_row("time per stage", ", ".join(f"{k} {measure(v, 's')}" for k, v in timing.items()))
     inputs = (outcome.results.get("provenance") or {}).get("inputs") or {}
     if inputs:
         table.add_row("inputs", f"content hash {inputs['hash'][:16]} ({len(inputs['files'])} files, snapshot in {outcome.results_path.parent / 'inputs'})")

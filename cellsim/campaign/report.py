@@ -63,6 +63,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from html import escape
 
 from cellsim.atomic import write_text
+from cellsim.numbers import instant, percent, sig3
 
 __all__ = [
     "BOOL_COLOURS",
@@ -158,30 +159,19 @@ def _fmt(value: object) -> str:
     return json.dumps(value, sort_keys=True, default=str)
 
 
-def sig3(value: object) -> str:
-    """A number with three significant figures (``12.3``, ``0.0456``, ``1.23e+04``); other values as text."""
-    if not _is_number(value):
-        return _fmt(value)
-    x = float(value)  # type: ignore[arg-type]
-    if not math.isfinite(x):
-        return _fmt(x)
-    if x == 0:
-        return "0"
-    if 1e-3 <= abs(x) < 1e5:
-        decimals = max(0, 2 - int(math.floor(math.log10(abs(x)))))
-        text = f"{x:.{decimals}f}"
-        return text
-    return f"{x:.2e}"
-
-
 def _num(x: float) -> str:
     """An SVG coordinate."""
     return f"{x:.2f}"
 
 
 def _seconds(t: object) -> str:
-    """Seconds with their unit, three significant figures, or a dash."""
+    """A duration in seconds with its unit, three significant figures, or a dash."""
     return "&mdash;" if not _is_number(t) else f"{sig3(t)} s"
+
+
+def _instant(t: object) -> str:
+    """A moment of a run (10 ms), or a dash."""
+    return "&mdash;" if not _is_number(t) else instant(float(t))  # type: ignore[arg-type]
 
 
 def _is_number(value: object) -> bool:
@@ -261,7 +251,7 @@ def _overall(coverage: Mapping) -> object:
 
 
 def _fraction_text(fraction: object) -> str:
-    return "n/a" if not _is_number(fraction) else f"{sig3(100.0 * float(fraction))}%"  # type: ignore[arg-type]
+    return percent(fraction)
 
 
 def _fit(label: str) -> str:
@@ -478,7 +468,7 @@ def _piece_rects(var: str, var_pieces, colour, duration: float, top: float) -> l
         width = max(x1 - x0, MIN_PIECE_WIDTH)
         fill = colour(value)
         text = _fmt(value)
-        tip = f"{var} = {text} from {sig3(t0)} to {sig3(t1)} s"
+        tip = f"{var} = {text} from {instant(t0)} to {instant(t1)}"
         parts = [
             f"<g><title>{_e(tip)}</title>",
             f'<rect class="piece" data-var="{_e(var)}" x="{_num(x0)}" y="{_num(top)}" '
@@ -556,7 +546,7 @@ def _markers(violations: list[tuple[str, float]], duration: float, label_top: fl
     for x, name, row, anchor_end in _marker_rows(xs):
         label_y = label_top + (row + 1) * MARKER_ROW - 3
         tx, anchor = (x - 3, "end") if anchor_end else (x + 3, "start")
-        tip = f"{name} violated at {sig3(by_name[name])} s"
+        tip = f"{name} violated at {instant(by_name[name])}"
         out.append(
             f'<g><title>{_e(tip)}</title>'
             f'<line class="violation" data-condition="{_e(name)}" x1="{_num(x)}" x2="{_num(x)}" '
@@ -574,7 +564,7 @@ def _windows(evidence: Mapping[str, Mapping], duration: float, top: float, botto
         if len(window) != 2 or not all(_is_number(w) for w in window):
             continue
         x0, x1 = time_to_x(window[0], duration), time_to_x(window[1], duration)
-        tip = f"{name}: required between {sig3(window[0])} s and {sig3(window[1])} s"
+        tip = f"{name}: required between {instant(window[0])} and {instant(window[1])}"
         out.append(
             f'<g><title>{_e(tip)}</title><rect class="window" data-condition="{_e(name)}" x="{_num(x0)}" '
             f'y="{_num(top)}" width="{_num(max(x1 - x0, 2 * MIN_PIECE_WIDTH))}" height="{_num(bottom - top)}"/></g>'
@@ -1183,7 +1173,7 @@ def _explanations(run: Mapping) -> str:
         verdict = _dict(verdicts.get(name))
         why = verdict.get("explanation")
         why = f": {_e(why)}" if isinstance(why, str) and why else ""
-        items.append(f"<li><strong>{_e(name)}</strong> violated at {_seconds(verdict.get('violated_at'))}{why}</li>")
+        items.append(f"<li><strong>{_e(name)}</strong> violated at {_instant(verdict.get('violated_at'))}{why}</li>")
     return f"<ul>{''.join(items)}</ul>"
 
 
@@ -1369,7 +1359,8 @@ SCRIPT = r"""
     Array.prototype.slice.call(body.querySelectorAll("tr.details")).forEach(function (d) { d.remove(); });
   }
   function esc(s) { return String(s).replace(/[&<>"]/g, function (c) { return {"&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;"}[c]; }); }
-  function sig3(x) {
+  function instant(t) { return t.toFixed(2) + " s"; }  // as cellsim.numbers: a moment of a run, 10 ms
+  function sig3(x) {  // as cellsim.numbers.sig3
     if (typeof x !== "number" || !isFinite(x)) return String(x);
     if (x === 0) return "0";
     var a = Math.abs(x);
@@ -1440,7 +1431,7 @@ SCRIPT = r"""
             if (X(p[1]) - x0 >= text.length * g.charWidth + 6) {
               label = '<text class="piece-label" x="' + ((x0 + X(p[1])) / 2).toFixed(2) + '" y="' + (y + h / 2 + 4) + '" fill="' + textColour(fill) + '">' + esc(text) + "</text>";
             }
-            parts.push('<g><title>' + esc(v + " = " + text + " from " + sig3(p[0]) + " to " + sig3(p[1]) + " s") + '</title><rect class="piece" data-var="' + esc(v) +
+            parts.push('<g><title>' + esc(v + " = " + text + " from " + instant(p[0]) + " to " + instant(p[1])) + '</title><rect class="piece" data-var="' + esc(v) +
               '" x="' + x0.toFixed(2) + '" y="' + y + '" width="' + w.toFixed(2) + '" height="' + h + '" fill="' + fill + '"/>' + label + "</g>");
           });
         }
@@ -1456,7 +1447,7 @@ SCRIPT = r"""
       var w = run.evidence[name].window;
       if (w) under.push('<rect class="window" data-condition="' + esc(name) + '" x="' + X(w[0]).toFixed(2) + '" y="' + (24 + g.group) + '" width="' +
         Math.max(X(w[1]) - X(w[0]), 2 * g.minPiece).toFixed(2) + '" height="' + (bottom - 24 - g.group) + '"><title>' +
-        esc(name + ": required between " + sig3(w[0]) + " s and " + sig3(w[1]) + " s") + "</title></rect>");
+        esc(name + ": required between " + instant(w[0]) + " and " + instant(w[1])) + "</title></rect>");
     });
     run.violations.forEach(function (v) {
       if (typeof v[1] !== "number") return;
@@ -1471,7 +1462,7 @@ SCRIPT = r"""
     if (next && next.classList.contains("details")) { next.remove(); return; }
     var d = load(), index = row.getAttribute("data-run"), run = d.runs[index], html = [];
     run.violations.forEach(function (v) {
-      html.push("<li><strong>" + esc(v[0]) + "</strong> violated at " + (typeof v[1] === "number" ? sig3(v[1]) + " s" : "?") + (v[2] ? ": " + esc(v[2]) : "") + "</li>");
+      html.push("<li><strong>" + esc(v[0]) + "</strong> violated at " + (typeof v[1] === "number" ? instant(v[1]) : "?") + (v[2] ? ": " + esc(v[2]) : "") + "</li>");
     });
     var out = "";
     if (html.length) out += "<ul>" + html.join("") + "</ul>";

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 
 from cellsim.channels import value_text
+from cellsim.numbers import instant
 from cellsim.logic.mtl import TraceEvaluator
 from cellsim.logic.syntax import (
     Always, And, BoolVar, Compare, Const, Eventually, Formula, Implies, InSet, Not, Or, Until, format_formula,
@@ -92,7 +93,7 @@ class Explainer:
         if f in self.names:
             since = self._since(f, t)
             parts = ", ".join(self._part(p, t) for p in _conjuncts(f))
-            return f"{self.names[f]} true from {since:.2f} s ({parts})"
+            return f"{self.names[f]} true from {instant(since)} ({parts})"
         if isinstance(f, And):
             return "; ".join(self._true(a, t) for a in f.args)
         if isinstance(f, _ATOMS):
@@ -122,13 +123,13 @@ class Explainer:
             return self._until(f, t)
         if isinstance(f, Eventually):
             lo, hi = t + f.lo, t + f.hi
-            window = f"from {lo:.2f} s " + (f"to {hi:.2f} s" if math.isfinite(hi) and hi < self.trace.end else "to the end of the run")
+            window = f"from {instant(lo)} " + (f"to {instant(hi)}" if math.isfinite(hi) and hi < self.trace.end else "to the end of the run")
             return f"{self._stayed(f.arg, lo, min(hi, self.trace.end))}; {self._name(f.arg)} never held {window}"
         if isinstance(f, Always):
             first = self._first(self._not_sat(f.arg), t + f.lo, t + f.hi)
             if first is None:
                 return f"{format_formula(f)} does not hold"
-            return f"{self._name(f.arg)} failed at {first:.2f} s: {self._false(f.arg, first)}"
+            return f"{self._name(f.arg)} failed at {instant(first)}: {self._false(f.arg, first)}"
         if isinstance(f, Not):
             return self._true(f.arg, t)
         if isinstance(f, And):
@@ -138,7 +139,7 @@ class Explainer:
             return "; ".join(self._false(a, t) for a in f.args)
         if isinstance(f, _ATOMS):
             return self._value(f, t)
-        return f"{format_formula(f)} does not hold at {t:.2f} s"
+        return f"{format_formula(f)} does not hold at {instant(t)}"
 
     def _until(self, f: Until, t: float) -> str:
         lo, hi = t + f.lo, t + f.hi
@@ -147,11 +148,11 @@ class Explainer:
         lhs_ends = self._first(self._not_sat(f.lhs), t, end if arrived is None else arrived)
         wanted = self._name(f.rhs)
         if lhs_ends is not None and not f.weak:
-            return f"{self._name(f.lhs)} ended at {lhs_ends:.2f} s, before {wanted}"
+            return f"{self._name(f.lhs)} ended at {instant(lhs_ends)}, before {wanted}"
         if arrived is None:
-            by = f"required by {hi:.2f} s" if math.isfinite(hi) else "required before the end of the run"
+            by = f"required by {instant(hi)}" if math.isfinite(hi) else "required before the end of the run"
             return f"{self._stayed(f.rhs, t, end)}; {wanted} {by}"
-        return f"{format_formula(f)} does not hold at {t:.2f} s"
+        return f"{format_formula(f)} does not hold at {instant(t)}"
 
     # -- helpers -----------------------------------------------------------------------------
     def _name(self, f: Formula) -> str:
