@@ -96,7 +96,14 @@ def test_a_replayed_violating_misuse_run_shows_the_condition_violated_when_the_c
         assert float(SHOWN_TIME.search(before).group(1)) < violated_at
         shown = screen.wait_for(lambda s: _row(s, "HRW:detected")[1:2] == ["violated"], 30, "HRW:detected violated")
         assert _row(shown, "HRW:detected")[1:5] == ["violated", "at", f"{violated_at:.2f}", "s"]
-        assert f"condition HRW:detected violated at {violated_at:.2f} s" in screen.text()
+        log = screen.text()
+        assert f"condition HRW:detected violated at {violated_at:.2f} s: HRW_e true from {violated_at:.2f} s" in log  # and why
+        screen.keys("c")  # every condition in full: what it means, and why it is violated
+        full = screen.wait_for(lambda s: "Safety conditions over the trace so far" in s, 10, "the conditions in full")
+        assert "A person reaching across the shared table while the robot works there is detected" in " ".join(full.split())
+        assert f"why: HRW_e true from {violated_at:.2f} s" in full
+        screen.keys("c")
+        screen.wait_for(lambda s: "Safety conditions over the trace so far" not in s, 10, "the conditions closed")
     finally:
         screen.stop()
 

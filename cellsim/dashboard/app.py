@@ -20,7 +20,7 @@ from rich.text import Text
 from textual import work
 from textual.app import App, ComposeResult
 from textual.binding import Binding
-from textual.containers import Horizontal, Vertical
+from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.screen import ModalScreen
 from textual.widget import Widget
 from textual.widgets import Footer, OptionList, RichLog, Static
@@ -32,12 +32,21 @@ STYLE = {"OK": "green", "WARN": "yellow", "ERROR": "bold red", "STALE": "magenta
 MODES = ("model", "shadow", "twin")
 
 
-def _grid(title: str, columns: tuple[str, ...], rows: list[tuple]) -> Text:
+def _grid(title: str, columns: tuple[str, ...], rows: list[tuple], room: int | None = None) -> Text:
     """A table as plain text in columns: rich's Table measures and wraps every cell on every
-    redraw (milliseconds a panel), this is one pass. A cell is a string or (string, style)."""
+    redraw (milliseconds a panel), this is one pass. A cell is a string or (string, style).
+
+    ``room``: the panel's width in characters; the last column is cut to fit it, and left
+    out when fewer than 12 characters would be left for it."""
     cells = [[c if isinstance(c, tuple) else (str(c), "") for c in row] for row in rows]
     widths = [max([len(columns[i])] + [len(row[i][0]) for row in cells]) for i in range(len(columns))]
     widths = [min(w, 40) for w in widths]
+    if room is not None:
+        left = room - sum(w + 1 for w in widths[:-1]) - 1
+        if left < 12:
+            columns, widths, cells = columns[:-1], widths[:-1], [row[:-1] for row in cells]
+        else:
+            widths[-1] = min(widths[-1], left)
     text = Text(title, style="bold")
     text.append("\n " + " ".join(h.ljust(w) for h, w in zip(columns, widths)).rstrip(), style="dim")
     for row in cells:
@@ -115,6 +124,35 @@ class ConfirmScreen(ModalScreen):
             yield Static(f"{self.question}\n\n[y] yes   [n] no")
 
 
+class ConditionsScreen(ModalScreen):
+    """Every safety condition in full: its verdict so far, what it means, and why it is violated
+    (``c`` or Escape closes it)."""
+
+    BINDINGS = [Binding("escape", "dismiss", "close"), Binding("c", "dismiss", "close")]
+
+    def __init__(self, text: Text):
+        super().__init__()
+        self.text = text
+
+    def compose(self) -> ComposeResult:
+        with VerticalScroll(id="conditions-dialog"):
+            yield Static(self.text)
+
+
+def conditions_text(model) -> Text:
+    """The conditions as a reader wants them: name and verdict, then what it means and why it fails."""
+    text = Text("Safety conditions over the trace so far  (c or Escape: close)\n", style="bold")
+    for name, verdict, level, description in model.conditions():
+        text.append(f"\n{name}  ", style="bold")
+        text.append(verdict, style=STYLE.get(level, ""))
+        if description:
+            text.append(f"\n    {description}", style="italic")
+        why = model.explanations.get(name)
+        if why and verdict.startswith("violated"):
+            text.append(f"\n    why: {why}", style=STYLE.get("ERROR", ""))
+    return text
+
+
 class Dashboard(App):
     """The dashboard of one cell, fed by a ``LiveFeed`` or a ``ReplayFeed``."""
 
@@ -130,10 +168,12 @@ class Dashboard(App):
     #middle { height: 1fr; min-height: 0; overflow: hidden; }
     #middle > Panel { width: 1fr; }
     RichLog { height: 6; border-top: solid $primary; }
-    ChoiceScreen, ConfirmScreen { align: center middle; }
+    ChoiceScreen, ConfirmScreen, ConditionsScreen { align: center middle; }
+    #conditions-dialog { width: 90%; height: 80%; border: thick $primary; background: $surface; padding: 0 1; }
     #dialog { width: 60; height: auto; max-height: 20; border: thick $primary; background: $surface; padding: 1; }
     """
-    BINDINGS = [Binding("m", "switch_mode", "switch a twin mode"), Binding("q", "quit", "quit")]
+    BINDINGS = [Binding("m", "switch_mode", "switch a twin mode"), Binding("c", "show_conditions", "conditions in full"),
+                Binding("q", "quit", "quit")]
 
     def __init__(self, feed):
         super().__init__()
@@ -141,10 +181,11 @@ class Dashboard(App):
         self._logged = 0
         self._shown: dict[str, object] = {}
 
-    def _show(self, panel: str, rows, draw) -> None:
-        """Redraw a panel only when what it shows changed: a title, a header and a line per row."""
-        if self._shown.get(panel) != rows:
-            self._shown[panel] = rows
+    def _show(self, panel: str, rows, draw, width: int | None = None) -> None:
+        """Redraw a panel only when what it shows (or the ``width`` it is drawn for) changed:
+        a title, a header and a line per row."""
+        if self._shown.get(panel) != (width, rows):
+            self._shown[panel] = (width, rows)
             self.query_one(f"#{panel}", Panel).show(draw(rows), len(rows) + 2)
 
     def compose(self) -> ComposeResult:
@@ -209,8 +250,11 @@ class Dashboard(App):
         self._show("entities", rows, lambda rows: _grid("entities", ("entity", "mode", "link", "age", "twin", "physical"), rows))
 
     def _conditions(self, model) -> None:
-        rows = [(name, (verdict, STYLE.get(level, ""))) for name, verdict, level in model.conditions()]
-        self._show("conditions", rows, lambda rows: _grid("safety conditions (so far)", ("condition", "verdict"), rows))
+        rows = [(name, (verdict, STYLE.get(level, "")), (description, "dim"))
+                for name, verdict, level, description in model.conditions()]
+        room = self.query_one("#conditions", Panel).size.width
+        self._show("conditions", rows, lambda rows: _grid("safety conditions (so far)", ("condition", "verdict", "meaning"), rows, room),
+                   width=room)
 
     def _robot_and_links(self, model) -> None:
         self._show("robot", model.robot_rows(), lambda rows: _grid("robot", ("", ""), rows))
@@ -225,6 +269,13 @@ class Dashboard(App):
                    lambda rows: _grid("bridge diagnostics", ("device", "level", "rate", "errors"), rows))
 
     # -- interaction -----------------------------------------------------------------
+    def action_show_conditions(self) -> None:
+        model = self.feed.model
+        if model is None:
+            self.query_one("#events", RichLog).write("no conditions yet: no twin or replay to read")
+            return
+        self.push_screen(ConditionsScreen(conditions_text(model)))
+
     def action_switch_mode(self) -> None:
         model = self.feed.model
         if model is None or not hasattr(self.feed, "request_mode"):

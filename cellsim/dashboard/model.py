@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cellsim.channels import value_text
+from cellsim.numbers import instant, measure
 
 LEVELS = ("OK", "WARN", "ERROR", "STALE")
 """Link health, as ROS diagnostics name it (a group shows its worst member)."""
@@ -90,7 +91,9 @@ class CellModel:
         """Whether the trace is the whole run (a replay that reached its end)."""
         self._case = None
         self._case_error: str | None = None
-        self._verdicts: list[tuple[str, str, str]] = []
+        self._verdicts: list[tuple[str, str, str, str]] = []
+        self.explanations: dict[str, str] = {}
+        """Violated condition -> why, in one sentence (as ``cellsim check`` says it)."""
         self._evaluated_at = -math.inf
         self._read: set[str] | None = None
         """The channels the conditions read (None: not compiled yet)."""
@@ -217,9 +220,9 @@ class CellModel:
             speed = self.values.get(f"{robot}.tool_speed")
             rows += [(f"{robot} location", _text(self.values.get(f"{robot}.location"))),
                      (f"{robot} activity", _text(self.values.get(f"{robot}.activity"))),
-                     (f"{robot} tool speed", "-" if speed is None else f"{speed:.1f} m/s")]
+                     (f"{robot} tool speed", "-" if speed is None else measure(speed, "m/s"))]
         if separation is not None:
-            rows.append(("true separation", "far" if separation > 1e3 else f"{separation:.2f} m"))
+            rows.append(("true separation", "far" if separation > 1e3 else measure(separation, "m")))
         return rows
 
     def entity_rows(self) -> list[dict]:
@@ -266,8 +269,10 @@ class CellModel:
         return twin, physical, diverges
 
     # -- safety conditions ---------------------------------------------------------------
-    def conditions(self, force: bool = False) -> list[tuple[str, str, str]]:
-        """(condition, verdict, level) over the trace so far; re-evaluated every CONDITIONS_EVERY s."""
+    def conditions(self, force: bool = False) -> list[tuple[str, str, str, str]]:
+        """(condition, verdict, level, description) over the trace so far; re-evaluated every CONDITIONS_EVERY s.
+
+        The moment a condition becomes violated, the event log says why (its explanation)."""
         since = self.sim_time - self._evaluated_at
         if not force and (since < CONDITIONS_EVERY or (not self._read_changed and since < CONDITIONS_AT_LEAST_EVERY)):
             return self._verdicts
@@ -288,24 +293,30 @@ class CellModel:
         try:
             result = case.check(Trace(signals, 0.0, self.sim_time), complete=self.complete)
         except Exception as e:  # noqa: BLE001 - a trace the checker refuses is shown, never fatal
-            self._verdicts = [("(conditions)", f"cannot evaluate: {e}", "ERROR")]
+            self._verdicts = [("(conditions)", f"cannot evaluate: {e}", "ERROR", "")]
             return self._verdicts
-        rows = []
+        from cellsim.validation.config import description_of
+
+        rows, why = [], {}
         for name, verdict in result.verdicts.items():
+            row = None
             if verdict.status == VIOLATED:
-                at = "" if verdict.violated_at is None else f" at {verdict.violated_at:.2f} s"
-                rows.append((name, f"violated{at}", "ERROR"))
+                at = "" if verdict.violated_at is None else f" at {instant(verdict.violated_at)}"
+                row = (f"violated{at}", "ERROR")
+                why[name] = verdict.explanation
             elif verdict.status == INCONCLUSIVE:
-                rows.append((name, "holds so far" if verdict.reading == "holds so far" else "pending", "OK" if verdict.reading == "holds so far" else "WARN"))
+                row = ("holds so far", "OK") if verdict.reading == "holds so far" else ("pending", "WARN")
             elif verdict.status == MISSING:
-                rows.append((name, f"no data yet ({', '.join(verdict.missing)})", "STALE"))
+                row = (f"no data yet ({', '.join(verdict.missing)})", "STALE")
             elif verdict.status == HOLDS:
-                rows.append((name, "holds", "OK"))
-        for name, text, level in rows:
-            before = next((t for n, t, _ in self._verdicts if n == name), None)
+                row = ("holds", "OK")
+            if row is not None:
+                rows.append((name, *row, description_of(case.validation.conditions[name]) or ""))
+        for name, text, level, _ in rows:
+            before = next((t for n, t, _, _ in self._verdicts if n == name), None)
             if level == "ERROR" and (before is None or not before.startswith("violated")):
-                self.log(f"condition {name} {text}", "ERROR")
-        self._verdicts = rows
+                self.log(f"condition {name} {text}" + (f": {why[name]}" if why.get(name) else ""), "ERROR")
+        self._verdicts, self.explanations = rows, {name: text for name, text in why.items() if text}
         return rows
 
     def _safety_case(self):
@@ -331,7 +342,7 @@ class CellModel:
             self._read = {validation.variables.get(v, v) for v in read}
         except Exception as e:  # noqa: BLE001 - shown, never fatal
             self._case_error = str(e)
-            self._verdicts = [("(conditions)", f"cannot compile: {e}", "ERROR")]
+            self._verdicts = [("(conditions)", f"cannot compile: {e}", "ERROR", "")]
         return self._case
 
 
