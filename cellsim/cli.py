@@ -18,6 +18,7 @@ from pathlib import Path
 from cellsim.numbers import instant, measure, percent
 
 EXIT_OK, EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_CODES = "Exit codes: 0 ok, 1 safety finding, 2 usage or input error, 130 interrupted."
 
 
 class InputError(Exception):
@@ -75,7 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="cellsim",
         description="Scenario digital twins of collaborative robot cells: simulate them headless, "
         "record black boxes, and gather safety evidence.",
-        epilog="Exit codes: 0 ok, 1 safety finding, 2 usage or input error, 130 interrupted.",
+        epilog=EXIT_CODES,
     )
     from cellsim import __version__
 
@@ -299,7 +300,17 @@ def build_parser() -> argparse.ArgumentParser:
     _add_network_args(mode)
     mode.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the answer (default 5)")
     mode.set_defaults(handler=cmd_twin_mode)
+    _end_with_exit_codes(parser)
     return parser
+
+
+def _end_with_exit_codes(parser: argparse.ArgumentParser) -> None:
+    """Every command's --help ends with the exit codes (a command's own description says when it exits 1)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                sub.epilog = sub.epilog or EXIT_CODES
+                _end_with_exit_codes(sub)
 
 
 def _add_network_args(parser: argparse.ArgumentParser) -> None:
@@ -754,7 +765,8 @@ def cmd_check(args) -> int:
                 "holds": result.all_hold,
                 "complete": checked.trace.complete,
                 "verdicts": result.verdicts_json(),
-                "descriptions": {n: description_of(c) for n, c in checked.case.validation.conditions.items()
+                "descriptions": {n: description_of(c) for n, c in {**checked.case.validation.conditions,
+                                                                      **checked.case.validation.use_cases}.items()
                                  if description_of(c)},
                 "violations": result.violations,
                 "undecided": result.undecided,
@@ -802,7 +814,11 @@ def print_verdicts(run: Path, checked) -> None:
         if verdict.explanation:
             console.print(f"[red]{escape(name)}[/red] violated at {instant(verdict.violated_at)}: {escape(verdict.explanation)}",
                           highlight=False)
+    use_cases = checked.case.validation.use_cases
     console.print(f"use cases exercised: {', '.join(result.use_cases) or 'none'}")
+    for name in result.use_cases:
+        if description_of(use_cases[name]):
+            console.print(f"  {escape(name)}: [italic]{escape(description_of(use_cases[name]))}[/italic]", highlight=False)
     console.print(_conditions_line(result))
 
 

@@ -304,3 +304,14 @@ def test_a_conditions_description_is_shown_by_check_and_in_its_json(default_run,
     assert json.loads(capsys.readouterr().out)["descriptions"]["HS:detected"] == described
     assert main(["check", str(default_run)]) == 0
     assert described in capsys.readouterr().out
+
+
+def test_check_shows_what_each_exercised_use_case_means(default_run, capsys):
+    assert main(["check", str(default_run)]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "U1: The operator walks to the welder while the cell works" in out
+    assert "U2: The operator reaches across the workbench while the cell works." in out
+    assert main(["check", str(default_run), "--json"]) == 0
+    descriptions = json.loads(capsys.readouterr().out)["descriptions"]
+    assert descriptions["U2"] == "The operator reaches across the workbench while the cell works."
+    assert descriptions["HS:detected"].startswith("A person the scanner sees")  # conditions' and use cases' alike
