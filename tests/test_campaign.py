@@ -130,10 +130,15 @@ def test_the_misuse_campaign_reveals_violations(tmp_path):
     for lane in ("safmod", "HS", "HRW", "HC", "lgtBar", "rngDet", "oloc"):
         assert f'data-var="{lane}"' in report
     assert 'data-var="robot.twin_mode"' not in report
+    data = json.loads(report[report.index('id="report-data">') + len('id="report-data">'):report.index("</script>", report.index('id="report-data">'))])
     for r in violating:
-        assert f'id="timeline-{r["index"]}"' in report  # a timeline of each violating run
+        assert f'<tr id="run-{r["index"]}" data-run="{r["index"]}" data-verdict="violated"' in report
+        assert data["runs"][str(r["index"])]["trace"]["HS"]  # its timeline, drawn when its row is opened
         when = r["verdicts"][r["violations"][0]]["violated_at"]
         assert when is not None and 0.0 <= when < 30.0
+    for condition in {c for r in violating for c in r["violations"]}:  # drawn in full: the first run violating each
+        first = next(r for r in violating if condition in r["violations"])
+        assert f'id="timeline-{first["index"]}"' in report
 
     # a finished campaign whose run lost its black box and trace still reports, without that timeline
     (out / violating[0]["out"] / "blackbox.sqlite").unlink()
