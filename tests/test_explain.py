@@ -20,14 +20,20 @@ VOCABULARY = {"HZ": PHASES, "curtain": BoolDomain(), "mode": EnumDomain(("normal
 MACROS = {"exposed": "curtain and mode == normal"}
 
 
-def _explain(text: str, signals: dict, end: float = 10.0) -> str:
+def _violation(text: str, signals: dict, end: float = 10.0):
+    """The explainer of a violated formula on a trace, the formula and its first violation."""
     trace = Trace({n: Signal(np.array([t for t, _ in s], float), [v for _, v in s]) for n, s in signals.items()}, 0.0, end)
     evaluator = TraceEvaluator(trace)
     macros = {name: parse(body, VOCABULARY) for name, body in MACROS.items()}
     formula = parse(text, VOCABULARY, MACROS)
     verdict = evaluator.evaluate(formula)
     assert not verdict.holds
-    return Explainer(evaluator, macros).explain(formula, verdict.violated_at)
+    return Explainer(evaluator, macros), formula, verdict.violated_at
+
+
+def _explain(text: str, signals: dict, end: float = 10.0) -> str:
+    explainer, formula, at = _violation(text, signals, end)
+    return explainer.explain(formula, at)
 
 
 def test_a_missed_detection_names_the_macro_its_atoms_and_the_deadline():
@@ -69,13 +75,8 @@ def test_check_explains_the_misuse_runs_violation_in_the_table_and_the_json(tmp_
 
 
 def _evidence(text: str, signals: dict, end: float = 10.0) -> dict:
-    trace = Trace({n: Signal(np.array([t for t, _ in s], float), [v for _, v in s]) for n, s in signals.items()}, 0.0, end)
-    evaluator = TraceEvaluator(trace)
-    macros = {name: parse(body, VOCABULARY) for name, body in MACROS.items()}
-    formula = parse(text, VOCABULARY, MACROS)
-    verdict = evaluator.evaluate(formula)
-    assert not verdict.holds
-    return Explainer(evaluator, macros).evidence(formula, verdict.violated_at)
+    explainer, formula, at = _violation(text, signals, end)
+    return explainer.evidence(formula, at)
 
 
 def test_evidence_gives_the_required_window_and_where_each_macro_and_atom_held():
