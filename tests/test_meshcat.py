@@ -206,3 +206,40 @@ def test_simulate_with_meshcat_waits_for_a_browser_then_simulates_anyway(tmp_pat
     assert "waiting up to 0.5 s for a browser" in result.stderr
     assert "no browser connected within 0.5 s; simulating anyway" in result.stderr
     assert (tmp_path / "run" / "blackbox.sqlite").is_file()
+
+
+def test_simulate_with_meshcat_starts_once_a_real_browser_opens_it(tmp_path):
+    """A browser (Chromium, driven by Playwright) opens the printed URL: the wait ends there, long
+    before its 120 s, and the run completes."""
+    import shutil
+
+    from playwright.sync_api import sync_playwright
+
+    chromium = shutil.which("chromium")
+    assert chromium, "this test needs Chromium: apt-get install chromium (the README's test command does)"
+    process = subprocess.Popen(
+        [*CELLSIM, "simulate", str(WELDING), "--meshcat", "--meshcat-wait", "120", "--duration", "1",
+         "--out", str(tmp_path / "run")],
+        cwd=ROOT, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        lines, said, deadline = _lines_of(process.stderr), [], time.monotonic() + 60
+        while not any("waiting up to 120 s for a browser" in line for line in said):
+            said.append(lines.get(timeout=max(0.1, deadline - time.monotonic())))
+        url = next(re.search(r"http://\S+", line).group(0) for line in said if "Meshcat: http" in line)
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=chromium, args=["--no-sandbox", "--disable-gpu",
+                                        "--disable-background-networking", "--disable-component-update"])
+            try:
+                browser.new_page().goto(url)
+                assert process.wait(timeout=60) == 0  # the browser ended the wait: the run went on and completed
+            finally:
+                browser.close()
+        while not lines.empty():
+            said.append(lines.get())
+        assert not any("no browser connected" in line for line in said), said
+        assert (tmp_path / "run" / "blackbox.sqlite").is_file()
+    finally:
+        if process.poll() is None:
+            process.kill()
+        process.wait(timeout=30)
