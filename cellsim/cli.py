@@ -666,7 +666,8 @@ def cmd_simulate(args) -> int:
 def cmd_replay(args) -> int:
     from cellsim.visual.serve import cmd_replay as replay
 
-    return replay(args, InputError)
+    with _terminate_as_interrupt():  # from the start: a SIGTERM right after the URL is printed ends it as Ctrl-C does
+        return replay(args, InputError)
 
 
 class _progress:

@@ -7,7 +7,6 @@ without a terminal (a script, a test) it serves until SIGINT or SIGTERM (exit 13
 
 from __future__ import annotations
 
-import signal
 import sys
 import threading
 import time
@@ -41,7 +40,11 @@ def wait_for_browser(meshcat, seconds: float, say) -> bool:
 
 
 def serve_until_closed(meshcat, say) -> None:
-    """Keep Meshcat serving: until Enter on a terminal, else until SIGINT or SIGTERM (raised as KeyboardInterrupt)."""
+    """Keep Meshcat serving: until Enter on a terminal, else until interrupted.
+
+    SIGINT arrives as KeyboardInterrupt; the caller makes SIGTERM do the same, from
+    before it prints the URL (``cellsim.cli``), so no SIGTERM finds it unprepared.
+    """
     if sys.stdin is not None and sys.stdin.isatty():
         try:
             input("Press Enter to close Meshcat (Ctrl-C also ends it). ")
@@ -49,14 +52,9 @@ def serve_until_closed(meshcat, say) -> None:
             pass
         return
     say("serving Meshcat until interrupted (Ctrl-C, or SIGTERM)")
-    stop = threading.Event()
-    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    try:
-        while not stop.wait(0.5):  # SIGINT arrives here as KeyboardInterrupt
-            pass
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-    raise KeyboardInterrupt
+    forever = threading.Event()
+    while not forever.wait(0.5):  # the signal handlers run between these waits
+        pass
 
 
 def cmd_replay(args, input_error) -> int:
