@@ -68,7 +68,15 @@ def test_check_explains_the_misuse_runs_violation_in_the_table_and_the_json(tmp_
                 "HRW stayed inact; HRW == act required by 12.60 s")
     proc = subprocess.run([sys.executable, "-m", "cellsim", "check", str(run), "--json"], capture_output=True, text=True,
                           timeout=120, cwd=ROOT)
-    assert proc.returncode == 1 and json.loads(proc.stdout)["verdicts"]["HRW:detected"]["explanation"] == expected
+    verdict = json.loads(proc.stdout)["verdicts"]["HRW:detected"]
+    assert proc.returncode == 1 and verdict["explanation"] == expected
+    # its evidence: the window, and every macro and atom, down to the phase that never came
+    assert verdict["evidence"]["window"] == [12.1, 12.6]
+    assert list(verdict["evidence"]["rows"]) == [
+        "HRW_e", "permissive", "working",  # permissive is one atom: it is drawn once, by its name
+        "ract in {exchWrkp, unknown, welding}", "wact == welding", "rloc in {sharedTbl, unknown}", "lgtBar",
+        "HRW == inact", "HRW == act"]
+    assert not any(lo <= 12.1 < hi for lo, hi in verdict["evidence"]["rows"]["HRW == act"])
     proc = subprocess.run([sys.executable, "-m", "cellsim", "check", str(run)], capture_output=True, text=True, timeout=120,
                           cwd=ROOT, env={**__import__("os").environ, "COLUMNS": "400"})
     assert f"HRW:detected violated at 12.10 s: {expected}" in proc.stdout
@@ -93,3 +101,4 @@ def test_evidence_gives_the_required_window_and_where_each_macro_and_atom_held()
 def test_evidence_window_of_an_eventuality_runs_to_the_end_and_of_a_forbidden_state_is_an_instant():
     assert _evidence("G(HZ == act -> F HZ == mit)", {"HZ": [(0, "inact"), (4.0, "act")]})["window"] == [4.0, 10.0]
     assert _evidence("G(not HZ == mit)", {"HZ": [(0, "inact"), (3.0, "mit")]})["window"] == [3.0, 3.0]
+

@@ -13,7 +13,7 @@ file, the line of the key and the column within the formula.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from cellsim.config.typed_yaml import ConfigError, suggest
 from cellsim.logic.mtl import TraceEvaluator
@@ -52,7 +52,7 @@ class ConditionVerdict:
     """For an inconclusive verdict: ``holds so far`` or ``violated so far``."""
     explanation: str | None = None
     """For a violation: why, at the first violation, in one sentence (``cellsim.validation.explain``)."""
-    evidence: dict | None = None
+    evidence: dict | None = field(default=None, hash=False)
     """For a violation: the required window and its macros' and atoms' intervals (``Explainer.evidence``)."""
 
     @property

@@ -30,8 +30,6 @@ from cellsim.logic.syntax import (
 )
 
 _ATOMS = (Compare, InSet, BoolVar, Const)
-MAX_EVIDENCE_ROWS = 8
-"""A timeline shows at most this many of a condition's macros and atoms."""
 
 
 class Explainer:
@@ -61,11 +59,11 @@ class Explainer:
         body = formula.arg if isinstance(formula, Always) else formula
         lo, hi = self._window(body, t) or (t, t)
         rows = {}
-        for part in self._parts(formula):
+        for part in self._parts(formula):  # every one: the atom a condition waited for comes last
             name = self._name(part)
-            if name not in rows and len(rows) < MAX_EVIDENCE_ROWS:
+            if name not in rows:
                 rows[name] = [[round(a, 6), round(b, 6)] for a, b in self.evaluator.satisfaction(part)]
-        return {"at": at, "window": [round(lo, 6), round(min(hi, self.trace.end), 6)], "rows": rows}
+        return {"at": at, "window": [round(lo, 6), round(hi, 6)], "rows": rows}
 
     def _window(self, f: Formula, t: float) -> tuple[float, float] | None:
         """The first temporal window of ``f`` evaluated at ``t`` (the consequent's, for ``->``)."""
