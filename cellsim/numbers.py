@@ -15,13 +15,17 @@ from __future__ import annotations
 import math
 
 
-def _is_number(value: object) -> bool:
+def is_number(value: object) -> bool:
+    """An int or a float, not a bool."""
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def sig3(value: object) -> str:
-    """``value`` with three significant figures (``12.3``, ``0.0456``, ``3.20``, ``1.23e+05``)."""
-    if not _is_number(value):
+    """``value`` with three significant figures (``12.3``, ``0.0456``, ``3.20``, ``1.23e+05``).
+
+    The exponent is the rounded value's: 0.9996 is ``1.00``, 99999.6 is ``1.00e+05``.
+    """
+    if not is_number(value):
         if isinstance(value, bool):
             return "true" if value else "false"
         return str(value)
@@ -30,8 +34,9 @@ def sig3(value: object) -> str:
         return str(x)
     if x == 0:
         return "0"
-    if 1e-3 <= abs(x) < 1e5:
-        return f"{x:.{max(0, 2 - math.floor(math.log10(abs(x))))}f}"
+    exponent = int(f"{x:.2e}".partition("e")[2])
+    if -3 <= exponent < 5:
+        return f"{x:.{max(0, 2 - exponent)}f}"
     return f"{x:.2e}"
 
 
@@ -45,7 +50,7 @@ def measure(value: object, unit: str = "") -> str:
 
 def percent(fraction: object) -> str:
     """A fraction as a share: ``0.989`` -> ``98.9%``."""
-    return measure(100.0 * float(fraction), "%") if _is_number(fraction) else "n/a"  # type: ignore[arg-type]
+    return measure(100.0 * float(fraction), "%") if is_number(fraction) else "n/a"  # type: ignore[arg-type]
 
 
 def instant(t: float) -> str:

@@ -11,6 +11,8 @@ from cellsim.numbers import instant, measure, percent, sig3
 @pytest.mark.parametrize("value, text", [
     (0, "0"), (3.2, "3.20"), (12.345, "12.3"), (0.04567, "0.0457"), (123456.0, "1.23e+05"), (-2.5, "-2.50"),
     (7, "7.00"), (999.6, "1000"), ("welding", "welding"), (True, "true"), (float("nan"), "nan"),
+    # rounding that crosses a power of ten keeps three figures, not four
+    (0.9996, "1.00"), (99.96, "100"), (99999.6, "1.00e+05"), (0.00099996, "0.00100"),
 ])
 def test_measures_have_three_significant_figures(value, text):
     assert sig3(value) == text
