@@ -3,7 +3,8 @@
 
 Runs a real campaign of --real runs of the two-operator misuse scenario (some violate a
 condition), then makes a campaign folder of --runs runs from those results and traces
-(run i is real run i mod --real, renumbered), and times the campaign's own last step on
+(run i is real run i mod --real, renumbered, its numeric samples shifted by i * 1e-7 so
+that no two runs share a value, as in a real campaign), and times the campaign's own last step on
 it (``cellsim.campaign.runner.finish``: coverage merged over every run, each run's trace
 read, report.html rendered and written, results.json written). Then opens the report in
 Chromium (Playwright; Debian's chromium) and times the page's load, opening one run's
@@ -45,7 +46,12 @@ def grow(real: Path, out: Path, runs: int) -> list[dict]:
         source = results[i % len(results)]
         folder = run_dir(out, i)
         folder.mkdir(parents=True)
-        shutil.copy(real / source["out"] / TRACE, folder / TRACE)
+        trace = json.loads((real / source["out"] / TRACE).read_text())
+        for samples in trace.values():  # every copy's numbers its own, as a real campaign's are
+            for sample in samples:
+                if isinstance(sample[1], float):
+                    sample[1] += i * 1e-7
+        (folder / TRACE).write_text(json.dumps(trace))
         if i == 0:  # the report reads the channels' units and the hazards' phases from one black box
             shutil.copy(real / source["out"] / BLACKBOX, folder / BLACKBOX)
         result = {**source, "index": i, "out": str(folder.relative_to(out))}

@@ -86,7 +86,7 @@ def test_a_violating_runs_timeline_is_drawn_with_its_required_window(page, campa
 
 
 def test_any_run_opens_to_its_own_timeline(page, campaign):
-    _, results = campaign
+    out, results = campaign
     holding = next(r for r in results["runs"] if not r["violations"])
     row = page.locator(f"tr#run-{holding['index']}")
     row.locator("a.open").click()
@@ -95,7 +95,8 @@ def test_any_run_opens_to_its_own_timeline(page, campaign):
     assert details.locator("rect.piece").count() > 50
     assert details.locator('rect.piece[data-var="safmod"]').count() >= 1
     assert f"runs/{results['campaign']['scenario_name']}" not in details.inner_text()  # re-run outside the campaign
-    assert f"--out runs/misuse-run{holding['index']:04d}" in details.inner_text()
+    beside = out.parent / f"misuse-run{holding['index']:04d}"
+    assert f"--out {beside}" in details.inner_text()  # beside the campaign folder, never inside it
     row.locator("a.open").click()  # a second click closes it
     assert page.locator("tr.details").count() == 0
 
@@ -133,6 +134,16 @@ def test_a_timeline_opened_from_the_table_draws_what_the_printed_one_does(page, 
     assert [(v, fill) for v, _, _, fill in drawn] == [(v, fill) for v, _, _, fill in printed]
     for (_, x, w, _), (_, x0, w0, _) in zip(drawn, printed):
         assert x == pytest.approx(x0, abs=0.05) and w == pytest.approx(w0, abs=0.05)  # times kept to the millisecond
+    printed_svg = page.locator(f"#timeline-{run['index']} svg.timeline")
+    same = """svg => [Array.from(svg.querySelectorAll('line.tick, line.violation')).map(l => [l.getAttribute('class'),
+        +l.getAttribute('x1'), +l.getAttribute('y1'), +l.getAttribute('y2')]),
+        Array.from(svg.querySelectorAll('text.y-label, text.tick-label, text.violation-label')).map(t => t.textContent),
+        svg.querySelectorAll('polyline.step').length, svg.getAttribute('viewBox').split(' ').map(Number)]"""
+    lines, texts, polylines, view = opened.evaluate(same)
+    lines0, texts0, polylines0, view0 = printed_svg.evaluate(same)
+    assert texts == texts0 and polylines == polylines0 and view == view0  # axes, units, labels, the same height
+    assert [c for c, *_ in lines] == [c for c, *_ in lines0]
+    assert [v for _, *xs in lines for v in xs] == pytest.approx([v for _, *xs in lines0 for v in xs], abs=0.05)
     window = "svg => Array.from(svg.querySelectorAll('rect.window')).flatMap(r => [+r.getAttribute('x'), +r.getAttribute('width')])"
     shaded = page.locator(f"#timeline-{run['index']} svg.timeline").evaluate(window)
     assert len(shaded) == 2 and opened.evaluate(window) == pytest.approx(shaded, abs=0.05)

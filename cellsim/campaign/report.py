@@ -56,6 +56,7 @@ embedded data escapes ``<`` so no string can end the script).
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import os
@@ -65,12 +66,13 @@ from html import escape
 import numpy as np
 
 from cellsim.atomic import write_text
-from cellsim.numbers import instant, percent, sig3
+from cellsim.numbers import instant, is_number, measure, percent, sig3
 
 __all__ = [
     "BOOL_COLOURS",
     "DEFAULT_LANES",
     "ENUM_PALETTE",
+    "MIN_PIECE_WIDTH",
     "PHASE_COLOURS",
     "PLOT_LEFT",
     "PLOT_WIDTH",
@@ -79,7 +81,6 @@ __all__ = [
     "pieces",
     "render_timeline",
     "render_report",
-    "sig3",
     "time_to_x",
     "write_report",
 ]
@@ -168,16 +169,12 @@ def _num(x: float) -> str:
 
 def _seconds(t: object) -> str:
     """A duration in seconds with its unit, three significant figures, or a dash."""
-    return "&mdash;" if not _is_number(t) else f"{sig3(t)} s"
+    return "&mdash;" if not is_number(t) else measure(t, "s")
 
 
 def _instant(t: object) -> str:
     """A moment of a run (10 ms), or a dash."""
-    return "&mdash;" if not _is_number(t) else instant(float(t))  # type: ignore[arg-type]
-
-
-def _is_number(value: object) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
+    return "&mdash;" if not is_number(t) else instant(float(t))  # type: ignore[arg-type]
 
 
 def _dict(value: object) -> dict:
@@ -246,14 +243,10 @@ def _overall(coverage: Mapping) -> object:
     overall = coverage.get("overall")
     if isinstance(overall, Mapping):
         fraction, covered, total = overall.get("fraction"), overall.get("covered"), overall.get("total")
-        if not _is_number(fraction) and _is_number(covered) and _is_number(total) and total:
+        if not is_number(fraction) and is_number(covered) and is_number(total) and total:
             fraction = covered / total
         return fraction
     return overall
-
-
-def _fraction_text(fraction: object) -> str:
-    return percent(fraction)
 
 
 def _fit(label: str) -> str:
@@ -291,7 +284,7 @@ def pieces(samples: Samples, duration: float) -> list[tuple[float, float, object
     same value (and type) merge.  ``None`` pieces (undefined stretches) are kept.
     """
     ordered = sorted(
-        ((float(s[0]), s[1]) for s in samples if len(s) >= 2 and _is_number(s[0])),
+        ((float(s[0]), s[1]) for s in samples if len(s) >= 2 and is_number(s[0])),
         key=lambda s: s[0],
     )
     result: list[tuple[float, float, object]] = []
@@ -312,7 +305,7 @@ def _held_samples(intervals: Iterable[Sequence[float]]) -> list[list]:
     """Intervals where something held, as a boolean trace ``[[t, true|false], ...]`` from 0."""
     samples: list[list] = [[0.0, False]]
     for interval in intervals:
-        if len(interval) == 2 and _is_number(interval[0]) and _is_number(interval[1]):
+        if len(interval) == 2 and is_number(interval[0]) and is_number(interval[1]):
             samples += [[float(interval[0]), True], [float(interval[1]), False]]
     return samples
 
@@ -325,7 +318,7 @@ def _kind(values: Iterable[object]) -> str:
     defined = [v for v in values if v is not None]
     if defined and all(isinstance(v, bool) for v in defined):
         return "bool"
-    if defined and all(_is_number(v) for v in defined):
+    if defined and all(is_number(v) for v in defined):
         return "numeric"
     if defined and all(isinstance(v, str) and v in PHASE_COLOURS for v in defined):
         return "phase"
@@ -345,14 +338,23 @@ class _Palette:
         self.phases = dict(phases or {})
         self.hazards = list(self.phases)
         self._phase_colours = {var: _phase_colours(spec) for var, spec in self.phases.items()}
-        values: dict[str, set] = {}
+        timelines = list(timelines)
+        types: dict[str, set] = {}
+        for timeline in timelines:  # first the types: a numeric variable's values are never collected
+            for var, samples in timeline.items():
+                types.setdefault(var, set()).update(type(s[1]) for s in samples if len(s) >= 2 and s[1] is not None)
+        self.variables = list(types)
+        """Every variable of every trace."""
+        numeric = {var for var, seen in types.items() if seen and seen <= {int, float}}
+        values: dict[str, set] = {var: set() for var in types if var not in numeric}
         for timeline in timelines:
             for var, samples in timeline.items():
-                seen = values.setdefault(var, set())
-                seen.update((type(s[1]), s[1]) for s in samples if len(s) >= 2 and s[1] is not None)
+                if var in values:
+                    values[var].update((type(s[1]), s[1]) for s in samples if len(s) >= 2 and s[1] is not None)
         self._kinds = {var: _kind(v for _, v in vals) for var, vals in values.items()}
+        self._kinds.update(dict.fromkeys(numeric, "numeric"))
         self.values = {var: sorted({_fmt(v) for _, v in vals}) for var, vals in values.items()}
-        """Each variable's values as text, sorted: what the legend lists."""
+        """Each non-numeric variable's values as text, sorted: what the legend lists."""
         self._enum = _colour_values([vals for var, vals in self.values.items() if self.kind(var) == "enum"])
 
     def kind(self, var: str) -> str:
@@ -372,11 +374,23 @@ class _Palette:
 
     def colours(self) -> dict[str, dict[str, str]]:
         """Variable -> value text -> colour, for every drawn (non-numeric) variable: the script's palette."""
-        return {
-            var: {text: self._colour_of_text(var, text) for text in texts}
-            for var, texts in self.values.items()
-            if self.kind(var) != "numeric"
-        }
+        return {var: {text: self._colour_of_text(var, text) for text in texts} for var, texts in self.values.items()}
+
+    def phase_legend(self) -> list[tuple[list[str], dict[str, str]]]:
+        """(hazards, their phases' colours): hazards with the same phases share one entry. Variables
+        drawn as phases without a risk model's record (published phase names) get the published colours."""
+        entries: list[tuple[list[str], dict[str, str]]] = []
+        for var, colours in self._phase_colours.items():
+            same = next((e for e in entries if e[1] == colours), None)
+            if same:
+                same[0].append(var)
+            else:
+                entries.append(([var], colours))
+        others = [v for v in self.variables if v not in self.phases and self.kind(v) == "phase"]
+        if others:
+            seen = sorted({t for v in others for t in self.values.get(v, [])}, key=list(PHASE_COLOURS).index)
+            entries.append((others, {t: PHASE_COLOURS[t] for t in seen}))
+        return entries
 
     def _colour_of_text(self, var: str, text: str) -> str:
         if self.kind(var) == "bool":
@@ -405,7 +419,7 @@ def _phase_colours(spec: Mapping) -> dict[str, str]:
     values = [str(v) for v in _list(spec.get("values"))]
     if values and all(v in PHASE_COLOURS for v in values):
         return {v: PHASE_COLOURS[v] for v in values}
-    colours, others = {}, iter(PHASE_SEQUENCE * 4)
+    colours, others = {}, itertools.cycle(PHASE_SEQUENCE + ENUM_PALETTE)
     for v in values:
         if v == spec.get("initial"):
             colours[v] = PHASE_COLOURS["inact"]
@@ -488,7 +502,7 @@ def _piece_rects(var: str, var_pieces, colour, duration: float, top: float) -> l
 
 def _step_plot(var: str, var_pieces, duration: float, top: float, unit: str = "") -> list[str]:
     """A step polyline (one per defined stretch) scaled to the lane, with a labelled axis in ``unit``."""
-    defined = [v for _, _, v in var_pieces if _is_number(v) and math.isfinite(v)]
+    defined = [v for _, _, v in var_pieces if is_number(v) and math.isfinite(v)]
     if not defined:
         return []
     lo, hi = min(defined), max(defined)
@@ -507,7 +521,7 @@ def _step_plot(var: str, var_pieces, duration: float, top: float, unit: str = ""
             points.clear()
 
     for t0, t1, v in var_pieces:
-        if not (_is_number(v) and math.isfinite(v)):
+        if not (is_number(v) and math.isfinite(v)):
             flush()
             continue
         yy = _num(y(v))
@@ -563,7 +577,7 @@ def _windows(evidence: Mapping[str, Mapping], duration: float, top: float, botto
     out = []
     for name, ev in evidence.items():
         window = _list(ev.get("window"))
-        if len(window) != 2 or not all(_is_number(w) for w in window):
+        if len(window) != 2 or not all(is_number(w) for w in window):
             continue
         x0, x1 = time_to_x(window[0], duration), time_to_x(window[1], duration)
         tip = f"{name}: required between {instant(window[0])} and {instant(window[1])}"
@@ -580,7 +594,7 @@ def _run_violation_times(run: Mapping) -> list[tuple[str, float]]:
     out = []
     for name in _violated(run):
         t = _dict(verdicts.get(name)).get("violated_at")
-        if _is_number(t) and math.isfinite(t):
+        if is_number(t) and math.isfinite(t):
             out.append((name, float(t)))
     return out
 
@@ -788,7 +802,7 @@ def _header(results: Mapping, runs: Sequence[Mapping]) -> str:
         ("Scenario", text("scenario")),
         ("Runs", _e(campaign.get("runs", len(runs)))),
         ("Seed", text("seed")),
-        ("Duration", _seconds(campaign["duration"]) if _is_number(campaign.get("duration")) else None),
+        ("Duration", _seconds(campaign["duration"]) if is_number(campaign.get("duration")) else None),
         ("Created", text("created")),
         *_provenance_rows(results),
     ]
@@ -816,7 +830,7 @@ def _summary(results: Mapping, runs: Sequence[Mapping]) -> str:
     ]
     rows = "".join(f'<tr><th>{k}</th><td class="num">{_e(v)}</td></tr>' for k, v in figures)
     if "overall" in coverage:
-        rows += f'<tr><th>Coverage</th><td class="num" id="coverage-figure">{_fraction_text(_overall(coverage))}</td></tr>'
+        rows += f'<tr><th>Coverage</th><td class="num" id="coverage-figure">{percent(_overall(coverage))}</td></tr>'
     timing = _dict(results.get("timing"))
     stages = [s for s in STAGES if s in timing] + [s for s in timing if s not in STAGES]
     timing_rows = "".join(
@@ -895,7 +909,7 @@ def _use_cases_section(results: Mapping, runs: Sequence[Mapping]) -> str:
     rows = []
     for name in names:
         n = counts.get(name, 0)
-        share = _fraction_text(n / total) if total and _is_number(n) else "n/a"
+        share = percent(n / total) if total and is_number(n) else "n/a"
         cls = ' class="failed"' if n == 0 else ""
         rows.append(
             f"<tr{cls}><td><strong>{_e(name)}</strong></td><td>{_formula_cell(formulas.get(name), descriptions.get(name))}</td>"
@@ -910,7 +924,7 @@ def _use_cases_section(results: Mapping, runs: Sequence[Mapping]) -> str:
 
 
 def _bar(fraction: object) -> str:
-    width = 0.0 if not _is_number(fraction) else min(max(float(fraction), 0.0), 1.0) * 100  # type: ignore[arg-type]
+    width = 0.0 if not is_number(fraction) else min(max(float(fraction), 0.0), 1.0) * 100  # type: ignore[arg-type]
     return f'<span class="bar"><span style="width: {width:.1f}%"></span></span>'
 
 
@@ -920,7 +934,7 @@ def _heatmap(name: str, c: Mapping) -> str:
     if len(axes) != 2 or len(variables) != 2 or len(counts) != len(_list(axes[0])) * len(_list(axes[1])):
         return ""
     rows_of, cols_of = [str(v) for v in axes[0]], [str(v) for v in axes[1]]
-    top = max([n for n in counts if _is_number(n)] + [1])
+    top = max([n for n in counts if is_number(n)] + [1])
     head = "".join(f"<th>{_e(v)}</th>" for v in cols_of)
     body = []
     for i, r in enumerate(rows_of):
@@ -948,7 +962,7 @@ def _coverage_section(results: Mapping) -> str:
     criteria = _dict(coverage.get("criteria"))
     head = '<section id="coverage"><h2>Coverage</h2>\n'
     if "overall" in coverage:
-        head += f"<p>Overall: {_bar(_overall(coverage))} {_fraction_text(_overall(coverage))}</p>\n"
+        head += f"<p>Overall: {_bar(_overall(coverage))} {percent(_overall(coverage))}</p>\n"
     if not criteria:
         return head + '<p class="muted">No coverage criteria.</p></section>'
     rows, maps = [], []
@@ -956,7 +970,7 @@ def _coverage_section(results: Mapping) -> str:
         c = _dict(c)
         covered, total = c.get("covered"), c.get("total")
         fraction = c.get("fraction")
-        if not _is_number(fraction) and _is_number(covered) and _is_number(total) and total:
+        if not is_number(fraction) and is_number(covered) and is_number(total) and total:
             fraction = covered / total
         variables = ", ".join(_e(v) for v in _list(c.get("variables")))
         missing = _list(c.get("missing"))
@@ -970,7 +984,7 @@ def _coverage_section(results: Mapping) -> str:
             f"<tr><td><strong>{_e(name)}</strong>{desc}</td><td>{variables}</td>"
             f"<td>{_bar(fraction)}</td>"
             f'<td class="num">{_e(covered if covered is not None else "?")}/{_e(total if total is not None else "?")}</td>'
-            f'<td class="num">{_fraction_text(fraction)}</td><td>{missing_html}</td></tr>'
+            f'<td class="num">{percent(fraction)}</td><td>{missing_html}</td></tr>'
         )
         maps.append(_heatmap(name, c))
     maps_html = "".join(m for m in maps if m)
@@ -1005,7 +1019,7 @@ def _short_key(key: str, keys: Sequence[str]) -> str:
 def _histogram(key: str, label: str, runs: Sequence[Mapping], verdicts: Sequence[str]) -> str:
     """Values of one configuration key in bins, each bar stacked by the runs' ``verdicts`` (an SVG figure)."""
     points = [(_dict(r.get("configuration")).get(key), verdict) for r, verdict in zip(runs, verdicts)]
-    numeric = [(float(v), verdict) for v, verdict in points if _is_number(v) and math.isfinite(v)]
+    numeric = [(float(v), verdict) for v, verdict in points if is_number(v) and math.isfinite(v)]
     if numeric and len(numeric) == len([p for p in points if p[0] is not None]):
         lo, hi = min(v for v, _ in numeric), max(v for v, _ in numeric)
         n_bins = 1 if hi == lo else HISTOGRAM_BINS
@@ -1099,8 +1113,10 @@ def _runs_section(results: Mapping, runs: Sequence[Mapping]) -> str:
         return '<section id="runs"><h2>Runs</h2><p class="muted">No runs.</p></section>'
     keys = _config_keys(runs)
     units = _dict(_dict(results.get("campaign")).get("configuration_units"))
+    numeric = {k: all(is_number(_dict(r.get("configuration")).get(k, 0)) for r in runs) for k in keys}
     config_head = "".join(
-        f'<th class="num" data-sort="num" title="{_e(k)}"><code>{_breakable(_with_unit(_short_key(k, keys), units.get(k)))}</code></th>'
+        f'<th class="num" data-sort="{"num" if numeric[k] else "text"}" title="{_e(k)}">'
+        f"<code>{_breakable(_with_unit(_short_key(k, keys), units.get(k)))}</code></th>"
         for k in keys
     )
     rows = []
@@ -1143,9 +1159,8 @@ def _runs_section(results: Mapping, runs: Sequence[Mapping]) -> str:
 
 def _legend(palette: _Palette) -> str:
     """Every value drawn on the page with its colour: phases, booleans, then each variable's values."""
-    phases = next(iter(palette._phase_colours.values()), PHASE_COLOURS)
-    rows = [("Hazard phases", list(phases.items())),
-            ("Booleans", [("true", BOOL_COLOURS[True]), ("false", BOOL_COLOURS[False])])]
+    rows = [(", ".join(hazards), list(colours.items())) for hazards, colours in palette.phase_legend()]
+    rows.append(("Booleans", [("true", BOOL_COLOURS[True]), ("false", BOOL_COLOURS[False])]))
     for var, texts in palette.values.items():
         if palette.kind(var) == "enum":
             rows.append((var, [(t, palette.colour(var, t)) for t in texts]))
@@ -1201,9 +1216,9 @@ def _run_timeline_section(
 def _duration(results: Mapping, timelines: Iterable[Timeline]) -> float:
     """The campaign's duration, else the last sample time of any trace (at least 1 s)."""
     d = _dict(results.get("campaign")).get("duration")
-    if _is_number(d) and math.isfinite(d) and d > 0:
+    if is_number(d) and math.isfinite(d) and d > 0:
         return float(d)
-    last = [float(s[0]) for tl in timelines for samples in tl.values() for s in samples if s and _is_number(s[0])]
+    last = [float(s[0]) for tl in timelines for samples in tl.values() for s in samples if s and is_number(s[0])]
     return max([1.0, *last])
 
 
@@ -1254,13 +1269,14 @@ def _compact(timeline: Timeline, palette: _Palette) -> dict[str, list]:
 
     Each time is the step from the previous sample's (the first from 0), in whole
     milliseconds: a 0.1-s series costs four characters a sample instead of six. A
-    numeric series is rounded to the decimals that give its largest value three
-    significant figures (a step plot shows no more) and held in numpy (300 samples a
-    run, 1000 runs: a Python loop per sample was half the report's time).
+    numeric series is ``[steps, values, [lowest, highest]]``: its values rounded to the
+    decimals that give its largest value four significant figures (a step plot 32 units
+    tall shows no more), its exact extremes for the axis; it is held in numpy (300
+    samples a run, 1000 runs: a Python loop per sample was half the report's time).
     """
     out = {}
     for var, samples in timeline.items():
-        rows = [s for s in samples if len(s) >= 2 and _is_number(s[0])]
+        rows = [s for s in samples if len(s) >= 2 and is_number(s[0])]
         if palette.kind(var) == "numeric":
             out[var] = _compact_numbers(rows)
             continue
@@ -1280,19 +1296,20 @@ def _compact(timeline: Timeline, palette: _Palette) -> dict[str, list]:
 def _compact_numbers(rows: Sequence[Sequence[object]]) -> list:
     """A numeric series, compacted (see :func:`_compact`); undefined values (null, NaN) stay null."""
     if not rows:
-        return [[], []]
+        return [[], [], None]
     ms = np.round(np.array([float(r[0]) for r in rows]) * 1000).astype(np.int64)
     raw = [r[1] for r in rows]
-    values = np.array([float(v) if _is_number(v) else np.nan for v in raw])
+    values = np.array([float(v) if is_number(v) else np.nan for v in raw])
     finite = np.isfinite(values)
+    extremes = [float(values[finite].min()), float(values[finite].max())] if finite.any() else None
     top = float(np.max(np.abs(values[finite]))) if finite.any() else 0.0
-    decimals = max(0, 2 - math.floor(math.log10(top))) if top > 0 else 0
+    decimals = max(0, 3 - math.floor(math.log10(top))) if top > 0 else 0
     values = np.round(values, decimals)
     same = np.r_[False, (values[1:] == values[:-1]) | (~finite[1:] & ~finite[:-1])]
     keep = ~same
     steps = np.diff(np.r_[0, ms[keep]])
     kept = [None if not np.isfinite(v) else v for v in values[keep].tolist()]
-    return [steps.tolist(), kept]
+    return [steps.tolist(), kept, extremes]
 
 
 def _script_data(runs: Sequence[Mapping], traces: Mapping, duration: float,
@@ -1311,18 +1328,18 @@ def _script_data(runs: Sequence[Mapping], traces: Mapping, duration: float,
             "rerun": run.get("rerun"),
             "error": run.get("error"),
         }
-    any_trace = next((t for t in (_timeline_key(traces, i) for i in per_run) if t), {})
     data = {
         "duration": duration,
-        "groups": _lane_groups(any_trace, lanes, palette.hazards),
-        "kinds": {var: palette.kind(var) for var in palette.values},
+        "groups": _lane_groups(dict.fromkeys(palette.variables), lanes, palette.hazards),
+        "kinds": {var: palette.kind(var) for var in palette.variables},
         "colours": palette.colours(),
         "units": dict(units),
         "runs": per_run,
         "geometry": {"svgWidth": SVG_WIDTH, "plotLeft": PLOT_LEFT, "plotWidth": PLOT_WIDTH, "lane": LANE_HEIGHT,
                      "numericLane": NUMERIC_LANE_HEIGHT, "gap": LANE_GAP, "group": GROUP_HEADER, "tick": TICK_STEP,
                      "minPiece": MIN_PIECE_WIDTH, "labelRoom": int((PLOT_LEFT - 10) / CHAR_WIDTH),
-                     "charWidth": CHAR_WIDTH},
+                     "charWidth": CHAR_WIDTH, "markerRow": MARKER_ROW, "axisHeight": AXIS_HEIGHT,
+                     "minLabelSpacing": MIN_LABEL_SPACING},
         "boolColours": {"true": BOOL_COLOURS[True], "false": BOOL_COLOURS[False]},
     }
     text = json.dumps(data, separators=(",", ":"), allow_nan=False, default=str)
@@ -1382,12 +1399,13 @@ SCRIPT = r"""
   }
   function esc(s) { return String(s).replace(/[&<>"]/g, function (c) { return {"&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;"}[c]; }); }
   function instant(t) { return t.toFixed(2) + " s"; }  // as cellsim.numbers: a moment of a run, 10 ms
-  function sig3(x) {  // as cellsim.numbers.sig3
+  function sig3(x) {  // as cellsim.numbers.sig3: the exponent is the rounded value's; two-digit exponents
     if (typeof x !== "number" || !isFinite(x)) return String(x);
     if (x === 0) return "0";
-    var a = Math.abs(x);
-    if (a >= 1e-3 && a < 1e5) return x.toFixed(Math.max(0, 2 - Math.floor(Math.log10(a))));
-    return x.toExponential(2);
+    var e = x.toExponential(2).split("e"), exponent = parseInt(e[1], 10);
+    if (exponent >= -3 && exponent < 5) return x.toFixed(Math.max(0, 2 - exponent));
+    var digits = String(Math.abs(exponent));
+    return e[0] + "e" + (exponent < 0 ? "-" : "+") + (digits.length < 2 ? "0" + digits : digits);
   }
   function textColour(fill) {  // as the page's own _text_colour: black or white, whichever reads better
     var r = parseInt(fill.slice(1, 3), 16), gr = parseInt(fill.slice(3, 5), 16), bl = parseInt(fill.slice(5, 7), 16);
@@ -1411,9 +1429,23 @@ SCRIPT = r"""
     });
     return [t, v];
   }
-  function timeline(run) {
-    var d = load(), g = d.geometry, dur = d.duration, parts = [], y = 24;
+  function markerRows(marks) {  // as _marker_rows: labels on rows so that none overlaps another
+    var ends = [], g = load().geometry;
+    return marks.slice().sort(function (a, b) { return a[0] - b[0]; }).map(function (m) {
+      var width = m[1].length * g.charWidth + 6, atEnd = m[0] + width > g.svgWidth;
+      var from = atEnd ? m[0] - width : m[0], to = atEnd ? m[0] : m[0] + width, row = 0;
+      while (row < ends.length && !(from > ends[row])) row++;
+      ends[row] = to;
+      return [m[0], m[1], row, atEnd];
+    });
+  }
+  function timeline(run) {  // as render_timeline: the same layout, from the run's compact trace
+    var d = load(), g = d.geometry, dur = d.duration, parts = [];
     function X(t) { return g.plotLeft + g.plotWidth * Math.min(Math.max(t, 0), dur) / dur; }
+    var marks = markerRows(run.violations.filter(function (v) { return typeof v[1] === "number"; })
+      .map(function (v) { return [X(v[1]), v[0]]; }));
+    var rows = marks.reduce(function (n, m) { return Math.max(n, m[2] + 1); }, 0);
+    var labelTop = 2, axisTop = labelTop + rows * g.markerRow + g.axisHeight, y = axisTop;
     var groups = d.groups.map(function (grp) {
       return [grp[0], grp[1].filter(function (v) { return run.trace[v]; }).map(function (v) { return [v, run.trace[v], false]; })];
     });
@@ -1432,19 +1464,21 @@ SCRIPT = r"""
         parts.push('<text class="lane-label" x="' + (g.plotLeft - 6) + '" y="' + (y + h / 2 + 4) + '"><title>' + esc(label) + "</title>" + esc(fitted) + "</text>");
         parts.push('<rect class="lane" x="' + g.plotLeft + '" y="' + y + '" width="' + g.plotWidth + '" height="' + h + '"/>');
         var ps = pieces(lane[1][0], lane[1][1], dur);
-        if (numeric) {
-          var nums = ps.map(function (p) { return p[2]; }).filter(function (x) { return typeof x === "number"; });
-          if (nums.length) {
-            var lo = Math.min.apply(null, nums), hi = Math.max.apply(null, nums);
-            var Y = function (x) { return hi === lo ? y + h / 2 : y + 4 + (h - 8) * (hi - x) / (hi - lo); };
-            var pts = [];
-            ps.forEach(function (p) { if (typeof p[2] === "number") pts.push(X(p[0]).toFixed(2) + "," + Y(p[2]).toFixed(2), X(p[1]).toFixed(2) + "," + Y(p[2]).toFixed(2)); });
-            var u = unit ? " " + unit : "";
-            parts.push('<polyline class="step" data-var="' + esc(v) + '" points="' + pts.join(" ") + '"/>');
-            parts.push('<text class="y-label" x="' + (g.plotLeft + 3) + '" y="' + (Y(hi) + 9) + '">' + esc(sig3(hi) + u) + "</text>");
-            if (hi !== lo) parts.push('<text class="y-label" x="' + (g.plotLeft + 3) + '" y="' + (Y(lo) - 2) + '">' + esc(sig3(lo) + u) + "</text>");
-          }
-        } else {
+        if (numeric && lane[1][2]) {  // the exact extremes scale the lane and label its axis
+          var lo = lane[1][2][0], hi = lane[1][2][1], u = unit ? " " + unit : "", pts = [];
+          var Y = function (x) { return hi === lo ? y + 4 + (h - 8) / 2 : y + 4 + (h - 8) * (hi - x) / (hi - lo); };
+          var flush = function () {
+            if (pts.length) parts.push('<polyline class="step" data-var="' + esc(v) + '" points="' + pts.join(" ") + '"/>');
+            pts = [];
+          };
+          ps.forEach(function (p) {
+            if (typeof p[2] !== "number") { flush(); return; }  // an undefined stretch breaks the line
+            pts.push(X(p[0]).toFixed(2) + "," + Y(p[2]).toFixed(2), X(p[1]).toFixed(2) + "," + Y(p[2]).toFixed(2));
+          });
+          flush();
+          parts.push('<text class="y-label" x="' + (g.plotLeft + 3) + '" y="' + (Y(hi) + 9).toFixed(2) + '">' + esc(sig3(hi) + u) + "</text>");
+          if (hi !== lo) parts.push('<text class="y-label" x="' + (g.plotLeft + 3) + '" y="' + (Y(lo) - 2).toFixed(2) + '">' + esc(sig3(lo) + u) + "</text>");
+        } else if (!numeric) {
           ps.forEach(function (p) {
             if (p[2] === null) return;
             var fill = lane[2] ? d.boolColours[p[2]] : ((d.colours[v] || {})[p[2]] || "#9e9e9e");
@@ -1461,20 +1495,23 @@ SCRIPT = r"""
       });
     });
     var bottom = y - g.gap, under = [], over = [];
-    for (var t = 0; t <= dur + 1e-9; t += g.tick) {
-      under.push('<line class="tick" x1="' + X(t).toFixed(2) + '" x2="' + X(t).toFixed(2) + '" y1="20" y2="' + bottom + '"/>');
-      under.push('<text class="tick-label" x="' + X(t).toFixed(2) + '" y="17">' + t + " s</text>");
+    var perTick = g.plotWidth * g.tick / dur, every = Math.max(1, Math.ceil(g.minLabelSpacing / perTick));
+    for (var k = 0; k * g.tick <= dur + 1e-9; k++) {  // as _axis: labels thinned when they would crowd
+      var tx = X(k * g.tick).toFixed(2);
+      under.push('<line class="tick" x1="' + tx + '" x2="' + tx + '" y1="' + (axisTop - 4) + '" y2="' + bottom + '"/>');
+      if (k % every === 0) under.push('<text class="tick-label" x="' + tx + '" y="' + (axisTop - 7) + '">' + (k * g.tick) + " s</text>");
     }
     Object.keys(run.evidence).forEach(function (name) {
-      var w = run.evidence[name].window;
-      if (w) under.push('<rect class="window" data-condition="' + esc(name) + '" x="' + X(w[0]).toFixed(2) + '" y="' + (24 + g.group) + '" width="' +
-        Math.max(X(w[1]) - X(w[0]), 2 * g.minPiece).toFixed(2) + '" height="' + (bottom - 24 - g.group) + '"><title>' +
-        esc(name + ": required between " + instant(w[0]) + " and " + instant(w[1])) + "</title></rect>");
+      var w = run.evidence[name].window, top = axisTop + g.group;
+      if (w) under.push('<g><title>' + esc(name + ": required between " + instant(w[0]) + " and " + instant(w[1])) +
+        '</title><rect class="window" data-condition="' + esc(name) + '" x="' + X(w[0]).toFixed(2) + '" y="' + top + '" width="' +
+        Math.max(X(w[1]) - X(w[0]), 2 * g.minPiece).toFixed(2) + '" height="' + (bottom - top) + '"/></g>');
     });
-    run.violations.forEach(function (v) {
-      if (typeof v[1] !== "number") return;
-      over.push('<line class="violation" data-condition="' + esc(v[0]) + '" x1="' + X(v[1]).toFixed(2) + '" x2="' + X(v[1]).toFixed(2) + '" y1="6" y2="' + bottom + '"/>');
-      over.push('<text class="violation-label" x="' + (X(v[1]) + 3).toFixed(2) + '" y="9">' + esc(v[0]) + "</text>");
+    marks.forEach(function (m) {
+      var labelY = labelTop + (m[2] + 1) * g.markerRow - 3, tx = m[3] ? m[0] - 3 : m[0] + 3;
+      over.push('<line class="violation" data-condition="' + esc(m[1]) + '" x1="' + m[0].toFixed(2) + '" x2="' + m[0].toFixed(2) +
+        '" y1="' + (labelY - 9) + '" y2="' + bottom + '"/>');
+      over.push('<text class="violation-label" x="' + tx.toFixed(2) + '" y="' + labelY + '" text-anchor="' + (m[3] ? "end" : "start") + '">' + esc(m[1]) + "</text>");
     });
     return '<svg class="timeline" viewBox="0 0 ' + g.svgWidth + " " + (y + 4) + '" width="100%" role="img" aria-label="timeline">' +
       under.join("") + parts.join("") + over.join("") + "</svg>";
@@ -1524,7 +1561,6 @@ def render_report(
     timelines: Mapping[int, Timeline] | None,
     lanes: Sequence[tuple[str, Sequence[str]]] | None = None,
     phases: Mapping[str, Mapping] | None = None,
-    units: Mapping[str, str] | None = None,
 ) -> str:
     """The whole HTML report of a campaign.
 
@@ -1533,13 +1569,13 @@ def render_report(
     JSON) to its trace ``{variable: [[t, value], ...]}``; ``lanes`` groups the timeline
     lanes as ``[(group title, [variable, ...]), ...]`` (default: :data:`DEFAULT_LANES`,
     then the trace's other variables); ``phases`` gives each hazard variable its risk
-    model's ``{values, initial, mishap}`` (its lanes, colours and legend); ``units``
-    gives variables their unit (numeric lanes' axes).
+    model's ``{values, initial, mishap}`` (its lanes, colours and legend). Numeric lanes
+    take their unit from ``results["campaign"]["units"]`` (variable -> unit).
     """
     runs = [r for r in _list(results.get("runs")) if isinstance(r, Mapping)]
     campaign = _dict(results.get("campaign"))
     traces = timelines or {}
-    units = dict(units or _dict(campaign.get("units")))
+    units = _dict(campaign.get("units"))
     present = [t for t in (_timeline_key(traces, _run_index(r, i)) for i, r in enumerate(runs)) if t]
     palette = _Palette(present, phases)
     duration = _duration(results, present)
@@ -1573,11 +1609,10 @@ def write_report(
     timelines: Mapping[int, Timeline] | None,
     lanes: Sequence[tuple[str, Sequence[str]]] | None = None,
     phases: Mapping[str, Mapping] | None = None,
-    units: Mapping[str, str] | None = None,
 ) -> None:
     """Renders the report and writes it to ``path`` atomically.
 
     Readers see the old report or the new one, never a partial one, and no
     temporary file is left behind, even on error (:func:`cellsim.atomic.write_text`).
     """
-    write_text(path, render_report(results, timelines, lanes, phases, units), make_folder=True)
+    write_text(path, render_report(results, timelines, lanes, phases), make_folder=True)
