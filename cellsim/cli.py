@@ -653,7 +653,7 @@ def cmd_simulate(args) -> int:
         checked = _check_of(summary)
         if not args.quiet:
             print_summary(summary, checked)
-        if meshcat is not None and sys.stdin.isatty():
+        if meshcat is not None and sys.stdin is not None and sys.stdin.isatty():
             from cellsim.visual.serve import serve_until_closed
 
             serve_until_closed(meshcat, console.print)
@@ -890,15 +890,15 @@ class _campaign_progress:
 
         self.bar = Progress(
             TextColumn("runs"), BarColumn(), MofNCompleteColumn(),
-            TextColumn("violating {task.fields[violating]}  failed {task.fields[failed]}  coverage {task.fields[coverage]:.0%}"),
+            TextColumn("violating {task.fields[violating]}  failed {task.fields[failed]}  coverage {task.fields[coverage]}"),
             TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(), console=self.console,
         )
         self.bar.start()
-        self.task = self.bar.add_task("campaign", total=self.total, violating=0, failed=0, coverage=0.0)
+        self.task = self.bar.add_task("campaign", total=self.total, violating=0, failed=0, coverage=percent(0.0))
         return self.report
 
     def report(self, p) -> None:
-        self.bar.update(self.task, completed=p.done, violating=p.violating_runs, failed=p.failed, coverage=p.coverage)
+        self.bar.update(self.task, completed=p.done, violating=p.violating_runs, failed=p.failed, coverage=percent(p.coverage))
 
     def __exit__(self, *exc):
         if self.bar is not None:

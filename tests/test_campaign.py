@@ -460,3 +460,20 @@ def test_a_conditions_description_is_shown_in_the_campaign_report(campaign):
     row = section[section.index("<strong>HRW:detected</strong>"):]
     row = row[: row.index("</tr>")]
     assert "A person reaching across the shared table while the robot works there is detected within 0.5 s." in row
+
+
+def test_the_re_run_command_of_the_report_redoes_the_run_beside_the_campaign(campaign):
+    """The command the report and results.json give, run as written: the same rows, in a folder of its own."""
+    import shlex
+
+    _, out = campaign
+    run = _results(out)["runs"][1]
+    words = shlex.split(run["rerun"])
+    assert words[:2] == ["cellsim", "simulate"]
+    rerun = Path(words[words.index("--out") + 1])
+    assert rerun == out.parent / "c-run0001" and not rerun.is_relative_to(out)
+    done = subprocess.run([sys.executable, "-m", "cellsim", *words[1:], "--quiet"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode in (0, 1), done.stderr
+    with BlackBox(out / run["out"] / "blackbox.sqlite") as original, BlackBox(rerun / "blackbox.sqlite") as again:
+        assert again.rows() == original.rows()

@@ -50,6 +50,7 @@ import functools
 import json
 import multiprocessing
 import os
+import shlex
 import shutil
 import signal
 import sys
@@ -520,10 +521,12 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
     }
     results["timing"]["report"] = time.perf_counter() - t0
     results["timing"]["wall"] = time.perf_counter() - wall_start
-    write_report(out / REPORT, results, timelines, phases=phases, units=units)
-    results["timing"]["report"] = time.perf_counter() - t0
-    results["timing"]["wall"] = time.perf_counter() - wall_start
-    write_text(out / RESULTS, _results_text(results))
+    try:
+        write_report(out / REPORT, results, timelines, phases=phases)
+    finally:  # the results are kept even if the report cannot be drawn
+        results["timing"]["report"] = time.perf_counter() - t0
+        results["timing"]["wall"] = time.perf_counter() - wall_start
+        write_text(out / RESULTS, _results_text(results))
     return CampaignOutcome(results, out / RESULTS, out / REPORT, resumed, results["timing"])
 
 
@@ -579,6 +582,7 @@ def hazard_phases(bb, aliases: dict[str, str]) -> dict[str, dict]:
 
 
 def _rerun_command(out: Path, run: dict) -> str:
-    """Re-runs one run alone, into a folder of its own outside the campaign's (the campaign's stays as it is)."""
+    """Re-runs one run alone, into a folder beside the campaign's (``campaigns/c1-run0007``), never inside it."""
     folder = out / run["out"]
-    return f"cellsim simulate {folder / 'scenario.yaml'} --out runs/{out.name}-run{run['index']:04d}"
+    rerun = out.parent / f"{out.name}-run{run['index']:04d}"
+    return f"cellsim simulate {shlex.quote(str(folder / 'scenario.yaml'))} --out {shlex.quote(str(rerun))}"
