@@ -198,7 +198,7 @@ class Robot(EntitySystem):
         q = values.get(f"{self.module}.joint_positions")
         if q is not None and all(x is not None for x in q):
             plant_context = cell.plant.GetMyMutableContextFromRoot(root_context)
-            cell.plant.SetPositions(plant_context, self.model_instance, np.asarray(q, float))
+            cell.plant.SetPositions(plant_context, cell.robots[self.module], np.asarray(q, float))
 
     def physical_state(self, root_context) -> list[float]:
         """q (rad, measured), safety mode, activity and reached pose codes."""
@@ -408,7 +408,6 @@ def build_robot(cell, name: str, cfg: RobotConfig) -> Robot:
     poses = resolve_poses(cell.sf, name, cfg)
     robot = cell.add(name, Robot(name, cfg, str(_model_path(cell.sf, name, cfg)), cell.scenario.layout, poses))
     instance, plant, builder = cell.robots[name], cell.plant, cell.builder
-    robot.model_instance = instance
     robot.body_frames = [plant.GetBodyFrameIdIfExists(b) for b in plant.GetBodyIndices(instance)]
     controller = builder.AddNamedSystem(
         f"{name}.joint_controller",

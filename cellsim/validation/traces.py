@@ -153,17 +153,28 @@ def trace_of_run(bb: BlackBox, aliases: dict[str, str] | None = None) -> RunTrac
             raise TraceError(f"{bb.path}: the run stopped ({metadata.get('status')}) before it recorded anything")
         raise BlackBoxError(f"{bb.path}: corrupt black box: it holds no messages")
 
-    complete = metadata.get("status") in ("completed", "stopped")  # stopped: a live run ended on request
-    end = _number(bb, metadata, "duration") if complete else None
-    if end is None:
-        complete = False
-        end = _number(bb, metadata, "recorded_until") or reach
+    end, complete = run_end(bb, metadata, reach)
     if end <= 0.0:
         raise TraceError(f"{bb.path}: the run recorded no time (no messages after t = 0)")
     signals = {name: Signal(np.asarray(ts, dtype=np.float64), vs) for name, (ts, vs) in samples.items()}
     for variable, channel in aliases.items():
         signals[variable] = signals[channel]
     return RunTrace(Trace(signals, 0.0, end), vocabulary, complete)
+
+
+def run_end(bb: BlackBox, metadata: dict, reach: float = 0.0) -> tuple[float, bool]:
+    """Where a run's record ends (s), and whether the run completed.
+
+    A completed run (or a live one stopped on request) ends at its duration; otherwise
+    at the committed ``recorded_until``; without that, at ``reach`` (the latest message
+    time plus its channel's period).
+    """
+    complete = metadata.get("status") in ("completed", "stopped")
+    end = _number(bb, metadata, "duration") if complete else None
+    if end is None:
+        complete = False
+        end = _number(bb, metadata, "recorded_until") or reach
+    return end, complete
 
 
 def _number(bb: BlackBox, metadata: dict, key: str) -> float | None:

@@ -38,16 +38,6 @@ class Replay:
     cell: object
 
 
-def run_end(metadata: dict, path) -> float:
-    """The simulated time a run reaches (s): its duration when it completed, else what was recorded."""
-    complete = metadata.get("status") in ("completed", "stopped")
-    for key in (("duration", "recorded_until") if complete else ("recorded_until",)):
-        value = metadata.get(key)
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0:
-            return float(value)
-    raise ReplayError(f"{path}: the run recorded no time (no duration or recorded_until in its metadata)")
-
-
 def replay(run: str | Path, meshcat, *, at: float = 0.0, speed: float = 1.0) -> Replay:
     """Record the run in ``run`` (a run folder or its black box) into ``meshcat`` and publish the recording.
 
@@ -57,6 +47,7 @@ def replay(run: str | Path, meshcat, *, at: float = 0.0, speed: float = 1.0) -> 
     from cellsim.scenario import load_scenario
     from cellsim.services.blackbox import BlackBox, BlackBoxError
     from cellsim.validation.check import CheckError, locate_run
+    from cellsim.validation.traces import run_end
     from diagrams.cell import build_cell
 
     if not (math.isfinite(speed) and 0.01 <= speed <= 100.0):
@@ -71,7 +62,9 @@ def replay(run: str | Path, meshcat, *, at: float = 0.0, speed: float = 1.0) -> 
     try:
         with BlackBox(blackbox) as bb:
             metadata = bb.metadata()
-            end = run_end(metadata, blackbox)
+            end, _ = run_end(bb, metadata)
+            if end <= 0:
+                raise ReplayError(f"{blackbox}: the run recorded no time (no duration or recorded_until in its metadata)")
             if not (math.isfinite(at) and 0.0 <= at <= end):
                 raise ReplayError(f"--at {at:g}: expected a time from 0 to {end:g} s (the run's end)")
             seed = metadata.get("seed", sf.scenario.seed)
