@@ -29,7 +29,7 @@ class ReplayError(Exception):
 
 @dataclass
 class Replay:
-    """What was played: the run's end (s), where it started (s), frames recorded, and the cues drawn."""
+    """What was played: the run's end (s), where it started (s), its speed, frames recorded, and the cell drawn."""
 
     end: float
     at: float
