@@ -475,9 +475,13 @@ def _axis(duration: float, top: float, bottom: float) -> list[str]:
 
 
 def _piece_rects(var: str, var_pieces, colour, duration: float, top: float) -> list[str]:
-    """One ``rect.piece`` per defined piece, at least :data:`MIN_PIECE_WIDTH` wide; ``colour(value)``."""
+    """One ``rect.piece`` per defined piece, at least :data:`MIN_PIECE_WIDTH` wide; ``colour(value)``.
+
+    Pieces that had to be widened are drawn last, over their neighbours: otherwise the next
+    piece would cover all but their true width again."""
     out = []
-    for t0, t1, value in var_pieces:
+    narrow = lambda piece: time_to_x(piece[1], duration) - time_to_x(piece[0], duration) < MIN_PIECE_WIDTH  # noqa: E731
+    for t0, t1, value in sorted(var_pieces, key=narrow):  # stable: in time order within each kind
         if value is None:
             continue
         x0, x1 = time_to_x(t0, duration), time_to_x(t1, duration)
@@ -1478,8 +1482,9 @@ SCRIPT = r"""
           flush();
           parts.push('<text class="y-label" x="' + (g.plotLeft + 3) + '" y="' + (Y(hi) + 9).toFixed(2) + '">' + esc(sig3(hi) + u) + "</text>");
           if (hi !== lo) parts.push('<text class="y-label" x="' + (g.plotLeft + 3) + '" y="' + (Y(lo) - 2).toFixed(2) + '">' + esc(sig3(lo) + u) + "</text>");
-        } else if (!numeric) {
-          ps.forEach(function (p) {
+        } else if (!numeric) {  // widened pieces last, over their neighbours, as _piece_rects does
+          var narrow = function (p) { return X(p[1]) - X(p[0]) < g.minPiece; };
+          ps.filter(function (p) { return !narrow(p); }).concat(ps.filter(narrow)).forEach(function (p) {
             if (p[2] === null) return;
             var fill = lane[2] ? d.boolColours[p[2]] : ((d.colours[v] || {})[p[2]] || "#9e9e9e");
             var x0 = X(p[0]), w = Math.max(X(p[1]) - x0, g.minPiece);
