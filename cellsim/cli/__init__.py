@@ -1,0 +1,111 @@
+"""The ``cellsim`` command line.
+
+Exit codes: 0 all well; 1 a safety finding (a mishap in a run, a safety
+condition violated, inconclusive or with missing data); 2 a usage or input
+error (one line on stderr naming the file, line and key); 130 interrupted.
+
+One module per command (``cellsim.cli.simulate``, ...), each with ``add_parser(subparsers)``
+(its arguments, help and description; ``handler=run``) and ``run(args) -> int``;
+``COMMANDS`` lists them in the order ``cellsim --help`` shows them. What they share is in
+``cellsim.cli.common``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from cellsim.cli import (
+    bridge,
+    campaign,
+    check,
+    dashboard,
+    emulate,
+    live,
+    modules,
+    replay,
+    scenario,
+    simulate,
+    twin_mode,
+)
+from cellsim.cli.common import (
+    EXIT_CODES,
+    EXIT_FINDING,
+    EXIT_INPUT,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    InputError,
+    _add_live_args,
+    _add_network_args,
+    _add_set,
+    _end_with_exit_codes,
+    _interrupt_deferred,
+    _load,
+    _open_session,
+    _terminate_as_interrupt,
+)
+
+__all__ = [
+    "COMMANDS", "EXIT_CODES", "EXIT_FINDING", "EXIT_INPUT", "EXIT_INTERRUPTED", "EXIT_OK", "InputError",
+    "bridge_main", "build_parser", "main",
+    "_add_live_args", "_add_network_args", "_add_set", "_end_with_exit_codes", "_interrupt_deferred", "_load",
+    "_open_session", "_terminate_as_interrupt",
+]
+
+COMMANDS = (simulate, check, campaign, replay, modules, scenario, live, emulate, bridge, dashboard, twin_mode)
+"""The commands, in the order of ``cellsim --help``: each a module with ``add_parser`` and ``run``."""
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # also while starting up: importing Drake takes a while
+        print("cellsim: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def _main(argv: list[str] | None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "handler", None):
+        parser.print_help(sys.stderr)
+        return EXIT_INPUT
+    with _interrupt_deferred():  # pydrake's loader reports an interrupt with its own traceback
+        from cellsim.config.typed_yaml import ConfigError
+        from cellsim.live.session import SessionConfigError
+        from cellsim.simulation import OutputExistsError
+
+    try:
+        return args.handler(args)
+    except (ConfigError, OutputExistsError, InputError, SessionConfigError) as e:
+        print(f"cellsim: error: {e}", file=sys.stderr)
+        return EXIT_INPUT
+    except OSError as e:  # an output path that cannot be written, a file that vanished
+        where = f": {e.filename}" if e.filename else ""
+        print(f"cellsim: error: {e.strerror or e}{where}", file=sys.stderr)
+        return EXIT_INPUT
+    except KeyboardInterrupt:
+        print("cellsim: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="cellsim",
+        description="Scenario digital twins of collaborative robot cells: simulate them headless, "
+        "record black boxes, and gather safety evidence.",
+        epilog=EXIT_CODES,
+    )
+    from cellsim import __version__
+
+    parser.add_argument("--version", action="version", version=f"cellsim {__version__}")
+    sub = parser.add_subparsers(metavar="COMMAND")
+    for command in COMMANDS:
+        command.add_parser(sub)
+    _end_with_exit_codes(parser)
+    return parser
+
+
+def bridge_main(argv: list[str] | None = None) -> int:
+    """``cellsim-bridge`` and ``python -m bridges``: the bridge daemon on its own (as ``cellsim bridge``)."""
+    return main(["bridge", *(sys.argv[1:] if argv is None else argv)])

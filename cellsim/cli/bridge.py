@@ -1,0 +1,67 @@
+"""``cellsim bridge`` (also ``cellsim-bridge``, ``python -m bridges``): the bridge daemon."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from cellsim.cli.common import (
+    EXIT_OK,
+    _add_network_args,
+    _can_bus_spec,
+    _open_can_bus,
+    _open_session,
+    _terminate_as_interrupt,
+)
+
+
+def add_parser(subparsers) -> None:
+    bridge = subparsers.add_parser(
+        "bridge",
+        help="run the bridge daemon: a cell's CAN devices and robot controller to the twin and back",
+        description="Map the CAN devices of a cell (a bridge configuration, e.g. bridges/welding_cell.yaml, and its "
+        "DBC) and its robot controller's state stream to the twin's physical samples, checking every frame end to "
+        "end, and send the twin's commands to the devices of entities in twin mode (safe ones when the twin is "
+        "lost). Publishes each device's diagnostics on cellsim/<cell>/diagnostics/<entity>. Runs until interrupted "
+        "(also as cellsim-bridge or python -m bridges).",
+    )
+    bridge.add_argument("bridge_config", type=Path, metavar="CONFIG", help="bridge configuration YAML file")
+    bridge.add_argument("--can", metavar="INTERFACE:CHANNEL",
+                        help="the CAN bus, e.g. socketcan:can0 (default: the configuration's)")
+    _add_network_args(bridge)
+    bridge.set_defaults(handler=run)
+
+
+def run(args) -> int:
+    import logging
+    import threading
+
+    from bridges.config import load_bridge
+    from bridges.daemon import Bridge, run_bridge
+
+    loaded = load_bridge(args.bridge_config)
+    default = (loaded.config.can.interface, loaded.config.can.channel)
+    interface, channel = _can_bus_spec(args.can, "--can") if args.can else default
+    zenoh_settings = loaded.config.zenoh  # the command line's network options win over the configuration's
+    if not args.connect and not args.listen:
+        args.connect = list(zenoh_settings.connect)
+    if args.config is None and zenoh_settings.config:
+        args.config = loaded.source.parent / zenoh_settings.config
+    bus = _open_can_bus(args.can, default)
+    try:
+        session = _open_session(args, listen_by_default=False)
+        try:
+            bridge = Bridge(loaded, session, bus=bus)
+            stop = threading.Event()
+            logging.basicConfig(level=logging.INFO, format="cellsim bridge: %(message)s", stream=sys.stderr)
+            print(f"cellsim bridge: {loaded.config.cell} on {interface}:{channel}", file=sys.stderr)
+            with _terminate_as_interrupt():
+                try:
+                    run_bridge(bridge, bus, stop)
+                finally:
+                    bridge.close()
+        finally:
+            session.close()
+    finally:
+        bus.shutdown()
+    return EXIT_OK

@@ -1,0 +1,152 @@
+"""``cellsim campaign``: simulate and check many sampled variants of a scenario."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+from cellsim.cli.common import EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, InputError, _add_set, _load
+from cellsim.numbers import measure, percent
+
+
+def add_parser(subparsers) -> None:
+    camp = subparsers.add_parser(
+        "campaign",
+        help="simulate and check many sampled variants of a scenario",
+        description="Draw --runs variants of the scenario from its samplers (campaign.samplers), simulate "
+        "each in a worker process, check its safety conditions, use cases and coverage, and write "
+        "OUT/results.json and OUT/report.html. Each run folder (OUT/runs/NNNN) holds copies of the files it "
+        "used and re-runs alone. Re-running the same command on the same OUT resumes it (a larger --runs "
+        "extends it) if its inputs are unchanged: the content of the scenario and of every file it uses, "
+        "the overrides, seed, duration and cellsim's version. If one changed, the campaign refuses, naming "
+        "it, unless --restart. "
+        "Exits 1 if a condition does not hold on some run (violated, or missing data), 2 if a run could not be "
+        "simulated (a sampled value out of range).",
+    )
+    camp.add_argument("scenario", type=Path, help="scenario YAML file")
+    camp.add_argument("--runs", type=int, help="number of runs (default: the scenario's campaign.runs)")
+    camp.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: one per CPU)")
+    camp.add_argument("--seed", type=int, default=0, help="campaign seed: run i is a pure function of it and i (default 0)")
+    camp.add_argument("--out", type=Path, help="campaign folder (default: campaigns/<scenario>-seed<seed>)")
+    camp.add_argument("--duration", type=float, help="simulated seconds per run (default: the scenario's duration)")
+    camp.add_argument(
+        "--restart",
+        action="store_true",
+        help="discard the runs already in OUT and start the campaign afresh; needed to reuse an OUT whose "
+        "campaign had other inputs (an edited scenario, validation file, risk or robot model, other "
+        "overrides, seed, duration or cellsim version), since runs of different inputs are never mixed",
+    )
+    _add_set(camp)
+    camp.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    camp.set_defaults(handler=run)
+
+
+def run(args) -> int:
+    from rich.console import Console
+
+    from cellsim.campaign.runner import CampaignError, CampaignPlan, run_campaign
+
+    for flag, most in (("runs", 100_000), ("jobs", 256)):
+        value = getattr(args, flag)
+        if value is not None and not 1 <= value <= most:
+            raise InputError(f"--{flag} must be in [1, {most}], got {value}")
+    from cellsim.scenario import check_run_length, check_seed
+
+    check_seed(args.seed, "--seed")
+    sf = _load(args)
+    if args.duration is not None:
+        check_run_length(sf, args.duration, "--duration")
+    runs = args.runs or sf.scenario.campaign.runs
+    out = args.out or Path("campaigns") / f"{sf.scenario.name}-seed{args.seed}"
+    plan = CampaignPlan(str(args.scenario.resolve()), tuple(args.overrides), args.seed, runs, args.duration)
+    console = Console(stderr=True, quiet=args.quiet)
+    try:
+        with _campaign_progress(console, args.quiet, runs) as report:
+            outcome = run_campaign(plan, out, jobs=args.jobs, on_progress=report, restart=args.restart)
+    except CampaignError as e:
+        raise InputError(str(e)) from None
+    except KeyboardInterrupt:
+        print(f"cellsim: interrupted; finished runs are kept in {out}: run the same command again to resume", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    if not args.quiet:
+        print_campaign(outcome)
+    failed = [r for r in outcome.results["runs"] if r.get("status") == "failed"]
+    if failed:
+        print(
+            f"cellsim: error: {len(failed)} of {len(outcome.results['runs'])} runs failed, e.g. run {failed[0]['index']}: "
+            f"{failed[0].get('error', '?')} (all in {outcome.results_path})",
+            file=sys.stderr,
+        )
+        return EXIT_INPUT
+    return EXIT_FINDING if outcome.violating_runs or outcome.results["totals"]["undecided_runs"] else EXIT_OK
+
+
+class _campaign_progress:
+    """A progress bar of runs done, with violations and coverage so far."""
+
+    def __init__(self, console, quiet: bool, total: int):
+        self.console, self.quiet, self.total = console, quiet, total
+        self.bar = None
+
+    def __enter__(self):
+        if self.quiet:
+            return None
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+        self.bar = Progress(
+            TextColumn("runs"), BarColumn(), MofNCompleteColumn(),
+            TextColumn("violating {task.fields[violating]}  failed {task.fields[failed]}  coverage {task.fields[coverage]}"),
+            TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(), console=self.console,
+        )
+        self.bar.start()
+        self.task = self.bar.add_task("campaign", total=self.total, violating=0, failed=0, coverage=percent(0.0))
+        return self.report
+
+    def report(self, p) -> None:
+        self.bar.update(self.task, completed=p.done, violating=p.violating_runs, failed=p.failed, coverage=percent(p.coverage))
+
+    def __exit__(self, *exc):
+        if self.bar is not None:
+            self.bar.stop()
+
+
+def print_campaign(outcome) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    totals, timing = outcome.results["totals"], outcome.timing
+    console = Console()
+    table = Table(title="Campaign", show_header=False, title_justify="left")
+    table.add_column(style="bold")
+    table.add_column()
+    table.add_row("runs", f"{totals['runs']} ({outcome.resumed} resumed, {totals['failed']} failed)")
+    runs_of = {c: [r["index"] for r in outcome.results["runs"] if c in r.get("violations", ())] for c in totals["violations"]}
+    bad = {c: runs for c, runs in runs_of.items() if runs}
+    undecided = {c: [r["index"] for r in outcome.results["runs"] if c in r.get("undecided", ())] for c in totals["violations"]}
+    undecided = {c: runs for c, runs in undecided.items() if runs}
+    table.add_row(
+        "violating runs",
+        f"[red]{totals['violating_runs']}[/red]\n" + "\n".join(f"{c}: {_run_list(runs)}" for c, runs in bad.items())
+        if bad else ("none" if undecided or totals["failed"] else "none: every condition holds in every run"),
+    )
+    if undecided:
+        table.add_row(
+            "undecided (inconclusive or missing data)",
+            "[yellow]" + "\n".join(f"{c}: {_run_list(runs)}" for c, runs in undecided.items()) + "[/yellow]",
+        )
+    table.add_row("use cases", ", ".join(f"{u} {n}" for u, n in totals["use_cases"].items()) or "-")
+    table.add_row("coverage", f"{percent(totals['coverage']['overall']['fraction'])} of situations")
+    table.add_row("time per stage", ", ".join(f"{k} {measure(v, 's')}" for k, v in timing.items()))
+    inputs = (outcome.results.get("provenance") or {}).get("inputs") or {}
+    if inputs:
+        table.add_row("inputs", f"content hash {inputs['hash'][:16]} ({len(inputs['files'])} files, snapshot in {outcome.results_path.parent / 'inputs'})")
+    table.add_row("results", str(outcome.results_path))
+    table.add_row("report", str(outcome.report_path))
+    console.print(table)
+
+
+def _run_list(indices: list[int], shown: int = 8) -> str:
+    listed = ", ".join(str(i) for i in indices[:shown])
+    more = f" and {len(indices) - shown} more" if len(indices) > shown else ""
+    return f"{len(indices)} run{'s' if len(indices) > 1 else ''} ({listed}{more})"

@@ -1,0 +1,122 @@
+"""``cellsim check``: check a run's black box against the safety conditions."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from cellsim.cli.common import EXIT_FINDING, EXIT_OK, InputError
+from cellsim.numbers import instant
+
+
+def add_parser(subparsers) -> None:
+    chk = subparsers.add_parser(
+        "check",
+        help="check a run's black box against the safety conditions",
+        description="Rebuild a run's trace from its black box and evaluate every safety condition "
+        "and use-case classifier of the scenario's validation section. RUN is a run folder (as written "
+        "by simulate) or a black-box file. Exits 0 if every condition holds, 1 if one is violated.",
+    )
+    chk.add_argument("run", type=Path, help="run folder or blackbox.sqlite")
+    chk.add_argument(
+        "--scenario", type=Path, help="check against this scenario's conditions (default: the run's scenario.yaml)"
+    )
+    chk.add_argument("--json", action="store_true", help="print the verdicts as JSON on standard output")
+    chk.add_argument(
+        "--export-trace", type=Path, metavar="FILE", help="also write the trace as JSON: {variable: [[t, value], ...]}"
+    )
+    chk.set_defaults(handler=run)
+
+
+def run(args) -> int:
+    import json
+
+    from cellsim.scenario import load_scenario
+    from cellsim.services.blackbox import BlackBoxError
+    from cellsim.validation.check import CheckError, check_run
+    from cellsim.validation.config import description_of
+    from cellsim.validation.traces import TraceError, write_trace_json
+
+    try:
+        sf = load_scenario(args.scenario) if args.scenario else None
+        checked = check_run(args.run, sf)
+    except (CheckError, BlackBoxError, TraceError) as e:
+        raise InputError(str(e)) from None
+    result = checked.result
+    if args.export_trace:
+        write_trace_json(checked.trace, args.export_trace)
+    if args.json:
+        json.dump(
+            {
+                "run": str(args.run),
+                "holds": result.all_hold,
+                "complete": checked.trace.complete,
+                "verdicts": result.verdicts_json(),
+                "descriptions": {n: description_of(c) for n, c in {**checked.case.validation.conditions,
+                                                                      **checked.case.validation.use_cases}.items()
+                                 if description_of(c)},
+                "violations": result.violations,
+                "undecided": result.undecided,
+                "use_cases": result.use_cases,
+                "coverage": result.coverage,
+            },
+            sys.stdout,
+            indent=2,
+        )
+        sys.stdout.write("\n")
+    else:
+        print_verdicts(args.run, checked)
+    return EXIT_OK if result.all_hold else EXIT_FINDING
+
+
+def print_verdicts(run: Path, checked) -> None:
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    from cellsim.validation.config import description_of, formula_of
+
+    result, conditions = checked.result, checked.case.validation.conditions
+    table = Table(title=f"Safety conditions on {run}", title_justify="left")
+    table.add_column("condition", style="bold")
+    table.add_column("verdict")
+    table.add_column("first violation")
+    table.add_column("formula", style="dim")
+    for name, verdict in result.verdicts.items():
+        mark = {"holds": "[green]holds[/green]", "violated": "[red]VIOLATED[/red]"}.get(
+            verdict.status, f"[yellow]{verdict.describe()}[/yellow]"
+        )
+        when = "" if verdict.violated_at is None or verdict.holds else f"t = {instant(verdict.violated_at)}"
+        description = description_of(conditions[name])
+        table.add_row(name, mark, when,
+                      escape(formula_of(conditions[name])) + (f"\n[italic]{escape(description)}[/italic]" if description else ""))
+    console = Console()
+    if not checked.trace.complete:
+        console.print(
+            f"[yellow]the run did not complete: its record ends at t = {instant(checked.trace.trace.end)}; "
+            "verdicts that a longer run could change are inconclusive[/yellow]"
+        )
+    console.print(table)
+    for name, verdict in result.verdicts.items():  # pytest-style: each violation and why
+        if verdict.explanation:
+            console.print(f"[red]{escape(name)}[/red] violated at {instant(verdict.violated_at)}: {escape(verdict.explanation)}",
+                          highlight=False)
+    use_cases = checked.case.validation.use_cases
+    console.print(f"use cases exercised: {', '.join(result.use_cases) or 'none'}")
+    for name in result.use_cases:
+        if description_of(use_cases[name]):
+            console.print(f"  {escape(name)}: [italic]{escape(description_of(use_cases[name]))}[/italic]", highlight=False)
+    console.print(_conditions_line(result))
+
+
+def _conditions_line(result) -> str:
+    """'all 14 conditions hold', or what keeps them from holding (also in simulate's summary)."""
+    total = len(result.verdicts)
+    if result.all_hold:
+        return f"all {total} conditions hold"
+    parts = []
+    if result.violations:
+        parts.append(f"[red]{len(result.violations)} of {total} conditions violated: {', '.join(result.violations)}[/red]")
+    if result.undecided:
+        parts.append(f"[yellow]{len(result.undecided)} undecided (inconclusive or missing data): {', '.join(result.undecided)}[/yellow]")
+    return "; ".join(parts)

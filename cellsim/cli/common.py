@@ -1,0 +1,143 @@
+"""What the commands of ``cellsim`` share: exit codes, the input error, common options and helpers.
+
+Light to import: ``cellsim --help`` and ``--version`` load this and every command's module, and
+none of them may pull in Drake, Zenoh or rich at import time (each imports those in the
+function that needs them).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import signal
+from datetime import datetime
+from pathlib import Path
+
+EXIT_OK, EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_CODES = "Exit codes: 0 ok, 1 safety finding, 2 usage or input error, 130 interrupted."
+
+
+class InputError(Exception):
+    """Bad input found by the CLI itself (the message is the whole story)."""
+
+
+@contextlib.contextmanager
+def _interrupt_deferred():
+    """Act on Ctrl-C only once the block is done (then as KeyboardInterrupt)."""
+    interrupted = []
+    previous = signal.signal(signal.SIGINT, lambda *_: interrupted.append(True))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if interrupted:
+        raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt():
+    """SIGTERM ends a live process as Ctrl-C does: the black box is closed cleanly."""
+    def on_term(*_):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, on_term)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _end_with_exit_codes(parser: argparse.ArgumentParser) -> None:
+    """Every command's --help ends with the exit codes (a command's own description says when it exits 1)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                sub.epilog = sub.epilog or EXIT_CODES
+                _end_with_exit_codes(sub)
+
+
+def _add_set(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="PATH=VALUE",
+        help="override a configuration point, e.g. operator.waypoints.cell.wait=4 (repeatable)",
+    )
+
+
+def _add_network_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                        help="Zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    parser.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                        help="Zenoh endpoint to connect to (repeatable)")
+    parser.add_argument("--config", type=Path, metavar="FILE", help="a Zenoh JSON5 configuration for anything more")
+
+
+def _add_live_args(parser: argparse.ArgumentParser, duration_default: str) -> None:
+    parser.add_argument("--out", type=Path, help="output folder (default: runs/<scenario>-<process>-<date-time>)")
+    parser.add_argument("--duration", type=float, help=f"seconds to run (default: {duration_default})")
+    parser.add_argument("--seed", type=int, help="random seed (default: the scenario's seed)")
+    _add_set(parser)
+    _add_network_args(parser)
+    parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
+
+
+def _load(args):
+    from cellsim.scenario import load_scenario
+
+    return load_scenario(args.scenario, args.overrides)
+
+
+def _open_session(args, listen_by_default: bool, wait: float = 30.0):
+    import zenoh
+
+    from cellsim.live.session import session_config
+
+    config = session_config(
+        listen=args.listen, connect=args.connect, config_file=args.config, listen_by_default=listen_by_default, wait=wait
+    )
+    try:
+        return zenoh.open(config)
+    except Exception as e:  # noqa: BLE001 - zenoh raises ZError with a long text
+        raise InputError(f"cannot open a Zenoh session (is the twin running?): {' '.join(str(e).split())[:200]}") from None
+
+
+def _live_run(args, process: str, listen_by_default: bool, run, check=None):
+    """A live process (the twin, the emulator): load, check, open the session, ``run(sf, out, session, duration)``."""
+    from cellsim.scenario import MAX_DURATION, check_run_length, check_seed
+
+    sf = _load(args)
+    if check is not None:
+        check(sf)  # before any session is opened
+    duration = MAX_DURATION if args.duration is None else args.duration
+    check_run_length(sf, duration, "--duration")
+    if args.seed is not None:
+        check_seed(args.seed, "--seed")
+    out = args.out or Path("runs") / f"{sf.scenario.name}-{process}-{datetime.now():%Y%m%d-%H%M%S}"
+    session = _open_session(args, listen_by_default)
+    try:
+        with _terminate_as_interrupt():
+            return run(sf, out, session, duration)
+    finally:
+        session.close()
+
+
+def _can_bus_spec(text: str, option: str) -> tuple[str, str]:
+    """(interface, channel) of an INTERFACE:CHANNEL argument."""
+    interface, sep, channel = text.partition(":")
+    if not sep or not interface or not channel:
+        raise InputError(f"{option} {text!r}: expected INTERFACE:CHANNEL, e.g. socketcan:can0")
+    return interface, channel
+
+
+def _open_can_bus(text: str | None, default: tuple[str, str] | None = None, option: str = "--can"):
+    """A python-can bus for INTERFACE:CHANNEL (or the default pair), or one clear error."""
+    import can
+
+    interface, channel = _can_bus_spec(text, option) if text else default
+    try:
+        return can.Bus(interface=interface, channel=channel)
+    except Exception as e:  # noqa: BLE001 - python-can raises many kinds for a bus it cannot open
+        raise InputError(f"cannot open CAN bus {interface}:{channel}: {' '.join(str(e).split())[:200]}") from None

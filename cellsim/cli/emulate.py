@@ -1,0 +1,112 @@
+"""``cellsim emulate``: play the physical cell in real time where no hardware is.
+
+The grammar of ``--fault`` and ``--rate`` and the rules for which fault applies where are
+``cellsim.live.faults``'s, beside the emulator; here they become input errors (exit 2).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from cellsim.cli.common import (
+    EXIT_FINDING,
+    EXIT_OK,
+    InputError,
+    _add_live_args,
+    _can_bus_spec,
+    _live_run,
+    _open_can_bus,
+)
+
+
+def add_parser(subparsers) -> None:
+    emu = subparsers.add_parser(
+        "emulate",
+        help="play the physical cell in real time where no hardware is",
+        description="Run the scenario's devices as their digital models, in real time, with the "
+        "scenario's own safety controller, and publish each entity's state on its physical key in the "
+        "format the twin reads. Keeps its own black box (the ground truth). By default it connects to "
+        "tcp/127.0.0.1:7447.",
+    )
+    emu.add_argument("scenario", type=Path, help="scenario YAML file")
+    _add_live_args(emu, duration_default="until interrupted")
+    emu.add_argument(
+        "--fault", action="append", default=[], metavar="ENTITY=KIND[@T0[-T1]]",
+        help="inject a fault from simulated time T0 (default 0) to T1 (default: the end): silence, freeze, "
+        "corrupt, delay or replay on Zenoh; drop, crc, replay, length, flood or delay for a device on CAN (repeatable)",
+    )
+    emu.add_argument(
+        "--can", metavar="INTERFACE:CHANNEL",
+        help="speak the real protocols: the cell's CAN devices send protected frames on this bus (e.g. "
+        "remote:ws://127.0.0.1:54701/), its robot controllers stream their state, all for the bridge daemon",
+    )
+    emu.add_argument(
+        "--bridge", type=Path, metavar="FILE",
+        help="with --can: the bridge configuration naming the devices and their DBC "
+        "(default: bridges/<scenario file name> beside the scenario's folder)",
+    )
+    emu.add_argument(
+        "--commanded-by-twin", action="store_true",
+        help="no safety controller of its own: the inputs it drove take the commands of the twin's entities in twin "
+        "mode (with no command for stale_after, a safety-mode request reads stopped)",
+    )
+    emu.add_argument(
+        "--rate", action="append", default=[], metavar="ENTITY=HZ",
+        help="publish an entity's samples this often instead of once per update period, e.g. robot=500 (repeatable)",
+    )
+    emu.set_defaults(handler=run)
+
+
+def run(args) -> int:
+    from cellsim.live.emulator import run_emulator
+    from cellsim.live.faults import FaultError, check_entities, check_faults, parse_fault, parse_rate
+
+    loaded = None
+    if args.can:
+        from bridges.config import load_bridge
+
+        bridge = args.bridge or args.scenario.resolve().parent.parent / "bridges" / args.scenario.name
+        if not bridge.is_file():
+            raise InputError(f"--can needs the cell's bridge configuration (its devices and DBC): no {bridge}; "
+                             "name it with --bridge FILE")
+        loaded = load_bridge(bridge)
+        _can_bus_spec(args.can, "--can")
+    elif args.bridge:
+        raise InputError("--bridge is for --can: name the CAN bus the devices speak on")
+    try:
+        faults = [parse_fault(text) for text in args.fault]
+        rates = dict(parse_rate(text) for text in args.rate)
+    except FaultError as e:
+        raise InputError(str(e)) from None
+
+    def check(sf):
+        entities = sf.scenario.entities
+        try:
+            check_entities(faults, rates, entities)
+            if loaded is not None and loaded.config.cell != sf.scenario.name:
+                raise InputError(f"--bridge {loaded.source}: it is the bridge of cell '{loaded.config.cell}', "
+                                 f"not of '{sf.scenario.name}'")
+            check_faults(faults, entities, set(loaded.config.devices) if loaded is not None else None)
+        except FaultError as e:
+            raise InputError(str(e)) from None
+
+    def emulator(sf, out, session, duration):
+        devices = bus = None
+        if loaded is not None:
+            from bridges.devices import EmulatedDevices
+
+            bus = _open_can_bus(args.can)
+            devices = EmulatedDevices(loaded, bus, session)
+        try:
+            if not args.quiet:
+                on = f" on {args.can}" if bus is not None else ""
+                print(f"cellsim emulate: playing the physical {sf.scenario.name}{on}, recording to {out}", file=sys.stderr)
+            summary, _ = run_emulator(sf, out, session=session, duration=duration, seed=args.seed, faults=faults,
+                                      commanded_by_twin=args.commanded_by_twin, rates=rates, devices=devices)
+        finally:
+            if bus is not None:
+                bus.shutdown()
+        return EXIT_FINDING if summary.mishap else EXIT_OK
+
+    return _live_run(args, "emulator", False, emulator, check)

@@ -1,0 +1,44 @@
+"""``cellsim live``: run the twin in real time beside the real cell, on Zenoh."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from cellsim.cli.common import EXIT_FINDING, EXIT_OK, InputError, _add_live_args, _live_run
+
+
+def add_parser(subparsers) -> None:
+    live = subparsers.add_parser(
+        "live",
+        help="run the twin in real time beside the real cell, on Zenoh",
+        description="Run the scenario's twin paced to the wall clock. Entities in shadow or twin mode "
+        "take their physical samples from Zenoh (cellsim/<cell>/physical/<entity>); commands of entities in "
+        "twin mode are published (cellsim/<cell>/command/<entity>); every channel is published "
+        "(cellsim/<cell>/twin/...). `cellsim twin-mode` switches an entity while it runs. The black box "
+        "is recorded as in any run. Key space and formats: docs/live.md. By default it listens on "
+        "tcp/127.0.0.1:7447, with multicast scouting off.",
+    )
+    live.add_argument("scenario", type=Path, help="scenario YAML file")
+    _add_live_args(live, duration_default="until interrupted")
+    live.add_argument(
+        "--wait-physical", type=float, default=10.0, metavar="SECONDS",
+        help="before starting the clock, wait this long at most for samples of every entity in shadow or twin mode (default 10)",
+    )
+    live.set_defaults(handler=run)
+
+
+def run(args) -> int:
+    from cellsim.live.twin import run_live
+
+    def check(sf):
+        if not 0.0 <= args.wait_physical <= 3600.0:
+            raise InputError(f"--wait-physical {args.wait_physical:g}: expected 0 to 3600 seconds")
+
+    def twin(sf, out, session, duration):
+        if not args.quiet:
+            print(f"cellsim live: {sf.scenario.name} twin running, recording to {out}", file=sys.stderr)
+        summary, _ = run_live(sf, out, session=session, duration=duration, seed=args.seed, wait_physical=args.wait_physical)
+        return EXIT_FINDING if summary.mishap else EXIT_OK
+
+    return _live_run(args, "twin", True, twin, check)

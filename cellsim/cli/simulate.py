@@ -1,0 +1,162 @@
+"""``cellsim simulate``: run a scenario headless and record its black box."""
+
+from __future__ import annotations
+
+import sys
+from datetime import datetime
+from pathlib import Path
+
+from cellsim.cli.check import _conditions_line
+from cellsim.cli.common import EXIT_FINDING, EXIT_OK, InputError, _add_set, _load
+from cellsim.numbers import measure
+
+
+def add_parser(subparsers) -> None:
+    sim = subparsers.add_parser(
+        "simulate",
+        help="run a scenario headless and record its black box",
+        description="Simulate a scenario (far faster than real time unless --meshcat) and write "
+        "OUT/blackbox.sqlite (every message) and OUT/scenario.yaml (the resolved scenario). "
+        "Exits 1 if a hazard reached its mishap phase or a safety condition does not hold on the run.",
+    )
+    sim.add_argument("scenario", type=Path, help="scenario YAML file")
+    sim.add_argument("--duration", type=float, help="simulated seconds (default: the scenario's duration)")
+    sim.add_argument("--seed", type=int, help="random seed (default: the scenario's seed)")
+    sim.add_argument("--out", type=Path, help="output folder (default: runs/<scenario>-<date-time>)")
+    sim.add_argument("--overwrite", action="store_true", help="replace a run already in --out")
+    _add_set(sim)
+    sim.add_argument(
+        "--meshcat", action="store_true",
+        help="show the cell in Meshcat (a browser, on localhost) at real-time speed; after the run, Enter closes it "
+        "(without a terminal it closes when the run ends)",
+    )
+    sim.add_argument(
+        "--meshcat-wait", type=float, default=None, metavar="SECONDS",
+        help="with --meshcat: seconds to wait for a browser to open Meshcat before simulating anyway (default: 60 "
+        "on a terminal, 0 without one, e.g. in a script; 0: do not wait)",
+    )
+    sim.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    sim.set_defaults(handler=run)
+
+
+def run(args) -> int:
+    from rich.console import Console
+
+    from cellsim.scenario import check_run_length, check_seed
+    from cellsim.simulation import simulate
+
+    sf = _load(args)
+    if args.duration is not None:
+        check_run_length(sf, args.duration, "--duration")
+    if args.seed is not None:
+        check_seed(args.seed, "--seed")
+    out = args.out or Path("runs") / f"{sf.scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"
+    console = Console(stderr=True, quiet=args.quiet)
+    meshcat = on_start = None
+    if args.meshcat:
+        from cellsim.visual.serve import WAIT_DEFAULT, open_meshcat, wait_for_browser
+
+        wait = args.meshcat_wait
+        if wait is None:
+            wait = WAIT_DEFAULT if sys.stdin is not None and sys.stdin.isatty() else 0.0
+        if not (0.0 <= wait <= 3600.0):
+            raise InputError(f"--meshcat-wait {wait:g}: expected 0 to 3600 seconds")
+        meshcat = open_meshcat()
+        console.print(f"Meshcat: [link={meshcat.web_url()}]{meshcat.web_url()}[/link]")
+        on_start = lambda: wait_for_browser(meshcat, wait, console.print)  # noqa: E731
+    try:
+        with _progress(console, args.quiet) as report:
+            summary = simulate(
+                sf,
+                out,
+                seed=args.seed,
+                duration=args.duration,
+                overwrite=args.overwrite,
+                meshcat=meshcat,
+                realtime_rate=1.0 if meshcat else 0.0,
+                on_progress=report,
+                on_start=on_start,
+            )
+        checked = _check_of(summary)
+        if not args.quiet:
+            print_summary(summary, checked)
+        if meshcat is not None and sys.stdin is not None and sys.stdin.isatty():
+            from cellsim.visual.serve import serve_until_closed
+
+            serve_until_closed(meshcat, console.print)
+    finally:
+        if meshcat is not None:
+            del meshcat
+    return EXIT_FINDING if summary.mishap or (checked is not None and not checked.all_hold) else EXIT_OK
+
+
+class _progress:
+    """A transient progress bar of simulated time on an interactive terminal."""
+
+    def __init__(self, console, quiet: bool):
+        self.console, self.enabled = console, not quiet and console.is_terminal
+        self.bar = None
+
+    def __enter__(self):
+        if not self.enabled:
+            return None
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self.bar = Progress(
+            TextColumn("simulating"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
+            TimeElapsedColumn(), console=self.console, transient=True,
+        )
+        self.bar.start()
+        self.task = None
+        return self.report
+
+    def report(self, t: float, total: float) -> None:
+        if self.task is None:
+            self.task = self.bar.add_task("sim", total=total)
+        self.bar.update(self.task, completed=t)
+
+    def __exit__(self, *exc):
+        if self.bar is not None:
+            self.bar.stop()
+
+
+def _check_of(summary):
+    """The run's check result, or None when the scenario has no safety conditions."""
+    from cellsim.services.blackbox import BlackBox
+    from cellsim.simulation import BLACKBOX
+    from cellsim.validation.traces import trace_of_run
+
+    case = summary.safety_case
+    if case is None:
+        return None
+    with BlackBox(Path(summary.out_dir) / BLACKBOX) as bb:
+        run = trace_of_run(bb, case.validation.variables)
+    return case.check(run.trace, complete=run.complete)
+
+
+def print_summary(summary, checked=None) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console()
+    table = Table(title=f"Run {summary.out_dir}", show_header=False, title_justify="left")
+    table.add_column(style="bold")
+    table.add_column()
+    table.add_row("status", summary.status)
+    table.add_row("seed", str(summary.seed))
+    table.add_row("work cycles completed", str(summary.cycles_completed))
+    for name, counts in summary.hazards.items():
+        verdict = f"raised {counts.raised}, handled {counts.handled}"
+        if counts.mishaps:
+            verdict += f", [red]MISHAPS {counts.mishaps}[/red]"
+        table.add_row(f"hazard {name}", verdict)
+    table.add_row("final safety mode", summary.final_safety_mode or "-")
+    if checked is not None:
+        line = _conditions_line(checked)
+        table.add_row("safety conditions", line if checked.all_hold else f"{line} (details: cellsim check {summary.out_dir})")
+        table.add_row("use cases exercised", ", ".join(checked.use_cases) or "none")
+    table.add_row("simulated time", measure(summary.sim_time, "s"))
+    table.add_row("wall time", measure(summary.wall_time, "s"))
+    table.add_row("real-time factor", measure(summary.real_time_factor, "x"))
+    table.add_row("black box", str(Path(summary.out_dir) / "blackbox.sqlite"))
+    console.print(table)
