@@ -1,23 +1,22 @@
-"""Tests for cellsim.campaign.report: the self-contained HTML campaign report."""
+"""Tests for cellsim.campaign.report: the self-contained HTML campaign report, as written.
+
+What the page holds before any script runs: its sections, escaped text, the script's data
+and the places where the script draws timelines. The timelines themselves are drawn by the
+page's script and tested in a browser (tests/test_report_browser.py).
+"""
 
 from __future__ import annotations
 
 import copy
+import json
 import os
+import re
 from html.parser import HTMLParser
+from importlib import resources
 
 import pytest
 
-from cellsim.campaign.report import (
-    PHASE_COLOURS,
-    MIN_PIECE_WIDTH,
-    PLOT_LEFT,
-    PLOT_WIDTH,
-    pieces,
-    render_report,
-    time_to_x,
-    write_report,
-)
+from cellsim.campaign.report import BOOL_COLOURS, PHASE_COLOURS, render_report, write_report
 
 DURATION = 30.0
 VOID = {"meta", "br", "hr", "img", "input", "link", "col", "area", "base", "wbr", "source"}
@@ -97,6 +96,7 @@ class Collector(HTMLParser):
         self.errors: list[str] = []
         self.elements: list[tuple[str, dict, tuple[str, ...]]] = []  # (tag, attrs, ancestors)
         self.text: list[str] = []
+        self.raw: dict[str, list[str]] = {}  # script and style contents, by tag
 
     def handle_starttag(self, tag, attrs):
         self.elements.append((tag, dict(attrs), tuple(self.stack)))
@@ -113,7 +113,10 @@ class Collector(HTMLParser):
             self.stack.pop()
 
     def handle_data(self, data):
-        self.text.append(data)
+        if self.stack and self.stack[-1] in ("script", "style"):
+            self.raw.setdefault(self.stack[-1], []).append(data)
+        else:
+            self.text.append(data)
 
 
 def parse(page: str) -> Collector:
@@ -133,33 +136,57 @@ def parsed(page) -> Collector:
     return parse(page)
 
 
-def run_svg_elements(parsed: Collector, index: int) -> list[tuple[str, dict]]:
-    """The elements inside the SVG of the section ``timeline-<index>`` (a run drawn in full)."""
-    inside, out = False, []
-    for tag, attrs, ancestors in parsed.elements:
-        if tag == "section" and attrs.get("id") == f"timeline-{index}":
-            inside, depth = True, len(ancestors)
-            continue
-        if inside and len(ancestors) <= depth:
-            break
-        if inside and "svg" in ancestors:
-            out.append((tag, attrs))
-    return out
+def script_data(page: str) -> dict:
+    """The JSON the page's script draws from (the ``report-data`` block)."""
+    start = page.index('id="report-data">') + len('id="report-data">')
+    return json.loads(page[start:page.index("</script>", start)])
+
+
+def markup(page: str) -> str:
+    """The page without its scripts: what is there before any script runs."""
+    return page[:page.index('<script type="application/json" id="report-data">')]
+
+
+def section(page: str, ident: str) -> str:
+    """The markup of the section ``ident``, up to its first nested section's end or its own."""
+    start = page.index(f'id="{ident}"')
+    return page[start:page.index("</section>", start)]
 
 
 def test_page_parses_and_tags_balance(parsed):
     assert parsed.errors == []
     assert parsed.stack == []
     tags = [t for t, _, _ in parsed.elements]
-    for tag in ("html", "head", "body", "main", "table", "svg"):
+    for tag in ("html", "head", "body", "main", "table", "svg", "style", "script"):
         assert tag in tags
 
 
-def test_page_is_self_contained(page):
-    for needle in ("http://", "https://", "src=", "<link"):
+def test_page_is_self_contained(page, parsed):
+    for needle in ("src=", "<link", "url(", "@import", "https://"):
         assert needle not in page
-    # scripts only inline: the page's data and the code that sorts, filters and draws
-    assert page.count("<script") == 2 and '<script type="application/json" id="report-data">' in page
+    # the only address is the SVG namespace the script creates elements in; it is never fetched
+    assert set(re.findall(r"http://[^\s\"'<>]*", page)) == {"http://www.w3.org/2000/svg"}
+    # scripts only inline: the page's data and the code that draws, sorts and filters
+    scripts = [a for t, a, _ in parsed.elements if t == "script"]
+    assert scripts == [{"type": "application/json", "id": "report-data"}, {}]
+
+
+def test_the_style_and_the_script_are_the_packages_own_files_inlined(parsed):
+    """report.css and report.js are package data, put into the page as they are (no copy in Python)."""
+    static = resources.files("cellsim.campaign").joinpath("static")
+    assert parsed.raw["style"] == [static.joinpath("report.css").read_text(encoding="utf-8")]
+    assert parsed.raw["script"][1] == static.joinpath("report.js").read_text(encoding="utf-8")
+    templates = resources.files("cellsim.campaign").joinpath("templates")
+    assert templates.joinpath("report.html.j2").is_file()
+
+
+def test_no_timeline_is_drawn_in_python_the_script_draws_each_in_its_place(page, parsed):
+    """One renderer: the page holds no timeline SVG, only the places the script draws the shown runs in."""
+    assert "<svg class=\"timeline\"" not in page and 'class="piece"' not in page
+    slots = [(a.get("data-draw"), ancestors) for t, a, ancestors in parsed.elements if a.get("data-draw") is not None]
+    assert [s for s, _ in slots] == ["1"]
+    assert 'data-draw="1"' in section(page, "timeline-1")
+    assert "report.js" not in page  # inlined, not linked
 
 
 def test_header_badge_and_summary(page):
@@ -168,6 +195,7 @@ def test_header_badge_and_summary(page):
     assert "welding_cell" in page and "2026-11-21T10:00:00Z" in page
     for stage in ("simulate", "trace", "check", "coverage", "wall"):
         assert f"<th>{stage}</th>" in page
+    assert '<th>Coverage</th><td class="num" id="coverage-figure">75.0%</td>' in page
 
 
 def test_no_violations_badge():
@@ -175,81 +203,23 @@ def test_no_violations_badge():
     results["runs"] = [results["runs"][0]]
     page = render_report(results, {})
     assert "no violations" in page
-    assert 'id="timeline-' not in page
+    assert 'id="timeline-' not in page and "data-draw=" not in markup(page)
+    assert "No violating runs" in section(page, "timelines")
     assert parse(page).errors == []
 
 
-def test_violating_run_has_timeline_section(parsed):
+def test_violating_run_has_timeline_section(parsed, page):
     sections = [a for t, a, _ in parsed.elements if t == "section" and a.get("id", "").startswith("timeline-")]
     assert [s["id"] for s in sections] == ["timeline-1"]
-    elements = run_svg_elements(parsed, 1)
-    assert elements, "no svg in timeline-1"
+    shown = section(page, "timeline-1")
+    assert "<strong>HC:not_mis</strong> violated at 12.34 s" in shown
+    assert "Run folder: <code>runs/0001</code>" in shown
 
 
 def test_first_violating_runs_link_to_their_rows_and_every_run_has_one(parsed, page):
     assert '<a href="#run-1">1</a>' in page
     rows = [a["id"] for t, a, _ in parsed.elements if t == "tr" and a.get("id", "").startswith("run-")]
     assert rows == ["run-0", "run-1", "run-2"]
-
-
-def test_pieces_cut_merge_and_clip():
-    assert pieces(HS_TRACE, DURATION) == [
-        (0.0, 4.0, "inact"), (4.0, 4.5, "act"), (4.5, 12.0, "mit"), (12.0, 14.0, "res"), (14.0, 30.0, "inact"),
-    ]
-    assert pieces(TIMELINE["lgtBar"], DURATION)[-1] == (11.0, 30.0, False)
-    assert pieces([[-1.0, "a"], [2.0, "b"]], 10.0) == [(0.0, 2.0, "a"), (2.0, 10.0, "b")]
-    assert pieces([], 10.0) == []
-
-
-@pytest.mark.parametrize("var", ["safmod", "HS", "HC", "lgtBar", "oloc"])
-def test_one_rect_per_defined_piece(parsed, var):
-    rects = [a for t, a in run_svg_elements(parsed, 1) if t == "rect" and a.get("class") == "piece"
-             and a.get("data-var") == var]
-    expected = [p for p in pieces(TIMELINE[var], DURATION) if p[2] is not None]
-    assert len(rects) == len(expected)
-    assert var != "HS" or len(rects) == HS_PIECES
-    for rect, (t0, t1, _) in zip(rects, expected, strict=True):
-        assert float(rect["x"]) == pytest.approx(time_to_x(t0, DURATION), abs=0.01)
-        width = max(time_to_x(t1, DURATION) - time_to_x(t0, DURATION), MIN_PIECE_WIDTH)
-        assert float(rect["width"]) == pytest.approx(width, abs=0.02)
-
-
-def test_piece_colours_and_tooltips(parsed, page):
-    hs = [a for t, a in run_svg_elements(parsed, 1) if t == "rect" and a.get("data-var") == "HS"]
-    assert [r["fill"] for r in hs] == [PHASE_COLOURS[v] for v in ("inact", "act", "mit", "res", "inact")]
-    hc = [a for t, a in run_svg_elements(parsed, 1) if t == "rect" and a.get("data-var") == "HC"]
-    assert hc[-1]["fill"] == PHASE_COLOURS["mis"]
-    lgt = [a["fill"] for t, a in run_svg_elements(parsed, 1) if t == "rect" and a.get("data-var") == "lgtBar"]
-    assert lgt[0] == lgt[2] != lgt[1]
-    assert "<title>HS = mit from 4.50 s to 12.00 s</title>" in page
-
-
-def test_numeric_variable_is_a_step_plot(parsed, page):
-    elements = run_svg_elements(parsed, 1)
-    assert not [a for t, a in elements if t == "rect" and a.get("data-var") == "speed"]
-    lines = [a for t, a in elements if t == "polyline" and a.get("data-var") == "speed"]
-    assert len(lines) == 1
-    assert len(lines[0]["points"].split()) == 2 * 3
-    labels = [a for t, a in elements if t == "text" and a.get("class") == "y-label"]
-    assert len(labels) == 2  # an axis: its top and bottom values
-    assert ">1.50<" in page and ">0<" in page
-
-
-def test_violation_marker_at_violation_time(parsed):
-    # Axis mapping (module docstring): x = PLOT_LEFT + PLOT_WIDTH * t / duration.
-    expected = PLOT_LEFT + PLOT_WIDTH * 12.34 / DURATION
-    assert time_to_x(12.34, DURATION) == pytest.approx(expected)
-    markers = [a for t, a in run_svg_elements(parsed, 1) if t == "line" and a.get("class") == "violation"]
-    assert len(markers) == 1
-    assert markers[0]["data-condition"] == "HC:not_mis"
-    assert markers[0]["x1"] == markers[0]["x2"] == f"{expected:.2f}"
-
-
-def test_ticks_every_five_seconds(parsed):
-    ticks = [a for t, a in run_svg_elements(parsed, 1) if t == "line" and a.get("class") == "tick"]
-    assert [float(a["x1"]) for a in ticks] == pytest.approx(
-        [time_to_x(t, DURATION) for t in range(0, 31, 5)], abs=0.01
-    )
 
 
 def test_data_strings_are_escaped(page):
@@ -262,10 +232,11 @@ def test_data_strings_are_escaped(page):
 def test_missing_situations_and_coverage(page):
     assert "<li>wact=off, oloc=inCell</li>" in page
     assert "5/6" in page and "83.3%" in page
+    assert "Overall: " in section(page, "coverage")
 
 
 def test_failed_run_error_shown(page):
-    assert "solver diverged &lt;at&gt; t=3 &amp; beyond" in page
+    assert 'title="solver diverged &lt;at&gt; t=3 &amp; beyond"' in page
 
 
 def test_runs_table_rows_and_rerun(parsed, page):
@@ -274,11 +245,10 @@ def test_runs_table_rows_and_rerun(parsed, page):
     assert "failed" in rows
     verdicts = [a.get("data-verdict") for t, a, _ in parsed.elements if t == "tr" and a.get("data-verdict")]
     assert verdicts == ["holds", "violated", "failed"]
-    timeline = page[page.index('id="timeline-1"'):]
-    assert "runs/0001/scenario.yaml --out rerun1" in timeline
+    assert '<tr id="run-1" data-run="1" data-verdict="violated" class="violating">' in page
+    assert "runs/0001/scenario.yaml --out rerun1" in section(page, "timeline-1")
     # a passing run's re-run command waits in the page's data, for when its row is opened
-    body = page[:page.index('id="report-data"')]
-    assert "--out rerun0" not in body and "--out rerun0" in page
+    assert "--out rerun0" not in markup(page) and script_data(page)["runs"]["0"]["rerun"].endswith("--out rerun0")
     assert '<a href="runs/0001/blackbox.sqlite">black box</a>' in page
     assert '<a href="runs/0001/scenario.yaml">scenario</a>' in page
 
@@ -289,10 +259,13 @@ def test_missing_optional_keys_and_string_keys():
     page = render_report(minimal, {"0": {"x": [[0, "a"], [0.5, "b"]]}})
     parsed = parse(page)
     assert parsed.errors == [] and parsed.stack == []
-    assert 'id="run-0"' in page and 'id="timeline-0"' in page
-    assert len([a for t, a in run_svg_elements(parsed, 0) if t == "rect" and a.get("class") == "piece"]) == 2
+    assert 'id="run-0"' in page and 'id="timeline-0"' in page and 'data-draw="0"' in page
+    data = script_data(page)
+    assert data["runs"]["0"]["trace"] == {"x": [[0, 500], ["a", "b"]]}
+    assert data["duration"] == 1.0  # no campaign duration: the last sample's time, at least 1 s
     without = render_report(minimal, {})
-    assert "No trace available" in without[:without.index('id="report-data"')]
+    assert "No trace available" in section(without, "timeline-0")
+    assert "data-draw=" not in markup(without)
 
 
 def test_write_report_is_atomic(tmp_path):
@@ -303,7 +276,7 @@ def test_write_report_is_atomic(tmp_path):
     assert os.listdir(tmp_path) == ["report.html"]
     write_report(target, RESULTS, {})
     written = target.read_text(encoding="utf-8")
-    assert "No trace available" in written[:written.index('id="report-data"')]
+    assert "No trace available" in section(written, "timeline-1")
     assert os.listdir(tmp_path) == ["report.html"]
 
 
@@ -321,78 +294,91 @@ def test_write_report_failure_keeps_old_file(tmp_path, monkeypatch):
     assert os.listdir(tmp_path) == ["report.html"]
 
 
+def test_the_scripts_data_holds_each_runs_compact_trace_verdicts_and_the_pages_colours(page):
+    data = script_data(page)
+    assert data["duration"] == DURATION
+    assert set(data["runs"]) == {"0", "1", "2"}
+    run = data["runs"]["1"]
+    # times as steps in ms from the previous sample; the repeated "act" is dropped
+    assert run["trace"]["HS"] == [[0, 4000, 500, 7500, 2000], ["inact", "act", "mit", "res", "inact"]]
+    assert run["trace"]["lgtBar"] == [[0, 10000, 1000, 20000], ["false", "true", "false", "true"]]  # 31 s: clipped when drawn
+    assert run["trace"]["oloc"] == [[0, 2000, 18000], [None, "inCell", "none"]]
+    steps, values, extremes = run["trace"]["speed"]  # numeric: values and their exact extremes for the axis
+    assert steps == [0, 3000, 6000] and values == [0.0, 0.25, 1.5] and extremes == [0.0, 1.5]
+    assert run["violations"] == [["HC:not_mis", 12.34, None]]
+    assert data["runs"]["0"]["trace"] is None and data["runs"]["2"]["error"] == "solver diverged <at> t=3 & beyond"
+    assert data["kinds"] == {"safmod": "enum", "HS": "phase", "HC": "phase", "lgtBar": "bool", "oloc": "enum", "speed": "numeric"}
+    assert data["colours"]["HS"] == {v: PHASE_COLOURS[v] for v in ("act", "inact", "mit", "res")}
+    assert data["colours"]["lgtBar"] == {"true": BOOL_COLOURS[True], "false": BOOL_COLOURS[False]}
+    assert data["groups"] == [["Safety mode", ["safmod"]], ["Hazard phases", ["HS", "HC"]], ["Sensors", ["lgtBar"]],
+                              ["Operator", ["oloc"]], ["Other variables", ["speed"]]]
+
+
+def test_a_trace_out_of_time_order_is_put_in_order_for_the_script():
+    page = render_report(RESULTS, {1: {"x": [[5.0, "b"], [0.0, "a"]], "v": [[2.0, 3.0], [0.0, 1.0]]}})
+    trace = script_data(page)["runs"]["1"]["trace"]
+    assert trace["x"] == [[0, 5000], ["a", "b"]]
+    assert trace["v"][:2] == [[0, 2000], [1.0, 3.0]]
+
+
+def test_the_data_block_cannot_be_ended_by_a_string_of_the_data(page):
+    results = copy.deepcopy(RESULTS)
+    results["runs"][1]["rerun"] = "x </script><script>alert(1)</script> <!-- & y"
+    page = render_report(results, {1: TIMELINE})
+    start = page.index('id="report-data">') + len('id="report-data">')
+    block = page[start:page.index("</script>", start)]
+    assert "<" not in block and ">" not in block and "&" not in block
+    assert json.loads(block)["runs"]["1"]["rerun"] == results["runs"][1]["rerun"]
+
+
 def test_a_cells_own_hazard_phases_get_the_hazard_lanes_and_colours_of_its_risk_model():
     """The palletising cell's phases (idle ... harm), not the welding cell's, from its black box's record."""
     phases = {"PALLET": {"values": ["idle", "detected", "guarded", "clearing", "harm"], "initial": "idle", "mishap": "harm"}}
     timeline = {"PALLET": [[0.0, "idle"], [4.0, "detected"], [4.02, "guarded"], [9.0, "harm"]],
                 "curtain": [[0.0, False], [4.0, True]]}
     page = render_report(RESULTS, {1: timeline}, phases=phases)
-    parsed = parse(page)
-    rects = [a for t, a in run_svg_elements(parsed, 1) if t == "rect" and a.get("data-var") == "PALLET"]
-    fills = [a["fill"] for a in sorted(rects, key=lambda a: float(a["x"]))]  # in time (narrow pieces are drawn last)
-    assert fills[0] == PHASE_COLOURS["inact"] and fills[-1] == PHASE_COLOURS["mis"]  # initial grey, mishap red
-    assert len(set(fills)) == 4  # detected and guarded told apart
-    texts = [a for t, a in run_svg_elements(parsed, 1) if t == "text"]
-    assert texts  # lane titles are drawn as text; the hazard sits under "Hazard phases"
-    assert page.index(">Hazard phases<") < page.index('data-var="PALLET"') < page.index(">Other variables<")
+    data = script_data(page)
+    colours = data["colours"]["PALLET"]
+    assert colours["idle"] == PHASE_COLOURS["inact"] and colours["harm"] == PHASE_COLOURS["mis"]  # initial grey, mishap red
+    assert len({colours[v] for v in ("idle", "detected", "guarded", "harm")}) == 4  # detected and guarded told apart
+    assert data["groups"] == [["Hazard phases", ["PALLET"]], ["Other variables", ["curtain"]]]
     legend = page[page.index('class="legend"'):page.index("Red lines")]
     assert "guarded" in legend and "harm" in legend and "inact" not in legend
+    assert '<code data-var="PALLET">PALLET</code>' in legend and '<code data-var="curtain">curtain</code>' in legend
+
+
+def test_a_value_has_one_colour_for_the_whole_page_and_the_legend_lists_every_lane_and_value():
+    timeline = {"ract": [[0.0, "idle"], [5.0, "welding"]], "wact": [[0.0, "welding"], [3.0, "idle"]],
+                "speed": [[0.0, 1.0]]}
+    page = render_report(RESULTS, {1: timeline})
+    colours = script_data(page)["colours"]
+    assert colours["ract"] == colours["wact"] and colours["ract"]["idle"] != colours["ract"]["welding"]
+    legend = page[page.index('class="legend"'):page.index("Red lines")]
+    for var in ("ract", "wact"):
+        row = legend[legend.index(f'<code data-var="{var}">'):]
+        row = row[:row.index("</div>")]
+        assert f'background: {colours[var]["idle"]}"></span>idle' in row
+        assert f'background: {colours[var]["welding"]}"></span>welding' in row
+    assert '<strong>Step plots</strong> (<code data-var="speed">speed</code>)' in legend
+
+
+def test_numeric_lanes_take_their_unit_from_the_campaign():
+    results = copy.deepcopy(RESULTS)
+    results["campaign"]["units"] = {"speed": "m/s"}  # as a campaign records them, from its black boxes
+    assert script_data(render_report(results, {1: TIMELINE}))["units"] == {"speed": "m/s"}
+
+
+def test_a_violations_evidence_goes_to_the_script():
+    results = copy.deepcopy(RESULTS)
+    results["runs"][1]["verdicts"]["HC:not_mis"]["evidence"] = EVIDENCE
+    results["runs"][1]["verdicts"]["HC:not_mis"]["explanation"] = "HC = mis"
+    page = render_report(results, {1: TIMELINE})
+    assert script_data(page)["runs"]["1"]["evidence"] == {"HC:not_mis": EVIDENCE}
+    assert "<strong>HC:not_mis</strong> violated at 12.34 s: HC = mis" in section(page, "timeline-1")
 
 
 EVIDENCE = {"at": 12.34, "window": [12.34, 12.84],
             "rows": {"HC_e": [[12.0, 20.0]], "rngDet == close": [[11.5, 20.0]], "HC == act": [[12.0, 12.34]]}}
-
-
-def _explained_results() -> dict:
-    results = copy.deepcopy(RESULTS)
-    results["runs"][1]["verdicts"]["HC:not_mis"]["evidence"] = EVIDENCE
-    results["runs"][1]["verdicts"]["HC:not_mis"]["explanation"] = "HC = mis"
-    return results
-
-
-def test_a_violations_macros_and_atoms_are_rows_and_its_required_window_is_shaded():
-    page = render_report(_explained_results(), {1: TIMELINE})
-    parsed = parse(page)
-    elements = run_svg_elements(parsed, 1)
-    assert ">Why HC:not_mis<" in page
-    for row, intervals in EVIDENCE["rows"].items():
-        rects = [a for t, a in elements if t == "rect" and a.get("data-var") == row]
-        truths = [a for a in rects if a["fill"] == "#37474f"]  # true: the boolean colour, as everywhere
-        assert [float(a["x"]) for a in truths] == pytest.approx([time_to_x(lo, DURATION) for lo, _ in intervals], abs=0.01)
-    window = [a for t, a in elements if t == "rect" and a.get("class") == "window"]
-    assert len(window) == 1 and window[0]["data-condition"] == "HC:not_mis"
-    assert float(window[0]["x"]) == pytest.approx(time_to_x(12.34, DURATION), abs=0.01)
-    assert float(window[0]["width"]) == pytest.approx(time_to_x(12.84, DURATION) - time_to_x(12.34, DURATION), abs=0.01)
-    # the window spans the lanes, from the first lane's top to the last one's bottom
-    lanes = [a for t, a in elements if t == "rect" and a.get("class") == "lane"]
-    assert float(window[0]["y"]) == pytest.approx(float(lanes[0]["y"]))
-    assert "HC:not_mis: required between 12.34 s and 12.84 s" in page
-
-
-def test_a_value_has_one_colour_in_every_lane_and_the_legend_lists_it():
-    timeline = {"ract": [[0.0, "idle"], [5.0, "welding"]], "wact": [[0.0, "welding"], [3.0, "idle"]]}
-    page = render_report(RESULTS, {1: timeline})
-    elements = run_svg_elements(parse(page), 1)
-    fills = {(a["data-var"], i): a["fill"] for i, (t, a) in enumerate(e for e in elements if e[0] == "rect" and e[1].get("data-var"))}
-    ract, wact = [f for (v, _), f in fills.items() if v == "ract"], [f for (v, _), f in fills.items() if v == "wact"]
-    assert ract == wact[::-1] and ract[0] != ract[1]  # idle and welding: the same colours in both lanes
-    legend = page[page.index('class="legend"'):page.index("Red lines")]
-    assert f'background: {ract[0]}"></span>idle' in legend and f'background: {ract[1]}"></span>welding' in legend
-
-
-def test_numeric_lanes_name_their_unit_on_the_label_and_the_axis():
-    results = copy.deepcopy(RESULTS)
-    results["campaign"]["units"] = {"speed": "m/s"}  # as a campaign records them, from its black boxes
-    page = render_report(results, {1: TIMELINE})
-    assert ">speed (m/s)<" in page and ">1.50 m/s<" in page and ">0 m/s<" in page
-
-
-def test_a_piece_of_a_few_milliseconds_keeps_a_visible_width_over_its_neighbour():
-    page = render_report(RESULTS, {1: {"HS": [[0.0, "inact"], [4.0, "act"], [4.002, "mit"]]}})
-    rects = [a for t, a in run_svg_elements(parse(page), 1) if t == "rect" and a.get("data-var") == "HS"]
-    assert float(rects[-1]["width"]) == pytest.approx(MIN_PIECE_WIDTH)  # drawn last: mit does not cover it
-    assert rects[-1]["fill"] == PHASE_COLOURS["act"] and [r["fill"] for r in rects[:2]] == [
-        PHASE_COLOURS["inact"], PHASE_COLOURS["mit"]]
 
 
 def test_two_variable_criteria_get_a_heat_map_of_runs_per_situation():
@@ -430,3 +416,48 @@ def test_the_provenance_header_shows_versions_command_and_input_hash():
     header = header[:header.index("</header>")]
     assert "cellsim 0.1.0, drake 1.51.1" in header and "<code>cellsim campaign x.yaml --runs 3</code>" in header
     assert f'<code title="{"ab" * 32}">{"ab" * 8}</code>' in header
+
+
+# --------------------------------------------------------------------------- hostile strings
+
+HOSTILE = "</script><script>alert(1)</script><b>bold</b> & \"quoted\" 'single' <!--"
+
+
+def hostile_results() -> tuple[dict, dict]:
+    """A campaign whose every author-written string is markup: names, descriptions, values, errors."""
+    results = copy.deepcopy(RESULTS)
+    campaign = results["campaign"]
+    campaign["scenario_name"] = "cell " + HOSTILE
+    campaign["descriptions"] = {"HC:not_mis": "desc " + HOSTILE, "U1": "use " + HOSTILE}
+    campaign["conditions"]["HC:not_mis"] = "G(x " + HOSTILE + ")"
+    campaign["created"] = HOSTILE
+    results["provenance"] = {"versions": {"cellsim": HOSTILE}, "command": "cmd " + HOSTILE, "inputs": {"hash": HOSTILE}}
+    results["runs"][0]["configuration"]["mode" + HOSTILE] = "value " + HOSTILE
+    results["runs"][0]["out"] = "runs/" + HOSTILE
+    violating = results["runs"][1]
+    violating["verdicts"]["HC:not_mis"].update(explanation="why " + HOSTILE, evidence={
+        "at": 12.34, "window": [12.34, 12.84], "rows": {"atom " + HOSTILE: [[12.0, 13.0]]}})
+    violating["rerun"] = "rerun " + HOSTILE
+    results["runs"][2]["error"] = "error " + HOSTILE
+    results["totals"]["coverage"]["criteria"]["wact x oloc"]["missing"] = ["missing " + HOSTILE]
+    timeline = {**TIMELINE, "oloc": [[0.0, "value " + HOSTILE], [20.0, "none"]], "lane" + HOSTILE: [[0.0, "on"]]}
+    return results, {1: timeline, 0: TIMELINE}
+
+
+def test_hostile_strings_are_text_on_the_page_not_markup():
+    results, timelines = hostile_results()
+    page = render_report(results, timelines)
+    parsed = parse(page)
+    assert parsed.errors == [] and parsed.stack == []
+    tags = [t for t, _, _ in parsed.elements]
+    assert "b" not in tags and tags.count("script") == 2  # no element made of the data
+    assert page.count("</script>") == 2 and "alert(1)</script>" not in page
+    text = "".join(parsed.text)
+    for shown in ("cell " + HOSTILE, "desc " + HOSTILE, "G(x " + HOSTILE + ")", "missing " + HOSTILE, "why " + HOSTILE,
+                  "rerun " + HOSTILE, "lane" + HOSTILE, "value " + HOSTILE):
+        assert shown in text, shown  # read back as the very text written
+    attributes = [v for _, a, _ in parsed.elements for v in a.values()]
+    assert "error " + HOSTILE in attributes and HOSTILE in attributes  # the error's tooltip, the input hash's
+    data = script_data(page)
+    assert data["runs"]["1"]["rerun"] == "rerun " + HOSTILE
+    assert data["runs"]["1"]["trace"]["oloc"][1][0] == "value " + HOSTILE
