@@ -1,0 +1,210 @@
+"""The one rule for trusting a link to a physical twin: watchdog, sequence, recover-after.
+
+Whoever *receives* a physical twin's data judges it with :class:`LinkTrust`: the
+twin's sample sources (an entity's physical samples, in the diagram), the bridge
+daemon (a CAN device's frames, a robot controller's states), the emulated devices
+(the twin's command frames) and the emulator's command sources. The rule:
+
+* a message that does not decode, fails its integrity check (CRC, length) or
+  carries a value out of range is a fault (the link is *corrupt*);
+* a sender's sequence number must follow the last one taken: a repeat or a step
+  back is refused and counted (``repeated``: a frozen or replayed stream then goes
+  stale), a jump further ahead than ``max_gap`` is a fault (``counter``);
+* a message stamped more than ``future_skew`` seconds ahead of the receiver's
+  clock is refused and counted (``future``); one that arrives older than the
+  watchdog is a fault (``late``: the link is *stale*);
+* with no good message for ``timeout`` seconds of the receiver's clock the link
+  is *stale* (``timeout``);
+* after any fault, ``recover_after`` good messages in a row are needed before the
+  link is trusted again (*recovering* until then). At start the link is stale.
+
+Freshness is judged by the receiver's clock: arrival times decide stale, the
+sender's stamp only decides late and future. A sender that restarts (its
+sequence counting from 1 again) is heard once its old stream has gone stale.
+
+The debounce is applied once, by the receiver that acts on the data: the bridge
+forwards every frame's outcome at once (a good frame as a sample, a bad one as a
+failure message), and the twin's sample source gates it.
+
+A ``LinkTrust`` is a plain object; a Drake system keeps its state in its context
+(:meth:`LinkTrust.state` and :meth:`LinkTrust.restore`), so the same code runs in
+a discrete update.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from cellsim.vocabulary import PhysicalLink
+
+
+class Fault(str, Enum):
+    """Why a message, or a link, is not trusted."""
+
+    LENGTH = "length"
+    CRC = "crc"
+    COUNTER = "counter"
+    """The sequence (an alive counter, a ``seq``) jumped further ahead than allowed."""
+    RANGE = "range"
+    TIMEOUT = "timeout"
+    CORRUPT = "corrupt"
+    """A message that does not decode (a Zenoh link's counterpart of a bad CRC)."""
+    LATE = "late"
+    """A message older than the watchdog when it arrived."""
+    REPEATED = "repeated"
+    """A sequence number not after the last one taken: a repeat or a replay (refused, not a failure)."""
+    FUTURE = "future"
+    """Stamped further ahead of the receiver's clock than the allowed skew (refused, not a failure)."""
+
+
+STALE_FAULTS = frozenset({Fault.TIMEOUT, Fault.LATE})
+"""Faults that make a link stale; every other failure makes it corrupt."""
+REFUSALS = frozenset({Fault.REPEATED, Fault.FUTURE})
+"""Faults that refuse one message without failing the link."""
+
+
+@dataclass
+class Judgement:
+    """The outcome of one message: its values when trusted, else why not."""
+
+    trusted: bool
+    values: object = None
+    fault: Fault | None = None
+    recovering: bool = False
+    """A good message, not yet ``recover_after`` of them in a row since the last fault."""
+
+    @property
+    def good(self) -> bool:
+        """The message itself was good (trusted, or recovering)."""
+        return self.fault is None
+
+
+@dataclass
+class LinkTrust:
+    """Whether a link's data is trusted (see the module docstring).
+
+    Times are seconds on the receiver's clock (any monotonic clock: the twin's
+    simulation clock paced to the wall, or ``time.monotonic()``); stamps are the
+    sender's, compared with the receiver's wall clock.
+    """
+
+    timeout: float
+    """Watchdog (s): with no good message for this long the link is stale."""
+    recover_after: int = 3
+    max_gap: int = 2
+    """How far ahead a sequence number may jump (messages lost on the way) before it is a fault."""
+    future_skew: float = 0.5
+    """How far ahead of the receiver's clock a sender's stamp may be (s): clocks of one cell differ."""
+    modulo: int | None = None
+    """Sequence numbers wrap at this (a CAN alive counter: 16); None: they only grow."""
+    faults: tuple = ()
+    """The faults this kind of link can have (counted from zero, for its diagnostics)."""
+    counts: dict = field(default_factory=dict)
+    link: PhysicalLink = PhysicalLink.STALE
+    good_in_a_row: int = 0
+    last_good: float | None = None
+    """When the last good message came (s, the receiver's clock)."""
+    last_seq: int | None = None
+    timed_out_at: float | None = None
+
+    def __post_init__(self):
+        self.counts = {f.value: 0 for f in self.faults}
+
+    # -- the rule ----------------------------------------------------------------
+    @property
+    def failed(self) -> bool:
+        """Untrusted: failed by a fault or the watchdog, or still recovering (also at start)."""
+        return self.link is not PhysicalLink.OK
+
+    def stamp(self, stamp: float, now_wall: float) -> Fault | None:
+        """Judge a sender's time stamp against the receiver's wall clock at arrival."""
+        if not math.isfinite(stamp) or stamp > now_wall + self.future_skew:
+            return self.refuse(Fault.FUTURE)
+        if now_wall - stamp > self.timeout:
+            return Fault.LATE
+        return None
+
+    def sequence(self, seq: int, now: float) -> Fault | None:
+        """Judge a sequence number: None when it follows, else the fault (a refusal or a failure).
+
+        After the link went stale any number starts the sequence afresh (a restarted sender).
+        """
+        last = self.last_seq
+        if last is None or self.link is PhysicalLink.STALE and self._silent(now):
+            self.last_seq = seq
+            return None
+        delta = (seq - last) % self.modulo if self.modulo else seq - last
+        if self.modulo and delta == 0 or not self.modulo and delta <= 0:
+            return self.refuse(Fault.REPEATED)
+        self.last_seq = seq  # resynchronise on it, whether it is taken or not
+        if delta > self.max_gap:
+            return Fault.COUNTER
+        return None
+
+    def good(self, now: float, values=None) -> Judgement:
+        """A good message arrived at ``now``."""
+        self.last_good = now
+        self.timed_out_at = None
+        self.good_in_a_row += 1
+        if self.link is not PhysicalLink.OK and self.good_in_a_row < self.recover_after:
+            self.link = PhysicalLink.RECOVERING
+            return Judgement(False, values, None, recovering=True)
+        self.link = PhysicalLink.OK
+        return Judgement(True, values)
+
+    def fail(self, fault: Fault) -> Judgement:
+        """A fault: counted, and the link fails (stale or corrupt) until it recovers."""
+        if fault in REFUSALS:
+            self.refuse(fault)
+            return Judgement(False, None, fault)
+        self._count(fault)
+        self.good_in_a_row = 0
+        self.link = PhysicalLink.STALE if fault in STALE_FAULTS else PhysicalLink.CORRUPT
+        return Judgement(False, None, fault)
+
+    def refuse(self, fault: Fault) -> Fault:
+        """One message refused (counted) without failing the link."""
+        self._count(fault)
+        return fault
+
+    def watchdog(self, now: float) -> Judgement | None:
+        """The timeout judgement when no good message came within ``timeout`` (call it periodically);
+        counted once per timeout period."""
+        if self.last_good is None:
+            return None
+        since = self.last_good if self.timed_out_at is None else self.timed_out_at
+        if now - since <= self.timeout:
+            return None
+        self.timed_out_at = now
+        return self.fail(Fault.TIMEOUT)
+
+    def _silent(self, now: float) -> bool:
+        return self.last_good is None or now - self.last_good > self.timeout
+
+    def _count(self, fault: Fault) -> None:
+        self.counts[fault.value] = self.counts.get(fault.value, 0) + 1
+
+    # -- state in a Drake context ---------------------------------------------------
+    STATE_SIZE = 5
+
+    def state(self) -> np.ndarray:
+        """The rule's state as numbers: [link code, good in a row, last good, last seq, timed out at]."""
+        return np.array([
+            float(self.link.code), float(self.good_in_a_row),
+            -np.inf if self.last_good is None else self.last_good,
+            -1.0 if self.last_seq is None else float(self.last_seq),
+            -np.inf if self.timed_out_at is None else self.timed_out_at,
+        ])
+
+    def restore(self, state) -> "LinkTrust":
+        code, good, last_good, last_seq, timed_out_at = (float(x) for x in state)
+        self.link = PhysicalLink.from_code(code)
+        self.good_in_a_row = int(good)
+        self.last_good = None if last_good == -np.inf else last_good
+        self.last_seq = None if last_seq < 0 else int(last_seq)
+        self.timed_out_at = None if timed_out_at == -np.inf else timed_out_at
+        return self

@@ -1,0 +1,55 @@
+"""The one link-trust rule (cellsim.link): watchdog, sequence, recover-after, and its state as numbers."""
+
+from __future__ import annotations
+
+from cellsim.link import Fault, LinkTrust
+from cellsim.vocabulary import PhysicalLink
+
+
+def test_trust_comes_after_recover_after_good_messages_and_goes_at_the_first_fault():
+    link = LinkTrust(timeout=0.1, recover_after=3, faults=tuple(Fault))
+    assert link.link is PhysicalLink.STALE  # at start
+    assert [link.good(t).trusted for t in (0.0, 0.01, 0.02)] == [False, False, True]
+    assert link.fail(Fault.CRC).fault is Fault.CRC and link.link is PhysicalLink.CORRUPT
+    assert link.good(0.03).recovering and link.link is PhysicalLink.RECOVERING
+    assert link.watchdog(0.5).fault is Fault.TIMEOUT and link.link is PhysicalLink.STALE
+    assert link.watchdog(0.55) is None  # counted once per timeout period
+    assert link.counts["crc"] == 1 and link.counts["timeout"] == 1
+
+
+def test_sequence_numbers_refuse_repeats_fail_jumps_and_restart_after_silence():
+    link = LinkTrust(timeout=0.1, recover_after=1, max_gap=2)
+    assert link.sequence(10, 0.0) is None
+    link.good(0.0)
+    assert link.sequence(10, 0.01) is Fault.REPEATED and link.link is PhysicalLink.OK  # refused, not failed
+    assert link.sequence(9, 0.02) is Fault.REPEATED
+    assert link.sequence(12, 0.03) is None  # one lost on the way
+    assert link.sequence(20, 0.04) is Fault.COUNTER
+    link.watchdog(1.0)
+    assert link.sequence(1, 1.0) is None  # silent, stale: a restarted sender starts afresh
+
+
+def test_a_wrapping_counter_counts_modulo():
+    link = LinkTrust(timeout=0.1, modulo=16, max_gap=2)
+    assert link.sequence(15, 0.0) is None
+    link.good(0.0)
+    assert link.sequence(0, 0.01) is None  # 15 -> 0
+    assert link.sequence(0, 0.02) is Fault.REPEATED
+    assert link.sequence(5, 0.03) is Fault.COUNTER
+
+
+def test_stamps_beyond_the_skew_are_refused_and_old_ones_are_late():
+    link = LinkTrust(timeout=0.1, future_skew=0.5)
+    assert link.stamp(1000.4, now_wall=1000.0) is None
+    assert link.stamp(1000.6, now_wall=1000.0) is Fault.FUTURE and link.counts["future"] == 1
+    assert link.stamp(float("inf"), now_wall=1000.0) is Fault.FUTURE
+    assert link.stamp(999.8, now_wall=1000.0) is Fault.LATE
+
+
+def test_its_state_survives_a_round_trip_through_numbers():
+    link = LinkTrust(timeout=0.1, recover_after=3)
+    link.sequence(7, 0.0)
+    link.good(0.0)
+    copy = LinkTrust(timeout=0.1, recover_after=3).restore(link.state())
+    assert (copy.link, copy.good_in_a_row, copy.last_good, copy.last_seq) == (link.link, 1, 0.0, 7)
+    assert LinkTrust(timeout=0.1).restore(LinkTrust(timeout=0.1).state()).last_good is None
