@@ -30,7 +30,7 @@ from collections import deque
 
 from bridges.config import LoadedBridge
 from bridges.e2e import DeviceChecker, protect
-from cellsim.live import keys
+from cellsim.live import codec, keys
 from cellsim.live.emulator import ZenohOutlet
 
 CAN_FAULTS = ("drop", "crc", "replay", "length", "flood", "delay")
@@ -164,7 +164,7 @@ class EmulatedDevices:
         if name not in cfg.commands:
             return False
         mappings = cfg.commands[name]
-        types = dict(zip(source.inputs, source.types))
+        types = dict(zip(source.inputs, source.codec.types))
         self._entities[name] = {"source": source, "types": types, "seq": 0,
                                 "values": {m.message: self._command_fields(m, dict(m.safe), types) for m in mappings}}
         for mapping in mappings:
@@ -198,7 +198,7 @@ class EmulatedDevices:
             state["seq"] += 1
             fields = {k: v for values in state["values"].values() for k, v in values.items()}
             fields = {n: fields.get(n) for n in state["types"]}
-            payload = json.dumps({"t": time.time(), "seq": state["seq"], "fields": fields}, separators=(",", ":")).encode()
+            payload = codec.encode_fields(time.time(), state["seq"], fields)
         state["source"].deliver(payload)
 
     @staticmethod

@@ -35,7 +35,10 @@ from cellsim.provenance import provenance as make_provenance
 from cellsim.scenario import ScenarioFile
 from cellsim.services.blackbox import BlackBox, BlackBoxWriter
 from cellsim.services.recorder import DRAIN_PERIOD
-from diagrams.cell import CellDiagram, build_cell
+from cellsim.cell_io import SIMULATED, CellIO
+from cellsim.live.systems import TICK
+from cellsim.systems import hazard_phases
+from diagrams.cell import CellDiagram, build_cell, scenario_for
 
 BLACKBOX = "blackbox.sqlite"
 RESOLVED_SCENARIO = "scenario.yaml"
@@ -154,32 +157,29 @@ def simulate(
     sf: ScenarioFile,
     out_dir: str | os.PathLike,
     *,
+    io: CellIO = SIMULATED,
     seed: int | None = None,
     duration: float | None = None,
     overwrite: bool = False,
     meshcat=None,
-    realtime_rate: float = 0.0,
-    physical_sources: dict | None = None,
+    meshcat_wait: tuple | None = None,
     on_progress: Callable[[float, float], None] | None = None,
     provenance: dict | None = None,
-    live: "LiveHooks | None" = None,
-    on_built: Callable[[CellDiagram], None] | None = None,
-    command_sources: Callable | None = None,
-    on_start: Callable[[], None] | None = None,
 ) -> RunSummary:
-    """Simulate ``sf`` headless (or at ``realtime_rate``), recording to ``out_dir``.
+    """Run ``sf`` with the I/O ``io`` (``cellsim.cell_io``: simulated by default), recording to ``out_dir``.
 
-    ``live`` runs it beside the real cell (``cellsim.live``): its ``start`` is called
-    once the simulator is initialised, its ``tick(context)`` after every ``period``
-    of simulated time, and its ``metadata()`` is added to the black box's at each drain.
-    ``on_start`` is called once the simulator is initialised (its t = 0 published),
-    before simulated time runs: ``simulate --meshcat`` waits there for a browser.
+    One loop whatever the I/O: the builder decides what the physical side is and
+    whether the run is paced to the wall clock; the network's work happens inside
+    the diagram. A live or emulated run goes until ``duration`` or until it is
+    stopped (Ctrl-C, SIGTERM): its record is then complete, ending there.
+    ``meshcat_wait``: ``(seconds, say)`` to wait for a browser before simulated time runs.
 
     The black box's ``provenance`` metadata is :func:`cellsim.provenance.provenance`
     of the run's inputs, updated with ``provenance`` (a campaign names itself there).
     """
     from cellsim.scenario import check_run_length, check_seed
 
+    sf = scenario_for(sf, io)  # an emulated cell runs its own version of the scenario, and records it
     sc = sf.scenario
     seed = sc.seed if seed is None else seed
     duration = sc.duration if duration is None else duration
@@ -193,38 +193,26 @@ def simulate(
     # Everything that can fail on bad input happens before the folder is touched:
     # building the diagram checks the wiring and loads the risk model, and the
     # safety conditions are compiled against the channels it publishes.
-    cell = build_cell(
-        sf, seed=seed, duration=duration, meshcat=meshcat, physical_sources=physical_sources, command_sources=command_sources
-    )
-    if on_built is not None:
-        on_built(cell)
-    case = None
-    if sc.validation.conditions:
-        from cellsim.validation.check import cell_safety_case
+    cell = build_cell(sf, seed=seed, duration=duration, io=io, meshcat=meshcat, meshcat_wait=meshcat_wait)
+    try:
+        case = None
+        if cell.sf.scenario.validation.conditions:
+            from cellsim.validation.check import cell_safety_case
 
-        case = cell_safety_case(sf, cell)
-    simulator = make_simulator(cell, realtime_rate)
-    inputs.check_unchanged()  # what was built is what was read, copied and hashed
-    with RunFolder(out_dir, overwrite):
-        summary = _record(sf, cell, simulator, out_dir, seed, duration, on_progress, inputs, record, live, on_start)
+            case = cell_safety_case(cell.sf, cell)
+        simulator = make_simulator(cell)
+        inputs.check_unchanged()  # what was built is what was read, copied and hashed
+        with RunFolder(out_dir, overwrite):
+            summary = _record(cell, simulator, out_dir, seed, duration, on_progress, inputs, record)
+    finally:
+        cell.close()
     summary.safety_case = case
     return summary
 
 
-@dataclass
-class LiveHooks:
-    """What a live run does besides simulating (see ``simulate``)."""
-
-    period: float
-    start: Callable[[], None]
-    tick: Callable[[object], None]
-    metadata: Callable[[], dict]
-
-
-def _record(
-    sf, cell, simulator, out_dir: Path, seed: int, duration: float, on_progress, inputs, record, live=None, on_start=None
-) -> RunSummary:
+def _record(cell, simulator, out_dir: Path, seed: int, duration: float, on_progress, inputs, record) -> RunSummary:
     """Write the resolved scenario and its input files, then simulate while recording the black box."""
+    sf = cell.sf
     sc = sf.scenario
     write_run_scenario(sf, inputs, out_dir, RESOLVED_SCENARIO, seed, duration)
 
@@ -245,65 +233,53 @@ def _record(
             duration=duration,
             versions=package_versions(),
             provenance=record,
-            hazards=hazard_channels(cell),
+            hazards=hazard_phases(cell.modules.values()),
             status="running",
         )
         try:
             simulator.Initialize()
-            if on_start is not None:
-                on_start()
-                simulator.ResetStatistics()  # real-time pacing counts from now
+            cell.start()  # may wait for a browser, or for the physical cell
+            simulator.ResetStatistics()  # real-time pacing counts from now
             started = time.perf_counter()
-            if live is not None:
-                live.start()  # may wait for the physical cell
-                simulator.ResetStatistics()  # real-time pacing counts from now
-            chunk = DRAIN_PERIOD if live is None else live.period
+            # a paced run advances in short steps, so that Ctrl-C or SIGTERM lands between two of them,
+            # in Python, with every message up to then recorded (not inside an event of the diagram)
+            step = TICK if cell.runs_until_stopped else DRAIN_PERIOD
             next_drain = DRAIN_PERIOD
             while context.get_time() < duration - 1e-9:
-                simulator.AdvanceTo(min(duration, context.get_time() + chunk))
+                simulator.AdvanceTo(min(duration, context.get_time() + step, next_drain))
                 sim_time = context.get_time()
-                if live is not None:
-                    live.tick(context)
-                if sim_time >= next_drain - 1e-9 or sim_time >= duration - 1e-9:
-                    next_drain += DRAIN_PERIOD
-                    if cell.recorder is not None:
-                        cell.recorder.drain(context)
-                    if live is not None:
-                        writer.set_metadata(live=live.metadata())
-                    if on_progress:
-                        on_progress(sim_time, duration)
+                if sim_time < min(duration, next_drain) - 1e-9:
+                    continue
+                next_drain += DRAIN_PERIOD
+                if cell.recorder is not None:
+                    cell.recorder.drain(context)
+                writer.set_metadata(**cell.metadata())
+                if on_progress:
+                    on_progress(sim_time, duration)
             status = "completed"
         except KeyboardInterrupt:
             # a live run goes until it is stopped: its record is then complete, ending now
-            status = "interrupted" if live is None else "stopped"
+            status = "stopped" if cell.runs_until_stopped else "interrupted"
             raise
     finally:
         wall = time.perf_counter() - started
         sim_time = context.get_time()
         if cell.recorder is not None:
             cell.recorder.drain(context, final=True)  # and what was logged before an interruption
-        if live is not None:
-            writer.set_metadata(live=live.metadata())
-            if status == "stopped":
-                writer.set_metadata(duration=sim_time)
+        writer.set_metadata(**cell.metadata())
+        if status == "stopped":
+            writer.set_metadata(duration=sim_time)
         writer.close(status)
     return summarise(out_dir, seed, status, sim_time, wall)
 
 
-def hazard_channels(cell: CellDiagram) -> dict[str, dict]:
-    """Every hazard channel of the cell, with its risk model's initial and mishap phases."""
-    found = {}
-    for system in cell.modules.values():
-        found.update(getattr(system, "hazard_phases", dict)())
-    return found
-
-
-def make_simulator(cell: CellDiagram, realtime_rate: float = 0.0) -> Simulator:
-    """A simulator of ``cell`` at its initial state; call ``Initialize()`` once recording is attached."""
+def make_simulator(cell: CellDiagram) -> Simulator:
+    """A simulator of ``cell`` at its initial state, paced as its I/O says; call ``Initialize()`` once
+    recording is attached."""
     simulator = Simulator(cell.diagram)
     integrate_at_plant_step(simulator, cell.plant.time_step())
     cell.set_initial_state(simulator.get_mutable_context())
-    simulator.set_target_realtime_rate(realtime_rate)
+    simulator.set_target_realtime_rate(cell.realtime_rate)
     return simulator
 
 

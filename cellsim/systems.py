@@ -112,3 +112,12 @@ def write_changed(xd, groups: list[int], values: list[float], previous: list[flo
     for group, value, old in zip(groups, values, previous):
         if value != old:
             xd.get_mutable_vector(group).SetAtIndex(0, value)
+
+
+def hazard_phases(modules) -> dict[str, dict]:
+    """Every hazard channel of a cell's modules (``modules``: its systems), with its risk model's
+    initial and mishap phases: what the summary, the black box's metadata and a dashboard read."""
+    found = {}
+    for system in modules:
+        found.update(getattr(system, "hazard_phases", dict)())
+    return found

@@ -13,7 +13,13 @@
   posed only when a sensor or the ground truth queries SceneGraph; all contact
   between them is filtered out (the arm is position controlled and collisions
   are *measured*, by sensors and ground truth, not simulated);
-* every entity's physical-twin input wired by ``cellsim.physical``;
+* the I/O choice (``cellsim.cell_io``): what feeds every entity's physical
+  samples and its command inputs, and where channels and commands go
+  (simulated, replayed from a black box, live on Zenoh, emulated). This is the
+  only place that decides; Zenoh subscribers and publishers are LeafSystems of
+  the diagram (``cellsim.live.systems``), so every run is one ``AdvanceTo`` loop;
+* the same exported ports whichever I/O: every channel as ``<module>.<signal>``
+  and each entity's ``<entity>.physical_command``;
 * the recorder tapping every channel, and optionally Meshcat: the geometry
   (MeshcatVisualizer) and the modules' drawn state (``cellsim.visual``).
 """
@@ -38,8 +44,8 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, Multibody
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, OutputPort
 
-from cellsim.physical import connect_physical_twins
 from cellsim import registry
+from cellsim.cell_io import SIMULATED, CellIO, Emulated, Live, Replayed, Simulated, paced
 from cellsim.channels import ChannelSpec
 from cellsim.entities.twin import EntitySystem
 from cellsim.scenario import ScenarioFile
@@ -66,6 +72,41 @@ class CellDiagram:
     """(input port, value) of inputs nothing drives; ``set_initial_state`` fixes them."""
     cue_visualizer: LeafSystem | None = None
     """With Meshcat: the system drawing the modules' state (``cellsim.visual.live``)."""
+    meshcat: Meshcat | None = None
+    sf: ScenarioFile | None = None
+    """The scenario as built (an emulated cell's: every entity its digital model)."""
+    io: CellIO = SIMULATED
+    network: "NetworkIO | None" = None
+    """Live or emulated: the network side (its clock, start, figures, what to close)."""
+    meshcat_wait: tuple | None = None
+    """(seconds, say): wait that long for a browser to open Meshcat before starting."""
+
+    @property
+    def realtime_rate(self) -> float:
+        """1 when the cell runs paced to the wall clock (live, emulated, shown in Meshcat), else 0."""
+        return 1.0 if paced(self.io) or self.meshcat_visualizer is not None else 0.0
+
+    @property
+    def runs_until_stopped(self) -> bool:
+        """A live or emulated cell runs until it is stopped: its record then ends there, complete."""
+        return paced(self.io)
+
+    def start(self) -> None:
+        """Before simulated time runs (the simulator initialised): wait for what must be there."""
+        if self.meshcat_wait is not None and self.meshcat_visualizer is not None:
+            from cellsim.visual.serve import wait_for_browser
+
+            wait_for_browser(self.meshcat, *self.meshcat_wait)
+        if self.network is not None:
+            self.network.start()
+
+    def metadata(self) -> dict:
+        """What the black box records of the run's I/O (the network's figures), at each drain."""
+        return {} if self.network is None else {"live": self.network.metadata()}
+
+    def close(self) -> None:
+        if self.network is not None:
+            self.network.close()
 
     def entity(self, name: str) -> EntitySystem:
         return self.modules[name]
@@ -161,16 +202,18 @@ def build_cell(
     *,
     seed: int,
     duration: float,
+    io: CellIO = SIMULATED,
     record: bool = True,
     meshcat: Meshcat | None = None,
-    physical_sources: dict[str, LeafSystem] | Callable[[dict], dict[str, LeafSystem]] | None = None,
-    command_sources: Callable[[EntitySystem, list[str]], LeafSystem] | None = None,
+    meshcat_wait: tuple | None = None,
 ) -> CellDiagram:
-    """Assemble the scenario's Diagram. Raises ConfigError for wiring the scenario gets wrong.
+    """Assemble the scenario's Diagram with the I/O ``io``. Raises ConfigError for wiring the scenario gets wrong.
 
     Each module is built by its kind (:mod:`cellsim.registry`): this function
-    names no concrete kind.
+    names no concrete kind. ``meshcat_wait``: ``(seconds, say)`` to wait for a
+    browser to open Meshcat before simulated time runs (``CellDiagram.start``).
     """
+    sf = scenario_for(sf, io)
     sc = sf.scenario
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlant(
@@ -198,12 +241,27 @@ def build_cell(
     cell._run_hooks()
     _filter_all_contact(plant, scene_graph, cell.foreign_geometry)
 
-    if command_sources is not None:  # a cell emulated under the twin's command
-        _connect_command_sources(builder, cell.entities, command_sources)
-    fixed_inputs = _unconnected_command_inputs(builder, cell.modules)
-    if callable(physical_sources):  # sources made for the entities built (a live twin's, one per entity)
-        physical_sources = physical_sources(cell.entities)
-    fixed_inputs += connect_physical_twins(builder, cell.entities, physical_sources)
+    # -- the I/O: the one place that decides what the physical side is ---------------------
+    fixed_inputs: list[tuple] = []
+    network = None
+    match io:
+        case Simulated():
+            fixed_inputs += _no_physical_samples(cell.entities.values())
+        case Replayed():
+            fixed_inputs += _replay(builder, cell, io)
+        case Live():
+            network = _live(builder, cell, io)
+        case Emulated():
+            fixed_inputs += _no_physical_samples(cell.entities.values())
+            network = _emulated(builder, cell, io)
+        case _:
+            raise TypeError(f"not an I/O choice: {io!r}")
+    fixed_inputs += _unconnected_inputs(builder, cell.modules)
+    channels = cell.channels()
+    for spec, port in channels.values():  # the same ports whichever I/O
+        builder.ExportOutput(port, spec.name)
+    for name, entity in cell.entities.items():
+        builder.ExportOutput(entity.physical_command_port, f"{name}.physical_command")
 
     visualizer = cues = None
     if meshcat is not None:  # the cell drawn (cellsim.visual): geometry, then the modules' drawn state
@@ -212,15 +270,167 @@ def build_cell(
         visualizer = MeshcatVisualizer.AddToBuilder(
             builder, scene_graph, meshcat, MeshcatVisualizerParams(role=Role.kIllustration)
         )
-        cues = add_cue_visualizer(
-            builder, meshcat, cell.modules, cell.channels(), scene_graph, plant, sc.layout.extent()
-        )
+        cues = add_cue_visualizer(builder, meshcat, cell.modules, channels, scene_graph, plant, sc.layout.extent())
     diagram = builder.Build()
     diagram.set_name(sc.name)
     return CellDiagram(
-        diagram, plant, scene_graph, cell.modules, cell.channels(), cell.robots, cell.recorder, visualizer, fixed_inputs,
-        cues,
+        diagram, plant, scene_graph, cell.modules, channels, cell.robots, cell.recorder, visualizer, fixed_inputs,
+        cues, meshcat, sf, io, network, meshcat_wait,
     )
+
+
+def scenario_for(sf: ScenarioFile, io: CellIO) -> ScenarioFile:
+    """The scenario a cell with ``io`` runs: the scenario itself, or for an emulated cell a copy where
+    every entity is its digital model (it *is* the physical cell) and, commanded by the twin, the
+    supervisors and their safety evidence are left out (the twin's supervise instead)."""
+    if not isinstance(io, Emulated) or getattr(sf, "emulated", False):
+        return sf
+    import copy
+
+    from cellsim.validation.config import Validation
+    from cellsim.vocabulary import TwinMode
+
+    sf = copy.deepcopy(sf)
+    sc = sf.scenario
+    for cfg in sc.entities.values():
+        twin = getattr(cfg, "twin", None)
+        if twin is not None:
+            twin.mode, twin.changes = TwinMode.MODEL, []
+    if io.commanded_by_twin:
+        sc.behaviours = {name: cfg for name, cfg in sc.behaviours.items() if not registry.kind_of(cfg).supervises}
+        sc.validation = Validation()
+    sf.emulated = True
+    return sf
+
+
+def _no_physical_samples(entities) -> list[tuple]:
+    """Every entity's physical_sample reads stale: nothing feeds it (a fixed input costs nothing per step)."""
+    from cellsim.physical import no_sample
+
+    return [(e.physical_sample_port, no_sample(e.physical_sample_port.size())) for e in entities]
+
+
+def _replay(builder: DiagramBuilder, cell: CellBuild, io: Replayed) -> list[tuple]:
+    """A black box plays the physical twin of each entity whose sample fields it recorded."""
+    from cellsim.physical import BlackBoxReplay, no_sample, replay_fields
+    from cellsim.services.blackbox import BlackBox
+
+    unknown = set(io.entities or ()) - set(cell.entities)
+    if unknown:
+        raise KeyError(f"replayed entities that the cell does not have: {', '.join(sorted(unknown))}")
+    fixed = []
+    with BlackBox(io.blackbox) as recorded:
+        for name, entity in cell.entities.items():
+            fields = replay_fields(entity, recorded) if io.entities is None or name in io.entities else None
+            if fields is None:
+                if io.entities is not None and name in io.entities:
+                    raise KeyError(f"{io.blackbox} did not record every sample field of {name}")
+                fixed.append((entity.physical_sample_port, no_sample(entity.physical_sample_port.size())))
+                continue
+            source = builder.AddSystem(BlackBoxReplay(recorded, fields, entity.period, io.time_offset))
+            source.set_name(f"{name}.physical_replay")
+            builder.Connect(source.get_output_port(), entity.physical_sample_port)
+    return fixed
+
+
+def _live(builder: DiagramBuilder, cell: CellBuild, io: Live):
+    """The twin on Zenoh: a sample source per entity, every channel and command published, twin modes
+    switched on request, the status every second, the describe queryable and the liveliness token."""
+    import json
+
+    from cellsim.live import keys
+    from cellsim.live.network import NetworkIO
+    from cellsim.live.systems import (ChannelPublisher, CommandPublisher, LiveClock, LiveStatus, TwinModeControl,
+                                      ZenohSampleSource)
+    from cellsim.live.twin import describe
+    from cellsim.vocabulary import TwinMode
+
+    session, name = io.session, cell.scenario.name
+    clock = LiveClock()
+    sources = {}
+    for entity_name, entity in cell.entities.items():
+        key = keys.physical(name, entity_name)
+        sources[entity_name] = builder.AddSystem(ZenohSampleSource(entity, clock, cell.scenario.time_step, key))
+        builder.Connect(sources[entity_name].get_output_port(), entity.physical_sample_port)
+    status = builder.AddSystem(LiveStatus(clock, session.declare_publisher(keys.status(name, io.process)),
+                                          {n: s.get_output_port() for n, s in sources.items()}, io.process))
+    for entity_name, source in sources.items():
+        builder.Connect(source.get_output_port(), status.GetInputPort(entity_name))
+    awaited = [n for n, e in cell.entities.items() if e.twin.mode is not TwinMode.MODEL]
+    network = NetworkIO(io.process, clock, status, io.wait_physical, awaited)
+    network.figures["rejected_samples"] = lambda: {n: s.rejected for n, s in sources.items()}
+    for entity_name, source in sources.items():
+        def on_sample(sample, source=source, entity_name=entity_name):  # the network thread: hand it over, count it
+            source.inbox.on_sample(sample)
+            network.heard(entity_name)
+
+        network.handles.append(session.declare_subscriber(keys.physical(name, entity_name), on_sample))
+
+    channels = list(cell.channels().values())
+    publisher = builder.AddSystem(ChannelPublisher(
+        channels, lambda spec: session.declare_publisher(keys.channel(name, spec.module, spec.signal))))
+    for spec, port in channels:
+        builder.Connect(port, publisher.GetInputPort(spec.name))
+    for entity_name, entity in cell.entities.items():
+        commands = builder.AddSystem(CommandPublisher(entity, session.declare_publisher(keys.command(name, entity_name))))
+        builder.Connect(entity.physical_command_port, commands.command_port)
+    control = builder.AddSystem(TwinModeControl(cell.entities))
+    for entity_name, entity in cell.entities.items():
+        builder.Connect(control.GetOutputPort(entity_name), entity.mode_request_input)
+        entity.takes_mode_requests = True
+    network.figures["twin_mode_requests"] = lambda: control.applied
+    network.handles.append(session.declare_queryable(keys.twin_mode_control(name), control.on_query))
+    description = json.dumps(describe(cell.sf, cell.channels(), cell.modules))
+    network.handles.append(session.declare_queryable(
+        keys.describe(name), lambda query: query.reply(query.key_expr, description)))
+    network.handles.append(session.liveliness().declare_token(keys.alive(name, io.process)))
+    return network
+
+
+def _emulated(builder: DiagramBuilder, cell: CellBuild, io: Emulated):
+    """The physical cell played: each entity's state through its outlet at its rate (its physical key,
+    or its device's protocol), the faults injected, and, commanded by the twin, the twin's commands
+    (from the command keys, or the devices' protocols) into the inputs the supervisors drove."""
+    from cellsim.live import keys
+    from cellsim.live.emulator import ZenohOutlet, fault_query_handler
+    from cellsim.live.network import NetworkIO
+    from cellsim.live.systems import LiveClock, LiveStatus, SampleOutlet, ZenohCommandSource
+
+    session, name, step = io.session, cell.scenario.name, cell.scenario.time_step
+    devices = io.devices
+    rates = {**(devices.rates() if devices is not None else {}), **io.rates}
+    clock = LiveClock()
+    status = builder.AddSystem(LiveStatus(clock, process=io.process))
+    network = NetworkIO(io.process, clock, status)
+    outlets = {}
+    for entity_name, entity in cell.entities.items():
+        outlet = (devices.outlet(entity_name, entity) if devices is not None else None) or ZenohOutlet(
+            session.declare_publisher(keys.physical(name, entity_name)))
+        period = 1.0 / rates[entity_name] if entity_name in rates else entity.period
+        period = max(step, round(period / step) * step)
+        outlets[entity_name] = builder.AddSystem(SampleOutlet(entity, outlet, period, io.faults))
+        builder.Connect(entity.physical_state_port, outlets[entity_name].state_port)
+    network.figures["samples_published"] = lambda: sum(o.sent for o in outlets.values())
+    network.figures["faults"] = io.faults.to_json
+    network.figures["commanded_by_twin"] = lambda: io.commanded_by_twin
+    if io.commanded_by_twin:
+        for entity_name, entity in cell.entities.items():
+            free = [n for n in entity.command_fields
+                    if entity.HasInputPort(n) and not builder.IsConnectedOrExported(entity.GetInputPort(n))]
+            if not free:
+                continue
+            key = keys.command(name, entity_name)
+            source = builder.AddSystem(ZenohCommandSource(entity, free, clock, step, key))
+            for port_name in free:
+                builder.Connect(source.GetOutputPort(port_name), entity.GetInputPort(port_name))
+            if devices is None or not devices.feed_commands(entity, source):
+                network.handles.append(session.declare_subscriber(key, source.inbox.on_sample))
+    if devices is not None:
+        network.closers.append(devices.close)
+    kinds = {n: (devices.fault_kinds(n) if devices is not None else None) or ZenohOutlet.faults for n in cell.entities}
+    network.handles.append(session.declare_queryable(keys.fault_control(name), fault_query_handler(io.faults, kinds)))
+    network.handles.append(session.liveliness().declare_token(keys.alive(name, io.process)))
+    return network
 
 
 def _add_fixtures(plant: MultibodyPlant, sf: ScenarioFile) -> None:
@@ -247,25 +457,17 @@ def _channels(modules: dict[str, LeafSystem]) -> dict[str, tuple[ChannelSpec, Ou
     return found
 
 
-def _connect_command_sources(builder: DiagramBuilder, entities: dict, make: Callable) -> None:
-    """Each entity's command inputs that nothing in the cell drives, fed by ``make(entity, inputs)``."""
-    for entity in entities.values():
-        free = [
-            name for name in entity.command_fields
-            if entity.HasInputPort(name) and not builder.IsConnectedOrExported(entity.GetInputPort(name))
-        ]
-        if free:
-            source = builder.AddSystem(make(entity, free))
-            for name in free:
-                builder.Connect(source.GetOutputPort(name), entity.GetInputPort(name))
+def _unconnected_inputs(builder: DiagramBuilder, modules: dict[str, LeafSystem]) -> list[tuple]:
+    """Inputs nobody drives, with their declared default (no request, normal...); an entity's twin-mode
+    request with none."""
+    from cellsim.live.systems import no_request
 
-
-def _unconnected_command_inputs(builder: DiagramBuilder, modules: dict[str, LeafSystem]) -> list[tuple]:
-    """Command inputs nobody drives, with their declared default (no request, normal...)."""
     fixed = []
     for system in modules.values():
         for port_name, default in getattr(system, "input_defaults", {}).items():
             port = system.GetInputPort(port_name)
             if not builder.IsConnectedOrExported(port):
                 fixed.append((port, np.array([default])))
+        if isinstance(system, EntitySystem) and not builder.IsConnectedOrExported(system.mode_request_input):
+            fixed.append((system.mode_request_input, no_request()))
     return fixed

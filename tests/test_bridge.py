@@ -14,7 +14,7 @@ from bridges.daemon import Bridge
 from bridges.e2e import DeviceChecker, protect
 from cellsim.channels import BOOL, enum_type, number_type
 from cellsim.config.typed_yaml import ConfigError
-from cellsim.live.codec import decode_fields
+from cellsim.live.codec import FieldCodec
 from cellsim.live.session import session_config
 from cellsim.vocabulary import Range
 
@@ -76,8 +76,8 @@ def test_checked_frames_become_samples_and_any_failure_the_fail_safe_sample_at_o
                 break
             assert sample["fields"] == {"broken": True}
         # the twin's light barrier reads the payload as any sample
-        t, seq, codes = decode_fields(json.dumps(sample).encode(), ("broken",), [BOOL])
-        assert codes == [0.0] and seq > 1
+        message = FieldCodec(("broken",), (BOOL,)).decode(json.dumps(sample).encode())
+        assert message.codes == [0.0] and message.seq > 1
         # a corrupt CRC: the fail-safe sample at once, and the fault counted
         bad = bytearray(protect(curtain, {"Broken": 0}, counter[0]))
         bad[0] ^= 0xFF
@@ -123,7 +123,7 @@ def test_enumerations_go_out_by_name():
     scanner = loaded.database.get_message_by_name("ScannerState")
     for c in range(3):
         bridge.handle(scanner.frame_id, protect(scanner, {"Range": "near", "Distance": 1.25}, c), now=0.04 * c)
-    _, _, codes = decode_fields(out.payloads[-1], ("range", "distance"), [enum_type(Range), number_type("m")])
+    codes = FieldCodec(("range", "distance"), (enum_type(Range), number_type("m"))).decode(out.payloads[-1]).codes
     assert codes == [float(Range.NEAR.code), pytest.approx(1.25)]
 
 
@@ -445,7 +445,8 @@ def test_an_emulated_device_fails_safe_on_a_bad_command_frame_as_the_real_one_wo
     daemon = can.Bus(interface="virtual", channel="emulated-welder")
     delivered: queue.Queue = queue.Queue()
     enum, number = SimpleNamespace(kind="enum"), number_type(None)
-    source = SimpleNamespace(inputs=["safety_mode_request", "activity_request", "command"], types=[enum, enum, number],
+    source = SimpleNamespace(inputs=["safety_mode_request", "activity_request", "command"],
+                             codec=SimpleNamespace(types=[enum, enum, number]),
                              deliver=lambda payload: delivered.put(json.loads(payload)["fields"]))
     devices = EmulatedDevices(loaded, bus, session=None)
     request = loaded.database.get_message_by_name("SafetyModeRequest")

@@ -1,8 +1,9 @@
-"""Network messages into a live twin's entity: the sample source takes samples and failure messages in order."""
+"""Network messages into a live twin's entity: the sample source judges them by the one link rule."""
 
 from __future__ import annotations
 
-import math
+import json
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -10,34 +11,86 @@ from pydrake.systems.analysis import Simulator
 
 from cellsim.channels import BOOL
 from cellsim.live.codec import encode_failure, encode_fields
-from cellsim.live.sources import LiveClock, ZenohSampleSource
+from cellsim.live.systems import LiveClock, ZenohSampleSource
+from cellsim.vocabulary import PhysicalLink
+
+OK, STALE, CORRUPT, RECOVERING = (float(link.code) for link in
+                                  (PhysicalLink.OK, PhysicalLink.STALE, PhysicalLink.CORRUPT, PhysicalLink.RECOVERING))
 
 
-def _source():
+def _source(recover_after: int = 1, stale_after: float = 0.5):
     spec = SimpleNamespace(signal="broken", type=BOOL)
-    entity = SimpleNamespace(module="light_barrier", sample_fields=("broken",), channels=[(spec, None)], period=0.04)
-    source = ZenohSampleSource(entity, LiveClock(wall_at_zero=1000.0), time_step=0.002)
+    twin = SimpleNamespace(stale_after=stale_after, recover_after=recover_after)
+    entity = SimpleNamespace(module="light_barrier", sample_fields=("broken",), channels=[(spec, None)], period=0.04,
+                             twin=twin)
+    clock = LiveClock()
+    clock.start()
+    source = ZenohSampleSource(entity, clock, time_step=0.002)
     simulator = Simulator(source)
+    simulator.set_target_realtime_rate(1.0)  # as live: arrivals and the watchdog on one clock
     simulator.Initialize()
     return source, simulator
 
 
-def _sample(source, simulator, t: float) -> np.ndarray:
+def _after(source, simulator, t: float) -> np.ndarray:
+    """The source's output once it has drained at simulated time ``t``."""
     simulator.AdvanceTo(t)
     return source.get_output_port().Eval(simulator.get_context())
 
 
 def test_a_failure_message_makes_the_link_stale_or_corrupt_at_once_and_a_sample_restores_it():
     source, simulator = _source()
-    source.deliver(encode_fields(1000.01, 1, {"broken": False}))
-    assert np.allclose(_sample(source, simulator, 0.05), [0.01, 1.0, 0.0])
-    source.deliver(encode_failure(1000.06, 2, "corrupt"))
-    t, valid, broken = _sample(source, simulator, 0.09)
-    assert math.isclose(t, 0.06) and valid == 1.0 and math.isnan(broken)  # fresh but unusable: corrupt
-    source.deliver(encode_failure(1000.10, 3, "stale"))
-    t, valid, _ = _sample(source, simulator, 0.13)
-    assert valid == 0.0  # the entity reads its link stale
-    source.deliver(encode_failure(1000.05, 4, "corrupt"))  # older than the last taken: dropped
-    source.deliver(encode_fields(1000.14, 5, {"broken": True}))
-    assert np.allclose(_sample(source, simulator, 0.17), [0.14, 1.0, 1.0])
-    assert source.rejected == 1
+    now = time.time()
+    source.deliver(encode_fields(now, 1, {"broken": False}))
+    assert _after(source, simulator, 0.05)[1:].tolist() == [OK, 0.0]
+    source.deliver(encode_failure(now, 2, "corrupt"))
+    assert _after(source, simulator, 0.09)[1] == CORRUPT
+    source.deliver(encode_failure(now, 3, "stale"))
+    assert _after(source, simulator, 0.13)[1] == STALE
+    source.deliver(encode_fields(now, 4, {"broken": True}))
+    assert _after(source, simulator, 0.17)[1:].tolist() == [OK, 1.0]
+
+
+def test_repeats_and_replays_are_refused_and_a_frozen_stream_goes_stale():
+    source, simulator = _source(stale_after=0.2)
+    now = time.time()
+    source.deliver(encode_fields(now, 5, {"broken": False}))
+    assert _after(source, simulator, 0.05)[1] == OK
+    for seq in (5, 4, 1):  # the same message again, then older ones: refused, never taken
+        source.deliver(encode_fields(time.time(), seq, {"broken": True}))
+        assert _after(source, simulator, simulator.get_context().get_time() + 0.04)[1:].tolist() == [OK, 0.0]
+    assert source.rejected == 3
+    assert _after(source, simulator, 0.5)[1] == STALE  # nothing good since: stale by the receiver's clock
+
+
+def test_freshness_is_the_receivers_a_stamp_from_the_future_is_refused_and_a_late_one_is_stale():
+    source, simulator = _source(stale_after=0.2)
+    source.deliver(encode_fields(time.time() + 1e6, 1, {"broken": False}))  # a million seconds ahead
+    assert _after(source, simulator, 0.05)[1] == STALE and source.rejected == 1
+    source.deliver(encode_fields(time.time(), 2, {"broken": False}))
+    assert _after(source, simulator, 0.09)[1] == OK  # the future one did not poison the sequence or the clock
+    source.deliver(encode_fields(time.time() - 1.0, 3, {"broken": False}))  # taken a second ago: late
+    assert _after(source, simulator, 0.13)[1] == STALE
+
+
+def test_malformed_payloads_make_the_link_corrupt_and_trust_returns_after_recover_after_good_ones():
+    source, simulator = _source(recover_after=3)
+    t = 0.0
+    seq = 0
+
+    def send(payload_of_seq) -> float:
+        nonlocal t, seq
+        seq += 1
+        source.deliver(payload_of_seq(seq))
+        t += 0.04
+        return _after(source, simulator, t + 0.01)[1]
+
+    good = lambda n: encode_fields(time.time(), n, {"broken": False})  # noqa: E731
+    assert [send(good) for _ in range(3)] == [RECOVERING, RECOVERING, OK]  # the very first ones too
+    deep = b"[" * 100_000 + b"]" * 100_000
+    for bad in (b"not json", deep, json.dumps({"t": 10 ** 400, "seq": 1, "fields": {}}).encode(),
+                json.dumps({"t": time.time(), "seq": 10 ** 400, "fields": {"broken": False}}).encode(),
+                encode_fields(time.time(), 99, {"broken": "yes"})):
+        assert send(lambda n, bad=bad: bad) == CORRUPT
+        assert send(good) == RECOVERING
+    assert [send(good) for _ in range(2)] == [RECOVERING, OK]

@@ -4,25 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from cellsim.physical import BlackBoxReplay
-from cellsim.channels import enum_type, vector_type
+from cellsim.cell_io import Replayed
 from cellsim.scenario import TwinModeChange
-from cellsim.vocabulary import SafetyMode, TwinMode
+from cellsim.vocabulary import PhysicalLink, TwinMode
 
 from conftest import place_operator, run, welding_cell
-
-
-def robot_replay(recorded, robot, time_offset):
-    """The recorded robot as a physical twin: its joint positions, mode, activity, pose reached."""
-    fields = [("robot.joint_positions", i, vector_type(6, "rad")) for i in range(6)]
-    fields += [
-        ("robot.safety_mode", 0, enum_type(SafetyMode)),
-        ("robot.activity", 0, enum_type(robot.activity_type)),
-        ("robot.reached_pose", 0, enum_type(robot.reached_poses)),
-    ]
-    return BlackBoxReplay(recorded, fields, period=0.02, time_offset=time_offset)
-
-
 
 
 def test_switch_model_to_shadow_mid_run_follows_the_physical_twin(tmp_path):
@@ -30,11 +16,9 @@ def test_switch_model_to_shadow_mid_run_follows_the_physical_twin(tmp_path):
 
     sf = place_operator(welding_cell(), start=(-4.0, -3.0))
     sf.scenario.entities["robot"].twin.changes = [TwinModeChange(4.0, TwinMode.SHADOW)]
-    from diagrams.cell import build_cell
-
-    probe = build_cell(sf, seed=1, duration=10.0, record=False)
-    replay = robot_replay(recorded, probe.modules["robot"], time_offset=2.0)
-    bb = run(sf, tmp_path / "shadowed", duration=10.0, physical_sources={"robot": replay})
+    # the recorded run replayed as the robot's physical twin, two seconds late
+    replay = Replayed(tmp_path / "physical" / "blackbox.sqlite", time_offset=2.0, entities=("robot",))
+    bb = run(sf, tmp_path / "shadowed", duration=10.0, io=replay)
 
     mode = bb.series("robot.twin_mode")
     assert mode.values == ["model", "shadow"] and mode.times[1] == 4.0
@@ -175,20 +159,18 @@ def test_a_shadowed_robot_gone_silent_does_not_hide_a_person_in_the_cell(tmp_pat
     assert verdicts["HS:detected"]["status"] == "holds"
 
 
-def test_a_sensor_trusts_its_physical_twin_again_only_after_several_good_samples_in_a_row():
-    context, rd, own, _sim = shadowed_range_detector(recover_after=3)  # the default
+def test_an_entity_follows_the_link_its_source_judged():
+    """The source judges the link (cellsim.link); the entity fails safe on anything but ok."""
+    context, rd, own, _sim = shadowed_range_detector(recover_after=3)
 
-    def step(stamp: float, code: float = 0.0) -> tuple[str, str]:
-        context.SetTime(max(stamp, 0.0))
-        rd.physical_sample_port.FixValue(own, np.array([stamp, 1.0, code, 2.5]))
+    def step(link: PhysicalLink, code: float = 0.0) -> tuple[float, float]:
+        rd.physical_sample_port.FixValue(own, np.array([0.0, float(link.code), code, 2.5]))
         own.SetDiscreteState(rd.EvalUniquePeriodicDiscreteUpdate(own))
-        return (rd.GetOutputPort("range").Eval(own)[0], rd.GetOutputPort("physical_link").Eval(own)[0])
+        return rd.GetOutputPort("range").Eval(own)[0], rd.GetOutputPort("physical_link").Eval(own)[0]
 
     far, close = 0.0, 2.0
-    ok, corrupt, recovering = 1.0, 3.0, 4.0
-    # the very first good samples: not trusted until the third
-    assert [step(t) for t in (0.0, 0.04, 0.08)] == [(close, recovering), (close, recovering), (far, ok)]
-    assert step(0.12, code=7.0) == (close, corrupt)  # one bad sample: fail safe at once
-    assert step(0.16) == (close, recovering)  # and not trusted again on the first good one
-    assert step(0.16) == (close, recovering)  # the same sample again does not count
-    assert [step(t) for t in (0.20, 0.24)] == [(close, recovering), (far, ok)]
+    for link in (PhysicalLink.STALE, PhysicalLink.CORRUPT, PhysicalLink.RECOVERING):
+        assert step(link) == (close, float(link.code))
+    assert step(PhysicalLink.OK) == (far, float(PhysicalLink.OK.code))
+    assert step(PhysicalLink.OK, code=7.0) == (close, float(PhysicalLink.CORRUPT.code))  # ok, but not a range
+    assert step(PhysicalLink.UNUSED) == (close, float(PhysicalLink.CORRUPT.code))  # no source says unused

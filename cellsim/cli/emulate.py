@@ -59,7 +59,8 @@ def add_parser(subparsers) -> None:
 
 
 def run(args) -> int:
-    from cellsim.live.emulator import run_emulator
+    from cellsim.cell_io import Emulated, FaultSchedule
+    from cellsim.simulation import simulate
     from cellsim.live.faults import FaultError, check_entities, check_faults, parse_fault, parse_rate
 
     loaded = None
@@ -102,8 +103,8 @@ def run(args) -> int:
             if not args.quiet:
                 on = f" on {args.can}" if bus is not None else ""
                 print(f"cellsim emulate: playing the physical {sf.scenario.name}{on}, recording to {out}", file=sys.stderr)
-            summary, _ = run_emulator(sf, out, session=session, duration=duration, seed=args.seed, faults=faults,
-                                      commanded_by_twin=args.commanded_by_twin, rates=rates, devices=devices)
+            io = Emulated(session, args.commanded_by_twin, rates, devices, FaultSchedule(list(faults)))
+            summary = simulate(sf, out, io=io, seed=args.seed, duration=duration)
         finally:
             if bus is not None:
                 bus.shutdown()

@@ -29,7 +29,8 @@ def add_parser(subparsers) -> None:
 
 
 def run(args) -> int:
-    from cellsim.live.twin import run_live
+    from cellsim.cell_io import Live
+    from cellsim.simulation import simulate
 
     def check(sf):
         if not 0.0 <= args.wait_physical <= 3600.0:
@@ -38,7 +39,7 @@ def run(args) -> int:
     def twin(sf, out, session, duration):
         if not args.quiet:
             print(f"cellsim live: {sf.scenario.name} twin running, recording to {out}", file=sys.stderr)
-        summary, _ = run_live(sf, out, session=session, duration=duration, seed=args.seed, wait_physical=args.wait_physical)
+        summary = simulate(sf, out, io=Live(session, args.wait_physical), seed=args.seed, duration=duration)
         return EXIT_FINDING if summary.mishap else EXIT_OK
 
     return _live_run(args, "twin", True, twin, check)

@@ -52,9 +52,9 @@ def run(args) -> int:
         check_seed(args.seed, "--seed")
     out = args.out or Path("runs") / f"{sf.scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"
     console = Console(stderr=True, quiet=args.quiet)
-    meshcat = on_start = None
+    meshcat = meshcat_wait = None
     if args.meshcat:
-        from cellsim.visual.serve import WAIT_DEFAULT, open_meshcat, wait_for_browser
+        from cellsim.visual.serve import WAIT_DEFAULT, open_meshcat
 
         wait = args.meshcat_wait
         if wait is None:
@@ -63,7 +63,7 @@ def run(args) -> int:
             raise InputError(f"--meshcat-wait {wait:g}: expected 0 to 3600 seconds")
         meshcat = open_meshcat()
         console.print(f"Meshcat: [link={meshcat.web_url()}]{meshcat.web_url()}[/link]")
-        on_start = lambda: wait_for_browser(meshcat, wait, console.print)  # noqa: E731
+        meshcat_wait = (wait, console.print)
     try:
         with _progress(console, args.quiet) as report:
             summary = simulate(
@@ -73,9 +73,8 @@ def run(args) -> int:
                 duration=args.duration,
                 overwrite=args.overwrite,
                 meshcat=meshcat,
-                realtime_rate=1.0 if meshcat else 0.0,
+                meshcat_wait=meshcat_wait,
                 on_progress=report,
-                on_start=on_start,
             )
         checked = _check_of(summary)
         if not args.quiet:

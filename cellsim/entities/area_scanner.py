@@ -122,7 +122,7 @@ class AreaScanner(GeometrySensor):
 
     Ports:
       geometry_query (input): SceneGraph QueryObject.
-      physical_sample (input): [t, valid, field code, distance (m)].
+      physical_sample (input): [t, link, field code, distance (m)].
       field (channel): the innermost field a person is seen in, else the clear reading.
       distance (channel, m): distance from the head to the nearest person seen, at most max_range.
     Fails safe (innermost field, distance 0) when its physical sample is stale or corrupt.

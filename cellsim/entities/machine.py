@@ -93,7 +93,7 @@ class Machine(EntitySystem):
       safety_mode_request (input): SafetyMode code from the safety controller.
       activity_request (input): code of one of its activities from the safety controller, -1 for none.
       command (input): 1 while the process controller asks it to work (a rising edge starts a cycle).
-      physical_sample (input): [t, valid, safety_mode code, activity code].
+      physical_sample (input): [t, link, safety_mode code, activity code].
       safety_mode (channel): its safety mode.
       activity (channel): one of its activities.
       cycles_completed (channel, with a cycle_time): cycles it finished.
@@ -130,6 +130,10 @@ class Machine(EntitySystem):
 
     def sample_is_valid(self, sample) -> bool:
         return valid_code(sample[0], SafetyMode) and valid_code(sample[1], self.activity_type)
+
+    def safe_command(self) -> dict[str, float]:
+        """Its supervisor lost: stopped, its off activity requested, no work commanded."""
+        return {**super().safe_command(), "activity_request": float(self.off), "command": 0.0}
 
     def update(self, context, xd):
         view = self.consult_physical(context, xd)

@@ -192,7 +192,7 @@ class Operator(EntitySystem):
       notification (input): code of one of the person's notifications; and one
         true/false input per alert: what the safety controller tells this person, forwarded to the physical twin's
         wearable in twin mode.
-      physical_sample (input): [t, valid, x, y, yaw, reach_fraction, reach_x, reach_y, reach_z].
+      physical_sample (input): [t, link, x, y, yaw, reach_fraction, reach_x, reach_y, reach_z].
       geometry_pose (output): FramePoseVector of the body and arm frames, for SceneGraph.
       location (channel): the name of the layout's operator zone the body stands in, else
         layout.operator_outside (oloc; the welding cell: inCell / none).
@@ -304,9 +304,9 @@ class Operator(EntitySystem):
         poses.set_value(self.arm_frame, RigidTransform(RotationMatrix.MakeFromOneVector(-direction, 2), shoulder))
         return poses
 
-    def physical_state(self, root_context) -> list[float]:
+    def physical_state(self, context) -> list[float]:
         """x, y (m), yaw (rad), reach fraction and reach point (m): the pose state."""
-        return self.GetMyContextFromRoot(root_context).get_discrete_state(self._pose).get_value().tolist()
+        return context.get_discrete_state(self._pose).get_value().tolist()
 
     # -- in Meshcat (cellsim.visual.cues) --------------------------------------------
     def visual_cues(self, view) -> list:

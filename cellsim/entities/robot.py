@@ -101,7 +101,7 @@ class Robot(EntitySystem):
       target_pose (input): index of the named pose to move to, or -1 to hold.
       activity (input): code of the robot activity the process controller is carrying out.
       measured_state (input): the plant's joint state [q (rad), v (rad/s)].
-      physical_sample (input): [t, valid, q (6, rad), safety_mode code, activity code, reached_pose code].
+      physical_sample (input): [t, link, q (6, rad), safety_mode code, activity code, reached_pose code].
       desired_state (output): [q (rad), v (rad/s)] for the joint controller.
       safety_mode (channel): the robot's current safety mode (safmod).
       activity (channel): one of the robot's ``activities`` (ract; the welding cell:
@@ -200,11 +200,16 @@ class Robot(EntitySystem):
             plant_context = cell.plant.GetMyMutableContextFromRoot(root_context)
             cell.plant.SetPositions(plant_context, cell.robots[self.module], np.asarray(q, float))
 
-    def physical_state(self, root_context) -> list[float]:
+    def recorded_as(self, field: str) -> tuple[str, int]:
+        """q0..q5 are the elements of ``joint_positions``."""
+        if field.startswith("q") and field[1:].isdigit():
+            return f"{self.module}.joint_positions", int(field[1:])
+        return super().recorded_as(field)
+
+    def physical_state(self, context) -> list[float]:
         """q (rad, measured), safety mode, activity and reached pose codes."""
-        own = self.GetMyContextFromRoot(root_context)
-        q = self.measured_state_port.Eval(own)[:6]
-        return [*q.tolist(), *(read_scalar(own, g) for g in self._published[:2]), read_scalar(own, self._published[3])]
+        q = self.measured_state_port.Eval(context)[:6]
+        return [*q.tolist(), *(read_scalar(context, g) for g in self._published[:2]), read_scalar(context, self._published[3])]
 
     # -- helpers ------------------------------------------------------------------
     def locate(self, tool_position):

@@ -63,7 +63,7 @@ class LightBarrier(GeometrySensor):
 
     Ports:
       geometry_query (input): SceneGraph QueryObject.
-      physical_sample (input): [t, valid, broken (0/1)].
+      physical_sample (input): [t, link, broken (0/1)].
       reset (input, with restart_interlock): a rising edge resets a tripped curtain whose beams are clear.
       broken (channel, bool): true while any target geometry intersects the beams; with
         restart_interlock, from the first break until a reset.
@@ -148,7 +148,7 @@ class RangeDetector(GeometrySensor):
 
     Ports:
       geometry_query (input): SceneGraph QueryObject.
-      physical_sample (input): [t, valid, range code, distance (m)].
+      physical_sample (input): [t, link, range code, distance (m)].
       range (channel, far/near/close): close below ``close_below`` m, near below
         ``near_below`` m, else far (rngDet).
       distance (channel, m): the measured signed distance from the sensor to the

@@ -2,34 +2,41 @@
 
 Every entity is an ``EntitySystem``. Besides its digital behaviour it has
 
-* input ``physical_sample``: the latest sample from its physical twin, a vector
-  ``[timestamp (s, simulation clock), valid (0/1), *sample_fields]``. In
-  simulation it is fixed to "no sample" (``cellsim.physical.no_sample``); beside
-  the real cell the live twin feeds it from Zenoh (the emulator's or the bridge
-  daemon's samples); tests replay a black box into it.
+* input ``physical_sample``: the newest sample from its physical twin, a vector
+  ``[t (s, simulation clock), link (PhysicalLink code), *sample_fields]``, as its
+  source judged it (``cellsim.link``: freshness, order, recover-after). The
+  builder (``diagrams.cell``) decides the source: none in simulation (the input
+  reads stale), a black box replayed, or Zenoh beside the real cell.
+* input ``twin_mode_request``: ``[serial, TwinMode code]``; the entity switches
+  mode at its next update after the serial changes (the live twin's mode control).
 * output ``physical_command``: ``[active (0/1), *command_fields]``, the commands
   addressed to this entity; ``active`` is 1 only in ``twin`` mode, so a
   network bridge forwards them to the physical twin only then.
+* output ``physical_state``: what this entity's physical twin would report now
+  (its sample fields as port codes): the emulator publishes it.
 * channels ``<entity>.twin_mode`` and ``<entity>.physical_link``.
 
 In ``model`` mode the digital behaviour drives the outputs. In ``shadow`` and
-``twin`` mode the outputs follow the physical sample; when that sample is older
-than ``stale_after`` or malformed, the entity *fails safe* (each entity says
-what that means: a light barrier reads broken, a range detector reads close).
+``twin`` mode they follow the physical sample; when the link is not ok (stale,
+corrupt, recovering) or the sample is malformed, the entity *fails safe* (each
+kind says what that means, once: a light barrier reads broken, a range detector
+reads close). What the entity's physical twin is told when its supervisor is
+lost is the kind's ``safe_command``, used by every party that fails safe on its
+behalf (the emulator's command sources, the bridge daemon).
 
-The mode changes at the times in the scenario's ``twin.changes`` or when a
-script calls ``set_twin_mode``; every change is a message on ``twin_mode``.
+The mode changes at the times in the scenario's ``twin.changes``, on a request
+at ``twin_mode_request``, or when a script calls ``set_twin_mode``; every change
+is a message on ``twin_mode``.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
-from cellsim.channels import enum_type
+from cellsim.channels import NO_VALUE, enum_type
 from cellsim.scenario import TwinSettings
 from cellsim.systems import CellSystem, read_scalar, write_scalar
 from cellsim.vocabulary import PhysicalLink, TwinMode
@@ -74,12 +81,52 @@ class EntitySystem(CellSystem):
             PhysicalLink.UNUSED,
             description="Freshness and validity of the physical twin's samples",
         )
-        self._next_change_group = self.declare_state("next_twin_change", [0.0])
-        # [good samples in a row, time stamp of the last one]: trust comes back only after several
-        self._recovery_group = self.declare_state("recovery", [0.0, -np.inf])
+        # [index of the next scheduled change, serial of the last mode request applied]
+        self._next_change_group = self.declare_state("next_twin_change", [0.0, 0.0])
         self.physical_sample_port = self.declare_input("physical_sample", 2 + len(sample_fields))
+        self.mode_request_input = self.declare_input("twin_mode_request", 2)
+        self.takes_mode_requests = False
+        """Set by the builder when something drives ``twin_mode_request`` (a live twin)."""
         self._command_group = self.declare_state("physical_command", np.zeros(1 + len(command_fields)))
         self.physical_command_port = self.DeclareStateOutputPort("physical_command", self._command_group)
+        self.physical_state_port = self.DeclareVectorOutputPort(
+            "physical_state", len(sample_fields), lambda context, out: out.SetFromVector(self.physical_state(context))
+        )
+
+    # -- what the kind declares ------------------------------------------------------
+    def safe_command(self) -> dict[str, float]:
+        """The command codes this entity's physical twin gets when its supervisor is lost.
+
+        By default a safety-mode request is ``stopped`` and every other command its
+        no-request default; a kind with a safer choice says so (a machine: its off
+        activity). The one declaration every party uses that fails safe on the
+        entity's behalf: the emulator's command sources and the bridge daemon.
+        """
+        from cellsim.vocabulary import SafetyMode
+
+        safe = {}
+        for name in self.command_fields:
+            ctype = self.input_types.get(name)
+            if ctype is not None and ctype.kind == "enum" and ctype.enum is SafetyMode:
+                safe[name] = float(SafetyMode.STOPPED.code)
+            else:
+                safe[name] = float(self.input_defaults.get(name, NO_VALUE))
+        return safe
+
+    def physical_state(self, context) -> list[float]:
+        """What this entity's physical twin would report now: its sample fields as port codes
+        (``context``: this system's own).
+
+        The emulator publishes this for a digital model playing the physical twin.
+        By default each field is the channel of that name; an entity whose fields
+        are not channels (joint angles, a person's pose) says otherwise.
+        """
+        return [read_scalar(context, self.group(name)) for name in self.sample_fields]
+
+    def recorded_as(self, field: str) -> tuple[str, int]:
+        """The channel (and element of its vector) a black box records sample field ``field`` on:
+        by default the channel of that name (a black box replayed as the physical twin)."""
+        return f"{self.module}.{field}", 0
 
     # -- scripts --------------------------------------------------------------
     def set_twin_mode(self, root_context, mode: TwinMode | str) -> None:
@@ -87,72 +134,52 @@ class EntitySystem(CellSystem):
         mode = TwinMode(mode)
         own = self.GetMyMutableContextFromRoot(root_context)
         own.get_mutable_discrete_state(self._mode_group).SetAtIndex(0, float(mode.code))
-        own.get_mutable_discrete_state(self._recovery_group).SetFromVector([0.0, -np.inf])
         if mode is not TwinMode.TWIN:  # commands go out in twin mode only
             own.get_mutable_discrete_state(self._command_group).SetZero()
-
-    def physical_state(self, root_context) -> list[float]:
-        """What this entity's physical twin would report now: its sample fields as port codes.
-
-        The emulator publishes this for a digital model playing the physical twin.
-        By default each field is the channel of that name; an entity whose fields
-        are not channels (joint angles, a person's pose) says otherwise.
-        """
-        own = self.GetMyContextFromRoot(root_context)
-        return [read_scalar(own, self.group(name)) for name in self.sample_fields]
 
     def twin_mode(self, root_context) -> TwinMode:
         return _MODES[int(read_scalar(self.GetMyContextFromRoot(root_context), self._mode_group))]
 
     # -- update helpers ---------------------------------------------------------
     def consult_physical(self, context, xd) -> PhysicalView:
-        """Apply scheduled mode changes and judge the physical sample; writes mode and link."""
+        """Apply scheduled and requested mode changes and read the physical sample; writes mode and link."""
         mode_code = read_scalar(context, self._mode_group)
         changes = self.twin.changes
-        if mode_code == 0.0 and not changes:  # model mode for good: the common case, kept cheap
+        if mode_code == 0.0 and not changes and not self.takes_mode_requests:  # model mode for good: kept cheap
             return _MODEL_VIEW
         t = context.get_time()
         mode = _MODES[int(mode_code)]
-        if changes:
-            nxt = start = int(read_scalar(context, self._next_change_group))
-            while nxt < len(changes) and changes[nxt].at <= t + 1e-9:
-                mode = changes[nxt].mode
-                nxt += 1
-            if nxt != start:
-                write_scalar(xd, self._next_change_group, nxt)
-                write_scalar(xd, self._mode_group, mode.code)
-                xd.get_mutable_vector(self._recovery_group).SetFromVector([0.0, -np.inf])
-                if mode is not TwinMode.TWIN:  # commands go out in twin mode only
-                    xd.get_mutable_vector(self._command_group).SetZero()
+        before = context.get_discrete_state(self._next_change_group).get_value().tolist()
+        nxt, seen = int(before[0]), before[1]
+        while changes and nxt < len(changes) and changes[nxt].at <= t + 1e-9:
+            mode = changes[nxt].mode
+            nxt += 1
+        if self.takes_mode_requests:
+            serial, requested = self.mode_request_input.Eval(context)
+            if serial != seen:
+                mode, seen = _MODES[int(requested)], serial
+        if [nxt, seen] != before:
+            xd.get_mutable_vector(self._next_change_group).SetFromVector([nxt, seen])
+        if mode.code != mode_code:
+            write_scalar(xd, self._mode_group, mode.code)
+            if mode is not TwinMode.TWIN:  # commands go out in twin mode only
+                xd.get_mutable_vector(self._command_group).SetZero()
         if mode is TwinMode.MODEL:
             link, sample = PhysicalLink.UNUSED, None
         else:
-            raw = self.physical_sample_port.Eval(context)
-            link, sample = self._judge(raw, t)
-            link, sample = self._recover(context, xd, raw[0], link, sample)
+            link, sample = self._read(self.physical_sample_port.Eval(context))
         if link.code != read_scalar(context, self._link_group):
             write_scalar(xd, self._link_group, link.code)
         return PhysicalView(mode, link, sample)
 
-    def _recover(self, context, xd, stamp: float, link: PhysicalLink, sample):
-        """Trust a good sample only once ``recover_after`` good ones came in a row."""
-        good, last = context.get_discrete_state(self._recovery_group).get_value()
-        needed = self.twin.recover_after
-        if link is PhysicalLink.OK:
-            if stamp != last:
-                good, last = min(good + 1.0, float(needed)), stamp
-            if good < needed:
-                link, sample = PhysicalLink.RECOVERING, None
-        else:
-            good = 0.0
-        if [good, last] != context.get_discrete_state(self._recovery_group).get_value().tolist():
-            xd.get_mutable_vector(self._recovery_group).SetFromVector([good, last])
-        return link, sample
-
-    def _judge(self, raw: np.ndarray, t: float) -> tuple[PhysicalLink, np.ndarray | None]:
-        stamp, valid = raw[0], raw[1]
-        if not valid > 0.5 or not math.isfinite(stamp) or t - stamp > self.twin.stale_after:
-            return PhysicalLink.STALE, None
+    def _read(self, raw: np.ndarray) -> tuple[PhysicalLink, np.ndarray | None]:
+        """The link its source judged, and the sample when the link is ok and the sample well formed."""
+        code = raw[1]
+        if not valid_code(code, PhysicalLink) or code == PhysicalLink.UNUSED.code:
+            return PhysicalLink.CORRUPT, None
+        link = PhysicalLink.from_code(code)
+        if link is not PhysicalLink.OK:
+            return link, None
         sample = raw[2:]
         if not np.all(np.isfinite(sample)) or not self.sample_is_valid(sample):
             return PhysicalLink.CORRUPT, None
@@ -166,7 +193,7 @@ class EntitySystem(CellSystem):
         """Publish the commands addressed to this entity (``values()``) in twin mode.
 
         Outside twin mode the command output is all zeros (inactive): leaving twin
-        mode, by schedule or ``set_twin_mode``, clears it.
+        mode, by schedule, request or ``set_twin_mode``, clears it.
         """
         if mode is TwinMode.TWIN:
             xd.get_mutable_vector(self._command_group).SetFromVector(np.array([1.0, *values()], float))

@@ -1,0 +1,427 @@
+"""Zenoh inside the diagram: subscribers and publishers as LeafSystems, as Drake's LCM systems are.
+
+A subscriber's callback runs on a network thread: it only puts the raw payload
+and its arrival time (the receiver's monotonic and wall clocks) into a system's
+inbox, a thread-safe queue. The system drains the inbox in a declared periodic
+discrete update and keeps what it took in its context; nothing written by the
+network thread is read by a calc method. Publishers are declared periodic
+publish events reading their input ports. So a live run is the same diagram
+and the same run loop as any other: ``Simulator.AdvanceTo`` paced to the wall.
+
+* :class:`ZenohSampleSource`: an entity's physical samples from its physical key,
+  judged by the one link-trust rule (``cellsim.link``) with the entity's
+  ``stale_after`` and ``recover_after``; its output is the entity's
+  ``physical_sample`` input ``[t, link code, *fields]``.
+* :class:`ZenohCommandSource`: the twin's commands for an emulated entity's inputs,
+  failing safe to the entity kind's ``safe_command`` when they stop.
+* :class:`ChannelPublisher`: every channel of the twin, on change and every ``HEARTBEAT``.
+* :class:`CommandPublisher`: an entity's commands, in twin mode only.
+* :class:`SampleOutlet`: an emulated entity's physical state, through its outlet
+  (its physical key, or its CAN device), with the faults injected.
+* :class:`TwinModeControl`: twin-mode requests (a Zenoh query), applied through each
+  entity's ``twin_mode_request`` input.
+* :class:`LiveStatus`: the process's status every second and its pacing lag.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from cellsim.channels import NO_VALUE
+from cellsim.link import Fault, LinkTrust
+from cellsim.live import codec
+from cellsim.live.codec import CodecError, FieldCodec
+from cellsim.vocabulary import PhysicalLink, TwinMode
+
+TICK = 0.01
+"""How often (s of simulated time) channels and commands are published and requests applied."""
+HEARTBEAT = 1.0
+"""Every channel is published at least this often (s), changed or not."""
+COMMAND_HEARTBEAT = 0.1
+"""An entity in twin mode has its commands published at least this often (s): its physical twin
+takes a silence longer than its stale_after for a lost supervisor, and stops."""
+LAG_WARNING = 0.1
+"""Pacing lag (s) beyond which the process says, once, that it cannot keep up."""
+log = logging.getLogger("cellsim.live")
+
+
+@dataclass
+class LiveClock:
+    """The receiver's clocks at simulation time 0 of a run paced to the wall clock."""
+
+    mono_at_zero: float = 0.0
+    """``time.monotonic()`` at t = 0: arrival times are judged on this clock."""
+    wall_at_zero: float = 0.0
+    """UNIX time at t = 0 (for people and for the black box's metadata)."""
+
+    started: bool = False
+
+    def start(self) -> None:
+        self.mono_at_zero, self.wall_at_zero = time.monotonic(), time.time()
+        self.started = True
+
+    def sim_time(self, mono: float) -> float:
+        """The simulation time of a ``time.monotonic()`` reading."""
+        return mono - self.mono_at_zero
+
+    def lag(self, t: float) -> float:
+        """How far (s) simulated time ``t`` is behind the wall."""
+        return time.monotonic() - self.mono_at_zero - t
+
+
+class Inbox:
+    """What a network thread hands a system: (payload, monotonic arrival, wall arrival)."""
+
+    def __init__(self):
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+
+    def deliver(self, payload: bytes) -> None:
+        """Called on the network thread: hand a message over, nothing more."""
+        self._queue.put((payload, time.monotonic(), time.time()))
+
+    def on_sample(self, sample) -> None:
+        """A Zenoh subscriber's callback."""
+        self.deliver(sample.payload.to_bytes())
+
+    def __iter__(self):
+        """Every message waiting, oldest first, without blocking."""
+        while True:
+            try:
+                yield self._queue.get_nowait()
+            except queue.Empty:
+                return
+
+
+class _Refusals:
+    """Counts and logs messages refused on one key (logged sparingly: a flood says so, once in a while)."""
+
+    def __init__(self, key: str):
+        self.key, self.count = key, 0
+
+    def __call__(self, why: str) -> None:
+        self.count += 1
+        if self.count in (1, 10, 100) or self.count % 1000 == 0:
+            log.warning("%s: refused a message (%s); %d refused so far", self.key, why, self.count)
+
+
+class ZenohSampleSource(LeafSystem):
+    """Physical samples of one entity, from its physical key.
+
+    Ports:
+      physical_sample (output): [t (s, simulation clock: the arrival of the newest good
+        sample), link (PhysicalLink code), *fields (port codes of the newest good sample)].
+    """
+
+    def __init__(self, entity, clock: LiveClock, time_step: float, key: str = ""):
+        super().__init__()
+        self.set_name(f"{entity.module}.physical_source")
+        self.codec = FieldCodec.samples_of(entity)
+        self.clock = clock
+        self.inbox = Inbox()
+        self.refused = _Refusals(key or entity.module)
+        self.trust = LinkTrust(timeout=entity.twin.stale_after, recover_after=entity.twin.recover_after,
+                               max_gap=1_000_000)
+        n = len(self.codec.names)
+        initial = np.zeros(2 + n)
+        initial[0], initial[1] = -np.inf, float(PhysicalLink.STALE.code)
+        self._sample = self.DeclareDiscreteState(initial)
+        self._trust = self.DeclareDiscreteState(self.trust.state())
+        self.DeclareStateOutputPort("physical_sample", self._sample)
+        # drained one plant step before each of the entity's updates, so the entity reads
+        # what arrived up to then (discrete updates at one instant read the old state)
+        self.DeclarePeriodicDiscreteUpdateEvent(entity.period, entity.period - time_step, self._drain)
+
+    @property
+    def rejected(self) -> int:
+        return self.refused.count
+
+    def deliver(self, payload: bytes) -> None:
+        self.inbox.deliver(payload)
+
+    def _drain(self, context, xd) -> None:
+        trust = self.trust.restore(context.get_discrete_state(self._trust).get_value())
+        sample = context.get_discrete_state(self._sample).get_value().copy()
+        for payload, mono, wall in self.inbox:
+            arrival = self.clock.sim_time(mono)
+            try:
+                message = self.codec.decode(payload)
+            except CodecError as e:
+                self.refused(str(e))
+                trust.fail(Fault.CORRUPT)
+                continue
+            fault = trust.stamp(message.t, wall) or trust.sequence(message.seq, arrival)
+            if fault is not None:
+                self.refused(fault.value)
+                trust.fail(fault)
+                continue
+            if message.failure is not None:  # the bridge's checks refused its device's data
+                trust.fail(Fault.TIMEOUT if message.failure == "stale" else Fault.CORRUPT)
+                continue
+            trust.good(arrival, message.codes)
+            sample[0], sample[2:] = arrival, message.codes
+        trust.watchdog(context.get_time())
+        sample[1] = float(trust.link.code)
+        xd.get_mutable_vector(self._sample).SetFromVector(sample)
+        xd.get_mutable_vector(self._trust).SetFromVector(trust.state())
+
+
+class ZenohCommandSource(LeafSystem):
+    """Commands from the twin into an emulated entity's inputs.
+
+    For a cell emulated under the twin's command: the inputs the twin's supervisor
+    drives (a safety-mode request, an activity request, a person's notification),
+    one output port per input, of the same name. Fed from the entity's command key
+    (``inbox``), or by its device's protocol. Judged by the one link-trust rule with
+    the entity's ``stale_after``: without a good command for that long (the twin
+    stopped, or was never there) every output takes the entity kind's
+    ``safe_command`` (a safety-mode request reads stopped: losing the supervisor
+    makes the cell safer).
+
+    Ports:
+      <input> (output), per input: the commanded code.
+    """
+
+    def __init__(self, entity, inputs: list[str], clock: LiveClock, time_step: float, key: str = ""):
+        super().__init__()
+        self.set_name(f"{entity.module}.command_source")
+        self.inputs = list(inputs)
+        self.codec = FieldCodec.commands_of(entity, self.inputs)
+        safe = entity.safe_command()
+        self.safe = [safe[name] for name in self.inputs]
+        self.clock = clock
+        self.inbox = Inbox()
+        self.refused = _Refusals(key or entity.module)
+        self.trust = LinkTrust(timeout=entity.twin.stale_after, recover_after=1, max_gap=1_000_000)
+        self._values = self.DeclareDiscreteState(np.array(self.safe, float))
+        self._trust = self.DeclareDiscreteState(self.trust.state())
+        for i, name in enumerate(self.inputs):
+            self.DeclareVectorOutputPort(name, 1, lambda context, out, i=i: out.SetAtIndex(
+                0, context.get_discrete_state(self._values).GetAtIndex(i)))
+        self.DeclarePeriodicDiscreteUpdateEvent(entity.period, entity.period - time_step, self._drain)
+
+    @property
+    def rejected(self) -> int:
+        return self.refused.count
+
+    def deliver(self, payload: bytes) -> None:
+        self.inbox.deliver(payload)
+
+    def _drain(self, context, xd) -> None:
+        trust = self.trust.restore(context.get_discrete_state(self._trust).get_value())
+        values = context.get_discrete_state(self._values).get_value().copy()
+        for payload, mono, wall in self.inbox:
+            try:
+                message = self.codec.decode(payload)
+                if message.failure is not None:
+                    raise CodecError("a command is never a failure")
+            except CodecError as e:
+                self.refused(str(e))
+                trust.fail(Fault.CORRUPT)
+                continue
+            fault = trust.stamp(message.t, wall) or trust.sequence(message.seq, self.clock.sim_time(mono))
+            if fault is not None:
+                self.refused(fault.value)
+                trust.fail(fault)
+                continue
+            if trust.good(self.clock.sim_time(mono)).trusted:
+                values[:] = message.codes
+        trust.watchdog(context.get_time())
+        if trust.failed:
+            values[:] = self.safe  # the supervisor is gone, or its commands are bad: fail safe
+        xd.get_mutable_vector(self._values).SetFromVector(values)
+        xd.get_mutable_vector(self._trust).SetFromVector(trust.state())
+
+
+class ChannelPublisher(LeafSystem):
+    """Every channel of the twin on its key, when it changes and every HEARTBEAT.
+
+    Ports:
+      <module.signal> (input), per channel: the channel's port vector.
+    """
+
+    def __init__(self, channels: list, publisher_of):
+        """``channels``: (ChannelSpec, output port) pairs; ``publisher_of(spec)``: its Zenoh publisher."""
+        super().__init__()
+        self.set_name("channel_publisher")
+        self._channels = []
+        for spec, port in channels:
+            self._channels.append((spec, self.DeclareVectorInputPort(spec.name, port.size()), publisher_of(spec)))
+        self._last: dict[str, tuple] = {}
+        self.DeclarePeriodicPublishEvent(TICK, 0.0, self._publish)
+
+    def _publish(self, context) -> None:
+        t = context.get_time()
+        wall = time.time()
+        last = self._last
+        for spec, port, publisher in self._channels:
+            value = spec.type.decode(port.Eval(context))
+            previous = last.get(spec.name)
+            if previous is None or value != previous[0] or t - previous[1] >= HEARTBEAT - 1e-9:
+                last[spec.name] = (value, t)
+                publisher.put(codec.encode_value(wall, t, value))
+
+
+class CommandPublisher(LeafSystem):
+    """An entity's commands on its command key: in twin mode only, on change and every COMMAND_HEARTBEAT.
+
+    Ports:
+      physical_command (input): the entity's ``physical_command`` ([active, *command codes]).
+    """
+
+    def __init__(self, entity, publisher, period: float = TICK):
+        super().__init__()
+        self.set_name(f"{entity.module}.command_publisher")
+        self.codec = FieldCodec.commands_of(entity)
+        self.publisher = publisher
+        self.command_port = self.DeclareVectorInputPort("physical_command", 1 + len(entity.command_fields))
+        self._last: tuple | None = None
+        self._seq = 0
+        self.DeclarePeriodicPublishEvent(period, 0.0, self._publish)
+
+    def _publish(self, context) -> None:
+        vector = self.command_port.Eval(context)
+        if vector[0] < 0.5:  # not in twin mode: nothing goes out
+            self._last = None
+            return
+        codes, t = tuple(vector[1:].tolist()), context.get_time()
+        if self._last is not None and self._last[0] == codes and t - self._last[1] < COMMAND_HEARTBEAT - 1e-9:
+            return
+        self._last = (codes, t)
+        self._seq += 1
+        self.publisher.put(self.codec.encode_codes(time.time(), self._seq, codes))
+
+
+class SampleOutlet(LeafSystem):
+    """An emulated entity's physical state, sent through its outlet at its rate, with injected faults.
+
+    ``outlet.send(fields, fault, sim_time)`` sends one sample (a Zenoh message on the
+    entity's physical key, or its CAN device's frame); ``faults(entity, t)`` says which
+    fault holds now (None: none).
+
+    Ports:
+      physical_state (input): the entity's ``physical_state`` (its sample fields as port codes).
+    """
+
+    def __init__(self, entity, outlet, period: float, faults):
+        super().__init__()
+        self.set_name(f"{entity.module}.outlet")
+        self.entity, self.outlet, self.faults = entity.module, outlet, faults
+        self.codec = FieldCodec.samples_of(entity)
+        self.state_port = self.DeclareVectorInputPort("physical_state", len(entity.sample_fields))
+        self.sent = 0
+        self.DeclarePeriodicPublishEvent(period, 0.0, self._publish)
+
+    def _publish(self, context) -> None:
+        t = context.get_time()
+        fields = self.codec.fields(self.state_port.Eval(context))
+        self.sent += self.outlet.send(fields, self.faults(self.entity, t), t)
+
+
+class TwinModeControl(LeafSystem):
+    """Twin-mode requests, answered at once on the network thread and applied at the next TICK.
+
+    Ports:
+      <entity> (output), per entity: [serial, TwinMode code] of the newest request for it
+        (serial 0: none yet); the entity switches when the serial changes.
+    """
+
+    def __init__(self, entities: dict):
+        super().__init__()
+        self.set_name("twin_mode_control")
+        self.names = list(entities)
+        self.requests: queue.SimpleQueue = queue.SimpleQueue()
+        self.applied: list[dict] = []
+        self._state = self.DeclareDiscreteState(np.zeros(2 * len(self.names)))
+        for i, name in enumerate(self.names):
+            self.DeclareVectorOutputPort(name, 2, lambda context, out, i=i: out.SetFromVector(
+                context.get_discrete_state(self._state).get_value()[2 * i: 2 * i + 2]))
+        self.DeclarePeriodicDiscreteUpdateEvent(TICK, 0.0, self._apply)
+
+    def on_query(self, query) -> None:
+        """On the network thread: check the request, answer at once, queue it for the next tick."""
+        try:
+            entity, mode, by = codec.decode_mode_request(query.payload.to_bytes() if query.payload is not None else None)
+        except CodecError:
+            entity = mode = None
+            by = "unknown"
+        if not isinstance(entity, str) or entity not in self.names:
+            answer = (False, f"no entity named {codec._short(entity)} (entities: {', '.join(self.names)})")
+        elif mode not in [m.value for m in TwinMode]:
+            answer = (False, f"{codec._short(mode)} is not a twin mode (model, shadow, twin)")
+        else:
+            self.requests.put((entity, TwinMode(mode), by))
+            answer = (True, f"{entity} goes to {mode} at its next update")
+        query.reply(query.key_expr, codec.encode_answer(*answer))
+
+    def _apply(self, context, xd) -> None:
+        state = None
+        while True:
+            try:
+                entity, mode, by = self.requests.get_nowait()
+            except queue.Empty:
+                break
+            if state is None:
+                state = context.get_discrete_state(self._state).get_value().copy()
+            i = self.names.index(entity)
+            state[2 * i], state[2 * i + 1] = state[2 * i] + 1.0, float(mode.code)
+            self.applied.append({"t": round(context.get_time(), 4), "entity": entity, "mode": mode.value, "by": by})
+        if state is not None:
+            xd.get_mutable_vector(self._state).SetFromVector(state)
+
+
+class LiveStatus(LeafSystem):
+    """A live process's pacing: its lag every TICK and, with ``publisher``, its status every second.
+
+    Ports:
+      <entity> (input), per entity with a sample source: its ``physical_sample`` (for the age of
+        its newest sample).
+    """
+
+    def __init__(self, clock: LiveClock, publisher=None, sources: dict | None = None, process: str = "twin"):
+        super().__init__()
+        self.set_name(f"{process}_status")
+        self.clock, self.publisher, self.process = clock, publisher, process
+        self.lags: list[float] = []
+        self.warned = False
+        self._samples = {name: self.DeclareVectorInputPort(name, port.size()) for name, port in (sources or {}).items()}
+        self.DeclarePeriodicPublishEvent(TICK, 0.0, self._pace)
+        if publisher is not None:
+            self.DeclarePeriodicPublishEvent(1.0, 0.0, self._status)
+
+    def _pace(self, context) -> None:
+        if not self.clock.started:
+            return  # the simulator's initialisation, before the clock starts
+        t = context.get_time()
+        lag = self.clock.lag(t)
+        self.lags.append(lag)
+        if lag > LAG_WARNING and not self.warned and t > 0.0:
+            self.warned = True
+            print(f"cellsim {self.process}: cannot keep up with the wall clock (lag {lag * 1000:.0f} ms at "
+                  f"t = {t:.1f} s)", file=sys.stderr)
+
+    def _status(self, context) -> None:
+        if not self.clock.started:
+            return
+        t = context.get_time()
+        ages = {}
+        for name, port in self._samples.items():
+            stamp = port.Eval(context)[0]
+            ages[name] = None if not np.isfinite(stamp) else round(t - stamp, 4)
+        lag = self.lags[-1] if self.lags else 0.0
+        self.publisher.put(codec.dumps({"t": time.time(), "sim_time": round(t, 3), "lag": round(lag, 5), "sample_age": ages}))
+
+    def figures(self) -> dict:
+        lags = np.array(self.lags) if self.lags else np.zeros(1)
+        return {"p50": float(np.percentile(lags, 50)), "p99": float(np.percentile(lags, 99)), "max": float(lags.max())}
+
+
+def no_request() -> np.ndarray:
+    """The value of an entity's ``twin_mode_request`` input when nothing drives it."""
+    return np.array([0.0, NO_VALUE])
