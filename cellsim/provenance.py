@@ -48,6 +48,25 @@ from cellsim.config.typed_yaml import ConfigError, dump_yaml, from_data, to_data
 
 IDENTITY_FORMAT = 1
 """Version of the identity record; identities of different formats never match."""
+BLACKBOX = "blackbox.sqlite"
+"""A run folder's black box."""
+RESOLVED_SCENARIO = "scenario.yaml"
+"""A run folder's resolved scenario (it re-runs the run)."""
+
+
+def package_versions() -> dict[str, str]:
+    """The versions of Python and of the packages a run's result depends on."""
+    import importlib.metadata
+
+    versions = {"python": platform.python_version()}
+    for package in ("cellsim", "drake", "numpy", "pyyaml", "rich"):
+        try:
+            versions[package] = importlib.metadata.version(package)
+        except importlib.metadata.PackageNotFoundError:
+            versions[package] = "not installed"
+    return versions
+
+
 INPUTS = "inputs"
 """The folder, in a run folder or a campaign folder, holding copies of the inputs."""
 ROLES = {"model": "robot model", "risk_model": "risk model"}
@@ -326,7 +345,6 @@ def command_line() -> str:
 
 def provenance(identity: dict | None = None, **extra) -> dict:
     """What produced a result: versions, command line, working directory, time, inputs."""
-    from cellsim.simulation import package_versions
 
     record = {
         "versions": package_versions(),

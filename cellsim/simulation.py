@@ -17,10 +17,8 @@ identical ``messages`` rows.
 from __future__ import annotations
 
 import contextlib
-import importlib.metadata
 import os
 import shutil
-import platform
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,7 +28,7 @@ from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 
 from cellsim.atomic import LOCK, FolderBusy, folder_lock
 from cellsim.config.typed_yaml import to_data
-from cellsim.provenance import INPUTS, read_inputs, write_run_scenario
+from cellsim.provenance import BLACKBOX, INPUTS, RESOLVED_SCENARIO, package_versions, read_inputs, write_run_scenario
 from cellsim.provenance import provenance as make_provenance
 from cellsim.scenario import ScenarioFile
 from cellsim.services.blackbox import BlackBox, BlackBoxWriter
@@ -40,8 +38,6 @@ from cellsim.live.systems import TICK
 from cellsim.systems import hazard_phases
 from diagrams.cell import CellDiagram, build_cell, scenario_for
 
-BLACKBOX = "blackbox.sqlite"
-RESOLVED_SCENARIO = "scenario.yaml"
 
 
 class OutputExistsError(Exception):
@@ -78,16 +74,6 @@ class RunSummary:
     @property
     def mishap(self) -> bool:
         return any(h.mishaps for h in self.hazards.values())
-
-
-def package_versions() -> dict[str, str]:
-    versions = {"python": platform.python_version()}
-    for package in ("cellsim", "drake", "numpy", "pyyaml", "rich"):
-        try:
-            versions[package] = importlib.metadata.version(package)
-        except importlib.metadata.PackageNotFoundError:
-            versions[package] = "not installed"
-    return versions
 
 
 RUN_FILES = (BLACKBOX, BLACKBOX + "-wal", BLACKBOX + "-shm", BLACKBOX + "-journal", RESOLVED_SCENARIO)

@@ -94,7 +94,7 @@ class CellDiagram:
     def start(self) -> None:
         """Before simulated time runs (the simulator initialised): wait for what must be there."""
         if self.meshcat_wait is not None and self.meshcat_visualizer is not None:
-            from cellsim.visual.serve import wait_for_browser
+            from cellsim.visual.live import wait_for_browser
 
             wait_for_browser(self.meshcat, *self.meshcat_wait)
         if self.network is not None:

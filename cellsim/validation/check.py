@@ -15,7 +15,7 @@ from pathlib import Path
 from cellsim.config.typed_yaml import ConfigError
 from cellsim.scenario import ScenarioFile, load_scenario
 from cellsim.services.blackbox import BlackBox
-from cellsim.simulation import BLACKBOX, RESOLVED_SCENARIO
+from cellsim.provenance import BLACKBOX, RESOLVED_SCENARIO
 from cellsim.validation.conditions import CheckResult, SafetyCase
 from cellsim.validation.traces import (
     RunTrace,

@@ -12,6 +12,8 @@ system and does no drawing work.
 
 from __future__ import annotations
 
+import time
+
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from cellsim.visual.cues import CueDrawer, collect
@@ -70,3 +72,21 @@ def add_cue_visualizer(builder: DiagramBuilder, meshcat, modules: dict, channels
     for name, port in system.ports.items():
         builder.Connect(channels[name][1], port)
     return system
+
+
+POLL = 0.1
+"""Seconds between looks at Meshcat's connections."""
+
+
+def wait_for_browser(meshcat, seconds: float, say) -> bool:
+    """Wait up to ``seconds`` for a browser to open Meshcat (saying so); whether one did."""
+    if seconds <= 0 or meshcat.GetNumActiveConnections() > 0:
+        return meshcat.GetNumActiveConnections() > 0
+    say(f"waiting up to {seconds:g} s for a browser to open {meshcat.web_url()} (--meshcat-wait) ...")
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        if meshcat.GetNumActiveConnections() > 0:
+            return True
+        time.sleep(POLL)
+    say(f"no browser connected within {seconds:g} s; simulating anyway")
+    return False

@@ -12,10 +12,9 @@ import threading
 import time
 from pathlib import Path
 
+
 WAIT_DEFAULT = 60.0
 """Seconds ``simulate --meshcat`` waits for a browser on a terminal before simulating anyway (none without one)."""
-POLL = 0.1
-"""Seconds between looks at Meshcat's connections."""
 
 
 def open_meshcat():
@@ -23,20 +22,6 @@ def open_meshcat():
     from pydrake.geometry import Meshcat, MeshcatParams
 
     return Meshcat(MeshcatParams(host="localhost"))
-
-
-def wait_for_browser(meshcat, seconds: float, say) -> bool:
-    """Wait up to ``seconds`` for a browser to open Meshcat (saying so); whether one did."""
-    if seconds <= 0 or meshcat.GetNumActiveConnections() > 0:
-        return meshcat.GetNumActiveConnections() > 0
-    say(f"waiting up to {seconds:g} s for a browser to open {meshcat.web_url()} (--meshcat-wait) ...")
-    deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline:
-        if meshcat.GetNumActiveConnections() > 0:
-            return True
-        time.sleep(POLL)
-    say(f"no browser connected within {seconds:g} s; simulating anyway")
-    return False
 
 
 def serve_until_closed(meshcat, say) -> None:
