@@ -14,7 +14,8 @@ daemon (a CAN device's frames, a robot controller's states), the emulated device
   clock is refused and counted (``future``); one that arrives older than the
   watchdog is a fault (``late``: the link is *stale*);
 * with no good message for ``timeout`` seconds of the receiver's clock the link
-  is *stale* (``timeout``);
+  is *stale* (``timeout``); a corrupt link stays corrupt while faulty messages keep
+  arriving, and goes stale when they stop too;
 * after any fault, ``recover_after`` good messages in a row are needed before the
   link is trusted again (*recovering* until then). At start the link is stale.
 
@@ -110,6 +111,8 @@ class LinkTrust:
     """When the last good message came (s, the receiver's clock)."""
     last_seq: int | None = None
     timed_out_at: float | None = None
+    last_heard: float | None = None
+    """When the last message came that failed the link (s): a corrupt link is not stale while they come."""
 
     def __post_init__(self):
         self.counts = {f.value: 0 for f in self.faults}
@@ -156,14 +159,17 @@ class LinkTrust:
         self.link = PhysicalLink.OK
         return Judgement(True, values)
 
-    def fail(self, fault: Fault) -> Judgement:
-        """A fault: counted, and the link fails (stale or corrupt) until it recovers."""
+    def fail(self, fault: Fault, now: float | None = None) -> Judgement:
+        """A fault (of a message that arrived at ``now``): counted, and the link fails (stale or corrupt)
+        until it recovers."""
         if fault in REFUSALS:
             self.refuse(fault)
             return Judgement(False, None, fault)
         self._count(fault)
         self.good_in_a_row = 0
         self.link = PhysicalLink.STALE if fault in STALE_FAULTS else PhysicalLink.CORRUPT
+        if now is not None and self.link is PhysicalLink.CORRUPT:
+            self.last_heard = now
         return Judgement(False, None, fault)
 
     def refuse(self, fault: Fault) -> Fault:
@@ -177,6 +183,8 @@ class LinkTrust:
         if self.last_good is None:
             return None
         since = self.last_good if self.timed_out_at is None else self.timed_out_at
+        if self.link is PhysicalLink.CORRUPT and self.last_heard is not None:
+            since = max(since, self.last_heard)  # faulty messages still come: corrupt, not stale
         if now - since <= self.timeout:
             return None
         self.timed_out_at = now
@@ -189,22 +197,24 @@ class LinkTrust:
         self.counts[fault.value] = self.counts.get(fault.value, 0) + 1
 
     # -- state in a Drake context ---------------------------------------------------
-    STATE_SIZE = 5
+    STATE_SIZE = 6
 
     def state(self) -> np.ndarray:
-        """The rule's state as numbers: [link code, good in a row, last good, last seq, timed out at]."""
+        """The rule's state as numbers: [link code, good in a row, last good, last seq, timed out at, last heard]."""
         return np.array([
             float(self.link.code), float(self.good_in_a_row),
             -np.inf if self.last_good is None else self.last_good,
             -1.0 if self.last_seq is None else float(self.last_seq),
             -np.inf if self.timed_out_at is None else self.timed_out_at,
+            -np.inf if self.last_heard is None else self.last_heard,
         ])
 
     def restore(self, state) -> "LinkTrust":
-        code, good, last_good, last_seq, timed_out_at = (float(x) for x in state)
+        code, good, last_good, last_seq, timed_out_at, last_heard = (float(x) for x in state)
         self.link = PhysicalLink.from_code(code)
         self.good_in_a_row = int(good)
         self.last_good = None if last_good == -np.inf else last_good
         self.last_seq = None if last_seq < 0 else int(last_seq)
         self.timed_out_at = None if timed_out_at == -np.inf else timed_out_at
+        self.last_heard = None if last_heard == -np.inf else last_heard
         return self

@@ -345,14 +345,14 @@ def _live(builder: DiagramBuilder, cell: CellBuild, io: Live):
     from cellsim.live.twin import describe
     from cellsim.vocabulary import TwinMode
 
-    session, name = io.session, cell.scenario.name
+    session, name, step = io.session, cell.scenario.name, cell.scenario.time_step
     clock = LiveClock()
     sources = {}
     for entity_name, entity in cell.entities.items():
         key = keys.physical(name, entity_name)
         sources[entity_name] = builder.AddSystem(ZenohSampleSource(entity, clock, cell.scenario.time_step, key))
         builder.Connect(sources[entity_name].get_output_port(), entity.physical_sample_port)
-    status = builder.AddSystem(LiveStatus(clock, session.declare_publisher(keys.status(name, io.process)),
+    status = builder.AddSystem(LiveStatus(clock, step, session.declare_publisher(keys.status(name, io.process)),
                                           {n: s.get_output_port() for n, s in sources.items()}, io.process))
     for entity_name, source in sources.items():
         builder.Connect(source.get_output_port(), status.GetInputPort(entity_name))
@@ -368,11 +368,12 @@ def _live(builder: DiagramBuilder, cell: CellBuild, io: Live):
 
     channels = list(cell.channels().values())
     publisher = builder.AddSystem(ChannelPublisher(
-        channels, lambda spec: session.declare_publisher(keys.channel(name, spec.module, spec.signal))))
+        channels, lambda spec: session.declare_publisher(keys.channel(name, spec.module, spec.signal)), step))
     for spec, port in channels:
         builder.Connect(port, publisher.GetInputPort(spec.name))
     for entity_name, entity in cell.entities.items():
-        commands = builder.AddSystem(CommandPublisher(entity, session.declare_publisher(keys.command(name, entity_name))))
+        commands = builder.AddSystem(
+            CommandPublisher(entity, session.declare_publisher(keys.command(name, entity_name)), step))
         builder.Connect(entity.physical_command_port, commands.command_port)
     control = builder.AddSystem(TwinModeControl(cell.entities))
     for entity_name, entity in cell.entities.items():
@@ -400,7 +401,7 @@ def _emulated(builder: DiagramBuilder, cell: CellBuild, io: Emulated):
     devices = io.devices
     rates = {**(devices.rates() if devices is not None else {}), **io.rates}
     clock = LiveClock()
-    status = builder.AddSystem(LiveStatus(clock, process=io.process))
+    status = builder.AddSystem(LiveStatus(clock, step, process=io.process))
     network = NetworkIO(io.process, clock, status)
     outlets = {}
     for entity_name, entity in cell.entities.items():
@@ -408,7 +409,7 @@ def _emulated(builder: DiagramBuilder, cell: CellBuild, io: Emulated):
             session.declare_publisher(keys.physical(name, entity_name)))
         period = 1.0 / rates[entity_name] if entity_name in rates else entity.period
         period = max(step, round(period / step) * step)
-        outlets[entity_name] = builder.AddSystem(SampleOutlet(entity, outlet, period, io.faults))
+        outlets[entity_name] = builder.AddSystem(SampleOutlet(entity, outlet, period, io.faults, step))
         builder.Connect(entity.physical_state_port, outlets[entity_name].state_port)
     network.figures["samples_published"] = lambda: sum(o.sent for o in outlets.values())
     network.figures["faults"] = io.faults.to_json

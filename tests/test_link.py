@@ -53,3 +53,12 @@ def test_its_state_survives_a_round_trip_through_numbers():
     copy = LinkTrust(timeout=0.1, recover_after=3).restore(link.state())
     assert (copy.link, copy.good_in_a_row, copy.last_good, copy.last_seq) == (link.link, 1, 0.0, 7)
     assert LinkTrust(timeout=0.1).restore(LinkTrust(timeout=0.1).state()).last_good is None
+
+
+def test_a_corrupt_link_stays_corrupt_while_faulty_messages_come_and_goes_stale_when_they_stop():
+    link = LinkTrust(timeout=0.1, recover_after=1)
+    link.good(0.0)
+    for t in (0.05, 0.10, 0.15, 0.20):  # a stream of malformed messages, past the watchdog
+        link.fail(Fault.CORRUPT, t)
+        assert link.watchdog(t + 0.01) is None and link.link is PhysicalLink.CORRUPT
+    assert link.watchdog(0.5).fault is Fault.TIMEOUT and link.link is PhysicalLink.STALE  # they stopped

@@ -47,6 +47,9 @@ HEARTBEAT = 1.0
 COMMAND_HEARTBEAT = 0.1
 """An entity in twin mode has its commands published at least this often (s): its physical twin
 takes a silence longer than its stale_after for a lost supervisor, and stops."""
+# Publishers' events come one plant step after the instants they report: a publish event at t
+# reads the state from before the discrete updates at t (Drake handles a step's updates at its
+# start and its publishes at its end), so one step later it reads what those updates wrote.
 LAG_WARNING = 0.1
 """Pacing lag (s) beyond which the process says, once, that it cannot keep up."""
 log = logging.getLogger("cellsim.live")
@@ -111,6 +114,25 @@ class _Refusals:
             log.warning("%s: refused a message (%s); %d refused so far", self.key, why, self.count)
 
 
+def _judged(inbox: Inbox, field_codec: FieldCodec, trust: LinkTrust, clock: LiveClock, refused: _Refusals):
+    """Each message of ``inbox`` that decodes and passes the link rule's stamp and sequence checks,
+    with its arrival (s, simulation clock); any other is counted, logged and judged by ``trust``."""
+    for payload, mono, wall in inbox:
+        arrival = clock.sim_time(mono)
+        try:
+            message = field_codec.decode(payload)
+        except CodecError as e:
+            refused(str(e))
+            trust.fail(Fault.CORRUPT, arrival)
+            continue
+        fault = trust.stamp(message.t, wall) or trust.sequence(message.seq, arrival)
+        if fault is not None:
+            refused(fault.value)
+            trust.fail(fault, arrival)
+            continue
+        yield message, arrival
+
+
 class ZenohSampleSource(LeafSystem):
     """Physical samples of one entity, from its physical key.
 
@@ -148,21 +170,9 @@ class ZenohSampleSource(LeafSystem):
     def _drain(self, context, xd) -> None:
         trust = self.trust.restore(context.get_discrete_state(self._trust).get_value())
         sample = context.get_discrete_state(self._sample).get_value().copy()
-        for payload, mono, wall in self.inbox:
-            arrival = self.clock.sim_time(mono)
-            try:
-                message = self.codec.decode(payload)
-            except CodecError as e:
-                self.refused(str(e))
-                trust.fail(Fault.CORRUPT)
-                continue
-            fault = trust.stamp(message.t, wall) or trust.sequence(message.seq, arrival)
-            if fault is not None:
-                self.refused(fault.value)
-                trust.fail(fault)
-                continue
+        for message, arrival in _judged(self.inbox, self.codec, trust, self.clock, self.refused):
             if message.failure is not None:  # the bridge's checks refused its device's data
-                trust.fail(Fault.TIMEOUT if message.failure == "stale" else Fault.CORRUPT)
+                trust.fail(Fault.TIMEOUT if message.failure == "stale" else Fault.CORRUPT, arrival)
                 continue
             trust.good(arrival, message.codes)
             sample[0], sample[2:] = arrival, message.codes
@@ -216,21 +226,11 @@ class ZenohCommandSource(LeafSystem):
     def _drain(self, context, xd) -> None:
         trust = self.trust.restore(context.get_discrete_state(self._trust).get_value())
         values = context.get_discrete_state(self._values).get_value().copy()
-        for payload, mono, wall in self.inbox:
-            try:
-                message = self.codec.decode(payload)
-                if message.failure is not None:
-                    raise CodecError("a command is never a failure")
-            except CodecError as e:
-                self.refused(str(e))
-                trust.fail(Fault.CORRUPT)
-                continue
-            fault = trust.stamp(message.t, wall) or trust.sequence(message.seq, self.clock.sim_time(mono))
-            if fault is not None:
-                self.refused(fault.value)
-                trust.fail(fault)
-                continue
-            if trust.good(self.clock.sim_time(mono)).trusted:
+        for message, arrival in _judged(self.inbox, self.codec, trust, self.clock, self.refused):
+            if message.failure is not None:  # a command is never a failure
+                self.refused("a failure in place of a command")
+                trust.fail(Fault.CORRUPT, arrival)
+            elif trust.good(arrival).trusted:
                 values[:] = message.codes
         trust.watchdog(context.get_time())
         if trust.failed:
@@ -246,15 +246,16 @@ class ChannelPublisher(LeafSystem):
       <module.signal> (input), per channel: the channel's port vector.
     """
 
-    def __init__(self, channels: list, publisher_of):
-        """``channels``: (ChannelSpec, output port) pairs; ``publisher_of(spec)``: its Zenoh publisher."""
+    def __init__(self, channels: list, publisher_of, time_step: float):
+        """``channels``: (ChannelSpec, output port) pairs; ``publisher_of(spec)``: its Zenoh publisher;
+        ``time_step``: the plant's step (each publish follows its TICK by one step, after the updates)."""
         super().__init__()
         self.set_name("channel_publisher")
         self._channels = []
         for spec, port in channels:
             self._channels.append((spec, self.DeclareVectorInputPort(spec.name, port.size()), publisher_of(spec)))
         self._last: dict[str, tuple] = {}
-        self.DeclarePeriodicPublishEvent(TICK, 0.0, self._publish)
+        self.DeclarePeriodicPublishEvent(TICK, time_step, self._publish)
 
     def _publish(self, context) -> None:
         t = context.get_time()
@@ -275,7 +276,7 @@ class CommandPublisher(LeafSystem):
       physical_command (input): the entity's ``physical_command`` ([active, *command codes]).
     """
 
-    def __init__(self, entity, publisher, period: float = TICK):
+    def __init__(self, entity, publisher, time_step: float, period: float = TICK):
         super().__init__()
         self.set_name(f"{entity.module}.command_publisher")
         self.codec = FieldCodec.commands_of(entity)
@@ -283,7 +284,7 @@ class CommandPublisher(LeafSystem):
         self.command_port = self.DeclareVectorInputPort("physical_command", 1 + len(entity.command_fields))
         self._last: tuple | None = None
         self._seq = 0
-        self.DeclarePeriodicPublishEvent(period, 0.0, self._publish)
+        self.DeclarePeriodicPublishEvent(period, time_step, self._publish)
 
     def _publish(self, context) -> None:
         vector = self.command_port.Eval(context)
@@ -309,14 +310,14 @@ class SampleOutlet(LeafSystem):
       physical_state (input): the entity's ``physical_state`` (its sample fields as port codes).
     """
 
-    def __init__(self, entity, outlet, period: float, faults):
+    def __init__(self, entity, outlet, period: float, faults, time_step: float):
         super().__init__()
         self.set_name(f"{entity.module}.outlet")
         self.entity, self.outlet, self.faults = entity.module, outlet, faults
         self.codec = FieldCodec.samples_of(entity)
         self.state_port = self.DeclareVectorInputPort("physical_state", len(entity.sample_fields))
         self.sent = 0
-        self.DeclarePeriodicPublishEvent(period, 0.0, self._publish)
+        self.DeclarePeriodicPublishEvent(period, time_step, self._publish)
 
     def _publish(self, context) -> None:
         t = context.get_time()
@@ -384,7 +385,8 @@ class LiveStatus(LeafSystem):
         its newest sample).
     """
 
-    def __init__(self, clock: LiveClock, publisher=None, sources: dict | None = None, process: str = "twin"):
+    def __init__(self, clock: LiveClock, time_step: float, publisher=None, sources: dict | None = None,
+                 process: str = "twin"):
         super().__init__()
         self.set_name(f"{process}_status")
         self.clock, self.publisher, self.process = clock, publisher, process
@@ -393,7 +395,7 @@ class LiveStatus(LeafSystem):
         self._samples = {name: self.DeclareVectorInputPort(name, port.size()) for name, port in (sources or {}).items()}
         self.DeclarePeriodicPublishEvent(TICK, 0.0, self._pace)
         if publisher is not None:
-            self.DeclarePeriodicPublishEvent(1.0, 0.0, self._status)
+            self.DeclarePeriodicPublishEvent(1.0, time_step, self._status)
 
     def _pace(self, context) -> None:
         if not self.clock.started:
