@@ -174,3 +174,13 @@ def test_an_entity_follows_the_link_its_source_judged():
     assert step(PhysicalLink.OK) == (far, float(PhysicalLink.OK.code))
     assert step(PhysicalLink.OK, code=7.0) == (close, float(PhysicalLink.CORRUPT.code))  # ok, but not a range
     assert step(PhysicalLink.UNUSED) == (close, float(PhysicalLink.CORRUPT.code))  # no source says unused
+
+
+def test_a_change_at_the_last_update_before_a_run_stops_is_recorded(tmp_path):
+    """A run ending between two samples of a channel keeps what that channel's last update wrote."""
+    sf = place_operator(welding_cell(), start=(-4.0, -3.0))
+    sf.scenario.entities["light_barrier"].twin.changes = [TwinModeChange(1.0, TwinMode.SHADOW)]
+    bb = run(sf, tmp_path / "run", duration=1.006)  # the curtain updates at 1.0; its next sample would be 1.04
+    mode = bb.series("light_barrier.twin_mode")
+    assert mode.values == ["model", "shadow"] and mode.times[1] == 1.0
+    assert bb.series("light_barrier.physical_link").value_at(1.0) == "stale"

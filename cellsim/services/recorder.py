@@ -19,6 +19,11 @@ update, the next sample is stamped 0 too, so the initial one is dropped (it held
 for no time) and each channel has one message at t = 0. It is kept only when the
 run ends before that next sample.
 
+A run that stops between two samples of a channel (a live run stopped, a run
+interrupted) would lose what its publisher's last update wrote: the final drain
+takes the current values as the sample at the next tick, stamped, as any, with
+the time of that update.
+
 Every drain is committed with the simulated time it reached (``recorded_until``
 in the metadata), so a killed run keeps everything up to its last drain.
 """
@@ -92,7 +97,9 @@ class Recorder:
             for group in self._groups:
                 group.decode(ticks, times, data, rows)
         if final:
+            current = self.sink.get_input_port().Eval(self.sink.GetMyContextFromRoot(root_context))
             for group in self._groups:
+                group.decode_final(current, root_context.get_time(), self.base, rows)
                 group.decode_pending(rows)
         if self.writer is None:
             return 0
@@ -101,6 +108,10 @@ class Recorder:
             self.writer.append(row)
         self.writer.commit(recorded_until=root_context.get_time())
         return len(rows)
+
+
+_AFTER_EVERY_SAMPLE = 2**62
+"""Sort key of the final drain's messages: after those of every logged sample."""
 
 
 class _Group:
@@ -112,6 +123,7 @@ class _Group:
         self.supersedes_initial = every_update
         """The sample at tick ``every`` is stamped 0 too and replaces the initial one."""
         self.pending: tuple | None = None  # (ticks, times, data) of an initial sample not yet superseded
+        self.last_tick: int | None = None  # the newest sample decoded
         self.channels = channels  # (rank, spec, first row, end row) in the logged vector
         self.rows = np.concatenate([np.arange(a, b) for _, _, a, b in channels])
         local = np.cumsum([0] + [b - a for _, _, a, b in channels])
@@ -124,6 +136,8 @@ class _Group:
 
     def decode(self, ticks: np.ndarray, times: np.ndarray, data: np.ndarray, out: list) -> None:
         due = np.flatnonzero(ticks % self.every == 0)
+        if len(due):
+            self.last_tick = int(ticks[due[-1]])
         if len(due) and self.pending is not None:
             self.pending = None  # the initial sample is superseded by this block's first
         if self.supersedes_initial and len(due) and ticks[due[0]] == 0:
@@ -133,6 +147,18 @@ class _Group:
         if len(due) == 0:
             return
         self._decode(due, times, data, out)
+
+    def decode_final(self, current: np.ndarray, t: float, base: float, out: list) -> None:
+        """At the end of a run (``t``): the values its publishers' last updates wrote, which no sample has
+        taken yet (a run stopped between two of its samples), as if sampled at the next tick."""
+        tick = int(np.ceil(t / base / self.every - 1e-9)) * self.every
+        if self.last_tick is not None and tick <= self.last_tick:
+            return  # sampled already: a run that ends on its grid
+        if self.supersedes_initial:
+            self.pending = None  # stamped 0 too: what the first update wrote replaces the initial state
+        found: list = []
+        self._decode(np.array([0]), np.array([tick * base]), current.reshape(-1, 1), found)
+        out.extend((_AFTER_EVERY_SAMPLE, rank, row) for _, rank, row in found)
 
     def decode_pending(self, out: list) -> None:
         """Write the initial sample if nothing superseded it (a run shorter than one period)."""
