@@ -1,8 +1,13 @@
-"""The bridge daemon's configuration (``bridges/welding_cell.yaml``): typed, checked at load.
+"""The bridge daemon's configuration (``bridges/welding_cell.yaml``): typed, and loaded with its scenario.
 
-Errors name the file, line and key, as the scenario's do: a DBC that does not
-match the mapping (an unknown message or signal, a fail-safe value outside a
-signal's choices) is one such error.
+A bridge maps a cell's devices to the entities of the cell's scenario, so it is
+loaded *with* the scenario (its ``scenario:`` key): each device's fields must be
+exactly its entity kind's physical-sample fields, each command signal must carry
+one of the kind's command fields, and every value a frame may carry must be one
+the entity takes. What a device is told when its supervisor is lost is the
+kind's ``safe_command`` (declared once, by the kind); what the twin assumes when
+a device fails is the kind's own fail-safe (the daemon sends a link failure).
+Errors name the file, line and key, as the scenario's do.
 """
 
 from __future__ import annotations
@@ -12,6 +17,7 @@ from pathlib import Path
 from typing import Annotated
 
 from cellsim.config.typed_yaml import ConfigError, FieldError, Range, load_file
+from cellsim.live.codec import FieldCodec
 
 Seconds = Annotated[float, Range(0.0, 60.0, lo_open=True, unit="s")]
 
@@ -44,16 +50,12 @@ class DeviceMapping:
     """The DBC message the device sends, every cycle_time."""
     fields: dict[str, str]
     """Entity sample field -> DBC signal (an enumeration's value names are the field's values)."""
-    fail_safe: dict[str, str | float | bool]
-    """The sample published at once when the device's frames fail a check: a value per field."""
     cycle_time: Seconds = 0.02
     """How often the device sends (s)."""
     watchdog: Seconds = 0.1
     """With no good frame for this long the device is failed (s)."""
 
     def __post_init__(self):
-        if set(self.fail_safe) != set(self.fields):
-            raise FieldError("fail_safe", f"give a fail-safe value for each field, exactly: {', '.join(self.fields)}")
         if self.watchdog <= self.cycle_time:
             raise FieldError("watchdog", "the watchdog must be longer than the cycle time")
 
@@ -66,16 +68,11 @@ class CommandMapping:
     """The DBC message the daemon sends, every cycle_time."""
     fields: dict[str, str]
     """DBC signal -> the entity's command field it carries (a null command field: the signal's ``none``)."""
-    safe: dict[str, str | float | bool]
-    """DBC signal -> its value when the supervisor is lost (the twin gone, or its commands stale)."""
     cycle_time: Seconds = 0.04
     """How often the frame is sent (s)."""
     watchdog: Seconds = 0.5
-    """The twin's commands older than this (s) count as lost: the safe values go out."""
-
-    def __post_init__(self):
-        if set(self.safe) != set(self.fields):
-            raise FieldError("safe", f"give a safe value for each signal, exactly: {', '.join(self.fields)}")
+    """With no good command from the twin for this long (s) it counts as lost: the entity kind's safe
+    command goes out."""
 
 
 @dataclass
@@ -124,8 +121,9 @@ class RobotLinkConfig:
 class BridgeConfig:
     """The bridge daemon of one cell."""
 
-    cell: str
-    """The scenario's name: the daemon publishes on cellsim/<cell>/physical/<entity>."""
+    scenario: str
+    """The cell's scenario file, relative to this file: its entities are what the devices are the
+    physical twins of, and its name is the cell's (cellsim/<cell>/physical/<entity>)."""
     dbc: str
     """The cell's DBC file, relative to this file."""
     devices: dict[str, DeviceMapping]
@@ -155,11 +153,28 @@ class LoadedBridge:
     database: object
     """The cantools database of the DBC."""
     source: Path
+    cell: str
+    """The scenario's name."""
+    samples: dict
+    """Entity -> the codec of its physical samples (``cellsim.live.codec.FieldCodec``)."""
+    commands: dict
+    """Entity -> the codec of its command fields."""
+    safe: dict
+    """Entity -> its kind's safe command, as command fields (what its device is told when the twin is lost)."""
+
+    def safe_signals(self, mapping: CommandMapping) -> dict:
+        """The frame's signal values of the entity's safe command (``none`` for no request)."""
+        entity = next(e for e, ms in self.config.commands.items() if mapping in ms)
+        return {signal: "none" if self.safe[entity][field] is None else self.safe[entity][field]
+                for signal, field in mapping.fields.items()}
 
 
-def load_bridge(path: str | Path) -> LoadedBridge:
-    """Read and check a bridge configuration; raises ConfigError naming file, line and key."""
+def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
+    """Read and check a bridge configuration with its scenario (``sf``, or the file its ``scenario:``
+    names); raises ConfigError naming file, line and key."""
     import cantools
+
+    from cellsim.scenario import load_scenario
 
     path = Path(path)
     loaded = load_file(BridgeConfig, path)
@@ -168,6 +183,12 @@ def load_bridge(path: str | Path) -> LoadedBridge:
     def error(key: str, problem: str) -> ConfigError:
         return ConfigError(*loaded.where(key), key, problem)
 
+    if sf is None:
+        scenario = path.parent / cfg.scenario
+        if not scenario.is_file():
+            raise error("scenario", f"file not found: {cfg.scenario}")
+        sf = load_scenario(scenario)
+    entities = _entities(sf)
     dbc = path.parent / cfg.dbc
     if not dbc.is_file():
         raise error("dbc", f"file not found: {cfg.dbc}")
@@ -185,28 +206,73 @@ def load_bridge(path: str | Path) -> LoadedBridge:
             raise error(f"{key}.message", f"'{name}' has no Crc and Counter signals: it is not end-to-end protected")
         return messages[name]
 
-    def check_signal(key: str, message, signal_name: str, value_key: str, value) -> None:
-        """The signal exists in the message, and ``value`` (a fail-safe or safe value) is one of its values."""
+    def signal_of(key: str, message, signal_name: str):
         signals = {s.name: s for s in message.signals}
         if signal_name not in signals:
             raise error(key, f"no signal '{signal_name}' in message '{message.name}'")
-        if not accepts(signals[signal_name], value):
-            raise error(value_key, f"'{value}' is not a value of signal {signal_name} ({choices_text(signals[signal_name])})")
+        return signals[signal_name]
 
+    def entity_of(key: str, name: str):
+        if name not in entities:
+            raise error(key, f"no entity named '{name}' in {sf.source} (entities: {', '.join(entities)})")
+        return entities[name]
+
+    samples, commands, safe = {}, {}, {}
     for name, device in cfg.devices.items():
         key = f"devices.{name}"
+        entity = entity_of(key, name)
+        codec = samples[name] = FieldCodec.samples_of(entity)
+        if set(device.fields) != set(codec.names):
+            raise error(f"{key}.fields", f"map each physical-sample field of {name} exactly once: {', '.join(codec.names)}")
         message = protected_message(key, device.message)
+        types = dict(zip(codec.names, codec.types))
         for field_name, signal_name in device.fields.items():
-            check_signal(f"{key}.fields.{field_name}", message, signal_name, f"{key}.fail_safe.{field_name}",
-                         device.fail_safe[field_name])
-    for entity, mappings in cfg.commands.items():
+            signal = signal_of(f"{key}.fields.{field_name}", message, signal_name)
+            outside = _choices_outside(signal, types[field_name])
+            if outside:
+                raise error(f"{key}.fields.{field_name}", f"signal {signal_name} can carry {', '.join(outside)}, "
+                            f"which {name}.{field_name} never takes ({', '.join(types[field_name].domain())})")
+    for name, mappings in cfg.commands.items():
+        entity = entity_of(f"commands.{name}", name)
+        codec = commands[name] = FieldCodec.commands_of(entity)
+        safe[name] = codec.fields([entity.safe_command()[f] for f in codec.names])
         for i, mapping in enumerate(mappings):
-            key = f"commands.{entity}.{i}"
+            key = f"commands.{name}.{i}"
             message = protected_message(key, mapping.message)
-            for signal_name in mapping.fields:
-                check_signal(f"{key}.fields.{signal_name}", message, signal_name, f"{key}.safe.{signal_name}",
-                             mapping.safe[signal_name])
-    return LoadedBridge(cfg, database, path)
+            for signal_name, field_name in mapping.fields.items():
+                signal = signal_of(f"{key}.fields.{signal_name}", message, signal_name)
+                if field_name not in codec.names:
+                    raise error(f"{key}.fields.{signal_name}", f"'{field_name}' is not a command field of {name} "
+                                f"({', '.join(codec.names)})")
+                value = "none" if safe[name][field_name] is None else safe[name][field_name]
+                if not accepts(signal, value):
+                    raise error(f"{key}.fields.{signal_name}", f"{name}'s safe command {field_name} = {value} is not "
+                                f"a value of signal {signal_name} ({choices_text(signal)})")
+    for name in cfg.robots:
+        entity = entity_of(f"robots.{name}", name)
+        samples[name] = FieldCodec.samples_of(entity)
+        needed = {*(f"q{i}" for i in range(6)), "safety_mode", "activity", "reached_pose"}
+        if set(samples[name].names) != needed:
+            raise error(f"robots.{name}", f"'{name}' is not a six-axis robot (its sample fields: "
+                        f"{', '.join(samples[name].names)})")
+        codec = commands[name] = FieldCodec.commands_of(entity)
+        safe[name] = codec.fields([entity.safe_command()[f] for f in codec.names])
+    return LoadedBridge(cfg, database, path, sf.scenario.name, samples, commands, safe)
+
+
+def _entities(sf) -> dict:
+    """The scenario's entities as built (their fields, types and safe commands are the kinds')."""
+    from diagrams.cell import build_cell
+
+    return build_cell(sf, seed=sf.scenario.seed, duration=sf.scenario.duration, record=False).entities
+
+
+def _choices_outside(signal, ctype) -> list[str]:
+    """The values an enumerated signal can carry that a field of type ``ctype`` never takes."""
+    if signal.choices is None or ctype.kind != "enum":
+        return []
+    domain = set(ctype.domain())
+    return [str(v) for v in signal.choices.values() if str(v) not in domain]
 
 
 def accepts(signal, value) -> bool:

@@ -1,20 +1,23 @@
 """The bridge daemon: a cell's CAN devices and robot controller to its twin, and the twin's commands back.
 
 **In.** Every frame of a configured CAN device passes the black-channel checks
-of ``bridges.e2e``; a trusted frame becomes the entity's physical sample on
-``cellsim/<cell>/physical/<entity>`` in the live format (``docs/live.md``). Any
-failure (length, CRC, counter, range, watchdog), and every frame while the
-device recovers, publishes the device's fail-safe sample at once instead: the
-twin sees the state it must assume. Frames of unknown identifiers are counted
-and dropped; nothing a frame holds stops the daemon. A robot controller's
+of ``bridges.e2e``; a good frame becomes the entity's physical sample on
+``cellsim/<cell>/physical/<entity>`` in the live format (``docs/live.md``,
+``cellsim.live.codec``). Any failure (length, CRC, counter, range, watchdog)
+publishes a link failure at once instead (``{"failed": "corrupt"}`` or
+``"stale"``): the twin's entity fails safe as its kind says, and trusts the device
+again after ``recover_after`` good samples (the one debounce, applied by the twin).
+A repeated counter is refused and counted. Frames of unknown identifiers are
+counted and dropped; nothing a frame holds stops the daemon. A robot controller's
 state stream over Zenoh is checked and published the same way
 (``bridges.robot``).
 
 **Out.** A device whose entity is in twin mode (the twin's ``twin_mode``
 channel) gets the twin's latest command in its protected frames, every cycle
 and at once when the command changes; when that command is older than the
-mapping's watchdog, or the twin's liveliness token is gone, it gets the
-mapping's *safe* values: losing the supervisor makes the cell safer. In model
+mapping's watchdog (judged on the daemon's own clock, ``cellsim.link``), or the
+twin's liveliness token is gone, it gets the entity kind's *safe command*:
+losing the supervisor makes the cell safer. In model
 or shadow mode nothing is sent: the device answers to its own controls. A
 robot gets requests on its controller's request key the same way.
 
@@ -39,10 +42,11 @@ from dataclasses import dataclass, field
 
 from bridges.config import LoadedBridge, accepts
 from bridges.diagnostics import DeviceDiagnostics
-from bridges.e2e import DeviceChecker, Verdict, protect
+from bridges.e2e import DeviceChecker, protect
 from bridges.robot import RobotLink
-from cellsim.live import keys
-from cellsim.live.codec import encode_fields
+from cellsim.link import REFUSALS, STALE_FAULTS, Fault, Judgement, LinkTrust
+from cellsim.live import codec, keys
+from cellsim.live.codec import CodecError
 
 LATENCY_WINDOW = 100_000
 """Latencies kept for the daemon's status (the newest)."""
@@ -56,9 +60,13 @@ class Device:
     checker: DeviceChecker
     publisher: object
     diagnostics: DeviceDiagnostics = None
+    codec: object = None
+    """The entity's sample codec (``cellsim.live.codec.FieldCodec``)."""
+    signals: list = field(default_factory=list)
+    """(sample field, its DBC signal, its ChannelType), in the codec's order."""
     seq: int = 0
     published: int = 0
-    fail_safe_published: int = 0
+    failures_published: int = 0
 
 
 @dataclass
@@ -69,7 +77,8 @@ class Bridge:
     session: object
     bus: object = None
     """The python-can bus commands are sent on (None: no commands)."""
-    clock: object = time.time
+    clock: object = time.monotonic
+    """The daemon's own clock (s): watchdogs and freshness are judged on it."""
     devices: dict = field(default_factory=dict)
     robots: dict = field(default_factory=dict)
     unknown_frames: int = 0
@@ -81,65 +90,83 @@ class Bridge:
     """Seconds from a changed command's arrival to its frames sent."""
 
     def __post_init__(self):
-        cfg, database = self.loaded.config, self.loaded.database
+        loaded, cfg, database = self.loaded, self.loaded.config, self.loaded.database
+        cell = loaded.cell
         self.inbox: queue.SimpleQueue = queue.SimpleQueue()
-        """What the network threads hand over: (kind, entity, payload, arrival time)."""
+        """What the network threads hand over: (kind, entity, payload, arrival time on perf_counter)."""
         for entity, mapping in cfg.devices.items():
             message = database.get_message_by_name(mapping.message)
             checker = DeviceChecker(message=message, timeout=mapping.watchdog, recover_after=cfg.recover_after)
-            publisher = self.session.declare_publisher(keys.physical(cfg.cell, entity))
+            publisher = self.session.declare_publisher(keys.physical(cell, entity))
             device = Device(entity, mapping, message, checker, publisher)
+            device.codec = loaded.samples[entity]
+            device.signals = [(name, message.get_signal_by_name(signal), ctype)
+                              for name, ctype in zip(device.codec.names, device.codec.types)
+                              for signal in [mapping.fields[name]]]
             device.diagnostics = DeviceDiagnostics(entity, mapping.message, checker, 1.0 / mapping.cycle_time,
-                                                   self.session.declare_publisher(keys.diagnostics(cfg.cell, entity)))
+                                                   self.session.declare_publisher(keys.diagnostics(cell, entity)))
             self.devices[message.frame_id] = device
         for entity, link_cfg in cfg.robots.items():
-            link = RobotLink(cfg.cell, entity, link_cfg, self.session, recover_after=cfg.recover_after)
+            link = RobotLink(cell, entity, link_cfg, self.session, safe=loaded.safe[entity],
+                             recover_after=cfg.recover_after)
             link.diagnostics = DeviceDiagnostics(entity, "robot controller", link.checker, 1.0 / link_cfg.cycle_time,
-                                                 self.session.declare_publisher(keys.diagnostics(cfg.cell, entity)))
+                                                 self.session.declare_publisher(keys.diagnostics(cell, entity)))
             self.robots[entity] = link
-        self._frames = {  # each command frame's message and signals, looked up once
+        self._frames = {  # each command frame's message, signals and safe values, looked up once
             mapping.message: (database.get_message_by_name(mapping.message),
-                              {n: database.get_message_by_name(mapping.message).get_signal_by_name(n) for n in mapping.fields})
+                              {n: database.get_message_by_name(mapping.message).get_signal_by_name(n) for n in mapping.fields},
+                              loaded.safe_signals(mapping))
             for mappings in cfg.commands.values() for mapping in mappings
         }
-        self._status = self.session.declare_publisher(keys.diagnostics(cfg.cell, "bridge"))
-        self._token = self.session.liveliness().declare_token(keys.alive(cfg.cell, "bridge"))
-        self._commands: dict[str, tuple[float, dict]] = {}  # entity -> (the twin's wall time, fields)
+        self._status = self.session.declare_publisher(keys.diagnostics(cell, "bridge"))
+        self._token = self.session.liveliness().declare_token(keys.alive(cell, "bridge"))
+        # The twin's commands: judged by the link rule on the daemon's clock (a watchdog of the shortest
+        # of the entity's frames' watchdogs); the newest good one's fields.
+        self._commands: dict[str, dict] = {}
+        self._command_links: dict[str, LinkTrust] = {}
+        for entity in [*cfg.commands, *cfg.robots]:
+            watchdogs = [m.watchdog for m in cfg.commands.get(entity, [])]
+            if entity in cfg.robots:
+                watchdogs.append(cfg.robots[entity].command_watchdog)
+            self._command_links[entity] = LinkTrust(timeout=min(watchdogs), recover_after=1, max_gap=1_000_000,
+                                                    faults=tuple(Fault))
         self._modes: dict[str, str] = {}  # entity -> its twin mode, as the twin publishes it
         self._twin_alive = False
         self._counters: dict[str, int] = {}
         self._due: dict[tuple, float] = {}  # (entity, frame) -> when it is next sent
+        self.refused_messages = 0
         self._subscribers = []
         put = self.inbox.put
         for entity in [*cfg.commands, *cfg.robots]:
             self._subscribers.append(self.session.declare_subscriber(
-                keys.command(cfg.cell, entity), lambda s, e=entity: put(("command", e, s.payload.to_bytes(), time.perf_counter()))))
+                keys.command(cell, entity), lambda s, e=entity: put(("command", e, s.payload.to_bytes(), time.perf_counter()))))
             self._subscribers.append(self.session.declare_subscriber(
-                keys.channel(cfg.cell, entity, "twin_mode"), lambda s, e=entity: put(("mode", e, s.payload.to_bytes(), 0.0))))
+                keys.channel(cell, entity, "twin_mode"), lambda s, e=entity: put(("mode", e, s.payload.to_bytes(), 0.0))))
         for entity in cfg.robots:
             self._subscribers.append(self.session.declare_subscriber(
-                keys.controller_state(cfg.cell, entity), lambda s, e=entity: put(("robot", e, s.payload.to_bytes(), 0.0))))
+                keys.controller_state(cell, entity), lambda s, e=entity: put(("robot", e, s.payload.to_bytes(), 0.0))))
         if cfg.commands or cfg.robots:
             self._subscribers.append(self.session.liveliness().declare_subscriber(
-                keys.alive(cfg.cell, "twin"), lambda s: put(("alive", None, str(s.kind).endswith("PUT"), 0.0)), history=True))
+                keys.alive(cell, "twin"), lambda s: put(("alive", None, str(s.kind).endswith("PUT"), 0.0)), history=True))
 
     # -- in --------------------------------------------------------------------------
-    def handle(self, frame_id: int, data: bytes, now: float | None = None) -> Verdict | None:
-        """Check one received frame and publish what it means for the twin."""
+    def handle(self, frame_id: int, data: bytes, now: float | None = None) -> Judgement | None:
+        """Check one received frame (at ``now``, the daemon's clock) and publish what it means for the twin:
+        its sample, or a link failure; a refused frame (a repeated counter) publishes nothing."""
         now = self.clock() if now is None else now
         device = self.devices.get(frame_id)
         if device is None:
             self.unknown_frames += 1
             return None
         device.diagnostics.frame()
-        verdict = device.checker.check(bytes(data), now)
-        if verdict.trusted:
-            self._publish(device, self._fields(device, verdict.values), now)
-        else:
-            self._publish_fail_safe(device, now)
-        return verdict
+        judgement = device.checker.check(bytes(data), now)
+        if judgement.good:
+            self._publish(device, codec.encode_fields(time.time(), self._next(device), self._fields(device, judgement.values)))
+        elif judgement.fault not in REFUSALS:
+            self._publish_failure(device, judgement.fault)
+        return judgement
 
-    def handle_robot(self, entity: str, payload: bytes, now: float | None = None) -> Verdict:
+    def handle_robot(self, entity: str, payload: bytes, now: float | None = None) -> Judgement:
         """Check one robot controller state and publish what it means for the twin."""
         return self.robots[entity].handle(payload, self.clock() if now is None else now)
 
@@ -147,14 +174,15 @@ class Bridge:
         """Fail every device whose frames stopped (call it at least every cycle time)."""
         now = self.clock() if now is None else now
         for device in self.devices.values():
-            if device.checker.watchdog(now) is not None:
-                self._publish_fail_safe(device, now)
+            judgement = device.checker.watchdog(now)
+            if judgement is not None:
+                self._publish_failure(device, judgement.fault)
         for link in self.robots.values():
             link.check_watchdog(now)
 
     # -- out -------------------------------------------------------------------------
     def send_commands(self, now: float | None = None, due_only: bool = False, only: str | None = None) -> None:
-        """Send each commanded device its frames: the twin's command in twin mode, safe values when it is lost.
+        """Send each commanded device its frames: the twin's command in twin mode, the safe command when it is lost.
 
         ``due_only``: only the frames whose cycle time has come round; ``only``: one entity's frames.
         """
@@ -166,21 +194,23 @@ class Bridge:
         for entity in [*cfg.commands, *cfg.robots]:
             if (only is not None and entity != only) or self._modes.get(entity) != "twin":
                 continue  # not in twin mode (or never heard of): the device answers to its own controls
-            stamp, fields = self._commands.get(entity, (None, {}))
-            targets = [(m.message, m.cycle_time, m.watchdog, m) for m in cfg.commands.get(entity, [])]
+            link = self._command_links[entity]
+            link.watchdog(now)
+            lost = not self._twin_alive or link.failed
+            fields = self._commands.get(entity, {})
+            targets = [(m.message, m.cycle_time, m) for m in cfg.commands.get(entity, [])]
             if entity in cfg.robots:
-                robot = cfg.robots[entity]
-                targets.append(("request", robot.command_cycle_time, robot.command_watchdog, None))
-            for name, cycle, watchdog, mapping in targets:
+                targets.append(("request", cfg.robots[entity].command_cycle_time, None))
+            for name, cycle, mapping in targets:
                 key = (entity, name)
                 if due_only and now < self._due.get(key, now):
                     continue
                 self._due[key] = max(self._due.get(key, now) + cycle, now)
-                lost = not self._twin_alive or stamp is None or now - stamp > watchdog
                 if mapping is None:
                     self.robots[entity].send(None if lost else fields, now)
                 else:
-                    self._send(mapping, dict(mapping.safe) if lost else self._signals(mapping, fields), safe=lost)
+                    self._send(mapping, self._frames[mapping.message][2] if lost else self._signals(mapping, fields),
+                               safe=lost)
 
     def take_inbox(self) -> None:
         """Take in everything the network threads handed over (see :meth:`take`)."""
@@ -204,21 +234,40 @@ class Bridge:
         if kind == "alive":
             self._twin_alive = payload
             return
-        try:
-            message = json.loads(payload)
-        except ValueError:
-            return  # a malformed message changes nothing
-        if not isinstance(message, dict):
+        if kind == "mode":
+            try:
+                _, value = codec.decode_value(payload)
+            except CodecError:
+                self.refused_messages += 1
+                return
+            if isinstance(value, str):
+                self._modes[entity] = value
             return
-        if kind == "mode" and isinstance(message.get("value"), str):
-            self._modes[entity] = message["value"]
-        elif kind == "command" and isinstance(message.get("fields"), dict) and isinstance(message.get("t"), (int, float)):
-            previous = self._commands.get(entity, (float("-inf"), None))
-            if message["t"] > previous[0]:
-                self._commands[entity] = (float(message["t"]), message["fields"])
-                if message["fields"] != previous[1] and self._modes.get(entity) == "twin" and self._twin_alive:
-                    self._send_commands(self.clock(), only=entity)  # a changed command goes out at once
-                    self.command_latencies.append(time.perf_counter() - arrived)
+        self._take_command(entity, payload, arrived)
+
+    def _take_command(self, entity: str, payload: bytes, arrived: float) -> None:
+        """A command of the twin: decoded, judged on the daemon's clock; a changed one goes out at once."""
+        now, link = self.clock(), self._command_links[entity]
+        try:
+            message = self.loaded.commands[entity].decode(payload)
+            if message.failure is not None:
+                raise CodecError("a failure in place of a command")
+        except CodecError:
+            self.refused_messages += 1
+            link.fail(Fault.CORRUPT, now)
+            return
+        fault = link.stamp(message.t, time.time()) or link.sequence(message.seq, now)
+        if fault is not None:
+            self.refused_messages += 1
+            link.fail(fault, now)
+            return
+        link.good(now)
+        fields = self.loaded.commands[entity].fields(message.codes)
+        previous = self._commands.get(entity)
+        self._commands[entity] = fields
+        if fields != previous and self._modes.get(entity) == "twin" and self._twin_alive:
+            self._send_commands(now, only=entity)  # a changed command goes out at once
+            self.command_latencies.append(time.perf_counter() - arrived)
 
     # -- status ----------------------------------------------------------------------
     def publish_diagnostics(self, now: float | None = None) -> None:
@@ -237,8 +286,9 @@ class Bridge:
     def status(self, now: float) -> dict:
         """The daemon's own figures: frames, commands, the latency it adds (ms)."""
         return {
-            "t": now, "unknown_frames": self.unknown_frames, "frames_sent": self.frames_sent,
+            "t": time.time(), "unknown_frames": self.unknown_frames, "frames_sent": self.frames_sent,
             "safe_frames_sent": self.safe_frames_sent, "twin_alive": self._twin_alive,
+            "refused_messages": self.refused_messages,
             "received": {d.entity: d.diagnostics.received for d in [*self.devices.values(), *self.robots.values()]},
             "frame_latency_ms": _percentiles(self.frame_latencies),
             "command_latency_ms": _percentiles(self.command_latencies),
@@ -254,15 +304,15 @@ class Bridge:
     # -- helpers ---------------------------------------------------------------------
     def _signals(self, mapping, fields: dict) -> dict:
         """The frame's signal values for the twin's command ``fields`` (safe values for what is missing)."""
-        signals = self._frames[mapping.message][1]
+        _, signals, safe = self._frames[mapping.message]
         values = {}
         for signal_name, field_name in mapping.fields.items():
-            value = fields.get(field_name, mapping.safe[signal_name])
+            value = fields.get(field_name, safe[signal_name])
             signal = signals[signal_name]
             if value is None and signal.choices is not None:
                 value = "none"
             if not accepts(signal, value):
-                value = mapping.safe[signal_name]  # not a value of the signal: the safe one
+                value = safe[signal_name]  # not a value of the signal: the safe one
             values[signal_name] = value if signal.choices is not None else float(value)
         return values
 
@@ -278,27 +328,34 @@ class Bridge:
         self.frames_sent += 1
         self.safe_frames_sent += 1 if safe else 0
 
-    def _fields(self, device: Device, values: dict) -> dict:
+    @staticmethod
+    def _fields(device: Device, values: dict) -> dict:
+        """A frame's signals as the entity's sample fields, typed as the entity takes them."""
         fields = {}
-        for name, signal_name in device.mapping.fields.items():
-            signal = device.message.get_signal_by_name(signal_name)
-            value = values[signal_name]
+        for name, signal, ctype in device.signals:
+            value = values[signal.name]
             if signal.choices is not None:
                 fields[name] = str(signal.choices[int(value)])
-            elif signal.length == 1:
+            elif ctype.kind == "bool":
                 fields[name] = bool(value)
             else:
                 fields[name] = float(value)
         return fields
 
-    def _publish_fail_safe(self, device: Device, now: float) -> None:
-        device.fail_safe_published += 1
-        self._publish(device, dict(device.mapping.fail_safe), now)
+    def _publish_failure(self, device: Device, fault: Fault) -> None:
+        device.failures_published += 1
+        failure = "stale" if fault in STALE_FAULTS else "corrupt"
+        self._publish(device, codec.encode_failure(time.time(), self._next(device), failure))
 
-    def _publish(self, device: Device, fields: dict, now: float) -> None:
+    @staticmethod
+    def _next(device: Device) -> int:
         device.seq += 1
+        return device.seq
+
+    @staticmethod
+    def _publish(device: Device, payload: bytes) -> None:
         device.published += 1
-        device.publisher.put(encode_fields(now, device.seq, fields))
+        device.publisher.put(payload)
 
 
 def _percentiles(seconds) -> dict:

@@ -6,7 +6,7 @@ Given the bridge daemon's configuration, the emulator plays
   time, with the alive counter and CRC of the end-to-end protection
   (``bridges.e2e.protect``); a device with command frames takes them from the
   bus and checks them as the real device would (a bad or stale frame: the
-  frame's *safe* values);
+  entity kind's *safe command*);
 * each robot's controller over Zenoh: its state stream (``bridges.robot``) at
   the controller's rate, and its requests from the controller's request key.
 
@@ -151,7 +151,7 @@ class EmulatedDevices:
             device = cfg.devices[name]
             return CanOutlet(self.bus, self.loaded.database.get_message_by_name(device.message), device.fields)
         if name in cfg.robots:
-            return ZenohOutlet(self.session.declare_publisher(keys.controller_state(cfg.cell, name)), RobotStateEncoder())
+            return ZenohOutlet(self.session.declare_publisher(keys.controller_state(self.loaded.cell, name)), RobotStateEncoder())
         return None
 
     def feed_commands(self, entity, source) -> bool:
@@ -159,14 +159,15 @@ class EmulatedDevices:
         cfg, name = self.config, entity.module
         if name in cfg.robots:
             self._subscribers.append(self.session.declare_subscriber(
-                keys.controller_request(cfg.cell, name), lambda sample: source.deliver(sample.payload.to_bytes())))
+                keys.controller_request(self.loaded.cell, name), lambda sample: source.deliver(sample.payload.to_bytes())))
             return True
         if name not in cfg.commands:
             return False
         mappings = cfg.commands[name]
         types = dict(zip(source.inputs, source.codec.types))
         self._entities[name] = {"source": source, "types": types, "seq": 0,
-                                "values": {m.message: self._command_fields(m, dict(m.safe), types) for m in mappings}}
+                                "values": {m.message: self._command_fields(m, self.loaded.safe_signals(m), types)
+                                           for m in mappings}}
         for mapping in mappings:
             message = self.loaded.database.get_message_by_name(mapping.message)
             checker = DeviceChecker(message=message, timeout=mapping.watchdog, recover_after=cfg.recover_after)
@@ -184,7 +185,7 @@ class EmulatedDevices:
             return
         name, mapping, checker = feed
         verdict = checker.check(bytes(frame.data), time.monotonic())
-        signals = dict(verdict.values) if verdict.trusted else dict(mapping.safe)
+        signals = dict(verdict.values) if verdict.trusted else self.loaded.safe_signals(mapping)
         if verdict.trusted:  # numbers as decoded; enumerations by name
             message = checker.message
             for signal_name in list(signals):

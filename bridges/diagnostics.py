@@ -11,7 +11,7 @@ Levels, as ROS diagnostics name them (a group shows its worst member):
 
 * ``STALE``: no good message yet, or none within the device's watchdog;
 * ``ERROR``: the device is failed (a check failed and it has not recovered):
-  the twin is given its fail-safe sample;
+  the twin was told its link failed;
 * ``WARN``: trusted, but errors were counted since the last status, or its
   rate is below ``RATE_WARNING`` of nominal;
 * ``OK``: trusted, at its rate, no new errors.

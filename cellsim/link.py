@@ -124,15 +124,17 @@ class LinkTrust:
         return self.link is not PhysicalLink.OK
 
     def stamp(self, stamp: float, now_wall: float) -> Fault | None:
-        """Judge a sender's time stamp against the receiver's wall clock at arrival."""
+        """Judge a sender's time stamp against the receiver's wall clock at arrival: None, or the fault
+        (a refusal or a failure) to give :meth:`fail`, which counts it."""
         if not math.isfinite(stamp) or stamp > now_wall + self.future_skew:
-            return self.refuse(Fault.FUTURE)
+            return Fault.FUTURE
         if now_wall - stamp > self.timeout:
             return Fault.LATE
         return None
 
     def sequence(self, seq: int, now: float) -> Fault | None:
-        """Judge a sequence number: None when it follows, else the fault (a refusal or a failure).
+        """Judge a sequence number: None when it follows, else the fault (a refusal or a failure) to give
+        :meth:`fail`, which counts it.
 
         After the link went stale any number starts the sequence afresh (a restarted sender).
         """
@@ -142,7 +144,7 @@ class LinkTrust:
             return None
         delta = (seq - last) % self.modulo if self.modulo else seq - last
         if self.modulo and delta == 0 or not self.modulo and delta <= 0:
-            return self.refuse(Fault.REPEATED)
+            return Fault.REPEATED
         self.last_seq = seq  # resynchronise on it, whether it is taken or not
         if delta > self.max_gap:
             return Fault.COUNTER
@@ -162,8 +164,8 @@ class LinkTrust:
     def fail(self, fault: Fault, now: float | None = None) -> Judgement:
         """A fault (of a message that arrived at ``now``): counted, and the link fails (stale or corrupt)
         until it recovers."""
-        if fault in REFUSALS:
-            self.refuse(fault)
+        if fault in REFUSALS:  # one message refused: counted, the link as it was
+            self._count(fault)
             return Judgement(False, None, fault)
         self._count(fault)
         self.good_in_a_row = 0
@@ -171,11 +173,6 @@ class LinkTrust:
         if now is not None and self.link is PhysicalLink.CORRUPT:
             self.last_heard = now
         return Judgement(False, None, fault)
-
-    def refuse(self, fault: Fault) -> Fault:
-        """One message refused (counted) without failing the link."""
-        self._count(fault)
-        return fault
 
     def watchdog(self, now: float) -> Judgement | None:
         """The timeout judgement when no good message came within ``timeout`` (call it periodically);

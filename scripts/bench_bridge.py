@@ -127,7 +127,7 @@ def run_load(load: float, seconds: float, tmp: Path) -> dict:
     from cellsim.live.session import session_config
 
     loaded = load_bridge(CONFIG)
-    cell = loaded.config.cell
+    cell = loaded.cell
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     statuses: list[dict] = []

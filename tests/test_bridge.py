@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import queue
+import time
 
 import can
 import pytest
@@ -24,6 +25,12 @@ from live_processes import free_port, wait_for
 CONFIG = ROOT / "bridges" / "welding_cell.yaml"
 
 
+def config_text() -> str:
+    """The welding cell's bridge configuration, naming its scenario by an absolute path (to be copied)."""
+    return CONFIG.read_text().replace("scenario: ../scenarios/welding_cell.yaml",
+                                      f"scenario: {ROOT / 'scenarios' / 'welding_cell.yaml'}")
+
+
 @pytest.fixture
 def sessions():
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -36,7 +43,9 @@ def sessions():
         hub.close()
 
 
-def test_checked_frames_become_samples_and_any_failure_the_fail_safe_sample_at_once(sessions):
+def test_checked_frames_become_samples_and_any_failure_a_link_failure_at_once(sessions):
+    """The daemon forwards each frame's outcome at once (the twin applies recover-after, once): a good
+    frame as the entity's sample, a bad one or silence as a failure, so the twin fails safe as its kind says."""
     hub, watcher = sessions
     received: queue.Queue = queue.Queue()
     subscriber = watcher.declare_subscriber("cellsim/welding_cell/physical/**",
@@ -68,28 +77,32 @@ def test_checked_frames_become_samples_and_any_failure_the_fail_safe_sample_at_o
             except queue.Empty:
                 continue
         assert first[0] == "cellsim/welding_cell/physical/light_barrier"
-        while True:  # not trusted until three good frames in a row: the fail-safe sample (broken)
-            send(protect(curtain, {"Broken": 0}, counter[0]))
-            counter[0] += 1
-            _, sample = next_sample()
-            if sample["fields"] == {"broken": False}:
-                break
-            assert sample["fields"] == {"broken": True}
+        sample = first[1]
+        assert sample["fields"] == {"broken": False}  # the very first good frame: forwarded at once
+        assert abs(sample["t"] - time.time()) < 5  # stamped with the daemon's wall clock
         # the twin's light barrier reads the payload as any sample
         message = FieldCodec(("broken",), (BOOL,)).decode(json.dumps(sample).encode())
-        assert message.codes == [0.0] and message.seq > 1
-        # a corrupt CRC: the fail-safe sample at once, and the fault counted
+        assert message.codes == [0.0] and message.seq >= 1
+        # a corrupt CRC: a link failure at once, and the fault counted
         bad = bytearray(protect(curtain, {"Broken": 0}, counter[0]))
         bad[0] ^= 0xFF
         counter[0] += 1
         assert send(bytes(bad)).fault.value == "crc"
-        assert next_sample()[1]["fields"] == {"broken": True}
+        assert next_sample()[1]["failed"] == "corrupt"
+        # the same frame twice (a repeated counter): refused and counted, nothing published
+        frame = protect(curtain, {"Broken": 1}, counter[0])
+        counter[0] += 1
+        assert send(frame).good and next_sample()[1]["fields"] == {"broken": True}
+        assert send(frame).fault.value == "repeated"
+        with pytest.raises(queue.Empty):
+            next_sample(timeout=0.2)
         assert bridge.devices[curtain.frame_id].checker.counts["crc"] == 1
         # an unknown frame is counted and dropped
         assert send(b"\x00\x01", frame_id=0x7FF) is None and bridge.unknown_frames == 1
-        # silence: the watchdog publishes the fail-safe sample
+        # silence: the watchdog says stale
         bridge.check_watchdogs(now=0.02 * counter[0] + 1.0)
-        assert next_sample()[1]["fields"] == {"broken": True}
+        assert next_sample()[1]["failed"] == "stale"
+        assert bridge.devices[curtain.frame_id].checker.counts["repeated"] == 1
     finally:
         subscriber.undeclare()
         device.shutdown()
@@ -132,26 +145,42 @@ def test_enumerations_go_out_by_name():
     [
         ("message: LightCurtainState", "message: LightCurtain", "devices.light_barrier.message", "no message 'LightCurtain'"),
         ("fields: {broken: Broken}", "fields: {broken: Brokn}", "devices.light_barrier.fields.broken", "no signal 'Brokn'"),
-        ("fail_safe: {range: close, distance: 0.0}", "fail_safe: {range: closer, distance: 0.0}",
-         "devices.range_detector.fail_safe.range", "'closer' is not a value of signal Range"),
         ("dbc: welding_cell.dbc", "dbc: welding.dbc", "dbc", "file not found: welding.dbc"),
+        ("scenario: SCENARIO", "scenario: nowhere.yaml", "scenario", "file not found: nowhere.yaml"),
         ("    watchdog: 0.1", "    watchdog: 0.01", "devices.light_barrier.watchdog", "longer than the cycle time"),
-        ("safe: {SafetyMode: stopped}", "safe: {SafetyMode: halt}", "commands.welder.0.safe.SafetyMode", "'halt' is not a value"),
-        ("fields: {SafetyMode: safety_mode_request}", "fields: {Mode: safety_mode_request}", "commands.welder.0.safe", "safe value for each signal"),
         ("wrist_2_joint, wrist_3_joint]", "wrist_2_joint]", "robots.robot.joints", "six joints"),
         ("    watchdog: 0.05", "    watchdog: 0.001", "robots.robot.watchdog", "longer than the cycle time"),
         ("ros_namespace: /welding_cell", "ros_namespace: /welding cell", "robots.robot.ros_namespace", "not a ROS 2 name"),
+        # loaded with the scenario: the devices are its entities, with its kinds' fields and values
+        ("  light_barrier:\n", "  light_curtain:\n", "devices.light_curtain", "no entity named 'light_curtain'"),
+        ("fields: {range: Range, distance: Distance}", "fields: {range: Range}", "devices.range_detector.fields",
+         "map each physical-sample field of range_detector exactly once: range, distance"),
+        ("fields: {safety_mode: SafetyMode, activity: Activity}", "fields: {safety_mode: SafetyMode, activity: SafetyMode}",
+         "devices.welder.fields.activity", "signal SafetyMode can carry normal, hguid"),
+        ("fields: {SafetyMode: safety_mode_request}", "fields: {SafetyMode: mode_request}",
+         "commands.welder.0.fields.SafetyMode", "'mode_request' is not a command field of welder"),
+        ("fields: {ActivityRequest: activity_request, Weld: command}", "fields: {ActivityRequest: safety_mode_request, Weld: command}",
+         "commands.welder.1.fields.ActivityRequest", "welder's safe command safety_mode_request = stopped is not a value"),
     ],
 )
-def test_a_configuration_that_does_not_match_its_dbc_is_one_error_naming_the_key(tmp_path, old, new, key, expected):
-    text = CONFIG.read_text()
+def test_a_configuration_that_does_not_match_its_dbc_or_scenario_is_one_error_naming_the_key(tmp_path, old, new, key, expected):
+    text = config_text()
+    old = old.replace("SCENARIO", str(ROOT / "scenarios" / "welding_cell.yaml"))
     assert old in text
     (tmp_path / "welding_cell.dbc").write_text((ROOT / "bridges" / "welding_cell.dbc").read_text())
     path = tmp_path / "bridge.yaml"
     path.write_text(text.replace(old, new, 1))
     with pytest.raises(ConfigError) as e:
         load_bridge(path)
-    assert e.value.key == key and expected in str(e.value) and e.value.line is not None
+    assert e.value.key == key and expected in str(e.value) and e.value.line is not None, (e.value.key, str(e.value))
+
+
+def test_what_a_device_is_told_when_the_twin_is_lost_is_its_kinds_safe_command():
+    loaded = load_bridge(CONFIG)
+    assert loaded.safe["welder"] == {"safety_mode_request": "stopped", "activity_request": "off", "command": 0.0}
+    assert [loaded.safe_signals(m) for m in loaded.config.commands["welder"]] == [
+        {"SafetyMode": "stopped"}, {"ActivityRequest": "off", "Weld": 0.0}]
+    assert loaded.safe["robot"]["safety_mode_request"] == "stopped"
 
 
 def test_commands_reach_the_bus_only_in_twin_mode_and_the_safe_ones_when_the_supervisor_is_lost(sessions):
@@ -194,24 +223,24 @@ def test_commands_reach_the_bus_only_in_twin_mode_and_the_safe_ones_when_the_sup
         # shadow mode: nothing goes to the bus, whatever the twin says
         mode.put(json.dumps({"t": time.time(), "sim_time": 0.0, "value": "shadow"}))
         until(lambda: bridge._modes.get("welder") == "shadow", "shadow mode heard")
-        assert frames_now(time.time()) == []
+        assert frames_now(time.monotonic()) == []
         # twin mode: the twin's request goes out
         mode.put(json.dumps({"t": time.time(), "sim_time": 0.1, "value": "twin"}))
         command.put(json.dumps({"t": time.time(), "seq": 1, "fields": {"safety_mode_request": "ssmon", "activity_request": None, "command": 1.0}}))
         until(lambda: "welder" in bridge._commands and bridge._twin_alive and bridge._modes.get("welder") == "twin",
               "command heard")
-        assert set(frames_now(time.time())) == {"ssmon"}
+        assert set(frames_now(time.monotonic())) == {"ssmon"}
         # its commands stop for longer than the watchdog: the safe request, stopped
-        assert frames_now(time.time() + 0.6) == ["stopped"]
+        assert frames_now(time.monotonic() + 0.6) == ["stopped"]
         # a fresh command again; then the twin goes: stopped
         command.put(json.dumps({"t": time.time(), "seq": 2, "fields": {"safety_mode_request": "normal", "activity_request": None, "command": 0.0}}))
-        until(lambda: bridge._commands["welder"][1]["safety_mode_request"] == "normal", "second command")
+        until(lambda: bridge._commands["welder"]["safety_mode_request"] == "normal", "second command")
         # a changed command went out at once, as it was taken in; and again on the cycle
-        assert frames_now(time.time()) == ["normal", "normal"]
+        assert frames_now(time.monotonic()) == ["normal", "normal"]
         token.undeclare()
         token = None
         until(lambda: not bridge._twin_alive, "the twin's token gone")
-        assert frames_now(time.time()) == ["stopped"]
+        assert frames_now(time.monotonic()) == ["stopped"]
         assert bridge.safe_frames_sent >= 2 * 2  # both the request and the welder command each time
     finally:
         if token is not None:
@@ -275,7 +304,7 @@ def test_cellsim_bridge_refuses_a_bad_configuration_in_one_line(tmp_path):
     import sys
 
     path = tmp_path / "bridge.yaml"
-    path.write_text(CONFIG.read_text().replace("dbc: welding_cell.dbc", "dbc: missing.dbc"))
+    path.write_text(config_text().replace("dbc: welding_cell.dbc", "dbc: missing.dbc"))
     proc = subprocess.run([sys.executable, "-m", "cellsim", "bridge", str(path)], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and "file not found: missing.dbc" in proc.stderr
     proc = subprocess.run([sys.executable, "-m", "cellsim", "bridge", str(CONFIG), "--can", "socketcan"],
@@ -291,7 +320,7 @@ def test_a_command_frame_without_end_to_end_protection_is_refused_at_load(tmp_pa
 ''', "BO_ 512 SafetyModeRequest: 4 Bridge\n")
     (tmp_path / "welding_cell.dbc").write_text(dbc)
     path = tmp_path / "bridge.yaml"
-    path.write_text(CONFIG.read_text())
+    path.write_text(config_text())
     with pytest.raises(ConfigError) as e:
         load_bridge(path)
     assert e.value.key == "commands.welder.0.message" and "not end-to-end protected" in str(e.value)
@@ -337,7 +366,7 @@ def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_s
 
     try:
         deadline = time.monotonic() + 10
-        while True:  # until the daemon's subscription is in place and three good states came in a row
+        while True:  # until the daemon's subscription is in place (a good state is forwarded at once)
             assert time.monotonic() < deadline, "no robot sample"
             send(q0=0.5)
             try:
@@ -356,11 +385,14 @@ def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_s
         assert list(message.position) == [0.5, -1.0, 1.2, 0.0, 1.57, 0.0] and message.velocity[0] == 0.1
         assert abs(message.header.stamp.sec + message.header.stamp.nanosec * 1e-9 - time.time()) < 5
         assert payload[:4] == b"\x00\x01\x00\x00" and "cdr" in encoding.lower()  # CDR little endian, as ROS 2 sends
-        # a replayed state (its seq again), one out of range, one late: the failure at once, each counted
-        for over, failure in (({"seq_back": True}, "corrupt"), ({"q0": 9.0}, "corrupt"), ({"late": True}, "stale")):
-            if over.get("seq_back"):
-                state.put(_state(seq[0], time.time()))
-            elif over.get("late"):
+        # a replayed state (its seq again): refused and counted, nothing published for it
+        published = bridge.robots["robot"].published
+        state.put(_state(seq[0], time.time()))
+        wait_for(lambda: bridge.robots["robot"].checker.counts["repeated"] == 1, 5, "the replay refused")
+        assert bridge.robots["robot"].published == published
+        # one out of range, one late: the failure at once, each counted
+        for over, failure in (({"q0": 9.0}, "corrupt"), ({"late": True}, "stale")):
+            if over.get("late"):
                 seq[0] += 1
                 state.put(_state(seq[0], time.time() - 1.0))
             else:
@@ -369,19 +401,19 @@ def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_s
             while (sample := next_sample()).get("failed") != failure:
                 assert "fields" in sample or sample["failed"] == "stale", sample
             assert sample == {"t": pytest.approx(time.time(), abs=2), "seq": pytest.approx(0, abs=10**9), "failed": failure}
-            while "fields" not in next_sample():  # trusted again after three good states in a row
+            while "fields" not in next_sample():  # forwarded again with the next good state
                 send()
         # silence: the watchdog (50 ms) says stale
         while "fields" in (sample := next_sample()):
             pass
         assert sample["failed"] == "stale"
         counts = bridge.robots["robot"].checker.counts
-        assert (counts["counter"], counts["range"], counts["late"]) == (1, 1, 1) and counts["timeout"] >= 1
+        assert (counts["repeated"], counts["range"], counts["late"]) == (1, 1, 1) and counts["timeout"] >= 1
         # its diagnostics went stale, and said so
         deadline = time.monotonic() + 5
         while (status := statuses.get(timeout=5))["counts"]["late"] < 1 or status["level"] != "STALE":
             assert time.monotonic() < deadline
-        assert status["entity"] == "robot" and status["counts"]["range"] == 1 and status["received"] > 6
+        assert status["entity"] == "robot" and status["counts"]["range"] == 1 and status["received"] >= 5
     finally:
         stop.set()
         loop.join(5)
@@ -402,7 +434,7 @@ def test_robot_requests_go_to_the_controller_in_twin_mode_and_a_stop_when_the_tw
     mode = twin.declare_publisher("cellsim/welding_cell/twin/robot/twin_mode")
     command = twin.declare_publisher("cellsim/welding_cell/command/robot")
     token = twin.liveliness().declare_token("cellsim/welding_cell/alive/twin")
-    fields = {"safety_mode_request": "ssmon", "activity": "moving", "target_pose": "weld_start"}
+    fields = {"safety_mode_request": "ssmon", "activity": "welding", "target_pose": 2.0}  # a pose's index
 
     def take_until(condition) -> None:
         deadline = time.monotonic() + 10
@@ -427,7 +459,8 @@ def test_robot_requests_go_to_the_controller_in_twin_mode_and_a_stop_when_the_tw
         token = None
         take_until(lambda: not bridge._twin_alive)
         bridge.send_commands()
-        assert requests.get(timeout=5)["fields"] == {"safety_mode_request": "stopped", "activity": None, "target_pose": None}
+        # the robot kind's safe command: stop, idle, hold where it is
+        assert requests.get(timeout=5)["fields"] == {"safety_mode_request": "stopped", "activity": "idle", "target_pose": -1.0}
     finally:
         if token is not None:
             token.undeclare()

@@ -42,10 +42,11 @@ SHOWN = {
     "light_barrier": ("light_barrier.broken", False, True),
     "range_detector": ("range_detector.range", "far", "close"),
     "welder": ("welder.safety_mode", "normal", "unknown"),
-    "robot": ("robot.physical_link", "ok", {"freeze": "corrupt", "delay": "stale"}),
+    "robot": ("robot.physical_link", "ok", {"freeze": "stale", "delay": "stale"}),  # a frozen stream goes stale
 }
-COUNTED = {"drop": "timeout", "length": "length", "crc": "crc", "flood": "timeout", "replay": "counter",
-           "delay": "timeout", "freeze": "counter"}
+# a repeated counter or seq (a replayed frame, a frozen state) is refused and counted: its stream then goes stale
+COUNTED = {"drop": "timeout", "length": "length", "crc": "crc", "flood": "timeout", "replay": "repeated",
+           "delay": "timeout", "freeze": "repeated"}
 ROBOT_DELAY_COUNTED = "late"
 
 

@@ -55,17 +55,18 @@ def test_a_spoiled_frame_fails_the_device_at_once(spoil, fault):
     assert not verdict.trusted and verdict.fault is fault and checker.counts[fault.value] == 1
 
 
-def test_a_replayed_or_repeated_counter_is_refused_and_recovery_needs_good_frames_again():
+def test_a_repeated_counter_is_refused_an_old_one_fails_and_recovery_needs_good_frames_again():
     checker = DeviceChecker(message=SCANNER, timeout=0.1)
     good = frames(8)
     for t, f in enumerate(good[:4]):
         assert checker.check(f, t * 0.04).trusted == (t >= 2)
-    assert checker.check(good[3], 0.16).fault is Fault.COUNTER  # the same frame again
-    assert checker.check(good[1], 0.20).fault is Fault.COUNTER  # an old one
+    repeated = checker.check(good[3], 0.16)  # the same frame again: refused, the device still trusted
+    assert repeated.fault is Fault.REPEATED and not repeated.trusted and not checker.failed
+    assert checker.check(good[1], 0.20).fault is Fault.COUNTER  # an old one: the counter jumps 14 ahead
     # the stream goes on from counter 2 (resynchronised): good frames, but not trusted at once
     later = frames(4, start=2)
     assert [checker.check(f, 0.24 + i * 0.04).trusted for i, f in enumerate(later[1:])] == [False, False, True]
-    assert checker.counts["counter"] == 2
+    assert checker.counts["counter"] == 1 and checker.counts["repeated"] == 1
 
 
 def test_a_value_outside_its_range_or_choices_is_refused():

@@ -41,7 +41,8 @@ def test_a_wrapping_counter_counts_modulo():
 def test_stamps_beyond_the_skew_are_refused_and_old_ones_are_late():
     link = LinkTrust(timeout=0.1, future_skew=0.5)
     assert link.stamp(1000.4, now_wall=1000.0) is None
-    assert link.stamp(1000.6, now_wall=1000.0) is Fault.FUTURE and link.counts["future"] == 1
+    assert link.stamp(1000.6, now_wall=1000.0) is Fault.FUTURE
+    assert link.fail(Fault.FUTURE).fault is Fault.FUTURE and link.counts["future"] == 1  # counted, not failed
     assert link.stamp(float("inf"), now_wall=1000.0) is Fault.FUTURE
     assert link.stamp(999.8, now_wall=1000.0) is Fault.LATE
 

@@ -54,7 +54,7 @@ def run(args) -> int:
             bridge = Bridge(loaded, session, bus=bus)
             stop = threading.Event()
             logging.basicConfig(level=logging.INFO, format="cellsim bridge: %(message)s", stream=sys.stderr)
-            print(f"cellsim bridge: {loaded.config.cell} on {interface}:{channel}", file=sys.stderr)
+            print(f"cellsim bridge: {loaded.cell} on {interface}:{channel}", file=sys.stderr)
             with _terminate_as_interrupt():
                 try:
                     run_bridge(bridge, bus, stop)

@@ -63,15 +63,12 @@ def run(args) -> int:
     from cellsim.simulation import simulate
     from cellsim.live.faults import FaultError, check_entities, check_faults, parse_fault, parse_rate
 
-    loaded = None
+    loaded = bridge = None
     if args.can:
-        from bridges.config import load_bridge
-
         bridge = args.bridge or args.scenario.resolve().parent.parent / "bridges" / args.scenario.name
         if not bridge.is_file():
             raise InputError(f"--can needs the cell's bridge configuration (its devices and DBC): no {bridge}; "
                              "name it with --bridge FILE")
-        loaded = load_bridge(bridge)
         _can_bus_spec(args.can, "--can")
     elif args.bridge:
         raise InputError("--bridge is for --can: name the CAN bus the devices speak on")
@@ -82,12 +79,14 @@ def run(args) -> int:
         raise InputError(str(e)) from None
 
     def check(sf):
+        nonlocal loaded
         entities = sf.scenario.entities
+        if bridge is not None:  # loaded with this scenario: its devices must be this cell's entities
+            from bridges.config import load_bridge
+
+            loaded = load_bridge(bridge, sf)
         try:
             check_entities(faults, rates, entities)
-            if loaded is not None and loaded.config.cell != sf.scenario.name:
-                raise InputError(f"--bridge {loaded.source}: it is the bridge of cell '{loaded.config.cell}', "
-                                 f"not of '{sf.scenario.name}'")
             check_faults(faults, entities, set(loaded.config.devices) if loaded is not None else None)
         except FaultError as e:
             raise InputError(str(e)) from None
