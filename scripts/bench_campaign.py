@@ -35,7 +35,7 @@ from cellsim.logic.mtl import TraceEvaluator  # noqa: E402
 from cellsim.logic.trace import Trace  # noqa: E402
 from cellsim.scenario import load_scenario  # noqa: E402
 from cellsim.simulation import simulate  # noqa: E402
-from cellsim.validation.check import check_run  # noqa: E402
+from cellsim.validation.check import check  # noqa: E402
 
 SCENARIO = ROOT / "scenarios" / "welding_cell.yaml"
 
@@ -81,7 +81,7 @@ def main() -> None:
 
 def check_timing(run: Path, what: str) -> str:
     """Median time to check the run's recorded trace: the conditions alone, then with use cases and coverage."""
-    checked = check_run(run)
+    checked = check(run)
     recorded, case = checked.trace.trace, checked.case
     conditions, everything = [], []
     for _ in range(50):

@@ -49,7 +49,7 @@ def test_campaign_writes_results_and_report(campaign):
         # the published test vectors: five waits summing to 20 s
         assert set(r["configuration"]) == set(WAITS)
         assert sum(r["configuration"].values()) == pytest.approx(20.0, abs=1e-6)
-        assert len(r["verdicts"]) == 14 and r["violations"] == []
+        assert len(r["verdicts"]) == 14 and r["violations"] == [] and r["verdict"] == "holds"
         assert (out / r["out"] / "blackbox.sqlite").is_file()
     totals = results["totals"]
     assert totals["runs"] == 3 and totals["violating_runs"] == 0
@@ -123,6 +123,7 @@ def test_the_misuse_campaign_reveals_violations(tmp_path):
     results = _results(out)
     violating = [r for r in results["runs"] if r["violations"]]
     assert violating and results["totals"]["violating_runs"] == len(violating)
+    assert {r["verdict"] for r in violating} == {"violated"}  # the run's verdict, in the one vocabulary
     missed = results["totals"]["violations"]
     assert missed["HS:detected"] + missed["HRW:detected"] >= 1
     report = (out / "report.html").read_text()

@@ -12,7 +12,7 @@ from conftest import WELDING_CELL, run, welding_cell
 
 from cellsim.cli import main
 from cellsim.services.blackbox import BlackBox
-from cellsim.validation.check import check_run
+from cellsim.validation.check import check
 from cellsim.validation.traces import trace_of_run
 
 ALIASES = {"safmod": "robot.safety_mode", "HS": "safety_controller.HS", "oloc": "operator.location"}
@@ -96,7 +96,7 @@ def test_export_trace_round_trips(default_run, tmp_path, capsys):
     target = tmp_path / "trace.json"
     assert main(["check", str(default_run), "--export-trace", str(target)]) == 0
     exported = json.loads(target.read_text())
-    checked = check_run(default_run)
+    checked = check(default_run)
     for name, signal in checked.trace.trace.signals.items():
         assert exported[name] == [[t, v] for t, v in zip(signal.times.tolist(), signal.values)]
     assert exported["safmod"][0] == [0.0, "normal"]
@@ -127,7 +127,7 @@ def _cut(default_run, tmp_path, at: float, recorded_until: bool) -> Path:
 
 
 def test_an_interrupted_run_ends_where_its_record_was_committed(default_run, tmp_path):
-    checked = check_run(_cut(default_run, tmp_path, 12.0, recorded_until=True))
+    checked = check(_cut(default_run, tmp_path, 12.0, recorded_until=True))
     assert checked.trace.trace.end == 12.0
     assert not checked.trace.complete
 
@@ -137,7 +137,7 @@ def test_a_recording_whose_last_message_is_a_mishap_violates_not_mis(default_run
     partial = _cut(default_run, tmp_path, 12.0, recorded_until=False)
     with sqlite3.connect(partial / "blackbox.sqlite") as db:
         db.execute("INSERT INTO messages VALUES (12.5, 'safety_controller.HC', 'safety_controller', '{\"value\": \"mis\"}')")
-    checked = check_run(partial)
+    checked = check(partial)
     with BlackBox(partial / "blackbox.sqlite") as bb:
         period = bb.channels()["safety_controller.HC"].period
     assert checked.trace.trace.end == pytest.approx(12.5 + period)
@@ -315,3 +315,14 @@ def test_check_shows_what_each_exercised_use_case_means(default_run, capsys):
     descriptions = json.loads(capsys.readouterr().out)["descriptions"]
     assert descriptions["U2"] == "The operator reaches across the workbench while the cell works."
     assert descriptions["HS:detected"].startswith("A person the scanner sees")  # conditions' and use cases' alike
+
+
+def test_check_says_the_runs_verdict_in_the_one_vocabulary(default_run, capsys):
+    """check (the one evidence path) and check --json carry the run's verdict as the Verdict enum says it."""
+    from cellsim.cli import main
+    from cellsim.validation.verdict import Verdict
+
+    checked = check(default_run)
+    assert checked.verdict is Verdict.HOLDS and all(v.status in Verdict for v in checked.result.verdicts.values())
+    assert main(["check", str(default_run), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["verdict"] == "holds"

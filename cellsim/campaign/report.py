@@ -70,6 +70,7 @@ from markupsafe import Markup
 
 from cellsim.atomic import write_text
 from cellsim.numbers import instant, is_number, measure, percent, sig3
+from cellsim.validation.verdict import RUN_GROUPS, Verdict
 
 __all__ = [
     "BOOL_COLOURS",
@@ -114,8 +115,9 @@ ENUM_PALETTE = (
 """ColorBrewer Set3, then Set2 and Pastel1, without red (red means mishap or violation here); the
 most distinct first, as values are given the first colour no value sharing a variable with them has."""
 VIOLATION_COLOUR = "#d32f2f"
-VERDICT_COLOURS = {"violated": "#d32f2f", "undecided": "#fb8c00", "failed": "#757575", "holds": "#43a047"}
-VERDICTS = ("holds", "undecided", "violated", "failed")
+VERDICTS = RUN_GROUPS
+"""The groups a run's verdict is shown in (``Verdict.group``), best first."""
+VERDICT_COLOURS = dict(zip(RUN_GROUPS, ("#43a047", "#fb8c00", "#d32f2f", "#757575")))
 STAGES = ("simulate", "trace", "check", "coverage", "report", "wall")
 NAV = (("summary", "Summary"), ("conditions", "Conditions"), ("use-cases", "Use cases"), ("coverage", "Coverage"),
        ("configurations", "Configurations"), ("runs", "Runs"), ("timelines", "Timelines"))
@@ -173,7 +175,7 @@ def _run_index(run: Mapping, position: int) -> int:
 
 
 def _is_failed(run: Mapping) -> bool:
-    return run.get("status") == "failed"
+    return run.get("status") == Verdict.FAILED.value
 
 
 def _violated(run: Mapping) -> list[str]:
@@ -181,20 +183,21 @@ def _violated(run: Mapping) -> list[str]:
     if _is_failed(run):
         return []
     listed = [str(c) for c in _list(run.get("violations"))]
-    from_verdicts = [str(c) for c, v in _dict(run.get("verdicts")).items() if _status(_dict(v)) == "violated"]
+    from_verdicts = [str(c) for c, v in _dict(run.get("verdicts")).items()
+                     if _status(_dict(v)) == Verdict.VIOLATED.value]
     return listed + [c for c in from_verdicts if c not in listed]
 
 
 def _verdict_of(run: Mapping) -> str:
-    """One word for a run: ``failed``, ``violated``, ``undecided`` (a condition inconclusive or missing data) or ``holds``."""
-    if _is_failed(run):
-        return "failed"
+    """The group of a run's verdict (``Verdict.group``): failed, violated, undecided (a condition
+    inconclusive or missing data) or holds."""
+    known = {v.value for v in Verdict}
+    statuses = [status for v in _dict(run.get("verdicts")).values() if (status := _status(_dict(v))) in known]
     if _violated(run):
-        return "violated"
-    verdicts = [_status(_dict(v)) for v in _dict(run.get("verdicts")).values()]
-    if _list(run.get("undecided")) or any(v not in ("holds", None) for v in verdicts):
-        return "undecided"
-    return "holds"
+        statuses.append(Verdict.VIOLATED.value)
+    if _list(run.get("undecided")):
+        statuses.append(Verdict.INCONCLUSIVE.value)
+    return Verdict.of_run(statuses, failed=_is_failed(run)).group
 
 
 def _status(verdict: Mapping) -> str | None:
@@ -203,7 +206,7 @@ def _status(verdict: Mapping) -> str | None:
     if isinstance(status, str):
         return status
     holds = verdict.get("holds")
-    return None if not isinstance(holds, bool) else ("holds" if holds else "violated")
+    return None if not isinstance(holds, bool) else (Verdict.HOLDS if holds else Verdict.VIOLATED).value
 
 
 def _overall(coverage: Mapping) -> object:
@@ -442,7 +445,7 @@ def _condition_rows(results: Mapping, runs: Sequence[Mapping]) -> list[dict]:
         for i, run in enumerate(runs):
             if name in violated[i]:
                 violating.append(_run_index(run, i))
-            elif _status(_dict(_dict(run.get("verdicts")).get(name))) == "holds":
+            elif _status(_dict(_dict(run.get("verdicts")).get(name))) == Verdict.HOLDS.value:
                 holding += 1
             else:
                 undecided += 1

@@ -148,9 +148,8 @@ def execute_run(plan: CampaignPlan, out: Path, index: int, origin: dict | None =
     with ``status: failed`` and the error, and the campaign goes on.
     """
     from cellsim.scenario import load_scenario
-    from cellsim.services.blackbox import BlackBox
-    from cellsim.simulation import BLACKBOX, simulate
-    from cellsim.validation.traces import trace_of_run
+    from cellsim.simulation import simulate
+    from cellsim.validation.check import check
 
     sc = _base_scenario(plan).scenario
     points = {name: point.paths for name, point in sc.configuration_points.items()}
@@ -171,15 +170,13 @@ def execute_run(plan: CampaignPlan, out: Path, index: int, origin: dict | None =
             shutil.rmtree(folder)  # an unfinished earlier attempt
         summary = simulate(sf, folder, provenance=origin)
         timing["simulate"] = time.perf_counter() - started
-        t0 = time.perf_counter()
-        with BlackBox(folder / BLACKBOX) as bb:
-            trace = trace_of_run(bb, sc.validation.variables)
-        t1 = time.perf_counter()
-        checked = case.check(trace.trace, complete=trace.complete)
-        timing["trace"], timing["check"] = t1 - t0, time.perf_counter() - t1
-        _write_json(folder / TRACE, shown_variables(trace.to_json(), sc.validation.variables), indent=None)
+        checked_run = check(folder, case=case)
+        timing.update(checked_run.timing)
+        checked = checked_run.result
+        _write_json(folder / TRACE, shown_variables(checked_run.trace.to_json(), sc.validation.variables), indent=None)
         result.update(
             status=summary.status,
+            verdict=checked.verdict.value,
             verdicts=checked.verdicts_json(),
             violations=checked.violations,
             undecided=checked.undecided,

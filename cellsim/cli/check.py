@@ -33,13 +33,13 @@ def run(args) -> int:
 
     from cellsim.scenario import load_scenario
     from cellsim.services.blackbox import BlackBoxError
-    from cellsim.validation.check import CheckError, check_run
+    from cellsim.validation.check import CheckError, check
     from cellsim.validation.config import description_of
     from cellsim.validation.traces import TraceError, write_trace_json
 
     try:
         sf = load_scenario(args.scenario) if args.scenario else None
-        checked = check_run(args.run, sf)
+        checked = check(args.run, sf)
     except (CheckError, BlackBoxError, TraceError) as e:
         raise InputError(str(e)) from None
     result = checked.result
@@ -50,6 +50,7 @@ def run(args) -> int:
             {
                 "run": str(args.run),
                 "holds": result.all_hold,
+                "verdict": result.verdict.value,
                 "complete": checked.trace.complete,
                 "verdicts": result.verdicts_json(),
                 "descriptions": {n: description_of(c) for n, c in {**checked.case.validation.conditions,
@@ -75,6 +76,7 @@ def print_verdicts(run: Path, checked) -> None:
     from rich.table import Table
 
     from cellsim.validation.config import description_of, formula_of
+    from cellsim.validation.verdict import Verdict
 
     result, conditions = checked.result, checked.case.validation.conditions
     table = Table(title=f"Safety conditions on {run}", title_justify="left")
@@ -83,7 +85,7 @@ def print_verdicts(run: Path, checked) -> None:
     table.add_column("first violation")
     table.add_column("formula", style="dim")
     for name, verdict in result.verdicts.items():
-        mark = {"holds": "[green]holds[/green]", "violated": "[red]VIOLATED[/red]"}.get(
+        mark = {Verdict.HOLDS: "[green]holds[/green]", Verdict.VIOLATED: "[red]VIOLATED[/red]"}.get(
             verdict.status, f"[yellow]{verdict.describe()}[/yellow]"
         )
         when = "" if verdict.violated_at is None or verdict.holds else f"t = {instant(verdict.violated_at)}"

@@ -121,16 +121,11 @@ class _progress:
 
 def _check_of(summary):
     """The run's check result, or None when the scenario has no safety conditions."""
-    from cellsim.services.blackbox import BlackBox
-    from cellsim.simulation import BLACKBOX
-    from cellsim.validation.traces import trace_of_run
+    from cellsim.validation.check import check
 
-    case = summary.safety_case
-    if case is None:
+    if summary.safety_case is None:
         return None
-    with BlackBox(Path(summary.out_dir) / BLACKBOX) as bb:
-        run = trace_of_run(bb, case.validation.variables)
-    return case.check(run.trace, complete=run.complete)
+    return check(summary.out_dir, case=summary.safety_case).result
 
 
 def print_summary(summary, checked=None) -> None:

@@ -59,7 +59,7 @@ class CellModel:
     """The dashboard's picture of one cell."""
 
     def __init__(self, description: dict):
-        from cellsim.validation.traces import _validator, domain_of
+        from cellsim.validation.traces import domain_of, validator_of
 
         self.scenario: dict = description.get("scenario") or {}
         self.name: str = self.scenario.get("name", "?")
@@ -72,7 +72,7 @@ class CellModel:
         }
         self.entities = [name for name in (self.scenario.get("entities") or {})]
         self._domains = {name: domain_of(c["kind"], c["domain"], c.get("unit")) for name, c in self.channels.items()}
-        self._valid = {name: _validator(d) for name, d in self._domains.items() if d is not None}
+        self._valid = {name: validator_of(d) for name, d in self._domains.items() if d is not None}
         self.values: dict[str, object] = {}
         self.changed_at: dict[str, float] = {}
         self.series: dict[str, tuple[list[float], list]] = {}
@@ -281,7 +281,7 @@ class CellModel:
         if case is None:
             return self._verdicts
         from cellsim.logic.trace import Signal, Trace
-        from cellsim.validation.conditions import HOLDS, INCONCLUSIVE, MISSING, VIOLATED
+        from cellsim.validation.verdict import Verdict
 
         if self.sim_time <= 0.0:
             return self._verdicts
@@ -300,15 +300,15 @@ class CellModel:
         rows, why = [], {}
         for name, verdict in result.verdicts.items():
             row = None
-            if verdict.status == VIOLATED:
+            if verdict.status is Verdict.VIOLATED:
                 at = "" if verdict.violated_at is None else f" at {instant(verdict.violated_at)}"
                 row = (f"violated{at}", "ERROR")
                 why[name] = verdict.explanation
-            elif verdict.status == INCONCLUSIVE:
+            elif verdict.status is Verdict.INCONCLUSIVE:
                 row = ("holds so far", "OK") if verdict.reading == "holds so far" else ("pending", "WARN")
-            elif verdict.status == MISSING:
+            elif verdict.status is Verdict.MISSING_DATA:
                 row = (f"no data yet ({', '.join(verdict.missing)})", "STALE")
-            elif verdict.status == HOLDS:
+            elif verdict.status is Verdict.HOLDS:
                 row = ("holds", "OK")
             if row is not None:
                 rows.append((name, *row, description_of(case.validation.conditions[name]) or ""))

@@ -1,15 +1,18 @@
-"""Checking runs: a black box and a scenario's validation section in, verdicts out.
+"""The one evidence path: a run's black box and a scenario's validation in, verdicts out.
 
-``check_run`` works on any black box that has the channels the conditions
-name: a simulated run (whose folder holds the resolved ``scenario.yaml``), or a
-recording made beside the real cell checked against a scenario given
-explicitly.
+``check(run)`` is what the CLI (``check``, ``simulate``), campaigns and falsification
+call: black box -> trace -> the compiled conditions -> a :class:`CheckedRun` with a
+``Verdict`` per condition and for the run. It works on any black box that has the
+channels the conditions name: a simulated run (whose folder holds the resolved
+``scenario.yaml``), or a recording made beside the real cell checked against a
+scenario given explicitly. A live trace that is no black box (the dashboard's) is
+checked by the same compiled :class:`SafetyCase`.
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from cellsim.config.typed_yaml import ConfigError
@@ -17,6 +20,7 @@ from cellsim.scenario import ScenarioFile, load_scenario
 from cellsim.services.blackbox import BlackBox
 from cellsim.provenance import BLACKBOX, RESOLVED_SCENARIO
 from cellsim.validation.conditions import CheckResult, SafetyCase
+from cellsim.validation.verdict import Verdict
 from cellsim.validation.traces import (
     RunTrace,
     TraceError,
@@ -37,6 +41,13 @@ class CheckedRun:
     trace: RunTrace
     result: CheckResult
     case: SafetyCase
+    timing: dict = field(default_factory=dict)
+    """Seconds spent building the trace (``trace``) and evaluating it (``check``)."""
+
+    @property
+    def verdict(self) -> Verdict:
+        """The run's verdict: the worst of its conditions'."""
+        return self.result.verdict
 
 
 def safety_case(sf: ScenarioFile, vocabulary_domains: dict, channels) -> SafetyCase:
@@ -85,16 +96,23 @@ def locate_run(path: str | os.PathLike) -> tuple[Path, Path | None]:
     raise CheckError(f"{path}: no such run folder or black box")
 
 
-def check_run(path: str | os.PathLike, sf: ScenarioFile | None = None) -> CheckedRun:
-    """Check the run at ``path`` against ``sf``'s validation (default: the run's own scenario)."""
-    blackbox, scenario = locate_run(path)
-    if sf is None:
+def check(run: str | os.PathLike, sf: ScenarioFile | None = None, *, case: SafetyCase | None = None) -> CheckedRun:
+    """Check the run at ``run`` (a run folder or a black box) against ``sf``'s validation (default: the
+    run's own scenario), or against ``case`` already compiled (a campaign's, a simulation's)."""
+    import time
+
+    blackbox, scenario = locate_run(run)
+    if case is None and sf is None:
         if scenario is None:
-            raise CheckError(f"{path}: no {RESOLVED_SCENARIO} beside the black box; name a scenario with --scenario")
+            raise CheckError(f"{run}: no {RESOLVED_SCENARIO} beside the black box; name a scenario with --scenario")
         sf = load_scenario(scenario)
-    if not sf.scenario.validation.conditions:
+    if case is None and not sf.scenario.validation.conditions:
         raise CheckError(f"{sf.source}: the scenario has no safety conditions (validation.conditions) to check")
+    started = time.perf_counter()
     with BlackBox(blackbox) as bb:
-        case = safety_case(sf, blackbox_domains(bb), bb.channels())
-        trace = trace_of_run(bb, sf.scenario.validation.variables)
-    return CheckedRun(trace, case.check(trace.trace, complete=trace.complete), case)
+        if case is None:
+            case = safety_case(sf, blackbox_domains(bb), bb.channels())
+        trace = trace_of_run(bb, case.validation.variables)
+    traced = time.perf_counter()
+    result = case.check(trace.trace, complete=trace.complete)
+    return CheckedRun(trace, result, case, {"trace": traced - started, "check": time.perf_counter() - traced})

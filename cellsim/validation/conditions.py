@@ -21,12 +21,12 @@ from cellsim.logic.syntax import Formula, FormulaError, parse, variables_of
 from cellsim.logic.trace import Trace
 from cellsim.validation.config import Validation
 from cellsim.validation.coverage import CoverageError, CoverageModel
+from cellsim.validation.verdict import Verdict
 
 Locate = Callable[[str], tuple[str, int | None, str]]
 """Dotted key of the validation section -> (file, line, key in that file) where it is written."""
 
 
-HOLDS, VIOLATED, INCONCLUSIVE, MISSING = "holds", "violated", "inconclusive", "missing data"
 
 
 @dataclass(frozen=True)
@@ -45,7 +45,7 @@ class ConditionVerdict:
       (``missing`` names them): nothing was observed, so nothing is claimed.
     """
 
-    status: str
+    status: Verdict
     violated_at: float | None = None
     missing: tuple[str, ...] = ()
     reading: str | None = None
@@ -57,10 +57,10 @@ class ConditionVerdict:
 
     @property
     def holds(self) -> bool:
-        return self.status == HOLDS
+        return self.status is Verdict.HOLDS
 
     def to_json(self) -> dict:
-        data = {"holds": self.holds, "status": self.status, "violated_at": self.violated_at}
+        data = {"holds": self.holds, "status": self.status.value, "violated_at": self.violated_at}
         if self.missing:
             data["missing"] = list(self.missing)
         if self.reading:
@@ -73,11 +73,11 @@ class ConditionVerdict:
 
     def describe(self) -> str:
         """The verdict in a few words, for tables."""
-        if self.status == MISSING:
+        if self.status is Verdict.MISSING_DATA:
             return f"missing data: {', '.join(self.missing)} never recorded"
-        if self.status == INCONCLUSIVE:
+        if self.status is Verdict.INCONCLUSIVE:
             return f"inconclusive: {self.reading} when the recording stopped"
-        return self.status
+        return self.status.value
 
 
 @dataclass
@@ -90,16 +90,21 @@ class CheckResult:
 
     @property
     def violations(self) -> list[str]:
-        return [name for name, v in self.verdicts.items() if v.status == VIOLATED]
+        return [name for name, v in self.verdicts.items() if v.status is Verdict.VIOLATED]
 
     @property
     def undecided(self) -> list[str]:
         """Conditions that neither hold nor are violated: inconclusive or missing data."""
-        return [name for name, v in self.verdicts.items() if v.status in (INCONCLUSIVE, MISSING)]
+        return [name for name, v in self.verdicts.items() if v.status.undecided]
 
     @property
     def all_hold(self) -> bool:
         return all(v.holds for v in self.verdicts.values())
+
+    @property
+    def verdict(self) -> Verdict:
+        """The run's verdict: the worst of its conditions'."""
+        return Verdict.of_run(v.status for v in self.verdicts.values())
 
     def verdicts_json(self) -> dict[str, dict]:
         return {name: v.to_json() for name, v in self.verdicts.items()}
@@ -168,19 +173,19 @@ class SafetyCase:
     def _verdict(self, evaluator: TraceEvaluator, formula: Formula, complete: bool, recorded: set[str]) -> ConditionVerdict:
         missing = tuple(sorted(variables_of(formula) - recorded))
         if missing:
-            return ConditionVerdict(MISSING, missing=missing)
+            return ConditionVerdict(Verdict.MISSING_DATA, missing=missing)
         verdict = evaluator.evaluate(formula)
         if not complete and not evaluator.conclusive(formula):
             return ConditionVerdict(
-                INCONCLUSIVE, verdict.violated_at, reading="holds so far" if verdict.holds else "violated so far"
+                Verdict.INCONCLUSIVE, verdict.violated_at, reading="holds so far" if verdict.holds else "violated so far"
             )
         if verdict.holds:
-            return ConditionVerdict(HOLDS, None)
+            return ConditionVerdict(Verdict.HOLDS, None)
         from cellsim.validation.explain import Explainer
 
         explainer = Explainer(evaluator, self.macros)
         return ConditionVerdict(
-            VIOLATED, verdict.violated_at,
+            Verdict.VIOLATED, verdict.violated_at,
             explanation=explainer.explain(formula, verdict.violated_at),
             evidence=explainer.evidence(formula, verdict.violated_at),
         )

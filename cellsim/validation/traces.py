@@ -128,7 +128,7 @@ def trace_of_run(bb: BlackBox, aliases: dict[str, str] | None = None) -> RunTrac
 
     channels = bb.channels()
     samples: dict[str, tuple[list[float], list]] = {name: ([], []) for name in domains}
-    valid = {name: _validator(d) for name, d in domains.items()}
+    valid = {name: validator_of(d) for name, d in domains.items()}
     reach = 0.0  # latest t + period over all messages
     for t, channel, value in bb.iter_values(list(samples)):
         if isinstance(t, bool) or not isinstance(t, (int, float)) or not np.isfinite(t) or t < 0:
@@ -187,7 +187,8 @@ def _number(bb: BlackBox, metadata: dict, key: str) -> float | None:
     return float(value) if value > 0 else None
 
 
-def _validator(domain: Domain):
+def validator_of(domain: Domain):
+    """Whether a recorded value belongs to ``domain`` (a predicate: its enum names, a boolean, a finite number)."""
     if isinstance(domain, EnumDomain):
         values = set(domain.values)
         return lambda v: isinstance(v, str) and v in values
