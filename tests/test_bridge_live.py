@@ -14,12 +14,15 @@ import threading
 import time
 
 import can
+import pytest
 
 from cellsim.services.blackbox import BlackBox
 
 from live_processes import (ROOT, assert_supervised, can_server, free_port, observer, offset_of, processes,
                             sim_time_reached, wait_alive)
 
+
+pytestmark = pytest.mark.slow  # processes on loopback: skip locally with -m "not slow"
 WELDING_CELL = str(ROOT / "scenarios" / "welding_cell.yaml")
 BRIDGE = str(ROOT / "bridges" / "welding_cell.yaml")
 ENTITIES = ("robot", "welder", "light_barrier", "range_detector", "operator")

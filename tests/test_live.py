@@ -14,6 +14,8 @@ from cellsim.services.blackbox import BlackBox
 from live_processes import (ROOT, ChannelWatch, assert_supervised, free_port, observer, offset_of, processes,
                             sim_time_reached, wait_alive)
 
+
+pytestmark = pytest.mark.slow  # processes on loopback: skip locally with -m "not slow"
 WELDING_CELL = str(ROOT / "scenarios" / "welding_cell.yaml")
 ENTITIES = ("robot", "welder", "light_barrier", "range_detector", "operator")
 ALL_SHADOW = [arg for e in ENTITIES for arg in ("--set", f"{e}.twin.mode=shadow")]
