@@ -23,9 +23,7 @@ def add_parser(subparsers) -> None:
 
 
 def run(args) -> int:
-    import json
-
-    from cellsim.live import keys
+    from cellsim.live import codec, keys
 
     try:
         session = _open_session(args, listen_by_default=False, wait=args.timeout)
@@ -34,11 +32,11 @@ def run(args) -> int:
         return EXIT_INPUT
     try:
         selector = keys.twin_mode_control(args.cell) if args.cell else f"{keys.ROOT}/*/control/twin_mode"
-        request = json.dumps({"entity": args.entity, "mode": args.mode, "by": f"cellsim twin-mode ({session.zid()})"})
+        request = codec.encode_mode_request(args.entity, args.mode, f"cellsim twin-mode ({session.zid()})")
         answers = []
         for reply in session.get(selector, payload=request, timeout=args.timeout):
             if reply.ok is not None:
-                answers.append(json.loads(reply.ok.payload.to_bytes()))
+                answers.append(codec.decode_answer(reply.ok.payload.to_bytes()))
     finally:
         session.close()
     if not answers:

@@ -10,13 +10,12 @@ them out: the dashboard never decodes, let alone renders, every message.
 
 from __future__ import annotations
 
-import json
 import time
 from collections import deque
 from pathlib import Path
 
 from cellsim.dashboard.model import CellModel
-from cellsim.live import keys
+from cellsim.live import codec, keys
 
 CHANNEL_BACKLOG = 100_000
 """Twin channel messages held between two drains (minutes of a busy cell, should the screen stall)."""
@@ -121,8 +120,8 @@ class LiveFeed:
                 latest_physical[parts[3]] = payload  # only the newest of a fast stream is decoded
                 continue
             try:
-                message = json.loads(payload)
-            except (ValueError, UnicodeDecodeError):
+                message = codec.loads(payload)
+            except codec.CodecError:
                 model.dropped += 1
                 continue
             if kind == "twin" and len(parts) == 5 and isinstance(message, dict):
@@ -135,8 +134,8 @@ class LiveFeed:
                 model.dropped += 1
         for entity, payload in latest_physical.items():
             try:
-                model.apply_physical(entity, json.loads(payload))
-            except (ValueError, UnicodeDecodeError):
+                model.apply_physical(entity, codec.loads(payload))
+            except codec.CodecError:
                 model.dropped += 1
         while self._alive:
             model.set_twin("running" if self._alive.popleft() else "gone")
@@ -154,8 +153,8 @@ class LiveFeed:
         for reply in self.session.get(keys.describe(self.cell), timeout=1.0):
             if reply.ok is not None:
                 try:
-                    description = json.loads(reply.ok.payload.to_bytes())
-                except ValueError:
+                    description = codec.loads(reply.ok.payload.to_bytes(), codec.MAX_DESCRIPTION)
+                except codec.CodecError:
                     description = None
         if not isinstance(description, dict):
             return
@@ -176,13 +175,10 @@ class LiveFeed:
 
     def request_mode(self, entity: str, mode: str, timeout: float = 5.0) -> dict:
         """Ask the twin to switch ``entity`` to ``mode`` (blocking: call it off the interface's thread)."""
-        request = json.dumps({"entity": entity, "mode": mode, "by": f"cellsim dashboard ({self.session.zid()})"})
+        request = codec.encode_mode_request(entity, mode, f"cellsim dashboard ({self.session.zid()})")
         for reply in self.session.get(keys.twin_mode_control(self.cell), payload=request, timeout=timeout):
             if reply.ok is not None:
-                try:
-                    return json.loads(reply.ok.payload.to_bytes())
-                except ValueError:
-                    return {"accepted": False, "reason": "the twin's answer was malformed"}
+                return codec.decode_answer(reply.ok.payload.to_bytes())
         return {"accepted": False, "reason": f"no answer from the twin within {timeout:g} s"}
 
     def close(self) -> None:

@@ -62,10 +62,10 @@ class Message:
     """The fields as port codes (None for a failure)."""
 
 
-def loads(payload: bytes) -> dict:
-    """A JSON object of at most MAX_PAYLOAD bytes, or CodecError (never a crash on depth or size)."""
-    if len(payload) > MAX_PAYLOAD:
-        raise CodecError(f"{len(payload)} bytes, more than the {MAX_PAYLOAD} a message may have")
+def loads(payload: bytes, limit: int = MAX_PAYLOAD) -> dict:
+    """A JSON object of at most ``limit`` bytes, or CodecError (never a crash on depth or size)."""
+    if len(payload) > limit:
+        raise CodecError(f"{len(payload)} bytes, more than the {limit} a message may have")
     try:
         message = json.loads(payload)
     except RecursionError:
@@ -229,6 +229,15 @@ def decode_mode_request(payload: bytes | None) -> tuple[object, object, str]:
 
 def encode_answer(accepted: bool, reason: str) -> bytes:
     return dumps({"accepted": accepted, "reason": reason})
+
+
+MAX_DESCRIPTION = 4 * 1024 * 1024
+"""The largest ``describe`` answer (bytes): a resolved scenario and its channels."""
+
+
+def encode_record(value) -> str:
+    """A channel's value as the black box stores it (its ``payload``): ``{"value": ...}``."""
+    return json.dumps({"value": value})
 
 
 def decode_answer(payload: bytes) -> dict:

@@ -30,13 +30,12 @@ in the metadata), so a killed run keeps everything up to its last drain.
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder, OutputPort
 from pydrake.systems.primitives import Multiplexer, VectorLogSink
 
 from cellsim.channels import ChannelSpec
+from cellsim.live.codec import encode_record
 from cellsim.registry import ModuleKind
 from cellsim.scenario import RecorderConfig
 from cellsim.services.blackbox import BlackBoxWriter
@@ -177,7 +176,6 @@ class _Group:
             channel_of, sample_of = np.nonzero(changed)
         else:
             channel_of, sample_of = np.divmod(np.arange(len(self.channels) * len(due)), len(due))
-        dumps = json.dumps
         for c, j in zip(channel_of.tolist(), sample_of.tolist()):
             rank, spec, _, _ = self.channels[c]
             k = int(due[j])
@@ -186,12 +184,12 @@ class _Group:
             values = block[self.local[c], j]
             cache = self.payloads[c]
             if cache is None:
-                payload = dumps({"value": spec.type.decode(values)})
+                payload = encode_record(spec.type.decode(values))
             else:
                 code = float(values[0])
                 payload = cache.get(code)
                 if payload is None:
-                    payload = cache[code] = dumps({"value": spec.type.decode(values)})
+                    payload = cache[code] = encode_record(spec.type.decode(values))
             out.append((k, rank, (t, spec.name, spec.module, payload)))
 
 
