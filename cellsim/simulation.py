@@ -239,7 +239,8 @@ def _record(cell, simulator, out_dir: Path, seed: int, duration: float, on_progr
                 next_drain += DRAIN_PERIOD
                 if cell.recorder is not None:
                     cell.recorder.drain(context)
-                writer.set_metadata(**cell.metadata())
+                if cell.network is not None:
+                    writer.set_metadata(**cell.metadata())
                 if on_progress:
                     on_progress(sim_time, duration)
             status = "completed"
