@@ -674,7 +674,9 @@ def _compact(timeline: Timeline, palette: _Palette) -> dict[str, list]:
     """
     out = {}
     for var, samples in timeline.items():
-        rows = sorted((s for s in samples if len(s) >= 2 and is_number(s[0])), key=_time)
+        rows = [s for s in samples if len(s) >= 2 and is_number(s[0])]
+        if any(map(operator.gt, map(_time, rows), map(_time, rows[1:]))):  # in time order already, as written
+            rows.sort(key=_time)
         if palette.kind(var) == "numeric":
             out[var] = _compact_numbers(rows)
             continue
