@@ -111,6 +111,10 @@ class CellDiagram:
     def entity(self, name: str) -> EntitySystem:
         return self.modules[name]
 
+    @property
+    def entities(self) -> dict[str, EntitySystem]:
+        return {name: m for name, m in self.modules.items() if isinstance(m, EntitySystem)}
+
     def set_initial_state(self, context) -> None:
         """Fix undriven inputs and put each arm at its initial pose in a (root) context."""
         for port, value in self.fixed_inputs:
