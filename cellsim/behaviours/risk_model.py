@@ -129,6 +129,9 @@ class CompiledTransition:
     guard: Callable[[dict], bool]
     after: float
     text: str
+    formula: object = None
+    """The parsed guard (``cellsim.logic.syntax``): what ``guard`` evaluates, and what ``cellsim verify``
+    translates into the abstract model: one reading of the model for both."""
 
 
 @dataclass(frozen=True)
@@ -201,7 +204,8 @@ def compile_risk_model(loaded: Loaded[RiskModelFile]) -> RiskModel:
                 )
             except FormulaError as e:
                 raise error(key, e.message) from None
-            transitions.append(CompiledTransition(tr.phase, tr.to, compile_predicate(formula, vocabulary), tr.after, tr.when))
+            transitions.append(CompiledTransition(tr.phase, tr.to, compile_predicate(formula, vocabulary), tr.after, tr.when,
+                                                  formula))
         for phase, demands in hazard.demands.items():
             if phase not in phases:
                 raise error(f"hazards.{hname}.demands.{phase}", f"'{phase}' is not a phase of this model ({', '.join(phases)})")
