@@ -19,7 +19,7 @@ import pytest
 from cellsim.services.blackbox import BlackBox
 
 from live_processes import (ROOT, assert_supervised, can_server, free_port, observer, offset_of, processes,
-                            sim_time_reached, wait_alive)
+                            sim_time_reached, wait_alive, wait_for)
 
 
 pytestmark = pytest.mark.slow  # processes on loopback: skip locally with -m "not slow"
@@ -259,7 +259,8 @@ def test_with_the_shipped_access_control_the_daemon_feeds_the_twin_and_observers
             finally:
                 controller_session.close()
             link.close()
-            assert diagnostics.latest["robot"]["received"] > 0
+            # the daemon's diagnostics say so (their next status may still be on its way)
+            wait_for(lambda: diagnostics.latest["robot"]["received"] > 0, 5, "the robot's states in the diagnostics")
             diagnostics.subscriber.undeclare()
         finally:
             observer_session.close()
