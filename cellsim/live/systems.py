@@ -114,26 +114,66 @@ class _Refusals:
             log.warning("%s: refused a message (%s); %d refused so far", self.key, why, self.count)
 
 
-def _judged(inbox: Inbox, field_codec: FieldCodec, trust: LinkTrust, clock: LiveClock, refused: _Refusals):
-    """Each message of ``inbox`` that decodes and passes the link rule's stamp and sequence checks,
-    with its arrival (s, simulation clock); any other is counted, logged and judged by ``trust``."""
-    for payload, mono, wall in inbox:
-        arrival = clock.sim_time(mono)
-        try:
-            message = field_codec.decode(payload)
-        except CodecError as e:
-            refused(str(e))
-            trust.fail(Fault.CORRUPT, arrival)
-            continue
-        fault = trust.stamp(message.t, wall) or trust.sequence(message.seq, arrival)
-        if fault is not None:
-            refused(fault.value)
-            trust.fail(fault, arrival)
-            continue
-        yield message, arrival
+class _LinkSource(LeafSystem):
+    """What a network source of the diagram is: an inbox drained one plant step before each of its
+    entity's updates (so the entity reads what arrived up to then), every message decoded by the one
+    codec and judged by the one link rule, whose state the context keeps.
+
+    A subclass declares its own state and output, and says what a good message does (``take``) and
+    what the state becomes once the inbox is drained and the watchdog looked at (``settle``).
+    """
+
+    def __init__(self, name: str, entity, field_codec: FieldCodec, clock: LiveClock, time_step: float, key: str,
+                 recover_after: int):
+        super().__init__()
+        self.set_name(name)
+        self.codec, self.clock = field_codec, clock
+        self.inbox = Inbox()
+        self.refused = _Refusals(key or entity.module)
+        self.trust = LinkTrust(timeout=entity.twin.stale_after, recover_after=recover_after, max_gap=1_000_000)
+        self._trust = self.DeclareDiscreteState(self.trust.state())
+        self.DeclarePeriodicDiscreteUpdateEvent(entity.period, entity.period - time_step, self._drain)
+
+    @property
+    def rejected(self) -> int:
+        return self.refused.count
+
+    def deliver(self, payload: bytes) -> None:
+        self.inbox.deliver(payload)
+
+    def _drain(self, context, xd) -> None:
+        trust = self.trust.restore(context.get_discrete_state(self._trust).get_value())
+        state = self.begin(context)
+        for payload, mono, wall in self.inbox:
+            arrival = self.clock.sim_time(mono)
+            try:
+                message = self.codec.decode(payload)
+            except CodecError as e:
+                self.refused(str(e))
+                trust.fail(Fault.CORRUPT, arrival)
+                continue
+            fault = trust.stamp(message.t, wall) or trust.sequence(message.seq, arrival)
+            if fault is not None:
+                self.refused(fault.value)
+                trust.fail(fault, arrival)
+                continue
+            self.take(message, arrival, trust, state)
+        trust.watchdog(context.get_time())
+        self.settle(trust, state, xd)
+        xd.get_mutable_vector(self._trust).SetFromVector(trust.state())
+
+    def begin(self, context) -> np.ndarray:  # pragma: no cover - abstract
+        """A copy of the state the drain writes."""
+        raise NotImplementedError
+
+    def take(self, message, arrival: float, trust: LinkTrust, state: np.ndarray) -> None:  # pragma: no cover
+        raise NotImplementedError
+
+    def settle(self, trust: LinkTrust, state: np.ndarray, xd) -> None:  # pragma: no cover
+        raise NotImplementedError
 
 
-class ZenohSampleSource(LeafSystem):
+class ZenohSampleSource(_LinkSource):
     """Physical samples of one entity, from its physical key.
 
     Ports:
@@ -142,56 +182,38 @@ class ZenohSampleSource(LeafSystem):
     """
 
     def __init__(self, entity, clock: LiveClock, time_step: float, key: str = ""):
-        super().__init__()
-        self.set_name(f"{entity.module}.physical_source")
-        self.codec = FieldCodec.samples_of(entity)
-        self.clock = clock
-        self.inbox = Inbox()
-        self.refused = _Refusals(key or entity.module)
-        self.trust = LinkTrust(timeout=entity.twin.stale_after, recover_after=entity.twin.recover_after,
-                               max_gap=1_000_000)
-        n = len(self.codec.names)
-        initial = np.zeros(2 + n)
+        super().__init__(f"{entity.module}.physical_source", entity, FieldCodec.samples_of(entity), clock, time_step,
+                         key, entity.twin.recover_after)
+        initial = np.zeros(2 + len(self.codec.names))
         initial[0], initial[1] = -np.inf, float(PhysicalLink.STALE.code)
         self._sample = self.DeclareDiscreteState(initial)
-        self._trust = self.DeclareDiscreteState(self.trust.state())
         self.DeclareStateOutputPort("physical_sample", self._sample)
-        # drained one plant step before each of the entity's updates, so the entity reads
-        # what arrived up to then (discrete updates at one instant read the old state)
-        self.DeclarePeriodicDiscreteUpdateEvent(entity.period, entity.period - time_step, self._drain)
 
-    @property
-    def rejected(self) -> int:
-        return self.refused.count
+    def begin(self, context) -> np.ndarray:
+        return context.get_discrete_state(self._sample).get_value().copy()
 
-    def deliver(self, payload: bytes) -> None:
-        self.inbox.deliver(payload)
+    def take(self, message, arrival: float, trust: LinkTrust, sample: np.ndarray) -> None:
+        if message.failure is not None:  # the bridge's checks refused its device's data
+            trust.fail(Fault.TIMEOUT if message.failure == "stale" else Fault.CORRUPT, arrival)
+            return
+        trust.good(arrival, message.codes)
+        sample[0], sample[2:] = arrival, message.codes
 
-    def _drain(self, context, xd) -> None:
-        trust = self.trust.restore(context.get_discrete_state(self._trust).get_value())
-        sample = context.get_discrete_state(self._sample).get_value().copy()
-        for message, arrival in _judged(self.inbox, self.codec, trust, self.clock, self.refused):
-            if message.failure is not None:  # the bridge's checks refused its device's data
-                trust.fail(Fault.TIMEOUT if message.failure == "stale" else Fault.CORRUPT, arrival)
-                continue
-            trust.good(arrival, message.codes)
-            sample[0], sample[2:] = arrival, message.codes
-        trust.watchdog(context.get_time())
+    def settle(self, trust: LinkTrust, sample: np.ndarray, xd) -> None:
         sample[1] = float(trust.link.code)
         xd.get_mutable_vector(self._sample).SetFromVector(sample)
-        xd.get_mutable_vector(self._trust).SetFromVector(trust.state())
 
 
-class ZenohCommandSource(LeafSystem):
+class ZenohCommandSource(_LinkSource):
     """Commands from the twin into an emulated entity's inputs.
 
     For a cell emulated under the twin's command: the inputs the twin's supervisor
     drives (a safety-mode request, an activity request, a person's notification),
     one output port per input, of the same name. Fed from the entity's command key
     (``inbox``), or by its device's protocol. Judged by the one link-trust rule with
-    the entity's ``stale_after``: without a good command for that long (the twin
-    stopped, or was never there) every output takes the entity kind's
-    ``safe_command`` (a safety-mode request reads stopped: losing the supervisor
+    the entity's ``stale_after`` (a command is trusted at once): without a good command
+    for that long (the twin stopped, or was never there) every output takes the entity
+    kind's ``safe_command`` (a safety-mode request reads stopped: losing the supervisor
     makes the cell safer).
 
     Ports:
@@ -199,44 +221,30 @@ class ZenohCommandSource(LeafSystem):
     """
 
     def __init__(self, entity, inputs: list[str], clock: LiveClock, time_step: float, key: str = ""):
-        super().__init__()
-        self.set_name(f"{entity.module}.command_source")
         self.inputs = list(inputs)
-        self.codec = FieldCodec.commands_of(entity, self.inputs)
+        super().__init__(f"{entity.module}.command_source", entity, FieldCodec.commands_of(entity, self.inputs), clock,
+                         time_step, key, 1)
         safe = entity.safe_command()
         self.safe = [safe[name] for name in self.inputs]
-        self.clock = clock
-        self.inbox = Inbox()
-        self.refused = _Refusals(key or entity.module)
-        self.trust = LinkTrust(timeout=entity.twin.stale_after, recover_after=1, max_gap=1_000_000)
         self._values = self.DeclareDiscreteState(np.array(self.safe, float))
-        self._trust = self.DeclareDiscreteState(self.trust.state())
         for i, name in enumerate(self.inputs):
             self.DeclareVectorOutputPort(name, 1, lambda context, out, i=i: out.SetAtIndex(
                 0, context.get_discrete_state(self._values).GetAtIndex(i)))
-        self.DeclarePeriodicDiscreteUpdateEvent(entity.period, entity.period - time_step, self._drain)
 
-    @property
-    def rejected(self) -> int:
-        return self.refused.count
+    def begin(self, context) -> np.ndarray:
+        return context.get_discrete_state(self._values).get_value().copy()
 
-    def deliver(self, payload: bytes) -> None:
-        self.inbox.deliver(payload)
+    def take(self, message, arrival: float, trust: LinkTrust, values: np.ndarray) -> None:
+        if message.failure is not None:  # a command is never a failure
+            self.refused("a failure in place of a command")
+            trust.fail(Fault.CORRUPT, arrival)
+        elif trust.good(arrival).trusted:
+            values[:] = message.codes
 
-    def _drain(self, context, xd) -> None:
-        trust = self.trust.restore(context.get_discrete_state(self._trust).get_value())
-        values = context.get_discrete_state(self._values).get_value().copy()
-        for message, arrival in _judged(self.inbox, self.codec, trust, self.clock, self.refused):
-            if message.failure is not None:  # a command is never a failure
-                self.refused("a failure in place of a command")
-                trust.fail(Fault.CORRUPT, arrival)
-            elif trust.good(arrival).trusted:
-                values[:] = message.codes
-        trust.watchdog(context.get_time())
+    def settle(self, trust: LinkTrust, values: np.ndarray, xd) -> None:
         if trust.failed:
             values[:] = self.safe  # the supervisor is gone, or its commands are bad: fail safe
         xd.get_mutable_vector(self._values).SetFromVector(values)
-        xd.get_mutable_vector(self._trust).SetFromVector(trust.state())
 
 
 class ChannelPublisher(LeafSystem):
