@@ -83,7 +83,10 @@ def _play(send, stop_after: threading.Event) -> None:
 
 def _twin(start, tmp, name: str, port: int):
     twin = start(["live", str(WELDING_CELL), "--out", str(tmp / name), "--listen", f"tcp/127.0.0.1:{port}", "--quiet",
-                  "--set", "light_barrier.twin.mode=shadow", "--wait-physical", "0"], tmp / f"{name}.log")
+                  "--set", "light_barrier.twin.mode=shadow", "--wait-physical", "0",
+                  # trusted at the first good sample: how many samples one update takes in depends on the machine's
+                  # load, and with it whether 'recovering' is seen; the rows then depend on the path alone
+                  "--set", "light_barrier.twin.recover_after=1"], tmp / f"{name}.log")
     with observer(port) as session:
         wait_alive(session, "cellsim/welding_cell/alive/twin")
     return twin
@@ -136,4 +139,4 @@ def test_a_scripted_curtain_gives_the_twin_the_same_rows_over_zenoh_and_over_can
     assert rows["zenoh"] == rows["can"]
     # and they are the script's: failing safe (broken) until trusted, each reading, then stale and broken again
     assert rows["zenoh"]["light_barrier.broken"] == [True, False, True, False, True, False, True]
-    assert rows["zenoh"]["light_barrier.physical_link"] == ["stale", "recovering", "ok", "stale"]
+    assert rows["zenoh"]["light_barrier.physical_link"] == ["stale", "ok", "stale"]
