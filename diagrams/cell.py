@@ -340,9 +340,7 @@ def _replay(builder: DiagramBuilder, cell: CellBuild, io: Replayed) -> list[tupl
 def _live(builder: DiagramBuilder, cell: CellBuild, io: Live):
     """The twin on Zenoh: a sample source per entity, every channel and command published, twin modes
     switched on request, the status every second, the describe queryable and the liveliness token."""
-    import json
-
-    from cellsim.live import keys
+    from cellsim.live import codec, keys
     from cellsim.live.network import NetworkIO
     from cellsim.live.systems import (ChannelPublisher, CommandPublisher, LiveClock, LiveStatus, TwinModeControl,
                                       ZenohSampleSource)
@@ -385,7 +383,7 @@ def _live(builder: DiagramBuilder, cell: CellBuild, io: Live):
         entity.takes_mode_requests = True
     network.figures["twin_mode_requests"] = lambda: control.applied
     network.handles.append(session.declare_queryable(keys.twin_mode_control(name), control.on_query))
-    description = json.dumps(describe(cell.sf, cell.channels(), cell.modules))
+    description = codec.dumps(describe(cell.sf, cell.channels(), cell.modules))
     network.handles.append(session.declare_queryable(
         keys.describe(name), lambda query: query.reply(query.key_expr, description)))
     network.handles.append(session.liveliness().declare_token(keys.alive(name, io.process)))

@@ -139,7 +139,7 @@ class FieldCodec:
             return number(value, f"field '{name}'", 1e9)
         except (ValueError, KeyError, TypeError):
             expected = ctype.domain() if ctype.kind == "enum" else ctype.kind
-            raise CodecError(f"field '{name}': {_short(value)} is not {expected}") from None
+            raise CodecError(f"field '{name}': {shown(value)} is not {expected}") from None
 
     def codes(self, fields: dict) -> list[float]:
         """The port codes of a message's ``fields`` (every field present; others ignored)."""
@@ -248,6 +248,7 @@ def decode_answer(payload: bytes) -> dict:
     return {"accepted": answer.get("accepted") is True, "reason": str(answer.get("reason", ""))}
 
 
-def _short(value) -> str:
+def shown(value) -> str:
+    """A received value as a refusal quotes it: its repr, cut to 40 characters (a payload is the sender's)."""
     text = repr(value)
     return text if len(text) <= 40 else text[:37] + "..."

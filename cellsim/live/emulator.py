@@ -93,9 +93,9 @@ def fault_query_handler(schedule, kinds: dict[str, tuple[str, ...]]):
             entity = kind = None
             seconds = -1.0
         if not isinstance(entity, str) or entity not in kinds:
-            answer = (False, f"no entity named {codec._short(entity)}")
+            answer = (False, f"no entity named {codec.shown(entity)}")
         elif kind not in kinds[entity]:
-            answer = (False, f"{codec._short(kind)} is not a fault of {entity} ({', '.join(kinds[entity])})")
+            answer = (False, f"{codec.shown(kind)} is not a fault of {entity} ({', '.join(kinds[entity])})")
         elif not seconds > 0:
             answer = (False, "'seconds' must be a positive number")
         else:

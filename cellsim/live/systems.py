@@ -361,9 +361,9 @@ class TwinModeControl(LeafSystem):
             entity = mode = None
             by = "unknown"
         if not isinstance(entity, str) or entity not in self.names:
-            answer = (False, f"no entity named {codec._short(entity)} (entities: {', '.join(self.names)})")
+            answer = (False, f"no entity named {codec.shown(entity)} (entities: {', '.join(self.names)})")
         elif mode not in [m.value for m in TwinMode]:
-            answer = (False, f"{codec._short(mode)} is not a twin mode (model, shadow, twin)")
+            answer = (False, f"{codec.shown(mode)} is not a twin mode (model, shadow, twin)")
         else:
             self.requests.put((entity, TwinMode(mode), by))
             answer = (True, f"{entity} goes to {mode} at its next update")
