@@ -282,6 +282,16 @@ CORRUPTIONS = {
         "UPDATE messages SET payload = '[1]' WHERE rowid = (SELECT max(rowid) FROM messages WHERE channel = 'robot.activity')",
         "is not a cellsim message"),
     "no messages": ("DELETE FROM messages", "holds no messages"),
+    # vector channels are no trace variables, but a run's record all the same
+    "vector not a vector": (
+        "UPDATE messages SET payload = '{\"value\": \"not a vector\"}' WHERE rowid = "
+        "(SELECT max(rowid) FROM messages WHERE channel = 'robot.joint_positions')", "is not a vector of numbers"),
+    "vector of text": (
+        "UPDATE messages SET payload = '{\"value\": [1, \"x\", 3, 4, 5, 6]}' WHERE rowid = "
+        "(SELECT min(rowid) FROM messages WHERE channel = 'robot.joint_positions')", "is not a vector of numbers"),
+    "vector cut short": (
+        "UPDATE messages SET payload = '{\"value\": [1, 2]}' WHERE rowid = "
+        "(SELECT max(rowid) FROM messages WHERE channel = 'robot.joint_positions')", "vectors of different lengths"),
 }
 
 

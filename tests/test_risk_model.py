@@ -204,6 +204,26 @@ def test_risk_model_errors_name_file_line_and_key(tmp_path):
     assert e.value.line == line and "lgtbar" in e.value.problem and "hazards.HRW.transitions" in e.value.key
 
 
+@pytest.mark.parametrize("old, new, key, expected", [
+    # a macro that refers to itself, even one no guard uses
+    ("macros:\n", "macros:\n  loop: loop and lgtBar\n", "macros.loop", "macro cycle: loop -> loop"),
+    # a syntax error in a macro no guard uses
+    ("macros:\n", "macros:\n  unused: safmod ==== normal\n", "macros.unused", "expected a value of safmod"),
+    # a boolean demand, or default, given a number (YAML's 1 is no boolean)
+    ("notif_leaveWrkb: true}", "notif_leaveWrkb: 1}", "hazards.HRW.demands.mit.notif_leaveWrkb", "1 is not a value"),
+    ("notif_leaveWrkb: {type: bool, default: false}", "notif_leaveWrkb: {type: bool, default: 0}",
+     "controlled.notif_leaveWrkb.default", "0 is not a value"),
+])
+def test_a_risk_model_broken_where_no_guard_looks_is_refused_at_the_key(tmp_path, old, new, key, expected):
+    text = RISK_MODEL.read_text()
+    assert old in text
+    bad = tmp_path / "rm.yaml"
+    bad.write_text(text.replace(old, new, 1))
+    with pytest.raises(ConfigError) as e:
+        load_risk_model(bad)
+    assert e.value.key == key and expected in str(e.value) and e.value.line is not None, (e.value.key, str(e.value))
+
+
 SSM_MODEL = """
 name: ssm
 monitored:

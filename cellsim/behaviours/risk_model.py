@@ -163,6 +163,13 @@ class RiskModel:
         return self.controlled[variable].domain.index(value)
 
 
+def _is_value(value, var: Variable) -> bool:
+    """Whether ``value`` is one of ``var``'s values, and of its type (1 is no boolean, true no enum value)."""
+    if var.type == "bool":
+        return isinstance(value, bool)
+    return isinstance(value, str) and value in var.domain
+
+
 def load_risk_model(path: str | os.PathLike) -> RiskModel:
     """Load and compile a risk model; ConfigError (file, line, key) on any problem."""
     loaded = load_file(RiskModelFile, path)
@@ -178,7 +185,7 @@ def compile_risk_model(loaded: Loaded[RiskModelFile]) -> RiskModel:
     for name, var in rm.controlled.items():
         if var.type == "number":
             raise error(f"controlled.{name}.type", "a controlled variable is an enum or a bool (numbers are monitored only)")
-        if var.default is not None and var.default not in var.domain:
+        if var.default is not None and not _is_value(var.default, var):
             raise error(f"controlled.{name}.default", f"{var.default!r} is not a value of {name}")
     hazard_names = set(rm.hazards)
     clash = hazard_names & (set(rm.monitored) | set(rm.macros))
@@ -187,6 +194,14 @@ def compile_risk_model(loaded: Loaded[RiskModelFile]) -> RiskModel:
     phases = rm.phases.values
     vocabulary = {name: var.logic_domain() for name, var in rm.monitored.items()}
     vocabulary.update({h: EnumDomain(tuple(phases)) for h in rm.hazards})
+
+    for name in rm.macros:  # every macro, used or not: a broken one is an error where it is written
+        key = f"macros.{name}"
+        try:
+            parse(name, vocabulary, rm.macros, source=loaded.source, line_offset=(loaded.line_of(key) or 1) - 1,
+                  allow_temporal=False)
+        except FormulaError as e:
+            raise error(key, e.message) from None
 
     hazards = []
     for hname, hazard in rm.hazards.items():
@@ -213,7 +228,7 @@ def compile_risk_model(loaded: Loaded[RiskModelFile]) -> RiskModel:
                 key = f"hazards.{hname}.demands.{phase}.{var}"
                 if var not in rm.controlled:
                     raise error(key, f"'{var}' is not a controlled variable ({', '.join(rm.controlled)})")
-                if value not in rm.controlled[var].domain:
+                if not _is_value(value, rm.controlled[var]):
                     raise error(key, f"{value!r} is not a value of {var} ({', '.join(map(str, rm.controlled[var].domain))})")
         hazards.append(CompiledHazard(hname, tuple(transitions), hazard.demands))
     return RiskModel(rm.name, loaded.source, rm.monitored, rm.controlled, tuple(hazards), rm.macros, rm.phases)

@@ -236,6 +236,25 @@ class BlackBox:
         except sqlite3.DatabaseError as e:
             raise self.corrupt(str(e)) from None
 
+    def check_vectors(self) -> None:
+        """Every message of a vector channel is a JSON list of numbers (or nulls), of one length per channel;
+        else a BlackBoxError naming the channel and time. Checked in SQLite (JSON1), not row by row in Python."""
+        vectors = [name for name, info in self.channels().items() if info.kind == "vector"]
+        if not vectors:
+            return
+        marks = ",".join("?" * len(vectors))
+        bad = self._query(
+            f"SELECT channel, t FROM messages WHERE channel IN ({marks}) AND (NOT json_valid(payload) "
+            "OR json_type(payload, '$.value') IS NOT 'array' OR EXISTS (SELECT 1 FROM json_each(payload, '$.value') "
+            "WHERE type NOT IN ('integer', 'real', 'null'))) ORDER BY rowid LIMIT 1", vectors)
+        if bad:
+            raise self.corrupt(f"'{bad[0][0]}' at t = {bad[0][1]} is not a vector of numbers")
+        lengths = self._query(
+            f"SELECT channel FROM messages WHERE channel IN ({marks}) GROUP BY channel "
+            "HAVING count(DISTINCT json_array_length(payload, '$.value')) > 1 LIMIT 1", vectors)
+        if lengths:
+            raise self.corrupt(f"'{lengths[0][0]}' holds vectors of different lengths")
+
     def rows(self) -> list[tuple]:
         """The raw ``messages`` rows in publication order (for comparing runs)."""
         return self._db.execute("SELECT t, channel, source, payload FROM messages ORDER BY rowid").fetchall()

@@ -147,6 +147,7 @@ def trace_of_run(bb: BlackBox, aliases: dict[str, str] | None = None) -> RunTrac
             continue
         times.append(t)
         values.append(value)
+    bb.check_vectors()  # not trace variables, but a run's record all the same: corrupt is corrupt
     metadata = bb.metadata()
     if not any(times for times, _ in samples.values()):
         if metadata.get("status") in ("interrupted", "running", "failed"):
