@@ -114,6 +114,9 @@ class _Refusals:
             log.warning("%s: refused a message (%s); %d refused so far", self.key, why, self.count)
 
 
+_FAILURES = (PhysicalLink.STALE, PhysicalLink.CORRUPT)
+
+
 class _LinkSource(LeafSystem):
     """What a network source of the diagram is: an inbox drained one plant step before each of its
     entity's updates (so the entity reads what arrived up to then), every message decoded by the one
@@ -144,6 +147,7 @@ class _LinkSource(LeafSystem):
     def _drain(self, context, xd) -> None:
         trust = self.trust.restore(context.get_discrete_state(self._trust).get_value())
         state = self.begin(context)
+        failed = None  # the link's failure, if one happened in this drain: reported for this period
         for payload, mono, wall in self.inbox:
             arrival = self.clock.sim_time(mono)
             try:
@@ -151,15 +155,17 @@ class _LinkSource(LeafSystem):
             except CodecError as e:
                 self.refused(str(e))
                 trust.fail(Fault.CORRUPT, arrival)
-                continue
-            fault = trust.stamp(message.t, wall) or trust.sequence(message.seq, arrival)
-            if fault is not None:
-                self.refused(fault.value)
-                trust.fail(fault, arrival)
-                continue
-            self.take(message, arrival, trust, state)
+            else:
+                fault = trust.stamp(message.t, wall) or trust.sequence(message.seq, arrival)
+                if fault is not None:
+                    self.refused(fault.value)
+                    trust.fail(fault, arrival)
+                else:
+                    self.take(message, arrival, trust, state)
+            if trust.link in _FAILURES:
+                failed = trust.link
         trust.watchdog(context.get_time())
-        self.settle(trust, state, xd)
+        self.settle(trust, state, xd, trust.link if trust.link in _FAILURES else failed)
         xd.get_mutable_vector(self._trust).SetFromVector(trust.state())
 
     def begin(self, context) -> np.ndarray:  # pragma: no cover - abstract
@@ -169,7 +175,9 @@ class _LinkSource(LeafSystem):
     def take(self, message, arrival: float, trust: LinkTrust, state: np.ndarray) -> None:  # pragma: no cover
         raise NotImplementedError
 
-    def settle(self, trust: LinkTrust, state: np.ndarray, xd) -> None:  # pragma: no cover
+    def settle(self, trust: LinkTrust, state: np.ndarray, xd, failed) -> None:  # pragma: no cover
+        """``failed``: the link's failure (stale, corrupt) if one happened in this drain, even if good messages
+        came after it: the entity fails safe for this period, as on any bad message."""
         raise NotImplementedError
 
 
@@ -199,8 +207,8 @@ class ZenohSampleSource(_LinkSource):
         trust.good(arrival, message.codes)
         sample[0], sample[2:] = arrival, message.codes
 
-    def settle(self, trust: LinkTrust, sample: np.ndarray, xd) -> None:
-        sample[1] = float(trust.link.code)
+    def settle(self, trust: LinkTrust, sample: np.ndarray, xd, failed) -> None:
+        sample[1] = float((failed or trust.link).code)
         xd.get_mutable_vector(self._sample).SetFromVector(sample)
 
 
@@ -241,8 +249,8 @@ class ZenohCommandSource(_LinkSource):
         elif trust.good(arrival).trusted:
             values[:] = message.codes
 
-    def settle(self, trust: LinkTrust, values: np.ndarray, xd) -> None:
-        if trust.failed:
+    def settle(self, trust: LinkTrust, values: np.ndarray, xd, failed) -> None:
+        if trust.failed or failed is not None:
             values[:] = self.safe  # the supervisor is gone, or its commands are bad: fail safe
         xd.get_mutable_vector(self._values).SetFromVector(values)
 
