@@ -571,3 +571,64 @@ def test_a_bus_that_refuses_a_frame_does_not_stop_the_daemons_loop(sessions):
     bridge.close()
     # it kept going after the first refusal, and tried again on a later cycle (frames are due every 40 ms)
     assert not loop.is_alive() and cycles[0] >= 5 and FullBus.sends >= 2
+
+
+def test_a_future_stamped_command_does_not_keep_a_lost_twin_in_charge(sessions):
+    """Issue 22: a twin command stamped far ahead used to count as fresh for ever; now freshness is the
+    daemon's own clock, so when the twin's commands stop, the safe command goes out after the watchdog."""
+    import time
+
+    hub, twin = sessions
+    loaded = load_bridge(CONFIG)
+    bus = can.Bus(interface="virtual", channel="bridge-future", receive_own_messages=False)
+    welder = can.Bus(interface="virtual", channel="bridge-future")
+    request = loaded.database.get_message_by_name("SafetyModeRequest")
+    bridge = Bridge(loaded, hub, bus=bus)
+    token = twin.liveliness().declare_token("cellsim/welding_cell/alive/twin")
+    mode = twin.declare_publisher("cellsim/welding_cell/twin/welder/twin_mode")
+    command = twin.declare_publisher("cellsim/welding_cell/command/welder")
+    fields = {"safety_mode_request": "normal", "activity_request": "welding", "command": 1.0}
+
+    def sent(now: float) -> list[str]:
+        bridge.send_commands(now)
+        out = []
+        while (frame := welder.recv(timeout=0.0)) is not None:
+            if frame.arbitration_id == request.frame_id:
+                out.append(str(request.decode(bytes(frame.data))["SafetyMode"]))
+        return out
+
+    try:
+        mode.put(json.dumps({"t": time.time(), "sim_time": 0.0, "value": "twin"}))
+        command.put(json.dumps({"t": time.time(), "seq": 1, "fields": fields}))
+        wait_for(lambda: bridge.take_inbox() or bridge._commands.get("welder") == fields and bridge._twin_alive, 10,
+                 "the twin's command")
+        assert set(sent(time.monotonic())) == {"normal"}
+        # the forgery: the same command stamped a million seconds ahead, the next in sequence
+        command.put(json.dumps({"t": time.time() + 1e6, "seq": 2, "fields": fields}))
+        wait_for(lambda: bridge.take_inbox() or bridge.refused_messages == 1, 10, "the forgery refused")
+        # the twin's commands stop (its token stays: a frozen twin): after the watchdog, the safe command
+        assert sent(time.monotonic() + 0.6) == ["stopped"]
+    finally:
+        token.undeclare()
+        bridge.close()
+        bus.shutdown()
+        welder.shutdown()
+
+
+def test_a_future_stamped_controller_state_is_refused_and_the_robot_goes_stale_when_states_stop(sessions):
+    import time
+
+    hub, _ = sessions
+    bridge = Bridge(load_bridge(CONFIG), hub)
+    link = bridge.robots["robot"]
+    try:
+        now = time.monotonic()
+        for seq in (1, 2, 3):
+            assert bridge.handle_robot("robot", _state(seq, time.time()), now + seq * 0.002).good
+        forged = bridge.handle_robot("robot", _state(4, time.time() + 1e6), now + 0.008)
+        assert forged.fault.value == "future" and link.checker.counts["future"] == 1
+        assert link.checker.link.value == "ok"  # refused, the link as it was
+        link.check_watchdog(now + 0.008 + 1.0)  # no state since: stale, the forgery notwithstanding
+        assert link.checker.link.value == "stale"
+    finally:
+        bridge.close()
