@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import gc
 import json
+import zlib
 import queue
 import time
 from collections import deque
@@ -256,7 +257,7 @@ class Bridge:
             self.refused_messages += 1
             link.fail(Fault.CORRUPT, now)
             return
-        fault = link.stamp(message.t, time.time()) or link.sequence(message.seq, now)
+        fault = link.stamp(message.t, time.time()) or link.sequence(message.seq, now, zlib.crc32(payload))
         if fault is not None:
             self.refused_messages += 1
             link.fail(fault, now)

@@ -24,6 +24,7 @@ which receives it, applies the recover-after (the debounce is applied once).
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass
 
 from cantools.autosar.end_to_end import compute_profile2_crc
@@ -46,7 +47,7 @@ def protect(message, values: dict, counter: int) -> bytes:
     return bytes(payload)
 
 
-CAN_FAULTS = (Fault.LENGTH, Fault.CRC, Fault.COUNTER, Fault.REPEATED, Fault.RANGE, Fault.TIMEOUT)
+CAN_FAULTS = (Fault.LENGTH, Fault.CRC, Fault.COUNTER, Fault.REPEATED, Fault.MASQUERADE, Fault.RANGE, Fault.TIMEOUT)
 
 
 @dataclass
@@ -67,7 +68,7 @@ class DeviceChecker(LinkTrust):
             return self.fail(Fault.LENGTH)
         if compute_profile2_crc(data, data_id(message.frame_id, data[1] & 0x0F)) != data[0]:
             return self.fail(Fault.CRC)
-        fault = self.sequence(data[1] & 0x0F, now)
+        fault = self.sequence(data[1] & 0x0F, now, zlib.crc32(data))
         if fault is not None:
             return self.fail(fault)
         try:

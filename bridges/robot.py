@@ -35,13 +35,15 @@ from __future__ import annotations
 
 import math
 import threading
+import zlib
 from dataclasses import dataclass, field
 
 from cellsim.link import STALE_FAULTS, Fault, Judgement, LinkTrust
 from cellsim.live import codec, keys
 from cellsim.vocabulary import SafetyMode
 
-ROBOT_FAULTS = (Fault.CORRUPT, Fault.COUNTER, Fault.REPEATED, Fault.FUTURE, Fault.LATE, Fault.RANGE, Fault.TIMEOUT)
+ROBOT_FAULTS = (Fault.CORRUPT, Fault.COUNTER, Fault.REPEATED, Fault.MASQUERADE, Fault.FUTURE, Fault.LATE, Fault.RANGE,
+                Fault.TIMEOUT)
 _MODES = {m.value for m in SafetyMode}
 
 
@@ -71,7 +73,7 @@ class RobotStateChecker(LinkTrust):
             velocity = [codec.number(v, "velocity", 1e6) for v in velocity]
         except codec.CodecError:
             return self.fail(Fault.CORRUPT, now)
-        fault = self.stamp(t, time.time() if wall is None else wall) or self.sequence(seq, now)
+        fault = self.stamp(t, time.time() if wall is None else wall) or self.sequence(seq, now, zlib.crc32(payload))
         if fault is not None:
             return self.fail(fault, now)
         if (len(position) != self.joints or len(velocity) != self.joints

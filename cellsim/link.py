@@ -17,7 +17,13 @@ daemon (a CAN device's frames, a robot controller's states), the emulated device
   is *stale* (``timeout``); a corrupt link stays corrupt while faulty messages keep
   arriving, and goes stale when they stop too;
 * after any fault, ``recover_after`` good messages in a row are needed before the
-  link is trusted again (*recovering* until then). At start the link is stale.
+  link is trusted again (*recovering* until then). At start the link is stale;
+* a sequence that shows two senders (``masquerade_after`` anomalies within
+  ``masquerade_window`` s: jumps back or far ahead, repeats carrying other content)
+  is a *masquerade*: it latches the link corrupt, every message failing, until
+  ``clear_after`` messages in strict order (one sender's stable run) clear it.
+  End-to-end protection (a CRC and a counter) is no authentication: a forger who
+  computes them passes the frame checks, but not this one for long.
 
 Freshness is judged by the receiver's clock: arrival times decide stale, the
 sender's stamp only decides late and future. A sender that restarts (its
@@ -60,6 +66,9 @@ class Fault(str, Enum):
     """A sequence number not after the last one taken: a repeat or a replay (refused, not a failure)."""
     FUTURE = "future"
     """Stamped further ahead of the receiver's clock than the allowed skew (refused, not a failure)."""
+    MASQUERADE = "masquerade"
+    """The sequence shows two senders (it jumps back and forth, or repeats with other content): every
+    message fails until one sender's stable run clears it."""
 
 
 STALE_FAULTS = frozenset({Fault.TIMEOUT, Fault.LATE})
@@ -113,6 +122,14 @@ class LinkTrust:
     timed_out_at: float | None = None
     last_heard: float | None = None
     """When the last message came that failed the link (s): a corrupt link is not stale while they come."""
+    masquerade_after: int = 3
+    masquerade_window: float = 1.0
+    clear_after: int = 16
+    anomalies: int = 0
+    anomaly_since: float | None = None
+    masquerade: bool = False
+    clean_run: int = 0
+    last_content: float | None = None
 
     def __post_init__(self):
         self.counts = {f.value: 0 for f in self.faults}
@@ -132,23 +149,42 @@ class LinkTrust:
             return Fault.LATE
         return None
 
-    def sequence(self, seq: int, now: float) -> Fault | None:
-        """Judge a sequence number: None when it follows, else the fault (a refusal or a failure) to give
-        :meth:`fail`, which counts it.
+    def sequence(self, seq: int, now: float, content: float | None = None) -> Fault | None:
+        """Judge a sequence number (and, for a repeat, whether ``content`` differs: a hash of the message):
+        None when it follows, else the fault (a refusal or a failure) to give :meth:`fail`, which counts it.
 
-        After the link went stale any number starts the sequence afresh (a restarted sender).
+        After the link went stale any number starts the sequence afresh (a restarted sender). A
+        masquerade (see the module docstring) fails every message until it is cleared.
         """
-        last = self.last_seq
-        if last is None or self.link is PhysicalLink.STALE and self._silent(now):
+        last, last_content = self.last_seq, self.last_content
+        self.last_content = content
+        if last is None or self.link is PhysicalLink.STALE and self._silent(now) and not self.masquerade:
             self.last_seq = seq
             return None
         delta = (seq - last) % self.modulo if self.modulo else seq - last
-        if self.modulo and delta == 0 or not self.modulo and delta <= 0:
-            return Fault.REPEATED
+        repeated = delta == 0 if self.modulo else delta <= 0
+        if repeated and not (content is not None and last_content is not None and content != last_content):
+            if self.masquerade:
+                self.clean_run = 0
+            return Fault.REPEATED  # a retransmission, a frozen or replayed stream: refused
+        if repeated or delta > self.max_gap:  # a step back with other content, or a jump: two senders?
+            self._anomaly(now)
+        self.clean_run = self.clean_run + 1 if delta == 1 else 0
+        if self.masquerade and self.clean_run >= self.clear_after:
+            self.masquerade, self.anomalies, self.anomaly_since = False, 0, None  # one sender's stable run
         self.last_seq = seq  # resynchronise on it, whether it is taken or not
-        if delta > self.max_gap:
+        if self.masquerade:
+            return Fault.MASQUERADE
+        if repeated or delta > self.max_gap:
             return Fault.COUNTER
         return None
+
+    def _anomaly(self, now: float) -> None:
+        if self.anomaly_since is None or now - self.anomaly_since > self.masquerade_window:
+            self.anomaly_since, self.anomalies = now, 0
+        self.anomalies += 1
+        if self.anomalies >= self.masquerade_after and not self.masquerade:
+            self.masquerade, self.clean_run = True, 0
 
     def good(self, now: float, values=None) -> Judgement:
         """A good message arrived at ``now``."""
@@ -194,24 +230,32 @@ class LinkTrust:
         self.counts[fault.value] = self.counts.get(fault.value, 0) + 1
 
     # -- state in a Drake context ---------------------------------------------------
-    STATE_SIZE = 6
+    STATE_SIZE = 11
 
     def state(self) -> np.ndarray:
-        """The rule's state as numbers: [link code, good in a row, last good, last seq, timed out at, last heard]."""
+        """The rule's state as numbers: [link code, good in a row, last good, last seq, timed out at, last heard,
+        anomalies, anomaly since, masquerade, clean run, last content]."""
         return np.array([
             float(self.link.code), float(self.good_in_a_row),
             -np.inf if self.last_good is None else self.last_good,
             -1.0 if self.last_seq is None else float(self.last_seq),
             -np.inf if self.timed_out_at is None else self.timed_out_at,
             -np.inf if self.last_heard is None else self.last_heard,
+            float(self.anomalies), -np.inf if self.anomaly_since is None else self.anomaly_since,
+            1.0 if self.masquerade else 0.0, float(self.clean_run),
+            np.nan if self.last_content is None else self.last_content,
         ])
 
     def restore(self, state) -> "LinkTrust":
-        code, good, last_good, last_seq, timed_out_at, last_heard = (float(x) for x in state)
+        (code, good, last_good, last_seq, timed_out_at, last_heard, anomalies, anomaly_since, masquerade, clean_run,
+         last_content) = (float(x) for x in state)
         self.link = PhysicalLink.from_code(code)
         self.good_in_a_row = int(good)
         self.last_good = None if last_good == -np.inf else last_good
         self.last_seq = None if last_seq < 0 else int(last_seq)
         self.timed_out_at = None if timed_out_at == -np.inf else timed_out_at
         self.last_heard = None if last_heard == -np.inf else last_heard
+        self.anomalies, self.clean_run, self.masquerade = int(anomalies), int(clean_run), masquerade > 0.5
+        self.anomaly_since = None if anomaly_since == -np.inf else anomaly_since
+        self.last_content = None if math.isnan(last_content) else last_content
         return self

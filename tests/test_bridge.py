@@ -357,9 +357,12 @@ def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_s
     loop.start()
     seq = [0]
 
+    last = [b""]
+
     def send(**over) -> None:
         seq[0] += 1
-        state.put(_state(seq[0], time.time(), **over))
+        last[0] = _state(seq[0], time.time(), **over)
+        state.put(last[0])
 
     def next_sample() -> dict:
         return samples.get(timeout=5)
@@ -385,11 +388,17 @@ def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_s
         assert list(message.position) == [0.5, -1.0, 1.2, 0.0, 1.57, 0.0] and message.velocity[0] == 0.1
         assert abs(message.header.stamp.sec + message.header.stamp.nanosec * 1e-9 - time.time()) < 5
         assert payload[:4] == b"\x00\x01\x00\x00" and "cdr" in encoding.lower()  # CDR little endian, as ROS 2 sends
-        # a replayed state (its seq again): refused and counted, nothing published for it
+        # the last state again, byte for byte (a retransmission): refused and counted, nothing published for it
         published = bridge.robots["robot"].published
-        state.put(_state(seq[0], time.time()))
-        wait_for(lambda: bridge.robots["robot"].checker.counts["repeated"] == 1, 5, "the replay refused")
+        state.put(last[0])
+        wait_for(lambda: bridge.robots["robot"].checker.counts["repeated"] == 1, 5, "the retransmission refused")
         assert bridge.robots["robot"].published == published
+        # its seq again with other content (a replay, or a second sender): the failure at once
+        state.put(_state(seq[0], time.time(), q0=0.25))
+        while (sample := next_sample()).get("failed") != "corrupt":
+            assert "fields" in sample or sample["failed"] == "stale", sample
+        while "fields" not in next_sample():  # forwarded again with the next good state
+            send()
         # one out of range, one late: the failure at once, each counted
         for over, failure in (({"q0": 9.0}, "corrupt"), ({"late": True}, "stale")):
             if over.get("late"):
@@ -408,7 +417,8 @@ def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_s
             pass
         assert sample["failed"] == "stale"
         counts = bridge.robots["robot"].checker.counts
-        assert (counts["repeated"], counts["range"], counts["late"]) == (1, 1, 1) and counts["timeout"] >= 1
+        assert (counts["repeated"], counts["counter"], counts["range"], counts["late"]) == (1, 1, 1, 1)
+        assert counts["timeout"] >= 1
         # its diagnostics went stale, and said so
         deadline = time.monotonic() + 5
         while (status := statuses.get(timeout=5))["counts"]["late"] < 1 or status["level"] != "STALE":

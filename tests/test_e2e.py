@@ -106,3 +106,38 @@ def test_protected_frames_cross_a_python_can_bus_intact():
     finally:
         sender.shutdown()
         receiver.shutdown()
+
+
+def test_a_forger_interleaving_good_frames_latches_a_masquerade_until_one_sender_runs_alone():
+    """Issue 22: three forged 'clear' frames (CRC and next counter computed from the DBC) after each real
+    'broken' one used to be trusted 3 times out of 4. Two senders on one identifier show in the counter."""
+    curtain = DBC.get_message_by_name("LightCurtainState")
+    checker = DeviceChecker(message=curtain, timeout=0.1, recover_after=3)
+    t, clear_after_latch, latched_at = 0.0, 0, None
+    for real in range(40):  # 40 real frames at 20 ms, each followed by three forged ones
+        t += 0.02
+        judged = checker.check(protect(curtain, {"Broken": 1}, real), t)
+        if checker.masquerade and latched_at is None:
+            latched_at = real
+        for k in range(1, 4):
+            forged = checker.check(protect(curtain, {"Broken": 0}, real + k), t + 0.001 * k)
+            clear_after_latch += forged.trusted and latched_at is not None
+    assert latched_at is not None and latched_at <= 3  # the third real frame's step back latched it
+    assert checker.masquerade and checker.counts["masquerade"] >= 1 and clear_after_latch == 0
+    assert not judged.trusted and judged.fault.value == "masquerade"
+    # the forger stops: the real curtain alone, in order, clears it after a stable run, then recover_after
+    trusted = []
+    for real in range(40, 80):
+        t += 0.02
+        trusted.append(checker.check(protect(curtain, {"Broken": 1}, real), t).trusted)
+    first = trusted.index(True)
+    assert not checker.masquerade and 16 <= first <= 16 + 3 and all(trusted[first:])
+
+
+def test_a_retransmitted_frame_is_no_masquerade():
+    checker = DeviceChecker(message=SCANNER, timeout=0.1, recover_after=1)
+    good = frames(10)
+    for t, f in enumerate(good):
+        checker.check(f, t * 0.04)
+        assert checker.check(f, t * 0.04 + 0.001).fault is Fault.REPEATED  # the same frame twice: refused
+    assert not checker.masquerade and checker.check(frames(1, start=10)[0], 0.5).trusted

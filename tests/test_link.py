@@ -63,3 +63,23 @@ def test_a_corrupt_link_stays_corrupt_while_faulty_messages_come_and_goes_stale_
         link.fail(Fault.CORRUPT, t)
         assert link.watchdog(t + 0.01) is None and link.link is PhysicalLink.CORRUPT
     assert link.watchdog(0.5).fault is Fault.TIMEOUT and link.link is PhysicalLink.STALE  # they stopped
+
+
+def test_a_forger_jumping_the_sequence_again_and_again_is_a_masquerade_not_a_takeover():
+    """On Zenoh, a forger sending seq + 1000 after each real message makes each real one a step back with
+    other content, and each forged one a jump: anomalies, and three latch the link corrupt."""
+    link = LinkTrust(timeout=0.5, recover_after=1, max_gap=1_000_000, clear_after=5)
+    t, faults = 0.0, []
+    for seq in range(1, 10):
+        t += 0.04
+        for sent, content in ((seq, seq), (seq + 1000, -seq)):  # the real message, then the forged one
+            fault = link.sequence(sent, t, content=content)
+            faults.append(fault)
+            link.fail(fault, t) if fault is not None else link.good(t)
+    assert Fault.MASQUERADE in faults and link.masquerade and link.link is PhysicalLink.CORRUPT
+    for seq in range(10, 30):  # the forger gone: the real run in order clears it
+        t += 0.04
+        fault = link.sequence(seq, t, content=seq)
+        if fault is None:
+            break
+    assert not link.masquerade and fault is None and seq - 10 >= 4  # a stable run of clear_after first

@@ -51,16 +51,20 @@ def test_a_failure_message_makes_the_link_stale_or_corrupt_at_once_and_a_sample_
     assert _after(source, simulator, 0.17)[1:].tolist() == [OK, 1.0]
 
 
-def test_repeats_and_replays_are_refused_and_a_frozen_stream_goes_stale():
+def test_a_repeated_message_is_refused_a_step_back_fails_and_a_frozen_stream_goes_stale():
     source, simulator = _source(stale_after=0.2)
-    now = time.time()
-    source.deliver(encode_fields(now, 5, {"broken": False}))
+    first = encode_fields(time.time(), 5, {"broken": False})
+    source.deliver(first)
     assert _after(source, simulator, 0.05)[1] == OK
-    for seq in (5, 4, 1):  # the same message again, then older ones: refused, never taken
-        source.deliver(encode_fields(time.time(), seq, {"broken": True}))
+    for _ in range(2):  # the same message again (a retransmission, a frozen stream): refused, never taken
+        source.deliver(first)
         assert _after(source, simulator, simulator.get_context().get_time() + 0.04)[1:].tolist() == [OK, 0.0]
+    assert source.rejected == 2
+    # an older sequence number with other content: not this sender's stream (another sender, or a replay)
+    source.deliver(encode_fields(time.time(), 4, {"broken": True}))
+    assert _after(source, simulator, simulator.get_context().get_time() + 0.04)[1] == CORRUPT
     assert source.rejected == 3
-    assert _after(source, simulator, 0.5)[1] == STALE  # nothing good since: stale by the receiver's clock
+    assert _after(source, simulator, 0.6)[1] == STALE  # nothing since: stale by the receiver's clock
 
 
 def test_freshness_is_the_receivers_a_stamp_from_the_future_is_refused_and_a_late_one_is_stale():

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import logging
 import queue
+import zlib
 import sys
 import time
 from dataclasses import dataclass
@@ -156,7 +157,7 @@ class _LinkSource(LeafSystem):
                 self.refused(str(e))
                 trust.fail(Fault.CORRUPT, arrival)
             else:
-                fault = trust.stamp(message.t, wall) or trust.sequence(message.seq, arrival)
+                fault = trust.stamp(message.t, wall) or trust.sequence(message.seq, arrival, zlib.crc32(payload))
                 if fault is not None:
                     self.refused(fault.value)
                     trust.fail(fault, arrival)
