@@ -68,6 +68,22 @@ class ModuleKind:
     supervises: bool = False
     """A supervisor of the cell (a safety controller): a cell emulated under the twin's command
     (``cellsim emulate --commanded-by-twin``) leaves it out, the twin's supervises instead."""
+    abstraction: Callable[[Any, str, Any], Any] | None = None
+    """What the module is in the abstract model ``cellsim verify`` checks:
+    ``abstraction(abstract_cell, name, config)`` returns a ``cellsim.verify.model.Abstraction``.
+    A kind without one cannot be verified (``verify`` says so and stops)."""
+
+
+def deferred(target: str) -> Callable[..., Any]:
+    """``"package.module:function"``, imported on first call (a kind's abstraction, loaded only by ``verify``)."""
+    module, _, attr = target.partition(":")
+
+    def call(*args, **kwargs):
+        return getattr(importlib.import_module(module), attr)(*args, **kwargs)
+
+    call.__qualname__ = call.__name__ = attr
+    call.target = target
+    return call
 
 
 @functools.cache

@@ -10,7 +10,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject
 
 from cellsim.channels import number_type
-from cellsim.registry import ModuleKind
+from cellsim.registry import ModuleKind, deferred
 from cellsim.scenario import GroundTruthConfig
 from cellsim.systems import CellSystem, write_scalar
 
@@ -53,6 +53,7 @@ def build_ground_truth(cell, name: str, cfg: GroundTruthConfig) -> GroundTruth:
 
 KIND = ModuleKind(
     name="ground_truth",
+    abstraction=deferred("cellsim.verify.model:observer"),
     section="behaviours",
     config=GroundTruthConfig,
     build=build_ground_truth,

@@ -31,7 +31,7 @@ import numpy as np
 from cellsim.channels import NO_VALUE, enum_type, number_type
 from cellsim.config.typed_yaml import FieldError
 from cellsim.entities.robot import HOLD
-from cellsim.registry import ModuleKind
+from cellsim.registry import ModuleKind, deferred
 from cellsim.scenario import Period, PositiveSeconds, Seconds, check_steps
 from cellsim.systems import CellSystem, write_changed
 from cellsim.vocabulary import CodedEnum, SafetyMode, value_set
@@ -266,6 +266,7 @@ def _check(sf, name: str, cfg: ProcessConfig) -> None:
 
 KIND = ModuleKind(
     name="process",
+    abstraction=deferred("cellsim.abstractions.process:process"),
     section="behaviours",
     config=ProcessConfig,
     build=build_process,

@@ -27,7 +27,7 @@ from cellsim.behaviours.risk_model import RiskModel, load_risk_model
 from cellsim.channels import NO_VALUE as NO_REQUEST
 from cellsim.channels import ChannelType, enum_type
 from cellsim.config.typed_yaml import suggest
-from cellsim.registry import ModuleKind
+from cellsim.registry import ModuleKind, deferred
 from cellsim.scenario import SafetyControllerConfig
 from cellsim.systems import CellSystem, write_scalar
 from cellsim.vocabulary import value_set
@@ -251,6 +251,7 @@ def _check(sf, name: str, cfg: SafetyControllerConfig) -> None:
 
 KIND = ModuleKind(
     name="safety_controller",
+    abstraction=deferred("cellsim.abstractions.controller:controller"),
     section="behaviours",
     config=SafetyControllerConfig,
     build=build_safety_controller,

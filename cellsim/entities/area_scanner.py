@@ -37,7 +37,7 @@ from cellsim.config.typed_yaml import FieldError, Range
 from cellsim.entities.sensors import HEAD_RADIUS, GeometrySensor, build_sensor
 from cellsim.entities.twin import TWIN_CHANNELS, valid_code
 from cellsim.floorplan import Box3, is_convex, is_simple, signed_area, triangulate
-from cellsim.registry import ModuleKind
+from cellsim.registry import ModuleKind, deferred
 from cellsim.scenario import Distance, Period, Region, TwinSettings, Vec2, Vec3
 from cellsim.systems import write_changed
 from cellsim.vocabulary import TwinMode, value_set
@@ -273,6 +273,7 @@ def _check(sf, name: str, cfg: AreaScannerConfig) -> None:
 
 KIND = ModuleKind(
     name="area_scanner",
+    abstraction=deferred("cellsim.abstractions.sensors:area_scanner"),
     section="entities",
     config=AreaScannerConfig,
     build=build_sensor(lambda name, cfg, cell: AreaScanner(name, cfg, cell.scenario.layout.fixtures.values())),

@@ -27,7 +27,7 @@ from typing import Literal
 
 from cellsim.channels import BOOL, NO_VALUE, enum_type, number_type
 from cellsim.entities.twin import EntitySystem, TWIN_CHANNELS, valid_code
-from cellsim.registry import ModuleKind
+from cellsim.registry import ModuleKind, deferred
 from cellsim.scenario import Period, Seconds, TwinSettings
 from cellsim.config.typed_yaml import FieldError
 from cellsim.systems import read_scalar, write_changed
@@ -180,6 +180,7 @@ KIND = ModuleKind(
     config=MachineConfig,
     build=lambda cell, name, cfg: cell.add(name, Machine(name, cfg)),
     summary="A machine with named activities and supported safety modes, working while commanded or for a cycle.",
+    abstraction=deferred("cellsim.abstractions.machine:machine"),
     sample_fields=("safety_mode", "activity"),
     command_fields=("safety_mode_request", "activity_request", "command"),
     channels=(

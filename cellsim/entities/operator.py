@@ -35,7 +35,7 @@ from cellsim.channels import BOOL, enum_type, vector_type
 from cellsim.entities.twin import EntitySystem, TWIN_CHANNELS
 from cellsim.floorplan import Box3, point_in_polygon, shortest_path
 from cellsim.scenario import Layout, OperatorConfig
-from cellsim.registry import ModuleKind
+from cellsim.registry import ModuleKind, deferred
 from cellsim.systems import read_scalar, write_scalar
 from cellsim.vocabulary import TwinMode, value_set
 
@@ -429,6 +429,7 @@ KIND = ModuleKind(
     build=build_operator,
     check=_check,
     summary="A person walking an ordered list of waypoints, waiting and reaching, with body geometry the sensors measure.",
+    abstraction=deferred("cellsim.abstractions.people:person"),
     sample_fields=Operator.POSE_FIELDS,
     command_fields=("notification", "<alert>"),
     channels=(

@@ -29,7 +29,7 @@ from pydrake.math import RigidTransform, RollPitchYaw
 from cellsim.channels import enum_type, number_type, vector_type
 from cellsim.entities.arm_geometry import add_arm_geometry, collision_shapes, model_without_collision
 from cellsim.entities.twin import EntitySystem, TWIN_CHANNELS, valid_code
-from cellsim.registry import ModuleKind
+from cellsim.registry import ModuleKind, deferred
 from cellsim.kinematics import solve_tool_target
 from cellsim.scenario import Layout, RobotConfig, ToolTarget
 from cellsim.systems import read_scalar, write_changed, write_scalar
@@ -481,6 +481,7 @@ def _check(sf, name: str, cfg: RobotConfig) -> None:
 
 KIND = ModuleKind(
     name="robot",
+    abstraction=deferred("cellsim.abstractions.robot:robot"),
     section="entities",
     config=RobotConfig,
     build=build_robot,

@@ -24,7 +24,7 @@ from pydrake.math import RigidTransform
 
 from cellsim.channels import BOOL, enum_type, number_type
 from cellsim.entities.twin import EntitySystem, TWIN_CHANNELS, valid_code
-from cellsim.registry import ModuleKind
+from cellsim.registry import ModuleKind, deferred
 from cellsim.scenario import LightBarrierConfig, RangeDetectorConfig
 from cellsim.systems import read_scalar, write_scalar
 from cellsim.vocabulary import Range, TwinMode
@@ -244,6 +244,7 @@ def build_sensor(system: GeometrySensor):
 
 LIGHT_BARRIER = ModuleKind(
     name="light_barrier",
+    abstraction=deferred("cellsim.abstractions.sensors:light_barrier"),
     section="entities",
     config=LightBarrierConfig,
     build=build_sensor(lambda name, cfg, cell: LightBarrier(name, cfg)),
@@ -257,6 +258,7 @@ LIGHT_BARRIER = ModuleKind(
 
 RANGE_DETECTOR = ModuleKind(
     name="range_detector",
+    abstraction=deferred("cellsim.abstractions.sensors:range_detector"),
     section="entities",
     config=RangeDetectorConfig,
     build=build_sensor(lambda name, cfg, cell: RangeDetector(name, cfg, cell.seed, cell.duration)),

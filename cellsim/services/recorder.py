@@ -36,7 +36,7 @@ from pydrake.systems.primitives import Multiplexer, VectorLogSink
 
 from cellsim.channels import ChannelSpec
 from cellsim.live.codec import encode_record
-from cellsim.registry import ModuleKind
+from cellsim.registry import ModuleKind, deferred
 from cellsim.scenario import RecorderConfig
 from cellsim.services.blackbox import BlackBoxWriter
 
@@ -201,6 +201,7 @@ def build_recorder(cell, name: str, cfg) -> None:
 
 KIND = ModuleKind(
     name="blackbox",
+    abstraction=deferred("cellsim.verify.model:observer"),
     section="services",
     config=RecorderConfig,
     build=build_recorder,

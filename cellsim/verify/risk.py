@@ -58,16 +58,19 @@ def monitored_encodings(risk_model) -> dict[str, Encoding]:
     return encodings
 
 
-def risk_modules(risk_model, period: float, prefix: str = "") -> RiskModules:
+def risk_modules(risk_model, period: float, prefix: str = "", monitored: dict[str, str] | None = None,
+                 encodings: dict[str, Encoding] | None = None) -> RiskModules:
     """The modules and formulas of ``risk_model`` executed every ``period`` s (the controller's period).
 
-    ``prefix`` is put before every hazard's name in PRISM (the hazard ``HS`` is variable ``HS``
-    by default: the cell's own word, as the conditions use it).
+    ``prefix`` is put before every hazard's name and every ``cmd_`` formula in PRISM (the hazard
+    ``HS`` is variable ``HS`` by default: the cell's own word, as the conditions use it);
+    ``monitored`` names the PRISM expression each monitored variable is read from (default: its
+    name); ``encodings`` overrides a monitored number's thresholds (a superset of its guards').
     """
     phases = Enum(tuple(risk_model.phases.values))
-    encodings = monitored_encodings(risk_model)
+    encodings = {**monitored_encodings(risk_model), **(encodings or {})}
     encodings.update({h.name: phases for h in risk_model.hazards})
-    names = {h.name: prefix + h.name for h in risk_model.hazards}
+    names = {**(monitored or {}), **{h.name: prefix + h.name for h in risk_model.hazards}}
     initial = phases.code(risk_model.phases.initial)
     modules, timers = [], {}
     for hazard in risk_model.hazards:
@@ -101,7 +104,7 @@ def risk_modules(risk_model, period: float, prefix: str = "") -> RiskModules:
                                     (("1", dict(timer_updates)),)))
         modules.append(Module(f"hazard_{phase}", variables, commands,
                               comment=f"hazard {hazard.name}: {getattr(hazard, 'description', '') or ''}".rstrip(": ")))
-    formulas = {f"cmd_{name}": _command(risk_model, name, var, names, phases) for name, var in risk_model.controlled.items()}
+    formulas = {f"{prefix}cmd_{name}": _command(risk_model, name, var, names, phases) for name, var in risk_model.controlled.items()}
     return RiskModules(modules, formulas, phases, encodings, timers)
 
 

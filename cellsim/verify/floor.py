@@ -1,0 +1,229 @@
+"""The floor cut into places: where a person stands, as far as the cell can tell.
+
+Each person offers candidate poses (a grid over the floor it can walk, with
+headings and reaches: ``PersonRole.poses``). Standing the person at each pose in
+a context of the built cell, alone, every signal someone reads is measured: the
+person's own (the zone, a flag) and every sensor's, through the sensors' own
+SceneGraph queries. Poses that read the same and touch (same point, or grid
+neighbours) form one *place*; two places are neighbours when poses of theirs
+are. In the abstract model a person is at one place and, each period, stays or
+steps to a neighbouring place; what the sensors read of several people is each
+sensor's combination (nearest, any) of what it reads of each alone.
+
+A grid only samples the floor: a feature thinner than its step may fall between
+its points (an assumption stated with every result).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+from cellsim.verify.expressions import Thresholds, VerifyError
+from cellsim.verify.model import AbstractCell, PersonRole, Pose, lookup, set_of
+from cellsim.verify.prism import Command, Enum, Module, Var
+
+
+@dataclass
+class Place:
+    index: int
+    reading: tuple
+    """The read signals' codes here (own signals, then sensed), in ``Places.signals`` order."""
+    poses: list[Pose]
+    representative: Pose
+
+
+@dataclass
+class PersonPlaces:
+    role: PersonRole
+    places: list[Place]
+    neighbours: dict[int, set[int]]
+    start: int
+    variable: str
+    signals: list[str]
+    """The read signals a place's reading gives, in order."""
+
+    def at(self, place: int) -> Place:
+        return self.places[place]
+
+
+@dataclass
+class Places:
+    people: list[PersonPlaces]
+    poses_measured: int
+
+
+def cut_floor(cell: AbstractCell) -> Places:
+    """Measure every person's poses and cut the floor into places (after round 1)."""
+    context = cell.cell.diagram.CreateDefaultContext()
+    cell.cell.set_initial_state(context)
+    for person in cell.people:
+        person.stand(context, None)
+    sensed = {f"{s.module}.{port}": signal for s in cell.sensors for port, signal in s.signals.items()}
+    people, measured = [], 0
+    for person in cell.people:
+        own = {f"{person.module}.{port}": fn for port, fn in person.own.items()}
+        signals = [s for s in own if s in cell.reads] + [s for s in sensed if s in cell.reads]
+        poses = list(dict.fromkeys([person.start, *person.poses]))
+        readings = []
+        for pose in poses:
+            person.stand(context, pose)
+            readings.append(tuple(
+                _code(cell, s, own[s](pose) if s in own else sensed[s].measure(context)) for s in signals
+            ))
+        person.stand(context, None)
+        measured += len(poses)
+        people.append(_places(cell, person, poses, readings, signals))
+    return Places(people, measured)
+
+
+def _code(cell: AbstractCell, signal: str, value) -> int:
+    encoding = cell.encoding(signal)
+    if isinstance(encoding, Thresholds):
+        return encoding.region_of(float(value))
+    if encoding is bool:
+        return int(bool(value))
+    return encoding.code(value.value if hasattr(value, "value") else value)
+
+
+def _places(cell, person: PersonRole, poses: list[Pose], readings: list[tuple], signals: list[str]) -> PersonPlaces:
+    step = person.step
+    cells: dict[tuple[int, int], list[int]] = {}
+    for i, pose in enumerate(poses):
+        cells.setdefault((round(pose.x / step), round(pose.y / step)), []).append(i)
+    parent = list(range(len(poses)))
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    touching = []
+    for (cx, cy), members in cells.items():
+        for dx, dy in itertools.product((-1, 0, 1), repeat=2):
+            other = cells.get((cx + dx, cy + dy))
+            if other is None or (dx, dy) < (0, 0):
+                continue
+            for i in members:
+                for j in other:
+                    if i < j or (dx, dy) != (0, 0):
+                        touching.append((i, j))
+    for i, j in touching:
+        if readings[i] == readings[j]:
+            parent[find(i)] = find(j)
+    roots = {}
+    for i in range(len(poses)):
+        roots.setdefault(find(i), []).append(i)
+    order = sorted(roots.values(), key=lambda members: min(members))
+    place_of = {}
+    places = []
+    for index, members in enumerate(order):
+        for i in members:
+            place_of[i] = index
+        xs = sum(poses[i].x for i in members) / len(members)
+        ys = sum(poses[i].y for i in members) / len(members)
+        central = min(members, key=lambda i: (poses[i].x - xs) ** 2 + (poses[i].y - ys) ** 2 + (poses[i].reach is not None) * 1e-6)
+        places.append(Place(index, readings[members[0]], [poses[i] for i in members], poses[central]))
+    neighbours: dict[int, set[int]] = {p.index: set() for p in places}
+    for i, j in touching:
+        a, b = place_of[i], place_of[j]
+        if a != b:
+            neighbours[a].add(b)
+            neighbours[b].add(a)
+    return PersonPlaces(person, places, neighbours, place_of[0], f"{person.module}_place", signals)
+
+
+def press_variable(module: str, port: str) -> str:
+    """The PRISM variable saying whether a person presses a button this period."""
+    return f"{module}_pressing_{port}"
+
+
+def build_floor(cell: AbstractCell, places: Places) -> None:
+    """Each person's module (its place, the buttons it may press) and every floor signal's formula."""
+    sensed = {f"{s.module}.{port}": signal for s in cell.sensors for port, signal in s.signals.items()}
+    per_signal: dict[str, list[str]] = {}
+    for person in places.people:
+        role, var = person.role, person.variable
+        n = len(person.places)
+        variables = [Var(var, 0, n - 1, person.start)]
+        presses = {}
+        for port, spot in role.buttons.items():
+            press_var = press_variable(role.module, port)
+            near = [p.index for p in person.places if any(math.hypot(q.x - spot[0], q.y - spot[1]) <= role.step for q in p.poses)]
+            if not near:
+                raise VerifyError(f"{role.module}: no place of the floor holds the spot {list(spot)} where it presses {port}")
+            presses[press_var] = set_of(var, near)
+            variables.append(Var(press_var, boolean=True))
+            cell.define(f"{role.module}.{port}", f"({press_var} ? 1 : 0)", Enum(("0", "1")))
+        commands = []
+        for place in person.places:
+            for there in sorted({place.index, *person.neighbours[place.index]}):
+                for pressed in itertools.product((False, True), repeat=len(presses)):
+                    update = {var: str(there)} if there != place.index else {}
+                    guard = f"{var}={place.index}"
+                    skip = False
+                    for (press_var, where), on in zip(presses.items(), pressed):
+                        update[press_var] = "true" if on else "false"
+                        if on:
+                            guard += f" & {where}"
+                    if not skip:
+                        commands.append(Command(guard, (("1", update),)))
+        cell.add(Module(f"{role.module}_floor", variables, commands,
+                        comment=f"{role.module}: one of {n} places of the floor; each period it stays or steps to a neighbour"))
+        for k, signal in enumerate(person.signals):
+            table = {place.index: place.reading[k] for place in person.places}
+            encoding = cell.encoding(signal)
+            expr = lookup(var, table, -1) if encoding is not bool else set_of(var, [i for i, v in table.items() if v])
+            if signal in sensed:
+                name = f"{signal}.of_{role.module}"
+                per_signal.setdefault(signal, []).append(cell.define(name, expr, encoding))
+            else:
+                cell.define(signal, expr, encoding)
+    for signal, parts in per_signal.items():
+        _combine(cell, signal, parts, sensed[signal])
+    cell.assume(f"the floor is sampled on a grid ({', '.join(f'{p.role.module}: {p.role.step:g} m, {len(p.places)} places' for p in places.people)}); "
+                "a feature thinner than a step may fall between its points")
+
+
+def _combine(cell: AbstractCell, signal: str, parts: list[str], sensed) -> None:
+    """What a sensor reads of all the people: its combination of what it reads of each alone."""
+    encoding = cell.encoding(signal)
+    if len(parts) == 1:
+        cell.define(signal, parts[0], encoding)
+        return
+    if encoding is bool:
+        combined = sensed.combine([False, True])
+        if combined is not True:
+            raise VerifyError(f"{signal}: only 'any of them' combines booleans")
+        cell.define(signal, "(" + " | ".join(parts) + ")", bool)
+        return
+    codes = range(encoding.regions) if isinstance(encoding, Thresholds) else range(len(encoding.values))
+    cases = []
+    for combo in itertools.product(codes, repeat=len(parts)):
+        value = sensed.combine([_value(encoding, c) for c in combo])
+        cases.append((combo, _code_of(encoding, value)))
+    out = "-1"
+    for combo, code in reversed(cases):
+        guard = " & ".join(f"{p}={c}" for p, c in zip(parts, combo))
+        out = f"({guard} ? {code} : {out})"
+    cell.define(signal, out, encoding)
+
+
+def _value(encoding, code: int):
+    if isinstance(encoding, Thresholds):
+        values = encoding.values
+        if code % 2:
+            return values[code // 2]
+        i = code // 2
+        low = values[i - 1] if i > 0 else (values[0] - 1.0 if values else -1.0)
+        high = values[i] if i < len(values) else (values[-1] + 1.0 if values else 1.0)
+        return (low + high) / 2
+    return encoding.values[code]
+
+
+def _code_of(encoding, value) -> int:
+    if isinstance(encoding, Thresholds):
+        return encoding.region_of(float(value))
+    return encoding.code(value.value if hasattr(value, "value") else value)

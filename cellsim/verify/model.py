@@ -1,0 +1,315 @@
+"""The abstract cell: what each module kind contributes, joined into one MDP.
+
+Every module of the scenario is asked for its abstraction by its kind
+(``ModuleKind.abstraction(cell, name, config)``, an :class:`Abstraction`); the
+core names no kind. Building goes in two rounds, because what one module must
+model depends on what the others read:
+
+1. ``declare``: a module says which signals it reads and which numbers it
+   compares with which constants (``reads``, ``compares``); a person offers the
+   poses it can take (``add_person``), a sensor what it measures of them
+   (``add_sensor``);
+2. the floor is cut into places (``cellsim.verify.floor``) by what the read
+   signals say of a person standing there; then ``build``: each module adds its
+   PRISM modules and defines its output signals as PRISM formulas of the state.
+
+A *signal* is an output port of a module, named ``<module>.<port>`` (a channel
+is one), encoded as its channel type says: an enumeration's code, a boolean, or
+a number's region between the thresholds it is compared with. An input port
+reads whatever the cell's Diagram connects to it (Drake's own connection map,
+not a second reading of the scenario), else its declared default.
+
+The time step is one period of the safety controller: every module updates once
+per step, all reading the state before the step, as the Diagram's discrete
+updates do.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Protocol
+
+from cellsim.verify.expressions import Encoding, Thresholds, VerifyError
+from cellsim.verify.prism import Enum, Module, Program
+
+CODE = Enum(())
+"""The encoding of a port that is not a channel: its integer code, as the systems exchange it."""
+
+
+class Abstraction(Protocol):
+    """What a module kind offers ``verify``: one object per module."""
+
+    def declare(self, cell: "AbstractCell") -> None:
+        """Say what the module reads and compares; offer poses (a person) or measurements (a sensor)."""
+
+    def build(self, cell: "AbstractCell") -> None:
+        """Add the module's PRISM modules and define its output signals."""
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Where a person can stand, facing ``yaw`` (rad), reaching towards ``reach`` (a point, m) or not."""
+
+    x: float
+    y: float
+    yaw: float
+    reach: tuple[float, float, float] | None = None
+
+
+@dataclass
+class PersonRole:
+    """A person: the poses it can take, and the signals of its own that follow from its pose."""
+
+    module: str
+    poses: list[Pose]
+    """Candidate poses (a grid over the floor it can walk, with headings and reaches)."""
+    start: Pose
+    stand: Callable[[object, Pose | None], None]
+    """Put the person at a pose in a root context of the cell (None: far away, seen by nobody)."""
+    own: dict[str, Callable[[Pose], object]] = field(default_factory=dict)
+    """Port -> its value (in the channel's words) at a pose (the zone stood in, a flag)."""
+    step: float = 0.1
+    """The grid's step (m): poses this near (or at one point) are neighbours."""
+    buttons: dict[str, tuple[float, float]] = field(default_factory=dict)
+    """Output port -> where the person stands to press that button (it may press it there)."""
+    travel: Callable[[Pose, Pose], float] | None = None
+    """Seconds it takes to walk from one pose to another (for a witness's timing)."""
+    walk: Callable[..., dict] | None = None
+    """``walk(start, stops, presses)``: its scenario config keys for a witness walk (see ``cellsim.verify.witness``)."""
+
+
+@dataclass
+class SensedSignal:
+    """A signal a sensor measures of the people: ``measure(root_context)`` with them as posed."""
+
+    measure: Callable[[object], object]
+    combine: Callable[[list], object]
+    """The reading of several people from each one's alone (nearest, any...), on values in the channel's words
+    (a number: in its unit)."""
+
+
+@dataclass
+class SensorRole:
+    module: str
+    signals: dict[str, SensedSignal]
+
+
+@dataclass
+class Property:
+    """A property the abstract model is checked for.
+
+    A safety property asks for the largest probability, over every way the
+    nondeterminism (the people, the robot's pace) resolves, of reaching ``bad``
+    states: it holds when that is 0. A user's PCTL property (``pctl``) is
+    checked as written.
+    """
+
+    name: str
+    description: str
+    bad: str = ""
+    """PRISM expression of the states that violate it (a safety property)."""
+    pctl: str = ""
+    """A user's own PCTL (with PRISM expressions): reported as Storm computes it."""
+    hazard: tuple[str, str] | None = None
+    """(channel, value): reaching this value is the violation the twin must show (a mishap)."""
+    condition: str | None = None
+    """The validation condition whose violation the twin must show."""
+
+
+@dataclass(frozen=True)
+class Signal:
+    name: str
+    formula: str
+    """The PRISM formula's name that carries it."""
+    encoding: Encoding
+
+
+def prism_name(signal: str) -> str:
+    """The PRISM identifier of a signal ``module.port``."""
+    return signal.replace(".", "__")
+
+
+class Observer:
+    """The abstraction of a module that only watches (a recorder, a ground truth): it adds nothing."""
+
+    def declare(self, cell: "AbstractCell") -> None:
+        """Reads nothing."""
+
+    def build(self, cell: "AbstractCell") -> None:
+        """Adds nothing: a signal only it publishes has no abstraction (what reads it is left out)."""
+
+
+def observer(cell, name, cfg) -> Observer:
+    return Observer()
+
+
+class AbstractCell:
+    """The abstract model under construction, over a built cell (``diagrams.cell.CellDiagram``)."""
+
+    def __init__(self, cell, period: float, timed: bool = False):
+        self.cell = cell
+        self.timed = timed
+        """Whether the cell's own durations (moves, dwells, cycles) are bounded below in the model;
+        without, each may take any number of periods from one on (more behaviours, far fewer states)."""
+        self.sf = cell.sf
+        self.period = period
+        self.modules: list[Module] = []
+        self.formulas: dict[str, str] = {}
+        self.labels: dict[str, str] = {}
+        self.signals: dict[str, Signal] = {}
+        self.reads: dict[str, str] = {}
+        """Signal read -> who reads it (for errors)."""
+        self.required: set[str] = set()
+        self.thresholds: dict[str, set[float]] = {}
+        self.people: list[PersonRole] = []
+        self.sensors: list[SensorRole] = []
+        self.assumptions: list[str] = []
+        self.properties: list[Property] = []
+        self.internal: dict[str, Encoding] = {}
+        """A signal that is no port of the cell (a sensor's raw measurement) -> its encoding."""
+        self.monitors: dict[str, Module] = {}
+        """Property name -> the monitor module only that property reads (checked in a model of its own)."""
+        self.places = None
+        """After ``declare``: the floor's places (``cellsim.verify.floor.Places``)."""
+        self.types = {name: spec.type for name, (spec, _) in cell.channels.items()}
+        self.connections: dict[tuple[str, str], str] = {}
+        for (sys_in, i), (sys_out, o) in cell.diagram.connection_map().items():
+            self.connections[(sys_in.get_name(), sys_in.get_input_port(i).get_name())] = (
+                f"{sys_out.get_name()}.{sys_out.get_output_port(o).get_name()}"
+            )
+
+    # -- round 1 -----------------------------------------------------------------------
+    def read(self, signal: str, by: str, required: bool = True) -> str:
+        """The PRISM formula carrying ``signal`` (defined by its module in round 2).
+
+        A signal read but not ``required`` (a validation condition's) may stay undefined:
+        whatever reads it is then left out, with the reason."""
+        self.reads.setdefault(signal, by)
+        if required:
+            self.required.add(signal)
+        return prism_name(signal)
+
+    def compares(self, signal: str, values) -> None:
+        """``signal`` (a number) is compared with these constants: its regions keep them apart."""
+        self.thresholds.setdefault(signal, set()).update(float(v) for v in values)
+
+    def add_person(self, role: PersonRole) -> None:
+        self.people.append(role)
+
+    def add_sensor(self, role: SensorRole) -> None:
+        self.sensors.append(role)
+
+    def assume(self, text: str) -> None:
+        """An assumption of this abstraction, stated with every result."""
+        if text not in self.assumptions:
+            self.assumptions.append(text)
+
+    # -- round 2 -----------------------------------------------------------------------
+    def encoding(self, signal: str) -> Encoding:
+        """How ``signal`` is encoded: its channel's enumeration, bool, or its thresholds."""
+        if signal in self.signals:
+            return self.signals[signal].encoding
+        if signal in self.internal:
+            return self.internal[signal]
+        ctype = self.types.get(signal)
+        if ctype is None:
+            raise VerifyError(f"'{signal}' is not a channel of the cell")
+        return self.encoding_of(signal, ctype)
+
+    def encoding_of(self, signal: str, ctype) -> Encoding:
+        if ctype.kind == "enum":
+            return Enum(tuple(ctype.domain()))
+        if ctype.kind == "bool":
+            return bool
+        return Thresholds(tuple(sorted(self.thresholds.get(signal, ()))))
+
+    def define(self, signal: str, expr: str, encoding: Encoding | None = None) -> str:
+        """``signal`` is ``expr`` (codes of its encoding); returns its formula's name."""
+        if signal in self.signals:
+            raise VerifyError(f"signal '{signal}' is defined twice in the abstract model")
+        name = prism_name(signal)
+        encoding = encoding if encoding is not None else self.encoding(signal)
+        self.signals[signal] = Signal(signal, name, encoding)
+        self.formulas[name] = expr
+        return name
+
+    def input(self, module: str, port: str, by: str | None = None) -> str:
+        """The expression an input port reads: the signal connected to it, else its default code."""
+        source = self.connections.get((module, port))
+        if source is not None:
+            return self.read(source, by or module)
+        system = self.cell.modules[module]
+        default = getattr(system, "input_defaults", {}).get(port)
+        if default is None:
+            raise VerifyError(f"input '{module}.{port}' is driven by nothing and has no default")
+        return str(int(default))
+
+    def driven(self, module: str, port: str) -> bool:
+        return (module, port) in self.connections
+
+    def add(self, module: Module) -> None:
+        self.modules.append(module)
+
+    def program(self, header: str = "", monitors: list[str] | None = None, labels: dict[str, str] | None = None) -> Program:
+        """The cell's modules, with the monitors named (default: all), and the labels given (default: all)."""
+        missing = sorted(s for s in self.required if s not in self.signals)
+        if missing:
+            signal = missing[0]
+            raise VerifyError(f"{self.reads[signal]} reads '{signal}', which no module's abstraction defines")
+        chosen = [self.monitors[m] for m in (self.monitors if monitors is None else monitors)]
+        return Program(list(self.modules) + chosen, dict(self.formulas), dict(self.labels if labels is None else labels), header)
+
+
+def translate(expr: str, source: Encoding, target: Encoding) -> str:
+    """``expr`` (codes of ``source``) as codes of ``target``: enumerations by value name; -1 stays -1."""
+    if source == target:
+        return expr
+    if isinstance(source, Enum) and isinstance(target, Enum):
+        # a value the target does not know reads -1, which no guard's value equals (as in the engine)
+        cases = [(source.code(v), target.code(v) if v in target.values else -1) for v in source.values]
+        return _lookup(expr, cases, -1)
+    if isinstance(source, Enum) and target is bool:
+        return f"({expr} = {source.code('true') if 'true' in source.values else 1})"
+    if source is bool and isinstance(target, Enum):
+        return f"({expr} ? 1 : 0)"
+    raise VerifyError(f"cannot translate {source} into {target}")
+
+
+def _lookup(expr: str, cases: list[tuple[int, int]], otherwise: int) -> str:
+    """``expr = a1 ? b1 : expr = a2 ? b2 : ... : otherwise`` (identity pairs folded)."""
+    if all(a == b for a, b in cases) and otherwise == -1:
+        return expr
+    out = str(otherwise)
+    for a, b in reversed(cases):
+        out = f"({expr} = {a} ? {b} : {out})"
+    return out
+
+
+def lookup(expr: str, table: dict[int, int], otherwise: int) -> str:
+    """A PRISM expression mapping ``expr``'s value through ``table``, grouped by result."""
+    groups: dict[int, list[int]] = {}
+    for key, value in sorted(table.items()):
+        if value != otherwise:
+            groups.setdefault(value, []).append(key)
+    out = str(otherwise)
+    for value, keys in sorted(groups.items(), reverse=True):
+        out = f"({_any_of(expr, keys)} ? {value} : {out})"
+    return out
+
+
+def set_of(expr: str, keys) -> str:
+    """A PRISM condition: ``expr`` is one of ``keys``."""
+    keys = sorted(set(keys))
+    return _any_of(expr, keys) if keys else "false"
+
+
+def _any_of(expr: str, keys: list[int]) -> str:
+    # runs of consecutive keys as ranges: fewer terms for Storm to parse
+    parts, start = [], None
+    for i, k in enumerate(keys):
+        if start is None:
+            start = k
+        if i + 1 == len(keys) or keys[i + 1] != k + 1:
+            parts.append(f"{expr}={k}" if start == k else f"({expr}>={start}&{expr}<={k})")
+            start = None
+    return "(" + "|".join(parts) + ")"
