@@ -76,10 +76,13 @@ class Validation:
     """Numeric variable -> the bins its coverage counts."""
     domains: dict[str, list[str]] = field(default_factory=dict)
     """Variable -> the values its coverage counts (the designed domain); default: all."""
+    verify: dict[str, str | Described] = field(default_factory=dict)
+    """Property name -> PCTL checked by ``cellsim verify`` on the abstract model, each double-quoted
+    string a formula of the condition language (``Pmax=? [ F "HS == act and oloc == inCell" ]``)."""
 
     @property
     def is_empty(self) -> bool:
         return not (
             self.variables or self.macros or self.conditions or self.use_cases or self.coverage or self.bins
-            or self.domains
+            or self.domains or self.verify
         )

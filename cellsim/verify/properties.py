@@ -1,0 +1,196 @@
+"""The validation file's conditions, and the user's own PCTL, as properties of the abstract model.
+
+A condition whose shape the abstract model can carry becomes a safety property:
+
+* ``G(p)``, ``p`` without time: an invariant; its bad states are those where ``p``
+  fails;
+* ``G(a -> (b U[0, w] c))`` and ``G(a -> F[0, w] c)`` (the detection conditions):
+  a monitor module follows the oldest pending obligation (``a`` held, ``c`` not yet),
+  with ``w`` counted in whole periods (rounded down); it reaches its bad state when
+  ``b`` fails or ``w`` runs out before ``c``.
+
+Any other shape (a liveness property such as ``F G``, an unbounded ``F``) is
+listed as not checked, with the reason: the abstract model has no end of run.
+A condition reading a signal no abstraction defines (the ground truth's
+separation) is listed as not checked too.
+
+The user's properties (``verify:`` in the validation file) are PCTL as Storm reads
+it, where each double-quoted string is a formula of the condition language in
+the cell's own names: ``Pmax=? [ F "HS == act and oloc == inCell" ]``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+
+from cellsim.logic.syntax import Always, Compare, Eventually, FormulaError, Implies, Until, parse, variables_of
+from cellsim.verify.expressions import VerifyError, to_prism
+from cellsim.verify.model import AbstractCell, Property
+from cellsim.verify.prism import Command, Module, Var
+
+_TEMPORAL = (Always, Eventually, Until)
+
+
+@dataclass
+class Skipped:
+    name: str
+    reason: str
+
+
+@dataclass
+class Candidate:
+    """A condition to check, once the signals it reads are known to be defined."""
+
+    name: str
+    description: str
+    shape: str  # "invariant" or "bounded response"
+    parts: tuple  # (p,) or (a, b, c, w)
+    variables: dict[str, str]  # trace variable -> channel
+
+
+class ConditionProperties:
+    """Round 1: read what the conditions read; round 2: their properties (or why not)."""
+
+    def __init__(self, cell: AbstractCell, case, validation):
+        self.cell, self.case, self.validation = cell, case, validation
+        self.aliases = dict(validation.variables)
+        self.candidates: list[Candidate] = []
+        self.skipped: list[Skipped] = []
+        self.user: list[tuple[str, str, str]] = []  # (name, pctl text, description)
+
+    def channel(self, variable: str) -> str:
+        return self.aliases.get(variable, variable)
+
+    def declare(self) -> None:
+        from cellsim.validation.config import description_of
+
+        for name, formula in self.case.conditions.items():
+            description = description_of(self.validation.conditions[name])
+            shape = _shape(formula)
+            if isinstance(shape, str):
+                self.skipped.append(Skipped(name, shape))
+                continue
+            kind, parts = shape
+            variables = {v: self.channel(v) for v in variables_of(formula)}
+            self.candidates.append(Candidate(name, description or str(name), kind, parts, variables))
+            self._reads(formula, variables, f"condition {name}")
+        for name, entry in getattr(self.validation, "verify", {}).items():
+            self.user.append((name, entry if isinstance(entry, str) else entry.formula,
+                              "" if isinstance(entry, str) else entry.description))
+
+    def _reads(self, formula, variables: dict[str, str], by: str) -> None:
+        for channel in variables.values():
+            self.cell.read(channel, by, required=False)
+        for node in _nodes(formula):
+            if isinstance(node, Compare) and node.other is None and not isinstance(node.value, (str, bool)):
+                self.cell.compares(self.channel(node.var), [node.value])
+
+    def build(self) -> None:
+        cell = self.cell
+        for c in self.candidates:
+            undefined = sorted({v for v, ch in c.variables.items() if ch not in cell.signals})
+            if undefined:
+                self.skipped.append(Skipped(c.name, f"reads {', '.join(undefined)}, which no abstraction models"))
+                continue
+            encodings = {v: cell.signals[ch].encoding for v, ch in c.variables.items()}
+            names = {v: cell.signals[ch].formula for v, ch in c.variables.items()}
+            try:
+                if c.shape == "invariant":
+                    bad = f"!({to_prism(c.parts[0], encodings, names)})"
+                else:
+                    bad = self._monitor(c, encodings, names)
+            except VerifyError as e:
+                self.skipped.append(Skipped(c.name, str(e)))
+                continue
+            cell.properties.append(Property(c.name, c.description, bad=bad, condition=c.name))
+
+    def _monitor(self, c: Candidate, encodings, names) -> str:
+        a, b, cc, w = c.parts
+        pa, pb, pc = (to_prism(f, encodings, names) for f in (a, b, cc))
+        n = math.floor(w / self.cell.period + 1e-9)
+        ident = "mon_" + re.sub(r"\W", "_", c.name)
+        age, bad = f"{ident}_age", f"{ident}_bad"
+        pending = f"({age} > 0 | {pa})"
+        older = f"({age} > 0 ? {age} - 1 : 0)"
+        fails = f"({pending} & !{pc} & (!{pb} | {older} >= {n}))"
+        update = {
+            age: f"(!{pending} | {pc} | {fails} ? 0 : {older} + 2)",
+            bad: f"{bad} | {fails}",
+        }
+        self.cell.monitors[c.name] = Module(
+            ident, [Var(age, 0, n + 1, 0), Var(bad, boolean=True)], [Command("true", (("1", update),))],
+            comment=f"monitor of {c.name}: periods since its oldest pending obligation (+1), and whether it failed")
+        return bad
+
+    def user_properties(self, vocabulary, macros) -> list[Property]:
+        """The user's PCTL, each quoted formula of the condition language a label of its own."""
+        cell, out = self.cell, []
+        for name, text, description in self.user:
+            def label(match, name=name):
+                source = match.group(1)
+                try:
+                    formula = parse(source, vocabulary, macros)
+                except FormulaError as e:
+                    raise VerifyError(f"verify.{name}: \"{source}\": {e.message}") from None
+                if any(isinstance(n, _TEMPORAL) for n in _nodes(formula)):
+                    raise VerifyError(f"verify.{name}: \"{source}\" has a temporal operator; write time with PCTL's own")
+                variables = {v: self.channel(v) for v in variables_of(formula)}
+                missing = sorted(v for v, ch in variables.items() if ch not in cell.signals)
+                if missing:
+                    raise VerifyError(f"verify.{name}: {', '.join(missing)} has no abstraction in the model")
+                encodings = {v: cell.signals[ch].encoding for v, ch in variables.items()}
+                names = {v: cell.signals[ch].formula for v, ch in variables.items()}
+                key = f"u{len(cell.labels)}"
+                cell.labels[key] = to_prism(formula, encodings, names)
+                return f'"{key}"'
+
+            out.append(Property(name, description or text, pctl=re.sub(r'"([^"]*)"', label, text)))
+        return out
+
+    def declare_user(self, vocabulary, macros) -> None:
+        """Round 1 for the user's properties: read what their quoted formulas read."""
+        for name, text, _ in self.user:
+            for source in re.findall(r'"([^"]*)"', text):
+                try:
+                    formula = parse(source, vocabulary, macros)
+                except FormulaError as e:
+                    raise VerifyError(f"verify.{name}: \"{source}\": {e.message}") from None
+                self._reads(formula, {v: self.channel(v) for v in variables_of(formula)}, f"verify.{name}")
+
+
+def _shape(formula):
+    """("invariant", (p,)) or ("bounded response", (a, b, c, w)), else why not (a string)."""
+    if not isinstance(formula, Always) or formula.lo != 0.0 or formula.hi != math.inf:
+        return "not of the form G(...): a liveness or timed property the abstract model, which has no end of run, cannot judge"
+    body = formula.arg
+    if not _timeless(body):
+        if isinstance(body, Implies) and _timeless(body.lhs):
+            rhs = body.rhs
+            if isinstance(rhs, Until) and not rhs.weak and rhs.lo == 0.0 and math.isfinite(rhs.hi) and _timeless(rhs.lhs) and _timeless(rhs.rhs):
+                return "bounded response", (body.lhs, rhs.lhs, rhs.rhs, rhs.hi)
+            if isinstance(rhs, Eventually) and rhs.lo == 0.0 and math.isfinite(rhs.hi) and _timeless(rhs.arg):
+                from cellsim.logic.syntax import Const
+
+                return "bounded response", (body.lhs, Const(True), rhs.arg, rhs.hi)
+            if isinstance(rhs, Eventually) and not math.isfinite(rhs.hi):
+                return "G(a -> F b) with no bound on F: a liveness property, which runs of any length could satisfy"
+        return "its shape is neither G(p) nor G(a -> (b U[0, w] c)) nor G(a -> F[0, w] c)"
+    return "invariant", (body,)
+
+
+def _timeless(formula) -> bool:
+    return not any(isinstance(n, _TEMPORAL) for n in _nodes(formula))
+
+
+def _nodes(formula):
+    stack = [formula]
+    while stack:
+        node = stack.pop()
+        yield node
+        for name in ("arg", "lhs", "rhs"):
+            child = getattr(node, name, None)
+            if child is not None and not isinstance(child, (str, float, int)):
+                stack.append(child)
+        stack.extend(getattr(node, "args", ()) or ())

@@ -1,0 +1,183 @@
+"""``cellsim verify``: build the abstract cell, check it with Storm, and try each witness on the twin.
+
+``abstract_model(sf)`` asks every module's kind for its abstraction (a kind
+without one stops it: ``VerifyError``), cuts the floor into places, and joins the
+parts into one PRISM program with its properties; ``verify(sf)`` checks them.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from cellsim import registry
+from cellsim.verify.expressions import VerifyError
+from cellsim.verify.floor import build_floor, cut_floor
+from cellsim.verify.model import AbstractCell, Property
+from cellsim.verify.properties import ConditionProperties, Skipped
+from cellsim.verify.storm import Checked, ModelStats, build, check
+
+
+@dataclass
+class AbstractModel:
+    cell: AbstractCell
+    text: str
+    properties: list[Property]
+    skipped: list[Skipped]
+    labels: dict[str, str]
+    """Property name -> the label of its bad states (safety properties)."""
+    times: dict[str, float] = field(default_factory=dict)
+    header: str = ""
+
+    def groups(self) -> list[tuple[list[Property], str]]:
+        """The properties by the model they are checked in, and its text: the cell with no monitor (the
+        mishaps, the invariants, the user's), then the cell with each monitor alone. A monitor only its
+        property reads is left out of the others' models: the same behaviours, far fewer states."""
+        cell = self.cell
+        plain = [p for p in self.properties if p.name not in cell.monitors]
+        groups = []
+        if plain:
+            labels = {k: v for k, v in cell.labels.items() if k not in {self.labels[p.name] for p in self.properties
+                                                                      if p.name in cell.monitors}}
+            groups.append((plain, cell.program(self.header, [], labels).text()))
+        for prop in self.properties:
+            if prop.name in cell.monitors:
+                label = self.labels[prop.name]
+                groups.append(([prop], cell.program(self.header, [prop.name], {label: cell.labels[label]}).text()))
+        return groups
+
+
+@dataclass
+class Verification:
+    model: AbstractModel
+    stats: ModelStats
+    results: list[Checked]
+    times: dict[str, float]
+    largest: ModelStats | None = None
+    """The largest of the models built (the cell with one monitor)."""
+
+    @property
+    def holds(self) -> bool:
+        return all(r.holds is not False for r in self.results)
+
+
+def abstract_model(sf, cell=None, *, timed: bool = False) -> AbstractModel:
+    """The abstract model of the scenario's cell (its diagram built once, without recording)."""
+    from diagrams.cell import build_cell
+    from cellsim.validation.check import cell_safety_case
+
+    times = {}
+    start = time.perf_counter()
+    if cell is None:
+        cell = build_cell(sf, seed=sf.scenario.seed, duration=sf.scenario.duration, record=False)
+    times["cell"] = time.perf_counter() - start
+    scenario = sf.scenario
+    configs = {name: cfg for section in registry.SECTIONS for name, cfg in getattr(scenario, section).items()}
+    supervisors = [cell.modules[n].period for n, c in configs.items() if registry.kind_of(c).supervises and n in cell.modules]
+    period = min(supervisors) if supervisors else min(getattr(s, "period", 1.0) for s in cell.modules.values())
+    abstract = AbstractCell(cell, period, timed)
+    parts = []
+    for name, cfg in configs.items():
+        kind = registry.kind_of(cfg)
+        if kind.abstraction is None:
+            raise VerifyError(f"kind '{kind.name}' (module '{name}') offers no abstraction: verify cannot model it")
+        parts.append(kind.abstraction(abstract, name, cfg))
+    case = cell_safety_case(sf, cell) if scenario.validation.conditions or scenario.validation.verify else None
+    conditions = ConditionProperties(abstract, case, scenario.validation) if case is not None else None
+    for part in parts:
+        part.declare(abstract)
+    if conditions is not None:
+        conditions.declare()
+        conditions.declare_user(*_vocabulary(sf, cell))
+    times["declare"] = time.perf_counter() - start - times["cell"]
+    mark = time.perf_counter()
+    abstract.places = cut_floor(abstract)
+    build_floor(abstract, abstract.places)
+    times["floor"] = time.perf_counter() - mark
+    mark = time.perf_counter()
+    for part in parts:
+        part.build(abstract)
+    skipped: list[Skipped] = []
+    properties = list(abstract.properties)
+    if conditions is not None:
+        before = len(abstract.properties)
+        conditions.build()
+        properties = list(abstract.properties)
+        skipped = conditions.skipped
+        properties += conditions.user_properties(*_vocabulary(sf, cell))
+        del before
+    labels = {}
+    for i, prop in enumerate(properties):
+        if prop.bad:
+            labels[prop.name] = f"bad{i}"
+            abstract.labels[f"bad{i}"] = prop.bad
+    header = (f"Abstract model of the cell '{scenario.name}', written by cellsim verify.\n"
+              f"One step is one period of {period:g} s. Assumptions:\n" + "\n".join(f"- {a}" for a in abstract.assumptions))
+    text = abstract.program(header).text()
+    times["model"] = time.perf_counter() - mark
+    return AbstractModel(abstract, text, properties, skipped, labels, times, header)
+
+
+def _vocabulary(sf, cell):
+    from cellsim.validation.traces import channel_domains, with_aliases
+
+    specs = [spec for spec, _ in cell.channels.values()]
+    vocabulary = with_aliases(channel_domains(specs), sf.scenario.validation.variables, cell.channels)
+    return vocabulary, sf.scenario.validation.macros
+
+
+def properties_text(model: AbstractModel) -> str:
+    """The properties file: one PCTL property per line, named as ``verify`` prints them."""
+    lines = []
+    for prop in model.properties:
+        text = f'Pmax=? [ F "{model.labels[prop.name]}" ]' if prop.bad else prop.pctl
+        lines.append(f"// {prop.description}")
+        lines.append(f'"{_safe(prop.name)}": {text};')
+    return "\n".join(lines) + "\n"
+
+
+def _safe(name: str) -> str:
+    return "".join(c if c.isalnum() or c == "_" else "_" for c in name)
+
+
+def verify(sf, *, export: Path | None = None, timed: bool = False, on_stage=None) -> Verification:
+    """Build and check the abstract model; ``export``: also write it there (and its .props beside it)."""
+    say = on_stage or (lambda text: None)
+    say("building the abstract model")
+    model = abstract_model(sf, timed=timed)
+    times = dict(model.times)
+    if export is not None:
+        write_export(model, export)
+    results, stats, largest = {}, None, None
+    times["storm_parse"] = times["storm_build"] = times["storm_check"] = 0.0
+    with tempfile.TemporaryDirectory(prefix="cellsim-verify-") as scratch:
+        for i, (props, text) in enumerate(model.groups()):
+            path = Path(scratch) / f"model{i}.prism"
+            path.write_text(text)
+            say(f"Storm: building the state space for {', '.join(p.name for p in props)}")
+            program, built, group_stats = build(path, [])
+            times["storm_parse"] += group_stats.parse_seconds
+            times["storm_build"] += group_stats.build_seconds
+            if stats is None:
+                stats = group_stats
+            if largest is None or group_stats.states > largest.states:
+                largest = group_stats
+            mark = time.perf_counter()
+            for prop in props:
+                say(f"Storm: checking {prop.name}")
+                results[prop.name] = check(program, built, prop, model.labels.get(prop.name))
+            times["storm_check"] += time.perf_counter() - mark
+    ordered = [results[p.name] for p in model.properties]
+    return Verification(model, stats, ordered, times, largest)
+
+
+def write_export(model: AbstractModel, path: Path) -> tuple[Path, Path]:
+    """``path`` (the PRISM program) and ``path`` with ``.props`` (its properties), written whole or not at all."""
+    from cellsim.atomic import write_text
+
+    props = path.with_suffix(".props")
+    write_text(path, model.text, make_folder=True)
+    write_text(props, properties_text(model), make_folder=True)
+    return path, props

@@ -1,0 +1,133 @@
+"""Storm (through stormpy) builds the abstract model and checks its properties.
+
+The program is written to a file (Storm's parser reads files) and built with
+every variable's valuation kept, so a witness path reads back in the cell's
+words. A safety property is ``Pmax=? [ F "bad" ]``: the largest probability,
+over all resolutions of the nondeterminism, of reaching its bad states. Its
+witness is a shortest path (in periods) from the initial state to a bad state,
+found breadth-first over the built model's transitions; when the largest
+probability is above 0 some scheduler follows it.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from cellsim.verify.expressions import VerifyError
+from cellsim.verify.model import Property
+
+
+@dataclass
+class Checked:
+    prop: Property
+    value: float | bool | None
+    seconds: float
+    holds: bool | None
+    """A safety property: value == 0; a boolean PCTL query: its value; a numeric one: None."""
+    witness: list[dict] | None = None
+    """The valuations of the states along a shortest path to a bad state (a violated safety property)."""
+
+
+@dataclass
+class ModelStats:
+    states: int
+    transitions: int
+    choices: int
+    build_seconds: float
+    parse_seconds: float
+    deadlocks: int = 0
+    times: dict[str, float] = field(default_factory=dict)
+
+
+def _quiet():
+    import stormpy
+
+    try:
+        stormpy.developer.set_log_level(stormpy.developer.LogLevel.OFF)  # noqa - not in every build
+    except Exception:  # noqa: BLE001
+        pass
+    return stormpy
+
+
+def build(program_path: Path, labels: list[str]):
+    """Parse and build the model; returns (stormpy program, model, stats)."""
+    stormpy = _quiet()
+    start = time.perf_counter()
+    try:
+        program = stormpy.parse_prism_program(str(program_path))
+    except Exception as e:  # noqa: BLE001 - Storm's parser errors are our translation's bugs, said plainly
+        raise VerifyError(f"Storm cannot read the abstract model ({program_path}): {' '.join(str(e).split())[:400]}") from None
+    parsed = time.perf_counter()
+    options = stormpy.BuilderOptions(build_full=True)
+    options.set_build_state_valuations(True)
+    model = stormpy.build_model(program, options=options)
+    built = time.perf_counter()
+    deadlocks = model.labeling.get_states("deadlock").get_number_of_set_bits() if model.labeling.contains_label("deadlock") else 0
+    stats = ModelStats(model.nr_states, model.nr_transitions, model.nr_choices, built - parsed, parsed - start, deadlocks)
+    return program, model, stats
+
+
+def check(program, model, prop: Property, bad_label: str | None) -> Checked:
+    stormpy = _quiet()
+    text = f'Pmax=? [ F "{bad_label}" ]' if bad_label else prop.pctl
+    start = time.perf_counter()
+    try:
+        (formula,) = stormpy.parse_properties(text, program)
+    except Exception as e:  # noqa: BLE001
+        raise VerifyError(f"property {prop.name}: Storm cannot read {prop.pctl or text!r}: {' '.join(str(e).split())[:300]}") from None
+    result = stormpy.model_checking(model, formula)
+    initial = model.initial_states[0]
+    value = result.get_value(initial) if hasattr(result, "get_value") else bool(result.get_truth_values_vector()[initial])
+    seconds = time.perf_counter() - start
+    if bad_label:
+        value = float(value)
+        holds = value <= 0.0
+        witness = None if holds else shortest_path(model, bad_label)
+        return Checked(prop, value, seconds, holds, witness)
+    if isinstance(value, bool):
+        return Checked(prop, value, seconds, value)
+    return Checked(prop, float(value), seconds, None)
+
+
+def shortest_path(model, label: str) -> list[dict]:
+    """The valuations along a shortest path from the initial state to a state labelled ``label``."""
+    bad = model.labeling.get_states(label)
+    matrix = model.transition_matrix
+    initial = model.initial_states[0]
+    parent = {initial: None}
+    queue = deque([initial])
+    goal = None
+    while queue:
+        state = queue.popleft()
+        if bad.get(state):
+            goal = state
+            break
+        for row in range(matrix.get_row_group_start(state), matrix.get_row_group_end(state)):
+            for entry in matrix.get_row(row):
+                successor = entry.column
+                if entry.value > 0 and successor not in parent:
+                    parent[successor] = state
+                    queue.append(successor)
+    if goal is None:
+        raise VerifyError(f"no path reaches '{label}' although its probability is above 0")
+    path = []
+    while goal is not None:
+        path.append(goal)
+        goal = parent[goal]
+    path.reverse()
+    valuations = model.state_valuations
+    variables = list(valuations.get_all_variables()) if hasattr(valuations, "get_all_variables") else []
+    return [{v.name: _plain(valuations.get_value(s, v)) for v in variables} for s in path]
+
+
+def _plain(value):
+    if isinstance(value, bool):
+        return value
+    try:
+        return int(value)
+    except (TypeError, ValueError):
+        text = str(value)
+        return text == "true" if text in ("true", "false") else text

@@ -1,0 +1,165 @@
+"""A violated property's witness, replayed on the twin: confirmed or refuted.
+
+The witness is a path of the abstract model (one state per period). Each
+person's places along it become a walk in the person kind's own config (its
+``PersonRole.walk``): the places it stays at (two periods or more), reaches or
+presses at, and the last, each at the place's most central pose, arrived at when
+the path enters the place and left when it leaves, the last held to the end of
+the run. The walk is written as a scenario whose ``base:`` is the verified one,
+simulated, and checked with the scenario's own conditions.
+
+The abstract people walk at any pace and the abstract robot takes its moves in
+any time: the twin walks at the person's speed and moves the arm at its own, so
+the walk is tried as written and then started later (``SHIFTS``), the same
+walk at other moments of the robot's cycle. The twin *confirms* the witness when
+one of these runs shows the same violation (the condition fails, or the hazard
+reaches its mishap phase), and *refutes* it otherwise: the abstraction is then
+too coarse there, a finding about the model, not about the cell.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from cellsim.verify.floor import press_variable
+from cellsim.verify.storm import Checked
+
+SHIFTS = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 5.0)
+"""Seconds the witness walk is started later, in the order tried."""
+MIN_STAY = 2
+"""Periods a person stays at a place for it to be a stop of the written walk."""
+SETTLE = 8.0
+"""Seconds the run goes on after the witness ends."""
+
+
+@dataclass
+class Replay:
+    """What the twin said of one witness."""
+
+    confirmed: bool
+    scenarios: list[Path] = field(default_factory=list)
+    runs: list[Path] = field(default_factory=list)
+    shift: float | None = None
+    """The shift (s) of the run that confirmed it."""
+    violated: list[str] = field(default_factory=list)
+    """The conditions the confirming (else the last) run violated."""
+
+
+class _Replace(dict):
+    """A mapping written with the ``!replace`` tag: it replaces the base's instead of merging."""
+
+
+def _replace(dumper, data):
+    return dumper.represent_mapping("!replace", dict(data), flow_style=False)
+
+
+class _Dumper(yaml.SafeDumper):
+    pass
+
+
+_Dumper.add_representer(_Replace, _replace)
+
+
+def walks(model, checked: Checked, shift: float) -> tuple[dict, float]:
+    """Each person's config keys for the witness walk, and the run's duration (s)."""
+    places = model.cell.places
+    period = model.cell.period
+    path = checked.witness
+    end = len(path) * period + shift
+    entities = {}
+    for person in places.people:
+        role = person.role
+        sequence = [state[person.variable] for state in path]
+        buttons = {port: press_variable(role.module, port) for port in role.buttons}
+        runs = []  # [place, first step, last step]
+        for step, place in enumerate(sequence):
+            if runs and runs[-1][0] == place:
+                runs[-1][2] = step
+            else:
+                runs.append([place, step, step])
+        stops, presses = [], {}
+        for i, (place, first, last) in enumerate(runs):
+            if i == 0 and place == person.start and len(runs) > 1:
+                continue  # where it starts
+            pose = person.at(place).representative
+            pressed = [port for port, var in buttons.items() if any(path[s].get(var) for s in range(first, last + 1))]
+            if last - first + 1 < MIN_STAY and i + 1 < len(runs) and pose.reach is None and not pressed:
+                continue  # passed through
+            if pressed:
+                presses[len(stops)] = pressed[0]
+            stops.append((pose, first * period + shift, (last + 1) * period + shift))
+        if not stops:
+            stops = [(role.start, 0.0, 0.0)]
+        stops[-1] = (stops[-1][0], stops[-1][1], end + SETTLE)
+        entities[role.module] = role.walk(role.start, stops, presses)
+    return entities, end + SETTLE
+
+
+def write_scenario(model, checked: Checked, out: Path, shift: float) -> Path:
+    """The witness walk as a scenario over the verified one (``base:``), under ``out``."""
+    sf = model.cell.sf
+    entities, duration = walks(model, checked, shift)
+    for config in entities.values():
+        config["waypoints"] = _Replace(config["waypoints"])
+    name = "".join(c if c.isalnum() else "_" for c in checked.prop.name)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{name}{'' if not shift else f'_later_{shift:g}s'.replace('.', '_')}.yaml"
+    document = {
+        "base": os.path.relpath(sf.source, out),
+        "name": f"{sf.scenario.name}_{name}_witness",
+        "description": f"Witness of '{checked.prop.name}' ({checked.prop.description}) found by cellsim verify"
+                       + (f", started {shift:g} s later" if shift else ""),
+        "duration": round(duration, 3),
+        "entities": entities,
+        # the base's configuration points and campaign name the walk this one replaces
+        "configuration_points": _Replace(),
+        "campaign": _Replace(),
+    }
+    header = (f"# Witness of {checked.prop.name}, written by `cellsim verify` from a shortest path of the abstract model\n"
+              f"# ({len(checked.witness)} periods of {model.cell.period:g} s). Simulate it with `cellsim simulate {path.name}`.\n")
+    text = header + yaml.dump(document, Dumper=_Dumper, sort_keys=False, default_flow_style=None, width=120)
+    from cellsim.atomic import write_text
+
+    write_text(path, text)
+    return path
+
+
+def replay(model, checked: Checked, out: Path, on_stage=None) -> Replay:
+    """Write, simulate and check the witness (then later starts of it) until the twin shows the violation."""
+    from cellsim.scenario import load_scenario
+    from cellsim.simulation import simulate
+    from cellsim.validation.check import check
+    from cellsim.validation.verdict import Verdict
+
+    say = on_stage or (lambda text: None)
+    outcome = Replay(False)
+    for shift in SHIFTS:
+        scenario = write_scenario(model, checked, out, shift)
+        outcome.scenarios.append(scenario)
+        say(f"twin: simulating {scenario.name}")
+        sf = load_scenario(scenario)
+        run = out / "runs" / scenario.stem
+        simulate(sf, run, seed=sf.scenario.seed, overwrite=True)
+        outcome.runs.append(run)
+        checked_run = check(run, sf)
+        violated = [n for n, v in checked_run.result.verdicts.items() if v.status is Verdict.VIOLATED]
+        outcome.violated = violated
+        if _shows(checked, checked_run, violated):
+            outcome.confirmed, outcome.shift = True, shift
+            return outcome
+    return outcome
+
+
+def _shows(checked: Checked, run, violated: list[str]) -> bool:
+    prop = checked.prop
+    if prop.condition is not None:
+        return prop.condition in violated
+    if prop.hazard is not None:
+        channel, mishap = prop.hazard
+        values = run.trace.to_json().get(channel, [])
+        return any(value == mishap for _, value in values)
+    return False
