@@ -27,6 +27,7 @@ from cellsim.cli import (
     scenario,
     simulate,
     twin_mode,
+    verify,
 )
 from cellsim.cli.common import (
     EXIT_CODES,
@@ -52,7 +53,7 @@ __all__ = [
     "_open_session", "_terminate_as_interrupt",
 ]
 
-COMMANDS = (simulate, check, campaign, replay, modules, scenario, live, emulate, bridge, dashboard, twin_mode)
+COMMANDS = (simulate, check, verify, campaign, replay, modules, scenario, live, emulate, bridge, dashboard, twin_mode)
 """The commands, in the order of ``cellsim --help``: each a module with ``add_parser`` and ``run``."""
 
 

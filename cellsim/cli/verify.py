@@ -1,0 +1,132 @@
+"""``cellsim verify``: model-check the safety controller against an abstract cell, and replay witnesses on the twin."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from cellsim.cli.common import EXIT_FINDING, EXIT_OK, InputError, _add_set, _load
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser(
+        "verify",
+        help="model-check the safety controller against an abstract cell (Storm)",
+        description="Build an abstract model of the cell (an MDP: every module kind's abstraction, the risk model "
+        "exactly as the controller executes it, the floor cut into places by what the sensors read) and check it with "
+        "Storm: each hazard's mishap unreachable, each validation condition of a checkable shape, and the validation "
+        "file's own PCTL (verify:). A violated property's witness is written as a scenario under --out, simulated and "
+        "checked: the twin confirms it or refutes it. Exits 0 when every safety property holds, 1 when one is violated, "
+        "2 on bad input. docs/verify.md says what a result means.",
+    )
+    p.add_argument("scenario", type=Path, help="scenario YAML")
+    p.add_argument("--out", type=Path, help="folder for witnesses and their runs (default: runs/<scenario>-verify)")
+    p.add_argument("--export", type=Path, metavar="FILE",
+                   help="also write the model in the PRISM language (and its properties beside it, FILE with .props)")
+    p.add_argument("--timed", action="store_true",
+                   help="bound the cell's durations (moves, dwells, cycles) below: closer witnesses, far more states")
+    p.add_argument("--no-replay", dest="replay", action="store_false", help="do not replay witnesses on the twin")
+    p.add_argument("--json", action="store_true", help="print the results as JSON on standard output")
+    _add_set(p)
+    p.set_defaults(handler=run)
+
+
+def run(args) -> int:
+    import json
+
+    from cellsim.verify.expressions import VerifyError
+    from cellsim.verify.run import verify
+    from cellsim.verify.witness import replay
+
+    sf = _load(args)
+    say = (lambda text: None) if args.json else (lambda text: print(f"  {text}", file=sys.stderr))
+    try:
+        result = verify(sf, export=args.export, timed=args.timed, on_stage=say)
+    except VerifyError as e:
+        raise InputError(f"{args.scenario}: {e}") from None
+    out = args.out or Path("runs") / f"{sf.scenario.name}-verify"
+    replays = {}
+    if args.replay:
+        for checked in result.results:
+            if checked.witness is not None:
+                replays[checked.prop.name] = replay(result.model, checked, out, on_stage=say)
+    if args.json:
+        json.dump(_json(result, replays), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        _print(result, replays, args.export)
+    return EXIT_OK if result.holds else EXIT_FINDING
+
+
+def _json(result, replays) -> dict:
+    stats = result.stats
+    return {
+        "holds": result.holds,
+        "states": stats.states, "transitions": stats.transitions, "choices": stats.choices,
+        "largest_states": (result.largest or stats).states,
+        "seconds": {k: round(v, 4) for k, v in result.times.items()},
+        "period": result.model.cell.period,
+        "assumptions": result.model.cell.assumptions,
+        "properties": [
+            {
+                "name": r.prop.name, "description": r.prop.description, "value": r.value, "holds": r.holds,
+                "witness_periods": len(r.witness) if r.witness else None,
+                "twin": None if r.prop.name not in replays else {
+                    "confirmed": replays[r.prop.name].confirmed,
+                    "shift": replays[r.prop.name].shift,
+                    "scenarios": [str(p) for p in replays[r.prop.name].scenarios],
+                    "violated": replays[r.prop.name].violated,
+                },
+            }
+            for r in result.results
+        ],
+        "not_checked": [{"name": s.name, "reason": s.reason} for s in result.model.skipped],
+    }
+
+
+def _print(result, replays, export) -> None:
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    console = Console(highlight=False)
+    stats, model = result.stats, result.model
+    table = Table(title=f"cellsim verify: {escape(model.cell.sf.scenario.name)}", title_justify="left")
+    for column in ("property", "value", "result", "twin"):
+        table.add_column(column)
+    for r in result.results:
+        if r.holds is None:
+            verdict = "(value)"
+        else:
+            verdict = "[green]holds[/]" if r.holds else "[red]VIOLATED[/]"
+        value = f"{r.value:.6g}" if isinstance(r.value, float) else str(r.value)
+        twin = ""
+        if r.prop.name in replays:
+            rp = replays[r.prop.name]
+            twin = (f"[red]confirmed[/] ({escape(rp.scenarios[-1].name)})" if rp.confirmed
+                    else "[yellow]refuted[/]: the abstraction is too coarse here")
+        table.add_row(escape(r.prop.name), value, verdict, twin)
+    console.print(table)
+    for s in model.skipped:
+        console.print(f"  not checked: {escape(s.name)}: {escape(s.reason)}")
+    times = result.times
+    largest = result.largest or stats
+    console.print(f"  the cell: {stats.states:,} states, {stats.transitions:,} transitions; with a monitor, at most "
+                  f"{largest.states:,} states;"
+                  f"period {model.cell.period:g} s; floor {times.get('floor', 0):.2f} s, Storm build "
+                  f"{times.get('storm_build', 0):.2f} s, check {times.get('storm_check', 0):.2f} s")
+    console.print("  assumptions:")
+    for a in model.cell.assumptions:
+        console.print(f"    - {escape(a)}")
+    for name, rp in replays.items():
+        where = rp.runs[-1] if rp.runs else None
+        if rp.confirmed:
+            console.print(f"  {escape(name)}: the twin confirms the witness: {escape(str(rp.scenarios[-1]))} "
+                          f"(started {rp.shift:g} s later); its run {escape(str(where))} violates "
+                          f"{escape(', '.join(rp.violated) or 'the property')}")
+        else:
+            console.print(f"  {escape(name)}: the twin refutes the witness in {len(rp.runs)} runs "
+                          f"({escape(str(rp.scenarios[0]))} and later starts): the abstract model allows a behaviour "
+                          "the twin does not show; a finding about the model, not the cell")
+    if export is not None:
+        console.print(f"  wrote {escape(str(export))} and {escape(str(export.with_suffix('.props')))}")

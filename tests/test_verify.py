@@ -1,0 +1,93 @@
+"""``cellsim verify``: the abstract welding cell checked by Storm, the exported model read back
+by stormpy on its own, and a plug-in kind without an abstraction refused in one line."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+
+import pytest
+import stormpy
+
+from conftest import ROOT, WELDING_CELL
+from test_module_kinds import cellsim, scenario_with, site  # noqa: F401 - the plug-in site fixture
+
+
+def _verify(*args: str, cwd=None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "cellsim", "verify", *args], capture_output=True, text=True,
+                          timeout=600, cwd=cwd)
+
+
+@pytest.fixture(scope="module")
+def welding(tmp_path_factory):
+    """``verify --json --export`` on the welding cell (no witness replay): (exit code, JSON, export path)."""
+    out = tmp_path_factory.mktemp("verify")
+    export = out / "welding.prism"
+    done = _verify(str(WELDING_CELL), "--json", "--no-replay", "--export", str(export), "--out", str(out))
+    assert done.returncode in (0, 1), done.stderr
+    return done.returncode, json.loads(done.stdout), export
+
+
+def test_every_mishap_of_the_welding_cell_is_unreachable_in_the_abstract_model(welding):
+    _, result, _ = welding
+    mishaps = {p["name"]: p for p in result["properties"] if p["name"].endswith(":mishap")}
+    assert set(mishaps) == {"HRW:mishap", "HS:mishap", "HC:mishap"}
+    assert all(p["value"] == 0.0 and p["holds"] for p in mishaps.values())
+    # the validation file's invariants are checked too, and liveness conditions are listed as not checked
+    names = {p["name"] for p in result["properties"]}
+    assert {"HRW:not_mis", "HS:detected"} <= names
+    skipped = {s["name"]: s["reason"] for s in result["not_checked"]}
+    assert "HRW:mitigated" in skipped and "liveness" in skipped["HRW:mitigated"]
+    assert result["states"] > 0 and result["assumptions"]
+
+
+def test_the_exit_code_follows_the_safety_properties(welding):
+    code, result, _ = welding
+    violated = [p for p in result["properties"] if p["holds"] is False]
+    assert code == (1 if violated else 0)
+    assert result["holds"] == (not violated)
+    for p in violated:
+        assert p["witness_periods"] >= 1
+
+
+def test_stormpy_reading_the_exported_prism_file_gets_the_values_verify_printed(welding):
+    _, result, export = welding
+    props_file = export.with_suffix(".props")
+    assert export.is_file() and props_file.is_file()
+    program = stormpy.parse_prism_program(str(export))
+    model = stormpy.build_model(program)
+    printed = {p["name"]: p["value"] for p in result["properties"]}
+    lines = [line for line in props_file.read_text().splitlines() if line and not line.startswith("//")]
+    assert len(lines) == len(printed)
+    for line in lines:
+        name, pctl = re.fullmatch(r'"([^"]+)": (.*);', line).groups()
+        (prop,) = stormpy.parse_properties(pctl, program)
+        value = stormpy.model_checking(model, prop).get_value(model.initial_states[0])
+        original = next(v for n, v in printed.items() if re.sub(r"\W", "_", n) == name)
+        assert value == pytest.approx(original), name
+
+
+def test_a_plugin_kind_without_an_abstraction_stops_verify_in_one_line(site, tmp_path):  # noqa: F811
+    scenario = scenario_with(tmp_path, "beacon", {"kind": "beacon", "period": 0.5})
+    done = cellsim(site, "verify", str(scenario), "--no-replay")
+    assert done.returncode == 2
+    errors = [line for line in done.stderr.splitlines() if line and not line.startswith("  ")]  # not progress
+    assert len(errors) == 1 and "kind 'beacon'" in errors[0] and "no abstraction" in errors[0], done.stderr
+
+
+def test_a_witness_is_written_as_a_scenario_over_the_verified_one_and_run_on_the_twin(tmp_path):
+    """Each violated property's witness walk is a scenario (base: the verified one) that loads, runs
+    and is checked; verify reports the twin's answer (confirmed or refuted) for it."""
+    out = tmp_path / "witnesses"
+    done = _verify(str(WELDING_CELL), "--json", "--out", str(out))
+    result = json.loads(done.stdout)
+    violated = [p for p in result["properties"] if p["holds"] is False]
+    assert violated, "the welding cell's detection conditions have witnesses in the any-pace abstraction"
+    for p in violated:
+        twin = p["twin"]
+        assert twin is not None and twin["scenarios"]
+        text = (out / twin["scenarios"][0].split("/")[-1]).read_text()
+        assert "base: " in text and "!replace" in text
+        assert (out / "runs").is_dir()
