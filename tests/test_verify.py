@@ -7,9 +7,12 @@ import json
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import stormpy
+
+from cellsim.scenario import load_scenario
 
 from conftest import ROOT, WELDING_CELL
 from test_module_kinds import cellsim, scenario_with, site  # noqa: F401 - the plug-in site fixture
@@ -85,9 +88,31 @@ def test_a_witness_is_written_as_a_scenario_over_the_verified_one_and_run_on_the
     result = json.loads(done.stdout)
     violated = [p for p in result["properties"] if p["holds"] is False]
     assert violated, "the welding cell's detection conditions have witnesses in the any-pace abstraction"
+    base = load_scenario(WELDING_CELL).scenario.entities["operator"]
     for p in violated:
         twin = p["twin"]
-        assert twin is not None and twin["scenarios"]
-        text = (out / twin["scenarios"][0].split("/")[-1]).read_text()
-        assert "base: " in text and "!replace" in text
-        assert (out / "runs").is_dir()
+        assert twin is not None and twin["confirmed"] in (True, False) and twin["scenarios"]
+        written = load_scenario(twin["scenarios"][0])
+        operator = written.scenario.entities["operator"]
+        # the witness walk replaces the base's waypoints; everything else is the verified cell's
+        assert list(operator.waypoints) and not set(operator.waypoints) & set(base.waypoints)
+        assert operator.speed_jitter == 0.0
+        assert set(written.scenario.entities) == set(load_scenario(WELDING_CELL).scenario.entities)
+        # each scenario tried was simulated into a run folder of its own
+        assert all((out / "runs" / Path(s).stem / "blackbox.sqlite").is_file() for s in twin["scenarios"])
+
+
+def test_a_state_where_a_module_cannot_step_is_refused_not_quietly_looped(tmp_path):
+    """Storm gives a deadlock a self-loop; an abstraction with one would drop behaviours, so build refuses it."""
+    from cellsim.verify.expressions import VerifyError
+    from cellsim.verify.prism import Command, Module, Program, Var
+    from cellsim.verify.storm import build
+
+    stuck = Module("m", [Var("x", 0, 2, 0)], [Command("x < 2", (("1", {"x": "x + 1"}),))])  # nothing at x = 2
+    path = tmp_path / "stuck.prism"
+    path.write_text(Program([stuck]).text())
+    with pytest.raises(VerifyError, match="1 state"):
+        build(path)
+    moving = Module("m", [Var("x", 0, 2, 0)], [Command("true", (("1", {"x": "min(x + 1, 2)"}),))])
+    path.write_text(Program([moving]).text())
+    assert build(path)[2].states == 3

@@ -9,7 +9,7 @@ It offers one property per hazard: the mishap phase is never reached.
 
 from __future__ import annotations
 
-from cellsim.verify.expressions import Thresholds, thresholds_of
+from cellsim.verify.expressions import thresholds_of
 from cellsim.verify.model import AbstractCell, Property, translate
 from cellsim.verify.prism import Enum
 from cellsim.verify.risk import risk_modules
@@ -27,7 +27,7 @@ class ControllerAbstraction:
     def declare(self, cell: AbstractCell) -> None:
         guards = [tr.formula for h in self.risk_model.hazards for tr in h.transitions]
         for var, channel in self.cfg.monitors.items():
-            if not self._own(channel):
+            if not self._own(channel):  # its own commands are defined in build
                 cell.read(channel, f"{self.name} (monitoring {var})")
             if self.risk_model.monitored[var].type == "number":
                 cell.compares(channel, thresholds_of(guards, var).values)
@@ -39,13 +39,13 @@ class ControllerAbstraction:
         for var, channel in self.cfg.monitors.items():
             name = f"{c}_m_{var}"
             monitored[var] = name
-            source = cell.read(channel, c) if not self._own(channel) else f"{c}__{channel.partition('.')[2]}"
-            target = self._encoding(var, cell.encoding(channel) if not self._own(channel) else None)
-            if isinstance(target, Thresholds):
-                target = cell.encoding(channel)
-                encodings[var] = target
-            source_encoding = cell.encoding(channel) if not self._own(channel) else self._command_encoding(cell, channel.partition(".")[2])
-            cell.formulas[name] = translate(source, source_encoding, target)
+            source = cell.read(channel, c)  # its own commands too: defined below
+            variable = rm.monitored[var]
+            if variable.type == "number":  # the channel's regions: its thresholds include the guards'
+                target = encodings[var] = cell.encoding(channel)
+            else:
+                target = bool if variable.type == "bool" else Enum(tuple(variable.values))
+            cell.formulas[name] = translate(source, cell.encoding(channel), target)
         modules = risk_modules(rm, cell.period, prefix=prefix, monitored=monitored, encodings=encodings)
         for module in modules.modules:
             cell.add(module)
@@ -61,7 +61,7 @@ class ControllerAbstraction:
                 hazard=(f"{c}.{hazard.name}", rm.phases.mishap),
             ))
         for var, controlled in rm.controlled.items():
-            encoding = self._command_encoding(cell, var)
+            encoding = cell.encoding(f"{c}.{var}")
             cmd = f"{prefix}cmd_{var}"
             domain = Enum(tuple(str(v) for v in controlled.domain))
             if encoding is bool:
@@ -70,17 +70,6 @@ class ControllerAbstraction:
                 cell.define(f"{c}.{var}", translate(cmd, domain, encoding), encoding)
         cell.assume(f"{c} runs every {cell.period:g} s and every module updates once per period: the sensors' and "
                     "entities' own periods and one period of transport are not modelled")
-
-    def _encoding(self, var: str, channel_encoding):
-        variable = self.risk_model.monitored[var]
-        if variable.type == "enum":
-            return Enum(tuple(variable.values))
-        if variable.type == "bool":
-            return bool
-        return channel_encoding
-
-    def _command_encoding(self, cell: AbstractCell, var: str):
-        return cell.encoding(f"{self.name}.{var}")
 
 
 def controller(cell, name, cfg):

@@ -44,8 +44,7 @@ class ProcessAbstraction:
         most = max([1, *durations])
         restart = system.restart  # request code -> step index
         keys = sorted(restart)
-        activities = max(len(system.activity_codes), int(max(system.activity_codes)) + 1, *(k + 1 for k in keys))
-        robot_activities = len(cell.cell.modules[cfg.robot].activity_type)
+        robot_activities = len(cell.cell.modules[cfg.robot].activity_type)  # a request is one of them, or -1
         paused = f"({request} != -1 & !{set_of(request, keys)})"
         still = set_of(mode, sorted(int(c) for c in _STANDSTILL))
         restarting = {e: f"({request} != {last} & {set_of(request, [k for k in keys if restart[k] == e])})"
@@ -91,7 +90,7 @@ class ProcessAbstraction:
                     longer.update({commands_of[m]: f"(!{held} & true)" for m, c in cmds.items() if c != "false"})
                     commands.append(Command(f"{step}={s} & {guard}", (("1", longer),)))
         cell.add(Module(p, [
-            Var(step, 0, n - 1, 0), Var(progress, 0, most, 0), Var(last, -1, max(activities, robot_activities) - 1, int(NO_VALUE)),
+            Var(step, 0, n - 1, 0), Var(progress, 0, most, 0), Var(last, -1, robot_activities - 1, int(NO_VALUE)),
             *(Var(v, boolean=True) for v in commands_of.values()),
         ], commands, comment=f"process {p}: steps {', '.join(s.name for s in steps)}"))
         is_paused = f"({last} != -1 & !{set_of(last, keys)})"

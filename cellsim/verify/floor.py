@@ -163,13 +163,11 @@ def build_floor(cell: AbstractCell, places: Places) -> None:
                 for pressed in itertools.product((False, True), repeat=len(presses)):
                     update = {var: str(there)} if there != place.index else {}
                     guard = f"{var}={place.index}"
-                    skip = False
                     for (press_var, where), on in zip(presses.items(), pressed):
                         update[press_var] = "true" if on else "false"
                         if on:
                             guard += f" & {where}"
-                    if not skip:
-                        commands.append(Command(guard, (("1", update),)))
+                    commands.append(Command(guard, (("1", update),)))
         cell.add(Module(f"{role.module}_floor", variables, commands,
                         comment=f"{role.module}: one of {n} places of the floor; each period it stays or steps to a neighbour"))
         for k, signal in enumerate(person.signals):

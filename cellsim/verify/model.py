@@ -244,9 +244,6 @@ class AbstractCell:
             raise VerifyError(f"input '{module}.{port}' is driven by nothing and has no default")
         return str(int(default))
 
-    def driven(self, module: str, port: str) -> bool:
-        return (module, port) in self.connections
-
     def add(self, module: Module) -> None:
         self.modules.append(module)
 

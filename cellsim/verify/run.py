@@ -102,12 +102,10 @@ def abstract_model(sf, cell=None, *, timed: bool = False) -> AbstractModel:
     skipped: list[Skipped] = []
     properties = list(abstract.properties)
     if conditions is not None:
-        before = len(abstract.properties)
         conditions.build()
         properties = list(abstract.properties)
         skipped = conditions.skipped
         properties += conditions.user_properties(*_vocabulary(sf, cell))
-        del before
     labels = {}
     for i, prop in enumerate(properties):
         if prop.bad:
@@ -157,7 +155,7 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, on_stage=None
             path = Path(scratch) / f"model{i}.prism"
             path.write_text(text)
             say(f"Storm: building the state space for {', '.join(p.name for p in props)}")
-            program, built, group_stats = build(path, [])
+            program, built, group_stats = build(path)
             times["storm_parse"] += group_stats.parse_seconds
             times["storm_build"] += group_stats.build_seconds
             if stats is None:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from cellsim.verify.expressions import VerifyError
@@ -39,7 +39,6 @@ class ModelStats:
     build_seconds: float
     parse_seconds: float
     deadlocks: int = 0
-    times: dict[str, float] = field(default_factory=dict)
 
 
 def _quiet():
@@ -52,8 +51,12 @@ def _quiet():
     return stormpy
 
 
-def build(program_path: Path, labels: list[str]):
-    """Parse and build the model; returns (stormpy program, model, stats)."""
+def build(program_path: Path):
+    """Parse and build the model; returns (stormpy program, model, stats).
+
+    A state where some module has no command enabled is a bug of that module's abstraction:
+    Storm would quietly give it a self-loop and so drop every behaviour after it (a "holds"
+    that is not). It is refused."""
     stormpy = _quiet()
     start = time.perf_counter()
     try:
@@ -67,6 +70,9 @@ def build(program_path: Path, labels: list[str]):
     built = time.perf_counter()
     deadlocks = model.labeling.get_states("deadlock").get_number_of_set_bits() if model.labeling.contains_label("deadlock") else 0
     stats = ModelStats(model.nr_states, model.nr_transitions, model.nr_choices, built - parsed, parsed - start, deadlocks)
+    if deadlocks:
+        raise VerifyError(f"the abstract model has {deadlocks} state(s) where some module cannot step "
+                          f"(a bug of a kind's abstraction; the model: {program_path})")
     return program, model, stats
 
 
