@@ -116,3 +116,25 @@ def test_a_state_where_a_module_cannot_step_is_refused_not_quietly_looped(tmp_pa
     moving = Module("m", [Var("x", 0, 2, 0)], [Command("true", (("1", {"x": "min(x + 1, 2)"}),))])
     path.write_text(Program([moving]).text())
     assert build(path)[2].states == 3
+
+
+def test_two_operators_break_the_single_operator_assumption_and_the_twin_confirms_the_witness(tmp_path):
+    """verify finds a missed detection in the two-operator cell, writes it as a walk of both people,
+    and the twin confirms it: `cellsim check`, run on its own on that run, reports the violation."""
+    out = tmp_path / "witnesses"
+    done = _verify(str(ROOT / "scenarios" / "two_operators.yaml"), "--json", "--out", str(out))
+    assert done.returncode == 1, done.stderr
+    result = json.loads(done.stdout)
+    assert all(p["holds"] for p in result["properties"] if p["name"].endswith(":mishap"))
+    confirmed = [p for p in result["properties"] if p["twin"] and p["twin"]["confirmed"]]
+    assert confirmed, [(p["name"], p["twin"]) for p in result["properties"] if p["twin"]]
+    for p in confirmed:
+        assert p["name"].endswith(":detected") and p["name"] in p["twin"]["violated"]
+        scenario = Path(p["twin"]["scenarios"][-1])
+        written = load_scenario(scenario).scenario
+        assert {"operator", "visitor"} <= set(written.entities)  # both people walk the witness
+        run = Path(p["twin"]["runs"][-1])
+        checked = subprocess.run([sys.executable, "-m", "cellsim", "check", str(run), "--json"],
+                                 capture_output=True, text=True, timeout=300)
+        assert checked.returncode == 1, checked.stderr
+        assert json.loads(checked.stdout)["verdicts"][p["name"]]["status"] == "violated"

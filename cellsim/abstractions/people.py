@@ -102,32 +102,50 @@ class PersonAbstraction:
         return lambda pose: zone.contains((pose.x, pose.y, 1.0))
 
     # -- a witness's walk as this kind's config --------------------------------------------
-    def travel(self, a: Pose, b: Pose) -> float:
-        """Seconds the person takes from a to b at its slowest walking speed, round the fixtures."""
-        points = [(a.x, a.y)]
+    def _approach(self, pose: Pose) -> tuple[float, float] | None:
+        """Where the walk passes one grid step before a stop, so the person stands there facing ``pose.yaw``
+        (the twin faces the way it walked); None for a reaching stop (it faces the reach) or when that
+        point is inside a fixture."""
+        if pose.reach is not None:
+            return None
+        point = (pose.x - GRID * math.cos(pose.yaw), pose.y - GRID * math.sin(pose.yaw))
+        return None if any(point_in_polygon(point, outline) for outline in self.outlines) else point
+
+    def _walked(self, a: tuple[float, float], b: tuple[float, float]) -> float:
+        points = [a]
         if self.outlines:
-            corners = _route((a.x, a.y), (b.x, b.y), self.outlines)
-            points += list(corners or ())
-        points.append((b.x, b.y))
-        length = sum(math.dist(p, q) for p, q in zip(points, points[1:]))
-        return length / self.cfg.walking_speed
+            points += list(_route(a, b, self.outlines) or ())
+        points.append(b)
+        return sum(math.dist(p, q) for p, q in zip(points, points[1:]))
+
+    def travel(self, a: Pose, b: Pose) -> float:
+        """Seconds the person takes from pose a to pose b at its walking speed, round the fixtures:
+        withdrawing the arm at a, walking (through b's approach point), reaching out at b."""
+        approach = self._approach(b)
+        length = (self._walked((a.x, a.y), approach) + GRID) if approach else self._walked((a.x, a.y), (b.x, b.y))
+        arm = REACH_TIME * ((a.reach is not None) + (b.reach is not None))
+        return length / self.cfg.walking_speed + arm
 
     def walk(self, start: Pose, stops: list[tuple[Pose, float, float]], presses: dict[int, str]) -> dict:
         """The config keys of a walk from ``start`` through ``stops``: (pose, arrive at (s), leave at (s));
-        ``presses``: stop index -> the button pressed there. A stop that reaches is arrived at
-        REACH_TIME earlier and left REACH_TIME later, so the arm is out over the whole stay."""
+        ``presses``: stop index -> the button pressed there. A stop that reaches has its arm fully out from
+        ``arrive`` to ``leave`` (the twin takes REACH_TIME either side); any other is walked into through its
+        approach point, so the person faces the pose's heading."""
         waypoints: dict[str, dict] = {}
         here, clock, start_delay, previous = start, 0.0, 0.0, None
         for i, (pose, arrive, leave) in enumerate(stops):
             if pose.reach is not None:
                 arrive, leave = arrive - REACH_TIME, leave + REACH_TIME
-            way = self.travel(here, pose)
+            way = self.travel(here, pose) - REACH_TIME * ((here.reach is not None) + (pose.reach is not None))
             depart = max(clock, arrive - way)  # leave the last stop so as to be here on time
             if previous is None:
                 start_delay = depart
             else:
                 previous["wait"] = round(depart - clock, 3)
             clock = depart + way
+            approach = self._approach(pose)
+            if approach is not None:
+                waypoints[f"w{i + 1}_approach"] = {"position": [round(approach[0], 3), round(approach[1], 3)], "wait": 0.0}
             entry: dict = {"position": [round(pose.x, 3), round(pose.y, 3)], "wait": round(max(leave - clock, 0.0), 3)}
             if pose.reach is not None:
                 entry["reach"] = [round(v, 3) for v in pose.reach]

@@ -75,6 +75,7 @@ def _json(result, replays) -> dict:
                     "confirmed": replays[r.prop.name].confirmed,
                     "shift": replays[r.prop.name].shift,
                     "scenarios": [str(p) for p in replays[r.prop.name].scenarios],
+                    "runs": [str(p) for p in replays[r.prop.name].runs],
                     "violated": replays[r.prop.name].violated,
                 },
             }

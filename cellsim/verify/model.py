@@ -114,6 +114,9 @@ class Property:
     """(channel, value): reaching this value is the violation the twin must show (a mishap)."""
     condition: str | None = None
     """The validation condition whose violation the twin must show."""
+    sustained: str = ""
+    """PRISM expression of the bad states where the violation lasted its whole window (a bounded response):
+    the witness sought first, as it holds whatever the order of events within a period."""
 
 
 @dataclass(frozen=True)

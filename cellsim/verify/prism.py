@@ -87,7 +87,8 @@ class Module:
 
 @dataclass
 class Program:
-    """An MDP: modules, formulas (named expressions) and labels (named state sets)."""
+    """An MDP: modules, formulas (named expressions) and labels (named state sets), and the reward
+    structure "periods" (1 a step): ``R{"periods"}min=? [ F "bad0" ]`` is how soon a bad state can come."""
 
     modules: list[Module] = field(default_factory=list)
     formulas: dict[str, str] = field(default_factory=dict)
@@ -102,4 +103,9 @@ class Program:
         parts += [f"formula {name} = {expr};" for name, expr in self.formulas.items()]
         parts += [""] + [m.text() + "\n" for m in self.modules]
         parts += [f'label "{name}" = {expr};' for name, expr in self.labels.items()]
+        parts += ["", f'rewards "{PERIODS}"', "  true : 1;", "endrewards"]
         return "\n".join(parts) + "\n"
+
+
+PERIODS = "periods"
+"""The reward structure counting steps (periods)."""

@@ -6,8 +6,10 @@ A condition whose shape the abstract model can carry becomes a safety property:
   fails;
 * ``G(a -> (b U[0, w] c))`` and ``G(a -> F[0, w] c)`` (the detection conditions):
   a monitor module follows the oldest pending obligation (``a`` held, ``c`` not yet),
-  with ``w`` counted in whole periods (rounded down); it reaches its bad state when
-  ``b`` fails or ``w`` runs out before ``c``.
+  with ``w`` counted in whole periods (rounded down); the bad states are those
+  where ``b`` fails or ``w`` runs out before ``c``. The second kind, a miss that
+  lasts the whole window, is the *sustained* violation: its witness does not hang
+  on the order of events within a period or two, so it is the one replayed first.
 
 Any other shape (a liveness property such as ``F G``, an unbounded ``F``) is
 listed as not checked, with the reason: the abstract model has no end of run.
@@ -98,31 +100,29 @@ class ConditionProperties:
             names = {v: cell.signals[ch].formula for v, ch in c.variables.items()}
             try:
                 if c.shape == "invariant":
-                    bad = f"!({to_prism(c.parts[0], encodings, names)})"
+                    bad, sustained = f"!({to_prism(c.parts[0], encodings, names)})", ""
                 else:
-                    bad = self._monitor(c, encodings, names)
+                    bad, sustained = self._monitor(c, encodings, names)
             except VerifyError as e:
                 self.skipped.append(Skipped(c.name, str(e)))
                 continue
-            cell.properties.append(Property(c.name, c.description, bad=bad, condition=c.name))
+            cell.properties.append(Property(c.name, c.description, bad=bad, condition=c.name, sustained=sustained))
 
-    def _monitor(self, c: Candidate, encodings, names) -> str:
+    def _monitor(self, c: Candidate, encodings, names) -> tuple[str, str]:
         a, b, cc, w = c.parts
         pa, pb, pc = (to_prism(f, encodings, names) for f in (a, b, cc))
         n = math.floor(w / self.cell.period + 1e-9)
         ident = "mon_" + re.sub(r"\W", "_", c.name)
-        age, bad = f"{ident}_age", f"{ident}_bad"
+        age = f"{ident}_age"
         pending = f"({age} > 0 | {pa})"
         older = f"({age} > 0 ? {age} - 1 : 0)"
         fails = f"({pending} & !{pc} & (!{pb} | {older} >= {n}))"
-        update = {
-            age: f"(!{pending} | {pc} | {fails} ? 0 : {older} + 2)",
-            bad: f"{bad} | {fails}",
-        }
+        sustained = f"({pending} & !{pc} & {pb} & {older} >= {n})"
         self.cell.monitors[c.name] = Module(
-            ident, [Var(age, 0, n + 1, 0), Var(bad, boolean=True)], [Command("true", (("1", update),))],
-            comment=f"monitor of {c.name}: periods since its oldest pending obligation (+1), and whether it failed")
-        return bad
+            ident, [Var(age, 0, n + 1, 0)], [Command("true", (("1", {age: f"(!{pending} | {pc} | {fails} ? 0 : {older} + 2)"}),))],
+            comment=f"monitor of {c.name}: periods since its oldest pending obligation (+1); "
+                    "the obligation fails in a state where it is pending and its window ran out or its 'while' part broke")
+        return fails, sustained
 
     def user_properties(self, vocabulary, macros) -> list[Property]:
         """The user's PCTL, each quoted formula of the condition language a label of its own."""

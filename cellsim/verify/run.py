@@ -39,14 +39,23 @@ class AbstractModel:
         plain = [p for p in self.properties if p.name not in cell.monitors]
         groups = []
         if plain:
-            labels = {k: v for k, v in cell.labels.items() if k not in {self.labels[p.name] for p in self.properties
-                                                                      if p.name in cell.monitors}}
+            theirs = {k for p in self.properties if p.name in cell.monitors for k in self._labels_of(p)}
+            labels = {k: v for k, v in cell.labels.items() if k not in theirs}
             groups.append((plain, cell.program(self.header, [], labels).text()))
         for prop in self.properties:
             if prop.name in cell.monitors:
-                label = self.labels[prop.name]
-                groups.append(([prop], cell.program(self.header, [prop.name], {label: cell.labels[label]}).text()))
+                labels = {k: cell.labels[k] for k in self._labels_of(prop)}
+                groups.append(([prop], cell.program(self.header, [prop.name], labels).text()))
         return groups
+
+    def _labels_of(self, prop: Property) -> list[str]:
+        label = self.labels[prop.name]
+        return [label, sustained_label(label)] if prop.sustained else [label]
+
+
+def sustained_label(label: str) -> str:
+    """The label of a property's sustained violations, beside ``label`` (its bad states)."""
+    return f"{label}_sustained"
 
 
 @dataclass
@@ -111,6 +120,8 @@ def abstract_model(sf, cell=None, *, timed: bool = False) -> AbstractModel:
         if prop.bad:
             labels[prop.name] = f"bad{i}"
             abstract.labels[f"bad{i}"] = prop.bad
+            if prop.sustained:
+                abstract.labels[sustained_label(f"bad{i}")] = prop.sustained
     header = (f"Abstract model of the cell '{scenario.name}', written by cellsim verify.\n"
               f"One step is one period of {period:g} s. Assumptions:\n" + "\n".join(f"- {a}" for a in abstract.assumptions))
     text = abstract.program(header).text()
@@ -150,6 +161,7 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, on_stage=None
         write_export(model, export)
     results, stats, largest = {}, None, None
     times["storm_parse"] = times["storm_build"] = times["storm_check"] = 0.0
+    still = tuple(person.variable for person in model.cell.places.people)
     with tempfile.TemporaryDirectory(prefix="cellsim-verify-") as scratch:
         for i, (props, text) in enumerate(model.groups()):
             path = Path(scratch) / f"model{i}.prism"
@@ -165,7 +177,7 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, on_stage=None
             mark = time.perf_counter()
             for prop in props:
                 say(f"Storm: checking {prop.name}")
-                results[prop.name] = check(program, built, prop, model.labels.get(prop.name))
+                results[prop.name] = check(program, built, prop, model.labels.get(prop.name), still)
             times["storm_check"] += time.perf_counter() - mark
     ordered = [results[p.name] for p in model.properties]
     return Verification(model, stats, ordered, times, largest)

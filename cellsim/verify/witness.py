@@ -2,10 +2,10 @@
 
 The witness is a path of the abstract model (one state per period). Each
 person's places along it become a walk in the person kind's own config (its
-``PersonRole.walk``): the places it stays at (two periods or more), reaches or
-presses at, and the last, each at the place's most central pose, arrived at when
-the path enters the place and left when it leaves, the last held to the end of
-the run. The walk is written as a scenario whose ``base:`` is the verified one,
+``PersonRole.walk``): one stop per place it enters, at the place's inner pose
+nearest the last stop (so the walk goes no further than it must), arrived at
+when the path enters the place and left when it leaves, the last held to the
+end of the run. The walk is written as a scenario whose ``base:`` is the verified one,
 simulated, and checked with the scenario's own conditions.
 
 The abstract people walk at any pace and the abstract robot takes its moves in
@@ -19,6 +19,7 @@ too coarse there, a finding about the model, not about the cell.
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,8 +31,6 @@ from cellsim.verify.storm import Checked
 
 SHIFTS = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 5.0)
 """Seconds the witness walk is started later, in the order tried."""
-MIN_STAY = 2
-"""Periods a person stays at a place for it to be a stop of the written walk."""
 SETTLE = 8.0
 """Seconds the run goes on after the witness ends."""
 
@@ -65,38 +64,67 @@ _Dumper.add_representer(_Replace, _replace)
 
 
 def walks(model, checked: Checked, shift: float) -> tuple[dict, float]:
-    """Each person's config keys for the witness walk, and the run's duration (s)."""
+    """Each person's config keys for the witness walk, and the run's duration (s).
+
+    The abstract people step from place to place in a period; the twin's walk at their
+    speed. The witness's clock is stretched to fit: step k happens at ``clock[k]``, at least a
+    period after step k - 1 and, when a person enters a new place there, at least its walk from
+    the last stop later. So every person's stops keep their order against everyone else's."""
     places = model.cell.places
     period = model.cell.period
     path = checked.witness
-    end = len(path) * period + shift
-    entities = {}
+    people = []
     for person in places.people:
-        role = person.role
-        sequence = [state[person.variable] for state in path]
-        buttons = {port: press_variable(role.module, port) for port in role.buttons}
-        runs = []  # [place, first step, last step]
-        for step, place in enumerate(sequence):
+        runs = []  # [place, first step, last step, pose]
+        for step, state in enumerate(path):
+            place = state[person.variable]
             if runs and runs[-1][0] == place:
                 runs[-1][2] = step
             else:
-                runs.append([place, step, step])
+                here = runs[-1][3] if runs else person.role.start
+                pose = person.role.start if not runs and place == person.start else _stand_in(person, place, here)
+                runs.append([place, step, step, pose])
+        people.append((person, runs))
+    clock = [shift]
+    for step in range(1, len(path)):
+        at = clock[-1] + period
+        for person, runs in people:
+            for previous, run in zip(runs, runs[1:]):
+                if run[1] == step:
+                    at = max(at, clock[-1] + person.role.travel(previous[3], run[3]))
+        clock.append(at)
+    end = clock[-1] + period
+    entities = {}
+    for person, runs in people:
+        role = person.role
+        buttons = {port: press_variable(role.module, port) for port in role.buttons}
         stops, presses = [], {}
-        for i, (place, first, last) in enumerate(runs):
-            if i == 0 and place == person.start and len(runs) > 1:
+        for i, (place, first, last, pose) in enumerate(runs):
+            if i == 0 and place == person.start:
                 continue  # where it starts
-            pose = person.at(place).representative
             pressed = [port for port, var in buttons.items() if any(path[s].get(var) for s in range(first, last + 1))]
-            if last - first + 1 < MIN_STAY and i + 1 < len(runs) and pose.reach is None and not pressed:
-                continue  # passed through
             if pressed:
                 presses[len(stops)] = pressed[0]
-            stops.append((pose, first * period + shift, (last + 1) * period + shift))
+            stops.append((pose, clock[first], clock[last] + period))
         if not stops:
             stops = [(role.start, 0.0, 0.0)]
         stops[-1] = (stops[-1][0], stops[-1][1], end + SETTLE)
         entities[role.module] = role.walk(role.start, stops, presses)
     return entities, end + SETTLE
+
+
+def _stand_in(person, place: int, here):
+    """Where in the place the walk stops: the pose nearest ``here`` (the last stop) among the
+    place's inner poses (each of whose grid neighbours, at its heading, reads the same), else among all
+    of its poses;
+    with the arm down where the place allows it, else reaching."""
+    poses = person.at(place).poses
+    poses = [p for p in poses if p.reach is None] or poses
+    step = person.role.step
+    spots = {(round(p.x / step), round(p.y / step), round(p.yaw, 3)) for p in poses}
+    inner = [p for p in poses if all((round(p.x / step) + dx, round(p.y / step) + dy, round(p.yaw, 3)) in spots
+                                     for dx in (-1, 0, 1) for dy in (-1, 0, 1))]
+    return min(inner or poses, key=lambda p: (math.hypot(p.x - here.x, p.y - here.y), p.yaw))
 
 
 def write_scenario(model, checked: Checked, out: Path, shift: float) -> Path:
