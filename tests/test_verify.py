@@ -138,3 +138,21 @@ def test_two_operators_break_the_single_operator_assumption_and_the_twin_confirm
                                  capture_output=True, text=True, timeout=300)
         assert checked.returncode == 1, checked.stderr
         assert json.loads(checked.stdout)["verdicts"][p["name"]]["status"] == "violated"
+
+
+def test_a_model_too_large_to_build_state_by_state_is_checked_as_decision_diagrams_with_the_same_values(monkeypatch):
+    """Above the size limits the model is checked by Storm's dd engine, every monitor in one model:
+    the welding cell forced down that path gets the values the explicit engine gives, and no witness."""
+    import cellsim.verify.run as run
+
+    sf = load_scenario(WELDING_CELL)
+    explicit = run.verify(sf)
+    monkeypatch.setattr(run, "SIZE_ANYWAY", 0)
+    monkeypatch.setattr(run, "EXPLICIT_LIMIT", 0)
+    symbolic = run.verify(sf)
+    assert symbolic.stats.symbolic and not explicit.stats.symbolic
+    assert symbolic.stats.states >= explicit.largest.states  # every monitor at once
+    assert {r.prop.name: r.value for r in symbolic.results} == {r.prop.name: r.value for r in explicit.results}
+    assert any(r.holds is False for r in symbolic.results)
+    assert all(r.witness is None for r in symbolic.results)
+    assert any(r.witness for r in explicit.results if r.holds is False)

@@ -64,6 +64,7 @@ def _json(result, replays) -> dict:
         "holds": result.holds,
         "states": stats.states, "transitions": stats.transitions, "choices": stats.choices,
         "largest_states": (result.largest or stats).states,
+        "engine": "symbolic" if stats.symbolic else "explicit",
         "seconds": {k: round(v, 4) for k, v in result.times.items()},
         "period": result.model.cell.period,
         "assumptions": result.model.cell.assumptions,
@@ -90,6 +91,8 @@ def _print(result, replays, export) -> None:
     from rich.markup import escape
     from rich.table import Table
 
+    from cellsim.verify.storm import EXPLICIT_LIMIT
+
     console = Console(highlight=False)
     stats, model = result.stats, result.model
     table = Table(title=f"cellsim verify: {escape(model.cell.sf.scenario.name)}", title_justify="left")
@@ -102,6 +105,8 @@ def _print(result, replays, export) -> None:
             verdict = "[green]holds[/]" if r.holds else "[red]VIOLATED[/]"
         value = f"{r.value:.6g}" if isinstance(r.value, float) else str(r.value)
         twin = ""
+        if r.holds is False and r.witness is None:
+            twin = "no witness (decision diagrams)" if stats.symbolic else ""
         if r.prop.name in replays:
             rp = replays[r.prop.name]
             twin = (f"[red]confirmed[/] ({escape(rp.scenarios[-1].name)})" if rp.confirmed
@@ -112,8 +117,9 @@ def _print(result, replays, export) -> None:
         console.print(f"  not checked: {escape(s.name)}: {escape(s.reason)}")
     times = result.times
     largest = result.largest or stats
-    console.print(f"  the cell: {stats.states:,} states, {stats.transitions:,} transitions; with a monitor, at most "
-                  f"{largest.states:,} states;"
+    shape = ("checked as decision diagrams (every monitor in one model)" if stats.symbolic
+             else f"with a monitor, at most {largest.states:,} states")
+    console.print(f"  the cell: {stats.states:,} states, {stats.transitions:,} transitions; {shape}; "
                   f"period {model.cell.period:g} s; floor {times.get('floor', 0):.2f} s, Storm build "
                   f"{times.get('storm_build', 0):.2f} s, check {times.get('storm_check', 0):.2f} s")
     console.print("  assumptions:")
@@ -129,5 +135,9 @@ def _print(result, replays, export) -> None:
             console.print(f"  {escape(name)}: the twin refutes the witness in {len(rp.runs)} runs "
                           f"({escape(str(rp.scenarios[0]))} and later starts): the abstract model allows a behaviour "
                           "the twin does not show; a finding about the model, not the cell")
+    if stats.symbolic and not result.holds:
+        console.print(f"  no witness: {stats.transitions:,} transitions are too many to build state by state "
+                      f"(over {EXPLICIT_LIMIT:,}), and a witness cannot be read from decision diagrams; "
+                      "the violations are the abstract model's, not yet tried on the twin")
     if export is not None:
         console.print(f"  wrote {escape(str(export))} and {escape(str(export.with_suffix('.props')))}")

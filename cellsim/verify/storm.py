@@ -42,6 +42,8 @@ class ModelStats:
     build_seconds: float
     parse_seconds: float
     deadlocks: int = 0
+    symbolic: bool = False
+    """Built as decision diagrams (too large state by state): no witnesses."""
 
 
 def _quiet():
@@ -54,18 +56,34 @@ def _quiet():
     return stormpy
 
 
+EXPLICIT_LIMIT = 20_000_000
+"""Transitions above which the model is checked symbolically (decision diagrams) rather than built
+state by state: 514 million transitions (the palletising cell) would not fit in memory."""
+
+
+def _parse(program_path: Path):
+    stormpy = _quiet()
+    try:
+        return stormpy.parse_prism_program(str(program_path))
+    except Exception as e:  # noqa: BLE001 - Storm's parser errors are our translation's bugs, said plainly
+        raise VerifyError(f"Storm cannot read the abstract model ({program_path}): {' '.join(str(e).split())[:400]}") from None
+
+
+def _refuse_deadlocks(deadlocks: int, program_path: Path) -> None:
+    if deadlocks:
+        raise VerifyError(f"the abstract model has {deadlocks if deadlocks > 0 else 'some'} state(s) where some "
+                          f"module cannot step (a bug of a kind's abstraction; the model: {program_path})")
+
+
 def build(program_path: Path):
-    """Parse and build the model; returns (stormpy program, model, stats).
+    """Parse and build the model state by state; returns (stormpy program, model, stats).
 
     A state where some module has no command enabled is a bug of that module's abstraction:
     Storm would quietly give it a self-loop and so drop every behaviour after it (a "holds"
     that is not). It is refused."""
     stormpy = _quiet()
     start = time.perf_counter()
-    try:
-        program = stormpy.parse_prism_program(str(program_path))
-    except Exception as e:  # noqa: BLE001 - Storm's parser errors are our translation's bugs, said plainly
-        raise VerifyError(f"Storm cannot read the abstract model ({program_path}): {' '.join(str(e).split())[:400]}") from None
+    program = _parse(program_path)
     parsed = time.perf_counter()
     options = stormpy.BuilderOptions(build_full=True)
     options.set_build_state_valuations(True)
@@ -73,10 +91,34 @@ def build(program_path: Path):
     built = time.perf_counter()
     deadlocks = model.labeling.get_states("deadlock").get_number_of_set_bits() if model.labeling.contains_label("deadlock") else 0
     stats = ModelStats(model.nr_states, model.nr_transitions, model.nr_choices, built - parsed, parsed - start, deadlocks)
-    if deadlocks:
-        raise VerifyError(f"the abstract model has {deadlocks} state(s) where some module cannot step "
-                          f"(a bug of a kind's abstraction; the model: {program_path})")
+    _refuse_deadlocks(deadlocks, program_path)
     return program, model, stats
+
+
+def build_symbolic(program_path: Path):
+    """Parse and build the model as decision diagrams (Storm's dd engine, Sylvan); returns
+    (stormpy program, model, stats). Far larger models fit; a witness cannot be read from it.
+    Deadlocks are refused as in ``build``."""
+    stormpy = _quiet()
+    start = time.perf_counter()
+    program = _parse(program_path).substitute_formulas()  # the dd engine's labels read variables only
+    parsed = time.perf_counter()
+    model = stormpy.build_symbolic_model(program)
+    built = time.perf_counter()
+    stats = ModelStats(model.nr_states, model.nr_transitions, model.nr_choices, built - parsed, parsed - start,
+                       symbolic=True)
+    deadlocked = _initial_value(stormpy, model, stormpy.parse_properties('Pmax=? [ F "deadlock" ]', program)[0])
+    _refuse_deadlocks(-1 if deadlocked > 0 else 0, program_path)
+    return program, model, stats
+
+
+def _initial_value(stormpy, model, formula):
+    result = stormpy.model_checking(model, formula, only_initial_states=True)
+    if model.is_symbolic_model:
+        result.filter(stormpy.create_filter_initial_states(model))
+        return result.get_max()
+    initial = model.initial_states[0]
+    return result.get_value(initial) if hasattr(result, "get_value") else bool(result.get_truth_values_vector()[initial])
 
 
 def check(program, model, prop: Property, bad_label: str | None, still: tuple[str, ...] = ()) -> Checked:
@@ -88,15 +130,13 @@ def check(program, model, prop: Property, bad_label: str | None, still: tuple[st
         (formula,) = stormpy.parse_properties(text, program)
     except Exception as e:  # noqa: BLE001
         raise VerifyError(f"property {prop.name}: Storm cannot read {prop.pctl or text!r}: {' '.join(str(e).split())[:300]}") from None
-    result = stormpy.model_checking(model, formula)
-    initial = model.initial_states[0]
-    value = result.get_value(initial) if hasattr(result, "get_value") else bool(result.get_truth_values_vector()[initial])
+    value = _initial_value(stormpy, model, formula)
     seconds = time.perf_counter() - start
     if bad_label:
         value = float(value)
         holds = value <= 0.0
         witness = None
-        if not holds:
+        if not holds and not model.is_symbolic_model:
             sustained = f"{bad_label}_sustained" if prop.sustained else None
             if sustained:
                 witness = shortest_path(program, model, sustained, required=False, still=still)
