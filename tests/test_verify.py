@@ -156,3 +156,19 @@ def test_a_model_too_large_to_build_state_by_state_is_checked_as_decision_diagra
     assert any(r.holds is False for r in symbolic.results)
     assert all(r.witness is None for r in symbolic.results)
     assert any(r.witness for r in explicit.results if r.holds is False)
+
+
+def test_a_witness_of_a_cell_verified_with_set_overrides_keeps_them(tmp_path):
+    """The witness scenario is the cell that was verified: its --set values are written into it
+    (the walk's own keys win: an override of the replaced waypoints has nothing to apply to)."""
+    out = tmp_path / "witnesses"
+    done = _verify(str(WELDING_CELL), "--json", "--out", str(out), "--set", "range_detector.near_below=2.5",
+                   "--set", "operator.walking_speed=1.0", "--set", "operator.waypoints.bench.wait=3")
+    assert done.returncode == 1, done.stderr
+    twins = [p["twin"] for p in json.loads(done.stdout)["properties"] if p["twin"]]
+    assert twins
+    for twin in twins:
+        written = load_scenario(twin["scenarios"][0]).scenario
+        assert written.entities["range_detector"].near_below == 2.5
+        assert written.entities["operator"].walking_speed == 1.0
+        assert "bench" not in written.entities["operator"].waypoints

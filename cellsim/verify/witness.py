@@ -147,6 +147,7 @@ def write_scenario(model, checked: Checked, out: Path, shift: float) -> Path:
         "configuration_points": _Replace(),
         "campaign": _Replace(),
     }
+    _merge_missing(document, _overrides(sf))
     header = (f"# Witness of {checked.prop.name}, written by `cellsim verify` from a shortest path of the abstract model\n"
               f"# ({len(checked.witness)} periods of {model.cell.period:g} s). Simulate it with `cellsim simulate {path.name}`.\n")
     text = header + yaml.dump(document, Dumper=_Dumper, sort_keys=False, default_flow_style=None, width=120)
@@ -154,6 +155,38 @@ def write_scenario(model, checked: Checked, out: Path, shift: float) -> Path:
 
     write_text(path, text)
     return path
+
+
+def _overrides(sf) -> dict:
+    """The verified scenario's ``--set`` overrides as keys of a scenario over its base: each value as it
+    was verified (a list is written whole, as the merge replaces lists)."""
+    from cellsim.config.typed_yaml import _parse_override, to_data
+    from cellsim.scenario import _shortcut
+
+    data = to_data(sf.scenario)
+    out: dict = {}
+    for assignment in sf.overrides:
+        keys, _, _ = _parse_override(sf.scenario, assignment, _shortcut(sf.scenario))
+        keys = [to_data(k) for k in keys]
+        if any(isinstance(k, int) for k in keys):
+            keys = keys[:next(i for i, k in enumerate(keys) if isinstance(k, int))]
+        value, target = data, out
+        for key in keys:
+            value = value[key]
+        for key in keys[:-1]:
+            target = target.setdefault(key, {})
+        target[keys[-1]] = value
+    return out
+
+
+def _merge_missing(document: dict, extra: dict) -> None:
+    """Add ``extra``'s keys to ``document`` where the document (the witness) says nothing of them."""
+    for key, value in extra.items():
+        mine = document.get(key)
+        if key not in document:
+            document[key] = value
+        elif isinstance(mine, dict) and isinstance(value, dict) and not isinstance(mine, _Replace):
+            _merge_missing(mine, value)
 
 
 def replay(model, checked: Checked, out: Path, on_stage=None) -> Replay:
