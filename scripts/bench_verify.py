@@ -36,7 +36,8 @@ def main() -> None:
         last = verify(sf, timed=args.timed)
         totals.append(time.perf_counter() - began)
     stats, largest = last.stats, last.largest or last.stats
-    print(f"scenario: {Path(args.scenario).name}{' (timed)' if args.timed else ''}")
+    engine = "decision diagrams, every monitor in one model" if stats.symbolic else "state by state"
+    print(f"scenario: {Path(args.scenario).name}{' (timed)' if args.timed else ''}; Storm built it {engine}")
     print(f"states: {stats.states:,} (the cell), {largest.states:,} (largest, with a monitor); "
           f"transitions: {stats.transitions:,} / {largest.transitions:,}")
     people = last.model.cell.places.people
