@@ -5,7 +5,8 @@ every variable's valuation kept, so a witness path reads back in the cell's
 words. A safety property is ``Pmax=? [ F "bad" ]``: the largest probability,
 over all resolutions of the nondeterminism, of reaching its bad states. Its
 witness is a shortest path (in periods) from the initial state to a bad state,
-and of those one where the people change place the fewest times; when the largest
+taking at each step, of the successors one period nearer, one where the fewest
+people change place; when the largest
 probability is above 0 some scheduler follows it. For a bounded response the
 shortest path to a *sustained* violation (the whole window missed) is preferred
 when there is one.
@@ -13,8 +14,8 @@ when there is one.
 
 from __future__ import annotations
 
-import time
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -154,7 +155,7 @@ def shortest_path(program, model, label: str, required: bool = True, still: tupl
     Storm gives every state's fewest periods to ``label`` (``R{"periods"}min``, every step
     being certain); the path follows them down from the initial state, at each step to a
     successor one period nearer where the fewest of the variables ``still`` (the people's
-    places) change: a witness with no needless steps."""
+    places) change: a witness without needless steps (chosen step by step, not over the whole path)."""
     stormpy = _quiet()
     (formula,) = stormpy.parse_properties(f'R{{"{PERIODS}"}}min=? [ F "{label}" ]', program)
     distance = stormpy.model_checking(model, formula).get_value_vector()
