@@ -31,7 +31,6 @@ class Place:
     reading: tuple
     """The read signals' codes here (own signals, then sensed), in ``Places.signals`` order."""
     poses: list[Pose]
-    representative: Pose
 
 
 @dataclass
@@ -122,10 +121,7 @@ def _places(cell, person: PersonRole, poses: list[Pose], readings: list[tuple], 
     for index, members in enumerate(order):
         for i in members:
             place_of[i] = index
-        xs = sum(poses[i].x for i in members) / len(members)
-        ys = sum(poses[i].y for i in members) / len(members)
-        central = min(members, key=lambda i: (poses[i].x - xs) ** 2 + (poses[i].y - ys) ** 2 + (poses[i].reach is not None) * 1e-6)
-        places.append(Place(index, readings[members[0]], [poses[i] for i in members], poses[central]))
+        places.append(Place(index, readings[members[0]], [poses[i] for i in members]))
     neighbours: dict[int, set[int]] = {p.index: set() for p in places}
     for i, j in touching:
         a, b = place_of[i], place_of[j]

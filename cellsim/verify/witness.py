@@ -114,10 +114,9 @@ def walks(model, checked: Checked, shift: float) -> tuple[dict, float]:
 
 
 def _stand_in(person, place: int, here):
-    """Where in the place the walk stops: the pose nearest ``here`` (the last stop) among the
-    place's inner poses (each of whose grid neighbours, at its heading, reads the same), else among all
-    of its poses;
-    with the arm down where the place allows it, else reaching."""
+    """Where in the place the walk stops: the pose nearest ``here`` (the last stop) among the place's
+    inner poses (each of whose grid neighbours, at its heading, is in the place too), else among all of
+    its poses; with the arm down where the place allows it, else reaching."""
     poses = person.at(place).poses
     poses = [p for p in poses if p.reach is None] or poses
     step = person.role.step
