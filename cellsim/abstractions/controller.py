@@ -10,15 +10,14 @@ It offers one property per hazard: the mishap phase is never reached.
 from __future__ import annotations
 
 from cellsim.verify.expressions import thresholds_of
-from cellsim.verify.model import AbstractCell, Property, translate
+from cellsim.verify.model import ModuleAbstraction, AbstractCell, Property, translate
 from cellsim.verify.prism import Enum
 from cellsim.verify.risk import risk_modules
 
 
-class ControllerAbstraction:
+class ControllerAbstraction(ModuleAbstraction):
     def __init__(self, cell: AbstractCell, name: str, cfg):
-        self.name, self.cfg = name, cfg
-        self.system = cell.cell.modules[name]
+        super().__init__(cell, name, cfg)
         self.risk_model = self.system.risk_model
 
     def _own(self, channel: str) -> bool:

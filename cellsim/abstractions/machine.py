@@ -11,18 +11,14 @@ from __future__ import annotations
 
 import math
 
-from cellsim.verify.model import AbstractCell, lookup
+from cellsim.verify.model import ModuleAbstraction, AbstractCell, lookup
 from cellsim.verify.prism import Command, Module, Var
 from cellsim.vocabulary import SafetyMode
 
 _MODES = tuple(SafetyMode)
 
 
-class MachineAbstraction:
-    def __init__(self, cell: AbstractCell, name: str, cfg):
-        self.name, self.cfg = name, cfg
-        self.system = cell.cell.modules[name]
-
+class MachineAbstraction(ModuleAbstraction):
     def declare(self, cell: AbstractCell) -> None:
         """Reads its three inputs (in ``build``)."""
 

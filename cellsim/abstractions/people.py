@@ -18,7 +18,7 @@ import numpy as np
 
 from cellsim.entities.operator import REACH_TIME, _route, obstacles
 from cellsim.floorplan import point_in_polygon
-from cellsim.verify.model import AbstractCell, PersonRole, Pose
+from cellsim.verify.model import ModuleAbstraction, AbstractCell, PersonRole, Pose
 
 GRID = 0.1
 """The floor grid's step (m)."""
@@ -27,10 +27,9 @@ MARGIN = 0.6
 """How far (m) round the cell's fixtures, zones and walk the floor is sampled."""
 
 
-class PersonAbstraction:
+class PersonAbstraction(ModuleAbstraction):
     def __init__(self, cell: AbstractCell, name: str, cfg):
-        self.name, self.cfg = name, cfg
-        self.system = cell.cell.modules[name]
+        super().__init__(cell, name, cfg)
         self.layout = cell.sf.scenario.layout
 
     def declare(self, cell: AbstractCell) -> None:

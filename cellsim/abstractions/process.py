@@ -16,15 +16,11 @@ import math
 
 from cellsim.behaviours.process import _STANDSTILL
 from cellsim.channels import NO_VALUE
-from cellsim.verify.model import CODE, AbstractCell, lookup, set_of
+from cellsim.verify.model import ModuleAbstraction, CODE, AbstractCell, lookup, set_of
 from cellsim.verify.prism import Command, Module, Var
 
 
-class ProcessAbstraction:
-    def __init__(self, cell: AbstractCell, name: str, cfg):
-        self.name, self.cfg = name, cfg
-        self.system = cell.cell.modules[name]
-
+class ProcessAbstraction(ModuleAbstraction):
     def declare(self, cell: AbstractCell) -> None:
         """Reads the robot's mode and pose, its machines' busy or activity (in ``build``)."""
 

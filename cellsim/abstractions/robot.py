@@ -24,7 +24,7 @@ import numpy as np
 
 from cellsim.entities.robot import TELEMETRY_PERIOD
 from cellsim.verify.expressions import Thresholds
-from cellsim.verify.model import AbstractCell, lookup, set_of
+from cellsim.verify.model import ModuleAbstraction, AbstractCell, lookup, set_of
 from cellsim.verify.prism import Command, Module, Var
 from cellsim.vocabulary import SafetyMode
 
@@ -33,11 +33,7 @@ SAMPLES = 200
 _MODES = tuple(SafetyMode)
 
 
-class RobotAbstraction:
-    def __init__(self, cell: AbstractCell, name: str, cfg):
-        self.name, self.cfg = name, cfg
-        self.system = cell.cell.modules[name]
-
+class RobotAbstraction(ModuleAbstraction):
     def declare(self, cell: AbstractCell) -> None:
         """Reads its mode request and target pose (in ``build``)."""
 

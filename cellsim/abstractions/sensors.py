@@ -9,7 +9,7 @@ the nearest and the innermost field.
 
 from __future__ import annotations
 
-from cellsim.verify.model import AbstractCell, SensedSignal, SensorRole
+from cellsim.verify.model import ModuleAbstraction, AbstractCell, SensedSignal, SensorRole
 from cellsim.verify.prism import Command, Module, Var
 from cellsim.vocabulary import Range
 
@@ -22,12 +22,8 @@ def _nearest(order):
     return lambda values: min(values, key=order.index)
 
 
-class LightBarrierAbstraction:
+class LightBarrierAbstraction(ModuleAbstraction):
     """Beams broken by any person's geometry; with a restart interlock, tripped until a reset."""
-
-    def __init__(self, cell: AbstractCell, name: str, cfg):
-        self.name, self.cfg = name, cfg
-        self.system = cell.cell.modules[name]
 
     def declare(self, cell: AbstractCell) -> None:
         of = _context_of(self.system)
@@ -49,12 +45,8 @@ class LightBarrierAbstraction:
         cell.define(f"{self.name}.broken", tripped)
 
 
-class RangeDetectorAbstraction:
+class RangeDetectorAbstraction(ModuleAbstraction):
     """The nearest person's range class and distance from the sensor head."""
-
-    def __init__(self, cell: AbstractCell, name: str, cfg):
-        self.name, self.cfg = name, cfg
-        self.system = cell.cell.modules[name]
 
     def declare(self, cell: AbstractCell) -> None:
         sensor, of = self.system, _context_of(self.system)
@@ -70,12 +62,8 @@ class RangeDetectorAbstraction:
         """Its readings are the floor's."""
 
 
-class AreaScannerAbstraction:
+class AreaScannerAbstraction(ModuleAbstraction):
     """The innermost field a person is seen in, and the distance to the nearest person seen."""
-
-    def __init__(self, cell: AbstractCell, name: str, cfg):
-        self.name, self.cfg = name, cfg
-        self.system = cell.cell.modules[name]
 
     def declare(self, cell: AbstractCell) -> None:
         sensor, of = self.system, _context_of(self.system)

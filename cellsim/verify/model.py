@@ -313,3 +313,19 @@ def _any_of(expr: str, keys: list[int]) -> str:
             parts.append(f"{expr}={k}" if start == k else f"({expr}>={start}&{expr}<={k})")
             start = None
     return "(" + "|".join(parts) + ")"
+
+
+class ModuleAbstraction:
+    """What a kind's abstraction of one module starts from: its name, config and built system.
+    ``declare`` (round 1: what it reads, its people and sensors) and ``build`` (round 2: its
+    PRISM modules and signals) do nothing unless the kind says otherwise."""
+
+    def __init__(self, cell: AbstractCell, name: str, cfg):
+        self.name, self.cfg = name, cfg
+        self.system = cell.cell.modules[name]
+
+    def declare(self, cell: AbstractCell) -> None:
+        pass
+
+    def build(self, cell: AbstractCell) -> None:
+        pass
