@@ -238,7 +238,7 @@ class RobotConfig:
     initial_pose: str = "home"
     """The named pose the arm starts in."""
     speed_limits: SpeedLimits = field(default_factory=SpeedLimits)
-    """Tool speed cap per moving safety mode (m/s)."""
+    """Tool speed cap per moving safety mode (m/s): a limit, never exceeded (the arm plans 0.04 m/s below it)."""
     braking_time: Annotated[float, Range(0.0, 10.0, lo_open=True, unit="s")] = 0.5
     """Time to standstill from full speed on srmst or stopped (s)."""
     period: Period = 0.02

@@ -10,7 +10,8 @@ the robot's safety mode, activity, location and tool speed measured on the plant
 Motion: a straight line in joint space from the current desired position to the
 target pose, timed by a path parameter s in [0, 1]. Its rate ds/dt is capped by
 the joint velocity limits and by the tool speed cap of the current safety mode
-(``speed_limits``: pflim 0.25 m/s), using the largest tool displacement per unit
+(``speed_limits``: pflim 0.25 m/s) less ``TRACKING_ALLOWANCE``, so the measured
+speed stays under the cap, using the largest tool displacement per unit
 of s along the segment; it changes at most at the rate that brings the robot
 from full speed to standstill within ``braking_time`` (s), which is how srmst
 and stopped bring it to rest.
@@ -46,6 +47,10 @@ _MODES = tuple(SafetyMode)
 _SEGMENT_SAMPLES = 24
 TELEMETRY_PERIOD = 0.1
 """Joint positions and tool speed are published every 0.1 s (s)."""
+TRACKING_ALLOWANCE = 0.04
+"""The arm plans its tool speed this far below a mode's speed cap (m/s): the joint controller
+overshoots a planned speed by up to about that much as an acceleration ends, and the measured
+speed must never exceed the cap (a safety-rated reduced speed is a limit, not a target)."""
 
 
 def _shell(r: float, g: float, b: float) -> Rgba:
@@ -144,6 +149,7 @@ class Robot(EntitySystem):
             SafetyMode.POWER_FORCE_LIMITING: cfg.speed_limits.pflim,
         }
         self._normal_cap = self.speed_caps[SafetyMode.NORMAL]
+        self._planned_caps = {mode: max(cap - TRACKING_ALLOWANCE, 0.5 * cap) for mode, cap in self.speed_caps.items()}
         initial = self.pose_names.index(cfg.initial_pose)
         q0 = self.poses[initial]
         self.initial_positions = q0
@@ -320,12 +326,12 @@ class Robot(EntitySystem):
             motion = self._start_segment(start + s * (goal - start), int(target))
             segment, s, rate, tool_per_s, joint_rate = motion[:5].tolist()
         if s < 1.0:
-            full = min(joint_rate, self._normal_cap / tool_per_s)
+            full = min(joint_rate, self._planned_caps[SafetyMode.NORMAL] / tool_per_s)
             accel = full / self.cfg.braking_time
             if mode in STANDSTILL_MODES or target != segment:
                 cap = 0.0  # brake: a mode that stands still, or a new target to replan for
             else:
-                cap = min(joint_rate, self.speed_caps[mode] / tool_per_s, math.sqrt(2.0 * accel * (1.0 - s)))
+                cap = min(joint_rate, self._planned_caps[mode] / tool_per_s, math.sqrt(2.0 * accel * (1.0 - s)))
             rate = min(cap, rate + accel * dt) if rate < cap else max(cap, rate - accel * dt)
             s = min(1.0, s + rate * dt)
             if s >= 1.0:
