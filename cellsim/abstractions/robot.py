@@ -10,26 +10,34 @@ safety modes, braking, acceleration) or, once it has been there that long,
 goes on to the next. A move re-targeted before it ends follows a path the
 abstraction does not know: until it arrives, the tool may be in any region.
 
-Its safety mode is the one requested, from the next period on. The tool's speed
-is any value up to the highest speed cap in force over the last braking time
-(plus the telemetry period its speed is published at): the modes it was in
-then; it makes progress only while that cap is above zero.
+Its safety mode is the one requested, from the next period on. The tool's speed,
+as read, is any value its ``SpeedEnvelope`` allows: up to the cap in force, and
+after a cap ends, falling to zero within the braking time (read late by the
+telemetry period and the controller's tracking). The model keeps, per threshold
+the guards compare the speed with, a countdown of the periods a speed at or
+above it may still be read; the tool makes progress only while some speed is.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from cellsim.entities.robot import TELEMETRY_PERIOD
-from cellsim.verify.expressions import Thresholds
 from cellsim.verify.model import ModuleAbstraction, AbstractCell, lookup, set_of
 from cellsim.verify.prism import Command, Module, Var
 from cellsim.vocabulary import SafetyMode
 
 SAMPLES = 200
 """Points sampled along each move to find the regions it passes through."""
+TRACKING_LAG = 0.06
+"""How far (s) the arm's measured speed may lag its planned speed (the joint controller's tracking)."""
+TRACKING_TOLERANCE = 0.05
+"""How far (m/s) the measured speed may stay above the planned braking line while the arm settles."""
+SETTLE_TIME = 0.1
+"""How long (s) after its planned speed reaches zero the arm may still be read moving."""
 _MODES = tuple(SafetyMode)
 
 
@@ -75,10 +83,9 @@ class RobotAbstraction(ModuleAbstraction):
         most = max((n for v in moves.values() for _, n in v), default=0)
         target = cell.input(r, "target_pose")
         initial = robot.pose_names.index(cfg.initial_pose)
-        vmax = f"{r}_cap"
         # with its tool's speed read, the robot moves only while a cap above zero is in force; without, the
         # cap is not modelled and it may move at any time (more behaviours, and no braking countdown in the state)
-        go = f"{vmax} > 0" if f"{r}.tool_speed" in cell.reads else "true"
+        go = self.motion_allowed() if f"{r}.tool_speed" in cell.reads else "true"
         commands: list[Command] = []
 
         def cmd(guard, update):
@@ -134,7 +141,7 @@ class RobotAbstraction(ModuleAbstraction):
     def _safety(self, cell: AbstractCell, period: float) -> None:
         r, robot = self.name, self.system
         request = cell.input(r, "safety_mode_request")
-        mode, vmax, countdown = f"{r}_mode", f"{r}_cap", f"{r}_cap_held"
+        mode = f"{r}_mode"
         new_mode = f"({request} >= 0 ? {request} : {SafetyMode.UNKNOWN.code})"
         cell.define(f"{r}.safety_mode", mode)
         if f"{r}.tool_speed" not in cell.reads:
@@ -142,43 +149,95 @@ class RobotAbstraction(ModuleAbstraction):
                             [Command("true", (("1", {mode: new_mode}),))], comment=f"robot {r}: the requested safety mode"))
             cell.assume(f"{r} takes a requested safety mode in one period (its speed is read by nobody: not modelled)")
             return
-        caps = {m: robot.speed_caps.get(m, 0.0) for m in _MODES}
-        caps[SafetyMode.UNKNOWN] = robot._normal_cap
-        levels = sorted({0.0, *caps.values()})
-        cap_of = lookup(mode, {m.code: levels.index(caps[m]) for m in _MODES}, 0)
-        hold = math.ceil(self.cfg.braking_time / period - 1e-9) + math.ceil(TELEMETRY_PERIOD / period - 1e-9) + 1
-        update = {
-            mode: new_mode,
-            vmax: f"({cap_of} >= {vmax} ? {cap_of} : ({countdown} > 0 ? {vmax} : {cap_of}))",
-            countdown: f"({cap_of} >= {vmax} ? {hold} : ({countdown} > 0 ? {countdown} - 1 : {hold}))",
-        }
-        cell.add(Module(f"{r}_safety", [
-            Var(mode, 0, len(_MODES) - 1, SafetyMode.NORMAL.code),
-            Var(vmax, 0, len(levels) - 1, levels.index(robot._normal_cap)),
-            Var(countdown, 0, hold, hold),
-        ], [Command("true", (("1", update),))],
-            comment=f"robot {r}: the requested safety mode, and the highest speed cap of the last {hold} periods"))
-        speed = f"{r}.tool_speed"
-        if speed in cell.reads:
-            encoding = cell.encoding(speed)
-            var = f"{r}_speed"
-            commands = []
-            for region in range(encoding.regions):
-                low = _low(encoding, region)
-                allowed = [i for i, level in enumerate(levels) if low <= level + 1e-12 and (region % 2 or low < level or region == 0)]
-                commands.append(Command(set_of(vmax, allowed) if allowed else "false", (("1", {var: str(region)}),)))
-            cell.add(Module(f"{r}_tool_speed", [Var(var, 0, encoding.regions - 1, 0)], commands,
-                            comment=f"robot {r}: its tool's speed (m/s), any value up to the cap in force"))
-            cell.define(speed, var, encoding)
-        cell.assume(f"{r} takes a requested safety mode in one period and slows to its cap within its braking time "
-                    f"({self.cfg.braking_time:g} s)")
+        envelope, caps = SpeedEnvelope.of(robot, period), self._caps()
+        encoding = cell.encoding(f"{r}.tool_speed")
+        # one countdown per speed threshold: the periods a speed above it may still be read; one for a speed
+        # at it where a cap equals it (a speed may sit at its cap, never above); one for motion itself
+        countdowns = {"moving": (None, False)}
+        for i, value in enumerate(encoding.values):
+            if value > 0:
+                countdowns[f"over{i}"] = (value, True)
+                if value in caps.values():
+                    countdowns[f"at{i}"] = (value, False)
+        variables, update = [Var(mode, 0, len(_MODES) - 1, SafetyMode.NORMAL.code)], {mode: new_mode}
+        possible = {}  # countdown -> its guard: a speed it counts may be read next period
+        for suffix, (threshold, strict) in countdowns.items():
+            var = f"{r}_{suffix}"
+            refresh = {m.code: envelope.periods(caps[m], threshold, strict) for m in _MODES}
+            variables.append(Var(var, 0, max(refresh.values()), refresh[SafetyMode.NORMAL.code]))
+            update[var] = f"max({var} - 1, {lookup(mode, refresh, 0)})"
+            possible[suffix] = f"({var} > 0 | {set_of(mode, [c for c, n in refresh.items() if n > 0])})"
+        cell.add(Module(f"{r}_safety", variables, [Command("true", (("1", update),))],
+                        comment=f"robot {r}: the requested safety mode, and how many periods more its tool may be "
+                                "read moving above (at) each speed threshold"))
+        var = f"{r}_speed"
+        commands = []
+        for region in range(encoding.regions):
+            i = (region - 1) // 2
+            if region == 0 or encoding.values[i] <= 0:
+                guard = "true"
+            elif region % 2 and f"at{i}" in countdowns:
+                guard = f"{possible[f'at{i}']} | {possible[f'over{i}']}"
+            else:
+                guard = possible[f"over{i}"]
+            commands.append(Command(guard, (("1", {var: str(region)}),)))
+        cell.add(Module(f"{r}_tool_speed", [Var(var, 0, encoding.regions - 1, 0)], commands,
+                        comment=f"robot {r}: its tool's speed (m/s) as read, any value its speed envelope allows"))
+        cell.define(f"{r}.tool_speed", var, encoding)
+        cell.assume(f"{r} takes a requested safety mode in one period; its tool's speed never exceeds the cap of its "
+                    f"mode, and after a cap C ends it falls no slower than from C to zero within the braking time "
+                    f"({self.cfg.braking_time:g} s), read up to {envelope.lag:g} s late (telemetry and tracking) and "
+                    f"up to {envelope.tolerance:g} m/s above that line until it has settled")
+
+    def _caps(self) -> dict[SafetyMode, float]:
+        """Each safety mode's tool speed cap (m/s); unknown: the normal one."""
+        caps = {m: self.system.speed_caps.get(m, 0.0) for m in _MODES}
+        caps[SafetyMode.UNKNOWN] = self.system._normal_cap
+        return caps
+
+    def motion_allowed(self) -> str:
+        """The guard under which the tool may make progress along its move: it may still be moving."""
+        moving = [m.code for m, cap in self._caps().items() if cap > 0]
+        return f"({self.name}_moving > 0 | {set_of(f'{self.name}_mode', moving)})"
 
 
-def _low(encoding: Thresholds, region: int) -> float:
-    """The least value of a region (its threshold, or just above the threshold below; 0 for the first)."""
-    if region % 2:
-        return encoding.values[region // 2]
-    return encoding.values[region // 2 - 1] if region else 0.0
+@dataclass(frozen=True)
+class SpeedEnvelope:
+    """What the tool's speed, as read by the controller, can be after a change of safety mode.
+
+    The arm decelerates at a constant rate that brings it from its full speed to
+    rest within ``braking`` (s) (``entities.robot``), so from the moment a cap C
+    ends, its planned speed is at most C (1 - t / braking) and never below the
+    cap that follows. The speed read lags it by ``lag`` (the telemetry period and
+    the joint controller's tracking) and the arm settles onto that line within
+    ``tolerance`` m/s, and within ``settle`` s after it reaches zero. While a cap
+    is in force the speed stays at or below it: the arm plans its speed below the
+    cap (``TRACKING_ALLOWANCE``) by its controller's overshoot. A test holds the
+    twin's readings to this envelope.
+    """
+
+    period: float
+    braking: float
+    lag: float = TELEMETRY_PERIOD + TRACKING_LAG
+    tolerance: float = TRACKING_TOLERANCE
+    settle: float = SETTLE_TIME
+
+    @classmethod
+    def of(cls, robot, period: float) -> "SpeedEnvelope":
+        return cls(period, robot.cfg.braking_time)
+
+    def periods(self, cap: float, threshold: float | None, strict: bool = True) -> int:
+        """Periods, counted from the last period a cap ``cap`` was in force, for which a speed above
+        ``threshold`` (at or above it if not ``strict``; None: any speed) may still be read; 0 when no
+        such speed can be read under that cap at all."""
+        if cap <= 0.0 or (threshold is not None and (cap <= threshold if strict else cap < threshold)):
+            return 0
+        lag = math.ceil(self.lag / self.period - 1e-9)
+        braking = self.braking / self.period
+        longest = lag + math.ceil((self.braking + self.settle) / self.period - 1e-9)
+        if threshold is None or threshold <= self.tolerance:
+            return longest
+        return min(longest, lag + math.ceil(braking * (1.0 - (threshold - self.tolerance) / cap) - 1e-9))
 
 
 def robot(cell, name, cfg):
