@@ -140,6 +140,22 @@ def test_the_headline_coverage_is_the_campaigns_figure(page, campaign):
     assert float(shown.rstrip("%")) == pytest.approx(100 * overall["covered"] / overall["total"], abs=0.05)
 
 
+def test_each_conditions_rate_and_bound_are_shown_with_the_distribution_they_hold_under(page, campaign):
+    from cellsim.validation.bound import probability
+
+    _, results = campaign
+    bounds = results["bounds"]
+    for name, figures in bounds["conditions"].items():
+        row = page.locator("#conditions tbody tr").filter(has=page.locator("strong", has_text=re.compile(f"^{re.escape(name)}$")))
+        assert row.locator("td.bound").inner_text() == probability(figures["upper_bound"]), name
+    overall = page.locator("#bound-overall")
+    assert overall.is_visible() and overall.locator("td.bound").inner_text() == probability(bounds["overall"]["upper_bound"])
+    assert bounds["overall"]["failures"] >= 1 and str(bounds["overall"]["failures"]) in overall.inner_text()
+    statement = page.locator("#bound-statement")
+    assert statement.is_visible()
+    assert "Clopper-Pearson" in statement.inner_text() and "operator_waits" in statement.inner_text()
+
+
 def test_a_violating_runs_timeline_is_drawn_on_load_with_its_required_window(page, campaign):
     _, results = campaign
     violating = [r for r in results["runs"] if r["violations"]]

@@ -457,6 +457,28 @@ def _condition_rows(results: Mapping, runs: Sequence[Mapping]) -> list[dict]:
     return rows
 
 
+def _bounds(results: Mapping) -> dict | None:
+    """The campaign's violation rates and their upper bounds (results' ``bounds``), for people; None for
+    results written before cellsim stated them."""
+    from cellsim.validation.bound import probability
+
+    bounds = _dict(results.get("bounds"))
+    if not bounds or not isinstance(bounds.get("overall"), Mapping):
+        return None
+
+    def row(figures):
+        figures = _dict(figures)
+        return {"failures": figures.get("failures"), "runs": figures.get("runs"),
+                "rate": probability(figures.get("rate")), "upper": probability(figures.get("upper_bound"))}
+
+    return {
+        "confidence": percent(bounds.get("confidence")),
+        "method": bounds.get("method"), "counted": bounds.get("counted"), "sampling": bounds.get("sampling"),
+        "overall": row(bounds["overall"]),
+        "conditions": {str(name): row(f) for name, f in _dict(bounds.get("conditions")).items()},
+    }
+
+
 def _use_case_rows(results: Mapping, runs: Sequence[Mapping]) -> list[dict]:
     campaign = _dict(results.get("campaign"))
     formulas, descriptions = _dict(campaign.get("use_cases")), _dict(campaign.get("descriptions"))
@@ -824,6 +846,7 @@ def render_report(
         header=_header(results, runs),
         summary=_summary(results, runs),
         conditions=_condition_rows(results, runs),
+        bounds=_bounds(results),
         use_cases=_use_case_rows(results, runs),
         coverage=_coverage(results),
         configurations=_configurations(results, runs),

@@ -65,7 +65,7 @@ from typing import Callable
 
 from cellsim.atomic import LOCK, FolderBusy, folder_lock, write_text
 from cellsim.validation.config import description_of, formula_of
-from cellsim.campaign.samplers import draw_configuration, run_seed
+from cellsim.campaign.samplers import describe_sampling, draw_configuration, run_seed
 from cellsim.config.typed_yaml import to_data
 from cellsim.provenance import INPUTS, SnapshotError, changes, command_line, provenance, read_inputs, snapshot_scenario
 
@@ -96,6 +96,15 @@ class CampaignPlan:
     seed: int
     runs: int
     duration: float | None = None
+    until_bound: float | None = None
+    """``--until-bound``: the violation rate the runs should bound (``runs`` is how many that takes with
+    none violating). Runs stop being started once one violates a condition (or leaves one undecided);
+    those already started finish and are kept, and the campaign resumes from there if asked again."""
+
+
+def _counts_against(result: dict) -> bool:
+    """Whether a finished run violates a condition or leaves one undecided (and so ends ``--until-bound``)."""
+    return bool(result.get("violations") or result.get("undecided"))
 
 
 def run_dir(out: Path, index: int) -> Path:
@@ -379,18 +388,21 @@ def _run_locked(plan, out: Path, jobs, on_progress, restart, inputs, identity, w
             )
 
     report_progress()
-    if todo:
+    stop = (lambda: any(_counts_against(r) for r in results.values())) if plan.until_bound is not None else (lambda: False)
+    if todo and not stop():
         if jobs <= 1:
             for index in todo:
                 results[index] = execute_run(worker_plan, out, index, origin)
                 report_progress()
+                if stop():
+                    break
         else:
-            _run_parallel(worker_plan, out, todo, jobs, results, report_progress, origin)
-    runs = [results[i] for i in range(plan.runs)]
+            _run_parallel(worker_plan, out, todo, jobs, results, report_progress, origin, stop)
+    runs = [results[i] for i in range(plan.runs) if i in results]
     return finish(plan, out, sf, case, runs, resumed, wall_start, provenance(identity))
 
 
-def _run_parallel(plan, out, todo, jobs, results, report_progress, origin=None) -> None:
+def _run_parallel(plan, out, todo, jobs, results, report_progress, origin=None, stop=lambda: False) -> None:
     # Fresh interpreters ("spawn"), not forks of this one: nothing of the parent's
     # Drake state is shared, and no helper process outlives the campaign. A
     # pydrake diagram holding Python systems is never freed (about 2.5 MB a
@@ -407,9 +419,14 @@ def _run_parallel(plan, out, todo, jobs, results, report_progress, origin=None) 
         while pending:
             finished, pending = wait(pending, return_when=FIRST_COMPLETED)
             for future in finished:
+                if future.cancelled():
+                    continue
                 result = future.result()
                 results[result["index"]] = result
             report_progress()
+            if stop():  # runs not started are dropped; those running finish and are kept
+                for future in pending:
+                    future.cancel()
     except BrokenProcessPool as e:
         executor.shutdown(wait=True, cancel_futures=True)
         raise CampaignError(
@@ -466,6 +483,7 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
     campaign's provenance (:func:`cellsim.provenance.provenance`)."""
     from cellsim.campaign.report import write_report
     from cellsim.scenario import unit_of
+    from cellsim.validation.bound import campaign_bounds
 
     sc = sf.scenario
     t0 = time.perf_counter()
@@ -488,6 +506,7 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
             "descriptions": {n: description_of(e) for n, e in {**sc.validation.conditions, **sc.validation.use_cases}.items()
                              if description_of(e)},
             "samplers": {name: to_data(s) for name, s in sc.campaign.samplers.items()},
+            "until_bound": plan.until_bound,
         },
         "provenance": record,
         "runs": [{**r, "rerun": _rerun_command(out, r)} for r in runs],
@@ -502,6 +521,8 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
             "use_cases": {u: sum(u in r.get("use_cases", ()) for r in runs) for u in sc.validation.use_cases},
             "coverage": coverage.to_json(),
         },
+        "bounds": campaign_bounds(runs, conditions, describe_sampling(
+            sc.campaign.samplers, {name: point.paths for name, point in sc.configuration_points.items()})),
         "timing": {
             "simulate": stage("simulate"),
             "trace": stage("trace"),

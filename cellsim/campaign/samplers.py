@@ -242,3 +242,19 @@ def run_seed(seed: int, index: int) -> int:
         x ^= x >> 16
         x = (x * multiplier) & _SEED_MASK
     return x ^ (x >> 16)
+
+
+def describe_sampling(samplers: dict[str, Sampler], points: dict[str, list[str]]) -> str:
+    """The distribution a campaign's runs are drawn from, in words: what a bound on them holds under."""
+    parts = []
+    for name in sorted(samplers):
+        s, paths = samplers[name], points.get(name, [])
+        keys = ", ".join(paths)
+        if isinstance(s, UniformSampler):
+            parts.append(f"{name} ({keys}): each uniform in [{s.low:g}, {s.high:g}]")
+        elif isinstance(s, ChoiceSampler):
+            parts.append(f"{name} ({keys}): each one of {', '.join(map(str, s.values))}, equally likely")
+        else:
+            parts.append(f"{name} ({keys}): uniform over the values of at least {s.minimum:g} summing to {s.total:g}")
+    drawn = "; ".join(parts) if parts else "no configuration point is sampled: every run has the scenario's configuration"
+    return f"{drawn}; each run with its own simulation seed, drawn from the campaign seed"

@@ -26,6 +26,12 @@ def add_parser(subparsers) -> None:
     )
     camp.add_argument("scenario", type=Path, help="scenario YAML file")
     camp.add_argument("--runs", type=int, help="number of runs (default: the scenario's campaign.runs)")
+    camp.add_argument(
+        "--until-bound", type=float, metavar="P",
+        help="run until the exact 95%% upper bound on the probability that a run violates a condition is "
+        "below P (with no violation: about 3/P runs, printed before starting), or until the first "
+        "violation; instead of --runs",
+    )
     camp.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: one per CPU)")
     camp.add_argument("--seed", type=int, default=0, help="campaign seed: run i is a pure function of it and i (default 0)")
     camp.add_argument("--out", type=Path, help="campaign folder (default: campaigns/<scenario>-seed<seed>)")
@@ -58,9 +64,12 @@ def run(args) -> int:
     if args.duration is not None:
         check_run_length(sf, args.duration, "--duration")
     runs = args.runs or sf.scenario.campaign.runs
-    out = args.out or Path("campaigns") / f"{sf.scenario.name}-seed{args.seed}"
-    plan = CampaignPlan(str(args.scenario.resolve()), tuple(args.overrides), args.seed, runs, args.duration)
     console = Console(stderr=True, quiet=args.quiet)
+    if args.until_bound is not None:
+        runs = _runs_for_bound(args, console)
+    out = args.out or Path("campaigns") / f"{sf.scenario.name}-seed{args.seed}"
+    plan = CampaignPlan(str(args.scenario.resolve()), tuple(args.overrides), args.seed, runs, args.duration,
+                        until_bound=args.until_bound)
     try:
         with _campaign_progress(console, args.quiet, runs) as report:
             outcome = run_campaign(plan, out, jobs=args.jobs, on_progress=report, restart=args.restart)
@@ -80,6 +89,24 @@ def run(args) -> int:
         )
         return EXIT_INPUT
     return EXIT_FINDING if outcome.violating_runs or outcome.results["totals"]["undecided_runs"] else EXIT_OK
+
+
+def _runs_for_bound(args, console) -> int:
+    """The runs ``--until-bound P`` takes with none violating, said before they start."""
+    from cellsim.validation.bound import CONFIDENCE, runs_needed
+
+    target = args.until_bound
+    if args.runs is not None:
+        raise InputError("--until-bound sets the number of runs: give it or --runs, not both")
+    if not 0.0 < target < 1.0:
+        raise InputError(f"--until-bound must be a probability in (0, 1), got {target:g}")
+    runs = runs_needed(target, CONFIDENCE)
+    if runs > 100_000:
+        raise InputError(f"--until-bound {target:g} needs {runs:,} runs without a violation; a campaign has at most "
+                         "100,000 (split it, or aim at a larger probability)")
+    console.print(f"bounding the violation rate below {target:g} at {percent(CONFIDENCE)} confidence takes {runs:,} "
+                  "runs without a violation; the campaign stops at the first violation", highlight=False)
+    return runs
 
 
 class _campaign_progress:
@@ -135,6 +162,16 @@ def print_campaign(outcome) -> None:
             "undecided (inconclusive or missing data)",
             "[yellow]" + "\n".join(f"{c}: {_run_list(runs)}" for c, runs in undecided.items()) + "[/yellow]",
         )
+    bounds = outcome.results.get("bounds")
+    target = outcome.results["campaign"].get("until_bound")
+    if bounds and target is not None:
+        upper = bounds["overall"]["upper_bound"]
+        table.add_row("--until-bound", f"[green]reached: {upper:.3g} < {target:g}[/green]" if upper < target else
+                      f"[red]not reached: {bounds['overall']['failures']} violating run(s) in {bounds['overall']['runs']}; "
+                      "the violation is the finding, not the bound[/red]" if bounds["overall"]["failures"] else
+                      f"not reached yet: {upper:.3g} after {bounds['overall']['runs']} runs (run the same command to go on)")
+    if bounds:
+        table.add_row(f"violation rate, {percent(bounds['confidence'])} upper bound", _bound_text(bounds))
     table.add_row("use cases", ", ".join(f"{u} {n}" for u, n in totals["use_cases"].items()) or "-")
     table.add_row("coverage", f"{percent(totals['coverage']['overall']['fraction'])} of situations")
     table.add_row("time per stage", ", ".join(f"{k} {measure(v, 's')}" for k, v in timing.items()))
@@ -144,6 +181,22 @@ def print_campaign(outcome) -> None:
     table.add_row("results", str(outcome.results_path))
     table.add_row("report", str(outcome.report_path))
     console.print(table)
+    if bounds:
+        console.print(f"The bound is the {bounds['method']}, {bounds['counted']}. It holds for runs drawn as this "
+                      f"campaign's: {bounds['sampling']}. Every condition's: cellsim check {outcome.results_path.parent}",
+                      highlight=False, markup=False)
+
+
+def _bound_text(bounds: dict) -> str:
+    """Any condition's rate and bound, and each violated condition's (``cellsim check OUT`` lists all)."""
+    from cellsim.validation.bound import probability
+
+    def figures(f):
+        return f"{f['failures']} of {f['runs']} runs, rate {probability(f['rate'])}, at most {probability(f['upper_bound'])}"
+
+    lines = [f"any condition: {figures(bounds['overall'])}"]
+    lines += [f"{name}: {figures(f)}" for name, f in bounds["conditions"].items() if f["failures"]]
+    return "\n".join(lines)
 
 
 def _run_list(indices: list[int], shown: int = 8) -> str:

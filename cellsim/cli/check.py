@@ -15,9 +15,12 @@ def add_parser(subparsers) -> None:
         help="check a run's black box against the safety conditions",
         description="Rebuild a run's trace from its black box and evaluate every safety condition "
         "and use-case classifier of the scenario's validation section. RUN is a run folder (as written "
-        "by simulate) or a black-box file. Exits 0 if every condition holds, 1 if one is violated.",
+        "by simulate) or a black-box file. Given a campaign folder, it checks every run and gives, per "
+        "condition and for any condition, the violation rate and its exact (Clopper-Pearson) 95 %% upper "
+        "bound, with the sampling distribution it holds under. Exits 0 if every condition holds (on every "
+        "run), 1 if one is violated.",
     )
-    chk.add_argument("run", type=Path, help="run folder or blackbox.sqlite")
+    chk.add_argument("run", type=Path, help="run folder, blackbox.sqlite, or campaign folder")
     chk.add_argument(
         "--scenario", type=Path, help="check against this scenario's conditions (default: the run's scenario.yaml)"
     )
@@ -37,6 +40,8 @@ def run(args) -> int:
     from cellsim.validation.config import description_of
     from cellsim.validation.traces import TraceError, write_trace_json
 
+    if is_campaign(args.run):
+        return check_campaign(args)
     try:
         sf = load_scenario(args.scenario) if args.scenario else None
         checked = check(args.run, sf)
@@ -68,6 +73,84 @@ def run(args) -> int:
     else:
         print_verdicts(args.run, checked)
     return EXIT_OK if result.all_hold else EXIT_FINDING
+
+
+def is_campaign(path: Path) -> bool:
+    from cellsim.campaign.runner import PLAN
+
+    return path.is_dir() and (path / PLAN).is_file()
+
+
+def check_campaign(args) -> int:
+    """Every run of a campaign folder checked, and the bound they give per condition."""
+    import json
+
+    from cellsim.campaign.runner import RESULTS, RUNS
+    from cellsim.scenario import load_scenario
+    from cellsim.services.blackbox import BlackBoxError
+    from cellsim.validation.bound import campaign_bounds
+    from cellsim.validation.check import CheckError, check
+    from cellsim.validation.traces import TraceError
+
+    if args.export_trace:
+        raise InputError(f"{args.run} is a campaign folder: --export-trace takes one run")
+    try:
+        sf = load_scenario(args.scenario) if args.scenario else None
+    except CheckError as e:
+        raise InputError(str(e)) from None
+    folders = sorted(p for p in (args.run / RUNS).glob("*") if p.is_dir())
+    if not folders:
+        raise InputError(f"{args.run}: a campaign folder with no runs yet")
+    runs, conditions = [], {}
+    for folder in folders:
+        try:
+            result = check(folder, sf).result
+        except (CheckError, BlackBoxError, TraceError) as e:  # a run that never finished, or was damaged
+            runs.append({"run": folder.name, "status": "failed", "error": str(e)})
+            continue
+        conditions.update(dict.fromkeys(result.verdicts))
+        runs.append({"run": folder.name, "status": "completed", "violations": result.violations,
+                     "undecided": result.undecided})
+    try:
+        sampling = json.loads((args.run / RESULTS).read_text())["bounds"]["sampling"]
+    except (OSError, ValueError, KeyError, TypeError):
+        sampling = f"not recorded ({args.run / RESULTS} is missing or has no bounds): state it yourself"
+    bounds = campaign_bounds(runs, list(conditions), sampling)
+    if args.json:
+        json.dump({"campaign": str(args.run), "bounds": bounds, "runs": runs}, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        print_bounds(args.run, bounds, runs)
+    return EXIT_FINDING if bounds["overall"]["failures"] else EXIT_OK
+
+
+def print_bounds(folder: Path, bounds: dict, runs: list[dict]) -> None:
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    from cellsim.numbers import percent
+    from cellsim.validation.bound import probability
+
+    table = Table(title=f"Safety conditions over the runs of {folder}", title_justify="left")
+    for column in ("condition", "violating runs", "rate", f"upper bound ({percent(bounds['confidence'])})"):
+        table.add_column(column, justify="left" if column == "condition" else "right")
+
+    def row(name, figures, style=""):
+        failures, n = figures["failures"], figures["runs"]
+        mark = f"[red]{failures}[/red]" if failures else "0"
+        table.add_row(f"{style}{escape(name)}", f"{mark} of {n}", probability(figures["rate"]), probability(figures["upper_bound"]))
+
+    for name, figures in bounds["conditions"].items():
+        row(name, figures)
+    row("any condition", bounds["overall"], "[bold]")
+    console = Console()
+    console.print(table)
+    console.print(f"The upper bound is the {bounds['method']}, {bounds['counted']}.", highlight=False)
+    console.print(f"It holds for runs drawn as this campaign's: {escape(bounds['sampling'])}.", highlight=False)
+    failed = [r["run"] for r in runs if r["status"] == "failed"]
+    if failed:
+        console.print(f"[yellow]{len(failed)} run(s) left out, not checkable: {', '.join(failed[:8])}[/yellow]")
 
 
 def print_verdicts(run: Path, checked) -> None:

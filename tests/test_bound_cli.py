@@ -1,0 +1,94 @@
+"""The bound as a user meets it: ``cellsim campaign`` (results.json and ``--until-bound``) and
+``cellsim check`` on a campaign folder, run as processes."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+
+import pytest
+from conftest import ROOT, WELDING_CELL
+
+from cellsim.validation.bound import probability, runs_needed, upper_bound
+
+TWO_OPERATORS = ROOT / "scenarios" / "two_operators.yaml"
+
+
+def _cellsim(*args, timeout=600):
+    return subprocess.run([sys.executable, "-m", "cellsim", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout, cwd=ROOT, env={**__import__("os").environ, "COLUMNS": "200"})
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory):
+    """``--until-bound 0.5`` on the welding cell: five runs, none violating."""
+    out = tmp_path_factory.mktemp("bound") / "clean"
+    return _cellsim("campaign", WELDING_CELL, "--until-bound", "0.5", "--jobs", "2", "--out", out), out
+
+
+def test_until_bound_says_how_many_runs_it_takes_then_stops_there(clean):
+    done, out = clean
+    assert done.returncode == 0, done.stderr
+    assert f"takes {runs_needed(0.5)} runs without a violation" in done.stderr
+    results = json.loads((out / "results.json").read_text())
+    assert results["totals"]["runs"] == runs_needed(0.5) == 5
+    assert results["campaign"]["until_bound"] == 0.5
+    bounds = results["bounds"]
+    assert bounds["overall"] == {"failures": 0, "runs": 5, "rate": 0.0, "upper_bound": upper_bound(0, 5)}
+    assert bounds["overall"]["upper_bound"] < 0.5 and "reached" in done.stdout
+    assert set(bounds["conditions"]) == set(results["campaign"]["conditions"])
+    # the distribution it holds under: the scenario's samplers, in words
+    assert "operator_waits" in bounds["sampling"] and "summing to 20" in bounds["sampling"]
+    assert "Clopper-Pearson" in bounds["method"] and "counts as violating it" in bounds["counted"]
+
+
+def test_check_on_a_campaign_folder_gives_each_conditions_rate_and_bound(clean):
+    _, out = clean
+    done = _cellsim("check", out)
+    assert done.returncode == 0, done.stderr
+    assert "any condition" in done.stdout and "0 of 5" in done.stdout
+    assert probability(upper_bound(0, 5)) in done.stdout and "operator_waits" in done.stdout
+    as_json = json.loads(_cellsim("check", out, "--json").stdout)
+    stored = json.loads((out / "results.json").read_text())["bounds"]
+    assert as_json["bounds"]["overall"] == stored["overall"] and as_json["bounds"]["sampling"] == stored["sampling"]
+    assert [r["run"] for r in as_json["runs"]] == ["0000", "0001", "0002", "0003", "0004"]
+
+
+def test_check_on_a_campaign_folder_leaves_an_unreadable_run_out_and_says_so(clean, tmp_path):
+    _, out = clean
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    (copy / "runs" / "0003" / "blackbox.sqlite").unlink()
+    done = _cellsim("check", copy, "--json")
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout)
+    assert result["bounds"]["excluded_failed_runs"] == 1 and result["bounds"]["overall"]["runs"] == 4
+    assert [r["status"] for r in result["runs"]].count("failed") == 1
+
+
+def test_until_bound_stops_at_the_first_violation_and_says_the_violation_is_the_finding(tmp_path):
+    out = tmp_path / "misuse"
+    done = _cellsim("campaign", TWO_OPERATORS, "--until-bound", "0.01", "--jobs", "1", "--out", out)
+    assert done.returncode == 1, done.stderr
+    assert f"takes {runs_needed(0.01)} runs" in done.stderr
+    results = json.loads((out / "results.json").read_text())
+    runs = results["runs"]
+    assert runs and runs[-1]["violations"] and not any(r["violations"] for r in runs[:-1])  # one worker: it stopped there
+    assert len(runs) < runs_needed(0.01) and results["bounds"]["overall"]["failures"] == 1
+    assert "the violation is the finding" in done.stdout
+    # asked again, it does not run on past the violation
+    again = _cellsim("campaign", TWO_OPERATORS, "--until-bound", "0.01", "--jobs", "1", "--out", out)
+    assert again.returncode == 1 and len(json.loads((out / "results.json").read_text())["runs"]) == len(runs)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--until-bound", "0"], "must be a probability in (0, 1)"),
+    (["--until-bound", "1.5"], "must be a probability in (0, 1)"),
+    (["--until-bound", "0.1", "--runs", "3"], "not both"),
+    (["--until-bound", "1e-6"], "needs 2,995,731 runs"),
+])
+def test_a_bad_until_bound_is_one_line_and_exit_2(tmp_path, args, message):
+    done = _cellsim("campaign", WELDING_CELL, *args, "--out", tmp_path / "c")
+    assert done.returncode == 2 and message in done.stderr and not (tmp_path / "c").exists()
