@@ -4,6 +4,7 @@ by stormpy on its own, and a plug-in kind without an abstraction refused in one 
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -18,9 +19,17 @@ from conftest import ROOT, WELDING_CELL
 from test_module_kinds import cellsim, scenario_with, site  # noqa: F401 - the plug-in site fixture
 
 
+def _one_core() -> None:
+    """Keep a verify process to one CPU, this pytest-xdist worker's share: Storm's decision-diagram engine
+    starts a thread per core, which would starve a real-time twin another worker is testing."""
+    cpus = sorted(os.sched_getaffinity(0))
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw")
+    os.sched_setaffinity(0, {cpus[int(worker or 0) % len(cpus)]})
+
+
 def _verify(*args: str, cwd=None) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "cellsim", "verify", *args], capture_output=True, text=True,
-                          timeout=600, cwd=cwd)
+                          timeout=600, cwd=cwd, preexec_fn=_one_core)
 
 
 @pytest.fixture(scope="module")
