@@ -14,8 +14,9 @@ Its safety mode is the one requested, from the next period on. The tool's speed,
 as read, is any value its ``SpeedEnvelope`` allows: up to the cap in force, and
 after a cap ends, falling to zero within the braking time (read late by the
 telemetry period and the controller's tracking). The model keeps, per threshold
-the guards compare the speed with, a countdown of the periods a speed at or
-above it may still be read; the tool makes progress only while some speed is.
+the guards compare the speed with, a countdown of the periods a speed above it
+(and, where a cap equals it, at it) may still be read; the tool makes progress
+only while some speed may be.
 """
 
 from __future__ import annotations

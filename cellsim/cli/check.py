@@ -75,6 +75,10 @@ def run(args) -> int:
     return EXIT_OK if result.all_hold else EXIT_FINDING
 
 
+PROGRESS_FROM = 50
+"""Checking a campaign of this many runs or more shows a progress bar (on standard error)."""
+
+
 def is_campaign(path: Path) -> bool:
     from cellsim.campaign.runner import PLAN
 
@@ -101,16 +105,23 @@ def check_campaign(args) -> int:
     folders = sorted(p for p in (args.run / RUNS).glob("*") if p.is_dir())
     if not folders:
         raise InputError(f"{args.run}: a campaign folder with no runs yet")
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
     runs, conditions = [], {}
-    for folder in folders:
-        try:
-            result = check(folder, sf).result
-        except (CheckError, BlackBoxError, TraceError) as e:  # a run that never finished, or was damaged
-            runs.append({"run": folder.name, "status": "failed", "error": str(e)})
-            continue
-        conditions.update(dict.fromkeys(result.verdicts))
-        runs.append({"run": folder.name, "status": "completed", "violations": result.violations,
-                     "undecided": result.undecided})
+    with Progress(TextColumn("checking runs"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                  console=Console(stderr=True), transient=True, disable=len(folders) < PROGRESS_FROM) as progress:
+        task = progress.add_task("check", total=len(folders))
+        for folder in folders:
+            progress.advance(task)
+            try:
+                result = check(folder, sf).result
+            except (CheckError, BlackBoxError, TraceError) as e:  # a run that never finished, or was damaged
+                runs.append({"run": folder.name, "status": "failed", "error": str(e)})
+                continue
+            conditions.update(dict.fromkeys(result.verdicts))
+            runs.append({"run": folder.name, "status": "completed", "violations": result.violations,
+                         "undecided": result.undecided})
     try:
         sampling = json.loads((args.run / RESULTS).read_text())["bounds"]["sampling"]
     except (OSError, ValueError, KeyError, TypeError):
