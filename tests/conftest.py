@@ -11,6 +11,12 @@ from cellsim.services.blackbox import BlackBox
 from cellsim.simulation import BLACKBOX, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
+
+ONE_AT_A_TIME = pytest.mark.xdist_group("cores")
+"""Tests that need the cores in real time (a live twin's pacing, a bridge's latency) or take both (a
+campaign's two workers, Storm's decision-diagram engine) run one after another on one pytest-xdist
+worker (``--dist loadgroup``, in pyproject's addopts), never beside each other: on the two cores of
+CI, a live twin beside a two-worker campaign loses its pacing."""
 WELDING_CELL = ROOT / "scenarios" / "welding_cell.yaml"
 
 

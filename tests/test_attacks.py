@@ -14,13 +14,14 @@ import threading
 import time
 
 import pytest
+from conftest import ONE_AT_A_TIME
 
 from cellsim.live.codec import encode_fields
 from cellsim.services.blackbox import BlackBox
 
 from live_processes import ROOT, ChannelWatch, free_port, observer, processes, wait_alive
 
-pytestmark = pytest.mark.slow  # processes on loopback: skip locally with -m "not slow"
+pytestmark = [pytest.mark.slow, ONE_AT_A_TIME]  # processes on loopback: skip locally with -m "not slow"
 
 WELDING_CELL = str(ROOT / "scenarios" / "welding_cell.yaml")
 CURTAIN = "cellsim/welding_cell/physical/light_barrier"

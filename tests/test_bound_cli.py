@@ -9,10 +9,11 @@ import subprocess
 import sys
 
 import pytest
-from conftest import ROOT, WELDING_CELL
+from conftest import ONE_AT_A_TIME, ROOT, WELDING_CELL
 
 from cellsim.validation.bound import probability, runs_needed, upper_bound
 
+pytestmark = ONE_AT_A_TIME  # a campaign's two workers take both cores
 TWO_OPERATORS = ROOT / "scenarios" / "two_operators.yaml"
 
 

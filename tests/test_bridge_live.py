@@ -15,6 +15,7 @@ import time
 
 import can
 import pytest
+from conftest import ONE_AT_A_TIME
 
 from cellsim.services.blackbox import BlackBox
 
@@ -22,7 +23,7 @@ from live_processes import (ROOT, assert_supervised, can_server, free_port, obse
                             sim_time_reached, wait_alive, wait_for)
 
 
-pytestmark = pytest.mark.slow  # processes on loopback: skip locally with -m "not slow"
+pytestmark = [pytest.mark.slow, ONE_AT_A_TIME]  # processes on loopback: skip locally with -m "not slow"
 WELDING_CELL = str(ROOT / "scenarios" / "welding_cell.yaml")
 BRIDGE = str(ROOT / "bridges" / "welding_cell.yaml")
 ENTITIES = ("robot", "welder", "light_barrier", "range_detector", "operator")

@@ -14,13 +14,14 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import ROOT, WELDING_CELL
+from conftest import ONE_AT_A_TIME, ROOT, WELDING_CELL
 
 from cellsim.cli import main
 from cellsim.scenario import load_scenario
 from cellsim.services.blackbox import BlackBox
 from cellsim.simulation import simulate
 
+pytestmark = ONE_AT_A_TIME  # a campaign's two workers take both cores
 TWO_OPERATORS = ROOT / "scenarios" / "two_operators.yaml"
 WAITS = [f"operator.waypoints.{w}.wait" for w in ("bench_entrance", "bench", "cell_entrance", "cell", "exit")]
 

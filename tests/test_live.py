@@ -8,6 +8,7 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import ONE_AT_A_TIME
 
 from cellsim.services.blackbox import BlackBox
 
@@ -15,7 +16,7 @@ from live_processes import (ROOT, ChannelWatch, assert_supervised, free_port, ob
                             sim_time_reached, wait_alive)
 
 
-pytestmark = pytest.mark.slow  # processes on loopback: skip locally with -m "not slow"
+pytestmark = [pytest.mark.slow, ONE_AT_A_TIME]  # processes on loopback: skip locally with -m "not slow"
 WELDING_CELL = str(ROOT / "scenarios" / "welding_cell.yaml")
 ENTITIES = ("robot", "welder", "light_barrier", "range_detector", "operator")
 ALL_SHADOW = [arg for e in ENTITIES for arg in ("--set", f"{e}.twin.mode=shadow")]

@@ -14,7 +14,7 @@ from cellsim.config.typed_yaml import ConfigError
 from cellsim.scenario import load_scenario
 from cellsim.services.blackbox import BlackBox
 
-from conftest import ROOT, first_time
+from conftest import ONE_AT_A_TIME, ROOT, first_time
 
 PALLETISING_CELL = ROOT / "scenarios" / "palletising_cell.yaml"
 WELDING_WORDS = ("weld", "sharedtbl", "exchwrkp", "hrw", "rngdet", "lgtbar", "otab", "leavewrkb", "wact", "ract", "rloc")
@@ -68,6 +68,7 @@ def test_the_curtain_stays_tripped_until_the_operator_presses_reset(default_run)
     assert mode.value_at(cleared - 0.1) == "srmst"
 
 
+@ONE_AT_A_TIME  # a campaign's two workers take both cores
 def test_a_small_campaign_gives_coverage_of_the_cells_own_domains(tmp_path):
     out = tmp_path / "campaign"
     proc = subprocess.run(

@@ -18,12 +18,13 @@ import shutil
 import zlib
 
 import pytest
-from conftest import ROOT
+from conftest import ONE_AT_A_TIME, ROOT
 from test_report import DURATION, EVIDENCE, HOSTILE, HS_PIECES, RESULTS, TIMELINE, hostile_results
 
 from cellsim.campaign.report import BOOL_COLOURS, PHASE_COLOURS, render_report
 from cellsim.cli import main
 
+pytestmark = ONE_AT_A_TIME  # a campaign's two workers take both cores
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 TWO_OPERATORS = ROOT / "scenarios" / "two_operators.yaml"
 

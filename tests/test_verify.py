@@ -15,7 +15,7 @@ import stormpy
 
 from cellsim.scenario import load_scenario
 
-from conftest import ROOT, WELDING_CELL
+from conftest import ONE_AT_A_TIME, ROOT, WELDING_CELL
 from test_module_kinds import cellsim, scenario_with, site  # noqa: F401 - the plug-in site fixture
 
 
@@ -183,6 +183,7 @@ def test_a_witness_of_a_cell_verified_with_set_overrides_keeps_them(tmp_path):
 
 
 @pytest.mark.slow
+@ONE_AT_A_TIME
 def test_the_palletising_cell_verifies_with_every_mishap_unreachable(tmp_path):
     """Its hundreds of millions of transitions do not fit state by state (it was killed for memory): verify
     checks it with Storm's dd engine. With the robot's braking modelled (its speed envelope), every mishap
