@@ -26,6 +26,12 @@ def add_parser(subparsers) -> None:
     )
     chk.add_argument("--json", action="store_true", help="print the verdicts as JSON on standard output")
     chk.add_argument(
+        "--robustness", action="store_true",
+        help="also give each condition's margins: how far its numeric thresholds (space, in their units) and "
+        "its deadlines (time, s) could move against it before the verdict changes; negative when violated "
+        "(docs/condition-language.md, Robustness)",
+    )
+    chk.add_argument(
         "--export-trace", type=Path, metavar="FILE", help="also write the trace as JSON: {variable: [[t, value], ...]}"
     )
     chk.set_defaults(handler=run)
@@ -48,6 +54,7 @@ def run(args) -> int:
     except (CheckError, BlackBoxError, TraceError) as e:
         raise InputError(str(e)) from None
     result = checked.result
+    margins = _margins(checked) if args.robustness else None
     if args.export_trace:
         write_trace_json(checked.trace, args.export_trace)
     if args.json:
@@ -65,18 +72,33 @@ def run(args) -> int:
                 "undecided": result.undecided,
                 "use_cases": result.use_cases,
                 "coverage": result.coverage,
+                **({"robustness": {name: m.to_json() for name, m in margins.items()}} if margins else {}),
             },
             sys.stdout,
             indent=2,
         )
         sys.stdout.write("\n")
     else:
-        print_verdicts(args.run, checked)
+        print_verdicts(args.run, checked, margins)
     return EXIT_OK if result.all_hold else EXIT_FINDING
+
+
+def _margins(checked) -> dict:
+    """Each condition's robustness on the run (cellsim.logic.robustness)."""
+    from cellsim.logic.robustness import robustness
+
+    return {name: robustness(formula, checked.trace.trace) for name, formula in checked.case.conditions.items()}
 
 
 PROGRESS_FROM = 50
 """Checking a campaign of this many runs or more shows a progress bar (on standard error)."""
+
+
+def _margin(x: float, unit: str = "") -> str:
+    """A margin for people: its value, or 'any' / 'none' where no move of that kind changes the verdict."""
+    import math
+
+    return f"{x:.3g}{unit}" if math.isfinite(x) else ("any" if x > 0 else "none")
 
 
 def is_campaign(path: Path) -> bool:
@@ -164,7 +186,7 @@ def print_bounds(folder: Path, bounds: dict, runs: list[dict]) -> None:
         console.print(f"[yellow]{len(failed)} run(s) left out, not checkable: {', '.join(failed[:8])}[/yellow]")
 
 
-def print_verdicts(run: Path, checked) -> None:
+def print_verdicts(run: Path, checked, margins: dict | None = None) -> None:
     from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
@@ -177,6 +199,9 @@ def print_verdicts(run: Path, checked) -> None:
     table.add_column("condition", style="bold")
     table.add_column("verdict")
     table.add_column("first violation")
+    if margins:
+        table.add_column("margin: space", justify="right")
+        table.add_column("time", justify="right")
     table.add_column("formula", style="dim")
     for name, verdict in result.verdicts.items():
         mark = {Verdict.HOLDS: "[green]holds[/green]", Verdict.VIOLATED: "[red]VIOLATED[/red]"}.get(
@@ -184,7 +209,8 @@ def print_verdicts(run: Path, checked) -> None:
         )
         when = "" if verdict.violated_at is None or verdict.holds else f"t = {instant(verdict.violated_at)}"
         description = description_of(conditions[name])
-        table.add_row(name, mark, when,
+        cells = [_margin(margins[name].space), _margin(margins[name].time, " s")] if margins else []
+        table.add_row(name, mark, when, *cells,
                       escape(formula_of(conditions[name])) + (f"\n[italic]{escape(description)}[/italic]" if description else ""))
     console = Console()
     if not checked.trace.complete:
