@@ -57,6 +57,14 @@ def test_check_on_a_campaign_folder_gives_each_conditions_rate_and_bound(clean):
     assert [r["run"] for r in as_json["runs"]] == ["0000", "0001", "0002", "0003", "0004"]
 
 
+@pytest.mark.parametrize("flag", [["--robustness"], ["--export-trace", "t.json"]])
+def test_a_one_run_option_on_a_campaign_folder_is_one_line_and_exit_2(clean, flag, tmp_path):
+    _, out = clean
+    done = _cellsim("check", out, *[str(tmp_path / f) if f.endswith(".json") else f for f in flag])
+    assert done.returncode == 2 and f"{flag[0]} takes one run" in done.stderr and done.stdout == ""
+    assert not (tmp_path / "t.json").exists()
+
+
 def test_check_on_a_campaign_folder_leaves_an_unreadable_run_out_and_says_so(clean, tmp_path):
     _, out = clean
     copy = tmp_path / "copy"

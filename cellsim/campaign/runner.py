@@ -102,11 +102,6 @@ class CampaignPlan:
     those already started finish and are kept, and the campaign resumes from there if asked again."""
 
 
-def _counts_against(result: dict) -> bool:
-    """Whether a finished run violates a condition or leaves one undecided (and so ends ``--until-bound``)."""
-    return bool(result.get("violations") or result.get("undecided"))
-
-
 def run_dir(out: Path, index: int) -> Path:
     return out / RUNS / f"{index:04d}"
 
@@ -388,7 +383,9 @@ def _run_locked(plan, out: Path, jobs, on_progress, restart, inputs, identity, w
             )
 
     report_progress()
-    stop = (lambda: any(_counts_against(r) for r in results.values())) if plan.until_bound is not None else (lambda: False)
+    from cellsim.validation.bound import counts_against
+
+    stop = (lambda: any(counts_against(r) for r in results.values())) if plan.until_bound is not None else (lambda: False)
     if todo and not stop():
         if jobs <= 1:
             for index in todo:

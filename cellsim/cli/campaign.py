@@ -165,11 +165,7 @@ def print_campaign(outcome) -> None:
     bounds = outcome.results.get("bounds")
     target = outcome.results["campaign"].get("until_bound")
     if bounds and target is not None:
-        upper = bounds["overall"]["upper_bound"]
-        table.add_row("--until-bound", f"[green]reached: {upper:.3g} < {target:g}[/green]" if upper < target else
-                      f"[red]not reached: {bounds['overall']['failures']} violating run(s) in {bounds['overall']['runs']}; "
-                      "the violation is the finding, not the bound[/red]" if bounds["overall"]["failures"] else
-                      f"not reached yet: {upper:.3g} after {bounds['overall']['runs']} runs (run the same command to go on)")
+        table.add_row("--until-bound", _until_bound_text(bounds["overall"], target))
     if bounds:
         table.add_row(f"violation rate, {percent(bounds['confidence'])} upper bound", _bound_text(bounds))
     table.add_row("use cases", ", ".join(f"{u} {n}" for u, n in totals["use_cases"].items()) or "-")
@@ -185,6 +181,16 @@ def print_campaign(outcome) -> None:
         console.print(f"The bound is the {bounds['method']}, {bounds['counted']}. It holds for runs drawn as this "
                       f"campaign's: {bounds['sampling']}. Every condition's: cellsim check {outcome.results_path.parent}",
                       highlight=False, markup=False)
+
+
+def _until_bound_text(overall: dict, target: float) -> str:
+    """Whether ``--until-bound`` reached its target, stopped at a violation, or has runs still to do."""
+    upper, failures, runs = overall["upper_bound"], overall["failures"], overall["runs"]
+    if failures:
+        return f"[red]not reached: {failures} violating run(s) in {runs}; the violation is the finding, not the bound[/red]"
+    if upper < target:
+        return f"[green]reached: {upper:.3g} < {target:g}[/green]"
+    return f"not reached yet: {upper:.3g} after {runs} runs (run the same command to go on)"
 
 
 def _bound_text(bounds: dict) -> str:

@@ -118,8 +118,9 @@ def check_campaign(args) -> int:
     from cellsim.validation.check import CheckError, check
     from cellsim.validation.traces import TraceError
 
-    if args.export_trace:
-        raise InputError(f"{args.run} is a campaign folder: --export-trace takes one run")
+    for flag, given in (("--export-trace", args.export_trace), ("--robustness", args.robustness)):
+        if given:
+            raise InputError(f"{args.run} is a campaign folder: {flag} takes one run (check one of {args.run / RUNS})")
     try:
         sf = load_scenario(args.scenario) if args.scenario else None
     except CheckError as e:

@@ -102,8 +102,9 @@ COUNTING = ("over the completed runs (a run that could not be simulated is left 
             "a run where a condition could not be decided (missing data, inconclusive) counts as violating it")
 
 
-def _fails(run: dict, condition: str | None) -> bool:
-    """Whether a completed run counts against ``condition`` (None: against any condition)."""
+def counts_against(run: dict, condition: str | None = None) -> bool:
+    """Whether a completed run counts against ``condition`` (None: against any condition): it violated it
+    or left it undecided. The one rule for the bound and for where ``--until-bound`` stops."""
     if condition is None:
         return bool(run.get("violations") or run.get("undecided"))
     return condition in run.get("violations", ()) or condition in run.get("undecided", ())
@@ -113,7 +114,7 @@ def campaign_bounds(runs: list[dict], conditions: list[str], sampling: str, conf
     """The ``bounds`` block of a campaign's results: per condition and for any condition, with what they
     are counted over and under which sampling distribution they hold."""
     completed = [r for r in runs if r.get("status") != "failed"]
-    overall = Bound(sum(_fails(r, None) for r in completed), len(completed), confidence)
+    overall = Bound(sum(counts_against(r) for r in completed), len(completed), confidence)
     return {
         "confidence": confidence,
         "method": METHOD,
@@ -121,7 +122,7 @@ def campaign_bounds(runs: list[dict], conditions: list[str], sampling: str, conf
         "counted": COUNTING,
         "excluded_failed_runs": len(runs) - len(completed),
         "overall": overall.to_json(),
-        "conditions": {c: Bound(sum(_fails(r, c) for r in completed), len(completed), confidence).to_json()
+        "conditions": {c: Bound(sum(counts_against(r, c) for r in completed), len(completed), confidence).to_json()
                        for c in conditions},
     }
 
