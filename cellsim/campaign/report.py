@@ -403,7 +403,7 @@ def _header(results: Mapping, runs: Sequence[Mapping]) -> dict:
     violating = _violating_runs(runs)
     meta = [
         ("Scenario", campaign.get("scenario")),
-        ("Runs", campaign.get("runs", len(runs))),
+        ("Budget" if results.get("search") else "Runs", campaign.get("runs", len(runs))),
         ("Seed", campaign.get("seed")),
         ("Duration", _seconds(campaign["duration"]) if is_number(campaign.get("duration")) else None),
         ("Created", campaign.get("created")),
@@ -476,6 +476,35 @@ def _bounds(results: Mapping) -> dict | None:
         "method": bounds.get("method"), "counted": bounds.get("counted"), "sampling": bounds.get("sampling"),
         "overall": row(bounds["overall"]),
         "conditions": {str(name): row(f) for name, f in _dict(bounds.get("conditions")).items()},
+    }
+
+
+SEARCH_ROWS = 10
+"""The most critical runs a falsification report lists."""
+
+
+def _search(results: Mapping, runs: Sequence[Mapping]) -> dict | None:
+    """A falsification search's record (results' ``search``) for people; None for a campaign."""
+    search = _dict(results.get("search"))
+    if not search:
+        return None
+
+    def score(run: Mapping) -> float:
+        value = _dict(run.get("search")).get("score")
+        return value if is_number(value) else math.inf
+
+    ranked = sorted((r for r in runs if is_number(_dict(r.get("search")).get("score"))), key=score)[:SEARCH_ROWS]
+    return {
+        "method": search.get("method"), "batch": search.get("batch"), "budget": search.get("budget"),
+        "conditions": ", ".join(map(str, _list(search.get("conditions")))),
+        "guides": ", ".join(map(str, _list(search.get("guides")))) or "none",
+        "first": search.get("first_violation"), "runs_to_first": search.get("runs_to_first_violation"),
+        "runs": search.get("runs", len(runs)), "not_a_sample": search.get("not_a_sample"),
+        "critical": [{"index": r.get("index"), "batch": _dict(r.get("search")).get("batch"),
+                      "score": f"{score(r):.3f}", "violations": ", ".join(_violated(r)) or "-"} for r in ranked],
+        "archive": [{"use_cases": ", ".join(map(str, _list(c.get("use_cases")))) or "none",
+                     "situation": c.get("situation"), "score": f"{c['score']:.3f}" if is_number(c.get("score")) else "-"}
+                    for c in (_dict(c) for c in _list(search.get("archive")))],
     }
 
 
@@ -842,7 +871,9 @@ def render_report(
     css, script = _assets()
     return _environment().get_template("report.html.j2").render(
         name=campaign.get("scenario_name") or campaign.get("scenario") or "campaign",
-        nav=NAV,
+        nav=((("search", "Search"),) + NAV) if results.get("search") else NAV,
+        search=_search(results, runs),
+        excluded=_dict(results.get("bounds")).get("excluded"),
         header=_header(results, runs),
         summary=_summary(results, runs),
         conditions=_condition_rows(results, runs),

@@ -141,12 +141,18 @@ def _safety_case(plan: CampaignPlan):
     return scenario_safety_case(_base_scenario(plan))
 
 
-def execute_run(plan: CampaignPlan, out: Path, index: int, origin: dict | None = None) -> dict:
+def execute_run(plan: CampaignPlan, out: Path, index: int, origin: dict | None = None,
+                configuration: dict[str, object] | None = None, search: dict | None = None) -> dict:
     """Simulate and check run ``index``; returns its result (also written to its folder).
 
     ``origin`` is the campaign's part of the run's provenance (its command line,
     folder and content hash), recorded in the black box; the result carries the
     content hash as ``inputs_hash``, so a resumed campaign keeps only its own runs.
+
+    ``configuration`` is the run's, when a search chose it (else it is drawn from the
+    samplers); ``search`` is then the run's place in the search, kept in its result,
+    and the result also carries each condition's robustness and each guide's meeting
+    distance (``margins``), which the search reads.
 
     Never raises for a problem of the run itself: a run that fails is reported
     with ``status: failed`` and the error, and the campaign goes on.
@@ -157,10 +163,13 @@ def execute_run(plan: CampaignPlan, out: Path, index: int, origin: dict | None =
 
     sc = _base_scenario(plan).scenario
     points = {name: point.paths for name, point in sc.configuration_points.items()}
-    configuration = draw_configuration(sc.campaign.samplers, points, plan.seed, index)
+    if configuration is None:
+        configuration = draw_configuration(sc.campaign.samplers, points, plan.seed, index)
     seed = run_seed(plan.seed, index)
     folder = run_dir(out, index)
     result: dict = {"index": index, "seed": seed, "configuration": configuration, "out": str(folder.relative_to(out))}
+    if search is not None:
+        result["search"] = search
     origin = origin or {}
     if "campaign" in origin:
         result["inputs_hash"] = origin["campaign"].get("inputs_hash")
@@ -189,12 +198,27 @@ def execute_run(plan: CampaignPlan, out: Path, index: int, origin: dict | None =
             cycles_completed=summary.cycles_completed,
             wall_time=time.perf_counter() - started,
         )
+        if search is not None:
+            result["margins"] = margins_of(case, checked_run.trace.trace)
     except Exception as e:  # noqa: BLE001 - a failed run is a result, not the campaign's end
         result.update(status="failed", error=f"{type(e).__name__}: {e}", wall_time=time.perf_counter() - started)
     result["timing"] = timing
     folder.mkdir(parents=True, exist_ok=True)
     _write_json(folder / RESULT, result)
     return result
+
+
+def margins_of(case, trace) -> dict:
+    """Each condition's robustness and each guide's meeting distance (s) on a run's trace, as JSON."""
+    from cellsim.logic.robustness import meeting, robustness
+
+    def number(x: float) -> float | str:
+        return x if x == x and abs(x) != float("inf") else ("inf" if x > 0 else "-inf")
+
+    return {
+        "robustness": {name: robustness(f, trace).to_json() for name, f in case.conditions.items()},
+        "guides": {name: number(meeting(a, b, trace)) for name, (a, b) in case.guides.items()},
+    }
 
 
 def _write_json(path: Path, data, indent: int | None = 1) -> None:
@@ -264,6 +288,9 @@ def prepare(plan: CampaignPlan, out: Path, identity: dict, restart: bool = False
                 old = previous.get("identity")
             except (json.JSONDecodeError, AttributeError) as e:
                 raise CampaignError(f"{plan_path}: unreadable ({e}); {RESTART_HINT}") from None
+            if previous.get("search") is not None:
+                raise CampaignError(f"{out} holds a falsification search, whose runs were chosen, not drawn at random: "
+                                    f"they are never counted as a campaign's; {RESTART_HINT}")
             if not isinstance(old, dict) or "hash" not in old:
                 raise CampaignError(
                     f"{out} holds a campaign of an earlier cellsim, which did not record the content of its inputs, "
@@ -475,9 +502,11 @@ def _end_with_parent(parent: int) -> None:
     threading.Thread(target=watch, name="cellsim-parent-watch", daemon=True).start()
 
 
-def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start: float, record: dict | None = None) -> CampaignOutcome:
+def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start: float, record: dict | None = None,
+           search: dict | None = None) -> CampaignOutcome:
     """Totals, results.json and report.html from the runs' results; ``record`` is the
-    campaign's provenance (:func:`cellsim.provenance.provenance`)."""
+    campaign's provenance (:func:`cellsim.provenance.provenance`); ``search``, the
+    falsification search's record when a search chose the runs (then no bound is given)."""
     from cellsim.campaign.report import write_report
     from cellsim.scenario import unit_of
     from cellsim.validation.bound import campaign_bounds
@@ -518,7 +547,7 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
             "use_cases": {u: sum(u in r.get("use_cases", ()) for r in runs) for u in sc.validation.use_cases},
             "coverage": coverage.to_json(),
         },
-        "bounds": campaign_bounds(runs, conditions, describe_sampling(
+        "bounds": {"excluded": search["not_a_sample"]} if search else campaign_bounds(runs, conditions, describe_sampling(
             sc.campaign.samplers, {name: point.paths for name, point in sc.configuration_points.items()})),
         "timing": {
             "simulate": stage("simulate"),
@@ -527,6 +556,8 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
             "coverage": t_coverage,
         },
     }
+    if search:
+        results["search"] = search
     t0 = time.perf_counter()
     timelines = {r["index"]: trace for r in runs if (trace := _run_trace(out, r, sc)) is not None}
     phases, units = _channel_facts(out, runs, sc.validation.variables)

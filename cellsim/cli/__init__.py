@@ -21,6 +21,7 @@ from cellsim.cli import (
     check,
     dashboard,
     emulate,
+    falsify,
     live,
     modules,
     replay,
@@ -53,7 +54,7 @@ __all__ = [
     "_open_session", "_terminate_as_interrupt",
 ]
 
-COMMANDS = (simulate, check, verify, campaign, replay, modules, scenario, live, emulate, bridge, dashboard, twin_mode)
+COMMANDS = (simulate, check, verify, campaign, falsify, replay, modules, scenario, live, emulate, bridge, dashboard, twin_mode)
 """The commands, in the order of ``cellsim --help``: each a module with ``add_parser`` and ``run``."""
 
 

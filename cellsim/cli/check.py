@@ -145,6 +145,10 @@ def check_campaign(args) -> int:
             conditions.update(dict.fromkeys(result.verdicts))
             runs.append({"run": folder.name, "status": "completed", "violations": result.violations,
                          "undecided": result.undecided})
+    from cellsim.campaign.falsify import NOT_A_SAMPLE, read_search
+
+    if read_search(args.run) is not None:  # a search chose these runs: they bound nothing
+        return _report_search_runs(args, runs, list(conditions), NOT_A_SAMPLE)
     try:
         sampling = json.loads((args.run / RESULTS).read_text())["bounds"]["sampling"]
     except (OSError, ValueError, KeyError, TypeError):
@@ -156,6 +160,32 @@ def check_campaign(args) -> int:
     else:
         print_bounds(args.run, bounds, runs)
     return EXIT_FINDING if bounds["overall"]["failures"] else EXIT_OK
+
+
+def _report_search_runs(args, runs: list[dict], conditions: list[str], reason: str) -> int:
+    """A falsification folder's runs re-checked: which violate what, and no bound (``reason``)."""
+    import json
+
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    checked = [r for r in runs if r["status"] != "failed"]
+    violating = {c: [r["run"] for r in checked if c in r["violations"]] for c in conditions}
+    if args.json:
+        json.dump({"campaign": str(args.run), "bounds": {"excluded": reason}, "runs": runs}, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        table = Table(title=f"Safety conditions over the runs of the search in {args.run}", title_justify="left")
+        table.add_column("condition")
+        table.add_column("violating runs", justify="right")
+        for name, found in violating.items():
+            table.add_row(escape(name), f"[red]{len(found)}[/red] of {len(checked)}: {', '.join(found[:8])}" if found
+                          else f"0 of {len(checked)}")
+        console = Console()
+        console.print(table)
+        console.print(f"No violation rate or bound: {escape(reason)}.", highlight=False)
+    return EXIT_FINDING if any(r["violations"] for r in checked) else EXIT_OK
 
 
 def print_bounds(folder: Path, bounds: dict, runs: list[dict]) -> None:

@@ -187,3 +187,20 @@ def _nodes(node):
     yield node
     for child in _children(node):
         yield from _nodes(child)
+
+
+def meeting(first: Formula, second: Formula, trace: Trace) -> float:
+    """How far two situations were from holding together on ``trace`` (s): a falsification guide.
+
+    Positive: the shortest time between an instant where ``first`` held and one where
+    ``second`` did (``inf`` when either never held); zero: one began as the other
+    ended; negative: they held together, for minus that long in total. Smaller is
+    closer to their meeting.
+    """
+    evaluator = TraceEvaluator(trace)
+    a, b = evaluator.satisfaction(first), evaluator.satisfaction(second)
+    together = a.intersection(b)
+    if not together.is_empty():
+        return -together.measure()
+    gaps = [max(lo2 - hi1, lo1 - hi2) for lo1, hi1 in a for lo2, hi2 in b]
+    return min(gaps, default=math.inf)

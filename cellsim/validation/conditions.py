@@ -120,6 +120,8 @@ class SafetyCase:
     coverage: CoverageModel
     macros: dict[str, Formula] | None = None
     """Each macro, expanded: the names explanations give the sub-formulas of a condition."""
+    guides: dict[str, tuple[Formula, Formula]] = field(default_factory=dict)
+    """Each falsification guide's two situations (``validation.guides``)."""
 
     @classmethod
     def compile(cls, validation: Validation, vocabulary: dict, locate: Locate) -> SafetyCase:
@@ -152,7 +154,14 @@ class SafetyCase:
             raise ConfigError(*locate(f"validation.{e.key}"), str(e)) from None
         except ValueError as e:
             raise ConfigError(*locate("validation.coverage"), str(e)) from None
-        return cls(validation, conditions, use_cases, coverage, macros)
+        for name, g in validation.guides.items():
+            for i, target in enumerate(g.conditions):
+                if target not in conditions:
+                    hint = suggest(target, conditions) or f" (conditions: {', '.join(conditions) or 'none'})"
+                    raise ConfigError(*locate(f"validation.guides.{name}.conditions.{i}"), f"no condition named '{target}'{hint}")
+        guides = {name: tuple(formula(f"validation.guides.{name}.meet.{i}", text) for i, text in enumerate(g.meet))
+                  for name, g in validation.guides.items()}
+        return cls(validation, conditions, use_cases, coverage, macros, guides)
 
     def check(self, trace: Trace, *, complete: bool = True, recorded: set[str] | None = None) -> CheckResult:
         """Verdicts, use cases and covered situations of one trace.

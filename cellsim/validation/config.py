@@ -22,6 +22,8 @@ written beside ``file`` are added to the file's)::
       sep: {edges: [0.5, 1.0, 2.0]}
     domains:                 # the values coverage counts, where not all of them
       safmod: [normal, ssmon, pflim, stopped]
+    guides:                  # for `cellsim falsify`: situations whose meeting stresses the controller
+      HS while HRW is handled: {meet: [HS_e, HRW != inact], conditions: ["HS:detected"]}
 
 Every recorded scalar channel is a trace variable under its own name
 (``robot.safety_mode``) too; ``variables`` adds the short names the formulas use.
@@ -43,6 +45,28 @@ class Described:
     """The MTL formula."""
     description: str = ""
     """What it means, in the cell's words: shown wherever the formula is."""
+
+
+@dataclass
+class Guide:
+    """Two situations the falsification search steers towards each other (``cellsim falsify``).
+
+    A run's distance to the guide is the time between the moments the two formulas
+    held (s), or minus how long they held together; see docs/falsify.md.
+    """
+
+    meet: list[str]
+    """The two formulas, each over the section's variables and macros."""
+    conditions: list[str] = field(default_factory=list)
+    """The conditions whose violation their meeting leads to; default: every condition."""
+    description: str = ""
+    """Why their meeting matters, in the cell's words."""
+
+    def __post_init__(self) -> None:
+        from cellsim.config.typed_yaml import FieldError
+
+        if len(self.meet) != 2:
+            raise FieldError("meet", f"must list exactly two formulas, got {len(self.meet)}")
 
 
 def formula_of(entry: str | Described) -> str:
@@ -79,10 +103,12 @@ class Validation:
     verify: dict[str, str | Described] = field(default_factory=dict)
     """Property name -> PCTL checked by ``cellsim verify`` on the abstract model, each double-quoted
     string a formula of the condition language (``Pmax=? [ F "HS == act and oloc == inCell" ]``)."""
+    guides: dict[str, Guide] = field(default_factory=dict)
+    """Guide name -> two situations ``cellsim falsify`` steers runs to meet (``{meet: [A, B]}``)."""
 
     @property
     def is_empty(self) -> bool:
         return not (
             self.variables or self.macros or self.conditions or self.use_cases or self.coverage or self.bins
-            or self.domains or self.verify
+            or self.domains or self.verify or self.guides
         )

@@ -1,0 +1,142 @@
+"""``cellsim falsify``: search the scenario's configuration space for a run that violates a condition."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+from cellsim.cli.common import EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, InputError, _add_set, _load
+
+
+def add_parser(subparsers) -> None:
+    cmd = subparsers.add_parser(
+        "falsify",
+        help="search for a run that violates a safety condition (CMA-ES, quality diversity, or random)",
+        description="Search the configuration space the scenario's campaign samplers define (their ranges, "
+        "choices and simplexes) for a run that violates a safety condition, choosing each run from the scores "
+        "of those before it: the conditions' robustness (how far a run was from violating them) and the "
+        "validation section's guides (two situations whose meeting stresses the controller). Stops at the first "
+        "violation or after --budget runs. Every run is an ordinary run folder under OUT/runs (its place in "
+        "the search in its result.json); OUT/results.json and OUT/report.html report the search. The runs are "
+        "chosen, not drawn at random, so no violation rate or bound is given: for a bound, run a campaign. "
+        "Exits 1 when a violation was found, 0 when the budget ran out without one (which is no evidence "
+        "of safety), 2 for bad input. See docs/falsify.md.",
+    )
+    cmd.add_argument("scenario", type=Path, help="scenario YAML file")
+    cmd.add_argument("--budget", type=int, default=100, help="most runs to spend (default 100)")
+    cmd.add_argument("--method", choices=("cmaes", "qd", "random"), default="cmaes",
+                     help="cmaes: CMA-ES on the score (default); qd: quality diversity (CMA-ME), the most critical "
+                     "run per cell of use cases x situation; random: the campaign's own distribution, the baseline")
+    cmd.add_argument("--condition", action="append", default=[], metavar="NAME",
+                     help="a condition to falsify (repeatable; default: every condition)")
+    cmd.add_argument("--batch", type=int, help="runs per generation (default: the method's; random: --jobs)")
+    cmd.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: one per CPU)")
+    cmd.add_argument("--seed", type=int, default=0, help="search seed: the search is a pure function of it (default 0)")
+    cmd.add_argument("--out", type=Path, help="output folder (default: campaigns/<scenario>-falsify-<method>-seed<seed>)")
+    cmd.add_argument("--duration", type=float, help="simulated seconds per run (default: the scenario's duration)")
+    cmd.add_argument("--overwrite", action="store_true", help="replace an earlier search or campaign in OUT")
+    _add_set(cmd)
+    cmd.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    cmd.set_defaults(handler=run)
+
+
+def run(args) -> int:
+    from rich.console import Console
+
+    from cellsim.campaign.falsify import FalsifyPlan, run_falsify
+    from cellsim.campaign.runner import CampaignError
+    from cellsim.scenario import check_run_length, check_seed
+
+    for flag, most in (("budget", 100_000), ("jobs", 256), ("batch", 10_000)):
+        value = getattr(args, flag)
+        if value is not None and not 1 <= value <= most:
+            raise InputError(f"--{flag} must be in [1, {most}], got {value}")
+    check_seed(args.seed, "--seed")
+    sf = _load(args)
+    if args.duration is not None:
+        check_run_length(sf, args.duration, "--duration")
+    out = args.out or Path("campaigns") / f"{sf.scenario.name}-falsify-{args.method}-seed{args.seed}"
+    plan = FalsifyPlan(str(args.scenario.resolve()), tuple(args.overrides), args.seed, args.budget, args.method,
+                       args.duration, tuple(args.condition))
+    console = Console(stderr=True, quiet=args.quiet)
+    try:
+        with _search_progress(console, args.quiet, args.budget) as report:
+            outcome = run_falsify(plan, out, jobs=args.jobs, on_progress=report, overwrite=args.overwrite, batch=args.batch)
+    except (CampaignError, ValueError) as e:
+        raise InputError(str(e)) from None
+    except KeyboardInterrupt:
+        print(f"cellsim: interrupted; the runs so far are in {out}/runs", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    if not args.quiet:
+        print_search(outcome)
+    runs = outcome.results["runs"]
+    failed = [r for r in runs if r.get("status") == "failed"]
+    if failed and len(failed) == len(runs):
+        print(f"cellsim: error: every run failed, e.g. run {failed[0]['index']}: {failed[0].get('error', '?')}",
+              file=sys.stderr)
+        return EXIT_INPUT
+    return EXIT_FINDING if outcome.first_violation is not None else EXIT_OK
+
+
+class _search_progress:
+    """A progress bar of the budget spent, with the best score so far."""
+
+    def __init__(self, console, quiet: bool, total: int):
+        self.console, self.quiet, self.total = console, quiet, total
+        self.bar = None
+
+    def __enter__(self):
+        if self.quiet:
+            return None
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self.bar = Progress(TextColumn("runs"), BarColumn(), MofNCompleteColumn(),
+                            TextColumn("best score {task.fields[best]}  violating {task.fields[violating]}"),
+                            TimeElapsedColumn(), console=self.console)
+        self.bar.start()
+        self.task = self.bar.add_task("search", total=self.total, best="-", violating=0)
+        return self.report
+
+    def report(self, p) -> None:
+        self.bar.update(self.task, completed=p.done, best=f"{p.best:.3f}", violating=p.violating)
+
+    def __exit__(self, *exc):
+        if self.bar is not None:
+            self.bar.stop()
+
+
+def print_search(outcome) -> None:
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    results, search = outcome.results, outcome.results["search"]
+    runs = {r["index"]: r for r in results["runs"]}
+    table = Table(title="Falsification", show_header=False, title_justify="left")
+    table.add_column(style="bold")
+    table.add_column()
+    table.add_row("method", f"{search['method']}, batches of {search['batch']} runs, {search['dimension']} coordinates")
+    table.add_row("conditions", ", ".join(search["conditions"]))
+    table.add_row("guides", ", ".join(search["guides"]) or "none (the conditions' robustness alone)")
+    first = search["first_violation"]
+    if first is None:
+        table.add_row("result", f"no violation in {search['runs']} runs (the budget): no evidence of safety, "
+                      "only of what this search did not find")
+    else:
+        run = runs[first]
+        table.add_row("result", f"[red]violation found at run {first}[/red] ({search['runs_to_first_violation']} runs): "
+                      f"{', '.join(run['violations'])}")
+        table.add_row("its configuration", "\n".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}"
+                                                     for k, v in run["configuration"].items()))
+        table.add_row("re-run it", escape(run["rerun"]))
+    best = search["best"]
+    table.add_row("lowest score", f"{best['score']:.3f} (run {best['index']})")
+    for cell in search.get("archive", [])[:6]:
+        table.add_row("archive cell", f"use cases {', '.join(cell['use_cases']) or 'none'} x {cell['situation']}: "
+                      f"score {cell['score']:.3f}")
+    table.add_row("results", str(outcome.results_path))
+    table.add_row("report", str(outcome.report_path))
+    console = Console()
+    console.print(table)
+    console.print(f"No bound: {search['not_a_sample']}.", highlight=False, markup=False)
