@@ -25,11 +25,11 @@ def free_port() -> int:
 class Process:
     """A cellsim command (or another Python module's) run as a process; ``stop()`` ends it by its PID."""
 
-    def __init__(self, args: list[str], log: Path, module: str = "cellsim"):
+    def __init__(self, args: list[str], log: Path, module: str = "cellsim", cwd: Path = ROOT):
         self.log = log
         self._file = open(log, "w")
         self.popen = subprocess.Popen(
-            [sys.executable, "-m", module, *args], stdout=self._file, stderr=subprocess.STDOUT, cwd=ROOT
+            [sys.executable, "-m", module, *args], stdout=self._file, stderr=subprocess.STDOUT, cwd=cwd
         )
         self.pid = self.popen.pid
 
@@ -62,8 +62,8 @@ def processes():
     """Collects processes and stops every one still running at the end, by its PID."""
     started: list[Process] = []
 
-    def start(args: list[str], log: Path, module: str = "cellsim") -> Process:
-        process = Process(args, log, module)
+    def start(args: list[str], log: Path, module: str = "cellsim", cwd: Path = ROOT) -> Process:
+        process = Process(args, log, module, cwd)
         started.append(process)
         return process
 

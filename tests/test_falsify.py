@@ -175,7 +175,8 @@ def test_the_score_is_the_least_normalised_margin_plus_the_closest_guide():
 def found(tmp_path_factory):
     """CMA-ES on the misuse scenario, seed 3: a violation within its first batch."""
     out = tmp_path_factory.mktemp("falsify") / "misuse"
-    done = _cellsim("falsify", TWO_OPERATORS, "--budget", "30", "--seed", "3", "--jobs", "2", "--out", out)
+    done = _cellsim("falsify", TWO_OPERATORS, "--method", "cmaes", "--budget", "30", "--seed", "3", "--jobs", "2",
+                    "--out", out)
     return done, out, json.loads((out / "results.json").read_text())
 
 

@@ -50,10 +50,9 @@ import contextlib
 import dataclasses
 import json
 import math
-import multiprocessing
 import os
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
@@ -63,7 +62,7 @@ import numpy as np
 
 from cellsim.atomic import LOCK, FolderBusy, folder_lock
 from cellsim.campaign import runner
-from cellsim.campaign.runner import PLAN, RUNS_PER_WORKER, CampaignError, CampaignPlan, execute_run
+from cellsim.campaign.runner import PLAN, CampaignError, CampaignPlan, execute_run
 from cellsim.campaign.space import SearchSpace
 from cellsim.logic.syntax import Always, Compare, Eventually, Formula, Until
 from cellsim.provenance import INPUTS, SnapshotError, command_line, provenance, read_inputs, snapshot_scenario
@@ -304,6 +303,7 @@ def run_falsify(
     on_progress: Callable[[SearchProgress], None] | None = None,
     overwrite: bool = False,
     batch: int | None = None,
+    scheduler: str | None = None,
 ) -> FalsifyOutcome:
     """Search, writing every run under ``out``, then results.json and report.html.
 
@@ -344,10 +344,11 @@ def run_falsify(
         except FolderBusy:
             raise CampaignError(f"{out} is being written by another cellsim process; choose another --out") from None
         runner.discard(out)
-        return _search(plan, out, jobs, on_progress, batch, inputs, identity, space, wall_start)
+        return _search(plan, out, jobs, on_progress, batch, inputs, identity, space, wall_start, scheduler)
 
 
-def _search(plan: FalsifyPlan, out: Path, jobs, on_progress, batch, inputs, identity, space, wall_start) -> FalsifyOutcome:
+def _search(plan: FalsifyPlan, out: Path, jobs, on_progress, batch, inputs, identity, space, wall_start,
+            scheduler=None) -> FalsifyOutcome:
     from cellsim.scenario import load_scenario
     from cellsim.validation.check import scenario_safety_case
 
@@ -373,7 +374,8 @@ def _search(plan: FalsifyPlan, out: Path, jobs, on_progress, batch, inputs, iden
     results: dict[int, dict] = {}
     first: int | None = None
     generation = 0
-    with _pool(jobs) as submit:
+    with runner.worker_pool(jobs, scheduler, out / INPUTS) as workers:
+        submit = workers.submit
         while len(results) < plan.budget and first is None:
             points = searcher.ask()[: plan.budget - len(results)]
             start = len(results)
@@ -396,6 +398,7 @@ def _search(plan: FalsifyPlan, out: Path, jobs, on_progress, batch, inputs, iden
             if on_progress is not None:
                 on_progress(SearchProgress(len(results), plan.budget, min(r["search"]["score"] for r in results.values()),
                                            sum(1 for r in results.values() if scorer.violates(r))))
+        cluster = workers.record()
     runs = [results[i] for i in sorted(results)]
     best = min(runs, key=lambda r: r["search"]["score"])
     search_record.update(
@@ -406,7 +409,8 @@ def _search(plan: FalsifyPlan, out: Path, jobs, on_progress, batch, inputs, iden
     if isinstance(searcher, QualityDiversity):
         search_record["archive"] = searcher.cells()
     campaign_plan = dataclasses.replace(worker_plan, scenario=plan.scenario, overrides=plan.overrides)
-    outcome = runner.finish(campaign_plan, out, sf, case, runs, 0, wall_start, provenance(identity), search=search_record)
+    outcome = runner.finish(campaign_plan, out, sf, case, runs, 0, wall_start, provenance(identity), search=search_record,
+                             cluster=cluster)
     return FalsifyOutcome(outcome.results, outcome.results_path, outcome.report_path)
 
 
@@ -437,23 +441,6 @@ def _evaluate(submit, plan: CampaignPlan, out: Path, tasks, origin, scorer: Scor
     except BrokenProcessPool as e:
         raise CampaignError(f"a worker process died ({e}); the runs so far are in {out}") from None
     return done
-
-
-@contextlib.contextmanager
-def _pool(jobs: int):
-    """``submit`` of a pool of ``jobs`` fresh worker processes (None: run in this process)."""
-    if jobs <= 1:
-        yield None
-        return
-    executor = ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn"),
-                                   max_tasks_per_child=RUNS_PER_WORKER, initializer=runner._init_worker,
-                                   initargs=(os.getpid(),))
-    try:
-        yield executor.submit
-    except BaseException:
-        executor.shutdown(wait=True, cancel_futures=True)
-        raise
-    executor.shutdown(wait=True)
 
 
 def read_search(out: Path) -> dict | None:

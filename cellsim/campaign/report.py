@@ -429,10 +429,19 @@ def _summary(results: Mapping, runs: Sequence[Mapping]) -> dict:
             ("Completed", totals.get("completed", sum(1 for r in runs if r.get("status") == "completed"))),
             ("Failed", totals.get("failed", sum(1 for r in runs if _is_failed(r)))),
             ("Violating runs", totals.get("violating_runs", len(_violating_runs(runs)))),
+            *_cluster_figures(_dict(results.get("cluster"))),
         ],
         "coverage": percent(_overall(coverage)) if "overall" in coverage else None,
         "timing": [(s, _seconds(timing[s])) for s in [s for s in STAGES if s in timing] + [s for s in timing if s not in STAGES]],
     }
+
+
+def _cluster_figures(cluster: Mapping) -> list[tuple[str, object]]:
+    """The Dask cluster a campaign ran on, and how many of its runs were handed to another worker."""
+    if not cluster:
+        return []
+    return [("Dask scheduler", cluster.get("scheduler")), ("Workers at the end", cluster.get("workers")),
+            ("Retried runs", cluster.get("retries"))]
 
 
 def _condition_rows(results: Mapping, runs: Sequence[Mapping]) -> list[dict]:

@@ -340,8 +340,12 @@ def run_campaign(
     jobs: int = 1,
     on_progress: Callable[[Progress], None] | None = None,
     restart: bool = False,
+    scheduler: str | None = None,
 ) -> CampaignOutcome:
     """Run (or resume) the campaign into ``out``; writes results.json and report.html.
+
+    ``scheduler``: the address of a Dask scheduler to run on instead of ``jobs``
+    local processes (:mod:`cellsim.campaign.cluster`); the runs are the same.
 
     Raises ConfigError for a bad scenario and CampaignError for a bad folder (one
     holding a campaign of other inputs, unless ``restart``), both before any run
@@ -369,10 +373,10 @@ def run_campaign(
             held.enter_context(folder_lock(out))
         except FolderBusy:
             raise CampaignError(f"{out} is being written by another cellsim campaign; choose another --out") from None
-        return _run_locked(plan, out, jobs, on_progress, restart, inputs, identity, wall_start)
+        return _run_locked(plan, out, jobs, on_progress, restart, inputs, identity, wall_start, scheduler)
 
 
-def _run_locked(plan, out: Path, jobs, on_progress, restart, inputs, identity, wall_start) -> CampaignOutcome:
+def _run_locked(plan, out: Path, jobs, on_progress, restart, inputs, identity, wall_start, scheduler=None) -> CampaignOutcome:
     """The campaign, with ``out`` locked against every other cellsim process."""
     from cellsim.scenario import load_scenario
     from cellsim.validation.check import scenario_safety_case
@@ -413,33 +417,26 @@ def _run_locked(plan, out: Path, jobs, on_progress, restart, inputs, identity, w
     from cellsim.validation.bound import counts_against
 
     stop = (lambda: any(counts_against(r) for r in results.values())) if plan.until_bound is not None else (lambda: False)
+    cluster = None
     if todo and not stop():
-        if jobs <= 1:
-            for index in todo:
-                results[index] = execute_run(worker_plan, out, index, origin)
-                report_progress()
-                if stop():
-                    break
-        else:
-            _run_parallel(worker_plan, out, todo, jobs, results, report_progress, origin, stop)
+        with worker_pool(jobs, scheduler, out / INPUTS) as workers:
+            if workers.submit is None:
+                for index in todo:
+                    results[index] = execute_run(worker_plan, out, index, origin)
+                    report_progress()
+                    if stop():
+                        break
+            else:
+                _run_parallel(worker_plan, out, todo, workers, results, report_progress, origin, stop)
+            cluster = workers.record()
     runs = [results[i] for i in range(plan.runs) if i in results]
-    return finish(plan, out, sf, case, runs, resumed, wall_start, provenance(identity))
+    return finish(plan, out, sf, case, runs, resumed, wall_start, provenance(identity), cluster=cluster)
 
 
-def _run_parallel(plan, out, todo, jobs, results, report_progress, origin=None, stop=lambda: False) -> None:
-    # Fresh interpreters ("spawn"), not forks of this one: nothing of the parent's
-    # Drake state is shared, and no helper process outlives the campaign. A
-    # pydrake diagram holding Python systems is never freed (about 2.5 MB a
-    # run), so workers are replaced now and then to keep memory bounded.
-    executor = ProcessPoolExecutor(
-        max_workers=jobs,
-        mp_context=multiprocessing.get_context("spawn"),
-        max_tasks_per_child=RUNS_PER_WORKER,
-        initializer=_init_worker,
-        initargs=(os.getpid(),),
-    )
+def _run_parallel(plan, out, todo, workers, results, report_progress, origin=None, stop=lambda: False) -> None:
+    """Runs ``todo`` on ``workers`` (:func:`worker_pool`), recording each result as it comes back."""
     try:
-        pending = {executor.submit(execute_run, plan, out, i, origin) for i in todo}
+        pending = {workers.submit(execute_run, plan, out, i, origin) for i in todo}
         while pending:
             finished, pending = wait(pending, return_when=FIRST_COMPLETED)
             for future in finished:
@@ -452,10 +449,59 @@ def _run_parallel(plan, out, todo, jobs, results, report_progress, origin=None, 
                 for future in pending:
                     future.cancel()
     except BrokenProcessPool as e:
-        executor.shutdown(wait=True, cancel_futures=True)
         raise CampaignError(
             f"a worker process died ({e}); the finished runs are kept in {out}: run the same command again to resume"
         ) from None
+
+
+@dataclass
+class Workers:
+    """Where runs go: ``submit(execute_run, plan, out, index, ...)`` returning a future of the result
+    (None: run in this process), and the cluster when it is one."""
+
+    submit: Callable | None
+    cluster: object | None = None
+
+    def record(self) -> dict | None:
+        """What results.json says of the cluster: its scheduler, workers and retried runs."""
+        if self.cluster is None:
+            return None
+        return {"scheduler": self.cluster.address, "workers": self.cluster.workers(), "retries": self.cluster.retries()}
+
+
+@contextlib.contextmanager
+def worker_pool(jobs: int, scheduler: str | None = None, inputs_dir: Path | None = None):
+    """The campaign's workers: a Dask cluster at ``scheduler``, else ``jobs`` local processes (one: none).
+
+    Local workers are fresh interpreters ("spawn"), not forks of this one: nothing of
+    the parent's Drake state is shared, and no helper process outlives the campaign.
+    A pydrake diagram holding Python systems is never freed (about 2.5 MB a run), so
+    local workers are replaced now and then to keep memory bounded.
+    """
+    if scheduler is not None:
+        from cellsim.campaign.cluster import ClusterError, ClusterPool
+
+        try:
+            cluster = ClusterPool(scheduler, inputs_dir)
+        except ClusterError as e:
+            raise CampaignError(str(e)) from None
+        try:
+            yield Workers(cluster.submit, cluster)
+        finally:
+            cluster.close()
+        return
+    if jobs <= 1:
+        yield Workers(None)
+        return
+    executor = ProcessPoolExecutor(
+        max_workers=jobs,
+        mp_context=multiprocessing.get_context("spawn"),
+        max_tasks_per_child=RUNS_PER_WORKER,
+        initializer=_init_worker,
+        initargs=(os.getpid(),),
+    )
+    try:
+        yield Workers(executor.submit)
     except BaseException:
         executor.shutdown(wait=True, cancel_futures=True)
         raise
@@ -503,7 +549,7 @@ def _end_with_parent(parent: int) -> None:
 
 
 def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start: float, record: dict | None = None,
-           search: dict | None = None) -> CampaignOutcome:
+           search: dict | None = None, cluster: dict | None = None) -> CampaignOutcome:
     """Totals, results.json and report.html from the runs' results; ``record`` is the
     campaign's provenance (:func:`cellsim.provenance.provenance`); ``search``, the
     falsification search's record when a search chose the runs (then no bound is given)."""
@@ -558,6 +604,8 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
     }
     if search:
         results["search"] = search
+    if cluster:
+        results["cluster"] = cluster
     t0 = time.perf_counter()
     timelines = {r["index"]: trace for r in runs if (trace := _run_trace(out, r, sc)) is not None}
     phases, units = _channel_facts(out, runs, sc.validation.variables)

@@ -6,7 +6,7 @@ import os
 import sys
 from pathlib import Path
 
-from cellsim.cli.common import EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, InputError, _add_set, _load
+from cellsim.cli.common import EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, InputError, _add_set, _load, add_scheduler_argument
 from cellsim.numbers import measure, percent
 
 
@@ -33,6 +33,7 @@ def add_parser(subparsers) -> None:
         "violation; instead of --runs",
     )
     camp.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: one per CPU)")
+    add_scheduler_argument(camp)
     camp.add_argument("--seed", type=int, default=0, help="campaign seed: run i is a pure function of it and i (default 0)")
     camp.add_argument("--out", type=Path, help="campaign folder (default: campaigns/<scenario>-seed<seed>)")
     camp.add_argument("--duration", type=float, help="simulated seconds per run (default: the scenario's duration)")
@@ -72,7 +73,8 @@ def run(args) -> int:
                         until_bound=args.until_bound)
     try:
         with _campaign_progress(console, args.quiet, runs) as report:
-            outcome = run_campaign(plan, out, jobs=args.jobs, on_progress=report, restart=args.restart)
+            outcome = run_campaign(plan, out, jobs=args.jobs, on_progress=report, restart=args.restart,
+                                   scheduler=args.scheduler)
     except CampaignError as e:
         raise InputError(str(e)) from None
     except KeyboardInterrupt:

@@ -141,3 +141,22 @@ def _open_can_bus(text: str | None, default: tuple[str, str] | None = None, opti
         return can.Bus(interface=interface, channel=channel)
     except Exception as e:  # noqa: BLE001 - python-can raises many kinds for a bus it cannot open
         raise InputError(f"cannot open CAN bus {interface}:{channel}: {' '.join(str(e).split())[:200]}") from None
+
+
+def add_scheduler_argument(parser) -> None:
+    """``--scheduler``: run on a Dask cluster instead of local worker processes."""
+    parser.add_argument(
+        "--scheduler", type=_scheduler_address, metavar="tcp://HOST:PORT",
+        help="run on the Dask distributed cluster of this scheduler (started with `dask scheduler` and "
+        "`dask worker`, or dask-jobqueue) instead of --jobs local processes; workers need not share this "
+        "file system: each gets the inputs once and sends back its runs' files (docs/cluster.md)",
+    )
+
+
+def _scheduler_address(text: str) -> str:
+    import argparse
+    import re
+
+    if not re.fullmatch(r"(tcp|tls|ucx|ws|wss)://[^\s/:]+:\d{1,5}", text):
+        raise argparse.ArgumentTypeError(f"a scheduler address is tcp://HOST:PORT, got {text!r}")
+    return text

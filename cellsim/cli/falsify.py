@@ -6,13 +6,13 @@ import os
 import sys
 from pathlib import Path
 
-from cellsim.cli.common import EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, InputError, _add_set, _load
+from cellsim.cli.common import EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, InputError, _add_set, _load, add_scheduler_argument
 
 
 def add_parser(subparsers) -> None:
     cmd = subparsers.add_parser(
         "falsify",
-        help="search for a run that violates a safety condition (CMA-ES, quality diversity, or random)",
+        help="search for a run that violates a safety condition (quality diversity, CMA-ES, or random)",
         description="Search the configuration space the scenario's campaign samplers define (their ranges, "
         "choices and simplexes) for a run that violates a safety condition, choosing each run from the scores "
         "of those before it: the conditions' robustness (how far a run was from violating them) and the "
@@ -25,13 +25,15 @@ def add_parser(subparsers) -> None:
     )
     cmd.add_argument("scenario", type=Path, help="scenario YAML file")
     cmd.add_argument("--budget", type=int, default=100, help="most runs to spend (default 100)")
-    cmd.add_argument("--method", choices=("cmaes", "qd", "random"), default="cmaes",
-                     help="cmaes: CMA-ES on the score (default); qd: quality diversity (CMA-ME), the most critical "
-                     "run per cell of use cases x situation; random: the campaign's own distribution, the baseline")
+    cmd.add_argument("--method", choices=("qd", "cmaes", "random"), default="qd",
+                     help="qd: quality diversity (CMA-ME), the most critical run per cell of use cases x situation "
+                     "(default: the fastest in scripts/bench_falsify.py); cmaes: CMA-ES on the score; random: the "
+                     "campaign's own distribution, the baseline")
     cmd.add_argument("--condition", action="append", default=[], metavar="NAME",
                      help="a condition to falsify (repeatable; default: every condition)")
     cmd.add_argument("--batch", type=int, help="runs per generation (default: the method's; random: --jobs)")
     cmd.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: one per CPU)")
+    add_scheduler_argument(cmd)
     cmd.add_argument("--seed", type=int, default=0, help="search seed: the search is a pure function of it (default 0)")
     cmd.add_argument("--out", type=Path, help="output folder (default: campaigns/<scenario>-falsify-<method>-seed<seed>)")
     cmd.add_argument("--duration", type=float, help="simulated seconds per run (default: the scenario's duration)")
@@ -62,7 +64,8 @@ def run(args) -> int:
     console = Console(stderr=True, quiet=args.quiet)
     try:
         with _search_progress(console, args.quiet, args.budget) as report:
-            outcome = run_falsify(plan, out, jobs=args.jobs, on_progress=report, overwrite=args.overwrite, batch=args.batch)
+            outcome = run_falsify(plan, out, jobs=args.jobs, on_progress=report, overwrite=args.overwrite, batch=args.batch,
+                                  scheduler=args.scheduler)
     except (CampaignError, ValueError) as e:
         raise InputError(str(e)) from None
     except KeyboardInterrupt:

@@ -1,0 +1,186 @@
+"""Runs on a Dask distributed cluster: the campaign's workers without its file system.
+
+``cellsim campaign --scheduler tcp://HOST:PORT`` (and ``falsify``) submit each run to
+a Dask scheduler instead of the local pool. A worker shares nothing with the
+campaign but the scheduler:
+
+* **inputs**: the campaign's snapshot (``OUT/inputs``) is read once, as bytes, and
+  scattered to every worker (``broadcast``), keyed by the SHA-256 of its content.
+  A worker writes it once into its own local directory
+  (``<worker dir>/cellsim-inputs/<digest>``) and every run it is given is made
+  from there. A worker that joins later fetches it from a peer.
+* **outputs**: the worker simulates and checks the run in a scratch folder of its
+  own, exactly as a local worker does (:func:`cellsim.campaign.runner.execute_run`),
+  and returns the run folder's files. The campaign writes them under
+  ``OUT/runs/NNNN``, ``result.json`` last, as a local run does: resume, content
+  identity and provenance work the same way.
+* **a worker that dies**: the scheduler hands its runs to another worker (a run
+  is a pure function of the campaign and its index, so a retry gives the same
+  run). Each run is written once, when its result comes back. How many runs
+  were retried (the scheduler's count of workers lost while running them) is
+  recorded in results.json (``cluster.retries``) and the report.
+
+Start a cluster with ``dask scheduler`` and ``dask worker`` (docs/cluster.md) or
+dask-jobqueue on Slurm. Each worker needs cellsim installed, at the campaign's
+version (the campaign refuses workers of another).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import hashlib
+import os
+import shutil
+import threading
+import uuid
+from pathlib import Path
+
+from cellsim.atomic import write_text
+
+CACHE = "cellsim-inputs"
+SCRATCH = "cellsim-runs"
+CONNECT_TIMEOUT = 10.0
+"""Seconds to reach the scheduler before giving up."""
+
+
+class ClusterError(Exception):
+    """The cluster cannot be used: unreachable, no workers, or workers of another cellsim."""
+
+
+def read_snapshot(folder: Path) -> tuple[str, dict[str, bytes]]:
+    """Every file under ``folder`` as ``{relative path: bytes}``, and the SHA-256 of them all."""
+    files = {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+    digest = hashlib.sha256()
+    for name, data in files.items():
+        digest.update(name.encode() + b"\0" + hashlib.sha256(data).digest())
+    return digest.hexdigest(), files
+
+
+def _remap(text: str, old: str, new: str) -> str:
+    """A path (or an override naming one) under the campaign's inputs, moved to the worker's copy."""
+    return text.replace(old, new)
+
+
+def run_remotely(plan, inputs_dir: str, digest: str, snapshot: dict[str, bytes], index: int, origin, configuration,
+                 search, version: str) -> tuple[dict, dict[str, bytes]]:
+    """On a worker: run ``index`` from the snapshot; returns its result and its folder's files."""
+    import dataclasses
+
+    from distributed import get_worker
+
+    import cellsim
+    from cellsim.campaign.runner import execute_run, run_dir
+
+    if cellsim.__version__ != version:
+        raise ClusterError(f"worker {get_worker().address} has cellsim {cellsim.__version__}, the campaign {version}")
+    base = Path(get_worker().local_directory)
+    cache = base / CACHE / digest
+    if not cache.is_dir():
+        staging = base / CACHE / f".{digest}.{uuid.uuid4().hex}"
+        for name, data in snapshot.items():
+            path = staging / name
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(data)
+        try:
+            staging.rename(cache)
+        except OSError:  # another thread of this worker got there first
+            shutil.rmtree(staging, ignore_errors=True)
+    local = dataclasses.replace(
+        plan,
+        scenario=_remap(plan.scenario, inputs_dir, str(cache)),
+        overrides=tuple(_remap(o, inputs_dir, str(cache)) for o in plan.overrides),
+    )
+    scratch = base / SCRATCH / uuid.uuid4().hex
+    try:
+        result = execute_run(local, scratch, index, origin, configuration, search)
+        folder = run_dir(scratch, index)
+        files = {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    return result, files
+
+
+def write_run_files(out: Path, index: int, files: dict[str, bytes]) -> None:
+    """A remote run's files under ``OUT/runs/NNNN``, its result.json last (its presence marks it done)."""
+    from cellsim.campaign.runner import RESULT, run_dir
+
+    folder = run_dir(out, index)
+    if folder.exists():
+        shutil.rmtree(folder)  # an unfinished earlier attempt
+    for name, data in files.items():
+        if name != RESULT:
+            path = folder / name
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(data)
+    if RESULT in files:
+        write_text(folder / RESULT, files[RESULT].decode("utf-8"))
+
+
+class ClusterPool:
+    """``submit(execute_run, plan, out, index, ...)`` onto a Dask cluster, with the local pool's futures.
+
+    The futures are :class:`concurrent.futures.Future` resolving to the run's result
+    once its files are written under ``out``; cancelling one cancels its task.
+    """
+
+    def __init__(self, address: str, inputs_dir: Path):
+        try:
+            from distributed import Client
+        except ImportError as e:  # pragma: no cover - distributed is a dependency
+            raise ClusterError(f"--scheduler needs the distributed package ({e})") from None
+        import cellsim
+
+        try:
+            self.client = Client(address, timeout=CONNECT_TIMEOUT, set_as_default=False)
+        except (OSError, TimeoutError) as e:
+            raise ClusterError(f"cannot reach the Dask scheduler at {address}: {e}") from None
+        self.address = address
+        self.version = cellsim.__version__
+        self.inputs_dir = str(inputs_dir.resolve())
+        self.digest, snapshot = read_snapshot(inputs_dir)
+        self.snapshot = self.client.scatter(snapshot, broadcast=True, hash=False)
+        self._tasks: list = []
+        self._lock = threading.Lock()
+
+    def submit(self, fn, plan, out: Path, index: int, origin=None, configuration=None, search=None):
+        from cellsim.campaign.runner import execute_run
+
+        if fn is not execute_run:
+            raise TypeError("a cluster runs execute_run only")
+        future: concurrent.futures.Future = concurrent.futures.Future()
+        task = self.client.submit(run_remotely, plan, self.inputs_dir, self.digest, self.snapshot, index, origin,
+                                  configuration, search, self.version, pure=False, key=f"cellsim-run-{index}-{uuid.uuid4().hex}")
+        with self._lock:
+            self._tasks.append(task)
+
+        def done(task_future) -> None:
+            if future.cancelled():
+                return
+            try:
+                result, files = task_future.result()
+                write_run_files(Path(out), index, files)
+            except BaseException as e:  # noqa: BLE001 - handed to whoever waits on the future
+                if future.set_running_or_notify_cancel():
+                    future.set_exception(e)
+                return
+            if future.set_running_or_notify_cancel():
+                future.set_result(result)
+
+        task.add_done_callback(done)
+        future.add_done_callback(lambda f: task.cancel() if f.cancelled() else None)
+        return future
+
+    def retries(self) -> int:
+        """Runs handed to another worker after the one running them was lost (the scheduler's count)."""
+        keys = [t.key for t in self._tasks]
+
+        def count(dask_scheduler, keys=keys) -> int:
+            return sum(ts.suspicious for key in keys if (ts := dask_scheduler.tasks.get(key)) is not None)
+
+        return int(self.client.run_on_scheduler(count))
+
+    def workers(self) -> int:
+        return len(self.client.scheduler_info(n_workers=-1).get("workers", {}))
+
+    def close(self) -> None:
+        self.client.close()
