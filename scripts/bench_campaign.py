@@ -15,6 +15,13 @@ Targets (issue 3, tightened by issue 9): 100 runs in at most 55 s wall with --jo
 conditions on one 30-s trace in at most 10 ms; with explanations (issue 13) too.
 
     .venv/bin/python scripts/bench_campaign.py [--runs 100] [--jobs 2] [--seed 1]
+
+With ``--scheduler`` it times, in the same run, the same campaign on a Dask cluster
+beside the local pool: ``--scheduler auto`` starts a scheduler and --jobs workers
+(one thread each, no nanny) on loopback for it and stops them by PID after;
+``--scheduler tcp://HOST:PORT`` uses a running one. Local and cluster take turns
+(local, cluster, local, cluster for --rounds 2) and the ratio of the medians is printed.
+Target (issue 21): the cluster within 1.15x of the local pool on 2 workers of this machine.
 """
 
 from __future__ import annotations
@@ -47,7 +54,12 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--scenario", type=Path, default=SCENARIO)
     parser.add_argument("--set", action="append", default=[], metavar="PATH=VALUE", help="scenario override (repeatable)")
+    parser.add_argument("--scheduler", help="also time the campaign on this Dask scheduler ('auto': start one on loopback)")
+    parser.add_argument("--rounds", type=int, default=2, help="with --scheduler: local/cluster pairs to time")
     args = parser.parse_args()
+    if args.scheduler:
+        compare_with_cluster(args)
+        return
     try:  # bad input: one line and exit code 2, as the CLI does
         load_scenario(args.scenario, args.set)
     except ConfigError as e:
@@ -77,6 +89,59 @@ def main() -> None:
         violating = Path(tmp) / "violating"
         simulate(load_scenario(args.scenario, [*args.set, "operator.waypoints.cell.wait=100"]), violating)
         print(check_timing(violating, "a violating 30-s trace"))
+
+
+def compare_with_cluster(args) -> None:
+    """The same campaign on the local pool and on a Dask cluster, taking turns; the ratio of the medians."""
+    import contextlib
+    import socket
+    import subprocess
+
+    @contextlib.contextmanager
+    def loopback_cluster(tmp: Path):
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        address = f"tcp://127.0.0.1:{port}"
+        started = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
+                                     "--port", str(port), "--no-dashboard"], cwd=tmp, stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.DEVNULL)]
+        try:
+            for i in range(args.jobs):
+                folder = tmp / f"worker{i}"
+                folder.mkdir()
+                started.append(subprocess.Popen(
+                    [sys.executable, "-m", "distributed.cli.dask_worker", address, "--host", "127.0.0.1", "--nthreads",
+                     "1", "--no-nanny", "--no-dashboard", "--local-directory", str(folder)],
+                    cwd=folder, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+            from distributed import Client
+
+            with Client(address, timeout=60) as client:
+                client.wait_for_workers(args.jobs, timeout=120)
+            yield address
+        finally:
+            for process in started:
+                process.kill()
+                process.wait()
+
+    with tempfile.TemporaryDirectory() as tmp, contextlib.ExitStack() as stack:
+        tmp = Path(tmp)
+        address = args.scheduler if args.scheduler != "auto" else stack.enter_context(loopback_cluster(tmp))
+        plan = CampaignPlan(str(args.scenario.resolve()), tuple(args.set), args.seed, args.runs)
+        times: dict[str, list[float]] = {"local": [], "cluster": []}
+        for round_ in range(args.rounds):
+            for where in ("local", "cluster"):
+                started = time.perf_counter()
+                outcome = run_campaign(plan, tmp / f"{where}{round_}", jobs=args.jobs,
+                                       scheduler=address if where == "cluster" else None)
+                times[where].append(time.perf_counter() - started)
+                extra = f", {outcome.results['cluster']['retries']} retried" if where == "cluster" else ""
+                print(f"  round {round_ + 1} {where:<8} {times[where][-1]:7.2f} s{extra}", flush=True)
+        local, cluster = statistics.median(times["local"]), statistics.median(times["cluster"])
+        print(f"campaign: {args.runs} runs, {args.jobs} local workers vs {args.jobs} Dask workers at {address}")
+        print(f"  local pool  median {local:7.2f} s  (min {min(times['local']):.2f}, max {max(times['local']):.2f})")
+        print(f"  cluster     median {cluster:7.2f} s  (min {min(times['cluster']):.2f}, max {max(times['cluster']):.2f})")
+        print(f"  ratio cluster / local {cluster / local:.3f}  (target <= 1.15)")
 
 
 def check_timing(run: Path, what: str) -> str:

@@ -6,7 +6,7 @@ import os
 import sys
 from pathlib import Path
 
-from cellsim.cli.common import EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, InputError, _add_set, _load, add_scheduler_argument
+from cellsim.cli.common import EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, InputError, RunsBar, _add_set, _load, add_scheduler_argument
 from cellsim.numbers import measure, percent
 
 
@@ -111,33 +111,12 @@ def _runs_for_bound(args, console) -> int:
     return runs
 
 
-class _campaign_progress:
+def _campaign_progress(console, quiet: bool, total: int) -> RunsBar:
     """A progress bar of runs done, with violations and coverage so far."""
-
-    def __init__(self, console, quiet: bool, total: int):
-        self.console, self.quiet, self.total = console, quiet, total
-        self.bar = None
-
-    def __enter__(self):
-        if self.quiet:
-            return None
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-
-        self.bar = Progress(
-            TextColumn("runs"), BarColumn(), MofNCompleteColumn(),
-            TextColumn("violating {task.fields[violating]}  failed {task.fields[failed]}  coverage {task.fields[coverage]}"),
-            TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(), console=self.console,
-        )
-        self.bar.start()
-        self.task = self.bar.add_task("campaign", total=self.total, violating=0, failed=0, coverage=percent(0.0))
-        return self.report
-
-    def report(self, p) -> None:
-        self.bar.update(self.task, completed=p.done, violating=p.violating_runs, failed=p.failed, coverage=percent(p.coverage))
-
-    def __exit__(self, *exc):
-        if self.bar is not None:
-            self.bar.stop()
+    return RunsBar(console, quiet, total,
+                   "violating {task.fields[violating]}  failed {task.fields[failed]}  coverage {task.fields[coverage]}",
+                   dict(violating=0, failed=0, coverage=percent(0.0)),
+                   lambda p: dict(completed=p.done, violating=p.violating_runs, failed=p.failed, coverage=percent(p.coverage)))
 
 
 def print_campaign(outcome) -> None:

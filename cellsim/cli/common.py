@@ -160,3 +160,32 @@ def _scheduler_address(text: str) -> str:
     if not re.fullmatch(r"(tcp|tls|ucx|ws|wss)://[^\s/:]+:\d{1,5}", text):
         raise argparse.ArgumentTypeError(f"a scheduler address is tcp://HOST:PORT, got {text!r}")
     return text
+
+
+class RunsBar:
+    """A progress bar of runs done out of ``total``, with the figures ``read(progress)`` gives
+    (``completed`` and the ``fields`` the ``figures`` template names); nothing when ``quiet``."""
+
+    def __init__(self, console, quiet: bool, total: int, figures: str, initial: dict, read, eta: bool = True):
+        self.console, self.quiet, self.total = console, quiet, total
+        self.figures, self.initial, self.read, self.eta = figures, initial, read, eta
+        self.bar = None
+
+    def __enter__(self):
+        if self.quiet:
+            return None
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+        eta = (TextColumn("eta"), TimeRemainingColumn()) if self.eta else ()
+        self.bar = Progress(TextColumn("runs"), BarColumn(), MofNCompleteColumn(), TextColumn(self.figures),
+                            TimeElapsedColumn(), *eta, console=self.console)
+        self.bar.start()
+        self.task = self.bar.add_task("runs", total=self.total, **self.initial)
+        return self.report
+
+    def report(self, progress) -> None:
+        self.bar.update(self.task, **self.read(progress))
+
+    def __exit__(self, *exc):
+        if self.bar is not None:
+            self.bar.stop()

@@ -6,7 +6,7 @@ import os
 import sys
 from pathlib import Path
 
-from cellsim.cli.common import EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, InputError, _add_set, _load, add_scheduler_argument
+from cellsim.cli.common import EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, InputError, RunsBar, _add_set, _load, add_scheduler_argument
 
 
 def add_parser(subparsers) -> None:
@@ -82,31 +82,11 @@ def run(args) -> int:
     return EXIT_FINDING if outcome.first_violation is not None else EXIT_OK
 
 
-class _search_progress:
+def _search_progress(console, quiet: bool, total: int) -> RunsBar:
     """A progress bar of the budget spent, with the best score so far."""
-
-    def __init__(self, console, quiet: bool, total: int):
-        self.console, self.quiet, self.total = console, quiet, total
-        self.bar = None
-
-    def __enter__(self):
-        if self.quiet:
-            return None
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-        self.bar = Progress(TextColumn("runs"), BarColumn(), MofNCompleteColumn(),
-                            TextColumn("best score {task.fields[best]}  violating {task.fields[violating]}"),
-                            TimeElapsedColumn(), console=self.console)
-        self.bar.start()
-        self.task = self.bar.add_task("search", total=self.total, best="-", violating=0)
-        return self.report
-
-    def report(self, p) -> None:
-        self.bar.update(self.task, completed=p.done, best=f"{p.best:.3f}", violating=p.violating)
-
-    def __exit__(self, *exc):
-        if self.bar is not None:
-            self.bar.stop()
+    return RunsBar(console, quiet, total, "best score {task.fields[best]}  violating {task.fields[violating]}",
+                   dict(best="-", violating=0), lambda p: dict(completed=p.done, best=f"{p.best:.3f}", violating=p.violating),
+                   eta=False)
 
 
 def print_search(outcome) -> None:
