@@ -209,7 +209,8 @@ def test_a_dead_worker_stops_the_campaign_with_a_clear_error(tmp_path, monkeypat
     monkeypatch.setattr(runner, "execute_run", _die)  # spawned workers import this module: patch by reference
     plan = runner.CampaignPlan(str(WELDING_CELL), (), 0, 2, 5.0)
     with pytest.raises(runner.CampaignError, match="worker process died.*run the same command again"):
-        runner._run_parallel(plan, out, [0, 1], 2, {}, lambda: None)
+        with runner.worker_pool(2) as workers:
+            runner._run_parallel(plan, out, [0, 1], workers, {}, lambda: None)
 
 
 def test_runs_that_cannot_be_simulated_are_reported_and_the_campaign_exits_2(tmp_path, capsys):

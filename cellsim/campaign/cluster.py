@@ -61,15 +61,15 @@ def _remap(text: str, old: str, new: str) -> str:
     return text.replace(old, new)
 
 
-def run_remotely(plan, inputs_dir: str, digest: str, snapshot: dict[str, bytes], index: int, origin, configuration,
-                 search, version: str) -> tuple[dict, dict[str, bytes]]:
-    """On a worker: run ``index`` from the snapshot; returns its result and its folder's files."""
+def run_remotely(execute_run, plan, inputs_dir: str, digest: str, snapshot: dict[str, bytes], index: int, origin,
+                 configuration, search, version: str) -> tuple[dict, dict[str, bytes]]:
+    """On a worker: run ``index`` from the snapshot (``execute_run``: the campaign's); returns its result and
+    its folder's files."""
     import dataclasses
 
     from distributed import get_worker
 
     import cellsim
-    from cellsim.campaign.runner import execute_run, run_dir
 
     if cellsim.__version__ != version:
         raise ClusterError(f"worker {get_worker().address} has cellsim {cellsim.__version__}, the campaign {version}")
@@ -93,27 +93,24 @@ def run_remotely(plan, inputs_dir: str, digest: str, snapshot: dict[str, bytes],
     scratch = base / SCRATCH / uuid.uuid4().hex
     try:
         result = execute_run(local, scratch, index, origin, configuration, search)
-        folder = run_dir(scratch, index)
+        folder = scratch / result["out"]
         files = {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     return result, files
 
 
-def write_run_files(out: Path, index: int, files: dict[str, bytes]) -> None:
-    """A remote run's files under ``OUT/runs/NNNN``, its result.json last (its presence marks it done)."""
-    from cellsim.campaign.runner import RESULT, run_dir
-
-    folder = run_dir(out, index)
+def write_run_files(folder: Path, files: dict[str, bytes], last: str) -> None:
+    """A remote run's files written into ``folder``, ``last`` (its result, whose presence marks it done) last."""
     if folder.exists():
         shutil.rmtree(folder)  # an unfinished earlier attempt
     for name, data in files.items():
-        if name != RESULT:
+        if name != last:
             path = folder / name
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_bytes(data)
-    if RESULT in files:
-        write_text(folder / RESULT, files[RESULT].decode("utf-8"))
+    if last in files:
+        write_text(folder / last, files[last].decode("utf-8"))
 
 
 class ClusterPool:
@@ -123,7 +120,7 @@ class ClusterPool:
     once its files are written under ``out``; cancelling one cancels its task.
     """
 
-    def __init__(self, address: str, inputs_dir: Path):
+    def __init__(self, address: str, inputs_dir: Path, result_name: str):
         try:
             from distributed import Client
         except ImportError as e:  # pragma: no cover - distributed is a dependency
@@ -135,6 +132,7 @@ class ClusterPool:
         except (OSError, TimeoutError) as e:
             raise ClusterError(f"cannot reach the Dask scheduler at {address}: {e}") from None
         self.address = address
+        self.result_name = result_name
         self.version = cellsim.__version__
         self.inputs_dir = str(inputs_dir.resolve())
         self.digest, snapshot = read_snapshot(inputs_dir)
@@ -142,14 +140,12 @@ class ClusterPool:
         self._tasks: list = []
         self._lock = threading.Lock()
 
-    def submit(self, fn, plan, out: Path, index: int, origin=None, configuration=None, search=None):
-        from cellsim.campaign.runner import execute_run
-
-        if fn is not execute_run:
-            raise TypeError("a cluster runs execute_run only")
+    def submit(self, execute_run, plan, out: Path, index: int, origin=None, configuration=None, search=None):
+        """Run ``execute_run(plan, <scratch>, index, origin, configuration, search)`` on a worker."""
         future: concurrent.futures.Future = concurrent.futures.Future()
-        task = self.client.submit(run_remotely, plan, self.inputs_dir, self.digest, self.snapshot, index, origin,
-                                  configuration, search, self.version, pure=False, key=f"cellsim-run-{index}-{uuid.uuid4().hex}")
+        task = self.client.submit(run_remotely, execute_run, plan, self.inputs_dir, self.digest, self.snapshot, index,
+                                  origin, configuration, search, self.version, pure=False,
+                                  key=f"cellsim-run-{index}-{uuid.uuid4().hex}")
         with self._lock:
             self._tasks.append(task)
 
@@ -158,7 +154,7 @@ class ClusterPool:
                 return
             try:
                 result, files = task_future.result()
-                write_run_files(Path(out), index, files)
+                write_run_files(Path(out) / result["out"], files, self.result_name)
             except BaseException as e:  # noqa: BLE001 - handed to whoever waits on the future
                 if future.set_running_or_notify_cancel():
                     future.set_exception(e)

@@ -482,7 +482,7 @@ def worker_pool(jobs: int, scheduler: str | None = None, inputs_dir: Path | None
         from cellsim.campaign.cluster import ClusterError, ClusterPool
 
         try:
-            cluster = ClusterPool(scheduler, inputs_dir)
+            cluster = ClusterPool(scheduler, inputs_dir, RESULT)
         except ClusterError as e:
             raise CampaignError(str(e)) from None
         try:
