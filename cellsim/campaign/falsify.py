@@ -390,7 +390,7 @@ def _search(plan: FalsifyPlan, out: Path, jobs, on_progress, batch, inputs, iden
                 results[index] = result
                 if first is None and scorer.violates(result):
                     first = index
-                runner._write_json(out / runner.run_dir(out, index).relative_to(out) / runner.RESULT, result)
+                runner._write_json(runner.run_dir(out, index) / runner.RESULT, result)
             told = [k for k in range(len(points)) if start + k in batch_results]
             searcher.tell([points[k] for k in told], [batch_results[start + k] for k in told],
                           [batch_results[start + k]["search"]["score"] for k in told])
