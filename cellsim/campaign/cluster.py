@@ -155,9 +155,10 @@ class ClusterPool:
             try:
                 result, files = task_future.result()
                 write_run_files(Path(out) / result["out"], files, self.result_name)
-            except BaseException as e:  # noqa: BLE001 - handed to whoever waits on the future
+            except BaseException as e:  # noqa: BLE001 - handed to whoever waits on the future, as one line
                 if future.set_running_or_notify_cancel():
-                    future.set_exception(e)
+                    future.set_exception(e if isinstance(e, ClusterError) else
+                                         ClusterError(f"run {index} failed on the cluster ({type(e).__name__}: {e})"))
                 return
             if future.set_running_or_notify_cancel():
                 future.set_result(result)

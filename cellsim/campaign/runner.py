@@ -487,6 +487,8 @@ def worker_pool(jobs: int, scheduler: str | None = None, inputs_dir: Path | None
             raise CampaignError(str(e)) from None
         try:
             yield Workers(cluster.submit, cluster)
+        except ClusterError as e:  # a worker of another version, a run lost on too many workers
+            raise CampaignError(f"{e}; the finished runs are kept: run the same command again to resume") from None
         finally:
             cluster.close()
         return
