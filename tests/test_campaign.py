@@ -163,7 +163,7 @@ def _processes_in_group(pgid: int) -> list[int]:
     return found
 
 
-def test_ctrl_c_keeps_finished_runs_stops_every_worker_and_the_campaign_resumes(tmp_path):
+def test_ctrl_c_keeps_finished_runs_stops_every_worker_and_the_campaign_resumes(tmp_path, monkeypatch):
     out = tmp_path / "c"
     command = [sys.executable, "-m", "cellsim.cli", "campaign", str(WELDING_CELL), "--runs", "10", "--jobs", "2",
                "--duration", "10", "--out", str(out), "--quiet"]
@@ -190,7 +190,9 @@ def test_ctrl_c_keeps_finished_runs_stops_every_worker_and_the_campaign_resumes(
     assert _processes_in_group(child.pid) == []
     finished = len(list(out.glob("runs/*/result.json")))
     assert 2 <= finished < 10 and not (out / "results.json").exists()
-    # 10 s runs end while the operator may still be at the table: Final:Tbl, exit 1
+    # 10 s runs end while the operator may still be at the table: Final:Tbl, exit 1;
+    # workers replaced every run: the pool goes on through several generations of them
+    monkeypatch.setattr("cellsim.campaign.local_pool.RUNS_PER_WORKER", 1)
     assert main(["campaign", str(WELDING_CELL), "--runs", "10", "--jobs", "2", "--duration", "10", "--out", str(out), "--quiet"]) == 1
     results = _results(out)
     assert results["totals"]["violations"]["Final:Tbl"] == results["totals"]["violating_runs"] > 0

@@ -44,25 +44,21 @@ Workers end with the campaign process, however it ends (SIGKILL included).
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import dataclasses
 import functools
 import json
-import multiprocessing
 import os
 import shlex
 import shutil
-import signal
-import sys
-import threading
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
+from cellsim.campaign.local_pool import LocalPool
 from cellsim.atomic import LOCK, FolderBusy, folder_lock, write_text
 from cellsim.validation.config import description_of, formula_of
 from cellsim.campaign.samplers import describe_sampling, draw_configuration, run_seed
@@ -75,7 +71,6 @@ REPORT = "report.html"
 RESULT = "result.json"
 TRACE = "trace.json"
 RUNS = "runs"
-RUNS_PER_WORKER = 60
 
 
 class CampaignError(Exception):
@@ -435,9 +430,13 @@ def _run_locked(plan, out: Path, jobs, on_progress, restart, inputs, identity, w
 
 def _run_parallel(plan, out, todo, workers, results, report_progress, origin=None, stop=lambda: False) -> None:
     """Runs ``todo`` on ``workers`` (:func:`worker_pool`), recording each result as it comes back."""
+    waiting = list(reversed(todo))
+    slots = workers.slots or len(todo)
+    pending = set()
     try:
-        pending = {workers.submit(execute_run, plan, out, i, origin) for i in todo}
-        while pending:
+        while waiting or pending:
+            while waiting and len(pending) < slots:
+                pending.add(workers.submit(execute_run, plan, out, waiting.pop(), origin))
             finished, pending = wait(pending, return_when=FIRST_COMPLETED)
             for future in finished:
                 if future.cancelled():
@@ -446,6 +445,7 @@ def _run_parallel(plan, out, todo, workers, results, report_progress, origin=Non
                 results[result["index"]] = result
             report_progress()
             if stop():  # runs not started are dropped; those running finish and are kept
+                waiting.clear()
                 for future in pending:
                     future.cancel()
     except BrokenProcessPool as e:
@@ -461,6 +461,8 @@ class Workers:
 
     submit: Callable | None
     cluster: object | None = None
+    slots: int | None = None
+    """Runs to keep in flight at most (None: submit them all, the cluster queues them)."""
 
     def record(self) -> dict | None:
         """What results.json says of the cluster: its scheduler, workers and retried runs."""
@@ -471,13 +473,8 @@ class Workers:
 
 @contextlib.contextmanager
 def worker_pool(jobs: int, scheduler: str | None = None, inputs_dir: Path | None = None):
-    """The campaign's workers: a Dask cluster at ``scheduler``, else ``jobs`` local processes (one: none).
-
-    Local workers are fresh interpreters ("spawn"), not forks of this one: nothing of
-    the parent's Drake state is shared, and no helper process outlives the campaign.
-    A pydrake diagram holding Python systems is never freed (about 2.5 MB a run), so
-    local workers are replaced now and then to keep memory bounded.
-    """
+    """The campaign's workers: a Dask cluster at ``scheduler``, else ``jobs`` local processes
+    (:class:`~cellsim.campaign.local_pool.LocalPool`; one job: none, runs in this process)."""
     if scheduler is not None:
         from cellsim.campaign.cluster import ClusterError, ClusterPool
 
@@ -495,59 +492,13 @@ def worker_pool(jobs: int, scheduler: str | None = None, inputs_dir: Path | None
     if jobs <= 1:
         yield Workers(None)
         return
-    executor = ProcessPoolExecutor(
-        max_workers=jobs,
-        mp_context=multiprocessing.get_context("spawn"),
-        max_tasks_per_child=RUNS_PER_WORKER,
-        initializer=_init_worker,
-        initargs=(os.getpid(),),
-    )
+    pool = LocalPool(jobs)
     try:
-        yield Workers(executor.submit)
+        yield Workers(pool.submit, slots=pool.slots)
     except BaseException:
-        executor.shutdown(wait=True, cancel_futures=True)
+        pool.shutdown(cancel=True)
         raise
-    executor.shutdown(wait=True)
-
-
-PR_SET_PDEATHSIG = 1
-"""prctl(2) option: the signal a process gets when its parent ends (Linux)."""
-PARENT_POLL = 0.5
-"""How often (s) a worker's watcher checks that the campaign process is alive."""
-
-
-def _init_worker(parent: int) -> None:
-    """Workers leave Ctrl-C to the campaign, which cancels what has not started and
-    lets running runs finish, so an interruption loses no finished run; and they
-    end when the campaign process ends, however it ends."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _end_with_parent(parent)
-
-
-def _end_with_parent(parent: int) -> None:
-    """End this process as soon as ``parent`` (the campaign) ends, SIGKILL included.
-
-    On Linux the kernel kills it (``PR_SET_PDEATHSIG``; the executor creates
-    workers from threads that outlive them: the caller's and its manager
-    thread). Everywhere, a daemon thread also watches for the process being
-    re-parented, the portable sign that the parent is gone; it also covers a
-    parent that died before the prctl call.
-    """
-    if sys.platform.startswith("linux"):
-        try:
-            libc = ctypes.CDLL(None, use_errno=True)
-            libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-        except (OSError, AttributeError):
-            pass  # no usable libc: the watcher below still ends the worker
-    if os.getppid() != parent:
-        os._exit(1)
-
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(PARENT_POLL)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="cellsim-parent-watch", daemon=True).start()
+    pool.shutdown()
 
 
 def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start: float, record: dict | None = None,
