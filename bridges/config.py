@@ -37,9 +37,9 @@ class ZenohSettings:
     """How the daemon reaches the twin (as ``cellsim live``'s clients do)."""
 
     connect: list[str] = field(default_factory=list)
-    """Zenoh endpoints to connect to (default: the twin's tcp/127.0.0.1:7447)."""
+    """Zenoh endpoints to connect to (default: the twin's tls/127.0.0.1:7447)."""
     config: str | None = None
-    """A Zenoh JSON5 configuration file (credentials), relative to this file."""
+    """A Zenoh JSON5 configuration file for anything more, relative to this file."""
 
 
 @dataclass

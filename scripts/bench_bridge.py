@@ -13,7 +13,11 @@ around the daemon itself:
   robot in twin mode, their commands changing every 0.1 s (each change goes out
   at once).
 
-It prints per load: the latency the daemon adds from a CAN frame received to its
+Each load runs twice, taking turns: with mutual TLS and the twin's access control
+(the default of every cellsim session, keys made for the run) and with plain TCP
+(``--insecure``), so the cost of TLS is read beside the plain figures of the same run.
+
+It prints per load and security: the latency the daemon adds from a CAN frame received to its
 Zenoh sample published, and from a changed command received to its frames sent
 (p50, p99, max; measured inside the daemon, from python-can's or Zenoh's
 callback to the send, as its status on cellsim/<cell>/diagnostics/bridge
@@ -22,10 +26,10 @@ and the daemon's CPU in % of one core.
 
 Targets (issue "The bridge daemon"): p99 at most 1 ms added; no frame lost at
 ten times nominal; the daemon at most 25 % of one core at nominal. The last line
-reads ``bridge: p50 X ms, p99 Y ms, lost N of M``: the worse of the two loads'
-frame latencies, and the frames lost over both.
+reads ``bridge: p50 X ms, p99 Y ms, lost N of M`` per security: the worse of the
+two loads' frame latencies, and the frames lost over both.
 
-    .venv/bin/python scripts/bench_bridge.py [--seconds 60]
+    .venv/bin/python scripts/bench_bridge.py [--seconds 60] [--security tls plain]
 """
 
 from __future__ import annotations
@@ -118,7 +122,8 @@ def play_twin(session, cell: str, stop: threading.Event) -> None:
         pause.wait(0.1)
 
 
-def run_load(load: float, seconds: float, tmp: Path) -> dict:
+def run_load(load: float, seconds: float, tmp: Path, key_dir: Path | None) -> dict:
+    """One load for ``seconds``; ``key_dir``: mutual TLS with those keys, None: plain TCP (--insecure)."""
     import can
     import zenoh
 
@@ -129,16 +134,18 @@ def run_load(load: float, seconds: float, tmp: Path) -> dict:
     loaded = load_bridge(CONFIG)
     cell = loaded.cell
     port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    endpoint = f"{'tls' if key_dir else 'tcp'}/127.0.0.1:{port}"
+    security = ["--keys", str(key_dir)] if key_dir else ["--insecure"]
     statuses: list[dict] = []
     with processes() as start:
         channel = can_server(start, tmp / f"can-{load:g}.log")
-        hub = zenoh.open(session_config(listen=[endpoint], listen_by_default=True))
+        hub = zenoh.open(session_config(role="twin", keys=key_dir, insecure=key_dir is None, listen=[endpoint],
+                                        listen_by_default=True))
         bus = can.Bus(interface="remote", channel=channel)
         try:
             token = hub.liveliness().declare_token(keys.alive(cell, "twin"))
             hub.declare_subscriber(keys.diagnostics(cell, "bridge"), lambda s: statuses.append(json.loads(s.payload.to_bytes())))
-            args = ["bridge", str(CONFIG), "--can", f"remote:{channel}", "--connect", endpoint]
+            args = ["bridge", str(CONFIG), "--can", f"remote:{channel}", "--connect", endpoint, *security]
             if PROFILE:  # the daemon under cProfile, its statistics written when it is stopped
                 daemon = start(["-o", PROFILE, "-m", "cellsim", *args], tmp / f"bridge-{load:g}.log", module="cProfile")
             else:
@@ -184,26 +191,35 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=60.0, help="seconds at each load (default 60)")
     parser.add_argument("--loads", type=float, nargs="+", default=[1.0, 10.0], help="loads to run (default 1 10)")
     parser.add_argument("--profile", metavar="FILE", help="run the daemon under cProfile, statistics to FILE")
+    parser.add_argument("--security", nargs="+", choices=("tls", "plain"), default=["tls", "plain"],
+                        help="mutual TLS, plain TCP, or both taking turns (default: both)")
     args = parser.parse_args()
     global PROFILE
     PROFILE = args.profile
-    results = []
+    from cellsim.live.pki import init_keys
+
+    results: dict[str, list] = {s: [] for s in args.security}
     with tempfile.TemporaryDirectory() as tmp:
+        keys = Path(tmp) / "keys"
+        init_keys(keys)
         for load in args.loads:
-            print(f"load {load:g}x nominal for {args.seconds:g} s ...", file=sys.stderr, flush=True)
-            r = run_load(load, args.seconds, Path(tmp))
-            results.append(r)
-            f, c = r["frame_ms"], r["command_ms"]
-            print(f"{load:g}x nominal: {r['frames']} CAN frames ({r['frames'] / args.seconds:.0f}/s), lost {r['lost']}; "
-                  f"robot states {r['robot_received']} of {r['robot_states']}")
-            print(f"  frame -> sample: p50 {f['p50']:.3f} ms, p99 {f['p99']:.3f} ms, max {f['max']:.3f} ms (n {f['n']})")
-            if c.get("n"):
-                print(f"  command -> frames: p50 {c['p50']:.3f} ms, p99 {c['p99']:.3f} ms, max {c['max']:.3f} ms (n {c['n']})")
-            print(f"  daemon CPU: {100 * r['cpu']:.1f} % of one core")
-    p50 = max(r["frame_ms"]["p50"] for r in results)
-    p99 = max(r["frame_ms"]["p99"] for r in results)
-    lost, total = sum(r["lost"] for r in results), sum(r["frames"] for r in results)
-    print(f"bridge: p50 {p50:.3f} ms, p99 {p99:.3f} ms, lost {lost} of {total}")
+            for security in args.security:
+                print(f"load {load:g}x nominal, {security}, for {args.seconds:g} s ...", file=sys.stderr, flush=True)
+                r = run_load(load, args.seconds, Path(tmp), keys if security == "tls" else None)
+                results[security].append(r)
+                f, c = r["frame_ms"], r["command_ms"]
+                print(f"{load:g}x nominal, {security}: {r['frames']} CAN frames ({r['frames'] / args.seconds:.0f}/s), "
+                      f"lost {r['lost']}; robot states {r['robot_received']} of {r['robot_states']}")
+                print(f"  frame -> sample: p50 {f['p50']:.3f} ms, p99 {f['p99']:.3f} ms, max {f['max']:.3f} ms (n {f['n']})")
+                if c.get("n"):
+                    print(f"  command -> frames: p50 {c['p50']:.3f} ms, p99 {c['p99']:.3f} ms, max {c['max']:.3f} ms "
+                          f"(n {c['n']})")
+                print(f"  daemon CPU: {100 * r['cpu']:.1f} % of one core")
+    for security, runs in results.items():
+        p50 = max(r["frame_ms"]["p50"] for r in runs)
+        p99 = max(r["frame_ms"]["p99"] for r in runs)
+        lost, total = sum(r["lost"] for r in runs), sum(r["frames"] for r in runs)
+        print(f"bridge ({security}): p50 {p50:.3f} ms, p99 {p99:.3f} ms, lost {lost} of {total}")
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ The last line reads ``dashboard: X % of one core``.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
 import threading
@@ -42,9 +43,13 @@ def main() -> None:
     parser.add_argument("--profile", metavar="FILE", help="run the dashboard under cProfile, statistics to FILE")
     args = parser.parse_args()
     port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    endpoint = f"tls/127.0.0.1:{port}"
     with tempfile.TemporaryDirectory() as tmp, processes() as start:
         tmp = Path(tmp)
+        from cellsim.live.pki import ENVIRONMENT, init_keys
+
+        init_keys(tmp / "keys")  # the run's own keys, for every process (never the user's)
+        os.environ[ENVIRONMENT] = str(tmp / "keys")
         start(["live", SCENARIO, "--out", str(tmp / "twin"), "--listen", endpoint, "--quiet", *SHADOW,
                "--duration", str(args.seconds + 60)], tmp / "twin.log")
         with observer(port) as session:

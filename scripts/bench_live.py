@@ -21,12 +21,17 @@ Targets (issue "The twin goes live"): lag p99 <= 5 ms; sample -> twin <= one
 update period of the entity (the curtain: 40 ms) + 2 ms at p99; twin <= 50 % of
 one core.
 
-    .venv/bin/python scripts/bench_live.py [--seconds 60]
+It measures with mutual TLS and the twin's access control (every cellsim
+session's default, keys made for the run), then with plain TCP (``--insecure``):
+the cost of TLS, read beside the plain figures of the same run.
+
+    .venv/bin/python scripts/bench_live.py [--seconds 60] [--security tls plain]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import signal
@@ -45,7 +50,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from cellsim.services.blackbox import BlackBox  # noqa: E402
 from cellsim.vocabulary import SafetyMode  # noqa: E402
-from live_processes import free_port, observer, wait_alive  # noqa: E402
+from live_processes import free_port, wait_alive  # noqa: E402
 
 SCENARIO = ROOT / "scenarios" / "welding_cell.yaml"
 TWIN_MODES = ["--set", "robot.twin.mode=twin", "--set", "welder.twin.mode=twin"] + [
@@ -67,26 +72,26 @@ def percentiles(values, *ps) -> list[float]:
     return [float(np.percentile(values, p)) for p in ps] if len(values) else [float("nan")] * len(ps)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=60.0, help="seconds of real time measured (default 60)")
-    args = parser.parse_args()
+def measure(seconds: float, keys: Path | None) -> dict:
+    """One measured run; ``keys``: every session with mutual TLS and the twin's access control,
+    None: plain TCP (--insecure)."""
     port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    endpoint = f"{'tls' if keys else 'tcp'}/127.0.0.1:{port}"
+    security = ["--keys", str(keys)] if keys else ["--insecure"]
     tmp = Path(tempfile.mkdtemp(prefix="bench_live-"))
     cellsim = [sys.executable, "-m", "cellsim"]
     logs = [open(tmp / "twin.log", "w"), open(tmp / "emulator.log", "w")]
     twin = subprocess.Popen([*cellsim, "live", str(SCENARIO), "--out", str(tmp / "twin"), "--listen", endpoint, "--quiet",
-                             "--wait-physical", "30", *TWIN_MODES], stdout=logs[0], stderr=subprocess.STDOUT, cwd=ROOT)
+                             "--wait-physical", "30", *TWIN_MODES, *security], stdout=logs[0], stderr=subprocess.STDOUT, cwd=ROOT)
     emulator = None
     toggles: list[tuple[float, bool]] = []  # (sample time, broken) of each toggle's first sample
     try:
-        with observer(port) as session:
+        with session_as("bridge", endpoint, keys) as session:  # the curtain's samples come as the bridge's would
             curtain = session.declare_publisher("cellsim/welding_cell/physical/light_barrier")
             emulator = subprocess.Popen(
                 [*cellsim, "emulate", str(SCENARIO), "--out", str(tmp / "emulator"), "--connect", endpoint, "--quiet",
                  "--commanded-by-twin", "--rate", "robot=500", "--fault", "light_barrier=silence",
-                 "--duration", str(args.seconds + 40)], stdout=logs[1], stderr=subprocess.STDOUT, cwd=ROOT)
+                 "--duration", str(seconds + 40), *security], stdout=logs[1], stderr=subprocess.STDOUT, cwd=ROOT)
             # the curtain is a device too: its samples start with the emulator's
             stop = threading.Event()
 
@@ -110,7 +115,7 @@ def main() -> None:
             wait_alive(session, "cellsim/welding_cell/alive/emulator", 60)
             wait_alive(session, "cellsim/welding_cell/alive/twin", 60)
             cpu0 = (cpu_seconds(twin.pid), cpu_seconds(emulator.pid), time.monotonic())
-            stop.wait(args.seconds)  # the measured minute
+            stop.wait(seconds)  # the measured minute
             cpu1 = (cpu_seconds(twin.pid), cpu_seconds(emulator.pid), time.monotonic())
             stop.set()
             player.join()
@@ -159,20 +164,48 @@ def main() -> None:
     if os.environ.get("BENCH_LIVE_VERBOSE"):
         print("sample -> twin (ms):", [round(float(x) * 1e3, 1) for x in latencies])
         print("sensor -> command (ms):", [round(float(x) * 1e3, 1) for x in reactions])
-    twin_cpu = 100.0 * (cpu1[0] - cpu0[0]) / (cpu1[2] - cpu0[2])
-    emu_cpu = 100.0 * (cpu1[1] - cpu0[1]) / (cpu1[2] - cpu0[2])
     lag = live["pacing_lag_s"]
-    p50, p99 = percentiles(latencies, 50, 99)
-    r50, r99 = percentiles(reactions, 50, 99)
-    print(f"measured                  {args.seconds:.0f} s of real time, robot state at 500 Hz  ({tmp})")
-    print(f"twin pacing lag           p50 {lag['p50'] * 1e3:6.2f} ms  p99 {lag['p99'] * 1e3:6.2f} ms  max {lag['max'] * 1e3:6.2f} ms"
-          "   (target p99 <= 5 ms)")
-    print(f"sample -> twin channel    p50 {p50 * 1e3:6.2f} ms  p99 {p99 * 1e3:6.2f} ms   ({len(latencies)} curtain toggles;"
-          f" target p99 <= {CURTAIN_PERIOD * 1e3 + 2:.0f} ms)")
-    print(f"sensor -> command applied p50 {r50 * 1e3:6.2f} ms  p99 {r99 * 1e3:6.2f} ms   ({len(reactions)} safety-mode commands,"
-          " from the sensor change to the emulated robot's mode)")
-    print(f"CPU                       twin {twin_cpu:5.1f} %  emulator {emu_cpu:5.1f} % of one core   (target twin <= 50 %)")
+    return {"tmp": tmp, "lag": lag, "latencies": percentiles(latencies, 50, 99), "n_latencies": len(latencies),
+            "reactions": percentiles(reactions, 50, 99), "n_reactions": len(reactions),
+            "twin_cpu": 100.0 * (cpu1[0] - cpu0[0]) / (cpu1[2] - cpu0[2]),
+            "emu_cpu": 100.0 * (cpu1[1] - cpu0[1]) / (cpu1[2] - cpu0[2])}
 
+
+@contextlib.contextmanager
+def session_as(role: str, endpoint: str, keys: Path | None):
+    import zenoh
+
+    from cellsim.live.session import session_config
+
+    session = zenoh.open(session_config(role=role, keys=keys, insecure=keys is None, connect=[endpoint]))
+    try:
+        yield session
+    finally:
+        session.close()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=60.0, help="seconds of real time measured (default 60)")
+    parser.add_argument("--security", nargs="+", choices=("tls", "plain"), default=["tls", "plain"],
+                        help="mutual TLS, plain TCP, or both one after the other (default: both)")
+    args = parser.parse_args()
+    from cellsim.live.pki import init_keys
+
+    keys = Path(tempfile.mkdtemp(prefix="bench_live-keys-")) / "keys"
+    init_keys(keys)
+    for security in args.security:
+        r = measure(args.seconds, keys if security == "tls" else None)
+        lag, (p50, p99), (r50, r99) = r["lag"], r["latencies"], r["reactions"]
+        print(f"[{security}] measured             {args.seconds:.0f} s of real time, robot state at 500 Hz  ({r['tmp']})")
+        print(f"[{security}] twin pacing lag      p50 {lag['p50'] * 1e3:6.2f} ms  p99 {lag['p99'] * 1e3:6.2f} ms  "
+              f"max {lag['max'] * 1e3:6.2f} ms   (target p99 <= 5 ms)")
+        print(f"[{security}] sample -> twin       p50 {p50 * 1e3:6.2f} ms  p99 {p99 * 1e3:6.2f} ms   "
+              f"({r['n_latencies']} curtain toggles; target p99 <= {CURTAIN_PERIOD * 1e3 + 2:.0f} ms)")
+        print(f"[{security}] sensor -> command    p50 {r50 * 1e3:6.2f} ms  p99 {r99 * 1e3:6.2f} ms   "
+              f"({r['n_reactions']} safety-mode commands, from the sensor change to the emulated robot's mode)")
+        print(f"[{security}] CPU                  twin {r['twin_cpu']:5.1f} %  emulator {r['emu_cpu']:5.1f} % of one core"
+              "   (target twin <= 50 %)")
 
 if __name__ == "__main__":
     main()

@@ -54,6 +54,25 @@ def values_between(series, t0: float, t1: float) -> list:
     return out
 
 
+@pytest.fixture(scope="session", autouse=True)
+def cell_keys(tmp_path_factory):
+    """The cell's keys for every Zenoh session of the tests, theirs and their processes' (which inherit
+    ``CELLSIM_KEYS``): made once per test process, never the user's own ~/.config/cellsim/keys."""
+    import os
+
+    from cellsim.live.pki import ENVIRONMENT, init_keys
+
+    folder = tmp_path_factory.mktemp("cell") / "keys"
+    init_keys(folder)
+    previous = os.environ.get(ENVIRONMENT)
+    os.environ[ENVIRONMENT] = str(folder)
+    yield folder
+    if previous is None:
+        os.environ.pop(ENVIRONMENT, None)
+    else:
+        os.environ[ENVIRONMENT] = previous
+
+
 @pytest.fixture
 def tmp_run(tmp_path):
     return tmp_path / "run"

@@ -91,13 +91,14 @@ def can_server(start, log: Path, timeout: float = 30.0) -> str:
 
 
 @contextmanager
-def observer(port: int):
-    """A Zenoh session of the test, connected to the twin's loopback port."""
+def observer(port: int, role: str = "observer", keys: Path | None = None):
+    """A Zenoh session of the test, connected to the twin's loopback port with ``role``'s certificate
+    (of the tests' keys, ``CELLSIM_KEYS``, unless ``keys`` is given)."""
     import zenoh
 
     from cellsim.live.session import session_config
 
-    session = zenoh.open(session_config(connect=[f"tcp/127.0.0.1:{port}"]))
+    session = zenoh.open(session_config(role=role, keys=keys, connect=[f"tls/127.0.0.1:{port}"]))
     try:
         yield session
     finally:

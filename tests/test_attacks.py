@@ -55,13 +55,14 @@ class Curtain:
 def test_forged_future_stamps_and_oversized_payloads_neither_fool_nor_stop_the_twin(tmp_path):
     port = free_port()
     with processes() as start:
-        twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", f"tcp/127.0.0.1:{port}",
+        twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", f"tls/127.0.0.1:{port}",
                       "--quiet", "--set", "light_barrier.twin.mode=shadow", "--wait-physical", "0"], tmp_path / "twin.log")
-        with observer(port) as session:
+        # the attacker holds the bridge's certificate: a foothold on a legitimate sender of samples
+        with observer(port) as session, observer(port, role="bridge") as attacker:
             wait_alive(session, "cellsim/welding_cell/alive/twin")
             broken = ChannelWatch(session, "cellsim/welding_cell/twin/light_barrier/broken")
             link = ChannelWatch(session, "cellsim/welding_cell/twin/light_barrier/physical_link")
-            publisher = session.declare_publisher(CURTAIN)
+            publisher = attacker.declare_publisher(CURTAIN)
             curtain = Curtain(publisher)
             try:
                 link.wait_for("ok", 30)

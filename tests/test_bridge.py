@@ -33,9 +33,11 @@ def config_text() -> str:
 
 @pytest.fixture
 def sessions():
+    """A hub with the daemon's session, and a second session that plays the twin, a watcher or a controller:
+    the daemon's logic, with no access control between them (test_security.py tests the roles)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    hub = zenoh.open(session_config(listen=[endpoint], listen_by_default=True))
-    watcher = zenoh.open(session_config(connect=[endpoint]))
+    hub = zenoh.open(session_config(role="bridge", insecure=True, listen=[endpoint], listen_by_default=True))
+    watcher = zenoh.open(session_config(role="twin", insecure=True, connect=[endpoint]))
     try:
         yield hub, watcher
     finally:
@@ -525,7 +527,7 @@ def test_bad_emulate_can_arguments_are_one_line_exit_2(tmp_path, args, expected)
     import sys
 
     proc = subprocess.run([sys.executable, "-m", "cellsim", "emulate", str(ROOT / "scenarios" / "welding_cell.yaml"),
-                           "--out", str(tmp_path / "out"), "--connect", f"tcp/127.0.0.1:{free_port()}", *args],
+                           "--out", str(tmp_path / "out"), "--connect", f"tls/127.0.0.1:{free_port()}", *args],
                           capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and expected in proc.stderr, proc.stderr
     assert not (tmp_path / "out").exists()

@@ -90,7 +90,7 @@ def _start_emulator(start, tmp, args, bus: str, endpoint: str):
 
 def test_each_bus_fault_drives_its_entity_to_fail_safe_within_its_watchdog_and_back(tmp_path):
     port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    endpoint = f"tls/127.0.0.1:{port}"
     faults = [arg for entity, kind, t0, t1 in FAULTS for arg in ("--fault", f"{entity}={kind}@{t0}-{t1}")]
     with processes() as start:
         bus = can_server(start, tmp_path / "can.log")
@@ -132,7 +132,7 @@ def test_the_twin_supervises_the_emulated_cell_through_the_bus(tmp_path):
     """The live issue's supervision test, with the welder's commands and states as CAN frames and the
     robot's through its controller's stream: the same outcomes."""
     port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    endpoint = f"tls/127.0.0.1:{port}"
     reached, on_status = sim_time_reached(30.0)
 
     with processes() as start:
@@ -166,7 +166,7 @@ def test_the_twin_supervises_the_emulated_cell_through_the_bus(tmp_path):
 
 def test_a_killed_twin_gets_every_commanded_device_its_safe_command_within_the_watchdog(tmp_path):
     port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    endpoint = f"tls/127.0.0.1:{port}"
     with processes() as start:
         bus = can_server(start, tmp_path / "can.log")
         listener = can.Bus(interface="remote", channel=bus)
@@ -210,9 +210,10 @@ def test_a_killed_twin_gets_every_commanded_device_its_safe_command_within_the_w
         assert emu.series("welder.safety_mode").values[-1] == "stopped"  # the device did as the safe command said
 
 
-def test_with_the_shipped_access_control_the_daemon_feeds_the_twin_and_observers_see_its_diagnostics(tmp_path):
-    """The daemon as user "cell": a robot controller's states (also "cell") reach the twin as the robot's
-    samples through it; an observer sees its diagnostics but cannot feed the controller stream."""
+def test_under_the_twins_access_control_the_daemon_feeds_the_twin_and_observers_see_its_diagnostics(tmp_path):
+    """The daemon with the bridge's certificate: a robot controller's states (the robot adapter's
+    certificate) reach the twin as the robot's samples through it; an observer sees its diagnostics
+    but cannot feed the controller stream."""
     import zenoh
 
     from cellsim.live.session import session_config
@@ -220,10 +221,10 @@ def test_with_the_shipped_access_control_the_daemon_feeds_the_twin_and_observers
     from live_processes import ChannelWatch
 
     port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    endpoint = f"tls/127.0.0.1:{port}"
 
-    def session(user: str):
-        return zenoh.open(session_config(connect=[endpoint], config_file=ROOT / "config" / "zenoh" / f"client-{user}.json5"))
+    def session(role: str):
+        return zenoh.open(session_config(role=role, connect=[endpoint]))
 
     def stream(publisher, seq0: int, until, timeout: float) -> int:
         """Robot controller states at about 500 Hz until ``until()`` holds."""
@@ -239,13 +240,12 @@ def test_with_the_shipped_access_control_the_daemon_feeds_the_twin_and_observers
 
     with processes() as start:
         twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet",
-                      "--config", "config/zenoh/twin-acl.json5", "--set", "robot.twin.mode=shadow", "--wait-physical", "0"],
+                      "--set", "robot.twin.mode=shadow", "--wait-physical", "0"],
                      tmp_path / "twin.log")
         observer_session = session("observer")
         try:
             wait_alive(observer_session, "cellsim/welding_cell/alive/twin")
-            bridge = start(["bridge", BRIDGE, "--can", "virtual:acl", "--connect", endpoint,
-                            "--config", "config/zenoh/client-cell.json5"], tmp_path / "bridge.log")
+            bridge = start(["bridge", BRIDGE, "--can", "virtual:acl", "--connect", endpoint], tmp_path / "bridge.log")
             wait_alive(observer_session, "cellsim/welding_cell/alive/bridge")
             diagnostics = Diagnostics(observer_session)
             link = ChannelWatch(observer_session, "cellsim/welding_cell/twin/robot/physical_link")
@@ -253,7 +253,7 @@ def test_with_the_shipped_access_control_the_daemon_feeds_the_twin_and_observers
             forged = observer_session.declare_publisher("cellsim/welding_cell/controller/robot/state")
             stream(forged, 0, lambda: diagnostics.heard.get("robot", 0) >= 3, 30)  # two diagnostics periods of it
             assert diagnostics.latest["robot"]["received"] == 0 and diagnostics.latest["robot"]["level"] == "STALE"
-            controller_session = session("cell")
+            controller_session = session("robot")
             try:
                 controller = controller_session.declare_publisher("cellsim/welding_cell/controller/robot/state")
                 stream(controller, 0, lambda: link.values[-1:] == ["ok"], 60)

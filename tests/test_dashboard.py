@@ -121,10 +121,11 @@ def test_on_a_small_terminal_without_colour_the_cell_and_its_hazards_still_show(
 
 def test_the_dashboard_follows_the_live_twin_sees_a_link_go_stale_and_switches_a_twin_mode(tmp_path):
     port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    endpoint = f"tls/127.0.0.1:{port}"
     modes = [arg for e in ("robot", "welder", "light_barrier", "range_detector", "operator") for arg in ("--set", f"{e}.twin.mode=shadow")]
     with processes() as start:
-        screen = TmuxScreen(["dashboard", "--connect", endpoint])  # before the twin: it says it waits
+        # an engineer's dashboard (an observer's may not switch modes), before the twin: it says it waits
+        screen = TmuxScreen(["dashboard", "--connect", endpoint, "--role", "engineer"])
         try:
             screen.wait_for(lambda s: "no twin running" in s, 30, "saying no twin runs")
             twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet", *modes],
@@ -181,6 +182,36 @@ def test_a_twin_mode_switch_asks_for_confirmation_and_no_cancels(welding_run):
         return feed.requests
 
     assert asyncio.run(drive()) == [("welder", "twin")]  # only the confirmed one was asked
+
+
+def test_an_observers_dashboard_says_it_may_not_switch_modes_and_asks_nothing(welding_run):
+    from textual.widgets import RichLog
+
+    from cellsim.dashboard.app import Dashboard
+    from cellsim.dashboard.feeds import ReplayFeed
+
+    class Feed(ReplayFeed):
+        may_switch = False  # as LiveFeed is with an observer's certificate
+        requests: list = []
+
+        def request_mode(self, entity: str, mode: str) -> dict:
+            self.requests.append((entity, mode))
+            return {"accepted": False, "reason": "no answer"}
+
+    async def drive() -> tuple[list, str]:
+        feed = Feed(welding_run, speed=1.0, start=5.0)
+        app = Dashboard(feed)
+        async with app.run_test(size=(120, 40)) as pilot:
+            await pilot.pause()
+            await pilot.press("m")
+            await pilot.pause()
+            events = "\n".join(str(line.text) for line in app.query_one("#events", RichLog).lines)
+            no_choice = not any("Switch which entity" in str(w.render()) for w in app.screen.query("Static"))
+        return feed.requests, events, no_choice
+
+    requests, events, no_choice = asyncio.run(drive())
+    assert requests == [] and no_choice
+    assert "an observer may not switch twin modes: start the dashboard with --role engineer" in events
 
 
 def test_malformed_messages_are_counted_never_fatal(welding_run):

@@ -37,7 +37,7 @@ def shadow_run(tmp_path_factory):
     """The twin with every entity in shadow mode beside the standalone emulator, 12 s."""
     tmp = tmp_path_factory.mktemp("shadow")
     port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    endpoint = f"tls/127.0.0.1:{port}"
     with processes() as start:
         twin = start(["live", WELDING_CELL, "--out", str(tmp / "twin"), "--listen", endpoint, "--quiet", *ALL_SHADOW],
                      tmp / "twin.log")
@@ -98,7 +98,7 @@ def _twin_mode(endpoint: str, *args: str) -> subprocess.CompletedProcess:
 
 def test_twin_modes_switch_at_run_time_on_request_and_bad_requests_are_refused(tmp_path):
     port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    endpoint = f"tls/127.0.0.1:{port}"
     with processes() as start:
         twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet"], tmp_path / "twin.log")
         with observer(port) as session:
@@ -128,7 +128,7 @@ def test_twin_modes_switch_at_run_time_on_request_and_bad_requests_are_refused(t
 
 
 def test_twin_mode_with_no_twin_running_says_so(tmp_path):
-    done = _twin_mode(f"tcp/127.0.0.1:{free_port()}", "light_barrier", "shadow", "--timeout", "1")
+    done = _twin_mode(f"tls/127.0.0.1:{free_port()}", "light_barrier", "shadow", "--timeout", "1")
     assert done.returncode == 2 and "no running twin reachable within 1 s" in done.stderr
 
 
@@ -143,7 +143,7 @@ FAULTS = {  # entity: (fault injected, the link state it must cause, a channel a
 
 def test_each_injected_fault_drives_its_entity_to_fail_safe_and_back(tmp_path):
     port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    endpoint = f"tls/127.0.0.1:{port}"
     faults = [arg for e, (kind, *_) in FAULTS.items() for arg in ("--fault", f"{e}={kind}@3-5")]
     with processes() as start:
         twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet", *ALL_SHADOW],
@@ -175,7 +175,7 @@ def test_a_killed_emulator_makes_the_shadow_fail_safe_and_a_restarted_one_recove
     import signal
 
     port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    endpoint = f"tls/127.0.0.1:{port}"
     emulator_args = ["emulate", WELDING_CELL, "--connect", endpoint, "--quiet"]
     with processes() as start:
         twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet", *ALL_SHADOW],
@@ -204,7 +204,7 @@ TWIN_SUPERVISES = ["--set", "robot.twin.mode=twin", "--set", "welder.twin.mode=t
 def test_the_twins_safety_controller_supervises_the_emulated_cell(tmp_path):
     """The published twin test: the welding cell's full 30 s, the twin supervising the emulated cell."""
     port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    endpoint = f"tls/127.0.0.1:{port}"
     reached, on_status = sim_time_reached(30.0)
 
     with processes() as start:
@@ -230,21 +230,23 @@ def test_the_twins_safety_controller_supervises_the_emulated_cell(tmp_path):
     assert len(verdicts["verdicts"]) == 14  # all 14 conditions hold on the twin's record
 
 
-def test_only_authorised_peers_may_publish_samples_or_switch_modes(tmp_path):
-    """With the shipped access-control configuration: the observer may watch but neither feed a
-    physical sample nor switch a mode; a session without credentials cannot even connect."""
+def test_only_the_roles_certificates_allow_may_publish_samples_or_switch_modes(tmp_path, cell_keys):
+    """Mutual TLS and the twin's access control by certificate name: an observer may watch but neither
+    feed a physical sample nor switch a mode; a session with no certificate, or with one from another
+    CA, cannot connect at all; the engineer may switch modes, and the bridge feed samples."""
     import threading
     import time
 
     import zenoh
 
+    from cellsim.live import pki
     from cellsim.live.session import session_config
 
     port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    endpoint = f"tls/127.0.0.1:{port}"
 
-    def session(user: str):
-        return zenoh.open(session_config(connect=[endpoint], config_file=ROOT / "config" / "zenoh" / f"client-{user}.json5"))
+    def session(role: str):
+        return zenoh.open(session_config(role=role, connect=[endpoint]))
 
     links: list[tuple[float, str]] = []
     sim_time = [0.0]
@@ -269,10 +271,11 @@ def test_only_authorised_peers_may_publish_samples_or_switch_modes(tmp_path):
             heard.wait(0.02)  # a sample stream at 50 Hz, or sooner when the twin reports
             heard.clear()
 
+    other_ca = tmp_path / "other-keys"
+    pki.init_keys(other_ca)
     with processes() as start:
         twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet",
-                      "--config", "config/zenoh/twin-acl.json5", "--set", "light_barrier.twin.mode=shadow",
-                      "--wait-physical", "0"], tmp_path / "twin.log")
+                      "--set", "light_barrier.twin.mode=shadow", "--wait-physical", "0"], tmp_path / "twin.log")
         observer_session = session("observer")
         try:
             wait_alive(observer_session, "cellsim/welding_cell/alive/twin")
@@ -282,21 +285,40 @@ def test_only_authorised_peers_may_publish_samples_or_switch_modes(tmp_path):
             forged = observer_session.declare_publisher("cellsim/welding_cell/physical/light_barrier")
             publish_until(forged, lambda: sim_time[0] >= 3.0, 60)
             observer_phase_end = sim_time[0]
-            # nor does its mode request
-            refused = _twin_mode(endpoint, "robot", "shadow", "--config", "config/zenoh/client-observer.json5", "--timeout", "2")
-            assert refused.returncode == 2 and "no running twin answered" in refused.stderr
-            # a session with no credentials cannot connect at all
-            anonymous = _twin_mode(endpoint, "robot", "shadow", "--timeout", "2")
-            assert anonymous.returncode == 2 and "no running twin reachable" in anonymous.stderr
-            # the engineer may switch modes; the cell may feed samples
-            accepted = _twin_mode(endpoint, "robot", "shadow", "--config", "config/zenoh/client-engineer.json5")
-            assert accepted.returncode == 0 and accepted.stdout.startswith("accepted"), accepted.stdout + accepted.stderr
-            cell_session = session("cell")
+            # nor does its mode request: no answer comes back
+            request = json.dumps({"entity": "robot", "mode": "shadow", "by": "observer"})
+            assert list(observer_session.get("cellsim/welding_cell/control/twin_mode", payload=request, timeout=2.0)) == []
+            # nor can it pass for the bridge: its liveliness token is seen by nobody
+            fake = observer_session.liveliness().declare_token("cellsim/welding_cell/alive/bridge")
+            engineer = session("engineer")
             try:
-                device = cell_session.declare_publisher("cellsim/welding_cell/physical/light_barrier")
+                wait_alive(engineer, "cellsim/welding_cell/alive/twin")  # the engineer does see the real ones
+                assert list(engineer.liveliness().get("cellsim/welding_cell/alive/bridge", timeout=2.0)) == []
+            finally:
+                engineer.close()
+                fake.undeclare()
+            # the same command with the engineer's certificate of another CA cannot connect at all
+            stranger = _twin_mode(endpoint, "robot", "shadow", "--keys", str(other_ca), "--timeout", "2")
+            assert stranger.returncode == 2 and "no running twin reachable" in stranger.stderr, stranger.stderr
+            # nor can a session without TLS, or TLS without a client certificate
+            plain = _twin_mode(endpoint.replace("tls/", "tcp/"), "robot", "shadow", "--insecure", "--timeout", "2")
+            assert plain.returncode == 2 and "no running twin reachable" in plain.stderr, plain.stderr
+            anonymous = zenoh.Config()
+            for key, value in (("mode", "client"), ("scouting/multicast/enabled", False), ("listen/endpoints", []),
+                               ("connect/endpoints", [endpoint]), ("connect/timeout_ms", {"client": 2000}),
+                               ("transport/link/tls/root_ca_certificate", str(cell_keys / "ca.pem"))):
+                anonymous.insert_json5(key, json.dumps(value))
+            with pytest.raises(zenoh.ZError):
+                zenoh.open(anonymous).close()
+            # the engineer may switch modes; the bridge may feed samples
+            accepted = _twin_mode(endpoint, "robot", "shadow")
+            assert accepted.returncode == 0 and accepted.stdout.startswith("accepted"), accepted.stdout + accepted.stderr
+            bridge_session = session("bridge")
+            try:
+                device = bridge_session.declare_publisher("cellsim/welding_cell/physical/light_barrier")
                 publish_until(device, lambda: any(v == "ok" for _, v in links), 60)
             finally:
-                cell_session.close()
+                bridge_session.close()
         finally:
             observer_session.close()
         twin.stop()
@@ -316,7 +338,7 @@ def test_only_authorised_peers_may_publish_samples_or_switch_modes(tmp_path):
         (["emulate", WELDING_CELL, "--fault", "robto=silence"], "no entity named 'robto'"),
         (["emulate", WELDING_CELL, "--rate", "robot=0"], "HZ from 0.1 to 1000"),
         (["live", WELDING_CELL, "--wait-physical", "-1"], "--wait-physical -1"),
-        (["live", WELDING_CELL, "--listen", "tcp/127.0.0.1"], "not a Zenoh endpoint"),
+        (["live", WELDING_CELL, "--listen", "tls/127.0.0.1"], "not a Zenoh endpoint"),
         (["live", WELDING_CELL, "--set", "robot.twin.mode=shadw"], "'shadw' is not one of"),
     ],
 )
@@ -332,7 +354,7 @@ def test_a_fault_injected_at_run_time_fails_the_shadow_safe_and_sigterm_ends_the
     import signal
 
     port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    endpoint = f"tls/127.0.0.1:{port}"
 
     def inject(session, request: dict) -> dict:
         replies = list(session.get("cellsim/welding_cell/control/fault", payload=json.dumps(request), timeout=5))
@@ -341,7 +363,7 @@ def test_a_fault_injected_at_run_time_fails_the_shadow_safe_and_sigterm_ends_the
     with processes() as start:
         twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet",
                       "--set", "light_barrier.twin.mode=shadow"], tmp_path / "twin.log")
-        with observer(port) as session:
+        with observer(port, role="engineer") as session:  # injects faults
             link = ChannelWatch(session, "cellsim/welding_cell/twin/light_barrier/physical_link")
             wait_alive(session, "cellsim/welding_cell/alive/twin")
             start(["emulate", WELDING_CELL, "--out", str(tmp_path / "emulator"), "--connect", endpoint, "--quiet"], tmp_path / "emu.log")

@@ -42,8 +42,8 @@ def _channels(cell) -> dict[str, tuple]:
 
 def test_simulated_replayed_live_and_emulated_cells_export_the_same_ports_and_channels(tmp_path):
     run(load_scenario(WELDING_CELL), tmp_path / "recorded", duration=1.0)
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    session = zenoh.open(session_config(listen=[endpoint], listen_by_default=True))
+    endpoint = f"tcp/127.0.0.1:{free_port()}"  # one session, nothing crosses the network: no TLS needed
+    session = zenoh.open(session_config(role="twin", insecure=True, listen=[endpoint], listen_by_default=True))
     cells = {}
     try:
         for io in (Simulated(), Replayed(tmp_path / "recorded" / "blackbox.sqlite"), Live(session), Emulated(session)):
@@ -82,7 +82,7 @@ def _play(send, stop_after: threading.Event) -> None:
 
 
 def _twin(start, tmp, name: str, port: int):
-    twin = start(["live", str(WELDING_CELL), "--out", str(tmp / name), "--listen", f"tcp/127.0.0.1:{port}", "--quiet",
+    twin = start(["live", str(WELDING_CELL), "--out", str(tmp / name), "--listen", f"tls/127.0.0.1:{port}", "--quiet",
                   "--set", "light_barrier.twin.mode=shadow", "--wait-physical", "0",
                   # trusted at the first good sample: how many samples one update takes in depends on the machine's
                   # load, and with it whether 'recovering' is seen; the rows then depend on the path alone
@@ -111,7 +111,7 @@ def test_a_scripted_curtain_gives_the_twin_the_same_rows_over_zenoh_and_over_can
         port = free_port()
         twin = _twin(start, tmp_path, "zenoh", port)
         done = threading.Event()
-        with observer(port) as session:
+        with observer(port, role="emulator") as session:  # a source of physical samples
             publisher = session.declare_publisher("cellsim/welding_cell/physical/light_barrier")
             _play(lambda i, broken: publisher.put(encode_fields(time.time(), i + 1, {"broken": broken})), done)
             _after_silence(twin, done)
@@ -121,7 +121,7 @@ def test_a_scripted_curtain_gives_the_twin_the_same_rows_over_zenoh_and_over_can
         port = free_port()
         bus_channel = can_server(start, tmp_path / "can.log")
         twin = _twin(start, tmp_path, "can", port)
-        bridge = start(["bridge", str(BRIDGE), "--can", f"remote:{bus_channel}", "--connect", f"tcp/127.0.0.1:{port}"],
+        bridge = start(["bridge", str(BRIDGE), "--can", f"remote:{bus_channel}", "--connect", f"tls/127.0.0.1:{port}"],
                        tmp_path / "bridge.log")
         with observer(port) as session:
             wait_alive(session, "cellsim/welding_cell/alive/bridge")

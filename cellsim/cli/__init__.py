@@ -22,6 +22,7 @@ from cellsim.cli import (
     dashboard,
     emulate,
     falsify,
+    keys,
     live,
     modules,
     replay,
@@ -54,7 +55,7 @@ __all__ = [
     "_open_session", "_terminate_as_interrupt",
 ]
 
-COMMANDS = (simulate, check, verify, campaign, falsify, replay, modules, scenario, live, emulate, bridge, dashboard, twin_mode)
+COMMANDS = (simulate, check, verify, campaign, falsify, replay, modules, scenario, live, emulate, bridge, dashboard, twin_mode, keys)
 """The commands, in the order of ``cellsim --help``: each a module with ``add_parser`` and ``run``."""
 
 

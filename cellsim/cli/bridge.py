@@ -49,7 +49,7 @@ def run(args) -> int:
         args.config = loaded.source.parent / zenoh_settings.config
     bus = _open_can_bus(args.can, default)
     try:
-        session = _open_session(args, listen_by_default=False)
+        session = _open_session(args, "bridge", listen_by_default=False)
         try:
             bridge = Bridge(loaded, session, bus=bus)
             stop = threading.Event()

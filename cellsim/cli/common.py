@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import signal
+import sys
 from datetime import datetime
 from pathlib import Path
 
@@ -69,10 +70,36 @@ def _add_set(parser: argparse.ArgumentParser) -> None:
 
 def _add_network_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
-                        help="Zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)")
+                        help="Zenoh endpoint to listen on, e.g. tls/127.0.0.1:7447 (repeatable)")
     parser.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
                         help="Zenoh endpoint to connect to (repeatable)")
     parser.add_argument("--config", type=Path, metavar="FILE", help="a Zenoh JSON5 configuration for anything more")
+    parser.add_argument("--keys", type=Path, metavar="DIR",
+                        help="the cell's keys: its CA and this process's certificate for mutual TLS (default: "
+                        "$CELLSIM_KEYS, else ~/.config/cellsim/keys, created on first use; see cellsim keys init)")
+    parser.add_argument("--insecure", action="store_true",
+                        help="plain TCP without TLS, authentication or access control, on loopback only "
+                        "(a demo or a test; any local process can then publish samples and switch twin modes)")
+
+
+def _network_security(args, role: str) -> dict:
+    """The session's ``role``, ``keys`` and ``insecure`` (:func:`cellsim.live.session.session_config`);
+    creates the default keys on first use, and warns of ``--insecure``, on stderr."""
+    from cellsim.live import pki
+
+    if args.insecure:
+        print("cellsim: warning: --insecure: no TLS, no authentication, no access control; any process on this "
+              "machine can publish samples and switch twin modes", file=sys.stderr)
+        return {"role": role, "keys": None, "insecure": True}
+    folder = args.keys if args.keys is not None else pki.default_keys_dir()
+    if args.keys is None:
+        try:
+            if pki.ensure_keys(folder):
+                print(f"cellsim: created the cell's keys in {folder}: a CA and a certificate per role "
+                      "(docs/security.md)", file=sys.stderr)
+        except pki.KeysError as e:
+            raise InputError(str(e)) from None
+    return {"role": role, "keys": folder, "insecure": False}
 
 
 def _add_live_args(parser: argparse.ArgumentParser, duration_default: str) -> None:
@@ -90,22 +117,26 @@ def _load(args):
     return load_scenario(args.scenario, args.overrides)
 
 
-def _open_session(args, listen_by_default: bool, wait: float = 30.0):
+def _open_session(args, role: str, listen_by_default: bool, wait: float = 30.0):
+    """A Zenoh session for this command running as ``role`` (:data:`cellsim.live.pki.ROLES`)."""
     import zenoh
 
     from cellsim.live.session import session_config
 
     config = session_config(
+        **_network_security(args, role),
         listen=args.listen, connect=args.connect, config_file=args.config, listen_by_default=listen_by_default, wait=wait
     )
     try:
         return zenoh.open(config)
     except Exception as e:  # noqa: BLE001 - zenoh raises ZError with a long text
-        raise InputError(f"cannot open a Zenoh session (is the twin running?): {' '.join(str(e).split())[:200]}") from None
+        raise InputError(f"cannot open a Zenoh session as {role} (is the twin running, and are this process's keys "
+                         f"from the twin's CA?): {' '.join(str(e).split())[:200]}") from None
 
 
 def _live_run(args, process: str, listen_by_default: bool, run, check=None):
-    """A live process (the twin, the emulator): load, check, open the session, ``run(sf, out, session, duration)``."""
+    """A live process (the twin, the emulator): load, check, open the session, ``run(sf, out, session, duration)``;
+    ``process`` is also the session's role (``twin`` or ``emulator``)."""
     from cellsim.scenario import MAX_DURATION, check_run_length, check_seed
 
     sf = _load(args)
@@ -116,7 +147,7 @@ def _live_run(args, process: str, listen_by_default: bool, run, check=None):
     if args.seed is not None:
         check_seed(args.seed, "--seed")
     out = args.out or Path("runs") / f"{sf.scenario.name}-{process}-{datetime.now():%Y%m%d-%H%M%S}"
-    session = _open_session(args, listen_by_default)
+    session = _open_session(args, process, listen_by_default)
     try:
         with _terminate_as_interrupt():
             return run(sf, out, session, duration)

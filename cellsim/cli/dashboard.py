@@ -21,6 +21,9 @@ def add_parser(subparsers) -> None:
     dash.add_argument("--speed", type=float, default=1.0, help="with --replay: times real time (default 1)")
     dash.add_argument("--start", type=float, default=0.0, help="with --replay: the simulated time to start from (s)")
     _add_network_args(dash)
+    dash.add_argument("--role", choices=("observer", "engineer"), default="observer",
+                      help="whose certificate to connect with: an observer watches; an engineer may also switch "
+                      "twin modes (default: observer)")
     dash.set_defaults(handler=run)
 
 
@@ -44,9 +47,11 @@ def run(args) -> int:
             raise InputError(str(e)) from None
         Dashboard(feed).run()
         return EXIT_OK
+    from cellsim.cli.common import _network_security
     from cellsim.live.session import session_config
 
-    config = dict(listen=args.listen, connect=args.connect, config_file=args.config, listen_by_default=False, wait=2.0)
+    config = dict(**_network_security(args, args.role), listen=args.listen, connect=args.connect,
+                  config_file=args.config, listen_by_default=False, wait=2.0)
     session_config(**config)  # a bad endpoint or configuration file: one line, exit 2, before the screen opens
 
     def open_session():
@@ -54,7 +59,7 @@ def run(args) -> int:
 
         return zenoh.open(session_config(**config))
 
-    feed = LiveFeed(open_session, args.cell)  # waits for a twin to be reachable, saying so
+    feed = LiveFeed(open_session, args.cell, may_switch=args.role == "engineer")  # waits for a twin to be reachable, saying so
     try:
         Dashboard(feed).run()
     finally:

@@ -27,7 +27,7 @@ def add_parser(subparsers) -> None:
         description="Run the scenario's devices as their digital models, in real time, with the "
         "scenario's own safety controller, and publish each entity's state on its physical key in the "
         "format the twin reads. Keeps its own black box (the ground truth). By default it connects to "
-        "tcp/127.0.0.1:7447.",
+        "tls/127.0.0.1:7447 with the emulator's certificate (docs/security.md).",
     )
     emu.add_argument("scenario", type=Path, help="scenario YAML file")
     _add_live_args(emu, duration_default="until interrupted")

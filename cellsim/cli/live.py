@@ -17,7 +17,8 @@ def add_parser(subparsers) -> None:
         "twin mode are published (cellsim/<cell>/command/<entity>); every channel is published "
         "(cellsim/<cell>/twin/...). `cellsim twin-mode` switches an entity while it runs. The black box "
         "is recorded as in any run. Key space and formats: docs/live.md. By default it listens on "
-        "tcp/127.0.0.1:7447, with multicast scouting off.",
+        "tls/127.0.0.1:7447 with multicast scouting off, as the twin role: every other process must show a "
+        "certificate of the cell's CA, and may do only what its role allows (docs/security.md).",
     )
     live.add_argument("scenario", type=Path, help="scenario YAML file")
     _add_live_args(live, duration_default="until interrupted")

@@ -26,7 +26,7 @@ def run(args) -> int:
     from cellsim.live import codec, keys
 
     try:
-        session = _open_session(args, listen_by_default=False, wait=args.timeout)
+        session = _open_session(args, "engineer", listen_by_default=False, wait=args.timeout)
     except InputError:
         print(f"cellsim: error: no running twin reachable within {args.timeout:g} s", file=sys.stderr)
         return EXIT_INPUT

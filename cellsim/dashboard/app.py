@@ -281,6 +281,10 @@ class Dashboard(App):
         if model is None or not hasattr(self.feed, "request_mode"):
             self.query_one("#events", RichLog).write("twin modes can be switched only on a running twin")
             return
+        if not getattr(self.feed, "may_switch", True):
+            self.query_one("#events", RichLog).write(
+                "an observer may not switch twin modes: start the dashboard with --role engineer")
+            return
 
         def chosen_entity(entity: str | None) -> None:
             if entity is None:

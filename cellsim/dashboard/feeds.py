@@ -75,11 +75,13 @@ class LiveFeed:
     dashboard can say that it waits instead of blocking.
     """
 
-    def __init__(self, session, cell: str | None = None):
+    def __init__(self, session, cell: str | None = None, may_switch: bool = True):
         import threading
 
         self.session = None if callable(session) else session
         self.cell = cell
+        self.may_switch = may_switch
+        """False for an observer's certificate: the twin would not answer its mode requests."""
         self.model: CellModel | None = None
         self._inbox: deque = deque()
         self._channels: list = []

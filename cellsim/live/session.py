@@ -7,16 +7,24 @@ Every session cellsim opens starts from :func:`session_config`, which
   explicitly: its keys win over these defaults);
 * listens on, or connects to, the endpoints given (``listen``, ``connect``: the
   networked commands' ``--listen`` and ``--connect``); when none are given, by
-  argument or file, the twin listens on ``tcp/127.0.0.1:7447``
+  argument or file, the twin listens on ``tls/127.0.0.1:7447``
   (``listen_by_default``) and every other process connects to it;
 * makes the twin a Zenoh *router* and the others *clients* of it (peers when
   they listen themselves): every message between the emulator, the bridge
   daemon and the dashboard goes through the twin, and they reach each other
   with no scouting at all.
 
-The commands that open these sessions: ``cellsim live``, ``emulate``, ``twin-mode``.
+* is secure: TLS with mutual authentication by certificates of the cell's CA
+  (:mod:`cellsim.live.pki`), one role per process, and, on a session that listens
+  (the twin), access control by the certificates' common names
+  (:mod:`cellsim.live.access`). Endpoints are ``tls/`` (or ``quic/``, also TLS).
+  Only ``insecure=True`` (``--insecure``) gives plain TCP with no authentication,
+  on loopback only.
 
-Endpoints are Zenoh locators such as ``tcp/127.0.0.1:7447``; anything else is
+The commands that open these sessions: ``cellsim live``, ``emulate``, ``bridge``,
+``twin-mode``, ``dashboard``.
+
+Endpoints are Zenoh locators such as ``tls/127.0.0.1:7447``; anything else is
 refused with one line before a session is opened.
 """
 
@@ -26,8 +34,12 @@ import json
 import re
 from pathlib import Path
 
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+DEFAULT_ENDPOINT = "tls/127.0.0.1:7447"
 """Where the twin listens and the other processes connect when nothing is configured."""
+INSECURE_ENDPOINT = "tcp/127.0.0.1:7447"
+"""The same, with ``--insecure``."""
+SECURE_PROTOCOLS = ("tls", "quic")
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "[::1]")
 
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|unixsock-stream|ws)/(\[[0-9a-fA-F:]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 
@@ -47,22 +59,36 @@ def check_endpoint(endpoint: str, flag: str) -> str:
 
 def session_config(
     *,
+    role: str,
+    keys: str | Path | None = None,
+    insecure: bool = False,
     listen: list[str] = (),
     connect: list[str] = (),
     config_file: str | Path | None = None,
     listen_by_default: bool = False,
     wait: float = 30.0,
 ):
-    """A ``zenoh.Config`` for a cellsim process (see the module docstring).
+    """A ``zenoh.Config`` for a cellsim process running as ``role`` (see the module docstring).
 
+    ``keys``: the folder of the cell's keys (default :func:`~cellsim.live.pki.default_keys_dir`);
+    it must hold ``ca.pem`` and the role's certificate and key. ``insecure``: plain TCP on
+    loopback, no authentication, no access control (``keys`` unused).
     ``listen_by_default``: with no endpoint configured at all, listen on
     :data:`DEFAULT_ENDPOINT` (the twin) instead of connecting to it (everyone else).
     ``wait``: how long (s) a client's session waits at opening for the twin to be reachable.
     """
     import zenoh
 
-    listen = [check_endpoint(e, "--listen") for e in listen]
-    connect = [check_endpoint(e, "--connect") for e in connect]
+    from cellsim.live import pki
+
+    listen = [_check_security(check_endpoint(e, "--listen"), "--listen", insecure) for e in listen]
+    connect = [_check_security(check_endpoint(e, "--connect"), "--connect", insecure) for e in connect]
+    files = None
+    if not insecure:
+        try:
+            files = pki.role_files(Path(keys) if keys is not None else pki.default_keys_dir(), role)
+        except pki.KeysError as e:
+            raise SessionConfigError(str(e)) from None
     user: dict = {}
     if config_file is not None:
         path = Path(config_file)
@@ -85,24 +111,56 @@ def session_config(
     if "scouting/gossip/enabled" not in user:
         config.insert_json5("scouting/gossip/enabled", "false")
     if not listen and not connect and not _has_endpoints(user):
-        (listen if listen_by_default else connect).append(DEFAULT_ENDPOINT)
+        (listen if listen_by_default else connect).append(INSECURE_ENDPOINT if insecure else DEFAULT_ENDPOINT)
     if listen or "listen/endpoints" not in user:
         config.insert_json5("listen/endpoints", json.dumps(listen))
     if connect:
         config.insert_json5("connect/endpoints", json.dumps(connect))
+    if files is not None and not any(k.startswith("transport/link/tls") for k in user):
+        config.insert_json5("transport/link/tls", json.dumps({
+            "root_ca_certificate": str(files.ca),
+            "enable_mtls": True,
+            "listen_certificate": str(files.certificate),
+            "listen_private_key": str(files.key),
+            "connect_certificate": str(files.certificate),
+            "connect_private_key": str(files.key),
+            "verify_name_on_connect": True,
+            "close_link_on_expiration": True,
+        }))
+    listens = bool(listen) or _given(user.get("listen/endpoints"))
+    if files is not None and listens and "access_control/enabled" not in user:  # whoever listens enforces the rules
+        from cellsim.live.access import access_control
+
+        config.insert_json5("access_control", json.dumps(access_control()))
     return config
 
 
-_KEYS = ("mode", "scouting/multicast/enabled", "scouting/gossip/enabled", "listen/endpoints", "connect/endpoints")
+_KEYS = ("mode", "scouting/multicast/enabled", "scouting/gossip/enabled", "listen/endpoints", "connect/endpoints",
+         "transport/link/tls/root_ca_certificate", "transport/link/tls/enable_mtls",
+         "transport/link/tls/connect_certificate", "transport/link/tls/listen_certificate", "access_control/enabled")
+
+
+def _check_security(endpoint: str, flag: str, insecure: bool) -> str:
+    protocol, _, rest = endpoint.partition("/")
+    host = rest.rsplit(":", 1)[0]
+    if insecure:
+        if protocol != "tcp" or host not in LOOPBACK_HOSTS:
+            raise SessionConfigError(f"{flag} {endpoint!r}: --insecure allows plain tcp/ on loopback only "
+                                     f"(e.g. {INSECURE_ENDPOINT})")
+    elif protocol not in SECURE_PROTOCOLS:
+        raise SessionConfigError(f"{flag} {endpoint!r}: {protocol}/ has no encryption or authentication; "
+                                 f"use tls/ (e.g. {DEFAULT_ENDPOINT}), or --insecure on loopback")
+    return endpoint
+
+
+def _given(value) -> bool:
+    if isinstance(value, dict):  # per-mode endpoints: {"peer": [...], "router": [...]}
+        return any(_given(v) for v in value.values())
+    return bool(value)
 
 
 def _has_endpoints(user: dict) -> bool:
-    def given(value) -> bool:
-        if isinstance(value, dict):  # per-mode endpoints: {"peer": [...], "router": [...]}
-            return any(given(v) for v in value.values())
-        return bool(value)
-
-    return given(user.get("listen/endpoints")) or given(user.get("connect/endpoints"))
+    return _given(user.get("listen/endpoints")) or _given(user.get("connect/endpoints"))
 
 
 def _one_line(error: Exception) -> str:

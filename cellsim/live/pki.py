@@ -1,0 +1,227 @@
+"""The cell's keys: a certificate authority and one certificate per role, for mutual TLS on Zenoh.
+
+``cellsim keys init DIR`` writes::
+
+    DIR/ca.pem            the cell CA's certificate: every process trusts it, and only it
+    DIR/ca.key            the CA's private key: only to issue certificates; keep it off the cell network
+    DIR/<role>.pem        a role's certificate (common name: the role), signed by the CA
+    DIR/<role>.key        its private key (mode 0600)
+
+A process needs ``ca.pem`` and its own role's pair, nothing else: copy only those
+to the machine that runs it. The twin's access control (:mod:`cellsim.live.access`)
+grants each role what its common name allows. Keys are ECDSA P-256; certificates
+name ``localhost``, 127.0.0.1 and ::1 and any ``--host`` given, so whichever
+process listens can be verified by name.
+"""
+
+from __future__ import annotations
+
+import datetime
+import ipaddress
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+ROLES = ("twin", "bridge", "emulator", "robot", "engineer", "observer")
+"""One certificate each; a process runs as exactly one (docs/security.md, "Roles")."""
+
+DEFAULT_HOSTS = ("localhost", "127.0.0.1", "::1")
+DEFAULT_DAYS = 365
+ENVIRONMENT = "CELLSIM_KEYS"
+"""Environment variable naming the keys folder when ``--keys`` is not given."""
+
+
+class KeysError(ValueError):
+    """Missing, unreadable or mismatched key files (the message is one line)."""
+
+
+@dataclass(frozen=True)
+class RoleFiles:
+    """The files one process needs: the CA to trust, its certificate and private key."""
+
+    ca: Path
+    certificate: Path
+    key: Path
+
+
+def default_keys_dir() -> Path:
+    """``$CELLSIM_KEYS``, else ``$XDG_CONFIG_HOME/cellsim/keys`` (``~/.config/cellsim/keys``)."""
+    if os.environ.get(ENVIRONMENT):
+        return Path(os.environ[ENVIRONMENT])
+    base = Path(os.environ.get("XDG_CONFIG_HOME") or Path.home() / ".config")
+    return base / "cellsim" / "keys"
+
+
+def role_files(folder: Path, role: str) -> RoleFiles:
+    """A role's files in ``folder``, all present, or one error saying how to make them."""
+    if role not in ROLES:
+        raise KeysError(f"{role!r} is no role (expected one of: {', '.join(ROLES)})")
+    files = RoleFiles(folder / "ca.pem", folder / f"{role}.pem", folder / f"{role}.key")
+    missing = [p.name for p in (files.ca, files.certificate, files.key) if not p.is_file()]
+    if missing:
+        raise KeysError(f"{folder}: no {', '.join(missing)} for the {role} role "
+                        f"(create the cell's keys with: cellsim keys init {folder})")
+    return files
+
+
+def init_keys(folder: Path, hosts: tuple[str, ...] = (), days: int = DEFAULT_DAYS,
+              now: datetime.datetime | None = None) -> list[Path]:
+    """Create a CA and every role's certificate in ``folder``, which must not hold keys yet.
+
+    All files appear at once (a folder renamed into place): a crash or a concurrent
+    ``init`` leaves either no keys or one complete set, never a mix. Returns the files.
+    """
+    if folder.exists() and any(folder.iterdir()):
+        raise KeysError(f"{folder}: not empty; keys are never overwritten (choose a new folder to rotate them)")
+    if not 1 <= days <= 36500:
+        raise KeysError(f"--days {days}: expected 1 to 36500")
+    names = _subject_names([*DEFAULT_HOSTS, *hosts])
+    now = now or datetime.datetime.now(datetime.timezone.utc)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}-", dir=folder.parent))
+    try:
+        ca_key, ca_cert = _certificate_authority(now, days)
+        _write(staging / "ca.pem", _pem_certificate(ca_cert), private=False)
+        _write(staging / "ca.key", _pem_key(ca_key), private=True)
+        for role in ROLES:
+            key, cert = _role_certificate(role, ca_key, ca_cert, names, now, days)
+            _write(staging / f"{role}.pem", _pem_certificate(cert), private=False)
+            _write(staging / f"{role}.key", _pem_key(key), private=True)
+        os.chmod(staging, 0o700)
+        if folder.exists():
+            folder.rmdir()  # empty (checked above); a concurrent init that got there first makes this fail
+        os.rename(staging, folder)
+    except OSError as e:
+        shutil.rmtree(staging, ignore_errors=True)
+        if folder.is_dir() and (folder / "ca.pem").is_file():
+            raise KeysError(f"{folder}: another process created keys there at the same time") from None
+        raise KeysError(f"{folder}: cannot write keys ({e.strerror or e})") from None
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return sorted(folder.iterdir())
+
+
+def ensure_keys(folder: Path) -> bool:
+    """First use: create the keys if ``folder`` does not exist yet (True if created). A folder made
+    at the same moment by another process is used as it is."""
+    if folder.exists():
+        return False
+    try:
+        init_keys(folder)
+    except KeysError:
+        if (folder / "ca.pem").is_file():
+            return False
+        raise
+    return True
+
+
+def describe(folder: Path) -> list[str]:
+    """One line per certificate: its role, common name and expiry (``cellsim keys show``)."""
+    from cryptography import x509
+    from cryptography.x509.oid import NameOID
+
+    lines = []
+    for path in sorted(folder.glob("*.pem")):
+        try:
+            cert = x509.load_pem_x509_certificate(path.read_bytes())
+        except (OSError, ValueError) as e:
+            raise KeysError(f"{path}: not a PEM certificate ({e})") from None
+        cn = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
+        lines.append(f"{path.stem:<9} CN={cn[0].value if cn else '?':<22} expires {cert.not_valid_after_utc:%Y-%m-%d}")
+    return lines
+
+
+# -- X.509 -----------------------------------------------------------------------------
+
+
+def _subject_names(hosts):
+    from cryptography import x509
+
+    names, seen = [], set()
+    for host in hosts:
+        if host in seen:
+            continue
+        seen.add(host)
+        try:
+            names.append(x509.IPAddress(ipaddress.ip_address(host)))
+        except ValueError:
+            if not host or any(c.isspace() for c in host):
+                raise KeysError(f"--host {host!r}: expected a host name or an IP address") from None
+            names.append(x509.DNSName(host))
+    return names
+
+
+def _certificate_authority(now, days):
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
+    key = ec.generate_private_key(ec.SECP256R1())
+    name = x509.Name([x509.NameAttribute(NameOID.ORGANIZATION_NAME, "cellsim"),
+                      x509.NameAttribute(NameOID.COMMON_NAME, "cellsim cell CA")])
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(name).issuer_name(name).public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(minutes=5))
+        .not_valid_after(now + datetime.timedelta(days=days))
+        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+        .add_extension(x509.KeyUsage(digital_signature=False, content_commitment=False, key_encipherment=False,
+                                     data_encipherment=False, key_agreement=False, key_cert_sign=True,
+                                     crl_sign=True, encipher_only=False, decipher_only=False), critical=True)
+        .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
+        .sign(key, hashes.SHA256())
+    )
+    return key, cert
+
+
+def _role_certificate(role, ca_key, ca_cert, names, now, days):
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+    key = ec.generate_private_key(ec.SECP256R1())
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(x509.Name([x509.NameAttribute(NameOID.ORGANIZATION_NAME, "cellsim"),
+                                 x509.NameAttribute(NameOID.COMMON_NAME, role)]))
+        .issuer_name(ca_cert.subject).public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(minutes=5))
+        .not_valid_after(now + datetime.timedelta(days=days))
+        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+        .add_extension(x509.KeyUsage(digital_signature=True, content_commitment=False, key_encipherment=False,
+                                     data_encipherment=False, key_agreement=False, key_cert_sign=False,
+                                     crl_sign=False, encipher_only=False, decipher_only=False), critical=True)
+        # any process may listen (the twin does; a peer may): each is server and client
+        .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
+                       critical=False)
+        .add_extension(x509.SubjectAlternativeName(names), critical=False)
+        .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), critical=False)
+        .sign(ca_key, hashes.SHA256())
+    )
+    return key, cert
+
+
+def _pem_certificate(cert) -> bytes:
+    from cryptography.hazmat.primitives import serialization
+
+    return cert.public_bytes(serialization.Encoding.PEM)
+
+
+def _pem_key(key) -> bytes:
+    from cryptography.hazmat.primitives import serialization
+
+    return key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                             serialization.NoEncryption())
+
+
+def _write(path: Path, data: bytes, private: bool) -> None:
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600 if private else 0o644)
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
