@@ -112,11 +112,13 @@ def test_a_search_on_the_cluster_is_the_search_run_locally(cluster, tmp_path):
     assert pick(a) == pick(b)
 
 
-def test_an_unreachable_scheduler_is_one_line_and_exit_2(tmp_path):
-    done = _cellsim("campaign", WELDING_CELL, "--runs", "2", "--scheduler", f"tcp://127.0.0.1:{free_port()}",
+@pytest.mark.parametrize("command", [("campaign", "--runs", "2"), ("falsify", "--budget", "2")])
+def test_an_unreachable_scheduler_is_one_line_and_exit_2_with_nothing_written(tmp_path, command):
+    done = _cellsim(*command[:1], WELDING_CELL, *command[1:], "--scheduler", f"tcp://127.0.0.1:{free_port()}",
                     "--out", tmp_path / "c", timeout=120)
     assert done.returncode == 2
     assert "cannot reach the Dask scheduler" in done.stderr and "Traceback" not in done.stderr
+    assert not (tmp_path / "c").exists()  # refused before the folder was touched: the same command works later
 
 
 def test_a_malformed_scheduler_address_is_a_usage_error(tmp_path):

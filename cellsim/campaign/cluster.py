@@ -47,6 +47,17 @@ class ClusterError(Exception):
     """The cluster cannot be used: unreachable, no workers, or workers of another cellsim."""
 
 
+def check_reachable(address: str) -> None:
+    """Fail at once, before a campaign touches its folder, if nothing answers at the scheduler's address."""
+    import socket
+
+    host, _, port = address.split("://", 1)[-1].rpartition(":")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT).close()
+    except (OSError, ValueError) as e:
+        raise ClusterError(f"cannot reach the Dask scheduler at {address}: {e}") from None
+
+
 def read_snapshot(folder: Path) -> tuple[str, dict[str, bytes]]:
     """Every file under ``folder`` as ``{relative path: bytes}``, and the SHA-256 of them all."""
     files = {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}

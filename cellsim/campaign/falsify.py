@@ -332,6 +332,7 @@ def run_falsify(
                          "(add samplers for the values to search over)")
     inputs = read_inputs(given)
     identity = inputs.identity(plan.overrides, plan.seed, plan.duration)
+    runner.check_scheduler(scheduler)
     if out.exists() and any(p.name != LOCK for p in out.iterdir()):
         if not overwrite:
             raise CampaignError(f"{out} is not empty; choose another --out, or pass --overwrite to replace it")

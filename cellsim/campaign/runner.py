@@ -362,6 +362,7 @@ def run_campaign(
     identity = inputs.identity(plan.overrides, plan.seed, plan.duration)
     if _holds_others(out):  # refused before the folder is touched, lock file included
         raise CampaignError(f"{out} exists and is not a campaign folder; choose another --out")
+    check_scheduler(scheduler)
     out.mkdir(parents=True, exist_ok=True)
     with contextlib.ExitStack() as held:
         try:
@@ -469,6 +470,17 @@ class Workers:
         if self.cluster is None:
             return None
         return {"scheduler": self.cluster.address, "workers": self.cluster.workers(), "retries": self.cluster.retries()}
+
+
+def check_scheduler(scheduler: str | None) -> None:
+    """A --scheduler nothing answers at is refused before any folder is written."""
+    if scheduler is not None:
+        from cellsim.campaign.cluster import ClusterError, check_reachable
+
+        try:
+            check_reachable(scheduler)
+        except ClusterError as e:
+            raise CampaignError(str(e)) from None
 
 
 @contextlib.contextmanager
