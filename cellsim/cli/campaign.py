@@ -6,7 +6,7 @@ import os
 import sys
 from pathlib import Path
 
-from cellsim.cli.common import EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, InputError, RunsBar, _add_set, _load, add_scheduler_argument
+from cellsim.cli.common import EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, InputError, RunsBar, _add_set, _load_for_runs, add_scheduler_argument
 from cellsim.numbers import measure, percent
 
 
@@ -54,16 +54,7 @@ def run(args) -> int:
 
     from cellsim.campaign.runner import CampaignError, CampaignPlan, run_campaign
 
-    for flag, most in (("runs", 100_000), ("jobs", 256)):
-        value = getattr(args, flag)
-        if value is not None and not 1 <= value <= most:
-            raise InputError(f"--{flag} must be in [1, {most}], got {value}")
-    from cellsim.scenario import check_run_length, check_seed
-
-    check_seed(args.seed, "--seed")
-    sf = _load(args)
-    if args.duration is not None:
-        check_run_length(sf, args.duration, "--duration")
+    sf = _load_for_runs(args, {"runs": 100_000, "jobs": 256})
     runs = args.runs or sf.scenario.campaign.runs
     console = Console(stderr=True, quiet=args.quiet)
     if args.until_bound is not None:

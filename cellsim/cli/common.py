@@ -117,6 +117,21 @@ def _load(args):
     return load_scenario(args.scenario, args.overrides)
 
 
+def _load_for_runs(args, limits: dict[str, int]):
+    """A campaign's or search's scenario, after its counts (``--FLAG`` in [1, most]), seed and duration are checked."""
+    from cellsim.scenario import check_run_length, check_seed
+
+    for flag, most in limits.items():
+        value = getattr(args, flag)
+        if value is not None and not 1 <= value <= most:
+            raise InputError(f"--{flag} must be in [1, {most}], got {value}")
+    check_seed(args.seed, "--seed")
+    sf = _load(args)
+    if args.duration is not None:
+        check_run_length(sf, args.duration, "--duration")
+    return sf
+
+
 def _open_session(args, role: str, listen_by_default: bool, wait: float = 30.0):
     """A Zenoh session for this command running as ``role`` (:data:`cellsim.live.pki.ROLES`)."""
     import zenoh

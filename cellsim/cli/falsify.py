@@ -6,7 +6,7 @@ import os
 import sys
 from pathlib import Path
 
-from cellsim.cli.common import EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, InputError, RunsBar, _add_set, _load, add_scheduler_argument
+from cellsim.cli.common import EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, InputError, RunsBar, _add_set, _load_for_runs, add_scheduler_argument
 
 
 def add_parser(subparsers) -> None:
@@ -48,16 +48,8 @@ def run(args) -> int:
 
     from cellsim.campaign.falsify import FalsifyPlan, run_falsify
     from cellsim.campaign.runner import CampaignError
-    from cellsim.scenario import check_run_length, check_seed
 
-    for flag, most in (("budget", 100_000), ("jobs", 256), ("batch", 10_000)):
-        value = getattr(args, flag)
-        if value is not None and not 1 <= value <= most:
-            raise InputError(f"--{flag} must be in [1, {most}], got {value}")
-    check_seed(args.seed, "--seed")
-    sf = _load(args)
-    if args.duration is not None:
-        check_run_length(sf, args.duration, "--duration")
+    sf = _load_for_runs(args, {"budget": 100_000, "jobs": 256, "batch": 10_000})
     out = args.out or Path("campaigns") / f"{sf.scenario.name}-falsify-{args.method}-seed{args.seed}"
     plan = FalsifyPlan(str(args.scenario.resolve()), tuple(args.overrides), args.seed, args.budget, args.method,
                        args.duration, tuple(args.condition))
