@@ -83,3 +83,10 @@ def test_insecure_warns_and_plain_tcp_without_it_is_refused(tmp_path):
     assert insecure.returncode == 2 and "warning: --insecure" in insecure.stderr
     remote = cellsim("twin-mode", "robot", "shadow", "--connect", "tcp/192.0.2.7:7447", "--insecure")
     assert remote.returncode == 2 and "loopback only" in remote.stderr
+
+
+def test_a_keys_folder_without_the_roles_files_is_said_as_such_not_as_an_absent_twin(tmp_path):
+    done = cellsim("twin-mode", "robot", "shadow", "--keys", str(tmp_path / "none"), "--timeout", "0.5")
+    assert done.returncode == 2
+    assert "no ca.pem, engineer.pem, engineer.key for the engineer role" in done.stderr
+    assert f"cellsim keys init {tmp_path / 'none'}" in done.stderr and "no running twin" not in done.stderr

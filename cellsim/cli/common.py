@@ -132,14 +132,15 @@ def _load_for_runs(args, limits: dict[str, int]):
     return sf
 
 
-def _open_session(args, role: str, listen_by_default: bool, wait: float = 30.0):
-    """A Zenoh session for this command running as ``role`` (:data:`cellsim.live.pki.ROLES`)."""
+def _open_session(args, role: str, listen_by_default: bool, wait: float = 30.0, security: dict | None = None):
+    """A Zenoh session for this command running as ``role`` (:data:`cellsim.live.pki.ROLES`);
+    ``security``: :func:`_network_security`'s answer when the caller asked for it already."""
     import zenoh
 
     from cellsim.live.session import session_config
 
     config = session_config(
-        **_network_security(args, role),
+        **(security or _network_security(args, role)),
         listen=args.listen, connect=args.connect, config_file=args.config, listen_by_default=listen_by_default, wait=wait
     )
     try:

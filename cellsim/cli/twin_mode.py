@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from cellsim.cli.common import EXIT_INPUT, EXIT_OK, InputError, _add_network_args, _open_session
+from cellsim.cli.common import EXIT_INPUT, EXIT_OK, InputError, _add_network_args, _network_security, _open_session
 
 
 def add_parser(subparsers) -> None:
@@ -25,10 +25,12 @@ def add_parser(subparsers) -> None:
 def run(args) -> int:
     from cellsim.live import codec, keys
 
+    security = _network_security(args, "engineer")  # a keys problem is said as it is, not as an absent twin
     try:
-        session = _open_session(args, "engineer", listen_by_default=False, wait=args.timeout)
+        session = _open_session(args, "engineer", listen_by_default=False, wait=args.timeout, security=security)
     except InputError:
-        print(f"cellsim: error: no running twin reachable within {args.timeout:g} s", file=sys.stderr)
+        why = "" if security["insecure"] else " (is the twin running, with --keys of the same CA as this engineer's?)"
+        print(f"cellsim: error: no running twin reachable within {args.timeout:g} s{why}", file=sys.stderr)
         return EXIT_INPUT
     try:
         selector = keys.twin_mode_control(args.cell) if args.cell else f"{keys.ROOT}/*/control/twin_mode"
