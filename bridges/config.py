@@ -138,6 +138,9 @@ class BridgeConfig:
     """Good frames in a row before a failed device is trusted again."""
     diagnostics_period: Annotated[float, Range(0.05, 60.0, unit="s")] = 1.0
     """How often each device's diagnostics are published (s); a change of level is published at once."""
+    freshness_tick: Annotated[float, Range(0.0001, 1.0, unit="s")] = 0.01
+    """The unit of an authenticated message's freshness value (s): senders and receivers count wall-clock
+    ticks of this length (``bridges/secoc.py``); at most any authenticated message's cycle time."""
 
     def __post_init__(self):
         for entity in self.robots:
@@ -162,6 +165,14 @@ class LoadedBridge:
     safe: dict
     """Entity -> its kind's safe command, as command fields (what its device is told when the twin is lost)."""
 
+    def authenticated(self) -> list[str]:
+        """The DBC messages of the configuration that are authenticated (``bridges.secoc``)."""
+        from bridges.secoc import is_authenticated
+
+        cfg = self.config
+        names = [d.message for d in cfg.devices.values()] + [m.message for ms in cfg.commands.values() for m in ms]
+        return [n for n in dict.fromkeys(names) if is_authenticated(self.database.get_message_by_name(n))]
+
     def safe_signals(self, mapping: CommandMapping) -> dict:
         """The frame's signal values of the entity's safe command (``none`` for no request)."""
         entity = next(e for e, ms in self.config.commands.items() if mapping in ms)
@@ -177,7 +188,7 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
     from cellsim.scenario import load_scenario
 
     path = Path(path)
-    loaded = load_file(BridgeConfig, path)
+    loaded = load_file(BridgeConfig, path, base_key="base")
     cfg = loaded.value
 
     def error(key: str, problem: str) -> ConfigError:
@@ -202,9 +213,29 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
         """The DBC message ``name``, which must exist and carry the end-to-end protection."""
         if name not in messages:
             raise error(f"{key}.message", f"no message '{name}' in {cfg.dbc} ({', '.join(messages)})")
-        if not {"Crc", "Counter"} <= {s.name for s in messages[name].signals}:
+        message = messages[name]
+        names = {s.name for s in message.signals}
+        if not {"Crc", "Counter"} <= names:
             raise error(f"{key}.message", f"'{name}' has no Crc and Counter signals: it is not end-to-end protected")
-        return messages[name]
+        if ("Freshness" in names) != ("Mac" in names):
+            raise error(f"{key}.message", f"'{name}' has one of the Freshness and Mac signals: an authenticated "
+                        "message has both")
+        return message
+
+    def check_authentication(key: str, mapping) -> None:
+        """An authenticated message's freshness value must span its watchdog, at ticks of at most its cycle."""
+        from bridges.secoc import is_authenticated, window_problem
+        from cellsim.link import LinkTrust
+
+        message = messages[mapping.message]
+        if not is_authenticated(message):
+            return
+        if cfg.freshness_tick > mapping.cycle_time:
+            raise error("freshness_tick", f"{cfg.freshness_tick:g} s is longer than the cycle time of "
+                        f"{mapping.message} ({mapping.cycle_time:g} s): its frames would run ahead of the clock")
+        problem = window_problem(message, cfg.freshness_tick, mapping.watchdog, LinkTrust.future_skew)
+        if problem:
+            raise error(f"{key}.message", f"{mapping.message}: {problem}")
 
     def signal_of(key: str, message, signal_name: str):
         signals = {s.name: s for s in message.signals}
@@ -225,6 +256,7 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
         if set(device.fields) != set(codec.names):
             raise error(f"{key}.fields", f"map each physical-sample field of {name} exactly once: {', '.join(codec.names)}")
         message = protected_message(key, device.message)
+        check_authentication(key, device)
         types = dict(zip(codec.names, codec.types))
         for field_name, signal_name in device.fields.items():
             signal = signal_of(f"{key}.fields.{field_name}", message, signal_name)
@@ -239,6 +271,7 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
         for i, mapping in enumerate(mappings):
             key = f"commands.{name}.{i}"
             message = protected_message(key, mapping.message)
+            check_authentication(key, mapping)
             for signal_name, field_name in mapping.fields.items():
                 signal = signal_of(f"{key}.fields.{signal_name}", message, signal_name)
                 if field_name not in codec.names:

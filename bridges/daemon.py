@@ -45,6 +45,7 @@ from bridges.config import LoadedBridge, accepts
 from bridges.diagnostics import DeviceDiagnostics
 from bridges.e2e import DeviceChecker, protect
 from bridges.robot import RobotLink
+from bridges.secoc import Authenticator, is_authenticated, message_key
 from cellsim.link import REFUSALS, STALE_FAULTS, Fault, Judgement, LinkTrust
 from cellsim.live import codec, keys
 from cellsim.live.codec import CodecError
@@ -80,6 +81,10 @@ class Bridge:
     """The python-can bus commands are sent on (None: no commands)."""
     clock: object = time.monotonic
     """The daemon's own clock (s): watchdogs and freshness are judged on it."""
+    can_key: bytes | None = None
+    """The cell's CAN key (``cellsim.live.pki.can_key``): needed when a message is authenticated."""
+    wall_clock: object = time.time
+    """The wall clock authenticated frames' freshness values count (s since the Unix epoch)."""
     devices: dict = field(default_factory=dict)
     robots: dict = field(default_factory=dict)
     unknown_frames: int = 0
@@ -95,9 +100,12 @@ class Bridge:
         cell = loaded.cell
         self.inbox: queue.SimpleQueue = queue.SimpleQueue()
         """What the network threads hand over: (kind, entity, payload, arrival time on perf_counter)."""
+        if loaded.authenticated() and self.can_key is None:
+            raise ValueError(f"{', '.join(loaded.authenticated())} are authenticated: the daemon needs the CAN key")
         for entity, mapping in cfg.devices.items():
             message = database.get_message_by_name(mapping.message)
-            checker = DeviceChecker(message=message, timeout=mapping.watchdog, recover_after=cfg.recover_after)
+            checker = DeviceChecker(message=message, timeout=mapping.watchdog, recover_after=cfg.recover_after,
+                                    authenticator=self._authenticator(message))
             publisher = self.session.declare_publisher(keys.physical(cell, entity))
             device = Device(entity, mapping, message, checker, publisher)
             device.codec = loaded.samples[entity]
@@ -113,11 +121,11 @@ class Bridge:
             link.diagnostics = DeviceDiagnostics(entity, "robot controller", link.checker, 1.0 / link_cfg.cycle_time,
                                                  self.session.declare_publisher(keys.diagnostics(cell, entity)))
             self.robots[entity] = link
-        self._frames = {  # each command frame's message, signals and safe values, looked up once
-            mapping.message: (database.get_message_by_name(mapping.message),
-                              {n: database.get_message_by_name(mapping.message).get_signal_by_name(n) for n in mapping.fields},
-                              loaded.safe_signals(mapping))
+        self._frames = {  # each command frame's message, signals, safe values and signer, looked up once
+            mapping.message: (message, {n: message.get_signal_by_name(n) for n in mapping.fields},
+                              loaded.safe_signals(mapping), self._authenticator(message))
             for mappings in cfg.commands.values() for mapping in mappings
+            for message in [database.get_message_by_name(mapping.message)]
         }
         self._status = self.session.declare_publisher(keys.diagnostics(cell, "bridge"))
         self._token = self.session.liveliness().declare_token(keys.alive(cell, "bridge"))
@@ -149,6 +157,13 @@ class Bridge:
         if cfg.commands or cfg.robots:
             self._subscribers.append(self.session.liveliness().declare_subscriber(
                 keys.alive(cell, "twin"), lambda s: put(("alive", None, str(s.kind).endswith("PUT"), 0.0)), history=True))
+
+    def _authenticator(self, message) -> Authenticator | None:
+        """The signer or verifier of an authenticated message's frames (None: the message is not)."""
+        if not is_authenticated(message):
+            return None
+        return Authenticator(message, message_key(self.can_key, message.frame_id), self.loaded.config.freshness_tick,
+                             self.wall_clock)
 
     # -- in --------------------------------------------------------------------------
     def handle(self, frame_id: int, data: bytes, now: float | None = None) -> Judgement | None:
@@ -305,7 +320,7 @@ class Bridge:
     # -- helpers ---------------------------------------------------------------------
     def _signals(self, mapping, fields: dict) -> dict:
         """The frame's signal values for the twin's command ``fields`` (safe values for what is missing)."""
-        _, signals, safe = self._frames[mapping.message]
+        _, signals, safe, _ = self._frames[mapping.message]
         values = {}
         for signal_name, field_name in mapping.fields.items():
             value = fields.get(field_name, safe[signal_name])
@@ -320,10 +335,10 @@ class Bridge:
     def _send(self, mapping, values: dict, safe: bool) -> None:
         import can
 
-        message = self._frames[mapping.message][0]
+        message, _, _, authenticator = self._frames[mapping.message]
         counter = self._counters.get(mapping.message, 0)
         self._counters[mapping.message] = counter + 1
-        data = protect(message, values, counter)
+        data = protect(message, values, counter, authenticator)
         if self.bus is not None:
             self.bus.send(can.Message(arbitration_id=message.frame_id, data=data, is_extended_id=False))
         self.frames_sent += 1

@@ -4,9 +4,10 @@ Given the bridge daemon's configuration, the emulator plays
 
 * each CAN device as a node following the DBC: its frames at the device's cycle
   time, with the alive counter and CRC of the end-to-end protection
-  (``bridges.e2e.protect``); a device with command frames takes them from the
-  bus and checks them as the real device would (a bad or stale frame: the
-  entity kind's *safe command*);
+  (``bridges.e2e.protect``) and, for an authenticated message, its freshness
+  value and MAC (``bridges.secoc``, keys from the cell's CAN key); a device with
+  command frames takes them from the bus and checks them as the real device
+  would (a bad, forged or stale frame: the entity kind's *safe command*);
 * each robot's controller over Zenoh: its state stream (``bridges.robot``) at
   the controller's rate, and its requests from the controller's request key.
 
@@ -30,6 +31,7 @@ from collections import deque
 
 from bridges.config import LoadedBridge
 from bridges.e2e import DeviceChecker, protect
+from bridges.secoc import Authenticator, is_authenticated, message_key
 from cellsim.live import codec, keys
 from cellsim.live.emulator import ZenohOutlet
 
@@ -45,8 +47,9 @@ class CanOutlet:
 
     faults = CAN_FAULTS
 
-    def __init__(self, bus, message, fields: dict[str, str]):
+    def __init__(self, bus, message, fields: dict[str, str], authenticator: Authenticator | None = None):
         self.bus, self.message, self.fields = bus, message, fields
+        self.authenticator = authenticator
         self.counter = 0
         self.last: bytes | None = None
         self.held: deque = deque()  # (release time, frame) while delayed
@@ -95,7 +98,7 @@ class CanOutlet:
                 lo = signal.minimum if signal.minimum is not None else -math.inf
                 hi = signal.maximum if signal.maximum is not None else math.inf
                 values[signal_name] = min(max(float(value), lo), hi) if math.isfinite(float(value)) else hi
-        data = protect(self.message, values, self.counter)
+        data = protect(self.message, values, self.counter, self.authenticator)
         self.counter += 1
         return data
 
@@ -127,9 +130,11 @@ class RobotStateEncoder:
 class EmulatedDevices:
     """The emulated cell's CAN devices and robot controllers, as the bridge configuration describes them."""
 
-    def __init__(self, loaded: LoadedBridge, bus, session):
-        self.loaded, self.bus, self.session = loaded, bus, session
+    def __init__(self, loaded: LoadedBridge, bus, session, can_key: bytes | None = None):
+        self.loaded, self.bus, self.session, self.can_key = loaded, bus, session, can_key
         self.config = loaded.config
+        if loaded.authenticated() and can_key is None:
+            raise ValueError(f"{', '.join(loaded.authenticated())} are authenticated: the devices need the CAN key")
         self._feeds: dict[int, tuple] = {}  # frame id -> (entity, mapping, checker)
         self._entities: dict[str, dict] = {}  # entity -> {"source", "types", "inputs", "values": {mapping: fields}}
         self._subscribers = []
@@ -149,7 +154,8 @@ class EmulatedDevices:
         cfg = self.config
         if name in cfg.devices:
             device = cfg.devices[name]
-            return CanOutlet(self.bus, self.loaded.database.get_message_by_name(device.message), device.fields)
+            message = self.loaded.database.get_message_by_name(device.message)
+            return CanOutlet(self.bus, message, device.fields, self._authenticator(message))
         if name in cfg.robots:
             return ZenohOutlet(self.session.declare_publisher(keys.controller_state(self.loaded.cell, name)), RobotStateEncoder())
         return None
@@ -170,13 +176,20 @@ class EmulatedDevices:
                                            for m in mappings}}
         for mapping in mappings:
             message = self.loaded.database.get_message_by_name(mapping.message)
-            checker = DeviceChecker(message=message, timeout=mapping.watchdog, recover_after=cfg.recover_after)
+            checker = DeviceChecker(message=message, timeout=mapping.watchdog, recover_after=cfg.recover_after,
+                                    authenticator=self._authenticator(message))
             self._feeds[message.frame_id] = (name, mapping, checker)
         if self._notifier is None:
             import can
 
             self._notifier = can.Notifier(self.bus, [self._on_frame], timeout=0.1)
         return True
+
+    def _authenticator(self, message) -> Authenticator | None:
+        """The device's signer or verifier of an authenticated message (None: the message is not)."""
+        if not is_authenticated(message):
+            return None
+        return Authenticator(message, message_key(self.can_key, message.frame_id), self.config.freshness_tick)
 
     def _on_frame(self, frame) -> None:
         """On python-can's thread: check a command frame as the device would, hand the command over."""

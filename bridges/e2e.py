@@ -20,6 +20,10 @@ counter is refused, one that jumps further than ``max_gap`` is a fault; a watchd
 no good frame within ``timeout``; trusted again only after ``recover_after`` good
 frames in a row). The daemon forwards each frame's outcome at once; the twin,
 which receives it, applies the recover-after (the debounce is applied once).
+
+E2E protection is not authentication: a message with ``Freshness`` and ``Mac``
+signals is also authenticated (:mod:`bridges.secoc`), checked after the CRC and
+before the counter, so a forgery never moves the sequence.
 """
 
 from __future__ import annotations
@@ -39,15 +43,25 @@ def data_id(frame_id: int, counter: int) -> int:
     return (frame_id + counter) % 256
 
 
-def protect(message, values: dict, counter: int) -> bytes:
-    """The frame of ``message`` (a cantools Message) with ``values``, ``counter`` and its CRC."""
+def protect(message, values: dict, counter: int, authenticator=None) -> bytes:
+    """The frame of ``message`` (a cantools Message) with ``values``, ``counter`` and its CRC; with an
+    ``authenticator`` (``bridges.secoc``), also its freshness value and MAC, before the CRC."""
     counter %= COUNTER_MODULO
-    payload = bytearray(message.encode({**values, "Crc": 0, "Counter": counter}, strict=True))
+    signals = {**values, "Crc": 0, "Counter": counter}
+    if authenticator is not None:
+        freshness = authenticator.next_freshness()
+        signals.update(Freshness=freshness % authenticator.modulo, Mac=0)
+        signals["Mac"] = authenticator.mac(message.encode(signals, strict=True), freshness)
+    payload = bytearray(message.encode(signals, strict=True))
     payload[0] = compute_profile2_crc(bytes(payload), data_id(message.frame_id, counter))
     return bytes(payload)
 
 
 CAN_FAULTS = (Fault.LENGTH, Fault.CRC, Fault.COUNTER, Fault.REPEATED, Fault.MASQUERADE, Fault.RANGE, Fault.TIMEOUT)
+AUTHENTICATED_FAULTS = (*CAN_FAULTS, Fault.AUTH, Fault.LATE, Fault.FUTURE)
+"""An authenticated message's frames can also fail their MAC or freshness (``bridges.secoc``)."""
+PROTECTION = ("Crc", "Counter", "Freshness", "Mac")
+"""The signals that protect a frame rather than carry the device's values."""
 
 
 @dataclass
@@ -60,6 +74,13 @@ class DeviceChecker(LinkTrust):
     """How far the counter may jump (1: no frame lost; 2: one lost frame tolerated)."""
     modulo: int = COUNTER_MODULO
     faults: tuple = CAN_FAULTS
+    authenticator: object = None
+    """For an authenticated message, its ``bridges.secoc.Authenticator`` (the receiver's)."""
+
+    def __post_init__(self):
+        if self.authenticator is not None and self.faults == CAN_FAULTS:
+            self.faults = AUTHENTICATED_FAULTS
+        super().__post_init__()
 
     def check(self, data: bytes, now: float) -> Judgement:
         """Judge one frame received at ``now`` (s, any monotonic clock)."""
@@ -68,21 +89,25 @@ class DeviceChecker(LinkTrust):
             return self.fail(Fault.LENGTH)
         if compute_profile2_crc(data, data_id(message.frame_id, data[1] & 0x0F)) != data[0]:
             return self.fail(Fault.CRC)
-        fault = self.sequence(data[1] & 0x0F, now, zlib.crc32(data))
-        if fault is not None:
-            return self.fail(fault)
         try:
             values = message.decode(data, decode_choices=False, scaling=True)
         except Exception:  # noqa: BLE001 - cantools raises several kinds on a bad payload
             return self.fail(Fault.RANGE)
+        if self.authenticator is not None:  # before the counter: a forgery must not move its sequence
+            fault = self.authenticator.verify(data, int(values["Freshness"]), int(values["Mac"]), self)
+            if fault is not None:
+                return self.fail(fault, now)
+        fault = self.sequence(data[1] & 0x0F, now, zlib.crc32(data))
+        if fault is not None:
+            return self.fail(fault)
         if not self._in_range(values):
             return self.fail(Fault.RANGE)
-        return self.good(now, {k: v for k, v in values.items() if k not in ("Crc", "Counter")})
+        return self.good(now, {k: v for k, v in values.items() if k not in PROTECTION})
 
     def _in_range(self, values: dict) -> bool:
         for signal in self.message.signals:
             value = values[signal.name]
-            if signal.choices is not None and signal.name not in ("Crc", "Counter"):
+            if signal.choices is not None and signal.name not in PROTECTION:
                 if int(value) not in signal.choices:
                     return False
             lo, hi = signal.minimum, signal.maximum

@@ -69,6 +69,9 @@ class Fault(str, Enum):
     MASQUERADE = "masquerade"
     """The sequence shows two senders (it jumps back and forth, or repeats with other content): every
     message fails until one sender's stable run clears it."""
+    AUTH = "auth"
+    """An authenticated frame whose MAC does not verify (``bridges.secoc``): forged, tampered with, made with
+    another key, or too old to place."""
 
 
 STALE_FAULTS = frozenset({Fault.TIMEOUT, Fault.LATE})

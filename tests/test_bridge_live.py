@@ -26,6 +26,7 @@ from live_processes import (ROOT, assert_supervised, can_server, free_port, obse
 pytestmark = [pytest.mark.slow, ONE_AT_A_TIME]  # processes on loopback: skip locally with -m "not slow"
 WELDING_CELL = str(ROOT / "scenarios" / "welding_cell.yaml")
 BRIDGE = str(ROOT / "bridges" / "welding_cell.yaml")
+AUTHENTICATED = str(ROOT / "bridges" / "welding_cell_authenticated.yaml")
 ENTITIES = ("robot", "welder", "light_barrier", "range_detector", "operator")
 ALL_SHADOW = [arg for e in ENTITIES for arg in ("--set", f"{e}.twin.mode=shadow")]
 TWIN_SUPERVISES = ["--set", "robot.twin.mode=twin", "--set", "welder.twin.mode=twin",
@@ -71,13 +72,14 @@ class Diagnostics:
         self.heard[device] = self.heard.get(device, 0) + 1
 
 
-def _start_twin_and_bridge(start, tmp, twin_args, bus: str, endpoint: str, port: int):
-    """The twin, then the daemon, each once it is up; returns (twin, bridge)."""
+def _start_twin_and_bridge(start, tmp, twin_args, bus: str, endpoint: str, port: int, config: str = BRIDGE):
+    """The twin, then the daemon (with the bridge configuration ``config``), each once it is up;
+    returns (twin, bridge)."""
     twin = start(["live", WELDING_CELL, "--out", str(tmp / "twin"), "--listen", endpoint, "--quiet", *twin_args],
                  tmp / "twin.log")
     with observer(port) as session:
         wait_alive(session, "cellsim/welding_cell/alive/twin")
-    bridge = start(["bridge", BRIDGE, "--can", f"remote:{bus}", "--connect", endpoint], tmp / "bridge.log")
+    bridge = start(["bridge", config, "--can", f"remote:{bus}", "--connect", endpoint], tmp / "bridge.log")
     with observer(port) as session:
         wait_alive(session, "cellsim/welding_cell/alive/bridge")
     return twin, bridge
@@ -126,6 +128,66 @@ def test_each_bus_fault_drives_its_entity_to_fail_safe_within_its_watchdog_and_b
         assert latest[entity]["counts"][counted] >= 1, (entity, kind, latest[entity])
         assert latest[entity]["level"] in ("OK", "STALE")  # recovered, or stale once the emulator ended
     assert latest["bridge"]["unknown_frames"] >= 20 * 10  # the flood: counted, dropped, survived
+
+
+def test_with_authenticated_frames_a_forger_on_the_bus_fails_the_curtain_safe_from_his_first_frame(tmp_path):
+    """Issue 22's forged 'curtain clear' frames (CRC and next counter computed from the DBC), against the
+    authenticated curtain: the emulated device's frames, signed with the cell's CAN key, are taken end to
+    end; while the forger sends three frames after each real one the twin's curtain link is failed and the
+    curtain reads broken (its fail-safe), from the first forgery to the last; then it recovers."""
+    import random
+
+    from cantools.autosar.end_to_end import compute_profile2_crc
+
+    from bridges.config import load_bridge
+    from bridges.e2e import data_id
+    from live_processes import ChannelWatch
+
+    curtain = load_bridge(AUTHENTICATED).database.get_message_by_name("LightCurtainStateAuthenticated")
+    port = free_port()
+    endpoint = f"tls/127.0.0.1:{port}"
+    with processes() as start:
+        bus = can_server(start, tmp_path / "can.log")
+        twin, bridge = _start_twin_and_bridge(start, tmp_path, ALL_SHADOW, bus, endpoint, port, AUTHENTICATED)
+        with observer(port) as session:
+            diagnostics = Diagnostics(session)
+            link = ChannelWatch(session, "cellsim/welding_cell/twin/light_barrier/physical_link")
+            broken = ChannelWatch(session, "cellsim/welding_cell/twin/light_barrier/broken")
+            emulator = _start_emulator(start, tmp_path, ["--duration", "120", "--bridge", AUTHENTICATED], bus, endpoint)
+            link.wait_for("ok", 90)  # the real curtain's authenticated frames are taken
+            forger = can.Bus(interface="remote", channel=bus)
+            sent, rng = 0, random.Random(22)
+            try:
+                deadline = time.monotonic() + 3.0
+                while time.monotonic() < deadline:
+                    frame = forger.recv(timeout=1.0)
+                    if frame is None or frame.arbitration_id != curtain.frame_id:
+                        continue
+                    for k in range(1, 4):  # the counters that come next, Broken 0, a guessed MAC
+                        counter = (frame.data[1] + k) & 0x0F
+                        data = bytearray(curtain.encode({"Crc": 0, "Counter": counter, "Broken": 0, "Freshness": frame.data[4],
+                                                         "Mac": rng.getrandbits(24)}))
+                        data[0] = compute_profile2_crc(bytes(data), data_id(curtain.frame_id, counter))
+                        forger.send(can.Message(arbitration_id=curtain.frame_id, data=bytes(data), is_extended_id=False))
+                        sent += 1
+                    if sent == 3:
+                        link.wait_for("corrupt", 5)  # failed at the first forgeries
+                        failed_from, broken_from = len(link.values) - 1, len(broken.values)
+                attack = link.values[failed_from:]
+                assert attack and "ok" not in attack, link.values  # never trusted while the forger sends
+                assert False not in broken.values[broken_from:] and broken.values[-1] is True, broken.values
+            finally:
+                forger.shutdown()
+            link.wait_for("ok", 10)  # the forger gone: the real curtain trusted again
+            wait_for(lambda: diagnostics.latest.get("light_barrier", {}).get("counts", {}).get("auth", 0) >= sent * 0.9,
+                     5, "the forgeries counted in the daemon's diagnostics")
+            link.close()
+            broken.close()
+            diagnostics.subscriber.undeclare()
+        emulator.stop()
+        twin.stop()
+        bridge.stop()
+    assert sent >= 3 * 100  # 3 s of the curtain's 50 Hz, three forgeries each
 
 
 def test_the_twin_supervises_the_emulated_cell_through_the_bus(tmp_path):

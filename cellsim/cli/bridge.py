@@ -8,6 +8,7 @@ from pathlib import Path
 from cellsim.cli.common import (
     EXIT_OK,
     _add_network_args,
+    _can_key,
     _can_bus_spec,
     _open_can_bus,
     _open_session,
@@ -40,6 +41,7 @@ def run(args) -> int:
     from bridges.daemon import Bridge, run_bridge
 
     loaded = load_bridge(args.bridge_config)
+    can_key = _can_key(args, loaded)
     default = (loaded.config.can.interface, loaded.config.can.channel)
     interface, channel = _can_bus_spec(args.can, "--can") if args.can else default
     zenoh_settings = loaded.config.zenoh  # the command line's network options win over the configuration's
@@ -51,7 +53,7 @@ def run(args) -> int:
     try:
         session = _open_session(args, "bridge", listen_by_default=False)
         try:
-            bridge = Bridge(loaded, session, bus=bus)
+            bridge = Bridge(loaded, session, bus=bus, can_key=can_key)
             stop = threading.Event()
             logging.basicConfig(level=logging.INFO, format="cellsim bridge: %(message)s", stream=sys.stderr)
             print(f"cellsim bridge: {loaded.cell} on {interface}:{channel}", file=sys.stderr)

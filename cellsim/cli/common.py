@@ -75,8 +75,9 @@ def _add_network_args(parser: argparse.ArgumentParser) -> None:
                         help="Zenoh endpoint to connect to (repeatable)")
     parser.add_argument("--config", type=Path, metavar="FILE", help="a Zenoh JSON5 configuration for anything more")
     parser.add_argument("--keys", type=Path, metavar="DIR",
-                        help="the cell's keys: its CA and this process's certificate for mutual TLS (default: "
-                        "$CELLSIM_KEYS, else ~/.config/cellsim/keys, created on first use; see cellsim keys init)")
+                        help="the cell's keys: its CA and this process's certificate for mutual TLS, and the CAN "
+                        "key of authenticated frames (default: $CELLSIM_KEYS, else ~/.config/cellsim/keys, created "
+                        "on first use; see cellsim keys init)")
     parser.add_argument("--insecure", action="store_true",
                         help="plain TCP without TLS, authentication or access control, on loopback only "
                         "(a demo or a test; any local process can then publish samples and switch twin modes)")
@@ -95,11 +96,28 @@ def _network_security(args, role: str) -> dict:
     if args.keys is None:
         try:
             if pki.ensure_keys(folder):
-                print(f"cellsim: created the cell's keys in {folder}: a CA and a certificate per role "
+                print(f"cellsim: created the cell's keys in {folder}: a CA, a certificate per role and the CAN key "
                       "(docs/security.md)", file=sys.stderr)
         except pki.KeysError as e:
             raise InputError(str(e)) from None
     return {"role": role, "keys": folder, "insecure": False}
+
+
+def _can_key(args, loaded) -> bytes | None:
+    """The cell's CAN key from the keys folder (``--keys``, else the default, made on first use) when the
+    bridge configuration ``loaded`` has authenticated messages; else None."""
+    from cellsim.live import pki
+
+    if not loaded.authenticated():
+        return None
+    folder = args.keys if args.keys is not None else pki.default_keys_dir()
+    try:
+        if args.keys is None and pki.ensure_keys(folder):
+            print(f"cellsim: created the cell's keys in {folder}: a CA, a certificate per role and the CAN key "
+                  "(docs/security.md)", file=sys.stderr)
+        return pki.can_key(folder)
+    except pki.KeysError as e:
+        raise InputError(f"{', '.join(loaded.authenticated())} are authenticated: {e}") from None
 
 
 def _add_live_args(parser: argparse.ArgumentParser, duration_default: str) -> None:

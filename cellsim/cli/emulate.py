@@ -15,6 +15,7 @@ from cellsim.cli.common import (
     InputError,
     _add_live_args,
     _can_bus_spec,
+    _can_key,
     _live_run,
     _open_can_bus,
 )
@@ -63,7 +64,7 @@ def run(args) -> int:
     from cellsim.simulation import simulate
     from cellsim.live.faults import FaultError, check_entities, check_faults, parse_fault, parse_rate
 
-    loaded = bridge = None
+    loaded = bridge = can_key = None
     if args.can:
         bridge = args.bridge or args.scenario.resolve().parent.parent / "bridges" / args.scenario.name
         if not bridge.is_file():
@@ -79,12 +80,13 @@ def run(args) -> int:
         raise InputError(str(e)) from None
 
     def check(sf):
-        nonlocal loaded
+        nonlocal loaded, can_key
         entities = sf.scenario.entities
         if bridge is not None:  # loaded with this scenario: its devices must be this cell's entities
             from bridges.config import load_bridge
 
             loaded = load_bridge(bridge, sf)
+            can_key = _can_key(args, loaded)
         try:
             check_entities(faults, rates, entities)
             check_faults(faults, entities, set(loaded.config.devices) if loaded is not None else None)
@@ -97,7 +99,7 @@ def run(args) -> int:
             from bridges.devices import EmulatedDevices
 
             bus = _open_can_bus(args.can)
-            devices = EmulatedDevices(loaded, bus, session)
+            devices = EmulatedDevices(loaded, bus, session, can_key)
         try:
             if not args.quiet:
                 on = f" on {args.can}" if bus is not None else ""

@@ -6,9 +6,12 @@
     DIR/ca.key            the CA's private key: only to issue certificates; keep it off the cell network
     DIR/<role>.pem        a role's certificate (common name: the role), signed by the CA
     DIR/<role>.key        its private key (mode 0600)
+    DIR/can.key           the cell's CAN key (128 bits, hex; mode 0600): authenticated CAN frames'
+                          keys are derived from it (``bridges/secoc.py``)
 
 A process needs ``ca.pem`` and its own role's pair, nothing else: copy only those
-to the machine that runs it. The twin's access control (:mod:`cellsim.live.access`)
+to the machine that runs it (and ``can.key`` to the bridge daemon's, where its
+devices authenticate their frames). The twin's access control (:mod:`cellsim.live.access`)
 grants each role what its common name allows. Keys are ECDSA P-256; certificates
 name ``localhost``, 127.0.0.1 and ::1 and any ``--host`` given, so whichever
 process listens can be verified by name.
@@ -29,6 +32,7 @@ ROLES = ("twin", "bridge", "emulator", "robot", "engineer", "observer")
 
 DEFAULT_HOSTS = ("localhost", "127.0.0.1", "::1")
 DEFAULT_DAYS = 365
+CAN_KEY = "can.key"
 ENVIRONMENT = "CELLSIM_KEYS"
 """Environment variable naming the keys folder when ``--keys`` is not given."""
 
@@ -66,6 +70,25 @@ def role_files(folder: Path, role: str) -> RoleFiles:
     return files
 
 
+def can_key(folder: Path) -> bytes:
+    """The cell's CAN key (16 bytes) from ``folder``, or one error saying what is wrong with it."""
+    path = folder / CAN_KEY
+    try:
+        text = path.read_text().strip()
+    except FileNotFoundError:
+        raise KeysError(f"{folder}: no {CAN_KEY}, the key of authenticated CAN frames (keys made by cellsim keys init "
+                        "before it had one: create a new folder with cellsim keys init)") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise KeysError(f"{path}: cannot read it ({getattr(e, 'strerror', None) or e})") from None
+    try:
+        key = bytes.fromhex(text)
+    except ValueError:
+        key = b""
+    if len(key) != 16:
+        raise KeysError(f"{path}: not a 128-bit key (expected 32 hexadecimal digits on one line)")
+    return key
+
+
 def init_keys(folder: Path, hosts: tuple[str, ...] = (), days: int = DEFAULT_DAYS,
               now: datetime.datetime | None = None) -> list[Path]:
     """Create a CA and every role's certificate in ``folder``, which must not hold keys yet.
@@ -89,6 +112,7 @@ def init_keys(folder: Path, hosts: tuple[str, ...] = (), days: int = DEFAULT_DAY
             key, cert = _role_certificate(role, ca_key, ca_cert, names, now, days)
             _write(staging / f"{role}.pem", _pem_certificate(cert), private=False)
             _write(staging / f"{role}.key", _pem_key(key), private=True)
+        _write(staging / CAN_KEY, os.urandom(16).hex().encode() + b"\n", private=True)
         os.chmod(staging, 0o700)
         if folder.exists():
             folder.rmdir()  # empty (checked above); a concurrent init that got there first makes this fail
@@ -119,7 +143,8 @@ def ensure_keys(folder: Path) -> bool:
 
 
 def describe(folder: Path) -> list[str]:
-    """One line per certificate: its role, common name and expiry (``cellsim keys show``)."""
+    """One line per certificate (its role, common name and expiry), and one for the CAN key
+    (``cellsim keys show``)."""
     from cryptography import x509
     from cryptography.x509.oid import NameOID
 
@@ -131,6 +156,9 @@ def describe(folder: Path) -> list[str]:
             raise KeysError(f"{path}: not a PEM certificate ({e})") from None
         cn = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
         lines.append(f"{path.stem:<9} CN={cn[0].value if cn else '?':<22} expires {cert.not_valid_after_utc:%Y-%m-%d}")
+    if (folder / CAN_KEY).is_file():
+        can_key(folder)  # readable and well formed, or the error says why
+        lines.append(f"{'can':<9} AES-128 key of authenticated CAN frames (never expires: rotate with the folder)")
     return lines
 
 
