@@ -94,3 +94,81 @@ def test_a_start_is_held_until_a_slower_machine_acknowledges_it(tmp_path):
         strokes = bb.series("welder.cycles_completed").values[-1]
         done = bb.series("process_controller.cycles_completed").values[-1]
     assert strokes >= 2 and done >= strokes - 1
+
+
+SECOND_ROBOT = """\
+base: {base}
+name: two_processes
+entities:
+  robot2:
+    kind: robot
+    model: {model}
+    base_position: [0.0, 1.5, 0.75]
+    tool_frame: tcp
+    activities: [waiting, tending]
+    named_poses:
+      home: [0.0, -1.57, 1.57, -1.57, -1.57, 0.0]
+      up: [0.5, -1.2, 1.2, -1.57, -1.57, 0.0]
+    initial_pose: home
+    twin: {{mode: model}}
+behaviours:
+  unloader:
+    kind: process
+    robot: robot2
+    steps:
+      - {{name: await_press, {verb}: press, activity: waiting}}
+      - {{name: reach, move_to: up, activity: tending}}
+      - {{name: back, move_to: home, activity: tending}}
+"""
+
+
+def second_robot(tmp_path, verb: str = "wait_for", robot: str = "robot2"):
+    from conftest import ROOT
+
+    text = SECOND_ROBOT.format(base=ROOT / "scenarios" / "palletising_cell.yaml", verb=verb,
+                               model=ROOT / "scenarios" / "models" / "ur10.urdf")
+    path = tmp_path / "two_processes.yaml"
+    path.write_text(text.replace("robot: robot2", f"robot: {robot}"))
+    return path
+
+
+def test_a_second_process_may_wait_for_a_machine_another_starts(tmp_path):
+    """Issue 23: one process starting the press and another waiting for its cycle crashed in Drake
+    (ThrowIfInputAlreadyWired); waiting reads the machine's busy, it does not drive it."""
+    simulate(load_scenario(second_robot(tmp_path)), tmp_path / "run", duration=20.0)
+    with BlackBox(tmp_path / "run" / "blackbox.sqlite") as bb:
+        press, unloader = bb.series("press.activity"), bb.series("unloader.step")
+        strokes = bb.series("press.cycles_completed").values[-1]
+    assert strokes >= 1  # the palletising process still drives the press
+    stroke = next(t for t, v in zip(press.times, press.values) if v == "pressing")
+    opened = next(t for t, v in zip(press.times, press.values) if t > stroke and v == "open")
+    reach = next(t for t, v in zip(unloader.times, unloader.values) if t > stroke and v == "reach")
+    assert reach >= opened - 0.05  # the second robot waited for the stroke to end
+
+
+@pytest.mark.parametrize("verb, robot, key, expected", [
+    ("start", "robot2", "behaviours.unloader.steps.0.start",
+     "machine 'press' is already driven by process 'process_controller' ({base}, line {line}, "
+     "behaviours.process_controller.steps.8.start)"),
+    ("wait_for", "robot", "behaviours.unloader.robot",
+     "robot 'robot' is already moved by process 'process_controller' ({base}, line {robot_line})"),
+])
+def test_a_machine_or_robot_driven_by_two_processes_is_a_load_error_naming_both_places(tmp_path, verb, robot, key,
+                                                                                        expected):
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    base = ROOT / "scenarios" / "palletising_cell.yaml"
+    lines = base.read_text().splitlines()
+    line = next(i for i, text in enumerate(lines, 1) if "{name: stroke, start: press" in text)
+    robot_line = next(i for i, text in enumerate(lines, 1) if text.strip() == "robot: robot")
+    path = second_robot(tmp_path, verb, robot)
+    with pytest.raises(ConfigError) as e:
+        load_scenario(path)
+    assert e.value.key == key and expected.format(base=base, line=line, robot_line=robot_line) in e.value.problem
+    proc = subprocess.run([sys.executable, "-m", "cellsim", "simulate", str(path), "--out", str(tmp_path / "run")],
+                          capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and f"{path}:" in proc.stderr
+    assert not (tmp_path / "run").exists()

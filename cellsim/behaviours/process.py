@@ -19,6 +19,11 @@ while the robot's safety mode lets it move (not srmst, stopped, or unknown), and
 requests: a new request listed in ``restart_on_request`` restarts the steps from
 the one it names; any other request pauses them, and the robot reports it.
 No machine is mandatory.
+
+A cell may run several processes, one per robot. Each machine is driven (started
+or operated) by one process at most; any other may ``wait_for`` its cycle. Two
+processes moving one robot, or driving one machine, are a load-time error
+naming both steps.
 """
 
 from __future__ import annotations
@@ -102,6 +107,12 @@ class ProcessConfig:
     def machines(self) -> list[str]:
         """The machines the steps start, wait for or operate, in order of first mention."""
         return list(dict.fromkeys(step.machine for step in self.steps if step.machine is not None))
+
+    @property
+    def driven(self) -> list[str]:
+        """The machines the steps start or operate: the process drives their command input (one process
+        per machine; others may wait_for it)."""
+        return list(dict.fromkeys(s.machine for s in self.steps if s.start or s.operate))
 
     @property
     def cycled(self) -> list[str]:
@@ -216,7 +227,8 @@ def build_process(cell, name: str, cfg: ProcessConfig) -> Process:
     connect(robot.GetOutputPort("safety_mode"), system.robot_mode_port)
     connect(robot.GetOutputPort("reached_pose"), system.reached_pose_port)
     for machine, command in zip(cfg.machines, system.command_ports):
-        connect(command, cell.modules[machine].GetInputPort("command"))
+        if machine in cfg.driven:  # a machine only waited for is driven by another process, or by none
+            connect(command, cell.modules[machine].GetInputPort("command"))
     for machine, busy in system.busy_ports.items():
         connect(cell.modules[machine].GetOutputPort("busy"), busy)
     for machine, activity in system.activity_ports.items():
@@ -244,9 +256,36 @@ def check_robot_steps(sf, key: str, robot_name: str, steps, restart_on_request: 
     return robot
 
 
+def _driving_key(name: str, cfg: ProcessConfig, machine: str) -> str:
+    """The key of the first step of process ``name`` that starts or operates ``machine``."""
+    i, step = next((i, s) for i, s in enumerate(cfg.steps) if s.machine == machine and (s.start or s.operate))
+    return f"behaviours.{name}.steps.{i}." + ("start" if step.start else "operate.machine")
+
+
+def _check_one_driver(sf, name: str, cfg: ProcessConfig) -> None:
+    """Each robot and each machine is driven by one process at most (its command inputs are wired once):
+    an error at the later process, naming both places."""
+    processes = sf.scenario.modules_of_kind("process")
+    for other, other_cfg in processes.items():
+        if other == name:
+            return  # only the processes before this one: each pair is reported once, at the later
+        if other_cfg.robot == cfg.robot:
+            where = sf.locate(f"behaviours.{other}.robot")
+            raise sf.error(f"behaviours.{name}.robot", f"robot '{cfg.robot}' is already moved by process '{other}' "
+                           f"({where[0]}, line {where[1]}): one process moves a robot")
+        for machine in cfg.driven:
+            if machine in other_cfg.driven:
+                where = sf.locate(_driving_key(other, other_cfg, machine))
+                raise sf.error(_driving_key(name, cfg, machine),
+                               f"machine '{machine}' is already driven by process '{other}' ({where[0]}, line {where[1]}, "
+                               f"{where[2]}): one process starts or operates a machine; the others wait_for it")
+
+
 def _check(sf, name: str, cfg: ProcessConfig) -> None:
-    """The robot and machines it names exist; poses and activities are the robot's."""
+    """The robot and machines it names exist; poses and activities are the robot's; no robot or machine
+    is driven by two processes."""
     key = f"behaviours.{name}"
+    _check_one_driver(sf, name, cfg)
     check_robot_steps(sf, key, cfg.robot, cfg.steps, cfg.restart_on_request)
     machines = sf.scenario.modules_of_kind("machine")
     for i, step in enumerate(cfg.steps):
