@@ -163,6 +163,7 @@ def describe(name: str) -> dict:
         "summary": kind.summary,
         "parameters": [dataclasses.asdict(p) for p in parameters(kind.config)],
         "channels": [{"signal": s, "type": t, "meaning": m} for s, t, m in kind.channels],
+        "inputs": [{"input": s, "type": t, "meaning": m} for s, t, m in kind.inputs],
         "physical_sample_fields": list(kind.sample_fields),
         "command_fields": list(kind.command_fields),
         "files": list(kind.file_fields),

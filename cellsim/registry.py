@@ -65,6 +65,9 @@ class ModuleKind:
     """An entity's command fields (what it sends its physical twin in twin mode)."""
     channels: tuple[tuple[str, str, str], ...] = field(default=())
     """Documented channels: ``(signal, type, meaning)``; a test checks them against built systems."""
+    inputs: tuple[tuple[str, str, str], ...] = field(default=())
+    """Documented inputs others drive (a safety controller's ``commands:`` as ``MODULE.input``, a process):
+    ``(input, type, meaning)``; a test checks them against built systems."""
     supervises: bool = False
     """A supervisor of the cell (a safety controller): a cell emulated under the twin's command
     (``cellsim emulate --commanded-by-twin``) leaves it out, the twin's supervises instead."""

@@ -57,3 +57,14 @@ def test_a_shadowed_interlocked_curtain_with_no_samples_stays_tripped():
     s.physical_sample_port.FixValue(curtain.context, np.array([-np.inf, 0.0, 0.0]))
     curtain.context.SetDiscreteState(s.EvalUniquePeriodicDiscreteUpdate(curtain.context))
     assert s.GetOutputPort("broken").Eval(curtain.context)[0] == 1.0
+
+
+def test_with_interlock_interrupted_says_the_beams_now_while_broken_stays_latched():
+    """Issue 23: broken was documented as 'a person is in the beams' but stays true until the reset;
+    interrupted is the beams now."""
+    curtain = Curtain(interlock=True)
+    interrupted = lambda: bool(curtain.system.GetOutputPort("interrupted").Eval(curtain.context)[0] > 0.5)  # noqa: E731
+    assert curtain.step(beams=True) and interrupted()
+    assert curtain.step(beams=False) and not interrupted()  # latched, the beams clear
+    assert not curtain.step(beams=False, reset=True) and not interrupted()
+    assert not Curtain(interlock=False).system.HasOutputPort("interrupted")  # without an interlock: broken is the beams

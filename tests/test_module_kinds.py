@@ -17,7 +17,7 @@ from cellsim.kinds_doc import describe
 from cellsim.scenario import export_scenario, load_scenario
 from cellsim.services.blackbox import BlackBox
 
-from conftest import WELDING_CELL, welding_cell
+from conftest import ROOT, WELDING_CELL, welding_cell
 
 PLUGIN = '''
 """A plug-in module kind: a beacon that counts its updates."""
@@ -153,8 +153,51 @@ def test_every_kind_documents_the_channels_its_systems_publish(tmp_path):
     assert seen == set(registry.kind_names())
 
 
+def test_every_kind_documents_the_inputs_others_drive(tmp_path):
+    """Every typed input of a built system (what a safety controller's commands may drive) is documented,
+    and every documented input exists: the curtain's reset only with its interlock, as it says."""
+    from diagrams.cell import build_cell
+
+    from test_process import press_cell
+
+    seen = set()
+    for sf in (welding_cell(), load_scenario(press_cell(tmp_path)), load_scenario(ROOT / "scenarios" / "palletising_cell.yaml")):
+        built = build_cell(sf, seed=0, duration=1.0, record=False)
+        for section in registry.SECTIONS:
+            for name, cfg in getattr(sf.scenario, section).items():
+                kind, system = registry.kind_of(cfg), built.modules.get(name)
+                if system is None:
+                    continue
+                documented = {i for i, _, _ in kind.inputs if not i.startswith("<")}
+                typed = set(getattr(system, "input_types", {})) - set(getattr(cfg, "alerts", ()))
+                ports = {system.get_input_port(k).get_name() for k in range(system.num_input_ports())}
+                optional = {i for i, _, text in kind.inputs if text.startswith("only with")}
+                assert typed <= documented and documented - optional <= ports, (kind.name, typed, documented, ports)
+                seen.add(kind.name)
+    assert {"robot", "machine", "operator", "process", "light_barrier"} <= seen
+
+
 def test_every_parameter_of_every_shipped_kind_says_what_it_means():
     undocumented = [
         f"{name}.{p['name']}" for name in registry.kind_names() for p in describe(name)["parameters"] if not p["doc"]
     ]
     assert undocumented == []
+
+
+def test_modules_kind_shows_inputs_and_wraps_long_keys_rather_than_cutting_them():
+    """Issue 23: the tables cut key names at 80 columns (steps.<i>.ope…) and listed no inputs."""
+    import os
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "cellsim", "modules", "machine"], capture_output=True, text=True,
+                          timeout=60, cwd=ROOT, env={**os.environ, "COLUMNS": "80"})
+    assert proc.returncode == 0 and "…" not in proc.stdout, proc.stdout
+    assert max(len(line) for line in proc.stdout.splitlines()) <= 80
+    inputs = proc.stdout[proc.stdout.index("inputs (driven as NAME.input"):]
+    for name in ("safety_mode_request", "activity_request", "command"):
+        assert f"│ {name}" in inputs, inputs
+    # the longest key, folded over lines, is all there
+    name = max((p["name"] for p in describe("machine")["parameters"]), key=len)
+    first_column = "".join(line.split("│")[1].strip() for line in proc.stdout.splitlines() if line.startswith("│"))
+    assert name in first_column

@@ -312,6 +312,9 @@ KIND = ModuleKind(
     stage=10,
     check=_check,
     summary="A process controller for any cell: the robot's moves and dwells, machines' cycles started and awaited, machines operated.",
+    inputs=(
+        ("activity_request", "enum", "a robot activity a safety controller requests: restarts or pauses the steps"),
+    ),
     channels=(
         ("step", "enum", "the current step's name"),
         ("cycles_completed", "number", "process cycles completed so far"),

@@ -12,7 +12,8 @@ def add_parser(subparsers) -> None:
         "modules",
         help="list the module kinds a scenario can use, or describe one",
         description="Without KIND: every module kind (cellsim's and installed plug-ins'), its section and what it "
-        "is. With KIND: its parameters (type, default, meaning), channels, physical-sample and command fields. "
+        "is. With KIND: its parameters (type, default, meaning), channels (outputs), inputs others drive, "
+        "physical-sample and command fields. "
         "Generated from the code's own declarations.",
     )
     mods.add_argument("kind", nargs="?", help="a kind to describe in full, e.g. robot")
@@ -38,7 +39,7 @@ def run(args) -> int:
         else:
             table = Table(title="Module kinds (cellsim modules KIND for one in full)", title_justify="left")
             for column in ("kind", "section", "what it is"):
-                table.add_column(column, style="bold" if column == "kind" else None)
+                table.add_column(column, style="bold" if column == "kind" else None, overflow="fold")
             for k in kinds:
                 table.add_row(e(k["kind"]), k["section"], e(k["summary"]))
             console.print(table)
@@ -58,18 +59,25 @@ def run(args) -> int:
         return EXIT_OK
     console.print(f"[bold]{e(info['kind'])}[/bold] ({info['section']}): {e(info['summary'])}")
     params = Table(title="parameters", title_justify="left")
-    for column in ("name", "type", "default", "valid range", "meaning"):
-        params.add_column(column, style="bold" if column == "name" else None)
+    for column in ("name", "type", "default", "valid range", "meaning"):  # folded, never cut: keys are long
+        params.add_column(column, style="bold" if column == "name" else None, overflow="fold")
     for p in info["parameters"]:
         params.add_row(e(p["name"]), e(p["type"]), e(p["default"]), e(p["range"]), e(p["doc"]))
     console.print(params)
     if info["channels"]:
         channels = Table(title=f"channels ({info['kind']} module NAME publishes NAME.signal)", title_justify="left")
         for column in ("signal", "type", "meaning"):
-            channels.add_column(column, style="bold" if column == "signal" else None)
+            channels.add_column(column, style="bold" if column == "signal" else None, overflow="fold")
         for c in info["channels"]:
             channels.add_row(e(c["signal"]), e(c["type"]), e(c["meaning"]))
         console.print(channels)
+    if info["inputs"]:
+        inputs = Table(title="inputs (driven as NAME.input, e.g. by a safety controller's commands)", title_justify="left")
+        for column in ("input", "type", "meaning"):
+            inputs.add_column(column, style="bold" if column == "input" else None, overflow="fold")
+        for i in info["inputs"]:
+            inputs.add_row(e(i["input"]), e(i["type"]), e(i["meaning"]))
+        console.print(inputs)
     if info["physical_sample_fields"]:
         console.print("physical sample fields (shadow and twin mode): " + e(", ".join(info["physical_sample_fields"])))
     if info["command_fields"]:

@@ -183,6 +183,11 @@ KIND = ModuleKind(
     abstraction=deferred("cellsim.abstractions.machine:machine"),
     sample_fields=("safety_mode", "activity"),
     command_fields=("safety_mode_request", "activity_request", "command"),
+    inputs=(
+        ("safety_mode_request", "enum", "the safety mode a safety controller requests"),
+        ("activity_request", "enum", "an activity a safety controller requests (e.g. its off one), or none"),
+        ("command", "number", "1 while its process starts (with a cycle_time) or operates it"),
+    ),
     channels=(
         ("safety_mode", "enum", "its safety mode; unknown when shadowing with no valid sample"),
         ("activity", "enum", "one of its activities; its working one when shadowing with no valid sample"),

@@ -432,6 +432,10 @@ KIND = ModuleKind(
     abstraction=deferred("cellsim.abstractions.people:person"),
     sample_fields=Operator.POSE_FIELDS,
     command_fields=("notification", "<alert>"),
+    inputs=(
+        ("notification", "enum", "what a safety controller tells the person (one of notifications)"),
+        ("<alert>", "bool", "for each of alerts: a safety controller's alert the person reacts to"),
+    ),
     channels=(
         ("location", "enum", "the layout.operator_zones zone stood in, else layout.operator_outside (oloc)"),
         ("<flag>", "bool", "for each of layout.operator_flags: standing in that volume (otab)"),

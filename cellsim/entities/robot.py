@@ -497,6 +497,10 @@ KIND = ModuleKind(
     summary="A six-axis collaborative arm (URDF) moving between named poses (joint angles or tool targets), with ISO 10218 safety modes.",
     sample_fields=tuple(f"q{i}" for i in range(6)) + ("safety_mode", "activity", "reached_pose"),
     command_fields=("safety_mode_request", "activity", "target_pose"),
+    inputs=(
+        ("safety_mode_request", "enum", "the safety mode a safety controller requests (it takes the most restrictive)"),
+        ("activity", "enum", "the activity its process carries out (ract follows it)"),
+    ),
     channels=(
         ("safety_mode", "enum", "current safety mode (safmod); unknown when shadowing with no valid sample"),
         ("activity", "enum", "one of its activities, or unknown (ract)"),

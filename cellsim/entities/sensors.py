@@ -66,8 +66,9 @@ class LightBarrier(GeometrySensor):
       physical_sample (input): [t, link, broken (0/1)].
       reset (input, with restart_interlock): a rising edge resets a tripped curtain whose beams are clear.
       broken (channel, bool): true while any target geometry intersects the beams; with
-        restart_interlock, from the first break until a reset.
-    Fails safe (reads broken) when its physical sample is stale or corrupt.
+        restart_interlock, *latched*: from the first break until a reset.
+      interrupted (channel, bool, with restart_interlock): the beams interrupted now, latch or not.
+    Fails safe (reads broken and interrupted) when its physical sample is stale or corrupt.
     """
 
     def __init__(self, module: str, cfg: LightBarrierConfig):
@@ -80,6 +81,8 @@ class LightBarrier(GeometrySensor):
         if cfg.restart_interlock:
             self.reset_port = self.declare_input("reset", ctype=BOOL, default=0.0)
             self._reset_seen = self.declare_state("reset_seen", [0.0])
+            self._interrupted = self.declare_channel(
+                "interrupted", BOOL, False, description="Beams interrupted now (the latch aside)")
 
     def register_geometry(self, scene_graph) -> list:
         source = scene_graph.RegisterSource(self.module)
@@ -128,6 +131,7 @@ class LightBarrier(GeometrySensor):
         else:
             broken = view.sample[0] > 0.5
         if self.cfg.restart_interlock:
+            write_scalar(xd, self._interrupted, 1.0 if broken else 0.0)
             broken = self._interlocked(context, xd, broken)
         write_scalar(xd, self._broken, 1.0 if broken else 0.0)
 
@@ -251,8 +255,13 @@ LIGHT_BARRIER = ModuleKind(
     summary="A light curtain whose beams fill a box: broken while a person's geometry is in it; fails safe to broken.",
     sample_fields=("broken",),
     channels=(
-        ("broken", "bool", "true while any person's geometry intersects the beams (lgtBar)"),
+        ("broken", "bool", "true while any person's geometry intersects the beams (lgtBar); with restart_interlock, "
+                           "latched: true from the first break until a reset"),
+        ("interrupted", "bool", "only with restart_interlock: the beams interrupted now, latch or not"),
         *TWIN_CHANNELS,
+    ),
+    inputs=(
+        ("reset", "bool", "only with restart_interlock: a rising edge resets a tripped curtain whose beams are clear"),
     ),
 )
 
