@@ -293,3 +293,19 @@ def test_a_scenario_that_samples_nothing_has_nothing_to_search(tmp_path):
     flat.write_text(f"base: {WELDING_CELL}\ncampaign: !replace {{runs: 5}}\n")
     done = _cellsim("falsify", flat, "--out", tmp_path / "f")
     assert done.returncode == 2 and "nothing to search" in done.stderr, done.stderr
+
+
+@pytest.mark.parametrize("scenario, violates", [("palletising_fault.yaml", True), ("palletising_cell.yaml", False)])
+def test_the_seeded_fault_violates_separation_only_in_its_zone_and_only_in_the_faulty_model(tmp_path, scenario, violates):
+    """The benchmark's seeded fault exists (a press front 0.85 m deep: Separation violated) and is the risk
+    model's (the shipped one holds the same run); 0.95 m deep, outside the zone, the faulty model holds too."""
+    from cellsim.scenario import load_scenario
+    from cellsim.simulation import simulate
+
+    for depth, expected in ((0.85, violates), (0.95, False)):
+        sf = load_scenario(ROOT / "scenarios" / scenario, [f"operator.waypoints.press_front.position.1={depth}"])
+        simulate(sf, tmp_path / f"{depth}", duration=40.0)
+        checked = subprocess.run([sys.executable, "-m", "cellsim", "check", str(tmp_path / f"{depth}"), "--json"],
+                                 capture_output=True, text=True, timeout=120, cwd=ROOT)
+        violations = json.loads(checked.stdout)["violations"]
+        assert any("Separation" in str(v) for v in violations) == expected, (scenario, depth, violations)
