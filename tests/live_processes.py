@@ -79,15 +79,24 @@ def can_server(start, log: Path, timeout: float = 30.0) -> str:
     its channel for ``can.Bus(interface="remote", channel=...)`` once it accepts connections."""
     port = free_port()
     server = start(["-i", "virtual", "-c", "0", "-H", "127.0.0.1", "-p", str(port)], log, module="can_remote")
+    wait_listening(server, port, timeout, "the CAN server")
+    return f"ws://127.0.0.1:{port}/"
+
+
+def wait_listening(server: Process, port: int, timeout: float, what: str, ready: str | None = None) -> None:
+    """Wait until ``server`` accepts connections on loopback ``port`` and, if given, its log holds
+    ``ready``; fail with its output if it exits or the deadline passes."""
     deadline = time.monotonic() + timeout
     while True:
         try:
-            socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
-            return f"ws://127.0.0.1:{port}/"
+            if ready is None or ready in server.output():
+                socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+                return
         except OSError:
-            if server.popen.poll() is not None or time.monotonic() > deadline:
-                raise AssertionError(f"the CAN server did not start: {server.output()}") from None
-            threading.Event().wait(0.05)
+            pass
+        if server.popen.poll() is not None or time.monotonic() > deadline:
+            raise AssertionError(f"{what} did not start: {server.output()}")
+        threading.Event().wait(0.05)
 
 
 @contextmanager

@@ -14,7 +14,7 @@ import time
 
 import pytest
 from conftest import ONE_AT_A_TIME, ROOT, WELDING_CELL
-from live_processes import free_port, processes
+from live_processes import free_port, processes, wait_listening
 
 pytestmark = [pytest.mark.slow, ONE_AT_A_TIME]  # five processes on loopback: skip locally with -m "not slow"
 TWO_OPERATORS = ROOT / "scenarios" / "two_operators.yaml"
@@ -36,8 +36,10 @@ def cluster(tmp_path_factory):
     address = f"tcp://127.0.0.1:{port}"
     with processes() as start:
         (base / "scheduler").mkdir()
-        start(["--host", "127.0.0.1", "--port", str(port), "--no-dashboard"], base / "scheduler.log",
-              module="distributed.cli.dask_scheduler", cwd=base / "scheduler")
+        scheduler = start(["--host", "127.0.0.1", "--port", str(port), "--no-dashboard"], base / "scheduler.log",
+                          module="distributed.cli.dask_scheduler", cwd=base / "scheduler")
+        # (a client that connects before the scheduler has finished starting can be dropped: wait for its banner)
+        wait_listening(scheduler, port, 120, "the Dask scheduler", ready="Scheduler at:")
         workers = []
         for name in ("w1", "w2"):
             folder = base / name
@@ -45,7 +47,7 @@ def cluster(tmp_path_factory):
             workers.append(start([address, "--host", "127.0.0.1", "--nthreads", "1", "--no-nanny", "--no-dashboard",
                                   "--local-directory", str(folder)], base / f"{name}.log",
                                  module="distributed.cli.dask_worker", cwd=folder))
-        with Client(address, timeout=60) as client:
+        with Client(address, timeout=120) as client:
             client.wait_for_workers(2, timeout=120)
         yield address, workers, base
 
