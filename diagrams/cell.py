@@ -156,6 +156,7 @@ class CellBuild:
     prepared: dict[str, object] = field(default_factory=dict)
     """What a kind's ``prepare`` left for its ``build``, by module name."""
     _hooks: list[Callable[[], None]] = field(default_factory=list)
+    _last_hooks: list[Callable[[], None]] = field(default_factory=list)
     _counters: dict[str, int] = field(default_factory=dict)
 
     @property
@@ -184,6 +185,10 @@ class CellBuild:
 
     def after_entities(self, hook: Callable[[], None]) -> None:
         self._hooks.append(hook)
+
+    def after_all(self, hook: Callable[[], None]) -> None:
+        """Run ``hook`` once every module is built (a system reading any module's channel)."""
+        self._last_hooks.append(hook)
 
     def count(self, what: str) -> int:
         """0, 1, 2 ... on successive calls: e.g. each person's own random stream."""
@@ -243,6 +248,8 @@ def build_cell(
             hooks_run = True
         kind.build(cell, name, cfg)
     cell._run_hooks()
+    for hook in cell._last_hooks:
+        hook()
     _filter_all_contact(plant, scene_graph, cell.foreign_geometry)
 
     # -- the I/O: the one place that decides what the physical side is ---------------------

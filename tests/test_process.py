@@ -172,3 +172,83 @@ def test_a_machine_or_robot_driven_by_two_processes_is_a_load_error_naming_both_
                           capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and f"{path}:" in proc.stderr
     assert not (tmp_path / "run").exists()
+
+
+def _until(tmp_path, condition: str):
+    """The second robot's process waits until ``condition`` instead of the press's cycle."""
+    path = second_robot(tmp_path)
+    text = path.read_text().replace("{name: await_press, wait_for: press, activity: waiting}",
+                                    f"{{name: await_arm, wait_until: '{condition}', activity: waiting}}")
+    assert "await_arm" in text
+    path.write_text(text)
+    return path
+
+
+def test_a_process_waits_until_a_condition_over_another_robots_channels_holds(tmp_path):
+    """Issue 23: a hand-over: robot2 moves only once the first robot rests at its pallet pose and
+    the press is pressing is not required (an or): it leaves the wait the period after it holds."""
+    path = _until(tmp_path, "robot.reached_pose == pallet_place and (press.busy or not press.busy)")
+    simulate(load_scenario(path), tmp_path / "run", duration=25.0)
+    with BlackBox(tmp_path / "run" / "blackbox.sqlite") as bb:
+        pose, unloader = bb.series("robot.reached_pose"), bb.series("unloader.step")
+    at_pallet = [t for t, v in zip(pose.times, pose.values) if v == "pallet_place"]
+    reaches = [t for t, v in zip(unloader.times, unloader.values) if v == "reach"]
+    assert at_pallet and reaches, (pose.values, unloader.values)
+    assert 0.0 <= reaches[0] - at_pallet[0] <= 0.04 + 1e-9  # within one process period of the condition
+    assert unloader.values[0] == "await_arm" and unloader.times[1] == reaches[0]  # it waited until then
+
+
+@pytest.mark.parametrize("condition, problem", [
+    ("robot.reached_pose == pallet", "column 23 of the condition: 'pallet' is not a value of robot.reached_pose "
+                                     "(moving, home, infeed_pick"),
+    ("robott.reached_pose == home", "column 1 of the condition: unknown variable or macro 'robott.reached_pose' "
+                                    "(did you mean 'robot.reached_pose'?)"),
+    ("F robot.busy", "column 1 of the condition: temporal operator 'F' is not allowed here"),
+])
+def test_a_bad_wait_until_condition_is_one_error_at_its_key(tmp_path, condition, problem):
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    path = _until(tmp_path, condition)
+    done = subprocess.run([sys.executable, "-m", "cellsim", "scenario", "check", str(path)], capture_output=True,
+                          text=True, timeout=120, cwd=ROOT)
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    line = next(i for i, text in enumerate(path.read_text().splitlines(), 1) if "await_arm" in text)
+    assert f"{path}:{line}" in done.stderr and "behaviours.unloader.steps.0.wait_until" in done.stderr
+    assert problem in done.stderr, done.stderr
+
+
+def test_verify_translates_a_wait_until_exactly_as_the_wait_it_restates(tmp_path):
+    """``wait_until: not welder.busy`` is ``wait_for: welder`` said another way: the abstract models
+    have the same states and every property the same value."""
+    import json
+    import subprocess
+    import sys
+
+    results = []
+    checked = {"validation: !replace {}": "validation: !replace {conditions: {never_fetching_while_pressing: "
+               "'G(not (welder.activity == pressing and process_controller.step == fetch))'}}"}
+    for label, edits in (("wait_for", checked),
+                         ("wait_until", {**checked, "wait_for: welder,": "wait_until: 'not welder.busy',"})):
+        (tmp_path / label).mkdir()
+        path = press_cell(tmp_path / label, **edits)
+        done = subprocess.run([sys.executable, "-m", "cellsim", "verify", str(path), "--json", "--no-replay",
+                               "--out", str(tmp_path / label / "out")], capture_output=True, text=True, timeout=600)
+        assert done.returncode in (0, 1), done.stderr
+        results.append(json.loads(done.stdout))
+    waiting, until = results
+    assert until["states"] == waiting["states"] > 0
+    assert [(p["name"], p["value"]) for p in until["properties"]] == [(p["name"], p["value"]) for p in waiting["properties"]]
+    assert [p["name"] for p in until["properties"]] == ["never_fetching_while_pressing"] and until["holds"]
+
+
+def test_verify_with_nothing_to_check_says_so_in_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "cellsim", "verify", str(press_cell(tmp_path)), "--no-replay"],
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 2 and "nothing to verify: no safety controller's hazards" in done.stderr
+    assert "Traceback" not in done.stderr

@@ -5,8 +5,9 @@ in ``restart_on_request`` restarts the steps from the one it names; any other
 request pauses them (the robot holds and reports the requested activity);
 otherwise, unless the robot stands still (srmst, stopped, unknown), the step
 goes on: a move ends when the robot rests at its pose, a dwell after its
-seconds, a machine started once it is busy, a wait once it is not, an
-operation once the machine has worked its seconds. Seconds count in periods of
+seconds, a machine started once it is busy, a wait once it is not, a
+``wait_until`` once its condition holds (translated exactly, over the
+channels' abstractions), an operation once the machine has worked its seconds. Seconds count in periods of
 the safety controller, rounded up.
 """
 
@@ -16,13 +17,22 @@ import math
 
 from cellsim.behaviours.process import _STANDSTILL
 from cellsim.channels import NO_VALUE
+from cellsim.logic.syntax import variables_of
+from cellsim.verify.expressions import thresholds_of, to_prism
 from cellsim.verify.model import ModuleAbstraction, CODE, AbstractCell, lookup, set_of
 from cellsim.verify.prism import Command, Module, Var
 
 
 class ProcessAbstraction(ModuleAbstraction):
     def declare(self, cell: AbstractCell) -> None:
-        """Reads the robot's mode and pose, its machines' busy or activity (in ``build``)."""
+        """Reads the robot's mode and pose, its machines' busy or activity (in ``build``), and the
+        channels its wait_until conditions read (numbers keep their constants apart)."""
+        formulas = [c.formula for c in self.system.conditions if c is not None]
+        for formula in formulas:
+            for channel in sorted(variables_of(formula)):
+                cell.read(channel, f"{self.name} (waiting until {channel} ...)")
+                if self.system.condition_reads[channel][1].kind == "number":
+                    cell.compares(channel, thresholds_of(formulas, channel).values)
 
     def build(self, cell: AbstractCell) -> None:
         p, system, cfg = self.name, self.system, self.cfg
@@ -66,6 +76,12 @@ class ProcessAbstraction(ModuleAbstraction):
                     cmds[st.start] = f"!{done}"
                 elif st.wait_for is not None:
                     done = f"!{busy[st.wait_for]}"
+                    after = "0"
+                elif st.wait_until is not None:
+                    formula = system.conditions[index].formula
+                    channels = sorted(variables_of(formula))
+                    done = "(" + to_prism(formula, {c: cell.encoding(c) for c in channels},
+                                          {c: cell.read(c, p) for c in channels}) + ")"
                     after = "0"
                 else:
                     m = st.operate.machine

@@ -9,6 +9,11 @@ Each step does one thing and names the robot activity it is:
   the robot;
 * ``wait_for: MACHINE``: waits until that machine is no longer busy: its cycle
   ended, or was abandoned when the machine stopped (at once if it is idle);
+* ``wait_until: CONDITION``: waits until a condition over the cell's channels
+  holds, written in the condition language without temporal operators
+  (docs/condition-language.md), e.g. ``loader.reached_pose == clear``: how one
+  robot hands a part over to another, or waits for any machine, sensor or step
+  of another process (at once if it already holds);
 * ``operate: {machine: MACHINE, seconds: S}``: keeps a machine without a cycle
   working (its command on) until it has worked S seconds, counting only while
   it reports its working activity (the welding cell's weld: the robot holds the
@@ -56,7 +61,7 @@ class Operation:
 
 @dataclass
 class ProcessStep:
-    """One step: exactly one of move_to, dwell, start, wait_for, operate; and the robot's activity."""
+    """One step: exactly one of move_to, dwell, start, wait_for, wait_until, operate; and the robot's activity."""
 
     name: str
     """The step's name: the controller's step channel reads it."""
@@ -70,14 +75,18 @@ class ProcessStep:
     """A machine whose cycle to start (the process goes on at once)."""
     wait_for: str | None = None
     """A machine whose cycle to wait for."""
+    wait_until: str | None = None
+    """A condition over the cell's channels (no temporal operators) to wait for, e.g.
+    ``loader.reached_pose == clear``."""
     operate: Operation | None = None
     """A machine to keep working for some seconds ({machine, seconds})."""
 
     def __post_init__(self):
-        given = [k for k in ("move_to", "start", "wait_for", "operate") if getattr(self, k) is not None]
+        given = [k for k in ("move_to", "start", "wait_for", "wait_until", "operate") if getattr(self, k) is not None]
         given += ["dwell"] if self.dwell else []
         if len(given) != 1:
-            raise FieldError("name", f"step '{self.name}' must have exactly one of move_to, dwell, start, wait_for, operate")
+            raise FieldError("name", f"step '{self.name}' must have exactly one of move_to, dwell, start, wait_for, "
+                                     "wait_until, operate")
 
     @property
     def machine(self) -> str | None:
@@ -134,6 +143,8 @@ class Process(CellSystem):
       robot_reached_pose (input): the robot's reached-pose code (0 moving, i + 1 for named pose i).
       <machine>_busy (input), per machine started or waited for: the machine's busy channel.
       <machine>_activity (input), per machine operated: the machine's activity code.
+      reads <module>.<channel> (input), per channel a wait_until condition reads: that channel
+        (declared and wired once every module is built: ``wire_conditions``).
       target_pose (output): index of the robot's named pose to move to, -1 to hold.
       robot_activity (output): code of the robot activity being carried out.
       <machine>_command (output), per machine: 1 from a start step until the machine is busy.
@@ -170,6 +181,48 @@ class Process(CellSystem):
         self._step = self.declare_channel("step", enum_type(self.step_names), self.steps[0].name)
         self._cycles = self.declare_channel("cycles_completed", number_type(None), 0.0)
         self._outputs = [self._target, self._activity, self._step, self._cycles, *self._commands]
+        self.conditions: list = [None] * len(self.steps)
+        """Per step: its wait_until condition compiled (``wire_conditions``), else None."""
+        self.condition_reads: dict[str, tuple] = {}
+        """Channel a condition reads -> (its input port, its type)."""
+
+    def wire_conditions(self, cell, name: str) -> None:
+        """Parse each wait_until against every channel of the built cell, declare an input per channel
+        read and wire it: a bad condition is a ConfigError at its key (file, line, column)."""
+        from cellsim.logic.predicates import compile_predicate
+        from cellsim.logic.syntax import FormulaError, parse
+        from cellsim.validation.traces import channel_domains
+
+        channels = cell.channels()
+        vocabulary = channel_domains(spec for spec, _ in channels.values())
+        for i, step in enumerate(self.steps):
+            if step.wait_until is None:
+                continue
+            try:
+                formula = parse(step.wait_until, vocabulary, allow_temporal=False)
+            except FormulaError as e:
+                where = f"column {e.column} of the condition: " if e.column is not None else ""
+                raise cell.sf.error(f"behaviours.{name}.steps.{i}.wait_until", where + e.message) from None
+            self.conditions[i] = compile_predicate(formula, vocabulary)
+            for channel in sorted(self.conditions[i].variables):
+                if channel not in self.condition_reads:
+                    spec, source = channels[channel]
+                    port = self.declare_input(f"reads {channel}")
+                    cell.builder.Connect(source, port)
+                    self.condition_reads[channel] = (port, spec.type)
+
+    def _condition_holds(self, context, index: int) -> bool:
+        values = {}
+        for channel in self.conditions[index].variables:
+            port, ctype = self.condition_reads[channel]
+            code = port.Eval(context)[0]
+            if ctype.kind == "number":
+                values[channel] = code  # NaN (no value) makes every comparison false
+            elif ctype.kind == "bool":
+                values[channel] = code > 0.5
+            else:
+                values[channel] = ctype.decode([code])
+        return self.conditions[index](values)
 
     def update(self, context, xd):
         request = self.activity_request_port.Eval(context)[0]
@@ -196,6 +249,8 @@ class Process(CellSystem):
                 commands[self.machines.index(step.start)] = 0.0 if done else 1.0
             elif step.wait_for is not None:
                 done = self.busy_ports[step.wait_for].Eval(context)[0] < 0.5
+            elif step.wait_until is not None:
+                done = self._condition_holds(context, index)
             else:  # operate: commanded on, its working time counted while it works
                 machine = step.operate.machine
                 if self.activity_ports[machine].Eval(context)[0] == self.working[machine]:
@@ -233,6 +288,8 @@ def build_process(cell, name: str, cfg: ProcessConfig) -> Process:
         connect(cell.modules[machine].GetOutputPort("busy"), busy)
     for machine, activity in system.activity_ports.items():
         connect(cell.modules[machine].GetOutputPort("activity"), activity)
+    if any(step.wait_until is not None for step in cfg.steps):  # it may read any module's channel
+        cell.after_all(lambda: system.wire_conditions(cell, name))
     return system
 
 

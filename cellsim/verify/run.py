@@ -170,6 +170,9 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, on_stage=None
     say = on_stage or (lambda text: None)
     say("building the abstract model")
     model = abstract_model(sf, timed=timed)
+    if not model.properties:
+        raise VerifyError("nothing to verify: no safety controller's hazards and no validation condition of a "
+                          "checkable shape" + "".join(f"; not checked: {s.name}: {s.reason}" for s in model.skipped))
     times = dict(model.times)
     if export is not None:
         write_export(model, export)
