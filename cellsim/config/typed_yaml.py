@@ -391,7 +391,11 @@ def _check_size(text: str, source: str) -> None:
             if frames[-1][1] > MAX_NODES:
                 raise ConfigError(source, event.start_mark.line + 1, "",
                                   f"malformed YAML: expands to more than {MAX_NODES} values (aliases of aliases?)")
-    except yaml.YAMLError:
+    except yaml.YAMLError as e:
+        if "maximum nesting depth" in str(e):  # PyYAML >= 6.0.3 has a depth limit of its own: one message
+            mark = getattr(e, "problem_mark", None) or getattr(e, "context_mark", None)
+            raise ConfigError(source, mark.line + 1 if mark else None, "",
+                              f"malformed YAML: nested deeper than {MAX_DEPTH} levels") from None
         return  # the composer reports malformed YAML with its position
     finally:
         loader.dispose()
