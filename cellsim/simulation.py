@@ -55,6 +55,18 @@ class HazardCounts:
 
 
 @dataclass
+class RobotFigures:
+    """One robot's figures of a run."""
+
+    cycles_completed: int = 0
+    """Cycles completed by the process that moves it."""
+    final_safety_mode: str | None = None
+
+    def to_json(self) -> dict:
+        return {"cycles_completed": self.cycles_completed, "final_safety_mode": self.final_safety_mode}
+
+
+@dataclass
 class RunSummary:
     out_dir: Path
     seed: int
@@ -64,6 +76,9 @@ class RunSummary:
     cycles_completed: int
     hazards: dict[str, HazardCounts] = field(default_factory=dict)
     final_safety_mode: str | None = None
+    robots: dict[str, RobotFigures] = field(default_factory=dict)
+    """Each robot's figures, in the scenario's order (``cycles_completed`` and ``final_safety_mode``
+    above are the first robot's, or the only one's)."""
     safety_case: object | None = None
     """The scenario's compiled validation (a ``SafetyCase``), when it has conditions."""
 
@@ -302,13 +317,19 @@ def summarise(out_dir: Path, seed: int, status: str, sim_time: float, wall_time:
                 handled=sum(v == initial and i > 0 and values[i - 1] != initial for i, v in enumerate(values)),
                 mishaps=sum(v == mishap and (i == 0 or values[i - 1] != mishap) for i, v in enumerate(values)) if mishap else 0,
             )
-        behaviours = set(scenario.get("behaviours", {}))
-        robots = {n for n, e in scenario.get("entities", {}).items() if e.get("kind") == "robot"}
+        behaviours = scenario.get("behaviours", {})
+        robots = [n for n, e in scenario.get("entities", {}).items() if e.get("kind") == "robot"]
+        summary.robots = {name: RobotFigures() for name in robots}
         for name, info in channels.items():
             if name.endswith(".cycles_completed") and info.source in behaviours:
                 values = bb.series(name).values
-                summary.cycles_completed = int(values[-1]) if values else 0
-            elif name.endswith(".safety_mode") and info.source in robots:
+                moved = behaviours[info.source].get("robot", "robot")  # a process moves one robot
+                if moved in summary.robots:
+                    summary.robots[moved].cycles_completed = int(values[-1]) if values else 0
+            elif name.endswith(".safety_mode") and info.source in summary.robots:
                 values = bb.series(name).values
-                summary.final_safety_mode = values[-1] if values else None
+                summary.robots[info.source].final_safety_mode = values[-1] if values else None
+        if robots:
+            first = summary.robots[robots[0]]
+            summary.cycles_completed, summary.final_safety_mode = first.cycles_completed, first.final_safety_mode
     return summary

@@ -150,6 +150,8 @@ class CellBuild:
     people: list = field(default_factory=list)
     """GeometryIds of every person's body, for the sensors."""
     robot_geometry: list = field(default_factory=list)
+    arm_geometry: dict[str, dict] = field(default_factory=dict)
+    """Robot name -> each of its GeometryIds -> the name of the arm's body it is fixed to."""
     foreign_geometry: list = field(default_factory=list)
     """GeometryIds registered outside the plant (all contact is filtered out)."""
     recorder: Recorder | None = None

@@ -136,15 +136,16 @@ def test_every_kind_documents_the_channels_its_systems_publish(tmp_path):
     from test_process import press_cell
 
     seen = set()
-    for sf in (welding_cell(), load_scenario(press_cell(tmp_path)), load_scenario(scanner_cell(tmp_path))):
+    for sf in (welding_cell(), load_scenario(press_cell(tmp_path)), load_scenario(scanner_cell(tmp_path)),
+               load_scenario(ROOT / "scenarios" / "assembly_bench.yaml")):
         built = build_cell(sf, seed=0, duration=1.0, record=False)
         for section in registry.SECTIONS:
             for name, cfg in getattr(sf.scenario, section).items():
                 kind = registry.kind_of(cfg)
                 documented = {signal for signal, _, _ in kind.channels}
                 published = {spec.signal for spec, _ in getattr(built.modules.get(name), "channels", [])}
-                if any(s.startswith("<") for s in documented):  # per risk-model variable or flag: templates
-                    fixed = {s for s in documented if not s.startswith("<")}
+                if any("<" in s for s in documented):  # per risk-model variable, flag or robot pair: templates
+                    fixed = {s for s in documented if "<" not in s}
                     assert fixed <= published, (kind.name, fixed - published)
                 else:  # a channel documented "only with ..." may be absent
                     optional = {signal for signal, _, text in kind.channels if text.startswith("only with")}
@@ -161,7 +162,8 @@ def test_every_kind_documents_the_inputs_others_drive(tmp_path):
     from test_process import press_cell
 
     seen = set()
-    for sf in (welding_cell(), load_scenario(press_cell(tmp_path)), load_scenario(ROOT / "scenarios" / "palletising_cell.yaml")):
+    for sf in (welding_cell(), load_scenario(press_cell(tmp_path)), load_scenario(ROOT / "scenarios" / "palletising_cell.yaml"),
+               load_scenario(ROOT / "scenarios" / "assembly_bench.yaml")):
         built = build_cell(sf, seed=0, duration=1.0, record=False)
         for section in registry.SECTIONS:
             for name, cfg in getattr(sf.scenario, section).items():

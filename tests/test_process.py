@@ -72,7 +72,7 @@ def test_a_machine_cycle_runs_in_parallel_with_the_robot_and_the_process_waits_f
         ({"activity: waiting}\n      - {name: away": "activity: resting}\n      - {name: away"},
          "behaviours.process_controller.steps.1.activity", "'resting' is not an activity of robot"),
         ({"{name: away, move_to: shared_table,": "{name: away, move_to: shared_table, dwell: 1.0,"},
-         "behaviours.process_controller.steps.2.name", "exactly one of move_to, dwell, start, wait_for, operate"),
+         "behaviours.process_controller.steps.2.name", "exactly one of move_to, dwell, start, wait_for, wait_until, operate"),
         ({"{name: stroke, start: welder,": "{name: stroke, operate: {machine: welder, seconds: 2.0},"},
          "behaviours.process_controller.steps.1.operate.machine", "runs cycles: start it and wait_for it"),
         ({"{name: stroke, start: welder,": "{name: stroke, operate: {machine: weldr, seconds: 2.0},"},

@@ -61,6 +61,7 @@ import json
 import math
 import operator
 import os
+from statistics import median
 from collections.abc import Iterable, Mapping, Sequence
 from importlib import resources
 
@@ -429,11 +430,27 @@ def _summary(results: Mapping, runs: Sequence[Mapping]) -> dict:
             ("Completed", totals.get("completed", sum(1 for r in runs if r.get("status") == "completed"))),
             ("Failed", totals.get("failed", sum(1 for r in runs if _is_failed(r)))),
             ("Violating runs", totals.get("violating_runs", len(_violating_runs(runs)))),
+            *_robot_figures(runs),
             *_cluster_figures(_dict(results.get("cluster"))),
         ],
         "coverage": percent(_overall(coverage)) if "overall" in coverage else None,
         "timing": [(s, _seconds(timing[s])) for s in [s for s in STAGES if s in timing] + [s for s in timing if s not in STAGES]],
     }
+
+
+def _robot_figures(runs: Sequence[Mapping]) -> list[tuple[str, object]]:
+    """Work cycles per completed run, by robot (labelled when the cell has several)."""
+    cycles: dict[str, list[int]] = {}
+    for run in runs:
+        for robot, figures in _dict(run.get("robots")).items():
+            value = _dict(figures).get("cycles_completed")
+            if run.get("status") == "completed" and is_number(value):
+                cycles.setdefault(str(robot), []).append(int(value))
+    if not cycles:
+        return []
+    labelled = len(cycles) > 1
+    return [(f"Work cycles per run{f' ({robot})' if labelled else ''}", f"{min(c)} to {max(c)}, median {median(c):g}")
+            for robot, c in cycles.items()]
 
 
 def _cluster_figures(cluster: Mapping) -> list[tuple[str, object]]:

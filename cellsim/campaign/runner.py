@@ -191,6 +191,7 @@ def execute_run(plan: CampaignPlan, out: Path, index: int, origin: dict | None =
             use_cases=checked.use_cases,
             coverage=checked.coverage,
             cycles_completed=summary.cycles_completed,
+            robots={name: figures.to_json() for name, figures in summary.robots.items()},
             wall_time=time.perf_counter() - started,
         )
         if search is not None:

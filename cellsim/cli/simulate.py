@@ -138,13 +138,16 @@ def print_summary(summary, checked=None) -> None:
     table.add_column()
     table.add_row("status", summary.status)
     table.add_row("seed", str(summary.seed))
-    table.add_row("work cycles completed", str(summary.cycles_completed))
+    labelled = len(summary.robots) > 1  # several robots: each figure names its robot
+    for robot, figures in (summary.robots.items() if labelled else [(None, summary)]):
+        table.add_row("work cycles completed" + (f" ({robot})" if robot else ""), str(figures.cycles_completed))
     for name, counts in summary.hazards.items():
         verdict = f"raised {counts.raised}, handled {counts.handled}"
         if counts.mishaps:
             verdict += f", [red]MISHAPS {counts.mishaps}[/red]"
         table.add_row(f"hazard {name}", verdict)
-    table.add_row("final safety mode", summary.final_safety_mode or "-")
+    for robot, figures in (summary.robots.items() if labelled else [(None, summary)]):
+        table.add_row("final safety mode" + (f" ({robot})" if robot else ""), figures.final_safety_mode or "-")
     if checked is not None:
         line = _conditions_line(checked)
         table.add_row("safety conditions", line if checked.all_hold else f"{line} (details: cellsim check {summary.out_dir})")

@@ -76,6 +76,7 @@ class ArmKinematics:
     """A private, continuous copy of the arm for forward kinematics of the tool."""
 
     def __init__(self, model_path: str, cfg: RobotConfig):
+        self.model_path = str(model_path)
         self.plant = MultibodyPlant(0.0)
         (instance,) = Parser(self.plant).AddModels(str(model_path))
         base = self.plant.GetBodyByName("base_link", instance).body_frame()
@@ -105,6 +106,8 @@ class Robot(EntitySystem):
       safety_mode_request (input): SafetyMode code from the safety controller.
       target_pose (input): index of the named pose to move to, or -1 to hold.
       activity (input): code of the robot activity the process controller is carrying out.
+      speed_limit (input, m/s): the tool speed allowed now in ssmon (speed and separation
+        monitoring, ``cellsim.behaviours.ssm``), below the mode's fixed cap; none: the cap alone.
       measured_state (input): the plant's joint state [q (rad), v (rad/s)].
       physical_sample (input): [t, link, q (6, rad), safety_mode code, activity code, reached_pose code].
       desired_state (output): [q (rad), v (rad/s)] for the joint controller.
@@ -159,6 +162,7 @@ class Robot(EntitySystem):
         # the cell's own words for what it does, and unknown (shadowed with no valid sample)
         self.activity_type = value_set(f"{module}_activity", [*cfg.activities, "unknown"])
         self.activity_port = self.declare_input("activity", ctype=enum_type(self.activity_type), default=0.0)
+        self.speed_limit_port = self.declare_input("speed_limit", ctype=number_type("m/s"), default=math.inf)
         self.measured_state_port = self.declare_input("measured_state", 2 * n)
         self._desired = self.declare_state("desired_state", np.concatenate([q0, np.zeros(n)]))
         self.desired_state_port = self.DeclareStateOutputPort("desired_state", self._desired)
@@ -250,7 +254,7 @@ class Robot(EntitySystem):
                 motion, desired = None, None
                 reached = segment + 1.0 if segment != HOLD else 0.0
             else:
-                motion, desired, reached = self._advance(motion, mode, target)
+                motion, desired, reached = self._advance(motion, mode, target, self.speed_limit_port.Eval(context)[0])
         elif view.sample is not None:
             q = view.sample[:6]
             motion = self._rest_at(q)
@@ -312,8 +316,11 @@ class Robot(EntitySystem):
         tool_per_s = 1.05 * float(np.linalg.norm(np.diff(points, axis=0), axis=1).max()) * _SEGMENT_SAMPLES
         return np.concatenate([[target, 0.0, 0.0, max(tool_per_s, 1e-9), joint_rate], start, goal])
 
-    def _advance(self, motion: np.ndarray, mode: SafetyMode, target: float):
+    def _advance(self, motion: np.ndarray, mode: SafetyMode, target: float, speed_limit: float = math.inf):
         """One period of the joint-space motion: (motion state, desired state, reached-pose code).
+
+        In ssmon the tool's cap is also ``speed_limit`` (m/s), planned ``TRACKING_ALLOWANCE`` below it
+        as a mode's cap is (at most halved).
 
         Motion state: [segment target, s, ds/dt, tool metres per unit s, joint-limited
         max ds/dt, start (6), goal (6)].
@@ -331,7 +338,10 @@ class Robot(EntitySystem):
             if mode in STANDSTILL_MODES or target != segment:
                 cap = 0.0  # brake: a mode that stands still, or a new target to replan for
             else:
-                cap = min(joint_rate, self._planned_caps[mode] / tool_per_s, math.sqrt(2.0 * accel * (1.0 - s)))
+                planned = self._planned_caps[mode]
+                if mode is SafetyMode.SPEED_SEPARATION and speed_limit < self.speed_caps[mode]:
+                    planned = max(speed_limit - TRACKING_ALLOWANCE, 0.5 * speed_limit)
+                cap = min(joint_rate, planned / tool_per_s, math.sqrt(2.0 * accel * (1.0 - s)))
             rate = min(cap, rate + accel * dt) if rate < cap else max(cap, rate - accel * dt)
             s = min(1.0, s + rate * dt)
             if s >= 1.0:
@@ -429,6 +439,7 @@ def build_robot(cell, name: str, cfg: RobotConfig) -> Robot:
     builder.Connect(robot.desired_state_port, controller.get_input_port_desired_state())
     builder.Connect(controller.get_output_port_control(), plant.get_actuation_input_port(instance))
     ids = add_arm_geometry(cell, name, instance, cell.prepared[name])
+    cell.arm_geometry[name] = {g: shape.body for g, shape in zip(ids, cell.prepared[name])}
     cell.robot_geometry += ids
     cell.foreign_geometry += ids  # contact between them and anything is filtered out
     return robot
@@ -500,6 +511,7 @@ KIND = ModuleKind(
     inputs=(
         ("safety_mode_request", "enum", "the safety mode a safety controller requests (it takes the most restrictive)"),
         ("activity", "enum", "the activity its process carries out (ract follows it)"),
+        ("speed_limit", "number, m/s", "the tool speed an ssm module allows now; followed in ssmon, below its cap"),
     ),
     channels=(
         ("safety_mode", "enum", "current safety mode (safmod); unknown when shadowing with no valid sample"),

@@ -1,0 +1,261 @@
+"""Speed and separation monitoring (ISO/TS 15066, 5.5.4): the protective separation distance and the
+speed a robot may have now.
+
+Every control period it reads the separation d between the robot and the nearest person, either
+measured on the geometry (the arm's collision shapes to every person's body, SceneGraph signed
+distances: an ideal person-tracking sensor, with ``sensor_uncertainty`` added to the distance
+budget) or from a sensor's channel (``separation: scanner.distance``, measured from the sensor,
+not the arm), and the robot's speed towards that person v_r: on the geometry, the velocity of the
+arm's nearest point along the line to the person's nearest point (never less than 0); from a
+sensor, the tool's whole speed (the direction is unknown: its speed in any direction is assumed
+towards the person).
+
+The protective separation distance, with v_h the person's speed (``human_speed``, 1.6 m/s by
+default after ISO 13855), T_r the reaction time, a the robot's braking deceleration and
+T_s = v_r / a its stopping time from v_r:
+
+    S_p = S_h + S_r + S_s + C + Z_d + Z_r
+    S_h = v_h (T_r + T_s)      the person's approach while the robot reacts and stops
+    S_r = v_r T_r              the robot's travel while it reacts
+    S_s = v_r^2 / (2 a)        the robot's stopping distance, braking at a
+    C   = intrusion_distance,  Z_d = sensor_uncertainty,  Z_r = robot_uncertainty
+
+``margin`` = d - S_p (negative: the robot is too fast for the separation). The speed limit is the
+v_r at which S_p = d, solved exactly:
+
+    v_max = sqrt((a T_r + v_h)^2 + 2 a D) - (a T_r + v_h),   D = d - C - Z_d - Z_r - v_h T_r
+
+(0 when D <= 0). With v_h = 0 and Z_d = Z_r = 0 it is the published form
+v_max = sqrt((a T_r)^2 + 2 a (d - C)) - a T_r. In ``ssmon`` the robot follows ``speed_limit``
+continuously (``speed_limit`` input of the robot); a risk model or a condition reads ``margin``.
+A separation with no value (a stale sensor) reads as 0: the limit is 0, the robot stops.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Annotated, Literal
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import QueryObject
+
+from cellsim.channels import number_type
+from cellsim.config.typed_yaml import Range, suggest
+from cellsim.registry import ModuleKind, deferred
+from cellsim.scenario import Period, Speed
+from cellsim.systems import CellSystem, write_scalar
+
+GEOMETRY = "geometry"
+FAR_AWAY = 10.0
+"""m: the separation read with nobody in the cell."""
+
+Margin = Annotated[float, Range(0.0, 5.0, unit="m")]
+
+
+@dataclass
+class SsmConfig:
+    """Speed and separation monitoring of one robot (ISO/TS 15066)."""
+
+    kind: Literal["ssm"]
+    robot: str = "robot"
+    """The robot monitored: its speed_limit input follows this module in ssmon."""
+    separation: str = GEOMETRY
+    """Where the separation comes from: ``geometry`` (the arm's shapes to every person's body), or a
+    sensor's distance channel in m (``scanner.distance``: measured from the sensor, not the arm)."""
+    human_speed: Speed = 1.6
+    """v_h: the speed a person may approach at (m/s); 1.6 m/s after ISO 13855."""
+    reaction_time: Annotated[float, Range(0.0, 5.0, unit="s")] = 0.1
+    """T_r: from the person's measured position to the robot starting to brake (s): the sensor's
+    response, this module's period and the robot controller's."""
+    deceleration: Annotated[float, Range(0.0, 100.0, lo_open=True, unit="m/s^2")] | None = None
+    """a: the robot's guaranteed braking deceleration at the tool (m/s^2); null: its
+    speed_limits.normal / braking_time (full speed to standstill in braking_time)."""
+    intrusion_distance: Margin = 0.0
+    """C: how far a body part may reach past what the sensor detects (m); ISO 13855 gives it per sensor."""
+    sensor_uncertainty: Margin = 0.05
+    """Z_d: the person-position measurement's uncertainty (m)."""
+    robot_uncertainty: Margin = 0.02
+    """Z_r: the robot-position measurement's uncertainty (m)."""
+    period: Period = 0.02
+    """Control period (s): how often the limit is computed."""
+
+
+@dataclass(frozen=True)
+class SsmParameters:
+    """The terms of ISO/TS 15066's formula, in SI units."""
+
+    human_speed: float
+    reaction_time: float
+    deceleration: float
+    intrusion_distance: float = 0.0
+    sensor_uncertainty: float = 0.0
+    robot_uncertainty: float = 0.0
+
+    @property
+    def allowances(self) -> float:
+        """C + Z_d + Z_r (m)."""
+        return self.intrusion_distance + self.sensor_uncertainty + self.robot_uncertainty
+
+    def protective_distance(self, robot_speed: float) -> float:
+        """S_p (m) for the robot's speed towards the person v_r (m/s)."""
+        v_h, t_r, a, v_r = self.human_speed, self.reaction_time, self.deceleration, max(robot_speed, 0.0)
+        stopping_time = v_r / a
+        return v_h * (t_r + stopping_time) + v_r * t_r + v_r * v_r / (2.0 * a) + self.allowances
+
+    def speed_limit(self, separation: float) -> float:
+        """v_max (m/s): the robot speed whose S_p is the separation d (m); 0 when none is."""
+        v_h, t_r, a = self.human_speed, self.reaction_time, self.deceleration
+        budget = separation - self.allowances - v_h * t_r
+        if not budget > 0.0:  # NaN too
+            return 0.0
+        b = a * t_r + v_h
+        return math.sqrt(b * b + 2.0 * a * budget) - b
+
+
+class SpeedSeparationMonitor(CellSystem):
+    """Ports:
+      robot_state (input): the robot's plant state [q (rad), v (rad/s)].
+      geometry_query (input, geometry separation only): SceneGraph's QueryObject.
+      separation_measured (input, a sensor's separation only): that sensor's distance (m).
+      separation (channel, m): the separation d used (negative: overlapping).
+      protective_distance (channel, m): S_p for the robot's current speed towards the person.
+      margin (channel, m): d - S_p.
+      speed_limit (channel, m/s): v_max, the speed the robot may have now (its speed_limit input).
+    """
+
+    def __init__(self, module: str, cfg: SsmConfig, parameters: SsmParameters, kinematics):
+        super().__init__(module, cfg.period)
+        self.parameters = parameters
+        self.kinematics = kinematics
+        self.from_geometry = cfg.separation == GEOMETRY
+        self.robot_state_port = self.declare_input("robot_state", 2 * kinematics.num_joints)
+        if self.from_geometry:
+            self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
+        else:
+            self.separation_port = self.declare_input("separation_measured")
+        self.pairs: list = []
+        self.bodies: dict = {}
+        """Arm GeometryId -> the body of the private kinematics plant it is fixed to."""
+        far = parameters.speed_limit(FAR_AWAY)
+        m = number_type("m")
+        self._separation = self.declare_channel("separation", m, FAR_AWAY, record="every_sample",
+                                                description="Separation to the nearest person")
+        self._protective = self.declare_channel("protective_distance", m, parameters.protective_distance(0.0),
+                                                record="every_sample", description="Protective separation distance S_p")
+        self._margin = self.declare_channel("margin", m, FAR_AWAY - parameters.protective_distance(0.0),
+                                            record="every_sample", description="Separation less S_p")
+        self._limit = self.declare_channel("speed_limit", number_type("m/s"), far, record="every_sample",
+                                           description="Speed the robot may have now")
+
+    def set_geometries(self, arm: dict, people: list) -> None:
+        """``arm``: each of the robot's GeometryIds -> the name of the body it is fixed to."""
+        plant = self.kinematics.plant
+        self.bodies = {g: plant.GetBodyByName(body) for g, body in arm.items()}
+        self.pairs = [(g, p) for g in arm for p in people]
+
+    def measure(self, context) -> tuple[float, float]:
+        """(separation d in m, robot speed towards the person v_r in m/s)."""
+        kin = self.kinematics
+        kin.plant.SetPositionsAndVelocities(kin.context, self.robot_state_port.Eval(context))
+        if not self.from_geometry:
+            d = self.separation_port.Eval(context)[0]
+            tool_velocity = kin.tool.CalcSpatialVelocityInWorld(kin.context).translational()
+            return (d if math.isfinite(d) else 0.0), float(np.linalg.norm(tool_velocity))
+        if not self.pairs:
+            return FAR_AWAY, 0.0
+        query = self.query_port.Eval(context)
+        nearest = min((query.ComputeSignedDistancePairClosestPoints(a, b) for a, b in self.pairs),
+                      key=lambda pair: pair.distance)
+        arm = nearest.id_A if nearest.id_A in self.bodies else nearest.id_B
+        p_W = query.GetPoseInWorld(arm) @ (nearest.p_ACa if arm == nearest.id_A else nearest.p_BCb)
+        body = self.bodies[arm]
+        X_WB = body.EvalPoseInWorld(kin.context)
+        velocity = body.EvalSpatialVelocityInWorld(kin.context).Shift(p_W - X_WB.translation()).translational()
+        # nhat_BA_W points from B to A: towards the person when the person is A
+        towards = nearest.nhat_BA_W if arm == nearest.id_B else -nearest.nhat_BA_W
+        speed = float(velocity @ towards) if nearest.distance > 0.0 else float(np.linalg.norm(velocity))
+        return min(nearest.distance, FAR_AWAY), max(speed, 0.0)
+
+    def update(self, context, xd):
+        d, v_r = self.measure(context)
+        protective = self.parameters.protective_distance(v_r)
+        write_scalar(xd, self._separation, d)
+        write_scalar(xd, self._protective, protective)
+        write_scalar(xd, self._margin, d - protective)
+        write_scalar(xd, self._limit, self.parameters.speed_limit(d))
+
+
+def parameters_of(cfg: SsmConfig, robot_cfg) -> SsmParameters:
+    """The formula's terms; the deceleration defaults to the robot's full speed over its braking time."""
+    deceleration = cfg.deceleration
+    if deceleration is None:
+        deceleration = robot_cfg.speed_limits.normal / robot_cfg.braking_time
+    return SsmParameters(cfg.human_speed, cfg.reaction_time, deceleration, cfg.intrusion_distance,
+                         cfg.sensor_uncertainty, cfg.robot_uncertainty)
+
+
+def build_ssm(cell, name: str, cfg: SsmConfig) -> SpeedSeparationMonitor:
+    """The monitor of ``cfg.robot``: its speed limit wired to the robot, its separation measured."""
+    from cellsim.entities.robot import ArmKinematics
+
+    robot = cell.modules[cfg.robot]
+    robot_cfg = cell.scenario.modules_of_kind("robot")[cfg.robot]
+    kinematics = ArmKinematics(robot.kinematics.model_path, robot_cfg)
+    system = cell.add(name, SpeedSeparationMonitor(name, cfg, parameters_of(cfg, robot_cfg), kinematics))
+    cell.builder.Connect(cell.plant.get_state_output_port(cell.robots[cfg.robot]), system.robot_state_port)
+    cell.builder.Connect(system.GetOutputPort("speed_limit"), robot.speed_limit_port)
+    if system.from_geometry:
+        cell.connect_query(system.query_port)
+        system.set_geometries(cell.arm_geometry[cfg.robot], cell.people)
+    else:  # a sensor's distance: every entity is built by now
+        channels = cell.channels()
+        where = f"behaviours.{name}.separation"
+        if cfg.separation not in channels:
+            raise cell.sf.error(where, f"no channel '{cfg.separation}'{suggest(cfg.separation, channels)}")
+        spec, port = channels[cfg.separation]
+        if spec.type.kind != "number" or spec.type.unit != "m":
+            raise cell.sf.error(where, f"'{cfg.separation}' is not a distance in m ({spec.type.kind}, "
+                                f"{spec.type.unit or 'no unit'})")
+        cell.builder.Connect(port, system.separation_port)
+    return system
+
+
+def _check(sf, name: str, cfg: SsmConfig) -> None:
+    """The robot exists and is monitored once; a sensor's separation is a channel in m."""
+    key = f"behaviours.{name}"
+    robots = sf.scenario.modules_of_kind("robot")
+    if cfg.robot not in robots:
+        raise sf.error(f"{key}.robot", f"no robot entity named '{cfg.robot}' ({', '.join(robots) or 'none'})")
+    for other, other_cfg in sf.scenario.modules_of_kind("ssm").items():
+        if other == name:
+            break
+        if other_cfg.robot == cfg.robot:
+            where = sf.locate(f"behaviours.{other}.robot")
+            raise sf.error(f"{key}.robot", f"robot '{cfg.robot}' is already monitored by '{other}' ({where[0]}, "
+                           f"line {where[1]}): one speed limit per robot")
+    if cfg.separation != GEOMETRY:
+        module, _, signal = cfg.separation.partition(".")
+        if module not in sf.scenario.entities or not signal:
+            raise sf.error(f"{key}.separation", f"'{cfg.separation}' is neither geometry nor a sensor's channel "
+                           "(module.signal, e.g. scanner.distance)")
+
+
+KIND = ModuleKind(
+    name="ssm",
+    abstraction=deferred("cellsim.verify.model:observer"),
+    section="behaviours",
+    config=SsmConfig,
+    build=build_ssm,
+    stage=10,
+    check=_check,
+    summary="Speed and separation monitoring (ISO/TS 15066): protective separation distance, margin and the speed "
+            "a robot may have now, which it follows in ssmon.",
+    channels=(
+        ("separation", "number, m", "separation to the nearest person (from the arm's geometry, or the sensor)"),
+        ("protective_distance", "number, m", "S_p for the robot's current speed towards the person"),
+        ("margin", "number, m", "separation less S_p (negative: too fast for the separation)"),
+        ("speed_limit", "number, m/s", "the speed the robot may have now; the robot follows it in ssmon"),
+    ),
+)

@@ -1,0 +1,163 @@
+"""Speed and separation monitoring (ISO/TS 15066) and the two-arm assembly bench: the formula
+against hand computations, the run where a person approaches moving arms, per-robot figures,
+the arms' clearance, and the hand-over through wait_until."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from cellsim.behaviours.ssm import SsmParameters
+from cellsim.scenario import load_scenario
+from cellsim.services.blackbox import BlackBox
+from cellsim.simulation import simulate
+
+from conftest import ROOT
+
+ASSEMBLY_BENCH = ROOT / "scenarios" / "assembly_bench.yaml"
+
+
+def test_the_protective_distance_is_the_standards_sum_computed_by_hand():
+    """S_p = v_h (T_r + T_s) + v_r T_r + v_r^2 / 2a + C + Z_d + Z_r, with T_s = v_r / a."""
+    p = SsmParameters(human_speed=1.6, reaction_time=0.1, deceleration=2.5, intrusion_distance=0.1,
+                      sensor_uncertainty=0.05, robot_uncertainty=0.02)
+    # v_r = 0.5 m/s: T_s = 0.2 s; S_h = 1.6 * 0.3 = 0.48; S_r = 0.05; S_s = 0.25 / 5 = 0.05; C + Z = 0.17
+    assert p.protective_distance(0.5) == pytest.approx(0.48 + 0.05 + 0.05 + 0.17, abs=1e-12)
+    # standing still: the person's approach during the reaction time and the allowances
+    assert p.protective_distance(0.0) == pytest.approx(0.16 + 0.17, abs=1e-12)
+    # moving away counts as standing still (never a negative distance)
+    assert p.protective_distance(-1.0) == p.protective_distance(0.0)
+    # the speed limit is the speed whose S_p is the separation: 0.75 m allows exactly 0.5 m/s
+    assert p.speed_limit(0.75) == pytest.approx(0.5, abs=1e-12)
+    assert p.speed_limit(0.33) == 0.0 and p.speed_limit(0.1) == 0.0 and p.speed_limit(math.nan) == 0.0
+
+
+def test_without_the_persons_motion_the_limit_is_the_published_formula():
+    """v_max = sqrt((a T_r)^2 + 2 a (d - C)) - a T_r, computed by hand for d = 0.6 m, C = 0.1 m."""
+    p = SsmParameters(human_speed=0.0, reaction_time=0.1, deceleration=2.5, intrusion_distance=0.1)
+    by_hand = math.sqrt(0.25 ** 2 + 2 * 2.5 * 0.5) - 0.25  # 1.3507810593582121
+    assert p.speed_limit(0.6) == pytest.approx(by_hand, abs=1e-12)
+    assert p.protective_distance(by_hand) == pytest.approx(0.6, abs=1e-12)  # S_p(v_max) = d
+
+
+@pytest.fixture(scope="module")
+def bench_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench") / "run"
+    summary = simulate(load_scenario(ASSEMBLY_BENCH), out)
+    return summary, out
+
+
+def _series(out, *names):
+    with BlackBox(out / "blackbox.sqlite") as bb:
+        return [bb.series(name) for name in names]
+
+
+def test_a_person_approaching_the_moving_arms_lowers_their_speed_limits_and_the_arms_follow(bench_run):
+    """Issue 23: the operator walks up to the fixture to clear a jam while the arms work: each ssm
+    module's figures obey the formula at every sample, the limit falls under the ssmon cap as the
+    person nears a moving arm, the arm's measured speed stays under it, and the margin stays >= 0."""
+    from cellsim.behaviours.ssm import parameters_of
+
+    summary, out = bench_run
+    sf = load_scenario(ASSEMBLY_BENCH)
+    slowed = 0
+    for robot in ("loader", "assembler"):
+        ssm = f"{robot}_ssm"
+        params = parameters_of(sf.scenario.behaviours[ssm], sf.scenario.entities[robot])
+        cap = sf.scenario.entities[robot].speed_limits.ssmon
+        sep, protective, margin, limit, speed, mode = _series(
+            out, f"{ssm}.separation", f"{ssm}.protective_distance", f"{ssm}.margin", f"{ssm}.speed_limit",
+            f"{robot}.tool_speed", f"{robot}.safety_mode")
+        assert len(sep.values) > 1000  # every control period
+        for d, s_p, m, v in zip(sep.values, protective.values, margin.values, limit.values):
+            assert v == pytest.approx(params.speed_limit(d), abs=2e-6)
+            assert m == pytest.approx(d - s_p, abs=2e-6)
+            assert s_p >= params.protective_distance(0.0) - 1e-6
+        assert min(margin.values) >= 0.0
+        # the person came near: the limit fell well below the arm's ssmon cap (1 m/s)
+        assert min(limit.values) < 0.5 and min(sep.values) < 1.0
+        # in ssmon the measured tool speed never exceeds the limit in force 0.1 s before (reaction)
+        limits = np.array(limit.values)
+        times = np.array(limit.times)
+        modes = list(zip(mode.times, mode.values))
+
+        def mode_at(t):
+            return ([v for u, v in modes if u <= t] or [None])[-1]
+
+        for t, v in zip(speed.times, speed.values):
+            if mode_at(t - 0.1) == "ssmon" and mode_at(t) == "ssmon" and v is not None:
+                allowed = limits[(times >= t - 0.1) & (times <= t)].max()
+                assert v <= min(allowed, cap) + 0.01, (robot, t, v, allowed)
+                slowed += v > 0.05 and allowed < 0.5
+    assert slowed > 0  # an arm did move near the person, slower than its cap, under a limit below it
+
+
+def test_the_summary_labels_each_robots_figures(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "cellsim", "simulate", str(ASSEMBLY_BENCH), "--duration", "12",
+                           "--out", str(tmp_path / "run")], capture_output=True, text=True, timeout=300, cwd=ROOT,
+                          env={**os.environ, "COLUMNS": "120"})
+    assert done.returncode == 0, done.stderr
+    for label in ("work cycles completed (loader)", "work cycles completed (assembler)",
+                  "final safety mode (loader)", "final safety mode (assembler)"):
+        assert label in done.stdout
+    assert "work cycles completed  " not in done.stdout  # no unlabelled line
+
+
+def test_the_hand_over_keeps_the_arms_apart_and_without_it_they_meet(tmp_path, bench_run):
+    """Ground truth's clearance between the two arms: above 20 cm through the wait_until hand-over;
+    with both waits replaced by fixed dwells, the arms get out of step and meet at the fixture."""
+    summary, out = bench_run
+    (clearance,) = _series(out, "ground_truth.clearance_loader_assembler")
+    assert min(clearance.values) > 0.2 and max(clearance.values) > 0.8
+    assert summary.safety_case is not None
+    text = ASSEMBLY_BENCH.read_text().replace(
+        "{name: await_fixture, wait_until: assembling.step == await_part, activity: waiting}",
+        "{name: await_fixture, dwell: 0.1, activity: waiting}").replace(
+        "{name: await_part, wait_until: loading.step == handed, activity: waiting}",
+        "{name: await_part, dwell: 0.5, activity: waiting}")
+    assert "dwell: 0.1" in text and "dwell: 0.5" in text
+    path = ROOT / "scenarios" / f".test_no_handover_{os.getpid()}.yaml"
+    path.write_text(text)
+    try:
+        out2 = tmp_path / "no_handover"
+        simulate(load_scenario(path), out2, duration=25.0)
+    finally:
+        path.unlink()
+    (clearance,) = _series(out2, "ground_truth.clearance_loader_assembler")
+    assert min(clearance.values) < 0.2
+
+
+def test_a_separation_sensor_must_be_a_distance(tmp_path):
+    path = tmp_path / "bench.yaml"
+    path.write_text(f"base: {ASSEMBLY_BENCH}\nbehaviours:\n  loader_ssm:\n    kind: ssm\n    robot: loader\n"
+                    "    separation: scanner.field\n")
+    done = subprocess.run([sys.executable, "-m", "cellsim", "scenario", "check", str(path)], capture_output=True,
+                          text=True, timeout=120, cwd=ROOT)
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert "behaviours.loader_ssm.separation: 'scanner.field' is not a distance in m" in done.stderr
+
+
+def test_a_robot_monitored_twice_is_refused_naming_both(tmp_path):
+    path = tmp_path / "bench.yaml"
+    path.write_text(f"base: {ASSEMBLY_BENCH}\nbehaviours:\n  again:\n    kind: ssm\n    robot: loader\n")
+    done = subprocess.run([sys.executable, "-m", "cellsim", "scenario", "check", str(path)], capture_output=True,
+                          text=True, timeout=120, cwd=ROOT)
+    assert done.returncode == 2 and "robot 'loader' is already monitored by 'loader_ssm'" in done.stderr
+
+
+def test_the_assembly_benchs_campaign_runs(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "cellsim", "campaign", str(ASSEMBLY_BENCH), "--runs", "3",
+                           "--jobs", "2", "--duration", "15", "--out", str(tmp_path / "c"), "--quiet"],
+                          capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert done.returncode in (0, 1), done.stderr
+    results = json.loads((tmp_path / "c" / "results.json").read_text())
+    assert [r["status"] for r in results["runs"]] == ["completed"] * 3
+    assert all(set(r["robots"]) == {"loader", "assembler"} for r in results["runs"])
+    report = (tmp_path / "c" / "report.html").read_text()
+    assert "Work cycles per run (loader)" in report and "Work cycles per run (assembler)" in report
