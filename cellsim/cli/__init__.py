@@ -21,6 +21,7 @@ from cellsim.cli import (
     check,
     dashboard,
     emulate,
+    export,
     falsify,
     keys,
     live,
@@ -55,7 +56,7 @@ __all__ = [
     "_open_session", "_terminate_as_interrupt",
 ]
 
-COMMANDS = (simulate, check, verify, campaign, falsify, replay, modules, scenario, live, emulate, bridge, dashboard, twin_mode, keys)
+COMMANDS = (simulate, check, verify, campaign, falsify, replay, export, modules, scenario, live, emulate, bridge, dashboard, twin_mode, keys)
 """The commands, in the order of ``cellsim --help``: each a module with ``add_parser`` and ``run``."""
 
 

@@ -1,0 +1,264 @@
+"""A run's black box as Foxglove data: an MCAP file that Foxglove plots and shows in 3D.
+
+``export_mcap(run, file)`` writes
+
+* every black-box channel ``module.signal`` as the JSON topic ``/module/signal`` with a JSON
+  schema of its own (its kind, enum values, unit), one MCAP message per black-box message,
+  ``{"t": seconds, "value": ...}``, logged at its simulated time;
+* ``/tf``: the links of every robot as ``foxglove.FrameTransforms`` (frame ``<robot>/<link>`` in
+  ``world``) at each recorded joint state;
+* ``/scene``: the cell as ``foxglove.SceneUpdate``: every box, cylinder, sphere and capsule
+  SceneGraph holds (fixtures, sensor volumes, the arms' shapes, people's bodies), the still
+  ones once, the moving ones at each recorded pose.
+
+The poses come from the cell rebuilt from the run's ``scenario.yaml``, put in each recorded
+state by its modules (``show_recorded``, as ``cellsim replay`` does): no kind is named here.
+The file is written beside its destination and renamed into place: an error leaves nothing.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+
+FRAME_TRANSFORMS = "foxglove.FrameTransforms"
+SCENE_UPDATE = "foxglove.SceneUpdate"
+
+
+class ExportError(Exception):
+    """A run that cannot be exported (the message is one line)."""
+
+
+def _vector(*names: str) -> dict:
+    return {"type": "object", "properties": {n: {"type": "number"} for n in names}}
+
+
+_TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
+_POSE = {"type": "object", "properties": {"position": _vector("x", "y", "z"), "orientation": _vector("x", "y", "z", "w")}}
+_COLOR = _vector("r", "g", "b", "a")
+_PRIMITIVE = {"type": "object", "properties": {"pose": _POSE, "size": _vector("x", "y", "z"), "color": _COLOR}}
+_CYLINDER = {"type": "object", "properties": {**_PRIMITIVE["properties"], "bottom_scale": {"type": "number"},
+                                              "top_scale": {"type": "number"}}}
+
+SCHEMAS = {
+    # the parts of Foxglove's published JSON schemas these messages use
+    FRAME_TRANSFORMS: {
+        "title": FRAME_TRANSFORMS, "type": "object",
+        "properties": {"transforms": {"type": "array", "items": {
+            "type": "object", "properties": {
+                "timestamp": _TIME, "parent_frame_id": {"type": "string"}, "child_frame_id": {"type": "string"},
+                "translation": _vector("x", "y", "z"), "rotation": _vector("x", "y", "z", "w")}}}},
+    },
+    SCENE_UPDATE: {
+        "title": SCENE_UPDATE, "type": "object",
+        "properties": {
+            "deletions": {"type": "array", "items": {"type": "object"}},
+            "entities": {"type": "array", "items": {"type": "object", "properties": {
+                "timestamp": _TIME, "frame_id": {"type": "string"}, "id": {"type": "string"},
+                "lifetime": _TIME, "frame_locked": {"type": "boolean"},
+                "cubes": {"type": "array", "items": _PRIMITIVE},
+                "spheres": {"type": "array", "items": _PRIMITIVE},
+                "cylinders": {"type": "array", "items": _CYLINDER}}}}},
+    },
+}
+
+
+@dataclass
+class Exported:
+    path: Path
+    channels: int
+    messages: int
+    frames: int
+    """Moments of the cell in 3D (transforms and scene updates)."""
+
+
+def topic_of(channel: str) -> str:
+    """The MCAP topic of a black-box channel: ``loader.safety_mode`` -> ``/loader/safety_mode``."""
+    return "/" + channel.replace(".", "/")
+
+
+def channel_schema(info) -> dict:
+    """The JSON schema of one channel's messages: ``{"t": s, "value": ...}``."""
+    if info.kind == "enum":
+        value = {"enum": [*info.domain, None]}
+    elif info.kind == "bool":
+        value = {"type": ["boolean", "null"]}
+    elif info.kind == "number":
+        value = {"type": ["number", "null"]}
+    else:
+        value = {"type": "array", "items": {"type": ["number", "null"]}}
+    if info.unit:
+        value["description"] = f"in {info.unit}"
+    return {"title": info.name, "type": "object", "description": info.description or info.name,
+            "properties": {"t": {"type": "number", "description": "simulated time, s"}, "value": value}}
+
+
+def _ns(t: float) -> int:
+    return int(round(t * 1e9))
+
+
+def _stamp(t: float) -> dict:
+    ns = _ns(t)
+    return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+
+
+def _pose(X) -> dict:
+    q = X.rotation().ToQuaternion()
+    p = X.translation()
+    return {"position": {"x": p[0], "y": p[1], "z": p[2]}, "orientation": {"x": q.x(), "y": q.y(), "z": q.z(), "w": q.w()}}
+
+
+def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Exported:
+    """Write the run at ``run`` (a run folder or its black box) to ``destination`` as MCAP."""
+    from mcap.writer import Writer
+
+    from cellsim import __version__
+    from cellsim.scenario import load_scenario
+    from cellsim.services.blackbox import BlackBox, BlackBoxError
+    from cellsim.validation.check import CheckError, locate_run
+    from cellsim.validation.traces import run_end
+    from diagrams.cell import build_cell
+
+    destination = Path(destination)
+    if destination.is_dir():
+        raise ExportError(f"{destination} is a folder; name the MCAP file to write")
+    try:
+        blackbox, scenario = locate_run(run)
+    except CheckError as e:
+        raise ExportError(str(e)) from None
+    if scenario is None:
+        raise ExportError(f"{run}: no scenario.yaml beside the black box; the export rebuilds the cell from it")
+    sf = load_scenario(scenario)
+    partial = destination.with_name(f".{destination.name}.partial")
+    try:
+        with BlackBox(blackbox) as bb:
+            metadata, channels = bb.metadata(), bb.channels()
+            end, _ = run_end(bb, metadata)
+            cell = build_cell(sf, seed=int(metadata.get("seed", sf.scenario.seed)), duration=max(end, 1e-3), record=False)
+            wanted = sorted(f"{name}.{signal}" for name, system in cell.modules.items()
+                            for signal in getattr(system, "replay_channels", ()) if f"{name}.{signal}" in channels)
+            with open(partial, "wb") as stream:
+                writer = Writer(stream)
+                writer.start(profile="", library=f"cellsim {__version__}")
+                ids = {}
+                for name, info in channels.items():
+                    schema = writer.register_schema(name=f"cellsim.{name}", encoding="jsonschema",
+                                                    data=json.dumps(channel_schema(info)).encode())
+                    ids[name] = writer.register_channel(topic=topic_of(name), message_encoding="json", schema_id=schema,
+                                                        metadata={"kind": info.kind, "unit": info.unit or ""})
+                messages = 0
+                for t, name, value in bb.iter_values(list(channels)):
+                    writer.add_message(ids[name], log_time=_ns(t), publish_time=_ns(t), sequence=messages,
+                                       data=json.dumps({"t": t, "value": value}).encode())
+                    messages += 1
+                frames = _write_scene(writer, cell, bb.iter_values(wanted) if wanted else iter(()))
+                writer.finish()
+        os.replace(partial, destination)
+    except BlackBoxError as e:
+        raise ExportError(str(e)) from None
+    finally:
+        partial.unlink(missing_ok=True)
+    return Exported(destination, len(channels), messages, frames)
+
+
+def _write_scene(writer, cell, recorded) -> int:
+    """/tf and /scene: the still geometry once, then the arms' frames and the moving geometry at each
+    moment the modules' recorded state (joint positions, people's positions) changes."""
+
+    ids = {}
+    for schema_name, topic in ((FRAME_TRANSFORMS, "/tf"), (SCENE_UPDATE, "/scene")):
+        schema = writer.register_schema(name=schema_name, encoding="jsonschema", data=json.dumps(SCHEMAS[schema_name]).encode())
+        ids[topic] = writer.register_channel(topic=topic, message_encoding="json", schema_id=schema)
+    context = cell.diagram.CreateDefaultContext()
+    cell.set_initial_state(context)
+    scene_graph, plant = cell.scene_graph, cell.plant
+    inspector = scene_graph.model_inspector()
+    world = inspector.world_frame_id()
+    shapes = []
+    for g in inspector.GetAllGeometryIds():
+        if inspector.GetProximityProperties(g) is None and inspector.GetIllustrationProperties(g) is None:
+            continue  # perception-only geometry
+        primitive = _primitive(inspector, g)
+        if primitive is not None:
+            shapes.append((g, inspector.GetFrameId(g) != world, *primitive))
+    plant_context = plant.GetMyContextFromRoot(context)
+    sg_context = scene_graph.GetMyContextFromRoot(context)
+    showing = [system for system in cell.modules.values() if hasattr(system, "show_recorded")]
+    sequence = [0]
+
+    def emit(topic: str, t: float, message: dict) -> None:
+        writer.add_message(ids[topic], log_time=_ns(t), publish_time=_ns(t), sequence=sequence[0],
+                           data=json.dumps(message).encode())
+        sequence[0] += 1
+
+    def moment(t: float, moving_only: bool) -> None:
+        query = scene_graph.get_query_output_port().Eval(sg_context)
+        entities = [_entity(t, g, kind, fields, query.GetPoseInWorld(g)) for g, moving, kind, fields in shapes
+                    if moving or not moving_only]
+        emit("/scene", t, {"deletions": [], "entities": entities})
+        transforms = []
+        for robot, instance in cell.robots.items():
+            for index in plant.GetBodyIndices(instance):
+                body = plant.get_body(index)
+                X = plant.EvalBodyPoseInWorld(plant_context, body)
+                pose = _pose(X)
+                transforms.append({"timestamp": _stamp(t), "parent_frame_id": "world",
+                                   "child_frame_id": f"{robot}/{body.name()}",
+                                   "translation": pose["position"], "rotation": pose["orientation"]})
+        emit("/tf", t, {"transforms": transforms})
+
+    values: dict = {}
+    moment(0.0, moving_only=False)
+    frames, pending = 1, None
+    for t, name, value in recorded:
+        if pending is not None and t > pending:
+            for system in showing:
+                system.show_recorded(cell, context, values)
+            moment(pending, moving_only=True)
+            frames += 1
+        values[name] = value
+        pending = t
+    if pending is not None:
+        for system in showing:
+            system.show_recorded(cell, context, values)
+        moment(pending, moving_only=True)
+        frames += 1
+    return frames
+
+
+def _primitive(inspector, g):
+    """("cubes" | "cylinders" | "spheres", its size and colour fields) of a geometry, or None."""
+    from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
+
+    shape = inspector.GetShape(g)
+    color = {"r": 0.6, "g": 0.6, "b": 0.62, "a": 1.0}
+    illustration = inspector.GetIllustrationProperties(g)
+    if illustration is not None and illustration.HasProperty("phong", "diffuse"):
+        rgba = illustration.GetProperty("phong", "diffuse")
+        color = {"r": rgba.r(), "g": rgba.g(), "b": rgba.b(), "a": rgba.a()}
+    elif illustration is None:
+        color = {"r": 0.9, "g": 0.5, "b": 0.1, "a": 0.5}  # measuring geometry: translucent
+    if isinstance(shape, Box):
+        return "cubes", {"size": {"x": shape.width(), "y": shape.depth(), "z": shape.height()}, "color": color}
+    if isinstance(shape, Cylinder):
+        d = 2 * shape.radius()
+        return "cylinders", {"size": {"x": d, "y": d, "z": shape.length()}, "bottom_scale": 1.0, "top_scale": 1.0,
+                             "color": color}
+    if isinstance(shape, Capsule):  # drawn as the cylinder that holds it
+        d = 2 * shape.radius()
+        return "cylinders", {"size": {"x": d, "y": d, "z": shape.length() + d}, "bottom_scale": 1.0, "top_scale": 1.0,
+                             "color": color}
+    if isinstance(shape, Sphere):
+        d = 2 * shape.radius()
+        return "spheres", {"size": {"x": d, "y": d, "z": d}, "color": color}
+    if isinstance(shape, Ellipsoid):
+        return "spheres", {"size": {"x": 2 * shape.a(), "y": 2 * shape.b(), "z": 2 * shape.c()}, "color": color}
+    return None
+
+
+def _entity(t: float, g, kind: str, fields: dict, X) -> dict:
+    return {"timestamp": _stamp(t), "frame_id": "world", "id": f"geometry/{g.get_value()}",
+            "lifetime": {"sec": 0, "nsec": 0}, "frame_locked": False, kind: [{"pose": _pose(X), **fields}]}

@@ -1,0 +1,86 @@
+"""``cellsim export RUN --mcap FILE``: the black box as MCAP, read back with the mcap reader (not
+the writer that made it), every message per channel, the arms' frames and the cell in 3D."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import subprocess
+import sys
+from collections import Counter
+
+import pytest
+from mcap.reader import make_reader
+
+from cellsim.scenario import load_scenario
+from cellsim.simulation import simulate
+
+from conftest import ROOT
+
+ASSEMBLY_BENCH = ROOT / "scenarios" / "assembly_bench.yaml"
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    base = tmp_path_factory.mktemp("export")
+    simulate(load_scenario(ASSEMBLY_BENCH), base / "run", duration=8.0)
+    done = subprocess.run([sys.executable, "-m", "cellsim", "export", str(base / "run"), "--mcap", str(base / "run.mcap")],
+                          capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+    with open(base / "run.mcap", "rb") as stream:
+        reader = make_reader(stream)
+        summary = reader.get_summary()
+        messages = [(channel.topic, schema.name, schema.encoding, message.log_time, json.loads(message.data))
+                    for schema, channel, message in reader.iter_messages(log_time_order=True)]
+    return base, done.stdout, summary, messages
+
+
+def test_every_black_box_message_is_in_the_mcap_per_channel_with_the_same_count(exported):
+    base, stdout, summary, messages = exported
+    db = sqlite3.connect(base / "run" / "blackbox.sqlite")
+    recorded = dict(db.execute("SELECT channel, count(*) FROM messages GROUP BY channel").fetchall())
+    channels = [r[0] for r in db.execute("SELECT name FROM channels")]
+    counts = Counter(topic for topic, *_ in messages)
+    assert {"/" + c.replace(".", "/"): recorded.get(c, 0) for c in channels} == {
+        "/" + c.replace(".", "/"): counts["/" + c.replace(".", "/")] for c in channels}
+    assert sum(recorded.values()) > 1000 and f"{sum(recorded.values()):,} messages of {len(channels)} channels" in stdout
+    # the values and times are the black box's, with a JSON schema per channel
+    first = db.execute("SELECT t, payload FROM messages WHERE channel = 'loader.safety_mode' ORDER BY rowid").fetchall()
+    shown = [(log, data) for topic, _, _, log, data in messages if topic == "/loader/safety_mode"]
+    assert [(round(t * 1e9), json.loads(p)["value"]) for t, p in first] == [(log, d["value"]) for log, d in shown]
+    schemas = {topic: (name, encoding) for topic, name, encoding, *_ in messages}
+    assert schemas["/loader/safety_mode"] == ("cellsim.loader.safety_mode", "jsonschema")
+
+
+def test_the_arms_links_are_frame_transforms_and_the_cell_a_scene_update(exported):
+    base, _, summary, messages = exported
+    sc = load_scenario(ASSEMBLY_BENCH).scenario
+    tf = [d for topic, name, _, _, d in messages if topic == "/tf" and name == "foxglove.FrameTransforms"]
+    scene = [d for topic, name, _, _, d in messages if topic == "/scene" and name == "foxglove.SceneUpdate"]
+    assert len(tf) > 50 and len(scene) == len(tf)
+    frames = {t["child_frame_id"]: t for t in tf[0]["transforms"]}
+    for robot in ("loader", "assembler"):
+        base_link = frames[f"{robot}/base_link"]["translation"]
+        assert [base_link[k] for k in "xyz"] == pytest.approx(list(sc.entities[robot].base_position), abs=1e-9)
+    # the arms move: a wrist frame is somewhere else later
+    wrist = [[t["translation"][k] for k in "xyz"] for m in tf for t in m["transforms"] if t["child_frame_id"] == "loader/wrist_3_link"]
+    assert max(abs(a - b) for a, b in zip(wrist[0], max(wrist, key=lambda w: abs(w[0] - wrist[0][0])))) > 0.3
+    # the first scene holds every fixture as a cube of its size, where the layout puts it
+    cubes = [c for e in scene[0]["entities"] for c in e.get("cubes", [])]
+    for fixture in sc.layout.fixtures.values():
+        assert any([c["size"][k] for k in "xyz"] == pytest.approx(list(fixture.size))
+                   and [c["pose"]["position"][k] for k in "xyz"] == pytest.approx(list(fixture.center)) for c in cubes)
+    # later scenes carry only what moves: the operator's body follows the recorded positions
+    db = sqlite3.connect(base / "run" / "blackbox.sqlite")
+    xy = [json.loads(p)["value"] for (p,) in db.execute("SELECT payload FROM messages WHERE channel = 'operator.position'")]
+    moving = [e for e in scene[-1]["entities"]]
+    assert 0 < len(moving) < len(scene[0]["entities"])
+    positions = [[c["pose"]["position"][k] for k in "xy"] for e in moving for c in e.get("cylinders", []) + e.get("spheres", [])]
+    assert any(p == pytest.approx(xy[-1], abs=0.35) for p in positions)
+
+
+def test_a_missing_run_is_one_line_and_writes_nothing(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "cellsim", "export", str(tmp_path / "nothing"), "--mcap",
+                           str(tmp_path / "x.mcap")], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1 and "no such run folder" in done.stderr
+    assert list(tmp_path.iterdir()) == []
