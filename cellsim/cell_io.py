@@ -51,6 +51,8 @@ class Live:
     wait_physical: float = 10.0
     """Seconds to wait, before the clock starts, for samples of every entity in shadow or twin mode."""
     process: str = "twin"
+    foxglove: object | None = None
+    """A ``cellsim.foxglove.FoxgloveFeed`` to serve the twin on as well, or None."""
 
 
 @dataclass

@@ -116,9 +116,8 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
     from mcap.writer import Writer
 
     from cellsim import __version__
-    from cellsim.scenario import load_scenario
     from cellsim.services.blackbox import BlackBox, BlackBoxError
-    from cellsim.validation.check import CheckError, locate_run
+    from cellsim.validation.check import CheckError, locate_rebuildable_run
     from cellsim.validation.traces import run_end
     from diagrams.cell import build_cell
 
@@ -126,12 +125,9 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
     if destination.is_dir():
         raise ExportError(f"{destination} is a folder; name the MCAP file to write")
     try:
-        blackbox, scenario = locate_run(run)
+        blackbox, sf = locate_rebuildable_run(run, "the export rebuilds the cell from it")
     except CheckError as e:
         raise ExportError(str(e)) from None
-    if scenario is None:
-        raise ExportError(f"{run}: no scenario.yaml beside the black box; the export rebuilds the cell from it")
-    sf = load_scenario(scenario)
     partial = destination.with_name(f".{destination.name}.partial")
     try:
         with BlackBox(blackbox) as bb:
@@ -164,17 +160,8 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
     return Exported(destination, len(channels), messages, frames)
 
 
-def _write_scene(writer, cell, recorded) -> int:
-    """/tf and /scene: the still geometry once, then the arms' frames and the moving geometry at each
-    moment the modules' recorded state (joint positions, people's positions) changes."""
-
-    ids = {}
-    for schema_name, topic in ((FRAME_TRANSFORMS, "/tf"), (SCENE_UPDATE, "/scene")):
-        schema = writer.register_schema(name=schema_name, encoding="jsonschema", data=json.dumps(SCHEMAS[schema_name]).encode())
-        ids[topic] = writer.register_channel(topic=topic, message_encoding="json", schema_id=schema)
-    context = cell.diagram.CreateDefaultContext()
-    cell.set_initial_state(context)
-    scene_graph, plant = cell.scene_graph, cell.plant
+def scene_shapes(scene_graph) -> list[tuple]:
+    """(GeometryId, moves, primitive kind, its fields) of every geometry Foxglove can draw."""
     inspector = scene_graph.model_inspector()
     world = inspector.world_frame_id()
     shapes = []
@@ -184,6 +171,38 @@ def _write_scene(writer, cell, recorded) -> int:
         primitive = _primitive(inspector, g)
         if primitive is not None:
             shapes.append((g, inspector.GetFrameId(g) != world, *primitive))
+    return shapes
+
+
+def scene_update(t: float, shapes: list[tuple], query, moving_only: bool) -> dict:
+    """A foxglove.SceneUpdate of ``shapes`` (all, or only those that move) posed by ``query``."""
+    return {"deletions": [], "entities": [_entity(t, g, kind, fields, query.GetPoseInWorld(g))
+                                          for g, moving, kind, fields in shapes if moving or not moving_only]}
+
+
+def frame_transforms(t: float, plant, robots: dict, pose_of) -> dict:
+    """A foxglove.FrameTransforms of every robot link: ``pose_of(body)`` its pose in the world."""
+    transforms = []
+    for robot, instance in robots.items():
+        for index in plant.GetBodyIndices(instance):
+            body = plant.get_body(index)
+            pose = _pose(pose_of(body))
+            transforms.append({"timestamp": _stamp(t), "parent_frame_id": "world", "child_frame_id": f"{robot}/{body.name()}",
+                               "translation": pose["position"], "rotation": pose["orientation"]})
+    return {"transforms": transforms}
+
+
+def _write_scene(writer, cell, recorded) -> int:
+    """/tf and /scene: the still geometry once, then the arms' frames and the moving geometry at each
+    moment the modules' recorded state (joint positions, people's positions) changes."""
+    ids = {}
+    for schema_name, topic in ((FRAME_TRANSFORMS, "/tf"), (SCENE_UPDATE, "/scene")):
+        schema = writer.register_schema(name=schema_name, encoding="jsonschema", data=json.dumps(SCHEMAS[schema_name]).encode())
+        ids[topic] = writer.register_channel(topic=topic, message_encoding="json", schema_id=schema)
+    context = cell.diagram.CreateDefaultContext()
+    cell.set_initial_state(context)
+    scene_graph, plant = cell.scene_graph, cell.plant
+    shapes = scene_shapes(scene_graph)
     plant_context = plant.GetMyContextFromRoot(context)
     sg_context = scene_graph.GetMyContextFromRoot(context)
     showing = [system for system in cell.modules.values() if hasattr(system, "show_recorded")]
@@ -196,19 +215,8 @@ def _write_scene(writer, cell, recorded) -> int:
 
     def moment(t: float, moving_only: bool) -> None:
         query = scene_graph.get_query_output_port().Eval(sg_context)
-        entities = [_entity(t, g, kind, fields, query.GetPoseInWorld(g)) for g, moving, kind, fields in shapes
-                    if moving or not moving_only]
-        emit("/scene", t, {"deletions": [], "entities": entities})
-        transforms = []
-        for robot, instance in cell.robots.items():
-            for index in plant.GetBodyIndices(instance):
-                body = plant.get_body(index)
-                X = plant.EvalBodyPoseInWorld(plant_context, body)
-                pose = _pose(X)
-                transforms.append({"timestamp": _stamp(t), "parent_frame_id": "world",
-                                   "child_frame_id": f"{robot}/{body.name()}",
-                                   "translation": pose["position"], "rotation": pose["orientation"]})
-        emit("/tf", t, {"transforms": transforms})
+        emit("/scene", t, scene_update(t, shapes, query, moving_only))
+        emit("/tf", t, frame_transforms(t, plant, cell.robots, lambda body: plant.EvalBodyPoseInWorld(plant_context, body)))
 
     values: dict = {}
     moment(0.0, moving_only=False)
@@ -262,3 +270,86 @@ def _primitive(inspector, g):
 def _entity(t: float, g, kind: str, fields: dict, X) -> dict:
     return {"timestamp": _stamp(t), "frame_id": "world", "id": f"geometry/{g.get_value()}",
             "lifetime": {"sec": 0, "nsec": 0}, "frame_locked": False, kind: [{"pose": _pose(X), **fields}]}
+
+
+# -- live: the same on Foxglove's WebSocket ---------------------------------------------
+SCENE_PERIOD = 0.1
+"""s: how often the live feed sends the arms' frames and the moving geometry (the recorded rate)."""
+
+
+class FoxgloveFeed:
+    """A Foxglove WebSocket server (``foxglove-sdk``, loopback by default) fed by a system of the diagram:
+    every channel on ``/module/signal`` when it changes, ``/tf`` and the whole ``/scene`` every 0.1 s of
+    the twin's time."""
+
+    def __init__(self, host: str, port: int, name: str):
+        import foxglove
+
+        self.context = foxglove.Context()
+        self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context)
+        self.port = self.server.port
+
+    def channel(self, topic: str, schema_name: str, schema: dict):
+        import foxglove
+
+        return foxglove.Channel(topic, schema=foxglove.Schema(name=schema_name, encoding="jsonschema",
+                                                              data=json.dumps(schema).encode()),
+                                message_encoding="json", context=self.context)
+
+    def close(self) -> None:
+        self.server.stop()
+
+
+def add_foxglove_feed(builder, cell, feed: FoxgloveFeed, time_step: float):
+    """The diagram's system publishing to ``feed`` (``cell``: a built cell's modules, plant, scene graph)."""
+    from pydrake.common.value import AbstractValue
+    from pydrake.geometry import QueryObject
+    from pydrake.systems.framework import LeafSystem
+
+    from cellsim.services.blackbox import ChannelInfo
+
+    channels = list(cell.channels().values())
+    plant, scene_graph = cell.plant, cell.scene_graph
+    shapes = scene_shapes(scene_graph)
+
+    class Publisher(LeafSystem):
+        def __init__(self):
+            super().__init__()
+            self.set_name("foxglove_feed")
+            self.inputs = []
+            for spec, port in channels:
+                info = ChannelInfo(spec.name, spec.module, spec.type.kind, spec.type.domain(), spec.type.unit,
+                                   spec.period, spec.record, spec.description)
+                topic = feed.channel(topic_of(spec.name), f"cellsim.{spec.name}", channel_schema(info))
+                self.inputs.append((spec, self.DeclareVectorInputPort(spec.name, port.size()), topic))
+            self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
+            self.poses_port = self.DeclareAbstractInputPort("body_poses", plant.get_body_poses_output_port().Allocate())
+            self.tf = feed.channel("/tf", FRAME_TRANSFORMS, SCHEMAS[FRAME_TRANSFORMS])
+            self.scene = feed.channel("/scene", SCENE_UPDATE, SCHEMAS[SCENE_UPDATE])
+            self.last: dict = {}
+            self.DeclarePeriodicPublishEvent(time_step, 0.0, self.publish_channels)
+            self.DeclarePeriodicPublishEvent(SCENE_PERIOD, 0.0, self.publish_scene)
+
+        def publish_channels(self, context):
+            t = context.get_time()
+            for spec, port, topic in self.inputs:
+                value = spec.type.decode(port.Eval(context))
+                if spec.name not in self.last or self.last[spec.name] != value:
+                    self.last[spec.name] = value
+                    topic.log(json.dumps({"t": t, "value": value}), log_time=_ns(t))
+
+        def publish_scene(self, context):
+            t = context.get_time()
+            query = self.query_port.Eval(context)
+            # the whole scene every time: a client that connects late sees the still geometry too
+            self.scene.log(json.dumps(scene_update(t, shapes, query, moving_only=False)), log_time=_ns(t))
+            poses = self.poses_port.Eval(context)
+            self.tf.log(json.dumps(frame_transforms(t, plant, cell.robots, lambda body: poses[int(body.index())])),
+                        log_time=_ns(t))
+
+    system = builder.AddSystem(Publisher())
+    for spec, port in channels:
+        builder.Connect(port, system.GetInputPort(spec.name))
+    builder.Connect(scene_graph.get_query_output_port(), system.query_port)
+    builder.Connect(plant.get_body_poses_output_port(), system.poses_port)
+    return system

@@ -6,6 +6,11 @@ in the same run. Prints wall times, real-time factors, their ratio and peak memo
 Targets (issue 9): the cell at least 30x real time; at most 1.8x the bare plant's cost;
 peak memory under 1 GiB.
 
+Then, side by side in the same run (issue 23): the two-arm assembly bench against the same
+bench with one arm (the assembler, its process and its speed and separation monitor taken
+out, the loader's hand-over waits made dwells), per simulated second. Target: two robots
+cost at most 2x one.
+
 The bare plant is the arm as Drake parses its model, collision geometry included,
 so the plant asks SceneGraph for contacts at every step. The cell's plant holds no
 collision geometry (cellsim.entities.arm_geometry: contact is measured, not
@@ -44,6 +49,7 @@ from cellsim.simulation import integrate_at_plant_step, simulate  # noqa: E402
 from cellsim.entities.robot import KD, KI, KP  # noqa: E402
 
 SCENARIO = ROOT / "scenarios" / "welding_cell.yaml"
+TWO_ARMS = ROOT / "scenarios" / "assembly_bench.yaml"
 
 
 def bare_plant_seconds(duration: float, overrides: list[str], contact_geometry: bool = True) -> float:
@@ -86,6 +92,52 @@ def cell_seconds(duration: float, seed: int, overrides: list[str]) -> float:
     return summary.wall_time
 
 
+def one_arm_bench(folder: Path) -> Path:
+    """The assembly bench with its assembler taken out: the loader alone, its hand-overs dwells."""
+    import yaml
+
+    data = yaml.safe_load(TWO_ARMS.read_text())
+    del data["entities"]["assembler"]
+    del data["behaviours"]["assembling"], data["behaviours"]["assembler_ssm"]
+    controller = data["behaviours"]["safety_controller"]
+    controller["commands"]["arm_mode"] = ["loader.safety_mode_request"]
+    del controller["commands"]["assembler_task"]
+    for step in data["behaviours"]["loading"]["steps"]:
+        if "assembling" in str(step.get("wait_until", "")):
+            del step["wait_until"]
+            step["dwell"] = 1.0
+    model = data["behaviours"]["safety_controller"]["risk_model"]
+    risk = yaml.safe_load((TWO_ARMS.parent / model).read_text())
+    del risk["controlled"]["assembler_task"]
+    del risk["hazards"]["JAM"]["demands"]["act"]["assembler_task"]
+    (folder / model).write_text(yaml.safe_dump(risk, sort_keys=False))
+    data["entities"]["loader"]["model"] = str(TWO_ARMS.parent / data["entities"]["loader"]["model"])
+    data["validation"] = {}
+    path = folder / "one_arm_bench.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def per_simulated_second(path: Path, duration: float, seed: int) -> float:
+    with tempfile.TemporaryDirectory() as tmp:
+        summary = simulate(load_scenario(path), Path(tmp) / "run", seed=seed, duration=duration)
+    return summary.wall_time / summary.sim_time
+
+
+def robots_figures(duration: float, repeats: int) -> None:
+    """Two arms against one, alternated, per simulated second."""
+    with tempfile.TemporaryDirectory() as tmp:
+        one = one_arm_bench(Path(tmp))
+        pairs = [(per_simulated_second(one, duration, seed), per_simulated_second(TWO_ARMS, duration, seed))
+                 for seed in range(repeats)]
+    one_arm = statistics.median(a for a, _ in pairs)
+    two_arms = statistics.median(b for _, b in pairs)
+    ratio = statistics.median(b / a for a, b in pairs)
+    print(f"assembly bench, one arm  {one_arm * 1000:.1f} ms wall per simulated s  {1 / one_arm:6.1f}x real time")
+    print(f"assembly bench, two arms {two_arms * 1000:.1f} ms wall per simulated s  {1 / two_arms:6.1f}x real time")
+    print(f"two arms / one arm       {ratio:.2f}x  (pairs: {', '.join(f'{b / a:.2f}' for a, b in pairs)})   (target <= 2x)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=30.0)
@@ -119,6 +171,8 @@ def main() -> None:
     print(f"cell / bare plant        {ratio:.2f}x  (pairs: {', '.join(f'{c / b:.2f}' for b, c in pairs)})   (target <= 1.8x)")
     print(f"cell / bare, no contact  {ratio_free:.2f}x  (cellsim's own overhead, like for like)")
     print(f"peak memory              {peak_mib:.0f} MiB                               (target < 1024 MiB)")
+    if not args.set:  # the overrides are the welding cell's
+        robots_figures(args.duration, args.repeats)
 
 
 if __name__ == "__main__":

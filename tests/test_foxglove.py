@@ -84,3 +84,47 @@ def test_a_missing_run_is_one_line_and_writes_nothing(tmp_path):
                            str(tmp_path / "x.mcap")], capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1 and "no such run folder" in done.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_live_twin_is_served_on_foxglove_websocket(tmp_path):
+    """``cellsim live --foxglove PORT``: a Foxglove client (its WebSocket protocol, spoken here with the
+    websockets package) sees every channel advertised with its schema, and gets the twin's channels,
+    the arms' frames and the cell as it runs; the server listens on loopback."""
+    import struct
+
+    from websockets.sync.client import connect
+
+    from conftest import WELDING_CELL
+    from live_processes import free_port, processes, wait_listening
+
+    port, fox = free_port(), free_port()
+    with processes() as start:
+        twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", f"tls/127.0.0.1:{port}",
+                      "--quiet", "--wait-physical", "0", "--foxglove", str(fox)], tmp_path / "twin.log")
+        wait_listening(twin, fox, 120, "the Foxglove server", ready="Foxglove on ws://127.0.0.1:")
+        with connect(f"ws://127.0.0.1:{fox}", subprotocols=["foxglove.sdk.v1"], open_timeout=30) as ws:
+            channels = {}
+            while not {"/robot/safety_mode", "/tf", "/scene"} <= set(channels):
+                message = json.loads(ws.recv(timeout=30))
+                if message["op"] == "serverInfo":  # read-only: no client publishing, services or parameters
+                    assert message["capabilities"] == []
+                if message["op"] == "advertise":
+                    channels.update({c["topic"]: c for c in message["channels"]})
+            assert channels["/tf"]["schemaName"] == "foxglove.FrameTransforms"
+            assert channels["/scene"]["schemaName"] == "foxglove.SceneUpdate"
+            schema = json.loads(channels["/robot/safety_mode"]["schema"])
+            assert "normal" in schema["properties"]["value"]["enum"]
+            wanted = {i: topic for i, topic in enumerate(("/robot/safety_mode", "/tf", "/scene"), 1)}
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                {"id": i, "channelId": channels[topic]["id"]} for i, topic in wanted.items()]}))
+            got: dict = {}
+            while len(got) < len(wanted):
+                frame = ws.recv(timeout=30)
+                if isinstance(frame, bytes) and frame[0] == 1:  # messageData: op, subscription, log time, payload
+                    subscription, _ = struct.unpack_from("<IQ", frame, 1)
+                    got.setdefault(wanted[subscription], json.loads(frame[13:]))
+        assert twin.popen.poll() is None, twin.output()
+        assert got["/robot/safety_mode"]["value"] in schema["properties"]["value"]["enum"]
+        assert any(t["child_frame_id"] == "robot/base_link" for t in got["/tf"]["transforms"])
+        assert any(e.get("cubes") for e in got["/scene"]["entities"])  # the fixtures
+        assert twin.stop() in (0, 1, 130)

@@ -26,6 +26,13 @@ def add_parser(subparsers) -> None:
         "--wait-physical", type=float, default=10.0, metavar="SECONDS",
         help="before starting the clock, wait this long at most for samples of every entity in shadow or twin mode (default 10)",
     )
+    live.add_argument(
+        "--foxglove", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+        help="also serve the twin on Foxglove's WebSocket (ws://127.0.0.1:PORT, default port 8765; 0: any free "
+        "port): every channel, the arms' frames (/tf) and the cell in 3D (/scene), as `cellsim export --mcap` writes",
+    )
+    live.add_argument("--foxglove-host", default="127.0.0.1", metavar="HOST",
+                      help="address the Foxglove server listens on (default loopback only)")
     live.set_defaults(handler=run)
 
 
@@ -36,11 +43,27 @@ def run(args) -> int:
     def check(sf):
         if not 0.0 <= args.wait_physical <= 3600.0:
             raise InputError(f"--wait-physical {args.wait_physical:g}: expected 0 to 3600 seconds")
+        if args.foxglove is not None and not 0 <= args.foxglove <= 65535:
+            raise InputError(f"--foxglove {args.foxglove}: expected a port from 0 to 65535")
 
     def twin(sf, out, session, duration):
         if not args.quiet:
             print(f"cellsim live: {sf.scenario.name} twin running, recording to {out}", file=sys.stderr)
-        summary = simulate(sf, out, io=Live(session, args.wait_physical), seed=args.seed, duration=duration)
+        feed = None
+        if args.foxglove is not None:
+            from cellsim.foxglove import FoxgloveFeed
+
+            try:
+                feed = FoxgloveFeed(args.foxglove_host, args.foxglove, f"cellsim {sf.scenario.name}")
+            except Exception as e:  # noqa: BLE001 - the SDK raises its own errors for a port in use
+                raise InputError(f"--foxglove {args.foxglove}: cannot serve on {args.foxglove_host}: {e}") from None
+            print(f"cellsim live: Foxglove on ws://{args.foxglove_host}:{feed.port}", file=sys.stderr, flush=True)
+        try:
+            summary = simulate(sf, out, io=Live(session, args.wait_physical, foxglove=feed), seed=args.seed,
+                               duration=duration)
+        finally:
+            if feed is not None:
+                feed.close()
         return EXIT_FINDING if summary.mishap else EXIT_OK
 
     return _live_run(args, "twin", True, twin, check)

@@ -96,6 +96,17 @@ def locate_run(path: str | os.PathLike) -> tuple[Path, Path | None]:
     raise CheckError(f"{path}: no such run folder or black box")
 
 
+def locate_rebuildable_run(run: str | os.PathLike, purpose: str) -> tuple[Path, ScenarioFile]:
+    """(black box, its scenario loaded) of a run whose cell is to be rebuilt; a CheckError without a
+    scenario.yaml beside the black box, saying ``purpose`` (why the cell is rebuilt)."""
+    from cellsim.scenario import load_scenario
+
+    blackbox, scenario = locate_run(run)
+    if scenario is None:
+        raise CheckError(f"{run}: no scenario.yaml beside the black box; {purpose}")
+    return blackbox, load_scenario(scenario)
+
+
 def check(run: str | os.PathLike, sf: ScenarioFile | None = None, *, case: SafetyCase | None = None) -> CheckedRun:
     """Check the run at ``run`` (a run folder or a black box) against ``sf``'s validation (default: the
     run's own scenario), or against ``case`` already compiled (a campaign's, a simulation's)."""

@@ -44,21 +44,17 @@ def replay(run: str | Path, meshcat, *, at: float = 0.0, speed: float = 1.0) -> 
     Raises ReplayError (or the scenario's ConfigError) for a missing or corrupt
     run, or ``at`` outside the run.
     """
-    from cellsim.scenario import load_scenario
     from cellsim.services.blackbox import BlackBox, BlackBoxError
-    from cellsim.validation.check import CheckError, locate_run
+    from cellsim.validation.check import CheckError, locate_rebuildable_run
     from cellsim.validation.traces import run_end
     from diagrams.cell import build_cell
 
     if not (math.isfinite(speed) and 0.01 <= speed <= 100.0):
         raise ReplayError(f"--speed {speed:g}: expected from 0.01 to 100 times real time")
     try:
-        blackbox, scenario = locate_run(run)
+        blackbox, sf = locate_rebuildable_run(run, "replay needs it to rebuild the cell")
     except CheckError as e:
         raise ReplayError(str(e)) from None
-    if scenario is None:
-        raise ReplayError(f"{run}: no scenario.yaml beside the black box; replay needs it to rebuild the cell")
-    sf = load_scenario(scenario)
     try:
         with BlackBox(blackbox) as bb:
             metadata = bb.metadata()
