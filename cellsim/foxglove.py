@@ -299,6 +299,10 @@ class FoxgloveFeed:
     def close(self) -> None:
         self.server.stop()
 
+    def add_to(self, builder, cell, time_step: float):
+        """Add the system feeding this server to the diagram being built (``diagrams.cell`` calls it)."""
+        return add_foxglove_feed(builder, cell, self, time_step)
+
 
 def add_foxglove_feed(builder, cell, feed: FoxgloveFeed, time_step: float):
     """The diagram's system publishing to ``feed`` (``cell``: a built cell's modules, plant, scene graph)."""
@@ -306,6 +310,7 @@ def add_foxglove_feed(builder, cell, feed: FoxgloveFeed, time_step: float):
     from pydrake.geometry import QueryObject
     from pydrake.systems.framework import LeafSystem
 
+    from cellsim.live.systems import TICK
     from cellsim.services.blackbox import ChannelInfo
 
     channels = list(cell.channels().values())
@@ -327,7 +332,7 @@ def add_foxglove_feed(builder, cell, feed: FoxgloveFeed, time_step: float):
             self.tf = feed.channel("/tf", FRAME_TRANSFORMS, SCHEMAS[FRAME_TRANSFORMS])
             self.scene = feed.channel("/scene", SCENE_UPDATE, SCHEMAS[SCENE_UPDATE])
             self.last: dict = {}
-            self.DeclarePeriodicPublishEvent(time_step, 0.0, self.publish_channels)
+            self.DeclarePeriodicPublishEvent(TICK, time_step, self.publish_channels)  # as the Zenoh publisher
             self.DeclarePeriodicPublishEvent(SCENE_PERIOD, 0.0, self.publish_scene)
 
         def publish_channels(self, context):

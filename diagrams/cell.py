@@ -396,10 +396,8 @@ def _live(builder: DiagramBuilder, cell: CellBuild, io: Live):
     network.handles.append(session.declare_queryable(
         keys.describe(name), lambda query: query.reply(query.key_expr, description)))
     network.handles.append(session.liveliness().declare_token(keys.alive(name, io.process)))
-    if io.foxglove is not None:  # the same twin on Foxglove's WebSocket
-        from cellsim.foxglove import add_foxglove_feed
-
-        add_foxglove_feed(builder, cell, io.foxglove, step)
+    if io.foxglove is not None:  # the same twin on Foxglove's WebSocket (cellsim.foxglove.FoxgloveFeed)
+        io.foxglove.add_to(builder, cell, step)
     return network
 
 

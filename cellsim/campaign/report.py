@@ -449,7 +449,8 @@ def _robot_figures(runs: Sequence[Mapping]) -> list[tuple[str, object]]:
     if not cycles:
         return []
     labelled = len(cycles) > 1
-    return [(f"Work cycles per run{f' ({robot})' if labelled else ''}", f"{min(c)} to {max(c)}, median {median(c):g}")
+    return [(f"Work cycles per run{f' ({robot})' if labelled else ''}",
+             str(c[0]) if min(c) == max(c) else f"{min(c)} to {max(c)}, median {median(c):g}")
             for robot, c in cycles.items()]
 
 
