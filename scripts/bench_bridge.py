@@ -13,9 +13,12 @@ around the daemon itself:
   robot in twin mode, their commands changing every 0.1 s (each change goes out
   at once).
 
-Each load runs twice, taking turns: with mutual TLS and the twin's access control
-(the default of every cellsim session, keys made for the run) and with plain TCP
-(``--insecure``), so the cost of TLS is read beside the plain figures of the same run.
+Each load runs in turns: with mutual TLS and the twin's access control (the default of
+every cellsim session, keys made for the run), with plain TCP (``--insecure``), and with
+TLS and authenticated CAN frames (``secoc``: bridges/welding_cell_authenticated.yaml, the
+curtain's frames carrying a freshness value and a truncated CMAC that the daemon checks,
+the welder's requests signed by it), so the costs of TLS and of SecOC are read beside the
+plain figures of the same run.
 
 It prints per load and security: the latency the daemon adds from a CAN frame received to its
 Zenoh sample published, and from a changed command received to its frames sent
@@ -29,7 +32,7 @@ ten times nominal; the daemon at most 25 % of one core at nominal. The last line
 reads ``bridge: p50 X ms, p99 Y ms, lost N of M`` per security: the worse of the
 two loads' frame latencies, and the frames lost over both.
 
-    .venv/bin/python scripts/bench_bridge.py [--seconds 60] [--security tls plain]
+    .venv/bin/python scripts/bench_bridge.py [--seconds 60] [--security tls plain secoc]
 """
 
 from __future__ import annotations
@@ -48,6 +51,10 @@ sys.path.insert(0, str(ROOT / "tests"))
 from live_processes import can_server, free_port, processes, wait_alive  # noqa: E402
 
 CONFIG = ROOT / "bridges" / "welding_cell.yaml"
+AUTHENTICATED = ROOT / "bridges" / "welding_cell_authenticated.yaml"
+VALUES = {"LightCurtainState": {"Broken": 0}, "ScannerState": {"Range": "far", "Distance": 3.5},
+          "WelderStatus": {"SafetyMode": "normal", "Activity": "idle"}}
+"""What each device says, by message (an authenticated message: by the name it extends)."""
 ROBOT_HZ = 500.0
 PROFILE = None
 """With --profile FILE: the daemon runs under cProfile, its statistics in FILE (of the last load run)."""
@@ -58,29 +65,40 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / 100.0  # utime + stime, in clock ticks of 10 ms
 
 
-def play_devices(bus, loaded, load: float, stop: threading.Event, sent: dict) -> None:
-    """Each CAN device's frames at ``load`` times its rate, on one paced thread."""
+def play_devices(bus, loaded, load: float, stop: threading.Event, sent: dict, can_key: bytes | None) -> None:
+    """Each CAN device's frames at ``load`` times its rate, on one paced thread; an authenticated message's
+    frames signed as they are sent (their freshness follows the clock), the others made once."""
     import can
 
     from bridges.e2e import protect
+    from bridges.secoc import Authenticator, is_authenticated, message_key
 
     cfg, database = loaded.config, loaded.database
     devices = []
     for entity, mapping in cfg.devices.items():
         message = database.get_message_by_name(mapping.message)
-        values = {"LightCurtainState": {"Broken": 0}, "ScannerState": {"Range": "far", "Distance": 3.5},
-                  "WelderStatus": {"SafetyMode": "normal", "Activity": "idle"}}[message.name]
-        frames = [can.Message(arbitration_id=message.frame_id, data=protect(message, values, c), is_extended_id=False)
-                  for c in range(16)]
-        devices.append([entity, mapping.cycle_time / load, frames, time.monotonic(), 0])
+        values = VALUES[message.name.removesuffix("Authenticated")]
+        if is_authenticated(message):
+            signer = Authenticator(message, message_key(can_key, message.frame_id), cfg.freshness_tick)
+
+            def frame(c, message=message, values=values, signer=signer):
+                return can.Message(arbitration_id=message.frame_id, data=protect(message, values, c, signer),
+                                   is_extended_id=False)
+        else:
+            made = [can.Message(arbitration_id=message.frame_id, data=protect(message, values, c), is_extended_id=False)
+                    for c in range(16)]
+
+            def frame(c, made=made):
+                return made[c % 16]
+        devices.append([entity, mapping.cycle_time / load, frame, time.monotonic(), 0])
         sent[entity] = 0
     pause = threading.Event()
     while not stop.is_set():
         now = time.monotonic()
         for device in devices:
-            entity, period, frames, due, counter = device
+            entity, period, frame, due, counter = device
             while due <= now:
-                bus.send(frames[counter % 16])
+                bus.send(frame(counter))
                 counter += 1
                 sent[entity] += 1
                 due += period
@@ -122,16 +140,18 @@ def play_twin(session, cell: str, stop: threading.Event) -> None:
         pause.wait(0.1)
 
 
-def run_load(load: float, seconds: float, tmp: Path, key_dir: Path | None) -> dict:
-    """One load for ``seconds``; ``key_dir``: mutual TLS with those keys, None: plain TCP (--insecure)."""
+def run_load(load: float, seconds: float, tmp: Path, key_dir: Path | None, config: Path = CONFIG) -> dict:
+    """One load for ``seconds``; ``key_dir``: mutual TLS with those keys (and their CAN key for an
+    authenticated ``config``), None: plain TCP (--insecure)."""
     import can
     import zenoh
 
     from bridges.config import load_bridge
-    from cellsim.live import keys
+    from cellsim.live import keys, pki
     from cellsim.live.session import session_config
 
-    loaded = load_bridge(CONFIG)
+    loaded = load_bridge(config)
+    can_key = pki.can_key(key_dir) if key_dir is not None and loaded.authenticated() else None
     cell = loaded.cell
     port = free_port()
     endpoint = f"{'tls' if key_dir else 'tcp'}/127.0.0.1:{port}"
@@ -145,7 +165,7 @@ def run_load(load: float, seconds: float, tmp: Path, key_dir: Path | None) -> di
         try:
             token = hub.liveliness().declare_token(keys.alive(cell, "twin"))
             hub.declare_subscriber(keys.diagnostics(cell, "bridge"), lambda s: statuses.append(json.loads(s.payload.to_bytes())))
-            args = ["bridge", str(CONFIG), "--can", f"remote:{channel}", "--connect", endpoint, *security]
+            args = ["bridge", str(config), "--can", f"remote:{channel}", "--connect", endpoint, *security]
             if PROFILE:  # the daemon under cProfile, its statistics written when it is stopped
                 daemon = start(["-o", PROFILE, "-m", "cellsim", *args], tmp / f"bridge-{load:g}.log", module="cProfile")
             else:
@@ -153,7 +173,7 @@ def run_load(load: float, seconds: float, tmp: Path, key_dir: Path | None) -> di
             wait_alive(hub, keys.alive(cell, "bridge"))
             stop = threading.Event()
             sent: dict[str, int] = {}
-            players = [threading.Thread(target=play_devices, args=(bus, loaded, load, stop, sent)),
+            players = [threading.Thread(target=play_devices, args=(bus, loaded, load, stop, sent, can_key)),
                        threading.Thread(target=play_robot, args=(hub, cell, stop, sent)),
                        threading.Thread(target=play_twin, args=(hub, cell, stop))]
             for player in players:
@@ -191,8 +211,8 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=60.0, help="seconds at each load (default 60)")
     parser.add_argument("--loads", type=float, nargs="+", default=[1.0, 10.0], help="loads to run (default 1 10)")
     parser.add_argument("--profile", metavar="FILE", help="run the daemon under cProfile, statistics to FILE")
-    parser.add_argument("--security", nargs="+", choices=("tls", "plain"), default=["tls", "plain"],
-                        help="mutual TLS, plain TCP, or both taking turns (default: both)")
+    parser.add_argument("--security", nargs="+", choices=("tls", "plain", "secoc"), default=["tls", "plain", "secoc"],
+                        help="mutual TLS, plain TCP, TLS with authenticated CAN frames, taking turns (default: all)")
     args = parser.parse_args()
     global PROFILE
     PROFILE = args.profile
@@ -205,7 +225,8 @@ def main() -> None:
         for load in args.loads:
             for security in args.security:
                 print(f"load {load:g}x nominal, {security}, for {args.seconds:g} s ...", file=sys.stderr, flush=True)
-                r = run_load(load, args.seconds, Path(tmp), keys if security == "tls" else None)
+                r = run_load(load, args.seconds, Path(tmp), None if security == "plain" else keys,
+                             AUTHENTICATED if security == "secoc" else CONFIG)
                 results[security].append(r)
                 f, c = r["frame_ms"], r["command_ms"]
                 print(f"{load:g}x nominal, {security}: {r['frames']} CAN frames ({r['frames'] / args.seconds:.0f}/s), "
