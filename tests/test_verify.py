@@ -199,3 +199,27 @@ def test_the_palletising_cell_verifies_with_every_mishap_unreachable(tmp_path):
     assert values["fast_at_the_pallet_with_the_bay_open"]["value"] == 1
     assert any("braking time" in a for a in result["assumptions"])
     assert not list(tmp_path.glob("*.yaml"))  # nothing to replay, nothing written
+
+
+def test_a_robot_starts_in_the_mode_its_controller_commands_from_the_first_period(tmp_path):
+    """A controller whose default is ssmon: the robot's update at t = 0 takes it, so the run never shows
+    another mode, and neither does the abstract model (it started every robot in normal: a one-period
+    witness the twin refuted, on the assembly bench's AlwaysMonitored)."""
+    from test_process import press_cell
+
+    (tmp_path / "always.yaml").write_text(
+        "name: always\nmonitored:\n  busy: {type: bool}\ncontrolled:\n  mode: {values: [ssmon], default: ssmon}\n"
+        "hazards:\n  H:\n    transitions:\n      - {phase: inact, to: act, when: busy}\n      - {phase: act, to: inact, when: not busy}\n")
+    path = press_cell(tmp_path, **{"validation: !replace {}": (
+        "  safety_controller:\n    kind: safety_controller\n    risk_model: always.yaml\n"
+        "    monitors: {busy: welder.busy}\n    commands: {mode: [robot.safety_mode_request]}\n"
+        "validation: !replace {conditions: {monitored: 'G(robot.safety_mode == ssmon)'}}")})
+    done = _verify(str(path), "--json", "--no-replay", "--out", str(tmp_path / "out"))
+    assert done.returncode == 0, done.stdout + done.stderr
+    result = json.loads(done.stdout)
+    assert {p["name"]: p["holds"] for p in result["properties"]}["monitored"] is True
+    from cellsim.simulation import simulate
+    from cellsim.validation.check import check
+
+    simulate(load_scenario(path), tmp_path / "run", duration=5.0)
+    assert check(tmp_path / "run").result.all_hold  # the twin agrees

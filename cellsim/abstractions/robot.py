@@ -10,7 +10,8 @@ safety modes, braking, acceleration) or, once it has been there that long,
 goes on to the next. A move re-targeted before it ends follows a path the
 abstraction does not know: until it arrives, the tool may be in any region.
 
-Its safety mode is the one requested, from the next period on. The tool's speed,
+Its safety mode is the one requested, from the next period on; at first, the one it takes
+at its update at t = 0, which reads the request then (a controller's default command). The tool's speed,
 as read, is any value its ``SpeedEnvelope`` allows: up to the cap in force, and
 after a cap ends, falling to zero within the braking time (read late by the
 telemetry period and the controller's tracking). The model keeps, per threshold
@@ -139,14 +140,23 @@ class RobotAbstraction(ModuleAbstraction):
         cell.assume(f"{r}'s tool is located on the commanded path (tracking error neglected); its moves take "
                     + ("at least their time at full speed without acceleration" if cell.timed else "any time from one period on"))
 
+    def _initial_mode(self, cell: AbstractCell) -> int:
+        """The safety mode it first publishes: its update at t = 0 takes the request it reads then."""
+        built = cell.cell
+        context = built.diagram.CreateDefaultContext()
+        built.set_initial_state(context)
+        code = self.system.mode_request_port.Eval(self.system.GetMyContextFromRoot(context))[0]
+        return int(code) if 0 <= code < len(_MODES) else SafetyMode.UNKNOWN.code
+
     def _safety(self, cell: AbstractCell, period: float) -> None:
         r, robot = self.name, self.system
         request = cell.input(r, "safety_mode_request")
         mode = f"{r}_mode"
         new_mode = f"({request} >= 0 ? {request} : {SafetyMode.UNKNOWN.code})"
+        initial = self._initial_mode(cell)
         cell.define(f"{r}.safety_mode", mode)
         if f"{r}.tool_speed" not in cell.reads:
-            cell.add(Module(f"{r}_safety", [Var(mode, 0, len(_MODES) - 1, SafetyMode.NORMAL.code)],
+            cell.add(Module(f"{r}_safety", [Var(mode, 0, len(_MODES) - 1, initial)],
                             [Command("true", (("1", {mode: new_mode}),))], comment=f"robot {r}: the requested safety mode"))
             cell.assume(f"{r} takes a requested safety mode in one period (its speed is read by nobody: not modelled)")
             return
@@ -160,12 +170,12 @@ class RobotAbstraction(ModuleAbstraction):
                 countdowns[f"over{i}"] = (value, True)
                 if value in caps.values():
                     countdowns[f"at{i}"] = (value, False)
-        variables, update = [Var(mode, 0, len(_MODES) - 1, SafetyMode.NORMAL.code)], {mode: new_mode}
+        variables, update = [Var(mode, 0, len(_MODES) - 1, initial)], {mode: new_mode}
         possible = {}  # countdown -> its guard: a speed it counts may be read next period
         for suffix, (threshold, strict) in countdowns.items():
             var = f"{r}_{suffix}"
             refresh = {m.code: envelope.periods(caps[m], threshold, strict) for m in _MODES}
-            variables.append(Var(var, 0, max(refresh.values()), refresh[SafetyMode.NORMAL.code]))
+            variables.append(Var(var, 0, max(refresh.values()), refresh[initial]))
             update[var] = f"max({var} - 1, {lookup(mode, refresh, 0)})"
             possible[suffix] = f"({var} > 0 | {set_of(mode, [c for c, n in refresh.items() if n > 0])})"
         cell.add(Module(f"{r}_safety", variables, [Command("true", (("1", update),))],
