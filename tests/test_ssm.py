@@ -36,6 +36,17 @@ def test_the_protective_distance_is_the_standards_sum_computed_by_hand():
     # the speed limit is the speed whose S_p is the separation: 0.75 m allows exactly 0.5 m/s
     assert p.speed_limit(0.75) == pytest.approx(0.5, abs=1e-12)
     assert p.speed_limit(0.33) == 0.0 and p.speed_limit(0.1) == 0.0 and p.speed_limit(math.nan) == 0.0
+    # a stop ordered 0.05 s ago: 0.05 s of reaction left; S_h = 1.6 * (0.05 + 0.2), S_r = 0.5 * 0.05
+    assert p.protective_distance(0.5, reaction=0.05) == pytest.approx(0.4 + 0.025 + 0.05 + 0.17, abs=1e-12)
+    # stopped, the reaction over: the allowances alone (a person may stand near a stopped arm)
+    assert p.protective_distance(0.0, reaction=0.0) == pytest.approx(0.17, abs=1e-12)
+
+
+def test_the_limit_leaves_room_for_the_persons_approach_over_the_latency():
+    """L = 0.04 s (the monitor's and the robot's periods): the limit at d is the formula's at d - v_h L."""
+    p = SsmParameters(human_speed=1.6, reaction_time=0.1, deceleration=2.5, intrusion_distance=0.1,
+                      sensor_uncertainty=0.05, robot_uncertainty=0.02, latency=0.04)
+    assert p.speed_limit(0.75 + 1.6 * 0.04) == pytest.approx(0.5, abs=1e-12)
 
 
 def test_without_the_persons_motion_the_limit_is_the_published_formula():
@@ -78,7 +89,7 @@ def test_a_person_approaching_the_moving_arms_lowers_their_speed_limits_and_the_
         for d, s_p, m, v in zip(sep.values, protective.values, margin.values, limit.values):
             assert v == pytest.approx(params.speed_limit(d), abs=2e-6)
             assert m == pytest.approx(d - s_p, abs=2e-6)
-            assert s_p >= params.protective_distance(0.0) - 1e-6
+            assert s_p >= params.allowances - 1e-6
         assert min(margin.values) >= 0.0
         # the person came near: the limit fell well below the arm's ssmon cap (1 m/s)
         assert min(limit.values) < 0.5 and min(sep.values) < 1.0
@@ -161,3 +172,20 @@ def test_the_assembly_benchs_campaign_runs(tmp_path):
     assert all(set(r["robots"]) == {"loader", "assembler"} for r in results["runs"])
     report = (tmp_path / "c" / "report.html").read_text()
     assert "Work cycles per run (loader)" in report and "Work cycles per run (assembler)" in report
+
+
+def test_the_margin_condition_catches_arms_that_ignore_their_limit(tmp_path):
+    """The same bench whose controller leaves the arms in normal (the limit applies only in ssmon):
+    an arm works at full speed as the operator comes near, and G(margin >= 0) is violated."""
+    from cellsim.validation.check import check
+
+    model = (ROOT / "scenarios" / "assembly_bench_risk_model.yaml").read_text()
+    assert "arm_mode: {values: [ssmon], default: ssmon}" in model
+    (tmp_path / "unmonitored.yaml").write_text(model.replace("arm_mode: {values: [ssmon], default: ssmon}",
+                                                             "arm_mode: {values: [normal], default: normal}"))
+    path = tmp_path / "bench.yaml"
+    path.write_text(f"base: {ASSEMBLY_BENCH}\nbehaviours:\n  safety_controller:\n    risk_model: unmonitored.yaml\n")
+    simulate(load_scenario(path), tmp_path / "run")
+    verdicts = check(tmp_path / "run").result.verdicts
+    assert not verdicts["AlwaysMonitored"].holds
+    assert not (verdicts["LoaderMargin"].holds and verdicts["AssemblerMargin"].holds)

@@ -20,15 +20,23 @@ T_s = v_r / a its stopping time from v_r:
     S_s = v_r^2 / (2 a)        the robot's stopping distance, braking at a
     C   = intrusion_distance,  Z_d = sensor_uncertainty,  Z_r = robot_uncertainty
 
-``margin`` = d - S_p (negative: the robot is too fast for the separation). The speed limit is the
-v_r at which S_p = d, solved exactly:
+Once this module has ordered a stop (its limit 0), the robot's reaction is under way: T_r in
+S_h and S_r is what is left of it, T_r less the time since the order, down to 0, so a robot
+that has stopped has S_p = C + Z_d + Z_r and a person may stand near it. ``margin`` = d - S_p
+(negative: the robot is too fast for the separation, or touched).
 
-    v_max = sqrt((a T_r + v_h)^2 + 2 a D) - (a T_r + v_h),   D = d - C - Z_d - Z_r - v_h T_r
+The speed limit is the v_r at which S_p = d, solved exactly, for the separation the robot
+will have when it acts on the limit: the person may come v_h L nearer meanwhile, L the
+latency of this module's period and the robot's (``latency``):
+
+    v_max = sqrt((a T_r + v_h)^2 + 2 a D) - (a T_r + v_h),   D = d - C - Z_d - Z_r - v_h (T_r + L)
 
 (0 when D <= 0). With v_h = 0 and Z_d = Z_r = 0 it is the published form
-v_max = sqrt((a T_r)^2 + 2 a (d - C)) - a T_r. In ``ssmon`` the robot follows ``speed_limit``
-continuously (``speed_limit`` input of the robot); a risk model or a condition reads ``margin``.
-A separation with no value (a stale sensor) reads as 0: the limit is 0, the robot stops.
+v_max = sqrt((a T_r)^2 + 2 a (d - C)) - a T_r. A robot that follows it brakes at a or faster
+keeps ``margin`` >= 0: as d falls by v_h dt, S_p falls by (v_h + a T_r + v_r) dt. In ``ssmon``
+the robot follows ``speed_limit`` continuously (its ``speed_limit`` input); a risk model or a
+condition reads ``margin``. A separation with no value (a stale sensor) reads as 0: the limit
+is 0, the robot stops. A stopped robot starts again only once d exceeds S_p of its first speed.
 """
 
 from __future__ import annotations
@@ -45,7 +53,7 @@ from cellsim.channels import number_type
 from cellsim.config.typed_yaml import Range, suggest
 from cellsim.registry import ModuleKind, deferred
 from cellsim.scenario import Period, Speed
-from cellsim.systems import CellSystem, write_scalar
+from cellsim.systems import CellSystem, read_scalar, write_scalar
 
 GEOMETRY = "geometry"
 FAR_AWAY = 10.0
@@ -92,22 +100,27 @@ class SsmParameters:
     intrusion_distance: float = 0.0
     sensor_uncertainty: float = 0.0
     robot_uncertainty: float = 0.0
+    latency: float = 0.0
+    """L (s): from a limit computed to the robot moving under it (this module's and the robot's periods)."""
 
     @property
     def allowances(self) -> float:
         """C + Z_d + Z_r (m)."""
         return self.intrusion_distance + self.sensor_uncertainty + self.robot_uncertainty
 
-    def protective_distance(self, robot_speed: float) -> float:
-        """S_p (m) for the robot's speed towards the person v_r (m/s)."""
-        v_h, t_r, a, v_r = self.human_speed, self.reaction_time, self.deceleration, max(robot_speed, 0.0)
+    def protective_distance(self, robot_speed: float, reaction: float | None = None) -> float:
+        """S_p (m) for the robot's speed towards the person v_r (m/s); ``reaction``: the reaction time
+        still to come (s), default all of T_r (0 once a stop was ordered T_r ago)."""
+        v_h, a, v_r = self.human_speed, self.deceleration, max(robot_speed, 0.0)
+        t_r = self.reaction_time if reaction is None else reaction
         stopping_time = v_r / a
         return v_h * (t_r + stopping_time) + v_r * t_r + v_r * v_r / (2.0 * a) + self.allowances
 
     def speed_limit(self, separation: float) -> float:
-        """v_max (m/s): the robot speed whose S_p is the separation d (m); 0 when none is."""
+        """v_max (m/s): the robot speed whose S_p is the separation d (m) less the person's approach
+        over the latency; 0 when none is."""
         v_h, t_r, a = self.human_speed, self.reaction_time, self.deceleration
-        budget = separation - self.allowances - v_h * t_r
+        budget = separation - self.allowances - v_h * (t_r + self.latency)
         if not budget > 0.0:  # NaN too
             return 0.0
         b = a * t_r + v_h
@@ -139,6 +152,7 @@ class SpeedSeparationMonitor(CellSystem):
         self.bodies: dict = {}
         """Arm GeometryId -> the body of the private kinematics plant it is fixed to."""
         far = parameters.speed_limit(FAR_AWAY)
+        self._stop_ordered = self.declare_state("stop_ordered_at", [math.nan])  # s; NaN: the limit is not 0
         m = number_type("m")
         self._separation = self.declare_channel("separation", m, FAR_AWAY, record="every_sample",
                                                 description="Separation to the nearest person")
@@ -179,12 +193,21 @@ class SpeedSeparationMonitor(CellSystem):
         return min(nearest.distance, FAR_AWAY), max(speed, 0.0)
 
     def update(self, context, xd):
+        t = context.get_time()
         d, v_r = self.measure(context)
-        protective = self.parameters.protective_distance(v_r)
+        limit = self.parameters.speed_limit(d)
+        since = read_scalar(context, self._stop_ordered)  # NaN: no stop ordered
+        if limit > 0.0:
+            since = math.nan
+        elif math.isnan(since):
+            since = t
+        reaction = self.parameters.reaction_time if math.isnan(since) else max(0.0, self.parameters.reaction_time - (t - since))
+        protective = self.parameters.protective_distance(v_r, reaction)
+        write_scalar(xd, self._stop_ordered, since)
         write_scalar(xd, self._separation, d)
         write_scalar(xd, self._protective, protective)
         write_scalar(xd, self._margin, d - protective)
-        write_scalar(xd, self._limit, self.parameters.speed_limit(d))
+        write_scalar(xd, self._limit, limit)
 
 
 def parameters_of(cfg: SsmConfig, robot_cfg) -> SsmParameters:
@@ -193,7 +216,7 @@ def parameters_of(cfg: SsmConfig, robot_cfg) -> SsmParameters:
     if deceleration is None:
         deceleration = robot_cfg.speed_limits.normal / robot_cfg.braking_time
     return SsmParameters(cfg.human_speed, cfg.reaction_time, deceleration, cfg.intrusion_distance,
-                         cfg.sensor_uncertainty, cfg.robot_uncertainty)
+                         cfg.sensor_uncertainty, cfg.robot_uncertainty, latency=cfg.period + robot_cfg.period)
 
 
 def build_ssm(cell, name: str, cfg: SsmConfig) -> SpeedSeparationMonitor:
