@@ -189,3 +189,19 @@ def test_the_margin_condition_catches_arms_that_ignore_their_limit(tmp_path):
     verdicts = check(tmp_path / "run").result.verdicts
     assert not verdicts["AlwaysMonitored"].holds
     assert not (verdicts["LoaderMargin"].holds and verdicts["AssemblerMargin"].holds)
+
+
+def test_in_ssmon_a_speed_limit_with_no_value_stops_the_arm():
+    """The robot's speed_limit input fails safe: NaN is 0 m/s in ssmon, ignored in normal."""
+    from cellsim.entities.robot import SafetyMode
+    from diagrams.cell import build_cell
+
+    cell = build_cell(load_scenario(ASSEMBLY_BENCH), seed=0, duration=1.0, record=False)
+    robot = cell.modules["loader"]
+    motion = robot._start_segment(robot.poses[robot.pose_names.index("home")], robot.pose_names.index("bench_pick"))
+    for mode, limit, moves in ((SafetyMode.SPEED_SEPARATION, math.nan, False), (SafetyMode.SPEED_SEPARATION, 0.0, False),
+                               (SafetyMode.SPEED_SEPARATION, 0.3, True), (SafetyMode.NORMAL, math.nan, True)):
+        state = motion
+        for _ in range(10):
+            state, _, _ = robot._advance(state, mode, state[0], limit)
+        assert (state[1] > 0.0) == moves, (mode, limit)

@@ -320,7 +320,7 @@ class Robot(EntitySystem):
         """One period of the joint-space motion: (motion state, desired state, reached-pose code).
 
         In ssmon the tool's cap is also ``speed_limit`` (m/s), planned ``TRACKING_ALLOWANCE`` below it
-        as a mode's cap is (at most halved).
+        as a mode's cap is (at most halved); a limit with no value (NaN) is 0.
 
         Motion state: [segment target, s, ds/dt, tool metres per unit s, joint-limited
         max ds/dt, start (6), goal (6)].
@@ -339,8 +339,9 @@ class Robot(EntitySystem):
                 cap = 0.0  # brake: a mode that stands still, or a new target to replan for
             else:
                 planned = self._planned_caps[mode]
-                if mode is SafetyMode.SPEED_SEPARATION and speed_limit < self.speed_caps[mode]:
-                    planned = max(speed_limit - TRACKING_ALLOWANCE, 0.5 * speed_limit)
+                if mode is SafetyMode.SPEED_SEPARATION and not speed_limit >= self.speed_caps[mode]:
+                    limit = speed_limit if speed_limit > 0.0 else 0.0  # no value (NaN) stops it: fail safe
+                    planned = max(limit - TRACKING_ALLOWANCE, 0.5 * limit)
                 cap = min(joint_rate, planned / tool_per_s, math.sqrt(2.0 * accel * (1.0 - s)))
             rate = min(cap, rate + accel * dt) if rate < cap else max(cap, rate - accel * dt)
             s = min(1.0, s + rate * dt)
