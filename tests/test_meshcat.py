@@ -243,3 +243,26 @@ def test_simulate_with_meshcat_starts_once_a_real_browser_opens_it(tmp_path):
         if process.poll() is None:
             process.kill()
         process.wait(timeout=30)
+
+
+def test_each_monitored_arm_has_a_floor_disc_coloured_by_what_its_monitor_allows(meshcat):
+    """The assembly bench: free at full speed while nobody is near, limited (amber) once the operator
+    walks in; the looks for a stop and a violated margin chosen from the channels as well."""
+    from conftest import ROOT
+
+    cell = build_cell(load_scenario(ROOT / "scenarios" / "assembly_bench.yaml"), seed=0, duration=6.0, record=False,
+                      meshcat=meshcat)
+    simulator = make_simulator(cell)
+    simulator.Initialize()
+    drawer = cell.cue_visualizer.drawer
+    disc = next(c for c in drawer.cues if c.name == "loader_ssm/ssm")
+    assert {c.name for c in drawer.cues} >= {"loader_ssm/ssm", "assembler_ssm/ssm"}
+    simulator.AdvanceTo(1.0)
+    assert drawer.visible_look(disc.name) == "free" and visible(meshcat, disc.looks["free"][0].path)
+    simulator.AdvanceTo(5.0)  # the operator on the way to the bench: the limit below the 1 m/s ssmon cap
+    assert drawer.visible_look(disc.name) == "limited"
+    assert visible(meshcat, disc.looks["limited"][0].path) and not visible(meshcat, disc.looks["free"][0].path)
+    monitor = cell.modules["loader_ssm"]
+    assert monitor.look({"loader_ssm.margin": 0.1, "loader_ssm.speed_limit": 0.0}) == "stopped"
+    assert monitor.look({"loader_ssm.margin": -0.01, "loader_ssm.speed_limit": 0.3}) == "too_fast"
+    assert monitor.look({}) is None

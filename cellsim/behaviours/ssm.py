@@ -58,6 +58,8 @@ from cellsim.systems import CellSystem, read_scalar, write_scalar
 GEOMETRY = "geometry"
 FAR_AWAY = 10.0
 """m: the separation read with nobody in the cell."""
+DISC_RADIUS = 0.5
+"""m: the Meshcat disc round a monitored arm's base."""
 
 Margin = Annotated[float, Range(0.0, 5.0, unit="m")]
 
@@ -138,10 +140,14 @@ class SpeedSeparationMonitor(CellSystem):
       speed_limit (channel, m/s): v_max, the speed the robot may have now (its speed_limit input).
     """
 
-    def __init__(self, module: str, cfg: SsmConfig, parameters: SsmParameters, kinematics):
+    def __init__(self, module: str, cfg: SsmConfig, parameters: SsmParameters, kinematics, base_xy=(0.0, 0.0),
+                 cap: float = math.inf):
+        """``base_xy``: where the arm's base stands (m, for its Meshcat cue); ``cap``: its ssmon cap (m/s)."""
         super().__init__(module, cfg.period)
         self.parameters = parameters
         self.kinematics = kinematics
+        self.base_xy = tuple(base_xy)
+        self.cap = cap
         self.from_geometry = cfg.separation == GEOMETRY
         self.robot_state_port = self.declare_input("robot_state", 2 * kinematics.num_joints)
         if self.from_geometry:
@@ -162,6 +168,35 @@ class SpeedSeparationMonitor(CellSystem):
                                             record="every_sample", description="Separation less S_p")
         self._limit = self.declare_channel("speed_limit", number_type("m/s"), far, record="every_sample",
                                            description="Speed the robot may have now")
+
+    # -- in Meshcat (cellsim.visual.cues) ------------------------------------------------
+    LOOKS = {"free": (0.2, 0.75, 0.3), "limited": (0.95, 0.7, 0.1), "stopped": (0.85, 0.1, 0.1),
+             "too_fast": (0.8, 0.1, 0.8)}
+    """The floor disc round the arm's base: its speed free (up to the ssmon cap), limited, stopped by the
+    monitor, or faster than its separation allows (margin < 0)."""
+
+    def visual_cues(self, view) -> list:
+        """A disc on the floor round the arm's base, coloured by what the monitor allows now."""
+        from pydrake.geometry import Cylinder, Rgba
+        from pydrake.math import RigidTransform
+
+        from cellsim.visual.cues import Cue, parts_of
+
+        x, y = self.base_xy
+        disc = [(RigidTransform([x, y, 0.004]), Cylinder(DISC_RADIUS, 0.008))]
+        looks = {look: parts_of(f"{self.module}/ssm/{look}", disc, Rgba(*rgb, 0.55)) for look, rgb in self.LOOKS.items()}
+        return [Cue(f"{self.module}/ssm", (f"{self.module}.margin", f"{self.module}.speed_limit"), looks, self.look)]
+
+    def look(self, values: dict) -> str | None:
+        """The disc's look for the monitor's channel values (None before any)."""
+        margin, limit = values.get(f"{self.module}.margin"), values.get(f"{self.module}.speed_limit")
+        if margin is None or limit is None:
+            return None
+        if margin < 0.0:
+            return "too_fast"
+        if limit <= 0.0:
+            return "stopped"
+        return "limited" if limit < self.cap else "free"
 
     def set_geometries(self, arm: dict, people: list) -> None:
         """``arm``: each of the robot's GeometryIds -> the name of the body it is fixed to."""
@@ -226,7 +261,8 @@ def build_ssm(cell, name: str, cfg: SsmConfig) -> SpeedSeparationMonitor:
     robot = cell.modules[cfg.robot]
     robot_cfg = cell.scenario.modules_of_kind("robot")[cfg.robot]
     kinematics = ArmKinematics(robot.kinematics.model_path, robot_cfg)
-    system = cell.add(name, SpeedSeparationMonitor(name, cfg, parameters_of(cfg, robot_cfg), kinematics))
+    system = cell.add(name, SpeedSeparationMonitor(name, cfg, parameters_of(cfg, robot_cfg), kinematics,
+                                                   robot_cfg.base_position[:2], robot_cfg.speed_limits.ssmon))
     cell.builder.Connect(cell.plant.get_state_output_port(cell.robots[cfg.robot]), system.robot_state_port)
     cell.builder.Connect(system.GetOutputPort("speed_limit"), robot.speed_limit_port)
     if system.from_geometry:
