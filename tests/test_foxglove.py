@@ -128,3 +128,23 @@ def test_the_live_twin_is_served_on_foxglove_websocket(tmp_path):
         assert any(t["child_frame_id"] == "robot/base_link" for t in got["/tf"]["transforms"])
         assert any(e.get("cubes") for e in got["/scene"]["entities"])  # the fixtures
         assert twin.stop() in (0, 1, 130)
+
+
+def test_a_foxglove_port_in_use_is_one_line_and_exit_2_with_nothing_written(tmp_path):
+    import socket
+
+    from conftest import WELDING_CELL
+    from live_processes import free_port
+
+    taken = socket.socket()
+    taken.bind(("127.0.0.1", 0))
+    taken.listen()
+    try:
+        done = subprocess.run([sys.executable, "-m", "cellsim", "live", str(WELDING_CELL), "--out", str(tmp_path / "twin"),
+                               "--listen", f"tls/127.0.0.1:{free_port()}", "--quiet", "--wait-physical", "0",
+                               "--foxglove", str(taken.getsockname()[1])], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    finally:
+        taken.close()
+    assert done.returncode == 2, done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and "--foxglove" in done.stderr and "cannot serve" in done.stderr
+    assert not (tmp_path / "twin").exists()
