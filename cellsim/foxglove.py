@@ -23,6 +23,12 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import QueryObject
+from pydrake.systems.framework import LeafSystem
+
+from cellsim.live.systems import HEARTBEAT, TICK
+
 
 FRAME_TRANSFORMS = "foxglove.FrameTransforms"
 SCENE_UPDATE = "foxglove.SceneUpdate"
@@ -80,19 +86,20 @@ def topic_of(channel: str) -> str:
     return "/" + channel.replace(".", "/")
 
 
-def channel_schema(info) -> dict:
-    """The JSON schema of one channel's messages: ``{"t": s, "value": ...}``."""
-    if info.kind == "enum":
-        value = {"enum": [*info.domain, None]}
-    elif info.kind == "bool":
+def channel_schema(name: str, kind: str, domain, unit: str | None, description: str = "") -> dict:
+    """The JSON schema of one channel's messages, ``{"t": s, "value": ...}``, from what the black box
+    (``ChannelInfo``) and a built channel (``ChannelSpec``) both say of it."""
+    if kind == "enum":
+        value = {"enum": [*domain, None]}
+    elif kind == "bool":
         value = {"type": ["boolean", "null"]}
-    elif info.kind == "number":
+    elif kind == "number":
         value = {"type": ["number", "null"]}
     else:
         value = {"type": "array", "items": {"type": ["number", "null"]}}
-    if info.unit:
-        value["description"] = f"in {info.unit}"
-    return {"title": info.name, "type": "object", "description": info.description or info.name,
+    if unit:
+        value["description"] = f"in {unit}"
+    return {"title": name, "type": "object", "description": description or name,
             "properties": {"t": {"type": "number", "description": "simulated time, s"}, "value": value}}
 
 
@@ -142,7 +149,8 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
                 ids = {}
                 for name, info in channels.items():
                     schema = writer.register_schema(name=f"cellsim.{name}", encoding="jsonschema",
-                                                    data=json.dumps(channel_schema(info)).encode())
+                                                    data=json.dumps(channel_schema(name, info.kind, info.domain, info.unit,
+                                                                                   info.description)).encode())
                     ids[name] = writer.register_channel(topic=topic_of(name), message_encoding="json", schema_id=schema,
                                                         metadata={"kind": info.kind, "unit": info.unit or ""})
                 messages = 0
@@ -218,21 +226,22 @@ def _write_scene(writer, cell, recorded) -> int:
         emit("/scene", t, scene_update(t, shapes, query, moving_only))
         emit("/tf", t, frame_transforms(t, plant, cell.robots, lambda body: plant.EvalBodyPoseInWorld(plant_context, body)))
 
+    def shown(t: float) -> None:  # the recorded state up to t, drawn
+        for system in showing:
+            system.show_recorded(cell, context, values)
+        moment(t, moving_only=True)
+
     values: dict = {}
     moment(0.0, moving_only=False)
     frames, pending = 1, None
     for t, name, value in recorded:
         if pending is not None and t > pending:
-            for system in showing:
-                system.show_recorded(cell, context, values)
-            moment(pending, moving_only=True)
+            shown(pending)
             frames += 1
         values[name] = value
         pending = t
     if pending is not None:
-        for system in showing:
-            system.show_recorded(cell, context, values)
-        moment(pending, moving_only=True)
+        shown(pending)
         frames += 1
     return frames
 
@@ -278,9 +287,9 @@ SCENE_PERIOD = 0.1
 
 
 class FoxgloveFeed:
-    """A Foxglove WebSocket server (``foxglove-sdk``, loopback by default) fed by a system of the diagram:
-    every channel on ``/module/signal`` when it changes, ``/tf`` and the whole ``/scene`` every 0.1 s of
-    the twin's time."""
+    """A Foxglove WebSocket server (``foxglove-sdk``, loopback by default) fed by a system of the diagram
+    (``FoxgloveFeedSystem``): every channel on ``/module/signal`` when it changes and every second,
+    ``/tf`` and the whole ``/scene`` every 0.1 s of the twin's time."""
 
     def __init__(self, host: str, port: int, name: str):
         import foxglove
@@ -304,57 +313,59 @@ class FoxgloveFeed:
         return add_foxglove_feed(builder, cell, self, time_step)
 
 
-def add_foxglove_feed(builder, cell, feed: FoxgloveFeed, time_step: float):
-    """The diagram's system publishing to ``feed`` (``cell``: a built cell's modules, plant, scene graph)."""
-    from pydrake.common.value import AbstractValue
-    from pydrake.geometry import QueryObject
-    from pydrake.systems.framework import LeafSystem
+class FoxgloveFeedSystem(LeafSystem):
+    """Publishes the twin to a ``FoxgloveFeed``.
 
-    from cellsim.live.systems import TICK
-    from cellsim.services.blackbox import ChannelInfo
+    Ports:
+      <module.signal> (input), per channel: the channel's port vector; sent as ``/module/signal`` when
+        it changes and every ``HEARTBEAT`` (a client that connects late gets every value within 1 s).
+      geometry_query (input): SceneGraph's QueryObject (the scene's poses).
+      body_poses (input): the plant's body poses (the robots' links).
+    """
 
-    channels = list(cell.channels().values())
-    plant, scene_graph = cell.plant, cell.scene_graph
-    shapes = scene_shapes(scene_graph)
+    def __init__(self, cell, feed: FoxgloveFeed, time_step: float):
+        """``cell``: the cell being built (its channels, plant, scene graph, robots)."""
+        super().__init__()
+        self.set_name("foxglove_feed")
+        self.plant, self.robots = cell.plant, dict(cell.robots)
+        self.shapes = scene_shapes(cell.scene_graph)
+        self.inputs = []
+        for spec, port in cell.channels().values():
+            schema = channel_schema(spec.name, spec.type.kind, spec.type.domain(), spec.type.unit, spec.description)
+            topic = feed.channel(topic_of(spec.name), f"cellsim.{spec.name}", schema)
+            self.inputs.append((spec, self.DeclareVectorInputPort(spec.name, port.size()), topic))
+        self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
+        self.poses_port = self.DeclareAbstractInputPort("body_poses", self.plant.get_body_poses_output_port().Allocate())
+        self.tf = feed.channel("/tf", FRAME_TRANSFORMS, SCHEMAS[FRAME_TRANSFORMS])
+        self.scene = feed.channel("/scene", SCENE_UPDATE, SCHEMAS[SCENE_UPDATE])
+        self._last: dict[str, tuple] = {}
+        self.DeclarePeriodicPublishEvent(TICK, time_step, self._publish_channels)  # as the Zenoh publisher
+        self.DeclarePeriodicPublishEvent(SCENE_PERIOD, 0.0, self._publish_scene)
 
-    class Publisher(LeafSystem):
-        def __init__(self):
-            super().__init__()
-            self.set_name("foxglove_feed")
-            self.inputs = []
-            for spec, port in channels:
-                info = ChannelInfo(spec.name, spec.module, spec.type.kind, spec.type.domain(), spec.type.unit,
-                                   spec.period, spec.record, spec.description)
-                topic = feed.channel(topic_of(spec.name), f"cellsim.{spec.name}", channel_schema(info))
-                self.inputs.append((spec, self.DeclareVectorInputPort(spec.name, port.size()), topic))
-            self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
-            self.poses_port = self.DeclareAbstractInputPort("body_poses", plant.get_body_poses_output_port().Allocate())
-            self.tf = feed.channel("/tf", FRAME_TRANSFORMS, SCHEMAS[FRAME_TRANSFORMS])
-            self.scene = feed.channel("/scene", SCENE_UPDATE, SCHEMAS[SCENE_UPDATE])
-            self.last: dict = {}
-            self.DeclarePeriodicPublishEvent(TICK, time_step, self.publish_channels)  # as the Zenoh publisher
-            self.DeclarePeriodicPublishEvent(SCENE_PERIOD, 0.0, self.publish_scene)
+    def _publish_channels(self, context) -> None:
+        t = context.get_time()
+        for spec, port, topic in self.inputs:
+            value = spec.type.decode(port.Eval(context))
+            previous = self._last.get(spec.name)
+            if previous is None or value != previous[0] or t - previous[1] >= HEARTBEAT - 1e-9:
+                self._last[spec.name] = (value, t)
+                topic.log(json.dumps({"t": t, "value": value}), log_time=_ns(t))
 
-        def publish_channels(self, context):
-            t = context.get_time()
-            for spec, port, topic in self.inputs:
-                value = spec.type.decode(port.Eval(context))
-                if spec.name not in self.last or self.last[spec.name] != value:
-                    self.last[spec.name] = value
-                    topic.log(json.dumps({"t": t, "value": value}), log_time=_ns(t))
+    def _publish_scene(self, context) -> None:
+        t = context.get_time()
+        # the whole scene every time: a client that connects late sees the still geometry too
+        query = self.query_port.Eval(context)
+        self.scene.log(json.dumps(scene_update(t, self.shapes, query, moving_only=False)), log_time=_ns(t))
+        poses = self.poses_port.Eval(context)
+        transforms = frame_transforms(t, self.plant, self.robots, lambda body: poses[int(body.index())])
+        self.tf.log(json.dumps(transforms), log_time=_ns(t))
 
-        def publish_scene(self, context):
-            t = context.get_time()
-            query = self.query_port.Eval(context)
-            # the whole scene every time: a client that connects late sees the still geometry too
-            self.scene.log(json.dumps(scene_update(t, shapes, query, moving_only=False)), log_time=_ns(t))
-            poses = self.poses_port.Eval(context)
-            self.tf.log(json.dumps(frame_transforms(t, plant, cell.robots, lambda body: poses[int(body.index())])),
-                        log_time=_ns(t))
 
-    system = builder.AddSystem(Publisher())
-    for spec, port in channels:
+def add_foxglove_feed(builder, cell, feed: FoxgloveFeed, time_step: float) -> FoxgloveFeedSystem:
+    """The diagram's system publishing to ``feed``, wired to every channel, the scene graph and the plant."""
+    system = builder.AddSystem(FoxgloveFeedSystem(cell, feed, time_step))
+    for spec, port in cell.channels().values():
         builder.Connect(port, system.GetInputPort(spec.name))
-    builder.Connect(scene_graph.get_query_output_port(), system.query_port)
-    builder.Connect(plant.get_body_poses_output_port(), system.poses_port)
+    builder.Connect(cell.scene_graph.get_query_output_port(), system.query_port)
+    builder.Connect(cell.plant.get_body_poses_output_port(), system.poses_port)
     return system

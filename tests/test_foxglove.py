@@ -104,7 +104,7 @@ def test_the_live_twin_is_served_on_foxglove_websocket(tmp_path):
         wait_listening(twin, fox, 120, "the Foxglove server", ready="Foxglove on ws://127.0.0.1:")
         with connect(f"ws://127.0.0.1:{fox}", subprotocols=["foxglove.sdk.v1"], open_timeout=30) as ws:
             channels = {}
-            while not {"/robot/safety_mode", "/tf", "/scene"} <= set(channels):
+            while not {"/robot/safety_mode", "/tf", "/scene", "/light_barrier/broken"} <= set(channels):
                 message = json.loads(ws.recv(timeout=30))
                 if message["op"] == "serverInfo":  # read-only: no client publishing, services or parameters
                     assert message["capabilities"] == []
@@ -115,18 +115,34 @@ def test_the_live_twin_is_served_on_foxglove_websocket(tmp_path):
             schema = json.loads(channels["/robot/safety_mode"]["schema"])
             assert "normal" in schema["properties"]["value"]["enum"]
             wanted = {i: topic for i, topic in enumerate(("/robot/safety_mode", "/tf", "/scene"), 1)}
-            ws.send(json.dumps({"op": "subscribe", "subscriptions": [
-                {"id": i, "channelId": channels[topic]["id"]} for i, topic in wanted.items()]}))
+
+            def subscribe(ids) -> None:
+                ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                    {"id": i, "channelId": channels[wanted[i]]["id"]} for i in ids]}))
+
+            subscribe(list(wanted))
             got: dict = {}
-            while len(got) < len(wanted):
+            late = 0
+            while len(got) < len(wanted) or late < 2_000_000_000:
                 frame = ws.recv(timeout=30)
                 if isinstance(frame, bytes) and frame[0] == 1:  # messageData: op, subscription, log time, payload
-                    subscription, _ = struct.unpack_from("<IQ", frame, 1)
+                    subscription, log_time = struct.unpack_from("<IQ", frame, 1)
                     got.setdefault(wanted[subscription], json.loads(frame[13:]))
+                    late = max(late, log_time)
+            # a client that subscribes 2 s into the run to a channel that has not changed since t = 0
+            # (the curtain: nobody at the table) still gets its value, from the heartbeat
+            wanted[4] = "/light_barrier/broken"
+            subscribe([4])
+            while "/light_barrier/broken" not in got:
+                frame = ws.recv(timeout=30)
+                if isinstance(frame, bytes) and frame[0] == 1 and struct.unpack_from("<I", frame, 1)[0] == 4:
+                    got["/light_barrier/broken"] = json.loads(frame[13:])
+            assert got["/light_barrier/broken"]["t"] <= late / 1e9 + 1.2  # within a heartbeat, not at its next change
         assert twin.popen.poll() is None, twin.output()
         assert got["/robot/safety_mode"]["value"] in schema["properties"]["value"]["enum"]
         assert any(t["child_frame_id"] == "robot/base_link" for t in got["/tf"]["transforms"])
         assert any(e.get("cubes") for e in got["/scene"]["entities"])  # the fixtures
+        assert got["/light_barrier/broken"]["value"] in (True, False)
         assert twin.stop() in (0, 1, 130)
 
 
