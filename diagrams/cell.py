@@ -414,7 +414,8 @@ def _emulated(builder: DiagramBuilder, cell: CellBuild, io: Emulated):
     devices = io.devices
     rates = {**(devices.rates() if devices is not None else {}), **io.rates}
     clock = LiveClock()
-    status = builder.AddSystem(LiveStatus(clock, step, process=io.process))
+    status = builder.AddSystem(LiveStatus(clock, step, session.declare_publisher(keys.status(name, io.process)),
+                                          process=io.process))
     network = NetworkIO(io.process, clock, status)
     outlets = {}
     for entity_name, entity in cell.entities.items():

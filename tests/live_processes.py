@@ -53,7 +53,8 @@ class Process:
         return self.popen.returncode
 
     def output(self) -> str:
-        self._file.flush()
+        if not self._file.closed:
+            self._file.flush()
         return self.log.read_text()
 
 
@@ -274,3 +275,93 @@ def assert_supervised(twin, emulator, within: float) -> float:
     after = [v for t, v in zip(speed.times, speed.values) if slowed + 0.6 <= t and mode.value_at(t) == "ssmon"]
     assert after and max(after) <= 0.5 + 0.05  # ssmon's tool speed cap, once braked
     return offset
+
+
+def rogue_router(keys: Path, role: str, port: int, timeout: float = 10.0):
+    """A Zenoh router on loopback ``port`` serving TLS with ``role``'s certificate and key, configured by hand as
+    an attacker holding those files would (cellsim's own session rules refuse to make it); retried until the
+    port is free (a killed twin's port), with a deadline."""
+    import json
+
+    import zenoh
+
+    config = zenoh.Config()
+    for key, value in (("mode", "router"), ("scouting/multicast/enabled", False), ("scouting/gossip/enabled", False),
+                       ("listen/endpoints", [f"tls/127.0.0.1:{port}"]),
+                       ("transport/link/tls", {"root_ca_certificate": str(keys / "ca.pem"), "enable_mtls": True,
+                                               "listen_certificate": str(keys / f"{role}.pem"),
+                                               "listen_private_key": str(keys / f"{role}.key"),
+                                               "connect_certificate": str(keys / f"{role}.pem"),
+                                               "connect_private_key": str(keys / f"{role}.key")})):
+        config.insert_json5(key, json.dumps(value))
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            return zenoh.open(config)
+        except zenoh.ZError:
+            if time.monotonic() > deadline:
+                raise
+            threading.Event().wait(0.05)
+
+
+WELDING_CELL = str(ROOT / "scenarios" / "welding_cell.yaml")
+WELDING_BRIDGE = str(ROOT / "bridges" / "welding_cell.yaml")
+
+
+def start_twin_and_bridge(start, tmp: Path, twin_args, bus: str, endpoint: str, port: int, config: str = WELDING_BRIDGE):
+    """The welding cell's twin, then its bridge daemon (with the bridge configuration ``config``) on the CAN
+    server ``bus``, each once it is up; returns (twin, bridge)."""
+    twin = start(["live", WELDING_CELL, "--out", str(tmp / "twin"), "--listen", endpoint, "--quiet", *twin_args],
+                 tmp / "twin.log")
+    with observer(port) as session:
+        wait_alive(session, "cellsim/welding_cell/alive/twin")
+    bridge = start(["bridge", config, "--can", f"remote:{bus}", "--connect", endpoint], tmp / "bridge.log")
+    with observer(port) as session:
+        wait_alive(session, "cellsim/welding_cell/alive/bridge")
+    return twin, bridge
+
+
+def start_emulator(start, tmp: Path, args, bus: str, endpoint: str):
+    """The welding cell's emulator speaking CAN on ``bus``, its black box in ``tmp/emulator``."""
+    return start(["emulate", WELDING_CELL, "--can", f"remote:{bus}", "--out", str(tmp / "emulator"),
+                  "--connect", endpoint, "--quiet", *args], tmp / "emulator.log")
+
+
+class CommandFrames:
+    """The bridge daemon's command frames of some messages, read off the CAN server's bus as they come and
+    checked as the device does (CRC, counter and MAC under the cell's CAN key)."""
+
+    def __init__(self, bus: str, message_names: list[str], keys: Path, config: str = WELDING_BRIDGE):
+        import can
+
+        from bridges.config import load_bridge
+        from bridges.e2e import DeviceChecker
+        from bridges.secoc import Authenticator, message_key
+        from cellsim.live.pki import can_key
+
+        loaded = load_bridge(config)
+        self.checkers = {}
+        for name in message_names:
+            message = loaded.database.get_message_by_name(name)
+            authenticator = Authenticator(message, message_key(can_key(keys), message.frame_id),
+                                          loaded.config.freshness_tick)
+            self.checkers[message.frame_id] = DeviceChecker(message=message, timeout=1.0, recover_after=1,
+                                                            authenticator=authenticator)
+        self.listener = can.Bus(interface="remote", channel=bus)
+
+    def next(self, deadline: float) -> tuple[float, str, dict]:
+        """(arrival on the monotonic clock, message name, values) of the next frame of these messages, before
+        ``deadline`` (monotonic); a frame that does not check fails the test (the daemon sends nothing else)."""
+        while time.monotonic() < deadline:
+            frame = self.listener.recv(timeout=max(0.0, deadline - time.monotonic()))
+            checker = self.checkers.get(frame.arbitration_id) if frame is not None else None
+            if checker is not None:
+                judgement = checker.check(bytes(frame.data), time.monotonic())
+                assert judgement.trusted, judgement
+                decoded = checker.message.decode(bytes(frame.data))  # enumerations by name
+                return time.monotonic(), checker.message.name, {  # the values, without Crc, Counter, Freshness, Mac
+                    k: v if isinstance(v, (int, float)) else str(v) for k, v in decoded.items() if k in judgement.values}
+        raise AssertionError(f"no {', '.join(c.message.name for c in self.checkers.values())} frame before the deadline")
+
+    def close(self) -> None:
+        self.listener.shutdown()

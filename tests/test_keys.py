@@ -42,9 +42,18 @@ def test_init_makes_a_ca_and_one_certificate_per_role_that_openssl_verifies(tmp_
         assert openssl("verify", "-CAfile", str(folder / "ca.pem"), cert).strip().endswith("OK")
         assert f"CN = {role}" in openssl("x509", "-in", cert, "-noout", "-subject", "-nameopt", "oneline")
         text = openssl("x509", "-in", cert, "-noout", "-text")
-        for name in ("DNS:localhost", "IP Address:127.0.0.1", "DNS:cell-twin.local", "IP Address:10.1.2.3"):
-            assert name in text, (role, name)
-        assert "TLS Web Server Authentication, TLS Web Client Authentication" in text
+        if role == "twin":  # the one server: it names the hosts clients dial, and may serve TLS
+            for name in ("DNS:localhost", "IP Address:127.0.0.1", "DNS:cell-twin.local", "IP Address:10.1.2.3"):
+                assert name in text, (role, name)
+            assert "TLS Web Server Authentication, TLS Web Client Authentication" in text
+        else:  # a client only: no host, no server's key usage, so it cannot pose as the twin
+            assert "Subject Alternative Name" not in text and "Server Authentication" not in text, role
+            assert "TLS Web Client Authentication" in text
+            # OpenSSL agrees: the twin's certificate is a TLS server's, this one is not
+            assert openssl("verify", "-CAfile", str(folder / "ca.pem"), "-purpose", "sslclient", cert).strip().endswith("OK")
+            refused = subprocess.run(["openssl", "verify", "-CAfile", str(folder / "ca.pem"), "-purpose", "sslserver", cert],
+                                     capture_output=True, text=True, timeout=30)
+            assert refused.returncode != 0 and "unsuitable certificate purpose" in refused.stdout + refused.stderr
         # the key is the certificate's
         assert openssl("pkey", "-in", str(folder / f"{role}.key"), "-pubout") == openssl("x509", "-in", cert, "-noout", "-pubkey")
     shown = cellsim("keys", "show", str(folder))

@@ -29,7 +29,7 @@ def test_defaults_turn_multicast_off_and_stay_on_loopback():
         assert _get(config, "scouting/gossip/enabled") is False
     # the twin routes between everyone else, who are its clients
     assert (_get(twin, "mode"), _get(other, "mode")) == ("router", "client")
-    assert _get(session_config(role="emulator", listen=["tls/127.0.0.1:7600"]), "mode") == "peer"
+    assert _get(session_config(role="emulator", insecure=True, listen=["tcp/127.0.0.1:7600"]), "mode") == "peer"
     assert _get(twin, "listen/endpoints") == [DEFAULT_ENDPOINT]
     assert _get(other, "connect/endpoints") == [DEFAULT_ENDPOINT]
     assert _get(other, "listen/endpoints") == []  # not every interface
@@ -123,3 +123,106 @@ def test_insecure_is_plain_tcp_on_loopback_with_no_access_control():
 def test_missing_keys_say_how_to_make_them(tmp_path):
     with pytest.raises(SessionConfigError, match=r"no ca.pem, observer.pem, observer.key .*cellsim keys init"):
         session_config(role="observer", keys=tmp_path)
+
+
+def test_only_the_twin_listens_on_a_secure_session():
+    """Only the twin's certificate may serve TLS (``cellsim.live.pki``): any other role asked to listen is
+    refused in one line, from the command line or a file."""
+    assert _get(session_config(role="twin", listen=["tls/127.0.0.1:7600"]), "listen/endpoints") == ["tls/127.0.0.1:7600"]
+    for role in ("bridge", "emulator", "robot", "engineer", "observer"):
+        with pytest.raises(SessionConfigError, match=f"only the twin listens; the {role} connects to it"):
+            session_config(role=role, listen=["tls/127.0.0.1:7600"])
+
+
+def _file(tmp_path, text: str):
+    path = tmp_path / "zenoh.json5"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("insecure, text, expected", [
+    # issue 32's attack: the --insecure listener on every interface, given in a file instead of --listen
+    (True, '{ listen: { endpoints: ["tcp/0.0.0.0:7447"] } }', "listen/endpoints 'tcp/0.0.0.0:7447': --insecure allows plain tcp/ on loopback only"),
+    (True, '{ listen: { endpoints: { router: ["tcp/0.0.0.0:7447"] } } }', "--insecure allows plain tcp/ on loopback only"),
+    (False, '{ listen: { endpoints: ["tcp/127.0.0.1:7447"] } }', "tcp/ has no encryption or authentication"),
+    (False, '{ connect: { endpoints: ["udp/127.0.0.1:7447"] } }', "udp/ has no encryption or authentication"),
+    (False, '{ connect: { endpoints: ["tls/127.0.0.1:7447#root_ca_certificate=/tmp/x"] } }', "not a Zenoh endpoint"),
+    (True, '{ scouting: { multicast: { enabled: true } } }', "scouting/multicast/enabled: --insecure stays on loopback"),
+    (False, '{ transport: { link: { tls: { verify_name_on_connect: false } } } }', "transport/link/tls/verify_name_on_connect: set by cellsim"),
+    (False, '{ transport: { link: { tls: { root_ca_certificate: "/tmp/other.pem" } } } }', "transport/link/tls/root_ca_certificate: set by cellsim"),
+    (False, '{ transport: { link: { protocols: ["tcp", "tls"] } } }', "transport/link/protocols: set by cellsim"),
+    (False, '{ access_control: { enabled: false, default_permission: "allow" } }', "access_control/default_permission: set by cellsim"),
+    (False, '{ adminspace: { enabled: true, permissions: { write: true } } }', "adminspace/permissions/write: set by cellsim"),
+])
+def test_a_config_file_passes_the_same_rule_as_the_command_line(tmp_path, insecure, text, expected):
+    with pytest.raises(SessionConfigError) as e:
+        session_config(role="twin", insecure=insecure, listen_by_default=True, config_file=_file(tmp_path, text))
+    assert expected in str(e.value) and str(e.value).startswith(str(tmp_path / "zenoh.json5")) and "\n" not in str(e.value)
+
+
+def test_a_session_takes_only_the_protocols_its_security_allows(tmp_path):
+    """Whatever a scout or a peer advertises, a secure session makes and takes TLS links only, an insecure one
+    plain TCP only; a file may tune what is no part of security (socket buffers, timeouts)."""
+    tuned = _file(tmp_path, '{ transport: { link: { tls: { so_sndbuf: 65536 } } }, queries_default_timeout: 5000 }')
+    secure = session_config(role="twin", listen_by_default=True, config_file=tuned)
+    assert _get(secure, "transport/link/protocols") == ["tls", "quic"]
+    assert _get(secure, "transport/link/tls")["so_sndbuf"] == 65536 and _get(secure, "queries_default_timeout") == 5000
+    assert _get(secure, "transport/link/tls")["verify_name_on_connect"] is True
+    assert _get(session_config(role="observer", insecure=True), "transport/link/protocols") == ["tcp"]
+
+
+def test_keys_made_before_roles_were_pinned_are_refused(tmp_path, cell_keys):
+    """A folder whose observer certificate names hosts and may serve TLS (as every role's did before): its
+    holder could pose as the twin, so no session is opened with those keys."""
+    import datetime
+    import shutil
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import serialization
+
+    from cellsim.live import pki
+
+    old = tmp_path / "old"
+    shutil.copytree(cell_keys, old)
+    ca_key = serialization.load_pem_private_key((old / "ca.key").read_bytes(), None)
+    ca_cert = x509.load_pem_x509_certificate((old / "ca.pem").read_bytes())
+    now = datetime.datetime.now(datetime.timezone.utc)
+    key, cert = pki._role_certificate("observer", ca_key, ca_cert, pki._subject_names(pki.DEFAULT_HOSTS), now, 30)
+    (old / "observer.pem").write_bytes(pki._pem_certificate(cert))
+    (old / "observer.key").write_bytes(pki._pem_key(key))
+    for role in ("twin", "bridge"):
+        with pytest.raises(SessionConfigError, match=r"observer.pem: the observer's certificate may serve TLS .*cellsim keys init"):
+            session_config(role=role, keys=old)
+
+
+def test_a_server_holding_any_other_roles_certificate_gets_no_session_from_anyone(cell_keys):
+    """Issue 32: with the twin gone, a process holding another role's certificate (the observer's, meant for
+    shop-floor dashboards, or any other) serves TLS on the twin's port. Every client role (the bridge daemon,
+    the emulator, the robot adapter, twin-mode's engineer, the dashboard's observer) refuses it; the same
+    clients take the real twin's."""
+    import zenoh
+    from concurrent.futures import ThreadPoolExecutor
+
+    from cellsim.live.pki import ROLES
+
+    from live_processes import rogue_router
+
+    clients = [r for r in ROLES if r != "twin"]
+
+    def connects(role: str, port: int) -> bool:
+        try:
+            zenoh.open(session_config(role=role, connect=[f"tls/127.0.0.1:{port}"], wait=1.5)).close()
+            return True
+        except zenoh.ZError:
+            return False
+
+    for server in ROLES:
+        port = free_port()
+        router = rogue_router(cell_keys, server, port)
+        try:
+            with ThreadPoolExecutor(len(clients)) as pool:
+                outcome = dict(zip(clients, pool.map(lambda r: connects(r, port), clients)))
+        finally:
+            router.close()
+        expected = server == "twin"
+        assert outcome == {r: expected for r in clients}, (server, outcome)

@@ -85,12 +85,10 @@ def _add_network_args(parser: argparse.ArgumentParser) -> None:
 
 def _network_security(args, role: str) -> dict:
     """The session's ``role``, ``keys`` and ``insecure`` (:func:`cellsim.live.session.session_config`);
-    creates the default keys on first use, and warns of ``--insecure``, on stderr."""
+    creates the default keys on first use, and says so on stderr."""
     from cellsim.live import pki
 
     if args.insecure:
-        print("cellsim: warning: --insecure: no TLS, no authentication, no access control; any process on this "
-              "machine can publish samples and switch twin modes", file=sys.stderr)
         return {"role": role, "keys": None, "insecure": True}
     folder = args.keys if args.keys is not None else pki.default_keys_dir()
     if args.keys is None:
@@ -101,6 +99,13 @@ def _network_security(args, role: str) -> dict:
         except pki.KeysError as e:
             raise InputError(str(e)) from None
     return {"role": role, "keys": folder, "insecure": False}
+
+
+def warn_insecure(security: dict) -> None:
+    """Say on stderr what ``--insecure`` gives up (once the session's configuration has passed its checks)."""
+    if security["insecure"]:
+        print("cellsim: warning: --insecure: no TLS, no authentication, no access control; any process on this "
+              "machine can publish samples and switch twin modes", file=sys.stderr)
 
 
 def _can_key(args, loaded) -> bytes | None:
@@ -157,10 +162,12 @@ def _open_session(args, role: str, listen_by_default: bool, wait: float = 30.0, 
 
     from cellsim.live.session import session_config
 
+    security = security or _network_security(args, role)
     config = session_config(
-        **(security or _network_security(args, role)),
-        listen=args.listen, connect=args.connect, config_file=args.config, listen_by_default=listen_by_default, wait=wait
+        **security, listen=args.listen, connect=args.connect, config_file=args.config,
+        listen_by_default=listen_by_default, wait=wait
     )
+    warn_insecure(security)
     try:
         return zenoh.open(config)
     except Exception as e:  # noqa: BLE001 - zenoh raises ZError with a long text

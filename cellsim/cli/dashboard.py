@@ -47,12 +47,14 @@ def run(args) -> int:
             raise InputError(str(e)) from None
         Dashboard(feed).run()
         return EXIT_OK
-    from cellsim.cli.common import _network_security
+    from cellsim.cli.common import _network_security, warn_insecure
     from cellsim.live.session import session_config
 
-    config = dict(**_network_security(args, args.role), listen=args.listen, connect=args.connect,
-                  config_file=args.config, listen_by_default=False, wait=2.0)
+    security = _network_security(args, args.role)
+    config = dict(**security, listen=args.listen, connect=args.connect, config_file=args.config,
+                  listen_by_default=False, wait=2.0)
     session_config(**config)  # a bad endpoint or configuration file: one line, exit 2, before the screen opens
+    warn_insecure(security)
 
     def open_session():
         import zenoh

@@ -13,8 +13,8 @@ twin      publishes its channels, status and commands; takes physical
 bridge    publishes physical samples, diagnostics, robot requests and the ROS
           joint state; takes commands, twin modes and controller states;
           holds its liveliness token and watches the twin's
-emulator  publishes physical samples and emulated controller states; takes
-          commands and controller requests; answers fault injections
+emulator  publishes physical samples, emulated controller states and its status;
+          takes commands and controller requests; answers fault injections
 robot     a robot controller's adapter: publishes its state, takes requests
 engineer  watches everything; switches twin modes, injects faults, asks what
           the twin runs
@@ -60,7 +60,7 @@ GRANTS: dict[str, Grant] = {
         token=("alive/bridge",), watch_alive=True, other_keys=("**/joint_states",),
     ),
     "emulator": Grant(
-        publish=("physical/**", "controller/*/state"),
+        publish=("physical/**", "controller/*/state", "status/emulator"),
         subscribe=("command/**", "controller/*/request"),
         serve=("control/fault",), token=("alive/emulator",),
     ),
@@ -69,7 +69,8 @@ GRANTS: dict[str, Grant] = {
     "observer": Grant(subscribe=_WATCH, query=("describe",), watch_alive=True),
 }
 """What each role may do. The twin's session is usually the router itself, whose own
-operations are not remote ones; its grant serves a twin behind a separate router."""
+operations are not remote ones; its grant serves a twin connected to another router, which must
+hold the twin's certificate too (only it may serve TLS: :mod:`cellsim.live.pki`)."""
 
 
 def access_control(grants: dict[str, Grant] = GRANTS) -> dict:

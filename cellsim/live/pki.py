@@ -12,9 +12,15 @@
 A process needs ``ca.pem`` and its own role's pair, nothing else: copy only those
 to the machine that runs it (and ``can.key`` to the bridge daemon's, where its
 devices authenticate their frames). The twin's access control (:mod:`cellsim.live.access`)
-grants each role what its common name allows. Keys are ECDSA P-256; certificates
-name ``localhost``, 127.0.0.1 and ::1 and any ``--host`` given, so whichever
-process listens can be verified by name.
+grants each role what its common name allows. Keys are ECDSA P-256.
+
+**Only the twin can be a server.** The twin's certificate alone names hosts
+(``localhost``, 127.0.0.1, ::1 and any ``--host``) and alone may authenticate a
+TLS server (extended key usage ``serverAuth``); every other role's certificate
+names no host and is for TLS clients only (``clientAuth``). A client checks the
+server's certificate against the host it dials (``verify_name_on_connect``), so a
+process holding any other role's key, the observer's say, cannot pose as the twin:
+its certificate names no host and is no server's (docs/security.md, "Roles").
 """
 
 from __future__ import annotations
@@ -29,6 +35,8 @@ from pathlib import Path
 
 ROLES = ("twin", "bridge", "emulator", "robot", "engineer", "observer")
 """One certificate each; a process runs as exactly one (docs/security.md, "Roles")."""
+SERVER_ROLE = "twin"
+"""The one role whose certificate names hosts and may serve TLS: every other process connects to it."""
 
 DEFAULT_HOSTS = ("localhost", "127.0.0.1", "::1")
 DEFAULT_DAYS = 365
@@ -70,6 +78,27 @@ def role_files(folder: Path, role: str) -> RoleFiles:
     return files
 
 
+def check_pinned(folder: Path) -> None:
+    """Refuse keys made before roles were pinned: a certificate in ``folder`` of another role than the
+    twin's that names a host or may serve TLS could pose as the twin (rotate: a new folder)."""
+    from cryptography import x509
+    from cryptography.x509.oid import ExtendedKeyUsageOID, ExtensionOID
+
+    for role in ROLES:
+        path = folder / f"{role}.pem"
+        if role == SERVER_ROLE or not path.is_file():
+            continue
+        try:
+            cert = x509.load_pem_x509_certificate(path.read_bytes())
+        except (OSError, ValueError) as e:
+            raise KeysError(f"{path}: not a PEM certificate ({e})") from None
+        extensions = {e.oid: e.value for e in cert.extensions}
+        usages = extensions.get(ExtensionOID.EXTENDED_KEY_USAGE, ())
+        if ExtensionOID.SUBJECT_ALTERNATIVE_NAME in extensions or ExtendedKeyUsageOID.SERVER_AUTH in usages:
+            raise KeysError(f"{path}: the {role}'s certificate may serve TLS as the twin does (keys made before roles "
+                            f"were pinned): make new keys with cellsim keys init NEW_FOLDER and use them")
+
+
 def can_key(folder: Path) -> bytes:
     """The cell's CAN key (16 bytes) from ``folder``, or one error saying what is wrong with it."""
     path = folder / CAN_KEY
@@ -109,7 +138,7 @@ def init_keys(folder: Path, hosts: tuple[str, ...] = (), days: int = DEFAULT_DAY
         _write(staging / "ca.pem", _pem_certificate(ca_cert), private=False)
         _write(staging / "ca.key", _pem_key(ca_key), private=True)
         for role in ROLES:
-            key, cert = _role_certificate(role, ca_key, ca_cert, names, now, days)
+            key, cert = _role_certificate(role, ca_key, ca_cert, names if role == SERVER_ROLE else None, now, days)
             _write(staging / f"{role}.pem", _pem_certificate(cert), private=False)
             _write(staging / f"{role}.key", _pem_key(key), private=True)
         _write(staging / CAN_KEY, os.urandom(16).hex().encode() + b"\n", private=True)
@@ -208,6 +237,8 @@ def _certificate_authority(now, days):
 
 
 def _role_certificate(role, ca_key, ca_cert, names, now, days):
+    """A role's certificate: a server's (``names``: its hosts, ``serverAuth`` and ``clientAuth``) for the
+    twin, a client's (no host, ``clientAuth`` only) for every other role (``names`` None)."""
     from cryptography import x509
     from cryptography.hazmat.primitives import hashes
     from cryptography.hazmat.primitives.asymmetric import ec
@@ -226,14 +257,15 @@ def _role_certificate(role, ca_key, ca_cert, names, now, days):
         .add_extension(x509.KeyUsage(digital_signature=True, content_commitment=False, key_encipherment=False,
                                      data_encipherment=False, key_agreement=False, key_cert_sign=False,
                                      crl_sign=False, encipher_only=False, decipher_only=False), critical=True)
-        # any process may listen (the twin does; a peer may): each is server and client
-        .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
-                       critical=False)
-        .add_extension(x509.SubjectAlternativeName(names), critical=False)
         .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), critical=False)
-        .sign(ca_key, hashes.SHA256())
     )
-    return key, cert
+    if names is None:  # a client only: no host to be reached at, no server's key usage
+        cert = cert.add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.CLIENT_AUTH]), critical=False)
+    else:  # the twin: a server (the router) and, behind another twin's router, a client
+        cert = (cert.add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
+                                   critical=False)
+                .add_extension(x509.SubjectAlternativeName(names), critical=False))
+    return key, cert.sign(ca_key, hashes.SHA256())
 
 
 def _pem_certificate(cert) -> bytes:

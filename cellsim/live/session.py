@@ -76,17 +76,23 @@ def session_config(
     ``listen_by_default``: with no endpoint configured at all, listen on
     :data:`DEFAULT_ENDPOINT` (the twin) instead of connecting to it (everyone else).
     ``wait``: how long (s) a client's session waits at opening for the twin to be reachable.
+
+    Every endpoint, whether from ``listen``, ``connect`` or the file, passes one rule
+    (:func:`check_endpoints`); a file may not touch what makes the session secure
+    (:data:`RESERVED`). Raises :class:`SessionConfigError` (one line) before anything is opened.
     """
     import zenoh
 
     from cellsim.live import pki
 
-    listen = [_check_security(check_endpoint(e, "--listen"), "--listen", insecure) for e in listen]
-    connect = [_check_security(check_endpoint(e, "--connect"), "--connect", insecure) for e in connect]
+    listen = check_endpoints(listen, "--listen", insecure=insecure, role=role, listens=True)
+    connect = check_endpoints(connect, "--connect", insecure=insecure, role=role, listens=False)
     files = None
     if not insecure:
         try:
-            files = pki.role_files(Path(keys) if keys is not None else pki.default_keys_dir(), role)
+            folder = Path(keys) if keys is not None else pki.default_keys_dir()
+            files = pki.role_files(folder, role)
+            pki.check_pinned(folder)
         except pki.KeysError as e:
             raise SessionConfigError(str(e)) from None
     user: dict = {}
@@ -96,9 +102,8 @@ def session_config(
             config = zenoh.Config.from_file(str(path))
         except Exception as e:  # noqa: BLE001 - zenoh raises its own ZError with a multi-line text
             raise SessionConfigError(f"{path}: not a usable Zenoh configuration ({_one_line(e)})") from None
-        # what the file sets: the keys whose value differs from Zenoh's default
-        default = zenoh.Config()
-        user = {key: json.loads(config.get_json(key)) for key in _KEYS if config.get_json(key) != default.get_json(key)}
+        user = _set_by_file(config)
+        _check_file(path, user, insecure=insecure, role=role)
     else:
         config = zenoh.Config()
     if "mode" not in user:
@@ -112,32 +117,98 @@ def session_config(
         config.insert_json5("scouting/gossip/enabled", "false")
     if not listen and not connect and not _has_endpoints(user):
         (listen if listen_by_default else connect).append(INSECURE_ENDPOINT if insecure else DEFAULT_ENDPOINT)
-    if listen or "listen/endpoints" not in user:
+    if listen or not _under(user, "listen/endpoints"):
         config.insert_json5("listen/endpoints", json.dumps(listen))
     if connect:
         config.insert_json5("connect/endpoints", json.dumps(connect))
-    if files is not None and not any(k.startswith("transport/link/tls") for k in user):
-        config.insert_json5("transport/link/tls", json.dumps({
+    # the only links this session may make or take, whatever a scout or a peer's gossip advertises
+    config.insert_json5("transport/link/protocols", json.dumps(["tcp"] if insecure else list(SECURE_PROTOCOLS)))
+    if files is not None:
+        for key, value in {
             "root_ca_certificate": str(files.ca),
             "enable_mtls": True,
             "listen_certificate": str(files.certificate),
             "listen_private_key": str(files.key),
             "connect_certificate": str(files.certificate),
             "connect_private_key": str(files.key),
-            "verify_name_on_connect": True,
+            "verify_name_on_connect": True,  # the server must be the twin: only its certificate names a host
             "close_link_on_expiration": True,
-        }))
-    listens = bool(listen) or _given(user.get("listen/endpoints"))
-    if files is not None and listens and "access_control/enabled" not in user:  # whoever listens enforces the rules
+        }.items():
+            config.insert_json5(f"transport/link/tls/{key}", json.dumps(value))
+    listens = bool(listen or _endpoints(user, "listen/endpoints"))
+    if files is not None and listens:  # whoever listens enforces the rules
         from cellsim.live.access import access_control
 
         config.insert_json5("access_control", json.dumps(access_control()))
     return config
 
 
-_KEYS = ("mode", "scouting/multicast/enabled", "scouting/gossip/enabled", "listen/endpoints", "connect/endpoints",
-         "transport/link/tls/root_ca_certificate", "transport/link/tls/enable_mtls",
-         "transport/link/tls/connect_certificate", "transport/link/tls/listen_certificate", "access_control/enabled")
+RESERVED = ("transport/link/tls", "transport/link/protocols", "transport/auth", "access_control",
+            "adminspace/permissions/write", "plugins", "plugins_loading")
+"""What a configuration file may not set: the session's TLS and certificates, the protocols it may use,
+other authentication, the access control, remote writes to its configuration, plugins (which open
+listeners of their own). cellsim sets these; ``--keys`` and ``--insecure`` choose among them."""
+_TUNABLE = ("transport/link/tls/so_sndbuf", "transport/link/tls/so_rcvbuf")
+"""Socket buffer sizes: under ``transport/link/tls`` but no part of its security."""
+
+
+def check_endpoints(endpoints, where: str, *, insecure: bool, role: str, listens: bool) -> list[str]:
+    """The one rule every endpoint passes, whatever its source (``where``: ``--listen``, ``--connect``, or
+    a file's key): a Zenoh locator; ``tls/`` or ``quic/``, or plain ``tcp/`` on loopback only with
+    ``--insecure``; and, on a secure session, only the twin listens (only its certificate may serve TLS,
+    :data:`cellsim.live.pki.SERVER_ROLE`)."""
+    from cellsim.live.pki import SERVER_ROLE
+
+    checked = [_check_security(check_endpoint(e, where), where, insecure) for e in endpoints]
+    if checked and listens and not insecure and role != SERVER_ROLE:
+        raise SessionConfigError(f"{where} {checked[0]!r}: only the {SERVER_ROLE} listens; the {role} connects to it "
+                                 f"(no other role's certificate may serve TLS: docs/security.md, \"Roles\")")
+    return checked
+
+
+def _set_by_file(config) -> dict:
+    """What a configuration sets: every leaf (``a/b/c``) whose value differs from Zenoh's default."""
+    import zenoh
+
+    return dict(_leaves(json.loads(str(config)), json.loads(str(zenoh.Config())), ""))
+
+
+def _leaves(value, default, prefix: str):
+    if isinstance(value, dict):
+        for key, item in value.items():
+            yield from _leaves(item, default.get(key) if isinstance(default, dict) else None, f"{prefix}{key}/")
+    elif value != default:
+        yield prefix.rstrip("/"), value
+
+
+def _check_file(path: Path, user: dict, *, insecure: bool, role: str) -> None:
+    for key in user:
+        if key not in _TUNABLE and any(_within(key, reserved) for reserved in RESERVED):
+            raise SessionConfigError(f"{path}: {key}: set by cellsim, not by a configuration file (TLS, keys and "
+                                     "access control follow --keys and --insecure)")
+    for name, listens in (("listen/endpoints", True), ("connect/endpoints", False)):
+        check_endpoints(_endpoints(user, name), f"{path}: {name}", insecure=insecure, role=role, listens=listens)
+    if insecure:
+        for key in ("scouting/multicast/enabled", "scouting/gossip/enabled"):
+            if user.get(key):
+                raise SessionConfigError(f"{path}: {key}: --insecure stays on loopback, with no scouting")
+
+
+def _within(key: str, prefix: str) -> bool:
+    return key == prefix or key.startswith(prefix + "/")
+
+
+def _under(user: dict, prefix: str) -> bool:
+    return any(_within(key, prefix) for key in user)
+
+
+def _endpoints(user: dict, prefix: str) -> list[str]:
+    """Every endpoint a file lists under ``prefix``, as a list or per mode (``{router: [...], peer: [...]}``)."""
+    found = []
+    for key, value in user.items():
+        if _within(key, prefix):
+            found += value if isinstance(value, list) else [value] if isinstance(value, str) else []
+    return found
 
 
 def _check_security(endpoint: str, flag: str, insecure: bool) -> str:
@@ -153,14 +224,8 @@ def _check_security(endpoint: str, flag: str, insecure: bool) -> str:
     return endpoint
 
 
-def _given(value) -> bool:
-    if isinstance(value, dict):  # per-mode endpoints: {"peer": [...], "router": [...]}
-        return any(_given(v) for v in value.values())
-    return bool(value)
-
-
 def _has_endpoints(user: dict) -> bool:
-    return _given(user.get("listen/endpoints")) or _given(user.get("connect/endpoints"))
+    return bool(_endpoints(user, "listen/endpoints") or _endpoints(user, "connect/endpoints"))
 
 
 def _one_line(error: Exception) -> str:
