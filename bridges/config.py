@@ -54,6 +54,9 @@ class DeviceMapping:
     """How often the device sends (s)."""
     watchdog: Seconds = 0.1
     """With no good frame for this long the device is failed (s)."""
+    e2e_only: str | None = None
+    """Why this device's message is not authenticated (its device cannot compute a MAC): required for a
+    message without ``Freshness`` and ``Mac`` signals, said by the daemon at start; none otherwise."""
 
     def __post_init__(self):
         if self.watchdog <= self.cycle_time:
@@ -73,6 +76,9 @@ class CommandMapping:
     watchdog: Seconds = 0.5
     """With no good command from the twin for this long (s) it counts as lost: the entity kind's safe
     command goes out."""
+    e2e_only: str | None = None
+    """Why this frame is not authenticated (its device cannot check a MAC): required for a message without
+    ``Freshness`` and ``Mac`` signals, said by the daemon at start; none otherwise."""
 
 
 @dataclass
@@ -169,9 +175,21 @@ class LoadedBridge:
         """The DBC messages of the configuration that are authenticated (``bridges.secoc``)."""
         from bridges.secoc import is_authenticated
 
+        return [n for n in dict.fromkeys(m.message for _, m in self.mappings())
+                if is_authenticated(self.database.get_message_by_name(n))]
+
+    def mappings(self) -> list[tuple[str, object]]:
+        """(entity, mapping) of every device and command frame, devices first."""
         cfg = self.config
-        names = [d.message for d in cfg.devices.values()] + [m.message for ms in cfg.commands.values() for m in ms]
-        return [n for n in dict.fromkeys(names) if is_authenticated(self.database.get_message_by_name(n))]
+        return [*cfg.devices.items(), *((e, m) for e, ms in cfg.commands.items() for m in ms)]
+
+    def e2e_only(self) -> list[str]:
+        """One line per message sent without authentication, with its configuration's reason (the daemon
+        says these at start)."""
+        cfg = self.config
+        lines = [f"{m.message} from {e}: {m.e2e_only}" for e, m in cfg.devices.items() if m.e2e_only is not None]
+        return lines + [f"{m.message} to {e}: {m.e2e_only}" for e, ms in cfg.commands.items() for m in ms
+                        if m.e2e_only is not None]
 
     def safe_signals(self, mapping: CommandMapping) -> dict:
         """The frame's signal values of the entity's safe command (``none`` for no request)."""
@@ -229,7 +247,13 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
 
         message = messages[mapping.message]
         if not is_authenticated(message):
+            if mapping.e2e_only is None or not mapping.e2e_only.strip():
+                raise error(f"{key}.message", f"'{mapping.message}' is not authenticated (no Freshness and Mac "
+                            "signals): a forged frame would pass its CRC and counter; use an authenticated message, "
+                            "or say why its device cannot compute a MAC with e2e_only: REASON")
             return
+        if mapping.e2e_only is not None:
+            raise error(f"{key}.e2e_only", f"'{mapping.message}' is authenticated: e2e_only does not apply")
         if cfg.freshness_tick > mapping.cycle_time:
             raise error("freshness_tick", f"{cfg.freshness_tick:g} s is longer than the cycle time of "
                         f"{mapping.message} ({mapping.cycle_time:g} s): its frames would run ahead of the clock")

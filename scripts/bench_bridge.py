@@ -2,7 +2,7 @@
 """Benchmark: the bridge daemon at nominal and at ten times nominal CAN load.
 
 For each load the bench starts a python-can-remote server on loopback and a
-``cellsim bridge bridges/welding_cell.yaml`` process, and plays everything
+``cellsim bridge`` process, and plays everything
 around the daemon itself:
 
 * the CAN devices: the light curtain, the scanner and the welder status, each
@@ -14,11 +14,12 @@ around the daemon itself:
   at once).
 
 Each load runs in turns: with mutual TLS and the twin's access control (the default of
-every cellsim session, keys made for the run), with plain TCP (``--insecure``), and with
-TLS and authenticated CAN frames (``secoc``: bridges/welding_cell_authenticated.yaml, the
-curtain's frames carrying a freshness value and a truncated CMAC that the daemon checks,
-the welder's requests signed by it), so the costs of TLS and of SecOC are read beside the
-plain figures of the same run.
+every cellsim session, keys made for the run) and CAN frames end-to-end protected only
+(``tls``: the shipped configuration with every message's ``e2e_only`` plain counterpart), the
+same over plain TCP (``--insecure``, ``plain``), and the shipped configuration as it is
+(``secoc``: TLS, and every device's frames carrying a freshness value and a truncated CMAC
+that the daemon checks, every command frame signed by it), so the costs of TLS and of SecOC
+are read beside the plain figures of the same run.
 
 It prints per load and security: the latency the daemon adds from a CAN frame received to its
 Zenoh sample published, and from a changed command received to its frames sent
@@ -50,8 +51,8 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from live_processes import can_server, free_port, processes, wait_alive  # noqa: E402
 
-CONFIG = ROOT / "bridges" / "welding_cell.yaml"
-AUTHENTICATED = ROOT / "bridges" / "welding_cell_authenticated.yaml"
+SHIPPED = ROOT / "bridges" / "welding_cell.yaml"
+"""The welding cell's bridge: every message authenticated."""
 VALUES = {"LightCurtainState": {"Broken": 0}, "ScannerState": {"Range": "far", "Distance": 3.5},
           "WelderStatus": {"SafetyMode": "normal", "Activity": "idle"}}
 """What each device says, by message (an authenticated message: by the name it extends)."""
@@ -140,7 +141,21 @@ def play_twin(session, cell: str, stop: threading.Event) -> None:
         pause.wait(0.1)
 
 
-def run_load(load: float, seconds: float, tmp: Path, key_dir: Path | None, config: Path = CONFIG) -> dict:
+def e2e_only(folder: Path) -> Path:
+    """The shipped configuration with each message's plain (E2E-only) counterpart, each by explicit choice."""
+    import re
+
+    text = SHIPPED.read_text().replace("scenario: ../scenarios/", f"scenario: {ROOT / 'scenarios'}/")
+    text = text.replace("dbc: welding_cell.dbc", f"dbc: {ROOT / 'bridges' / 'welding_cell.dbc'}")
+    text = re.sub(r"^( *)(- )?message: (\w+)Authenticated$",
+                  lambda m: f"{m[1]}{m[2] or ''}message: {m[3]}\n{m[1]}{'  ' if m[2] else ''}e2e_only: the benchmark's baseline",
+                  text, flags=re.M)
+    path = folder / "e2e_only.yaml"
+    path.write_text(text)
+    return path
+
+
+def run_load(load: float, seconds: float, tmp: Path, key_dir: Path | None, config: Path = SHIPPED) -> dict:
     """One load for ``seconds``; ``key_dir``: mutual TLS with those keys (and their CAN key for an
     authenticated ``config``), None: plain TCP (--insecure)."""
     import can
@@ -212,7 +227,8 @@ def main() -> None:
     parser.add_argument("--loads", type=float, nargs="+", default=[1.0, 10.0], help="loads to run (default 1 10)")
     parser.add_argument("--profile", metavar="FILE", help="run the daemon under cProfile, statistics to FILE")
     parser.add_argument("--security", nargs="+", choices=("tls", "plain", "secoc"), default=["tls", "plain", "secoc"],
-                        help="mutual TLS, plain TCP, TLS with authenticated CAN frames, taking turns (default: all)")
+                        help="mutual TLS with E2E-only frames, the same on plain TCP, TLS with every frame authenticated "
+                        "(the shipped configuration), taking turns (default: all)")
     args = parser.parse_args()
     global PROFILE
     PROFILE = args.profile
@@ -226,7 +242,7 @@ def main() -> None:
             for security in args.security:
                 print(f"load {load:g}x nominal, {security}, for {args.seconds:g} s ...", file=sys.stderr, flush=True)
                 r = run_load(load, args.seconds, Path(tmp), None if security == "plain" else keys,
-                             AUTHENTICATED if security == "secoc" else CONFIG)
+                             SHIPPED if security == "secoc" else e2e_only(Path(tmp)))
                 results[security].append(r)
                 f, c = r["frame_ms"], r["command_ms"]
                 print(f"{load:g}x nominal, {security}: {r['frames']} CAN frames ({r['frames'] / args.seconds:.0f}/s), "

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import json
 import queue
+import re
 import time
+from pathlib import Path
 
 import can
 import pytest
@@ -22,13 +24,30 @@ from cellsim.vocabulary import Range
 from conftest import ROOT
 from live_processes import free_port, wait_for
 
-CONFIG = ROOT / "bridges" / "welding_cell.yaml"
+SHIPPED = ROOT / "bridges" / "welding_cell.yaml"
 
 
 def config_text() -> str:
     """The welding cell's bridge configuration, naming its scenario by an absolute path (to be copied)."""
-    return CONFIG.read_text().replace("scenario: ../scenarios/welding_cell.yaml",
-                                      f"scenario: {ROOT / 'scenarios' / 'welding_cell.yaml'}")
+    return SHIPPED.read_text().replace("scenario: ../scenarios/welding_cell.yaml",
+                                       f"scenario: {ROOT / 'scenarios' / 'welding_cell.yaml'}")
+
+
+def e2e_only_text() -> str:
+    """The welding cell's bridge with every message end-to-end protected only (the DBC's plain messages),
+    each by the explicit choice a device that cannot compute a MAC needs: the E2E checks in isolation."""
+    text = config_text().replace("dbc: welding_cell.dbc", f"dbc: {ROOT / 'bridges' / 'welding_cell.dbc'}")
+    return re.sub(r"^( *)(- )?message: (\w+)Authenticated$",
+                  lambda m: f"{m[1]}{m[2] or ''}message: {m[3]}\n{m[1]}{'  ' if m[2] else ''}e2e_only: a test of the E2E checks",
+                  text, flags=re.M)
+
+
+@pytest.fixture(scope="module")
+def e2e_config(tmp_path_factory) -> Path:
+    """The E2E-only configuration the daemon-logic tests load."""
+    path = tmp_path_factory.mktemp("e2e-only") / "bridge.yaml"
+    path.write_text(e2e_only_text())
+    return path
 
 
 @pytest.fixture
@@ -45,14 +64,14 @@ def sessions():
         hub.close()
 
 
-def test_checked_frames_become_samples_and_any_failure_a_link_failure_at_once(sessions):
+def test_checked_frames_become_samples_and_any_failure_a_link_failure_at_once(sessions, e2e_config):
     """The daemon forwards each frame's outcome at once (the twin applies recover-after, once): a good
     frame as the entity's sample, a bad one or silence as a failure, so the twin fails safe as its kind says."""
     hub, watcher = sessions
     received: queue.Queue = queue.Queue()
     subscriber = watcher.declare_subscriber("cellsim/welding_cell/physical/**",
                                             lambda s: received.put((str(s.key_expr), s.payload.to_bytes())))
-    loaded = load_bridge(CONFIG)
+    loaded = load_bridge(e2e_config)
     bridge = Bridge(loaded, hub)
     curtain = loaded.database.get_message_by_name("LightCurtainState")
     device = can.Bus(interface="virtual", channel="bridge-test", receive_own_messages=False)
@@ -111,8 +130,8 @@ def test_checked_frames_become_samples_and_any_failure_a_link_failure_at_once(se
         bus.shutdown()
 
 
-def test_enumerations_go_out_by_name():
-    loaded = load_bridge(CONFIG)
+def test_enumerations_go_out_by_name(e2e_config):
+    loaded = load_bridge(e2e_config)
 
     class Recorder:
         def __init__(self):
@@ -145,7 +164,14 @@ def test_enumerations_go_out_by_name():
 @pytest.mark.parametrize(
     "old, new, key, expected",
     [
-        ("message: LightCurtainState", "message: LightCurtain", "devices.light_barrier.message", "no message 'LightCurtain'"),
+        ("message: LightCurtainStateAuthenticated", "message: LightCurtain", "devices.light_barrier.message", "no message 'LightCurtain'"),
+        # a message without a MAC only by an explicit, reasoned choice; and only where it has none
+        ("message: ScannerStateAuthenticated", "message: ScannerState", "devices.range_detector.message",
+         "'ScannerState' is not authenticated (no Freshness and Mac signals)"),
+        ("    - message: WelderCommandAuthenticated\n", "    - message: WelderCommand\n      e2e_only: ' '\n",
+         "commands.welder.1.message", "'WelderCommand' is not authenticated"),
+        ("    message: WelderStatusAuthenticated\n", "    message: WelderStatusAuthenticated\n    e2e_only: no MAC here\n",
+         "devices.welder.e2e_only", "'WelderStatusAuthenticated' is authenticated: e2e_only does not apply"),
         ("fields: {broken: Broken}", "fields: {broken: Brokn}", "devices.light_barrier.fields.broken", "no signal 'Brokn'"),
         ("dbc: welding_cell.dbc", "dbc: welding.dbc", "dbc", "file not found: welding.dbc"),
         ("scenario: SCENARIO", "scenario: nowhere.yaml", "scenario", "file not found: nowhere.yaml"),
@@ -177,20 +203,20 @@ def test_a_configuration_that_does_not_match_its_dbc_or_scenario_is_one_error_na
     assert e.value.key == key and expected in str(e.value) and e.value.line is not None, (e.value.key, str(e.value))
 
 
-def test_what_a_device_is_told_when_the_twin_is_lost_is_its_kinds_safe_command():
-    loaded = load_bridge(CONFIG)
+def test_what_a_device_is_told_when_the_twin_is_lost_is_its_kinds_safe_command(e2e_config):
+    loaded = load_bridge(e2e_config)
     assert loaded.safe["welder"] == {"safety_mode_request": "stopped", "activity_request": "off", "command": 0.0}
     assert [loaded.safe_signals(m) for m in loaded.config.commands["welder"]] == [
         {"SafetyMode": "stopped"}, {"ActivityRequest": "off", "Weld": 0.0}]
     assert loaded.safe["robot"]["safety_mode_request"] == "stopped"
 
 
-def test_commands_reach_the_bus_only_in_twin_mode_and_the_safe_ones_when_the_supervisor_is_lost(sessions):
+def test_commands_reach_the_bus_only_in_twin_mode_and_the_safe_ones_when_the_supervisor_is_lost(sessions, e2e_config):
     import threading
     import time
 
     hub, twin = sessions  # the hub plays the network; the second session plays the twin
-    loaded = load_bridge(CONFIG)
+    loaded = load_bridge(e2e_config)
     bus = can.Bus(interface="virtual", channel="bridge-commands", receive_own_messages=False)
     welder = can.Bus(interface="virtual", channel="bridge-commands")
     request = loaded.database.get_message_by_name("SafetyModeRequest")
@@ -252,13 +278,13 @@ def test_commands_reach_the_bus_only_in_twin_mode_and_the_safe_ones_when_the_sup
         welder.shutdown()
 
 
-def test_the_daemon_loop_publishes_device_frames_until_stopped(sessions):
+def test_the_daemon_loop_publishes_device_frames_until_stopped(sessions, e2e_config):
     import threading
 
     from bridges.daemon import run_bridge
 
     hub, watcher = sessions
-    loaded = load_bridge(CONFIG)
+    loaded = load_bridge(e2e_config)
     bus = can.Bus(interface="virtual", channel="bridge-loop")
     device = can.Bus(interface="virtual", channel="bridge-loop")
     heard = threading.Event()
@@ -301,7 +327,7 @@ def test_the_daemon_loop_publishes_device_frames_until_stopped(sessions):
     assert bridge.unknown_frames == 1 and bridge.devices[scanner.frame_id].checker.counts["length"] == 1
 
 
-def test_cellsim_bridge_refuses_a_bad_configuration_in_one_line(tmp_path):
+def test_cellsim_bridge_refuses_a_bad_configuration_in_one_line(tmp_path, e2e_config):
     import subprocess
     import sys
 
@@ -309,17 +335,17 @@ def test_cellsim_bridge_refuses_a_bad_configuration_in_one_line(tmp_path):
     path.write_text(config_text().replace("dbc: welding_cell.dbc", "dbc: missing.dbc"))
     proc = subprocess.run([sys.executable, "-m", "cellsim", "bridge", str(path)], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and "file not found: missing.dbc" in proc.stderr
-    proc = subprocess.run([sys.executable, "-m", "cellsim", "bridge", str(CONFIG), "--can", "socketcan"],
+    proc = subprocess.run([sys.executable, "-m", "cellsim", "bridge", str(e2e_config), "--can", "socketcan"],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "expected INTERFACE:CHANNEL" in proc.stderr
 
 
 def test_a_command_frame_without_end_to_end_protection_is_refused_at_load(tmp_path):
     dbc = (ROOT / "bridges" / "welding_cell.dbc").read_text()
-    dbc = dbc.replace('''BO_ 512 SafetyModeRequest: 4 Bridge
+    dbc = dbc.replace('''BO_ 513 SafetyModeRequestAuthenticated: 8 Bridge
  SG_ Crc : 0|8@1+ (1,0) [0|255] "" Welder
  SG_ Counter : 8|4@1+ (1,0) [0|15] "" Welder
-''', "BO_ 512 SafetyModeRequest: 4 Bridge\n")
+''', "BO_ 513 SafetyModeRequestAuthenticated: 8 Bridge\n")
     (tmp_path / "welding_cell.dbc").write_text(dbc)
     path = tmp_path / "bridge.yaml"
     path.write_text(config_text())
@@ -334,7 +360,7 @@ def _state(seq: int, t: float, q0: float = 0.5, **over) -> bytes:
     return json.dumps(state).encode()
 
 
-def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_state(sessions):
+def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_state(sessions, e2e_config):
     """States at 500 Hz over Zenoh: checked, published as the robot's physical sample and as a CDR
     sensor_msgs/JointState on the key zenoh-bridge-ros2dds maps to /welding_cell/joint_states."""
     import threading
@@ -353,7 +379,7 @@ def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_s
         controller.declare_subscriber("cellsim/welding_cell/diagnostics/robot", lambda s: statuses.put(json.loads(s.payload.to_bytes()))),
     ]
     state = controller.declare_publisher("cellsim/welding_cell/controller/robot/state")
-    bridge = Bridge(load_bridge(CONFIG), hub)
+    bridge = Bridge(load_bridge(e2e_config), hub)
     stop = threading.Event()
     loop = threading.Thread(target=run_bridge, args=(bridge, None, stop), daemon=True)
     loop.start()
@@ -437,14 +463,14 @@ def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_s
     assert not loop.is_alive()
 
 
-def test_robot_requests_go_to_the_controller_in_twin_mode_and_a_stop_when_the_twin_is_lost(sessions):
+def test_robot_requests_go_to_the_controller_in_twin_mode_and_a_stop_when_the_twin_is_lost(sessions, e2e_config):
     import time
 
     hub, twin = sessions
     requests: queue.Queue = queue.Queue()
     subscriber = twin.declare_subscriber("cellsim/welding_cell/controller/robot/request",
                                          lambda s: requests.put(json.loads(s.payload.to_bytes())))
-    bridge = Bridge(load_bridge(CONFIG), hub)
+    bridge = Bridge(load_bridge(e2e_config), hub)
     mode = twin.declare_publisher("cellsim/welding_cell/twin/robot/twin_mode")
     command = twin.declare_publisher("cellsim/welding_cell/command/robot")
     token = twin.liveliness().declare_token("cellsim/welding_cell/alive/twin")
@@ -482,12 +508,12 @@ def test_robot_requests_go_to_the_controller_in_twin_mode_and_a_stop_when_the_tw
         bridge.close()
 
 
-def test_an_emulated_device_fails_safe_on_a_bad_command_frame_as_the_real_one_would():
+def test_an_emulated_device_fails_safe_on_a_bad_command_frame_as_the_real_one_would(e2e_config):
     from types import SimpleNamespace
 
     from bridges.devices import EmulatedDevices
 
-    loaded = load_bridge(CONFIG)
+    loaded = load_bridge(e2e_config)
     bus = can.Bus(interface="virtual", channel="emulated-welder")
     daemon = can.Bus(interface="virtual", channel="emulated-welder")
     delivered: queue.Queue = queue.Queue()
@@ -554,7 +580,7 @@ def test_the_packed_joint_state_is_byte_for_byte_what_rosbags_serialises():
         assert encoder.encode(t, q, qd) == bytes(expected)
 
 
-def test_a_bus_that_refuses_a_frame_does_not_stop_the_daemons_loop(sessions):
+def test_a_bus_that_refuses_a_frame_does_not_stop_the_daemons_loop(sessions, e2e_config):
     import threading
 
     from bridges.daemon import run_bridge
@@ -570,7 +596,7 @@ def test_a_bus_that_refuses_a_frame_does_not_stop_the_daemons_loop(sessions):
             FullBus.sends += 1
             raise can.CanOperationError("transmit buffer full")
 
-    bridge = Bridge(load_bridge(CONFIG), hub, bus=FullBus())
+    bridge = Bridge(load_bridge(e2e_config), hub, bus=FullBus())
     bridge._twin_alive, bridge._modes = True, {"welder": "twin"}  # commands are due every cycle
     stop, cycles = threading.Event(), [0]
 
@@ -587,13 +613,13 @@ def test_a_bus_that_refuses_a_frame_does_not_stop_the_daemons_loop(sessions):
     assert not loop.is_alive() and cycles[0] >= 5 and FullBus.sends >= 2
 
 
-def test_a_future_stamped_command_does_not_keep_a_lost_twin_in_charge(sessions):
+def test_a_future_stamped_command_does_not_keep_a_lost_twin_in_charge(sessions, e2e_config):
     """Issue 22: a twin command stamped far ahead used to count as fresh for ever; now freshness is the
     daemon's own clock, so when the twin's commands stop, the safe command goes out after the watchdog."""
     import time
 
     hub, twin = sessions
-    loaded = load_bridge(CONFIG)
+    loaded = load_bridge(e2e_config)
     bus = can.Bus(interface="virtual", channel="bridge-future", receive_own_messages=False)
     welder = can.Bus(interface="virtual", channel="bridge-future")
     request = loaded.database.get_message_by_name("SafetyModeRequest")
@@ -629,11 +655,11 @@ def test_a_future_stamped_command_does_not_keep_a_lost_twin_in_charge(sessions):
         welder.shutdown()
 
 
-def test_a_future_stamped_controller_state_is_refused_and_the_robot_goes_stale_when_states_stop(sessions):
+def test_a_future_stamped_controller_state_is_refused_and_the_robot_goes_stale_when_states_stop(sessions, e2e_config):
     import time
 
     hub, _ = sessions
-    bridge = Bridge(load_bridge(CONFIG), hub)
+    bridge = Bridge(load_bridge(e2e_config), hub)
     link = bridge.robots["robot"]
     try:
         now = time.monotonic()
@@ -646,3 +672,30 @@ def test_a_future_stamped_controller_state_is_refused_and_the_robot_goes_stale_w
         assert link.checker.link.value == "stale"
     finally:
         bridge.close()
+
+
+def test_the_daemon_says_at_start_which_messages_go_without_authentication(tmp_path, e2e_config):
+    """An E2E-only message is the configuration's explicit choice, and the daemon says so, with the reason, at
+    every start (here against a loopback hub; the process is stopped by its PID)."""
+    import signal
+
+    from live_processes import processes
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    hub = zenoh.open(session_config(role="twin", insecure=True, listen=[endpoint], listen_by_default=True))
+    try:
+        with processes() as start:
+            daemon = start(["bridge", str(e2e_config), "--can", "virtual:e2e-only-start", "--insecure", "--connect", endpoint],
+                           tmp_path / "bridge.log")
+            wait_for(lambda: "cellsim bridge: welding_cell on" in daemon.output() or daemon.popen.poll() is not None, 60,
+                     "the daemon started")
+            assert daemon.stop(signal.SIGINT) == 130, daemon.output()
+    finally:
+        hub.close()
+    warnings = [line for line in daemon.output().splitlines() if "not authenticated, E2E only" in line]
+    assert [w.rsplit(": ", 2)[1] for w in warnings] == [
+        "LightCurtainState from light_barrier", "ScannerState from range_detector", "WelderStatus from welder",
+        "SafetyModeRequest to welder", "WelderCommand to welder"]
+    assert all(w.endswith(": a test of the E2E checks") for w in warnings)
+    shipped = load_bridge(SHIPPED)
+    assert shipped.e2e_only() == [] and len(shipped.authenticated()) == 5  # the shipped cell: every message

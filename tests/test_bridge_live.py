@@ -20,13 +20,12 @@ from conftest import ONE_AT_A_TIME
 from cellsim.services.blackbox import BlackBox
 
 from live_processes import (ROOT, assert_supervised, can_server, free_port, observer, offset_of, processes,
-                            sim_time_reached, wait_alive, wait_for)
+                            sim_time_reached, start_emulator, start_twin_and_bridge, wait_alive, wait_for, CommandFrames)
 
 
 pytestmark = [pytest.mark.slow, ONE_AT_A_TIME]  # processes on loopback: skip locally with -m "not slow"
 WELDING_CELL = str(ROOT / "scenarios" / "welding_cell.yaml")
 BRIDGE = str(ROOT / "bridges" / "welding_cell.yaml")
-AUTHENTICATED = str(ROOT / "bridges" / "welding_cell_authenticated.yaml")
 ENTITIES = ("robot", "welder", "light_barrier", "range_detector", "operator")
 ALL_SHADOW = [arg for e in ENTITIES for arg in ("--set", f"{e}.twin.mode=shadow")]
 TWIN_SUPERVISES = ["--set", "robot.twin.mode=twin", "--set", "welder.twin.mode=twin",
@@ -72,22 +71,7 @@ class Diagnostics:
         self.heard[device] = self.heard.get(device, 0) + 1
 
 
-def _start_twin_and_bridge(start, tmp, twin_args, bus: str, endpoint: str, port: int, config: str = BRIDGE):
-    """The twin, then the daemon (with the bridge configuration ``config``), each once it is up;
-    returns (twin, bridge)."""
-    twin = start(["live", WELDING_CELL, "--out", str(tmp / "twin"), "--listen", endpoint, "--quiet", *twin_args],
-                 tmp / "twin.log")
-    with observer(port) as session:
-        wait_alive(session, "cellsim/welding_cell/alive/twin")
-    bridge = start(["bridge", config, "--can", f"remote:{bus}", "--connect", endpoint], tmp / "bridge.log")
-    with observer(port) as session:
-        wait_alive(session, "cellsim/welding_cell/alive/bridge")
-    return twin, bridge
-
-
-def _start_emulator(start, tmp, args, bus: str, endpoint: str):
-    return start(["emulate", WELDING_CELL, "--can", f"remote:{bus}", "--out", str(tmp / "emulator"),
-                  "--connect", endpoint, "--quiet", *args], tmp / "emulator.log")
+_start_twin_and_bridge, _start_emulator = start_twin_and_bridge, start_emulator
 
 
 def test_each_bus_fault_drives_its_entity_to_fail_safe_within_its_watchdog_and_back(tmp_path):
@@ -143,17 +127,17 @@ def test_with_authenticated_frames_a_forger_on_the_bus_fails_the_curtain_safe_fr
     from bridges.e2e import data_id
     from live_processes import ChannelWatch
 
-    curtain = load_bridge(AUTHENTICATED).database.get_message_by_name("LightCurtainStateAuthenticated")
+    curtain = load_bridge(BRIDGE).database.get_message_by_name("LightCurtainStateAuthenticated")
     port = free_port()
     endpoint = f"tls/127.0.0.1:{port}"
     with processes() as start:
         bus = can_server(start, tmp_path / "can.log")
-        twin, bridge = _start_twin_and_bridge(start, tmp_path, ALL_SHADOW, bus, endpoint, port, AUTHENTICATED)
+        twin, bridge = _start_twin_and_bridge(start, tmp_path, ALL_SHADOW, bus, endpoint, port, BRIDGE)
         with observer(port) as session:
             diagnostics = Diagnostics(session)
             link = ChannelWatch(session, "cellsim/welding_cell/twin/light_barrier/physical_link")
             broken = ChannelWatch(session, "cellsim/welding_cell/twin/light_barrier/broken")
-            emulator = _start_emulator(start, tmp_path, ["--duration", "120", "--bridge", AUTHENTICATED], bus, endpoint)
+            emulator = _start_emulator(start, tmp_path, ["--duration", "120", "--bridge", BRIDGE], bus, endpoint)
             link.wait_for("ok", 90)  # the real curtain's authenticated frames are taken
             forger = can.Bus(interface="remote", channel=bus)
             sent, rng = 0, random.Random(22)
@@ -226,29 +210,19 @@ def test_the_twin_supervises_the_emulated_cell_through_the_bus(tmp_path):
     assert len(verdicts["verdicts"]) == 14
 
 
-def test_a_killed_twin_gets_every_commanded_device_its_safe_command_within_the_watchdog(tmp_path):
+def test_a_killed_twin_gets_every_commanded_device_its_safe_command_within_the_watchdog(tmp_path, cell_keys):
     port = free_port()
     endpoint = f"tls/127.0.0.1:{port}"
     with processes() as start:
         bus = can_server(start, tmp_path / "can.log")
-        listener = can.Bus(interface="remote", channel=bus)
+        requests = CommandFrames(bus, ["SafetyModeRequestAuthenticated"], cell_keys)
         try:
             twin, bridge = _start_twin_and_bridge(start, tmp_path, TWIN_SUPERVISES, bus, endpoint, port)
             emulator = _start_emulator(start, tmp_path, ["--commanded-by-twin"], bus, endpoint)
-            from bridges.config import load_bridge
-            from bridges.e2e import DeviceChecker
-
-            database = load_bridge(BRIDGE).database
-            request = database.get_message_by_name("SafetyModeRequest")
-            checker = DeviceChecker(message=request, timeout=1.0, recover_after=1)
 
             def next_request(deadline: float) -> tuple[float, str]:
-                while time.monotonic() < deadline:
-                    frame = listener.recv(timeout=max(0.0, deadline - time.monotonic()))
-                    if frame is not None and frame.arbitration_id == request.frame_id:
-                        assert checker.check(bytes(frame.data), time.monotonic()).trusted
-                        return time.monotonic(), str(request.decode(bytes(frame.data))["SafetyMode"])
-                raise AssertionError("no SafetyModeRequest frame before the deadline")
+                at, _, values = requests.next(deadline)
+                return at, values["SafetyMode"]
 
             deadline = time.monotonic() + 90
             normal_in_a_row = 0
@@ -265,7 +239,7 @@ def test_a_killed_twin_gets_every_commanded_device_its_safe_command_within_the_w
                 assert next_request(killed + 10)[1] == "stopped"
             assert bridge.popen.poll() is None  # the daemon outlives the twin
         finally:
-            listener.shutdown()
+            requests.close()
         emulator.stop()
         bridge.stop()
     with BlackBox(tmp_path / "emulator" / "blackbox.sqlite") as emu:

@@ -101,9 +101,11 @@ def _after_silence(twin, done: threading.Event) -> None:
 
 
 @pytest.mark.slow
-def test_a_scripted_curtain_gives_the_twin_the_same_rows_over_zenoh_and_over_can_through_the_bridge(tmp_path):
+def test_a_scripted_curtain_gives_the_twin_the_same_rows_over_zenoh_and_over_can_through_the_bridge(tmp_path, cell_keys):
     from bridges.config import load_bridge
     from bridges.e2e import protect
+    from bridges.secoc import Authenticator, message_key
+    from cellsim.live.pki import can_key
 
     rows = {}
     with processes() as start:
@@ -125,12 +127,14 @@ def test_a_scripted_curtain_gives_the_twin_the_same_rows_over_zenoh_and_over_can
                        tmp_path / "bridge.log")
         with observer(port) as session:
             wait_alive(session, "cellsim/welding_cell/alive/bridge")
-        curtain = load_bridge(BRIDGE).database.get_message_by_name("LightCurtainState")
+        loaded = load_bridge(BRIDGE)
+        curtain = loaded.database.get_message_by_name(loaded.config.devices["light_barrier"].message)
+        signer = Authenticator(curtain, message_key(can_key(cell_keys), curtain.frame_id), loaded.config.freshness_tick)
         bus = can.Bus(interface="remote", channel=bus_channel)
         done = threading.Event()
         try:
             _play(lambda i, broken: bus.send(can.Message(arbitration_id=curtain.frame_id, is_extended_id=False,
-                                                         data=protect(curtain, {"Broken": int(broken)}, i))), done)
+                                                         data=protect(curtain, {"Broken": int(broken)}, i, signer))), done)
             _after_silence(twin, done)
         finally:
             bus.shutdown()

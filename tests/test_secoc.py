@@ -29,7 +29,7 @@ from cellsim.vocabulary import PhysicalLink
 
 from conftest import ROOT
 
-AUTHENTICATED = ROOT / "bridges" / "welding_cell_authenticated.yaml"
+AUTHENTICATED = ROOT / "bridges" / "welding_cell.yaml"  # every message authenticated
 DBC = cantools.database.load_file(str(ROOT / "bridges" / "welding_cell.dbc"))
 CURTAIN = DBC.get_message_by_name("LightCurtainStateAuthenticated")
 TICK = 0.01
@@ -219,7 +219,8 @@ def test_the_daemon_without_the_can_key_refuses_to_start_in_one_line_exit_2(tmp_
     proc = subprocess.run([sys.executable, "-m", "cellsim", "bridge", str(AUTHENTICATED), "--keys", str(tmp_path / "keys"),
                            "--can", "virtual:secoc-test"], capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
-    assert "LightCurtainStateAuthenticated, SafetyModeRequestAuthenticated are authenticated" in proc.stderr
+    assert ("LightCurtainStateAuthenticated, ScannerStateAuthenticated, WelderStatusAuthenticated, "
+            "SafetyModeRequestAuthenticated, WelderCommandAuthenticated are authenticated") in proc.stderr
     assert "no can.key" in proc.stderr
 
 
@@ -302,3 +303,110 @@ def test_the_daemon_and_the_emulated_devices_authenticate_each_others_frames(tmp
             bus.shutdown()
         watcher.close()
         hub.close()
+
+
+class _Publishers:
+    """A stand-in for the daemon's Zenoh session: what it would publish, per key."""
+
+    def __init__(self):
+        self.published: dict[str, list] = {}
+
+    def declare_publisher(self, key, **kwargs):
+        outer = self
+
+        class Publisher:
+            def put(self, payload):
+                outer.published.setdefault(key, []).append(json.loads(payload))
+
+        return Publisher()
+
+    def declare_subscriber(self, *args, **kwargs):
+        return self
+
+    def liveliness(self):
+        return self
+
+    def declare_token(self, key):
+        return self
+
+    def undeclare(self):
+        pass
+
+
+def _forged(message, values: dict, counter: int) -> bytes:
+    """What a forger with the DBC but not the key sends: the right CRC and counter, a MAC of another key."""
+    return protect(message, values, counter, Authenticator(message, os.urandom(16), 0.01))
+
+
+def test_every_reading_of_the_shipped_cell_refuses_a_forgery_from_its_first_frame():
+    """Issue 32: the shipped configuration authenticates every device; a forged frame (CRC and counter right)
+    is never a sample, whether it comes first or after the device's own good frames."""
+    from bridges.daemon import Bridge
+
+    loaded = load_bridge(AUTHENTICATED)
+    assert loaded.e2e_only() == []
+    values = {"light_barrier": {"Broken": 0}, "range_detector": {"Range": "far", "Distance": 5.0},
+              "welder": {"SafetyMode": "normal", "Activity": "welding"}}
+    assert set(values) == set(loaded.config.devices)
+    for first in (True, False):
+        session = _Publishers()
+        bridge = Bridge(loaded, session, can_key=CAN_KEY)
+        for entity, mapping in loaded.config.devices.items():
+            message = loaded.database.get_message_by_name(mapping.message)
+            key = f"cellsim/welding_cell/physical/{entity}"
+            real = Authenticator(message, message_key(CAN_KEY, message.frame_id), loaded.config.freshness_tick)
+            counter = 0
+            if not first:
+                for counter in range(3):  # the device's own frames: samples
+                    assert bridge.handle(message.frame_id, protect(message, values[entity], counter, real)).good
+                counter += 1
+            judgement = bridge.handle(message.frame_id, _forged(message, values[entity], counter))
+            assert judgement.fault is Fault.AUTH, (entity, judgement)
+            assert session.published[key][-1]["failed"] == "corrupt", entity  # a failure, at once
+            forged_samples = session.published[key][3 if not first else 0:]
+            assert all("fields" not in p for p in forged_samples), (entity, forged_samples)
+
+
+def test_every_command_of_the_shipped_cell_refuses_a_forgery_from_its_first_frame():
+    """The emulated welder checks the daemon's frames as the real one must: a forged request or command (CRC and
+    counter right) gets the kind's safe values, never what it asks, first or after good frames."""
+    from types import SimpleNamespace
+
+    from bridges.devices import EmulatedDevices
+    from cellsim.channels import number_type
+
+    loaded = load_bridge(AUTHENTICATED)
+    enum = SimpleNamespace(kind="enum")
+    unsafe = {"SafetyModeRequestAuthenticated": {"SafetyMode": "normal"},
+              "WelderCommandAuthenticated": {"ActivityRequest": "welding", "Weld": 1}}
+    assert {m.message for m in loaded.config.commands["welder"]} == set(unsafe)
+    for first in (True, False):
+        for mapping in loaded.config.commands["welder"]:
+            delivered: queue.Queue = queue.Queue()
+            source = SimpleNamespace(inputs=["safety_mode_request", "activity_request", "command"],
+                                     codec=SimpleNamespace(types=[enum, enum, number_type(None)]),
+                                     deliver=lambda payload: delivered.put(json.loads(payload)["fields"]))
+            channel = f"secoc-commands-{mapping.message}-{first}"
+            cell_bus, daemon_bus = (can.Bus(interface="virtual", channel=channel) for _ in range(2))
+            devices = EmulatedDevices(loaded, cell_bus, session=None, can_key=CAN_KEY)
+            message = loaded.database.get_message_by_name(mapping.message)
+            real = Authenticator(message, message_key(CAN_KEY, message.frame_id), loaded.config.freshness_tick)
+            send = lambda data: daemon_bus.send(can.Message(arbitration_id=message.frame_id, data=data,  # noqa: E731
+                                                            is_extended_id=False))
+            try:
+                assert devices.feed_commands(SimpleNamespace(module="welder"), source)
+                counter = 0
+                if not first:
+                    for counter in range(3):  # the daemon's own frames: trusted after three
+                        send(protect(message, unsafe[mapping.message], counter, real))
+                        fields = delivered.get(timeout=5)
+                    asked = {"safety_mode_request": "normal"} if "SafetyMode" in mapping.fields else \
+                        {"activity_request": "welding", "command": 1.0}
+                    assert fields == loaded.safe["welder"] | asked, fields  # the real frames were taken
+                    counter += 1
+                send(_forged(message, unsafe[mapping.message], counter))
+                assert delivered.get(timeout=5) == loaded.safe["welder"], mapping.message  # the safe values
+            finally:
+                devices.close()
+                cell_bus.shutdown()
+                daemon_bus.shutdown()

@@ -50,6 +50,9 @@ def run(args) -> int:
     if args.config is None and zenoh_settings.config:
         args.config = loaded.source.parent / zenoh_settings.config
     bus = _open_can_bus(args.can, default)
+    for line in loaded.e2e_only():  # an explicit choice of the configuration, said at every start
+        print(f"cellsim bridge: warning: not authenticated, E2E only (forgeable by anyone on the bus): {line}",
+              file=sys.stderr)
     try:
         session = _open_session(args, "bridge", listen_by_default=False)
         try:
