@@ -419,6 +419,9 @@ def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_s
         # the last state again, byte for byte (a retransmission): refused and counted, nothing published for it
         # (the 50 ms watchdog may publish "stale" meanwhile: only forwarded states are counted here)
         link = bridge.robots["robot"]
+        # the daemon's loop has taken in every state sent so far (states still in its inbox would be forwarded
+        # after the count below is read: the race that made this test flaky)
+        wait_for(lambda: link.checker.last_seq == seq[0], 5, "every state sent taken in")
         forwarded = link.published - link.failures_published
         state.put(last[0])
         wait_for(lambda: link.checker.counts["repeated"] == 1, 5, "the retransmission refused")

@@ -141,3 +141,50 @@ def test_a_retransmitted_frame_is_no_masquerade():
         checker.check(f, t * 0.04)
         assert checker.check(f, t * 0.04 + 0.001).fault is Fault.REPEATED  # the same frame twice: refused
     assert not checker.masquerade and checker.check(frames(1, start=10)[0], 0.5).trusted
+
+
+# Known-good frames of ScannerState, written out byte for byte: computed once with cantools' own
+# AUTOSAR profile 2 (cantools.autosar.end_to_end.compute_profile2_crc, polynomial 0x2F) over bytes 1..5
+# and the data ID (0x120 + counter) mod 256, not with bridges.e2e.
+KNOWN_GOOD = [
+    (5, {"Range": "near", "Distance": 1.5}, "4f15dc050000"),  # data ID 0x25
+    (15, {"Range": "close", "Distance": 60.0}, "ae2f60ea0000"),  # data ID 0x2f; Distance at its DBC maximum
+]
+
+
+@pytest.mark.parametrize("counter, values, frame", KNOWN_GOOD)
+def test_frames_match_known_good_bytes_and_only_their_own_counters_data_id_checks(counter, values, frame):
+    """The data ID follows the counter: the same bytes checked with another counter's ID (the frame id's
+    alone, say) fail; so does a CRC one above or one below the right one."""
+    from cantools.autosar.end_to_end import compute_profile2_crc
+
+    expected = bytes.fromhex(frame)
+    assert protect(SCANNER, values, counter) == expected
+    assert compute_profile2_crc(expected, SCANNER.frame_id % 256) != expected[0]  # the counter-blind ID: another CRC
+    checker = DeviceChecker(message=SCANNER, timeout=0.1, recover_after=1)
+    assert checker.check(expected, 0.0).trusted
+    for delta in (+1, -1):
+        spoiled = bytes([(expected[0] + delta) % 256]) + expected[1:]
+        assert DeviceChecker(message=SCANNER, timeout=0.1).check(spoiled, 0.0).fault is Fault.CRC, delta
+
+
+def test_a_frame_longer_or_shorter_than_its_message_is_a_length_fault():
+    good = bytes.fromhex(KNOWN_GOOD[0][2])
+    for data in (good + b"\x00", good[:-1], good + good):
+        assert DeviceChecker(message=SCANNER, timeout=0.1).check(data, 0.0).fault is Fault.LENGTH, data.hex()
+
+
+def test_a_value_is_judged_against_its_dbc_range_at_the_boundary():
+    """Distance: 16 bits of 1 mm can carry 65.535 m; the DBC allows [0, 60]. Exactly 60 m is good, one step
+    more is out of range (a frame with a right CRC and counter, made around cantools' own range check)."""
+    from cantools.autosar.end_to_end import compute_profile2_crc
+
+    def frame(raw_mm: int, counter: int) -> bytes:
+        data = bytearray(protect(SCANNER, {"Range": "far", "Distance": 0.0}, counter))
+        data[2:4] = raw_mm.to_bytes(2, "little")
+        data[0] = compute_profile2_crc(bytes(data), data_id(SCANNER.frame_id, counter))
+        return bytes(data)
+
+    for raw, fault in ((60_000, None), (60_001, Fault.RANGE), (65_000, Fault.RANGE), (65_535, Fault.RANGE)):
+        checker = DeviceChecker(message=SCANNER, timeout=0.1, recover_after=1)
+        assert checker.check(frame(raw, 3), 0.0).fault is fault, raw

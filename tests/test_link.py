@@ -83,3 +83,40 @@ def test_a_forger_jumping_the_sequence_again_and_again_is_a_masquerade_not_a_tak
         if fault is None:
             break
     assert not link.masquerade and fault is None and seq - 10 >= 4  # a stable run of clear_after first
+
+
+def test_stamps_are_judged_at_their_exact_boundaries():
+    """A stamp exactly the watchdog old is still fresh and one a hair older is late; exactly the skew ahead is
+    taken and a hair more is refused (binary fractions: no rounding decides these)."""
+    import math
+
+    link = LinkTrust(timeout=0.25, future_skew=0.5)
+    assert link.stamp(999.75, now_wall=1000.0) is None
+    assert link.stamp(math.nextafter(999.75, 0.0), now_wall=1000.0) is Fault.LATE
+    assert link.stamp(1000.5, now_wall=1000.0) is None
+    assert link.stamp(math.nextafter(1000.5, math.inf), now_wall=1000.0) is Fault.FUTURE
+    assert link.stamp(math.nan, now_wall=1000.0) is Fault.FUTURE
+
+
+def test_the_watchdog_fires_only_past_its_timeout():
+    import math
+
+    link = LinkTrust(timeout=0.25, recover_after=1)
+    link.good(1.0)
+    assert link.watchdog(1.25) is None  # exactly the timeout since the last good message
+    assert link.watchdog(math.nextafter(1.25, math.inf)).fault is Fault.TIMEOUT
+
+
+def test_an_old_sequence_number_right_after_a_late_message_is_a_replay_not_a_restart():
+    """A late message makes the link stale, but its sender was heard just now: an old sequence number that
+    follows is refused (a replay). Only a sender silent for longer than the watchdog starts afresh."""
+    import math
+
+    link = LinkTrust(timeout=0.25, recover_after=1)
+    assert link.sequence(7, 0.0) is None
+    link.good(0.0)
+    link.fail(Fault.LATE, 0.125)
+    assert link.link is PhysicalLink.STALE
+    assert link.sequence(5, 0.125) is Fault.REPEATED
+    assert link.sequence(7, 0.25) is Fault.REPEATED  # exactly the watchdog since the last good one: not silent
+    assert link.sequence(3, math.nextafter(0.25, math.inf)) is None  # silent past it: a restarted sender

@@ -356,3 +356,61 @@ def test_a_risk_model_declares_its_own_phases(tmp_path):
     assert system.phases[int(system.GetOutputPort("CLOSE").Eval(context)[0])] == "slowed"
 
 
+
+
+OVERLAPPING = """
+name: overlapping
+monitored:
+  sep: {type: number, unit: m}
+controlled:
+  safmod: {values: [normal, ssmon, stopped], default: normal}
+phases:
+  values: [clear, near, close, gone]
+  initial: clear
+  mishap: gone
+hazards:
+  H:
+    transitions:
+      # both guards hold below 0.5 m: the first listed wins
+      - {phase: clear, to: close, when: sep < 0.5}
+      - {phase: clear, to: near, when: sep < 1.0}
+      - {phase: near, to: clear, when: sep >= 1.0}
+      - {phase: close, to: clear, when: sep >= 1.0}
+      # a transition with no guard, listed after a guarded one that holds: still the guarded one
+      - {phase: close, to: gone, when: sep < 0.1}
+      - {phase: close, to: near}
+    demands:
+      near: {safmod: ssmon}
+      close: {safmod: stopped}
+"""
+
+
+def test_of_transitions_whose_guards_overlap_the_first_listed_wins(tmp_path):
+    """docs/risk-model.md: the first listed transition whose guard holds is taken, one per period. The shipped
+    models' guards are disjoint, so only a model made to overlap shows the order counts."""
+    from cellsim.channels import number_type
+
+    path = tmp_path / "overlapping.yaml"
+    path.write_text(OVERLAPPING)
+    h = Harness.__new__(Harness)
+    h.system = SafetyController("sc", 0.02, load_risk_model(path), {"sep": number_type("m")},
+                                {"safmod": enum_type(SafetyMode)})
+    h.context, h.t, h.inputs = h.system.CreateDefaultContext(), 0.0, {"sep": 3.0}
+
+    def phase() -> str:
+        return h.system.phases[int(h.phase("H"))]
+
+    def safmod() -> str:
+        return SafetyMode.from_code(h.system.GetOutputPort("safmod").Eval(h.context)[0]).value
+
+    h.step(sep=3.0)
+    assert phase() == "clear"
+    h.step(sep=0.4)  # both clear -> close and clear -> near hold
+    assert (phase(), safmod()) == ("close", "stopped")
+    h.step(sep=0.05)  # close -> gone (guarded, listed first) and close -> near (always) both hold
+    assert phase() == "gone"
+    h2 = Harness.__new__(Harness)
+    h2.system, h2.t, h2.inputs = h.system, 0.0, {"sep": 0.7}
+    h2.context = h.system.CreateDefaultContext()
+    h2.step(sep=0.7)  # only clear -> near holds
+    assert h.system.phases[int(h2.phase("H"))] == "near"

@@ -211,3 +211,37 @@ def test_a_second_campaign_into_a_folder_being_written_is_refused(tmp_path, rest
         assert first.poll() is None  # and it goes on
     finally:
         stop(first)
+
+
+def test_a_kill_at_any_moment_loses_at_most_one_simulated_second(tmp_path, monkeypatch):
+    """The record on disk lags the simulation by at most a second: at every commit, read back by another
+    connection, everything the finished record holds before then is already there, and commits come at
+    most one simulated second apart (a SIGKILL between two commits loses what came since the first)."""
+    from cellsim.services.blackbox import BlackBoxWriter
+    from cellsim.simulation import simulate
+
+    from conftest import welding_cell
+
+    seen: list[tuple[float, int]] = []  # (recorded_until, messages on disk up to it) at each commit
+    commit = BlackBoxWriter.commit
+
+    def spy(self, recorded_until: float) -> None:
+        commit(self, recorded_until)
+        db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
+        try:
+            seen.append((recorded_until, db.execute("SELECT COUNT(*) FROM messages WHERE t < ?",
+                                                    (recorded_until - 1e-9,)).fetchone()[0]))
+        finally:
+            db.close()
+
+    monkeypatch.setattr(BlackBoxWriter, "commit", spy)
+    simulate(welding_cell(), tmp_path / "run", seed=3, duration=6.5)
+    times = [0.0] + [t for t, _ in seen]
+    assert max(b - a for a, b in zip(times, times[1:])) <= 1.0 + 1e-9, times
+    assert times[-1] == pytest.approx(6.5)
+    with BlackBox(tmp_path / "run" / BLACKBOX) as bb:
+        final = [m.t for channel in bb.channels() for m in bb.messages(channel)]
+    # what a kill just after this commit would have kept: all of it before then (the samples of the commit's
+    # own instant are taken by the next step, as recorded_until says: the record is complete before it)
+    for until, on_disk in seen:
+        assert on_disk == sum(1 for t in final if t < until - 1e-9), until
