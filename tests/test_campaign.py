@@ -163,7 +163,10 @@ def _processes_in_group(pgid: int) -> list[int]:
     return found
 
 
-def test_ctrl_c_keeps_finished_runs_stops_every_worker_and_the_campaign_resumes(tmp_path, monkeypatch):
+@pytest.mark.parametrize("sig, whole_group", [(signal.SIGINT, False), (signal.SIGTERM, True)])
+def test_ctrl_c_keeps_finished_runs_stops_every_worker_and_the_campaign_resumes(tmp_path, monkeypatch, sig, whole_group):
+    """Ctrl-C to the campaign, or SIGTERM to its whole process group (a batch scheduler stopping the job):
+    the same ending, exit 130, finished runs kept, no worker left."""
     out = tmp_path / "c"
     command = [sys.executable, "-m", "cellsim.cli", "campaign", str(WELDING_CELL), "--runs", "10", "--jobs", "2",
                "--duration", "10", "--out", str(out), "--quiet"]
@@ -175,7 +178,10 @@ def test_ctrl_c_keeps_finished_runs_stops_every_worker_and_the_campaign_resumes(
             assert child.poll() is None, child.stderr.read()
             assert time.monotonic() < deadline, "the campaign finished no run in 120 s"
             time.sleep(0.05)
-        child.send_signal(signal.SIGINT)
+        if whole_group:
+            os.killpg(child.pid, sig)
+        else:
+            child.send_signal(sig)
         _, err = child.communicate(timeout=60)
     finally:
         if child.poll() is None:

@@ -38,11 +38,13 @@ def recorded_until(blackbox: Path) -> float:
     """What the run has committed so far (0 before its first commit)."""
     if not blackbox.exists():
         return 0.0
+    db = sqlite3.connect(f"file:{blackbox}?mode=ro", uri=True, timeout=1.0)
     try:
-        with sqlite3.connect(f"file:{blackbox}?mode=ro", uri=True, timeout=1.0) as db:
-            row = db.execute("SELECT value FROM metadata WHERE key = 'recorded_until'").fetchone()
+        row = db.execute("SELECT value FROM metadata WHERE key = 'recorded_until'").fetchone()
     except sqlite3.OperationalError:  # the file exists but its schema is not written yet
         return 0.0
+    finally:
+        db.close()
     return json.loads(row[0]) if row else 0.0
 
 
@@ -92,6 +94,32 @@ def test_sigkill_keeps_the_record_up_to_the_last_second(tmp_path, capsys):
     assert {v["status"] for v in report["verdicts"].values()} <= {"inconclusive", "violated"}
     assert report["verdicts"]["HC:not_mis"] == {
         "holds": False, "status": "inconclusive", "violated_at": None, "reading": "holds so far"}
+
+
+@pytest.mark.parametrize("reader_open", [False, True])
+def test_sigterm_closes_the_black_box_as_ctrl_c_does(tmp_path, reader_open):
+    """A batch scheduler stops a job with SIGTERM: the run ends as after Ctrl-C, its black box closed with
+    status interrupted and its record complete to the moment it stopped, exit 130; also while someone has
+    the running record open (the file then stays in SQLite's WAL mode, complete)."""
+    out = tmp_path / "terminated"
+    proc = start_simulate(out)
+    reader = None
+    try:
+        wait_for_record(proc, out / BLACKBOX, 2.0)
+        if reader_open:
+            reader = sqlite3.connect(f"file:{out / BLACKBOX}?mode=ro", uri=True)
+            reader.execute("SELECT COUNT(*) FROM messages").fetchone()
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=60)
+        err = proc.stderr.read()
+    finally:
+        stop(proc)
+        if reader is not None:
+            reader.close()
+    assert proc.returncode == 130 and err.strip().splitlines()[-1] == "cellsim: interrupted", err
+    with BlackBox(out / BLACKBOX) as bb:
+        meta = bb.metadata()
+    assert meta["status"] == "interrupted" and meta["recorded_until"] >= 2.0
 
 
 @pytest.mark.parametrize("overwrite", [False, True])

@@ -76,10 +76,11 @@ class LocalPool:
 
 
 def _init_worker(parent: int) -> None:
-    """Workers leave Ctrl-C to the campaign, which cancels what has not started and
-    lets running runs finish, so an interruption loses no finished run; and they
-    end when the campaign process ends, however it ends."""
+    """Workers leave Ctrl-C and SIGTERM (sent to the whole process group, as a batch scheduler does) to the
+    campaign, which cancels what has not started and lets running runs finish, so an interruption loses no
+    finished run; and they end when the campaign process ends, however it ends."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     _end_with_parent(parent)
 
 

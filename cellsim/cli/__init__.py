@@ -2,7 +2,8 @@
 
 Exit codes: 0 all well; 1 a safety finding (a mishap in a run, a safety
 condition violated, inconclusive or with missing data); 2 a usage or input
-error (one line on stderr naming the file, line and key); 130 interrupted.
+error (one line on stderr naming the file, line and key); 130 interrupted (Ctrl-C, or SIGTERM,
+which every command takes as Ctrl-C: a black box is closed, a campaign keeps its finished runs).
 
 One module per command (``cellsim.cli.simulate``, ...), each with ``add_parser(subparsers)``
 (its arguments, help and description; ``handler=run``) and ``run(args) -> int``;
@@ -80,7 +81,8 @@ def _main(argv: list[str] | None) -> int:
         from cellsim.simulation import OutputExistsError
 
     try:
-        return args.handler(args)
+        with _terminate_as_interrupt():
+            return args.handler(args)
     except (ConfigError, OutputExistsError, InputError, SessionConfigError) as e:
         print(f"cellsim: error: {e}", file=sys.stderr)
         return EXIT_INPUT

@@ -15,7 +15,7 @@ from datetime import datetime
 from pathlib import Path
 
 EXIT_OK, EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
-EXIT_CODES = "Exit codes: 0 ok, 1 safety finding, 2 usage or input error, 130 interrupted."
+EXIT_CODES = "Exit codes: 0 ok, 1 safety finding, 2 usage or input error, 130 interrupted (Ctrl-C or SIGTERM)."
 
 
 class InputError(Exception):
@@ -24,20 +24,22 @@ class InputError(Exception):
 
 @contextlib.contextmanager
 def _interrupt_deferred():
-    """Act on Ctrl-C only once the block is done (then as KeyboardInterrupt)."""
+    """Act on Ctrl-C or SIGTERM only once the block is done (then as KeyboardInterrupt)."""
     interrupted = []
-    previous = signal.signal(signal.SIGINT, lambda *_: interrupted.append(True))
+    previous = {sig: signal.signal(sig, lambda *_: interrupted.append(True)) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     if interrupted:
         raise KeyboardInterrupt
 
 
 @contextlib.contextmanager
 def _terminate_as_interrupt():
-    """SIGTERM ends a live process as Ctrl-C does: the black box is closed cleanly."""
+    """SIGTERM (a batch scheduler stopping a job, ``kill``) ends a command as Ctrl-C does: a black box is
+    closed with its status, a campaign keeps its finished runs, and the exit code is 130."""
     def on_term(*_):
         raise KeyboardInterrupt
 

@@ -103,13 +103,20 @@ class BlackBoxWriter:
             self._rows.clear()
 
     def close(self, status: str) -> None:
-        """Flush, record the final status, index, and leave a single self-contained file."""
+        """Flush, record the final status, index, and leave a single self-contained file.
+
+        While another process has the file open (someone reading the running record: ``cellsim check``,
+        a dashboard, sqlite3), SQLite cannot leave WAL mode; the file then stays in it, complete and
+        readable, everything checkpointed into it, rather than the run ending in an error."""
         self.flush()
         self.set_metadata(status=status)
         with self._db:
             self._db.execute("CREATE INDEX IF NOT EXISTS messages_by_channel ON messages(channel, t)")
         self._db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
-        self._db.execute("PRAGMA journal_mode=DELETE")
+        try:
+            self._db.execute("PRAGMA journal_mode=DELETE")
+        except sqlite3.OperationalError:  # "database is locked": a reader has it open
+            pass
         self._db.close()
 
 
