@@ -65,16 +65,29 @@ def test_a_one_run_option_on_a_campaign_folder_is_one_line_and_exit_2(clean, fla
     assert not (tmp_path / "t.json").exists()
 
 
-def test_check_on_a_campaign_folder_leaves_an_unreadable_run_out_and_says_so(clean, tmp_path):
+@pytest.mark.parametrize("damage", ["missing", "corrupt"])
+def test_check_on_a_campaign_folder_with_an_unreadable_run_never_passes(clean, tmp_path, damage):
+    """Evidence never shrinks silently: the figures leave the run out and say so, and the check exits 2
+    (as that run checked alone does), naming the run, in one line on stderr."""
     _, out = clean
     copy = tmp_path / "copy"
     shutil.copytree(out, copy)
-    (copy / "runs" / "0003" / "blackbox.sqlite").unlink()
+    blackbox = copy / "runs" / "0003" / "blackbox.sqlite"
+    if damage == "missing":
+        blackbox.unlink()
+    else:
+        blackbox.write_bytes(b"SQLite format 3\x00" + bytes(range(256)) * 8)
     done = _cellsim("check", copy, "--json")
-    assert done.returncode == 0, done.stderr
+    assert done.returncode == 2, done.stderr
     result = json.loads(done.stdout)
     assert result["bounds"]["excluded_failed_runs"] == 1 and result["bounds"]["overall"]["runs"] == 4
     assert [r["status"] for r in result["runs"]].count("failed") == 1
+    errors = [line for line in done.stderr.splitlines() if line.startswith("cellsim: error:")]
+    assert len(errors) == 1 and "1 of 5 runs" in errors[0] and "0003" in errors[0]
+    table = _cellsim("check", copy)
+    assert table.returncode == 2 and "left out, not checkable: 0003" in table.stdout
+    alone = _cellsim("check", copy / "runs" / "0003")
+    assert alone.returncode == 2
 
 
 def test_until_bound_stops_at_the_first_violation_and_says_the_violation_is_the_finding(tmp_path):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from cellsim.cli.common import EXIT_FINDING, EXIT_OK, InputError
+from cellsim.cli.common import EXIT_FINDING, EXIT_INPUT, EXIT_OK, InputError
 from cellsim.numbers import instant
 
 
@@ -18,7 +18,8 @@ def add_parser(subparsers) -> None:
         "by simulate) or a black-box file. Given a campaign folder, it checks every run and gives, per "
         "condition and for any condition, the violation rate and its exact (Clopper-Pearson) 95 %% upper "
         "bound, with the sampling distribution it holds under. Exits 0 if every condition holds (on every "
-        "run), 1 if one is violated.",
+        "run), 1 if one is violated or undecided, 2 if the run (or any run of the campaign) cannot be checked: "
+        "evidence never shrinks silently.",
     )
     chk.add_argument("run", type=Path, help="run folder, blackbox.sqlite, or campaign folder")
     chk.add_argument(
@@ -159,7 +160,19 @@ def check_campaign(args) -> int:
         sys.stdout.write("\n")
     else:
         print_bounds(args.run, bounds, runs)
+    if _uncheckable(args.run, runs):
+        return EXIT_INPUT
     return EXIT_FINDING if bounds["overall"]["failures"] else EXIT_OK
+
+
+def _uncheckable(folder: Path, runs: list[dict]) -> bool:
+    """Say so, in one line on stderr, if some runs could not be checked: the figures printed leave them out,
+    so the check does not pass (exit 2, as for one such run checked alone)."""
+    failed = [r for r in runs if r["status"] == "failed"]
+    if failed:
+        print(f"cellsim: error: {len(failed)} of {len(runs)} runs of {folder} could not be checked and are left out "
+              f"of the figures above ({failed[0]['run']}: {failed[0]['error']})", file=sys.stderr)
+    return bool(failed)
 
 
 def _report_search_runs(args, runs: list[dict], conditions: list[str], reason: str) -> int:
@@ -185,7 +198,9 @@ def _report_search_runs(args, runs: list[dict], conditions: list[str], reason: s
         console = Console()
         console.print(table)
         console.print(f"No violation rate or bound: {escape(reason)}.", highlight=False)
-    return EXIT_FINDING if any(r["violations"] for r in checked) else EXIT_OK
+    if _uncheckable(args.run, runs):
+        return EXIT_INPUT
+    return EXIT_FINDING if any(r["violations"] or r["undecided"] for r in checked) else EXIT_OK
 
 
 def print_bounds(folder: Path, bounds: dict, runs: list[dict]) -> None:
