@@ -151,15 +151,44 @@ class Inputs:
             if not same:
                 raise ConfigError(str(f.path), None, "", f"the {f.role} changed while the run was being prepared; run again")
 
-    def write_snapshot(self, dest: Path) -> Path:
-        """Write every file under ``dest``, keeping their layout relative to one another;
-        returns the scenario's copy."""
+    def write_snapshot(self, dest: Path) -> tuple[Path, dict[str, str]]:
+        """Write every file under ``dest``, keeping their layout relative to one another; returns the
+        scenario's copy, and the digests of the copies whose text had to change: a scenario (or base)
+        naming its base by an absolute path names the base's copy instead, by a relative one."""
         root = Path(os.path.commonpath([f.path.parent for f in self.files]))
+        copies = {f.key: dest / f.path.relative_to(root) for f in self.files}
+        changed = {}
         for f in self.files:
-            target = dest / f.path.relative_to(root)
-            target.parent.mkdir(parents=True, exist_ok=True)
-            target.write_bytes(f.data)
-        return dest / self.files[0].path.relative_to(root)
+            data = f.data
+            base = copies.get("base 1" if f.key == "scenario" else f"base {int(f.key[5:]) + 1}"
+                              if f.key.startswith("base ") else "")
+            if base is not None:
+                data = _rebase(data, os.path.relpath(base, copies[f.key].parent), f.path)
+                if data != f.data:
+                    changed[f.key] = hashlib.sha256(data).hexdigest()
+            copies[f.key].parent.mkdir(parents=True, exist_ok=True)
+            copies[f.key].write_bytes(data)
+        return copies["scenario"], changed
+
+
+def _rebase(data: bytes, relative: str, source: Path) -> bytes:
+    """A scenario's text with its top-level ``base:`` naming ``relative`` instead of an absolute path
+    (unchanged when it names a relative one, which the snapshot's layout keeps)."""
+    import re
+
+    import yaml
+
+    text = data.decode("utf-8")
+    try:
+        named = yaml.safe_load(text).get("base")
+    except (yaml.YAMLError, AttributeError):
+        named = None
+    if not isinstance(named, str) or not os.path.isabs(named):
+        return data
+    rebased = re.sub(r"(?m)^base:.*$", lambda _: f"base: {json.dumps(relative)}", text, count=1)
+    if yaml.safe_load(rebased).get("base") != relative:
+        raise SnapshotError(f"{source}: cannot point its base: at the snapshot's copy")
+    return rebased.encode("utf-8")
 
 
 def read_inputs(sf) -> Inputs:
@@ -271,8 +300,9 @@ def snapshot_scenario(inputs: Inputs, dest: Path, overrides) -> tuple[Path, tupl
     to its copy by an override. The snapshot must load back to the very inputs
     read, or SnapshotError.
     """
-    scenario = inputs.write_snapshot(dest)
-    top = [f for f in inputs.files if f.parent is None and f.key != "scenario"]
+    scenario, rebased = inputs.write_snapshot(dest)
+    # the files a configuration point names (a base is named by its scenario's text, rebased above)
+    top = [f for f in inputs.files if f.parent is None and f.key != "scenario" and not f.key.startswith("base ")]
     root = Path(os.path.commonpath([f.path.parent for f in inputs.files]))
     all_pinned = tuple(f"{f.key}={json.dumps(str(dest / f.path.relative_to(root)))}" for f in top)
     problem = "the copies load back to other files"
@@ -285,7 +315,7 @@ def snapshot_scenario(inputs: Inputs, dest: Path, overrides) -> tuple[Path, tupl
             problem = str(e)
             continue
         inside = all(f.path.resolve().is_relative_to(dest.resolve()) for f in again.files if not f.named_absolutely)
-        if inside and again.digests() == inputs.digests():
+        if inside and again.digests() == {**inputs.digests(), **rebased}:
             return scenario, pins
     raise SnapshotError(f"cannot snapshot the inputs into {dest}: {problem}")
 

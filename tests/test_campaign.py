@@ -488,3 +488,57 @@ def test_the_re_run_command_of_the_report_redoes_the_run_beside_the_campaign(cam
     assert done.returncode in (0, 1), done.stderr
     with BlackBox(out / run["out"] / "blackbox.sqlite") as original, BlackBox(rerun / "blackbox.sqlite") as again:
         assert again.rows() == original.rows()
+
+
+def _tree(folder: Path) -> dict:
+    """Every file under ``folder`` with its bytes (the lock file's too)."""
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.parametrize("command", ["campaign", "falsify"])
+def test_a_scenario_whose_base_is_named_by_an_absolute_path_runs_as_a_campaign_and_resumes(tmp_path, command):
+    """simulate took such a scenario; a campaign could not snapshot it and left campaign.json behind. Its
+    snapshot names the base's copy instead, by a relative path, and the same command resumes."""
+    derived = tmp_path / "derived.yaml"
+    derived.write_text(f"base: {ROOT / 'scenarios' / 'two_operators.yaml'}\nname: derived\n")
+    args = [command, str(derived), "--duration", "3", "--jobs", "1", "--out", str(tmp_path / "c"), "--quiet",
+            *(["--runs", "2"] if command == "campaign" else ["--budget", "2"])]
+    assert main(args) in (0, 1)
+    copy = next((tmp_path / "c" / "inputs").rglob("derived.yaml"))
+    base = copy.read_text().splitlines()[0]
+    assert base.startswith("base: ") and not Path(json.loads(base[6:])).is_absolute()
+    assert (copy.parent / json.loads(base[6:])).resolve().read_bytes() == (ROOT / "scenarios" / "two_operators.yaml").read_bytes()
+    assert all(r["status"] == "completed" for r in _results(tmp_path / "c")["runs"])
+    if command == "campaign":
+        assert main(args) in (0, 1)  # resumed, not refused
+
+
+@pytest.mark.parametrize("command", ["campaign", "falsify"])
+def test_a_refused_start_writes_nothing_and_leaves_an_earlier_campaign_as_it_was(tmp_path, command, monkeypatch, capsys):
+    """Refused in one line, exit 2, before anything is written: the earlier campaign's files are untouched (no
+    lock file added, nothing discarded by --restart or --overwrite), and no folder is made where there was none."""
+    from cellsim.provenance import SnapshotError
+
+    extra = ["--runs", "2"] if command == "campaign" else ["--budget", "2"]
+    out = tmp_path / "c"
+    base = [command, str(ROOT / "scenarios" / "two_operators.yaml"), "--duration", "3", "--jobs", "1", "--quiet", *extra]
+    assert main([*base, "--out", str(out)]) in (0, 1)
+    before = _tree(out)
+    capsys.readouterr()
+    if command == "campaign":  # a campaign of other inputs, no --restart: refused by what the folder holds
+        assert main([*base, "--out", str(out), "--seed", "9"]) == 2
+        assert "holds a different campaign (seed" in capsys.readouterr().err
+        assert _tree(out) == before
+    # inputs that cannot be snapshotted (forced here: the copies would not load back to the same files)
+
+    def cannot(inputs, dest, overrides):
+        raise SnapshotError(f"cannot snapshot the inputs into {dest}: the copies load back to other files")
+
+    monkeypatch.setattr("cellsim.campaign.runner.snapshot_scenario", cannot)
+    replace = "--restart" if command == "campaign" else "--overwrite"
+    for target, flags in ((out, [replace]), (tmp_path / "fresh", [])):
+        assert main([*base, "--out", str(target), *flags]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "cannot snapshot the inputs into the campaign's inputs/" in err, err
+    assert _tree(out) == before
+    assert not (tmp_path / "fresh").exists()

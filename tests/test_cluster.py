@@ -123,6 +123,52 @@ def test_an_unreachable_scheduler_is_one_line_and_exit_2_with_nothing_written(tm
     assert not (tmp_path / "c").exists()  # refused before the folder was touched: the same command works later
 
 
+@pytest.mark.parametrize("command", [("campaign", "--runs", "2"), ("falsify", "--budget", "2")])
+@pytest.mark.parametrize("answer", [None, b"HTTP/1.1 200 OK\r\nContent-Length: 0\r\n\r\n"])
+def test_a_port_that_is_no_dask_scheduler_is_one_line_within_10_s_and_exit_2_with_nothing_written(tmp_path, command,
+                                                                                                    answer):
+    """A listener that accepts and stays silent (or answers HTTP) used to hold the campaign for ever, after it had
+    written campaign.json and inputs/. It is asked, in Dask's protocol, who it is; no scheduler answers."""
+    import socket
+    import threading
+    import time
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+    port = server.getsockname()[1]
+    stop, accepted = threading.Event(), []
+
+    def serve() -> None:  # accepts, and answers nothing (or HTTP), keeping the connections open
+        server.settimeout(0.1)
+        while not stop.is_set():
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                continue
+            accepted.append(conn)
+            if answer is not None:
+                conn.sendall(answer)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        began = time.monotonic()
+        done = _cellsim(*command[:1], WELDING_CELL, *command[1:], "--scheduler", f"tcp://127.0.0.1:{port}",
+                        "--out", tmp_path / "c", timeout=120)
+        took = time.monotonic() - began
+    finally:
+        stop.set()
+        thread.join(5)
+        for conn in accepted:
+            conn.close()
+        server.close()
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert f"127.0.0.1:{port}" in done.stderr and "Dask scheduler" in done.stderr
+    assert accepted and took < 10 + 15  # the 10 s limit, and a process's start
+    assert not (tmp_path / "c").exists()
+
+
 def test_a_malformed_scheduler_address_is_a_usage_error(tmp_path):
     done = _cellsim("campaign", WELDING_CELL, "--scheduler", "127.0.0.1:8786", "--out", tmp_path / "c")
     assert done.returncode == 2 and "tcp://HOST:PORT" in done.stderr

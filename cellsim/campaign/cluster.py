@@ -47,15 +47,33 @@ class ClusterError(Exception):
     """The cluster cannot be used: unreachable, no workers, or workers of another cellsim."""
 
 
-def check_reachable(address: str) -> None:
-    """Fail at once, before a campaign touches its folder, if nothing answers at the scheduler's address."""
+def check_reachable(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
+    """Fail, before a campaign touches its folder, unless a Dask scheduler answers at ``address`` within
+    ``timeout`` seconds: asked who it is over Dask's own protocol (a port that merely accepts connections,
+    or answers in another protocol, is no scheduler; the connection alone has no limit on its handshake)."""
+    import asyncio
     import socket
 
+    from distributed.core import rpc
+
     host, _, port = address.split("://", 1)[-1].rpartition(":")
-    try:
-        socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT).close()
+    try:  # nothing listening: said at once (Dask's own connect would retry until the timeout)
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
     except (OSError, ValueError) as e:
         raise ClusterError(f"cannot reach the Dask scheduler at {address}: {e}") from None
+
+    async def identity():
+        async with rpc(address, timeout=timeout) as scheduler:
+            return await scheduler.identity()
+
+    try:
+        answer = asyncio.run(asyncio.wait_for(identity(), timeout))
+    except (asyncio.TimeoutError, TimeoutError):
+        raise ClusterError(f"no Dask scheduler answered at {address} within {timeout:g} s") from None
+    except Exception as e:  # noqa: BLE001 - refused, reset, garbage: distributed raises many kinds
+        raise ClusterError(f"cannot reach the Dask scheduler at {address}: {' '.join(str(e).split())[:200] or type(e).__name__}") from None
+    if not isinstance(answer, dict) or answer.get("type") != "Scheduler":
+        raise ClusterError(f"{address} answers, but not as a Dask scheduler")
 
 
 def read_snapshot(folder: Path) -> tuple[str, dict[str, bytes]]:

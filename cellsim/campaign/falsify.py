@@ -46,7 +46,6 @@ campaign gives its ``bounds``).
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import math
@@ -60,7 +59,7 @@ from typing import Callable
 
 import numpy as np
 
-from cellsim.atomic import LOCK, FolderBusy, folder_lock
+from cellsim.atomic import LOCK
 from cellsim.campaign import runner
 from cellsim.campaign.runner import PLAN, CampaignError, CampaignPlan, execute_run
 from cellsim.campaign.space import SearchSpace
@@ -332,18 +331,15 @@ def run_falsify(
                          "(add samplers for the values to search over)")
     inputs = read_inputs(given)
     identity = inputs.identity(plan.overrides, plan.seed, plan.duration)
-    runner.check_scheduler(scheduler)
+    # every refusal before the folder is touched (an earlier search or campaign it replaces included)
     if out.exists() and any(p.name != LOCK for p in out.iterdir()):
         if not overwrite:
             raise CampaignError(f"{out} is not empty; choose another --out, or pass --overwrite to replace it")
         if not (out / PLAN).is_file():
             raise CampaignError(f"{out} holds files no cellsim search or campaign wrote; choose another --out")
-    out.mkdir(parents=True, exist_ok=True)
-    with contextlib.ExitStack() as held:
-        try:
-            held.enter_context(folder_lock(out))
-        except FolderBusy:
-            raise CampaignError(f"{out} is being written by another cellsim process; choose another --out") from None
+    runner.check_scheduler(scheduler)
+    runner.check_snapshot(inputs, plan.overrides)
+    with runner.claimed(out, f"{out} is being written by another cellsim process; choose another --out"):
         runner.discard(out)
         return _search(plan, out, jobs, on_progress, batch, inputs, identity, space, wall_start, scheduler)
 
@@ -377,6 +373,8 @@ def _search(plan: FalsifyPlan, out: Path, jobs, on_progress, batch, inputs, iden
     generation = 0
     with runner.worker_pool(jobs, scheduler, out / INPUTS) as workers:
         submit = workers.submit
+        if on_progress is not None:  # under way: its checks passed, its workers ready
+            on_progress(SearchProgress(0, plan.budget, math.inf, 0))
         while len(results) < plan.budget and first is None:
             points = searcher.ask()[: plan.budget - len(results)]
             start = len(results)

@@ -275,28 +275,9 @@ def prepare(plan: CampaignPlan, out: Path, identity: dict, restart: bool = False
     (never a folder that is not a campaign's).
     """
     plan_path = out / PLAN
-    if plan_path.exists():
-        if restart:
-            discard(out)
-        else:
-            try:
-                previous = json.loads(plan_path.read_text())
-                old = previous.get("identity")
-            except (json.JSONDecodeError, AttributeError) as e:
-                raise CampaignError(f"{plan_path}: unreadable ({e}); {RESTART_HINT}") from None
-            if previous.get("search") is not None:
-                raise CampaignError(f"{out} holds a falsification search, whose runs were chosen, not drawn at random: "
-                                    f"they are never counted as a campaign's; {RESTART_HINT}")
-            if not isinstance(old, dict) or "hash" not in old:
-                raise CampaignError(
-                    f"{out} holds a campaign of an earlier cellsim, which did not record the content of its inputs, "
-                    f"so it cannot be resumed safely; {RESTART_HINT}"
-                )
-            differences = changes(old, identity)
-            if differences:
-                raise CampaignError(f"{out} holds a different campaign ({'; '.join(differences)}); {RESTART_HINT}")
-    elif _holds_others(out):
-        raise CampaignError(f"{out} exists and is not a campaign folder; choose another --out")
+    check_resumable(out, identity, restart)
+    if plan_path.exists() and restart:
+        discard(out)
     out.mkdir(parents=True, exist_ok=True)
     _write_json(plan_path, {"identity": identity, "runs": plan.runs, "scenario": plan.scenario})
     done = []
@@ -311,6 +292,63 @@ def prepare(plan: CampaignPlan, out: Path, identity: dict, restart: bool = False
             if result.get("inputs_hash") == identity["hash"]:
                 done.append(result)  # any other is redone: never count a run of other inputs
     return done
+
+
+def check_resumable(out: Path, identity: dict, restart: bool = False) -> None:
+    """CampaignError unless ``out`` may take this campaign: absent, empty, a campaign of the same ``identity``
+    (resumed), or any campaign's with ``restart``; reads only (called before anything is written, and again
+    under the folder's lock)."""
+    plan_path = out / PLAN
+    if plan_path.exists():
+        if restart:
+            return
+        try:
+            previous = json.loads(plan_path.read_text())
+            old = previous.get("identity")
+        except (json.JSONDecodeError, AttributeError) as e:
+            raise CampaignError(f"{plan_path}: unreadable ({e}); {RESTART_HINT}") from None
+        if previous.get("search") is not None:
+            raise CampaignError(f"{out} holds a falsification search, whose runs were chosen, not drawn at random: "
+                                f"they are never counted as a campaign's; {RESTART_HINT}")
+        if not isinstance(old, dict) or "hash" not in old:
+            raise CampaignError(
+                f"{out} holds a campaign of an earlier cellsim, which did not record the content of its inputs, "
+                f"so it cannot be resumed safely; {RESTART_HINT}"
+            )
+        differences = changes(old, identity)
+        if differences:
+            raise CampaignError(f"{out} holds a different campaign ({'; '.join(differences)}); {RESTART_HINT}")
+    elif _holds_others(out):
+        raise CampaignError(f"{out} exists and is not a campaign folder; choose another --out")
+
+
+def check_snapshot(inputs, overrides) -> None:
+    """CampaignError, before anything is written, if the inputs cannot be snapshotted (made in a scratch folder)."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="cellsim-snapshot-") as scratch:
+        try:
+            snapshot_scenario(inputs, Path(scratch) / INPUTS, overrides)
+        except SnapshotError as e:
+            raise CampaignError(str(e).replace(str(Path(scratch) / INPUTS), "the campaign's inputs/")) from None
+
+
+@contextlib.contextmanager
+def claimed(out: Path, busy: str):
+    """Create (if need be) and lock ``out`` for the block; a refusal before any run was written leaves a folder
+    it created as it found it: absent."""
+    created = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        try:
+            with folder_lock(out):
+                yield
+        except FolderBusy:
+            raise CampaignError(busy) from None
+    except (CampaignError, ValueError):
+        if created and not any((out / RUNS).glob("*/" + RESULT)):
+            shutil.rmtree(out, ignore_errors=True)
+        raise
 
 
 def discard(out: Path) -> None:
@@ -361,15 +399,11 @@ def run_campaign(
     scenario_safety_case(given)
     inputs = read_inputs(given)
     identity = inputs.identity(plan.overrides, plan.seed, plan.duration)
-    if _holds_others(out):  # refused before the folder is touched, lock file included
-        raise CampaignError(f"{out} exists and is not a campaign folder; choose another --out")
+    # every refusal before the folder is touched, lock file included
+    check_resumable(out, identity, restart)
     check_scheduler(scheduler)
-    out.mkdir(parents=True, exist_ok=True)
-    with contextlib.ExitStack() as held:
-        try:
-            held.enter_context(folder_lock(out))
-        except FolderBusy:
-            raise CampaignError(f"{out} is being written by another cellsim campaign; choose another --out") from None
+    check_snapshot(inputs, plan.overrides)
+    with claimed(out, f"{out} is being written by another cellsim campaign; choose another --out"):
         return _run_locked(plan, out, jobs, on_progress, restart, inputs, identity, wall_start, scheduler)
 
 

@@ -246,8 +246,9 @@ class RunsBar:
         self.bar = None
 
     def __enter__(self):
-        if self.quiet:
-            return None
+        return None if self.quiet else self.report
+
+    def _start(self) -> None:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
         eta = (TextColumn("eta"), TimeRemainingColumn()) if self.eta else ()
@@ -255,9 +256,12 @@ class RunsBar:
                             TimeElapsedColumn(), *eta, console=self.console)
         self.bar.start()
         self.task = self.bar.add_task("runs", total=self.total, **self.initial)
-        return self.report
 
     def report(self, progress) -> None:
+        """Show ``progress``; the bar appears with the first report, once the work has passed its checks (a
+        refused start shows no bar before its error)."""
+        if self.bar is None:
+            self._start()
         self.bar.update(self.task, **self.read(progress))
 
     def __exit__(self, *exc):

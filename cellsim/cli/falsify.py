@@ -77,7 +77,7 @@ def run(args) -> int:
 def _search_progress(console, quiet: bool, total: int) -> RunsBar:
     """A progress bar of the budget spent, with the best score so far."""
     return RunsBar(console, quiet, total, "best score {task.fields[best]}  violating {task.fields[violating]}",
-                   dict(best="-", violating=0), lambda p: dict(completed=p.done, best=f"{p.best:.3f}", violating=p.violating),
+                   dict(best="-", violating=0), lambda p: dict(completed=p.done, best=f"{p.best:.3f}" if p.done else "-", violating=p.violating),
                    eta=False)
 
 
