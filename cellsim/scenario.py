@@ -655,20 +655,22 @@ def check_run_length(sf: ScenarioFile, duration: float, key: str = "duration") -
     valid = Range(0.0, MAX_DURATION, lo_open=True, unit="s")
     if not math.isfinite(duration) or not valid.admits(duration):
         raise refuse(f"{duration:g} is out of range: must be in {valid}")
-    steps = duration / sf.scenario.time_step
+    step = sf.scenario.time_step
+    steps = math.ceil(duration / step - 1e-9)  # a whole count: the last step may be partial
     if steps > MAX_PLANT_STEPS:
         raise refuse(
-            f"{duration:g} s at a {sf.scenario.time_step:g} s plant step is {steps:.3g} plant steps, "
-            f"more than the {MAX_PLANT_STEPS:.0e} a run may take: shorten it or lengthen time_step"
+            f"{duration:g} s at a {step:g} s plant step is {steps:,} plant steps, more than the "
+            f"{int(MAX_PLANT_STEPS):,} a run may take: at most {MAX_PLANT_STEPS * step:,.0f} s at this time_step, or a "
+            f"time_step of at least {duration / MAX_PLANT_STEPS:.3g} s"
         )
     periods = _module_periods(sf.scenario)
-    updates = sum(duration / p for p in periods.values())
+    updates = math.ceil(sum(duration / p for p in periods.values()) - 1e-9)
     if updates > MAX_MODULE_UPDATES:
         busiest = sorted(periods, key=periods.get)[:3]
         listed = ", ".join(f"{name} every {periods[name]:g} s" for name in busiest)
         raise refuse(
-            f"{duration:g} s is {updates:.3g} module updates ({listed}{', ...' if len(periods) > 3 else ''}), "
-            f"more than the {MAX_MODULE_UPDATES:.0e} a run may take: shorten it or lengthen the periods"
+            f"{duration:g} s is {updates:,} module updates ({listed}{', ...' if len(periods) > 3 else ''}), "
+            f"more than the {int(MAX_MODULE_UPDATES):,} a run may take: shorten it or lengthen the periods"
         )
 
 

@@ -238,10 +238,14 @@ def test_a_bad_number_in_the_file_names_file_line_and_key_and_writes_nothing(tmp
         (["--duration", "nan"], "--duration: nan is out of range"),
         (["--duration", "0"], "--duration: 0 is out of range"),
         (["--seed", "-1"], "--seed: -1 is out of range"),
-        (["--set", "time_step=0.0001", "--duration", "86400"], "plant steps, more than the 5e+07 a run may take"),
+        (["--set", "time_step=0.0001", "--duration", "86400"],
+         "864,000,000 plant steps, more than the 50,000,000 a run may take: at most 5,000 s at this time_step, "
+         "or a time_step of at least 0.00173 s"),
+        # one step over the limit is said as such, not rounded to the limit itself
+        (["--set", "time_step=0.001", "--duration", "50000.001"], "50,000,001 plant steps, more than the 50,000,000"),
         (["--set", "robot.period=0.002", "--set", "operator.period=0.002", "--set", "safety_controller.period=0.002",
           "--duration", "86400"], "module updates (robot every 0.002 s, operator every 0.002 s, "
-                                  "safety_controller every 0.002 s, ...), more than the 1e+08 a run may take"),
+                                  "safety_controller every 0.002 s, ...), more than the 100,000,000 a run may take"),
     ],
 )
 def test_absurd_runs_are_refused_with_a_reason(tmp_path, args, expected):

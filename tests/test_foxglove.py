@@ -57,7 +57,13 @@ def test_the_arms_links_are_frame_transforms_and_the_cell_a_scene_update(exporte
     sc = load_scenario(ASSEMBLY_BENCH).scenario
     tf = [d for topic, name, _, _, d in messages if topic == "/tf" and name == "foxglove.FrameTransforms"]
     scene = [d for topic, name, _, _, d in messages if topic == "/scene" and name == "foxglove.SceneUpdate"]
-    assert len(tf) > 50 and len(scene) == len(tf)
+    # one /tf per recorded joint state (the arms' times, not the people's too), strictly in time order
+    db = sqlite3.connect(base / "run" / "blackbox.sqlite")
+    joint_times = sorted({t for (t,) in db.execute(
+        "SELECT t FROM messages WHERE channel IN ('loader.joint_positions', 'assembler.joint_positions')")})
+    tf_times = [log for topic, _, _, log, _ in messages if topic == "/tf"]
+    assert tf_times == [round(t * 1e9) for t in joint_times] and len(tf) > 50
+    assert len(scene) >= len(tf)
     frames = {t["child_frame_id"]: t for t in tf[0]["transforms"]}
     for robot in ("loader", "assembler"):
         base_link = frames[f"{robot}/base_link"]["translation"]
@@ -146,7 +152,9 @@ def test_the_live_twin_is_served_on_foxglove_websocket(tmp_path):
         assert twin.stop() in (0, 1, 130)
 
 
-def test_a_foxglove_port_in_use_is_one_line_and_exit_2_with_nothing_written(tmp_path):
+@pytest.mark.parametrize("quiet", [["--quiet"], []])
+def test_a_foxglove_port_in_use_is_one_line_and_exit_2_with_nothing_written(tmp_path, quiet):
+    """Refused before the session opens, so nothing else is said first ("recording to ..." was)."""
     import socket
 
     from conftest import WELDING_CELL
@@ -157,7 +165,7 @@ def test_a_foxglove_port_in_use_is_one_line_and_exit_2_with_nothing_written(tmp_
     taken.listen()
     try:
         done = subprocess.run([sys.executable, "-m", "cellsim", "live", str(WELDING_CELL), "--out", str(tmp_path / "twin"),
-                               "--listen", f"tls/127.0.0.1:{free_port()}", "--quiet", "--wait-physical", "0",
+                               "--listen", f"tls/127.0.0.1:{free_port()}", *quiet, "--wait-physical", "0",
                                "--foxglove", str(taken.getsockname()[1])], capture_output=True, text=True, timeout=120, cwd=ROOT)
     finally:
         taken.close()

@@ -162,11 +162,14 @@ def _cli(*args, **kw):
     ],
 )
 def test_bad_replay_input_is_one_line_and_exit_2(args, says, run, tmp_path):
+    """Every argument is checked before Meshcat starts: Drake says nothing of a Meshcat server (it used to
+    start one, listening, before --at 99 was refused)."""
     (tmp_path / "empty").mkdir()
     names = dict(run=run, missing=tmp_path / "nowhere", empty=tmp_path / "empty", fresh=tmp_path / "fresh")
     result = _cli(*[a.format(**names) for a in args])
     assert result.returncode == 2, result.stderr
-    lines = [line for line in result.stderr.splitlines() if not line.startswith("INFO:drake")]
+    assert "Meshcat" not in result.stderr and "INFO:drake" not in result.stderr, result.stderr
+    lines = result.stderr.splitlines()
     assert len(lines) == 1 and lines[0].startswith("cellsim: error: ") and says in lines[0], result.stderr
     assert not (tmp_path / "fresh").exists()
 
@@ -266,3 +269,14 @@ def test_each_monitored_arm_has_a_floor_disc_coloured_by_what_its_monitor_allows
     assert monitor.look({"loader_ssm.margin": 0.1, "loader_ssm.speed_limit": 0.0}) == "stopped"
     assert monitor.look({"loader_ssm.margin": -0.01, "loader_ssm.speed_limit": 0.3}) == "too_fast"
     assert monitor.look({}) is None
+
+
+@pytest.mark.parametrize("args", [["--at", "99"], ["--at", "-1"], ["--speed", "0"]])
+def test_a_refused_replay_never_starts_meshcat(run, monkeypatch, capsys, args):
+    """The run's end and the speed are checked before the Meshcat server opens (it used to open first)."""
+    from cellsim.cli import main
+
+    opened = []
+    monkeypatch.setattr("cellsim.visual.serve.open_meshcat", lambda *a, **k: opened.append(a) or pytest.fail("opened"))
+    assert main(["replay", str(run), "--meshcat", *args]) == 2
+    assert opened == [] and capsys.readouterr().err.startswith("cellsim: error: ")

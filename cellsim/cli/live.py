@@ -40,30 +40,33 @@ def run(args) -> int:
     from cellsim.cell_io import Live
     from cellsim.simulation import simulate
 
+    feed = None
+
     def check(sf):
+        nonlocal feed
         if not 0.0 <= args.wait_physical <= 3600.0:
             raise InputError(f"--wait-physical {args.wait_physical:g}: expected 0 to 3600 seconds")
         if args.foxglove is not None and not 0 <= args.foxglove <= 65535:
             raise InputError(f"--foxglove {args.foxglove}: expected a port from 0 to 65535")
-
-    def twin(sf, out, session, duration):
-        if not args.quiet:
-            print(f"cellsim live: {sf.scenario.name} twin running, recording to {out}", file=sys.stderr)
-        feed = None
-        if args.foxglove is not None:
+        if args.foxglove is not None:  # bound before the session opens and anything is said or written
             from cellsim.foxglove import FoxgloveFeed
 
             try:
                 feed = FoxgloveFeed(args.foxglove_host, args.foxglove, f"cellsim {sf.scenario.name}")
             except Exception as e:  # noqa: BLE001 - the SDK raises its own errors for a port in use
                 raise InputError(f"--foxglove {args.foxglove}: cannot serve on {args.foxglove_host}: {e}") from None
+
+    def twin(sf, out, session, duration):
+        if not args.quiet:
+            print(f"cellsim live: {sf.scenario.name} twin running, recording to {out}", file=sys.stderr)
+        if feed is not None:  # said even with --quiet: the port (of 0, any free one) is what a viewer needs
             print(f"cellsim live: Foxglove on ws://{args.foxglove_host}:{feed.port}", file=sys.stderr, flush=True)
-        try:
-            summary = simulate(sf, out, io=Live(session, args.wait_physical, foxglove=feed), seed=args.seed,
-                               duration=duration)
-        finally:
-            if feed is not None:
-                feed.close()
+        summary = simulate(sf, out, io=Live(session, args.wait_physical, foxglove=feed), seed=args.seed,
+                           duration=duration)
         return EXIT_FINDING if summary.mishap else EXIT_OK
 
-    return _live_run(args, "twin", True, twin, check)
+    try:
+        return _live_run(args, "twin", True, twin, check)
+    finally:
+        if feed is not None:
+            feed.close()

@@ -38,16 +38,12 @@ class Replay:
     cell: object
 
 
-def replay(run: str | Path, meshcat, *, at: float = 0.0, speed: float = 1.0) -> Replay:
-    """Record the run in ``run`` (a run folder or its black box) into ``meshcat`` and publish the recording.
-
-    Raises ReplayError (or the scenario's ConfigError) for a missing or corrupt
-    run, or ``at`` outside the run.
-    """
+def check_replay(run: str | Path, at: float = 0.0, speed: float = 1.0):
+    """The run's black box, its scenario and its end (s), once ``at`` and ``speed`` are known to fit it;
+    ReplayError (one line) otherwise. Everything a replay checks, before anything is opened or drawn."""
     from cellsim.services.blackbox import BlackBox, BlackBoxError
     from cellsim.validation.check import CheckError, locate_rebuildable_run
     from cellsim.validation.traces import run_end
-    from diagrams.cell import build_cell
 
     if not (math.isfinite(speed) and 0.01 <= speed <= 100.0):
         raise ReplayError(f"--speed {speed:g}: expected from 0.01 to 100 times real time")
@@ -57,12 +53,29 @@ def replay(run: str | Path, meshcat, *, at: float = 0.0, speed: float = 1.0) -> 
         raise ReplayError(str(e)) from None
     try:
         with BlackBox(blackbox) as bb:
+            end, _ = run_end(bb, bb.metadata())
+    except BlackBoxError as e:
+        raise ReplayError(str(e)) from None
+    if end <= 0:
+        raise ReplayError(f"{blackbox}: the run recorded no time (no duration or recorded_until in its metadata)")
+    if not (math.isfinite(at) and 0.0 <= at <= end):
+        raise ReplayError(f"--at {at:g}: expected a time from 0 to {end:g} s (the run's end)")
+    return blackbox, sf, end
+
+
+def replay(run: str | Path, meshcat, *, at: float = 0.0, speed: float = 1.0) -> Replay:
+    """Record the run in ``run`` (a run folder or its black box) into ``meshcat`` and publish the recording.
+
+    Raises ReplayError (or the scenario's ConfigError) for a missing or corrupt
+    run, or ``at`` outside the run.
+    """
+    from cellsim.services.blackbox import BlackBox, BlackBoxError
+    from diagrams.cell import build_cell
+
+    blackbox, sf, end = check_replay(run, at, speed)
+    try:
+        with BlackBox(blackbox) as bb:
             metadata = bb.metadata()
-            end, _ = run_end(bb, metadata)
-            if end <= 0:
-                raise ReplayError(f"{blackbox}: the run recorded no time (no duration or recorded_until in its metadata)")
-            if not (math.isfinite(at) and 0.0 <= at <= end):
-                raise ReplayError(f"--at {at:g}: expected a time from 0 to {end:g} s (the run's end)")
             seed = metadata.get("seed", sf.scenario.seed)
             cell = build_cell(sf, seed=int(seed), duration=end, record=False, meshcat=meshcat)
             wanted = set(cell.cue_visualizer.drawer.channels)

@@ -44,13 +44,17 @@ def serve_until_closed(meshcat, say) -> None:
 
 def cmd_replay(args, input_error) -> int:
     """``cellsim replay RUN --meshcat [--at T] [--speed X]``: play a black box in the browser."""
-    from cellsim.visual.replay import ReplayError, replay
+    from cellsim.visual.replay import ReplayError, check_replay, replay
 
     if not args.meshcat:
         raise input_error("replay needs --meshcat (the only player so far; the terminal one is `cellsim dashboard --replay`)")
     run = Path(args.run)
     if not run.exists():
         raise input_error(f"{run}: no such run folder or black box")
+    try:
+        check_replay(run, at=args.at, speed=args.speed)  # every argument checked before Meshcat starts
+    except ReplayError as e:
+        raise input_error(str(e)) from None
     meshcat = open_meshcat()
     try:
         try:
