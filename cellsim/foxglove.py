@@ -158,7 +158,7 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
                     writer.add_message(ids[name], log_time=_ns(t), publish_time=_ns(t), sequence=messages,
                                        data=json.dumps({"t": t, "value": value}).encode())
                     messages += 1
-                frames = _write_scene(writer, cell, bb.iter_values(wanted) if wanted else iter(()))
+                frames = _write_scene(writer, cell, bb.iter_values(wanted) if wanted else iter(()), wanted)
                 writer.finish()
         os.replace(partial, destination)
     except BlackBoxError as e:
@@ -200,9 +200,10 @@ def frame_transforms(t: float, plant, robots: dict, pose_of) -> dict:
     return {"transforms": transforms}
 
 
-def _write_scene(writer, cell, recorded) -> int:
-    """/tf and /scene: the still geometry once, then the arms' frames and the moving geometry at each
-    moment the modules' recorded state (joint positions, people's positions) changes."""
+def _write_scene(writer, cell, recorded, wanted: list[str] = ()) -> int:
+    """/scene: the still geometry once, then the moving geometry at each moment the modules' recorded state
+    (``wanted``: joint positions, people's positions) changes; /tf: the arms' frames once per recorded joint
+    state (at t = 0 only if no robot's state is recorded)."""
     ids = {}
     for schema_name, topic in ((FRAME_TRANSFORMS, "/tf"), (SCENE_UPDATE, "/scene")):
         schema = writer.register_schema(name=schema_name, encoding="jsonschema", data=json.dumps(SCHEMAS[schema_name]).encode())
@@ -221,27 +222,31 @@ def _write_scene(writer, cell, recorded) -> int:
                            data=json.dumps(message).encode())
         sequence[0] += 1
 
-    def moment(t: float, moving_only: bool) -> None:
+    def moment(t: float, moving_only: bool, tf: bool) -> None:
         query = scene_graph.get_query_output_port().Eval(sg_context)
         emit("/scene", t, scene_update(t, shapes, query, moving_only))
-        emit("/tf", t, frame_transforms(t, plant, cell.robots, lambda body: plant.EvalBodyPoseInWorld(plant_context, body)))
+        if tf:
+            emit("/tf", t, frame_transforms(t, plant, cell.robots,
+                                            lambda body: plant.EvalBodyPoseInWorld(plant_context, body)))
 
-    def shown(t: float) -> None:  # the recorded state up to t, drawn
+    def shown(t: float, tf: bool) -> None:  # the recorded state up to t, drawn
         for system in showing:
             system.show_recorded(cell, context, values)
-        moment(t, moving_only=True)
+        moment(t, moving_only=True, tf=tf)
 
+    robot_states = {name for name in wanted if name.partition(".")[0] in cell.robots}
     values: dict = {}
-    moment(0.0, moving_only=False)
-    frames, pending = 1, None
+    moment(0.0, moving_only=False, tf=not robot_states)
+    frames, pending, joints_moved = 1, None, False
     for t, name, value in recorded:
         if pending is not None and t > pending:
-            shown(pending)
-            frames += 1
+            shown(pending, joints_moved)
+            frames, joints_moved = frames + 1, False
         values[name] = value
+        joints_moved |= name in robot_states
         pending = t
     if pending is not None:
-        shown(pending)
+        shown(pending, joints_moved)
         frames += 1
     return frames
 

@@ -98,3 +98,23 @@ def test_malformed_payloads_make_the_link_corrupt_and_trust_returns_after_recove
         assert send(lambda n, bad=bad: bad) == CORRUPT
         assert send(good) == RECOVERING
     assert [send(good) for _ in range(2)] == [RECOVERING, OK]
+
+
+def test_each_kind_of_refusal_is_logged_the_first_time_it_comes_then_counted(caplog):
+    """An oversized message is logged; a deeply nested one and a future-stamped one after it are logged too
+    (each a kind of its own), where only the counts 1, 10, 100 used to be; more of a kind are counted."""
+    import logging
+
+    source, simulator = _source()
+    seq = iter(range(1, 1000))
+    oversized = b"[" + b"0," * 40_000 + b"0]"
+    nested = b"[" * 30_000 + b"]" * 30_000  # under the size limit, past any depth
+    future = encode_fields(time.time() + 1e6, next(seq), {"broken": False})
+    with caplog.at_level(logging.WARNING, logger="cellsim.live"):
+        for payload in (oversized, nested, future, oversized, oversized):
+            source.deliver(payload)
+        _after(source, simulator, 0.1)
+    refusals = [r.getMessage() for r in caplog.records if "refused a message" in r.getMessage()]
+    assert source.rejected == 5
+    assert len(refusals) == 3, refusals
+    assert "more than the" in refusals[0] and "nested too deeply" in refusals[1] and "(future)" in refusals[2]

@@ -223,3 +223,23 @@ def test_a_robot_starts_in_the_mode_its_controller_commands_from_the_first_perio
 
     simulate(load_scenario(path), tmp_path / "run", duration=5.0)
     assert check(tmp_path / "run").result.all_hold  # the twin agrees
+
+
+def test_verify_states_what_it_assumes_of_entities_that_follow_their_physical_twins(welding):
+    """Every entity a digital model: said. One in shadow mode (or changing to twin mode): the assumption that
+    its physical twin behaves as the model, over a link that never fails, is said for it by name."""
+    from cellsim.verify.run import twin_mode_assumptions
+
+    _, report, export = welding
+    assumptions = report["assumptions"]
+    assert any(a.startswith("every entity is its digital model") for a in assumptions), assumptions
+    assert "every entity is its digital model" in export.read_text()  # and in the exported model's header
+    sf = load_scenario(WELDING_CELL, ["light_barrier.twin.mode=shadow",
+                                      'welder.twin.changes=[{"at": 5, "mode": "twin"}]'])
+    configs = {name: cfg for name, cfg in sf.scenario.entities.items()}
+    said = twin_mode_assumptions(configs)
+    assert len(said) == 2 and not any(a.startswith("every entity") for a in said)
+    curtain, welder = sorted(said)
+    assert curtain.startswith("light_barrier follows its physical twin (shadow mode):") and "never stale" in curtain
+    assert welder.startswith("welder follows its physical twin (model mode, twin mode from 5 s):")
+    assert "commands are assumed to reach the physical twin" in welder

@@ -46,7 +46,12 @@ FAILURES = ("stale", "corrupt")
 
 
 class CodecError(ValueError):
-    """A message that is not what its key carries (the reason is one line)."""
+    """A message that is not what its key carries (the reason is one line; ``kind``, the reason without
+    the message's own values, names the kind of refusal)."""
+
+    def __init__(self, why: str, kind: str | None = None):
+        super().__init__(why)
+        self.kind = kind or why
 
 
 @dataclass(frozen=True)
@@ -65,13 +70,13 @@ class Message:
 def loads(payload: bytes, limit: int = MAX_PAYLOAD) -> dict:
     """A JSON object of at most ``limit`` bytes, or CodecError (never a crash on depth or size)."""
     if len(payload) > limit:
-        raise CodecError(f"{len(payload)} bytes, more than the {limit} a message may have")
+        raise CodecError(f"{len(payload)} bytes, more than the {limit} a message may have", "too large")
     try:
         message = json.loads(payload)
     except RecursionError:
         raise CodecError("nested too deeply") from None
     except (ValueError, UnicodeDecodeError) as e:
-        raise CodecError(f"not JSON: {' '.join(str(e).split())[:80]}") from None
+        raise CodecError(f"not JSON: {' '.join(str(e).split())[:80]}", "not JSON") from None
     if not isinstance(message, dict):
         raise CodecError("not a JSON object")
     return message
@@ -139,7 +144,7 @@ class FieldCodec:
             return number(value, f"field '{name}'", 1e9)
         except (ValueError, KeyError, TypeError):
             expected = ctype.domain() if ctype.kind == "enum" else ctype.kind
-            raise CodecError(f"field '{name}': {shown(value)} is not {expected}") from None
+            raise CodecError(f"field '{name}': {shown(value)} is not {expected}", f"field '{name}' of the wrong kind") from None
 
     def codes(self, fields: dict) -> list[float]:
         """The port codes of a message's ``fields`` (every field present; others ignored)."""

@@ -104,14 +104,19 @@ class Inbox:
 
 
 class _Refusals:
-    """Counts and logs messages refused on one key (logged sparingly: a flood says so, once in a while)."""
+    """Counts and logs messages refused on one key: the first of each kind of refusal is logged, then a
+    flood of them says so once in a while (at 10, 100 and every 1000 refused)."""
 
     def __init__(self, key: str):
         self.key, self.count = key, 0
+        self.kinds: set[str] = set()
 
-    def __call__(self, why: str) -> None:
+    def __call__(self, why: str, kind: str | None = None) -> None:
         self.count += 1
-        if self.count in (1, 10, 100) or self.count % 1000 == 0:
+        kind = kind or why
+        first = kind not in self.kinds
+        self.kinds.add(kind)
+        if first or self.count in (10, 100) or self.count % 1000 == 0:
             log.warning("%s: refused a message (%s); %d refused so far", self.key, why, self.count)
 
 
@@ -154,7 +159,7 @@ class _LinkSource(LeafSystem):
             try:
                 message = self.codec.decode(payload)
             except CodecError as e:
-                self.refused(str(e))
+                self.refused(str(e), e.kind)
                 trust.fail(Fault.CORRUPT, arrival)
             else:
                 fault = trust.stamp(message.t, wall) or trust.sequence(message.seq, arrival, zlib.crc32(payload))

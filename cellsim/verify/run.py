@@ -86,6 +86,32 @@ class Verification:
         return all(r.holds is not False for r in self.results)
 
 
+def twin_mode_assumptions(configs: dict) -> list[str]:
+    """What the abstraction assumes of the entities' physical twins: each entity is modelled by its digital
+    behaviour, so one in shadow or twin mode (from the start or later) is assumed to behave as that model,
+    over a link that never fails."""
+    from cellsim.vocabulary import TwinMode
+
+    linked = {}
+    for name, cfg in configs.items():
+        twin = getattr(cfg, "twin", None)
+        modes = [] if twin is None else [twin.mode, *(c.mode for c in twin.changes)]
+        if any(m is not TwinMode.MODEL for m in modes):
+            linked[name] = twin
+    if not linked:
+        return ["every entity is its digital model (no physical twin, so no stale, corrupt or recovering link)"]
+    said = []
+    for name, twin in linked.items():
+        when = f"{twin.mode.value} mode" + "".join(f", {c.mode.value} mode from {c.at:g} s" for c in twin.changes)
+        text = (f"{name} follows its physical twin ({when}): it is modelled as its digital model, so the physical "
+                "twin is assumed to behave as that model over a link never stale, corrupt or recovering (its "
+                "fail-safe readings are not modelled)")
+        if any(m is TwinMode.TWIN for m in [twin.mode, *(c.mode for c in twin.changes)]):
+            text += "; in twin mode its commands are assumed to reach the physical twin and be obeyed within a period"
+        said.append(text)
+    return said
+
+
 def abstract_model(sf, cell=None, *, timed: bool = False) -> AbstractModel:
     """The abstract model of the scenario's cell (its diagram built once, without recording)."""
     from diagrams.cell import build_cell
@@ -101,6 +127,8 @@ def abstract_model(sf, cell=None, *, timed: bool = False) -> AbstractModel:
     supervisors = [cell.modules[n].period for n, c in configs.items() if registry.kind_of(c).supervises and n in cell.modules]
     period = min(supervisors) if supervisors else min(getattr(s, "period", 1.0) for s in cell.modules.values())
     abstract = AbstractCell(cell, period, timed)
+    for assumption in twin_mode_assumptions(configs):
+        abstract.assume(assumption)
     parts = []
     for name, cfg in configs.items():
         kind = registry.kind_of(cfg)
