@@ -97,9 +97,10 @@ class ChannelSpec:
     """A channel's identity and contract.
 
     ``period`` is the publisher's update period in seconds: the value can only
-    change at multiples of it. ``record`` says when the recorder writes a
-    message: ``on_change`` (checked at every update) or ``every_sample``, one
-    message every ``record_period`` (a multiple of ``period``; default: every update).
+    change at multiples of it, and the recorder looks at it at every one (never
+    less often: a check judges the values the readers of the channel acted on).
+    ``record`` says when the recorder writes a message: ``on_change`` (when it
+    differs from the last written) or ``every_sample`` (at every update).
     """
 
     module: str
@@ -108,12 +109,11 @@ class ChannelSpec:
     period: float
     record: RecordPolicy = "on_change"
     description: str = ""
-    record_period: float | None = None
 
     @property
     def sample_period(self) -> float:
-        """How often the recorder looks at this channel (s)."""
-        return self.record_period or self.period
+        """How often the recorder looks at this channel (s): at every update of its publisher."""
+        return self.period
 
     @property
     def name(self) -> str:

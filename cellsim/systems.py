@@ -45,7 +45,6 @@ class CellSystem(LeafSystem):
         initial,
         *,
         record: RecordPolicy = "on_change",
-        record_period: float | None = None,
         description: str = "",
         every: int = 1,
     ) -> int:
@@ -57,7 +56,7 @@ class CellSystem(LeafSystem):
         """
         group = self.declare_state(signal, ctype.encode(initial))
         port = self.DeclareStateOutputPort(signal, group)
-        spec = ChannelSpec(self.module, signal, ctype, self.period * every, record, description, record_period)
+        spec = ChannelSpec(self.module, signal, ctype, self.period * every, record, description)
         self.channels.append((spec, port))
         return group
 

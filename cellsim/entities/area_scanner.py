@@ -142,8 +142,7 @@ class AreaScanner(GeometrySensor):
         self._outputs = [
             self.declare_channel("field", enum_type(self.readings), cfg.clear, description="Innermost occupied field"),
             self.declare_channel(
-                "distance", number_type("m"), cfg.max_range, record="every_sample",
-                record_period=max(0.1, cfg.period), description="Distance to the nearest person seen",
+                "distance", number_type("m"), cfg.max_range, description="Distance to the nearest person seen",
             ),
         ]
 

@@ -232,8 +232,7 @@ class Operator(EntitySystem):
         ]
         self._waypoint = self.declare_channel("waypoint", enum_type(self.waypoints), "start")
         self._position = self.declare_channel(
-            "position", vector_type(2, "m"), initial.xy, record="every_sample", record_period=0.1
-        )
+            "position", vector_type(2, "m"), initial.xy)
         # the buttons this person presses, and where: (button index, leg) per pressing waypoint
         self.buttons = list(dict.fromkeys(w.press for w in cfg.waypoints.values() if w.press))
         self._presses = [

@@ -174,8 +174,6 @@ class RangeDetector(GeometrySensor):
             "distance",
             number_type("m"),
             self.reach,
-            record="every_sample",
-            record_period=max(0.1, cfg.period),
             description="Measured distance to the nearest person",
         )
 

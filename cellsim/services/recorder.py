@@ -5,8 +5,9 @@ samples at the shortest channel period; no Python runs while the simulator
 steps. ``drain`` (called by the simulation loop after each chunk of simulated
 time, and at the end) turns the new samples into messages:
 
-* a channel is looked at every ``sample_period`` (its publisher's period, or
-  its ``record_period``), so nothing is read more often than it can change;
+* a channel is looked at at every update of its publisher (its ``period``): never
+  less often, so the record holds every value a reader of the channel could have
+  acted on, and never more often than it can change;
 * ``on_change`` channels give a message when their value differs from the
   last one written, ``every_sample`` channels give one every time they are looked at.
 
@@ -54,7 +55,7 @@ class Recorder:
         self.specs = [spec for spec, _ in channels]
         self.writer: BlackBoxWriter | None = None
         sizes = [spec.type.size for spec in self.specs]
-        self.base = min(spec.sample_period for spec in self.specs)
+        self.base = base_period([spec.period for spec in self.specs])
         mux = builder.AddNamedSystem(f"{name}.multiplexer", Multiplexer(sizes))
         for i, (_, port) in enumerate(channels):
             builder.Connect(port, mux.get_input_port(i))
@@ -64,15 +65,14 @@ class Recorder:
         # Channels in the order the messages of one instant are written: by
         # sample period, then as declared. Channels looked at equally often and
         # recorded alike form a group, decoded together.
-        order = sorted(range(len(self.specs)), key=lambda i: (round(self.specs[i].sample_period, 9), i))
+        order = sorted(range(len(self.specs)), key=lambda i: (round(self.specs[i].period, 9), i))
         groups: dict[tuple, list[int]] = {}
         for i in order:
             spec = self.specs[i]
-            every_update = spec.sample_period <= spec.period * (1 + 1e-9)
-            groups.setdefault((max(1, round(spec.sample_period / self.base)), spec.record, every_update), []).append(i)
+            groups.setdefault((round(spec.period / self.base), spec.record), []).append(i)
         self._groups = [
-            _Group(every, record, every_update, [(order.index(i), self.specs[i], offsets[i], offsets[i + 1]) for i in members])
-            for (every, record, every_update), members in groups.items()
+            _Group(every, record, [(order.index(i), self.specs[i], offsets[i], offsets[i + 1]) for i in members])
+            for (every, record), members in groups.items()
         ]
 
     def attach(self, writer: BlackBoxWriter) -> None:
@@ -109,6 +109,22 @@ class Recorder:
         return len(rows)
 
 
+GRID = 1e-9
+"""Periods are whole numbers of nanoseconds (a period off that grid is rounded to it)."""
+
+
+def base_period(periods: list[float]) -> float:
+    """The log's tick (s): the greatest common divisor of the channels' periods, so that every channel is
+    looked at on a whole number of ticks, exactly at each of its updates (the shortest period would round
+    a period of 0.05 s to 0.04 s on ticks of 0.02 s)."""
+    import math
+
+    ticks = 0
+    for period in periods:
+        ticks = math.gcd(ticks, max(1, round(period / GRID)))
+    return ticks * GRID
+
+
 _AFTER_EVERY_SAMPLE = 2**62
 """Sort key of the final drain's messages: after those of every logged sample."""
 
@@ -116,11 +132,9 @@ _AFTER_EVERY_SAMPLE = 2**62
 class _Group:
     """Channels sampled every ``every`` base periods and recorded alike, decoded as one block."""
 
-    def __init__(self, every: int, record: str, every_update: bool, channels: list[tuple[int, ChannelSpec, int, int]]):
+    def __init__(self, every: int, record: str, channels: list[tuple[int, ChannelSpec, int, int]]):
         self.every = every
         self.on_change = record == "on_change"
-        self.supersedes_initial = every_update
-        """The sample at tick ``every`` is stamped 0 too and replaces the initial one."""
         self.pending: tuple | None = None  # (ticks, times, data) of an initial sample not yet superseded
         self.last_tick: int | None = None  # the newest sample decoded
         self.channels = channels  # (rank, spec, first row, end row) in the logged vector
@@ -139,7 +153,7 @@ class _Group:
             self.last_tick = int(ticks[due[-1]])
         if len(due) and self.pending is not None:
             self.pending = None  # the initial sample is superseded by this block's first
-        if self.supersedes_initial and len(due) and ticks[due[0]] == 0:
+        if len(due) and ticks[due[0]] == 0:  # the initial state: the sample at tick ``every``, stamped 0 too, replaces it
             if len(due) == 1:
                 self.pending = (ticks[due], times[due], data[:, due])
             due = due[1:]
@@ -153,8 +167,7 @@ class _Group:
         tick = int(np.ceil(t / base / self.every - 1e-9)) * self.every
         if self.last_tick is not None and tick <= self.last_tick:
             return  # sampled already: a run that ends on its grid
-        if self.supersedes_initial:
-            self.pending = None  # stamped 0 too: what the first update wrote replaces the initial state
+        self.pending = None  # stamped 0 too: what the first update wrote replaces the initial state
         found: list = []
         self._decode(np.array([0]), np.array([tick * base]), current.reshape(-1, 1), found)
         out.extend((_AFTER_EVERY_SAMPLE, rank, row) for _, rank, row in found)
