@@ -86,22 +86,22 @@ class DeviceChecker(LinkTrust):
         """Judge one frame received at ``now`` (s, any monotonic clock)."""
         message = self.message
         if len(data) != message.length:
-            return self.fail(Fault.LENGTH)
+            return self.fail(Fault.LENGTH, now)
         if compute_profile2_crc(data, data_id(message.frame_id, data[1] & 0x0F)) != data[0]:
-            return self.fail(Fault.CRC)
+            return self.fail(Fault.CRC, now)
         try:
             values = message.decode(data, decode_choices=False, scaling=True)
         except Exception:  # noqa: BLE001 - cantools raises several kinds on a bad payload
-            return self.fail(Fault.RANGE)
+            return self.fail(Fault.RANGE, now)
         if self.authenticator is not None:  # before the counter: a forgery must not move its sequence
             fault = self.authenticator.verify(data, int(values["Freshness"]), int(values["Mac"]), self)
             if fault is not None:
                 return self.fail(fault, now)
         fault = self.sequence(data[1] & 0x0F, now, zlib.crc32(data))
         if fault is not None:
-            return self.fail(fault)
+            return self.fail(fault, now)
         if not self._in_range(values):
-            return self.fail(Fault.RANGE)
+            return self.fail(Fault.RANGE, now)
         return self.good(now, {k: v for k, v in values.items() if k not in PROTECTION})
 
     def _in_range(self, values: dict) -> bool:

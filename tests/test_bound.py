@@ -62,3 +62,59 @@ def test_the_campaign_block_counts_undecided_runs_against_a_condition_and_leaves
     assert block["conditions"]["B"]["failures"] == 1 and block["conditions"]["C"]["failures"] == 0
     assert block["overall"]["failures"] == 2
     assert block["conditions"]["C"]["upper_bound"] == pytest.approx(upper_bound(0, 3))
+
+
+def test_the_binomial_cdf_at_its_edges():
+    assert binomial_cdf(-1, 10, 0.3) == 0.0
+    assert binomial_cdf(10, 10, 0.3) == 1.0 and binomial_cdf(11, 10, 0.3) == 1.0
+    assert binomial_cdf(0, 10, 0.0) == 1.0 and binomial_cdf(3, 10, -0.1) == 1.0
+    assert binomial_cdf(9, 10, 1.0) == 0.0 and binomial_cdf(0, 10, 1.5) == 0.0
+    assert binomial_cdf(0, 10, math.nextafter(1.0, 0.0)) < 1e-100  # just below 1: a sum, not the edge
+    assert binomial_cdf(2, 4, 0.5) == pytest.approx(11 / 16, abs=1e-15)
+    assert binomial_cdf(9, 10, 0.5) == pytest.approx(1 - 1 / 1024, abs=1e-14)  # never above 1
+
+
+def test_the_bound_refuses_what_is_not_a_count_or_a_confidence_with_its_reason():
+    for failures, runs in ((-1, 5), (6, 5)):
+        with pytest.raises(ValueError, match=rf"failures must be in \[0, runs\], got {failures} of {runs}"):
+            upper_bound(failures, runs)
+    for confidence in (0.0, 1.0, 1.5):
+        with pytest.raises(ValueError, match=rf"confidence must be in \(0, 1\), got {confidence}"):
+            upper_bound(1, 10, confidence)
+    assert upper_bound(1, 10, math.nextafter(0.0, 1.0)) > 0.1  # any confidence strictly inside is taken
+    for target in (0.0, 1.0, 2.0):
+        with pytest.raises(ValueError, match=rf"the target probability must be in \(0, 1\), got {target}"):
+            runs_needed(target)
+
+
+def test_the_bound_is_one_only_with_no_runs_or_every_run_failing():
+    assert upper_bound(0, 0) == 1.0 and upper_bound(7, 7) == 1.0
+    assert upper_bound(0, 1) == pytest.approx(0.95) and upper_bound(6, 7) < 1.0
+
+
+def test_the_bisection_converges_to_machine_precision_on_both_sides_of_the_equation():
+    for k, n in ((1, 10), (5, 100), (37, 1000), (999, 1000)):
+        p = upper_bound(k, n)
+        assert binomial_cdf(k, n, p) <= 0.05 + 1e-12  # the bound itself: at or past the 5 % point
+        assert binomial_cdf(k, n, p * (1 - 1e-12)) > 0.05 - 1e-9  # a hair below: still plausible
+    assert upper_bound(999, 1000) < 1.0
+
+
+@pytest.mark.parametrize("target, runs", [(0.5, 5), (0.1, 29), (0.05, 59), (1e-2, 299), (1e-3, 2995), (0.95, 2), (0.96, 1),
+                                          (0.9, 2)])
+def test_runs_needed_is_the_fewest_clean_runs_whose_bound_is_below_the_target(target, runs):
+    assert runs_needed(target) == runs
+    assert upper_bound(0, runs) < target and (runs == 1 or upper_bound(0, runs - 1) >= target)
+    assert runs_needed(target, 0.99) >= runs  # more confidence, more runs
+
+
+def test_the_campaign_block_names_what_it_states():
+    from cellsim.validation.bound import COUNTING, METHOD, Bound
+
+    runs = [{"status": "completed", "violations": ["A"]}, {"status": "completed"}, {"status": "completed", "undecided": ["A"]}]
+    block = campaign_bounds(runs, ["A", "B"], "waits uniform", confidence=0.9)
+    assert block["confidence"] == 0.9 and block["method"] == METHOD and block["counted"] == COUNTING
+    assert block["overall"] == {"failures": 2, "runs": 3, "rate": 2 / 3, "upper_bound": upper_bound(2, 3, 0.9)}
+    assert block["conditions"]["A"] == Bound(2, 3, 0.9).to_json() and block["conditions"]["B"]["failures"] == 0
+    assert block["conditions"]["B"]["upper_bound"] == upper_bound(0, 3, 0.9)  # at the block's confidence
+    assert Bound(0, 0).to_json() == {"failures": 0, "runs": 0, "rate": None, "upper_bound": 1.0}

@@ -163,3 +163,37 @@ def test_the_codec_of_an_entity_follows_its_channels_and_inputs():
     assert samples.types[1].kind == "number" and not samples.nullable
     commands = FieldCodec.commands_of(entity)
     assert commands.names == ("speed",) and commands.types[0].kind == "number" and commands.nullable
+
+
+def test_a_json_error_is_quoted_to_eighty_characters():
+    payload = b'{"' + b"a" * 60_000 + b'": 1,}'
+    why = "Expecting property name enclosed in double quotes: line 1 column 60008 (char 60007)"
+    assert len(why) > 80
+    assert str(refused(payload)) == "not JSON: " + why[:80]
+
+
+def test_messages_are_compact_json_with_their_documented_keys():
+    assert codec.encode_fields(1.5, 2, {"a": 1}) == b'{"t":1.5,"seq":2,"fields":{"a":1}}'
+    assert codec.encode_failure(1.5, 3, "stale") == b'{"t":1.5,"seq":3,"failed":"stale"}'
+    assert codec.encode_value(1.5, 2.25, True) == b'{"t":1.5,"sim_time":2.25,"value":true}'
+    assert codec.encode_mode_request("robot", "twin", "me") == b'{"entity":"robot","mode":"twin","by":"me"}'
+    assert codec.encode_answer(False, "no") == b'{"accepted":false,"reason":"no"}'
+
+
+def test_whole_numbers_are_numbers_up_to_the_limits_and_huge_ones_are_refused_not_overflowed():
+    fields = lambda d: {"range": "far", "distance": d, "broken": False}  # noqa: E731
+    assert SAMPLE.decode(message(fields=fields(1000))).codes[1] == 1000.0
+    assert SAMPLE.decode(message(fields=fields(-1_000_000_000))).codes[1] == -1e9
+    for huge in (2**63, 10**400):  # a float() of 10**400 would overflow: refused before
+        assert str(refused(message(fields=fields(huge)))).startswith("field 'distance':")
+    assert str(refused(json.dumps({"t": 10**400, "seq": 1, "fields": {}}).encode())) == "'t' is out of range"
+
+
+def test_an_entity_without_channels_has_number_fields_and_a_subset_of_commands_keeps_its_order():
+    from types import SimpleNamespace
+
+    bare = SimpleNamespace(sample_fields=("x", "y"))
+    assert [t.kind for t in FieldCodec.samples_of(bare).types] == ["number", "number"]
+    entity = SimpleNamespace(command_fields=("a", "b", "c"), input_types={"b": BOOL})
+    some = FieldCodec.commands_of(entity, names=("c", "b"))
+    assert some.names == ("c", "b") and [t.kind for t in some.types] == ["number", "bool"]

@@ -188,3 +188,106 @@ def test_a_value_is_judged_against_its_dbc_range_at_the_boundary():
     for raw, fault in ((60_000, None), (60_001, Fault.RANGE), (65_000, Fault.RANGE), (65_535, Fault.RANGE)):
         checker = DeviceChecker(message=SCANNER, timeout=0.1, recover_after=1)
         assert checker.check(frame(raw, 3), 0.0).fault is fault, raw
+
+
+def test_a_value_outside_its_signal_is_never_encoded_into_a_frame():
+    """protect refuses what the DBC does not allow (cantools' strict encoding), plain or authenticated: a frame is
+    never made of a value clamped or wrapped on the way."""
+    import cantools.database
+
+    from bridges.secoc import Authenticator, message_key
+
+    for values in ({"Range": "far", "Distance": 60.5}, {"Range": 3, "Distance": 1.0}):
+        with pytest.raises(cantools.database.EncodeError):
+            protect(SCANNER, values, 0)
+    authenticated = DBC.get_message_by_name("ScannerStateAuthenticated")
+    signer = Authenticator(authenticated, message_key(bytes(16), authenticated.frame_id), 0.01, lambda: 1.8e9)
+    with pytest.raises(cantools.database.EncodeError):
+        protect(authenticated, {"Range": "far", "Distance": 60.5}, 0, signer)
+
+
+def test_a_checker_counts_the_faults_its_kind_of_message_can_have():
+    from bridges.e2e import AUTHENTICATED_FAULTS, CAN_FAULTS
+    from bridges.secoc import Authenticator, message_key
+
+    plain = DeviceChecker(message=SCANNER, timeout=0.1)
+    assert list(plain.counts) == [f.value for f in CAN_FAULTS]
+    authenticated = DBC.get_message_by_name("ScannerStateAuthenticated")
+    signer = Authenticator(authenticated, message_key(bytes(16), authenticated.frame_id), 0.01)
+    checked = DeviceChecker(message=authenticated, timeout=0.1, authenticator=signer)
+    assert list(checked.counts) == [f.value for f in AUTHENTICATED_FAULTS]
+    chosen = DeviceChecker(message=authenticated, timeout=0.1, authenticator=signer, faults=(Fault.CRC,))
+    assert list(chosen.counts) == ["crc"]  # a caller's own choice stands
+
+
+def test_a_stream_of_forged_frames_keeps_the_device_corrupt_not_stale():
+    """While forged authenticated frames keep coming, the device stays failed as corrupt (someone is sending),
+    past its watchdog; when they stop it goes stale."""
+    from bridges.secoc import Authenticator, message_key
+
+    message = DBC.get_message_by_name("ScannerStateAuthenticated")
+    key, clock = message_key(bytes(16), message.frame_id), (lambda: 1.8e9)
+    checker = DeviceChecker(message=message, timeout=0.1, recover_after=1,
+                            authenticator=Authenticator(message, key, 0.01, clock))
+    device = Authenticator(message, key, 0.01, clock)
+    forger = Authenticator(message, message_key(bytes([1] * 16), message.frame_id), 0.01, clock)
+    assert checker.check(protect(message, {"Range": "far", "Distance": 2.0}, 0, device), 0.0).trusted
+    for i in range(1, 8):  # every 40 ms for 0.28 s: past the 0.1 s watchdog
+        assert checker.check(protect(message, {"Range": "far", "Distance": 9.0}, i, forger), 0.04 * i).fault is Fault.AUTH
+        assert checker.watchdog(0.04 * i + 0.01) is None and checker.link.value == "corrupt", i
+    assert checker.watchdog(0.28 + 0.2).fault is Fault.TIMEOUT and checker.link.value == "stale"
+
+
+def test_a_repeated_counter_carrying_other_data_is_a_second_sender_not_a_retransmission():
+    checker = DeviceChecker(message=SCANNER, timeout=1.0, recover_after=1)
+    first = protect(SCANNER, {"Range": "near", "Distance": 1.5}, 4)
+    assert checker.check(first, 0.0).trusted
+    assert checker.check(first, 0.01).fault is Fault.REPEATED  # the same bytes: a retransmission, refused
+    other = protect(SCANNER, {"Range": "far", "Distance": 5.0}, 4)
+    assert checker.check(other, 0.02).fault is Fault.COUNTER and checker.anomalies == 1
+
+
+SIGNED_DBC = """VERSION ""
+BU_: Node
+BO_ 100 Probe: 3 Node
+ SG_ Crc : 0|8@1+ (1,0) [0|255] "" Node
+ SG_ Counter : 8|4@1+ (1,0) [0|15] "" Node
+ SG_ Mode : 12|2@1+ (1,0) [0|3] "" Node
+ SG_ Level : 16|8@1+ (1,0) [10|200] "" Node
+VAL_ 100 Mode 0 "off" 1 "on" 2 "fault" ;
+"""
+
+
+def test_an_enumeration_takes_only_its_named_values_and_a_number_its_range_from_both_ends():
+    """Mode's two bits could carry 3, which its DBC range allows but no name has; Level's byte carries 0..255,
+    its range is [10, 200]: each checked at both ends, exactly."""
+    from cantools.autosar.end_to_end import compute_profile2_crc
+
+    probe = cantools.database.load_string(SIGNED_DBC, "dbc").get_message_by_name("Probe")
+
+    def frame(mode: int, level: int, counter: int = 1) -> bytes:
+        data = bytearray(3)
+        data[1] = counter | (mode << 4)
+        data[2] = level
+        data[0] = compute_profile2_crc(bytes(data), data_id(probe.frame_id, counter))
+        return bytes(data)
+
+    def judged(mode: int, level: int):
+        return DeviceChecker(message=probe, timeout=1.0, recover_after=1).check(frame(mode, level), 0.0).fault
+
+    assert judged(2, 100) is None and judged(3, 100) is Fault.RANGE
+    assert judged(0, 10) is None and judged(0, 9) is Fault.RANGE
+    assert judged(0, 200) is None and judged(0, 201) is Fault.RANGE
+
+
+def test_a_stream_of_corrupt_frames_keeps_the_device_corrupt_until_it_stops():
+    """Frames keep coming, each with a bad CRC (a damaged transceiver): the device is corrupt, not stale, for as
+    long as they come (its diagnostics say so); silence after them makes it stale."""
+    checker = DeviceChecker(message=SCANNER, timeout=0.1, recover_after=1)
+    good = frames(8)
+    assert checker.check(good[0], 0.0).trusted
+    for i in range(1, 8):
+        bad = bytes([good[i][0] ^ 0xFF]) + good[i][1:]
+        assert checker.check(bad, 0.04 * i).fault is Fault.CRC
+        assert checker.watchdog(0.04 * i + 0.01) is None and checker.link.value == "corrupt", i
+    assert checker.watchdog(0.28 + 0.2).fault is Fault.TIMEOUT and checker.link.value == "stale"

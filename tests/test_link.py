@@ -120,3 +120,132 @@ def test_an_old_sequence_number_right_after_a_late_message_is_a_replay_not_a_res
     assert link.sequence(5, 0.125) is Fault.REPEATED
     assert link.sequence(7, 0.25) is Fault.REPEATED  # exactly the watchdog since the last good one: not silent
     assert link.sequence(3, math.nextafter(0.25, math.inf)) is None  # silent past it: a restarted sender
+
+
+def _take(link: LinkTrust, seq: int, t: float, content: float | None = None) -> Fault | None:
+    """One message through the rule, as a receiver takes it: judged, then good or failed."""
+    fault = link.sequence(seq, t, content)
+    link.fail(fault, t) if fault is not None else link.good(t)
+    return fault
+
+
+def _masquerade(link: LinkTrust, t: float = 0.0) -> float:
+    """Latch ``link``'s masquerade: in-order numbers, then three anomalies within a second (a step back with
+    other content, a jump forward, a step back); returns the time."""
+    for seq in (10, 11):
+        t += 0.01
+        assert _take(link, seq, t, content=float(seq)) is None
+    for seq in (5, 11 + link.max_gap + 1, 5):
+        t += 0.01
+        _take(link, seq, t, content=-float(seq) - t)
+    assert link.masquerade
+    return t
+
+
+def test_a_masquerade_clears_after_exactly_clear_after_messages_in_strict_order():
+    link = LinkTrust(timeout=10.0, recover_after=1, clear_after=4)
+    t = _masquerade(link)
+    for k, seq in enumerate((6, 7, 8)):  # three in order: not yet
+        t += 0.01
+        assert _take(link, seq, t, content=float(seq)) is Fault.MASQUERADE and link.masquerade, k
+    assert _take(link, 8, t + 0.005, content=8.0) is Fault.REPEATED  # a byte-for-byte repeat restarts the count
+    for seq in (9, 10, 11):
+        t += 0.01
+        assert _take(link, seq, t, content=float(seq)) is Fault.MASQUERADE
+    t += 0.01
+    assert _take(link, 12, t, content=12.0) is None and not link.masquerade  # the fourth in a row: cleared
+    assert link.anomalies == 0 and link.anomaly_since is None
+    for seq in (2, 12):  # two anomalies after clearing: not a masquerade yet (three are)
+        t += 0.01
+        _take(link, seq, t, content=-float(seq))
+    assert not link.masquerade
+    t += 0.01
+    _take(link, 3, t, content=-3.0)
+    assert link.masquerade
+
+
+def test_a_jump_of_exactly_max_gap_is_no_anomaly_and_one_more_is():
+    link = LinkTrust(timeout=10.0, recover_after=1, max_gap=2)
+    seq, t = 0, 0.0
+    assert _take(link, seq, t) is None
+    for _ in range(5):  # five jumps of exactly max_gap within a second: lost frames, no second sender
+        seq, t = seq + 2, t + 0.01
+        assert _take(link, seq, t) is None
+    assert link.anomalies == 0 and not link.masquerade
+    assert _take(link, seq + 3, t + 0.01) is Fault.COUNTER and link.anomalies == 1
+
+
+def test_anomalies_count_within_their_window_exactly_and_start_afresh_after_it():
+    """Three anomalies within masquerade_window (1 s, both ends included) latch; an anomaly later than the window
+    after the first starts a new count from one. At times far from zero, as a live clock's are."""
+    def jumps(times):
+        link = LinkTrust(timeout=100.0, recover_after=1, max_gap=2, masquerade_window=1.0)
+        seq = 0
+        _take(link, seq, times[0] - 0.5)
+        for t in times:
+            seq += 10  # a jump: an anomaly
+            _take(link, seq, t)
+        return link
+
+    assert jumps([1000.0, 1000.5, 1001.0]).masquerade  # the last exactly the window after the first: within
+    late = jumps([1000.0, 1000.5, 1001.25])
+    assert not late.masquerade and late.anomalies == 1 and late.anomaly_since == 1001.25
+    assert not jumps([1000.0, 1002.0, 1002.5]).masquerade  # after a fresh start, two are not three
+    assert jumps([1000.0, 1002.0, 1002.5, 1002.75]).masquerade
+
+
+def test_a_refused_message_is_not_trusted_and_changes_nothing_else():
+    link = LinkTrust(timeout=0.25, recover_after=1)
+    link.good(0.0)
+    for fault in (Fault.REPEATED, Fault.FUTURE):
+        judgement = link.fail(fault, 0.1)
+        assert judgement.trusted is False and judgement.fault is fault and judgement.values is None
+        assert link.link is PhysicalLink.OK and link.good_in_a_row == 1 and link.last_heard is None
+    assert link.good(0.2).trusted is True
+
+
+def test_only_a_corrupting_fault_keeps_a_link_from_going_stale_while_messages_come():
+    """A late message (stale) does not count as heard for the watchdog of a corrupt link; a corrupt one does."""
+    link = LinkTrust(timeout=0.1, recover_after=1)
+    link.good(0.0)
+    link.fail(Fault.CORRUPT, 0.5)
+    link.fail(Fault.LATE, 0.55)  # stale now: the watchdog judges from the last good message
+    assert link.link is PhysicalLink.STALE and link.last_heard == 0.5
+    assert link.watchdog(0.58).fault is Fault.TIMEOUT and link.counts["timeout"] == 1
+    fresh = LinkTrust(timeout=0.1, recover_after=1)
+    fresh.good(0.0)
+    fresh.fail(Fault.LATE, 0.05)
+    assert fresh.last_heard is None  # a stale fault is no sign of a live corrupt sender
+
+
+def test_silence_is_judged_at_any_time_of_a_live_clock():
+    link = LinkTrust(timeout=0.25, recover_after=1)
+    assert link.sequence(7, 1000.0) is None
+    link.good(1000.0)
+    assert link.sequence(6, 1000.25) is Fault.REPEATED  # heard 0.25 s ago: not silent
+    link.watchdog(1000.5)
+    assert link.sequence(1, 1000.5) is None  # silent, stale: a restarted sender
+
+
+def test_every_field_of_the_rule_survives_a_round_trip_through_its_state():
+    fields = ("link", "good_in_a_row", "last_good", "last_seq", "timed_out_at", "last_heard", "anomalies",
+              "anomaly_since", "masquerade", "clean_run", "last_content")
+    fresh = LinkTrust(timeout=0.1)
+    copy = LinkTrust(timeout=0.1).restore(fresh.state())
+    assert {f: getattr(copy, f) for f in fields} == {f: getattr(fresh, f) for f in fields}
+    assert copy.last_seq is None and copy.last_heard is None and copy.anomaly_since is None
+    assert copy.timed_out_at is None and copy.last_content is None and copy.masquerade is False
+    busy = LinkTrust(timeout=0.1, recover_after=3, clear_after=20)
+    t = _masquerade(busy, 5.0)
+    busy.fail(Fault.CORRUPT, t + 0.01)
+    busy.watchdog(t + 0.5)
+    busy.last_seq, busy.last_content, busy.clean_run = 0, 123.0, 2
+    copy = LinkTrust(timeout=0.1, recover_after=3, clear_after=20).restore(busy.state())
+    assert {f: getattr(copy, f) for f in fields} == {f: getattr(busy, f) for f in fields}
+    assert copy.last_seq == 0 and copy.masquerade is True and copy.timed_out_at == t + 0.5
+    # a link that took a number without content, restored: the same number again is a plain repeat
+    plain = LinkTrust(timeout=1.0, recover_after=1)
+    plain.sequence(7, 0.0)
+    plain.good(0.0)
+    again = LinkTrust(timeout=1.0, recover_after=1).restore(plain.state())
+    assert again.sequence(7, 0.1, content=5.0) is Fault.REPEATED and again.anomalies == 0

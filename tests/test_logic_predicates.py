@@ -189,3 +189,22 @@ def test_a_number_with_no_value_makes_every_comparison_false(text):
     """NaN is how the safety controller reads a number channel with no value."""
     guard = compile_predicate(parse(text, VOC, allow_temporal=False), VOC)
     assert guard({"speed": float("nan"), "limit": 1.0}) is False
+
+
+@pytest.mark.parametrize("op, below, equal, above", [
+    ("<", True, False, False), ("<=", True, True, False), (">", False, False, True), (">=", False, True, True),
+    ("==", False, True, False), ("!=", True, False, True),
+])
+def test_each_comparison_at_its_boundary_against_a_constant_and_a_variable(op, below, equal, above):
+    """Every operator on both sides of its boundary and on it, number against constant and against variable."""
+    const = compile_predicate(parse(f"speed {op} 0.25", VOC), VOC)
+    var = compile_predicate(parse(f"speed {op} limit", VOC), VOC)
+    for speed, expected in ((0.2, below), (0.25, equal), (0.3, above)):
+        assert const({"speed": speed}) is expected, (op, speed)
+        assert var({"speed": speed, "limit": 0.25}) is expected, (op, speed)
+
+
+def test_a_temporal_formula_is_refused_for_what_it_is():
+    with pytest.raises(FormulaError) as e:
+        compile_predicate(Always(BoolVar("lgtBar")), VOC)
+    assert str(e.value) == "temporal operators cannot be evaluated on a single valuation"

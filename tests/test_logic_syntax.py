@@ -293,7 +293,7 @@ def test_temporal_macro_in_guard_is_rejected():
             "robot.speed < force",
             1,
             15,
-            "cannot compare robot.speed (numeric) with force (numeric): the domains differ",
+            "cannot compare robot.speed (numeric, in m/s) with force (numeric, in N): the domains differ",
         ),
         (
             "safmod == lgtBar",

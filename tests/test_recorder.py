@@ -24,27 +24,29 @@ class Script(LeafSystem):
     """Publishes ``values[k]`` at its update at t = k * period (the last value from then on); its initial
     state, before the first update, is ``initial``."""
 
-    def __init__(self, period: float, values: list[float], initial: float = -99.0):
+    def __init__(self, period: float, values: list, initial: float = -99.0, size: int = 1):
         super().__init__()
         self.period, self.values = period, values
-        state = self.DeclareDiscreteState(np.array([initial]))
+        state = self.DeclareDiscreteState(np.full(size, initial))
         self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
         self.DeclareStateOutputPort("y", state)
 
     def _update(self, context, xd):
         k = round(context.get_time() / self.period)
-        xd.get_mutable_vector(0).SetAtIndex(0, self.values[min(k, len(self.values) - 1)])
+        xd.get_mutable_vector(0).SetFromVector(np.atleast_1d(np.asarray(self.values[min(k, len(self.values) - 1)], float)))
 
 
-def record(tmp_path, channels: list[tuple[str, float, str, list[float]]], duration: float,
+def record(tmp_path, channels: list[tuple], duration: float,
            drains: list[float] = ()) -> dict[str, list[tuple[float, float]]]:
-    """Simulate scripted publishers ``(name, period, record, values)`` for ``duration``,
-    draining at ``drains`` and at the end; every channel's messages ``[(t, value)]`` read back with sqlite3."""
+    """Simulate scripted publishers ``(name, period, record, values[, type])`` for ``duration``,
+    draining at ``drains`` and at the end; every channel's messages ``[(t, value)]`` read back with sqlite3
+    (in the order they were written)."""
     builder = DiagramBuilder()
     taps = []
-    for name, period, policy, values in channels:
-        script = builder.AddNamedSystem(name, Script(period, values))
-        spec = ChannelSpec(name, "y", number_type(None), period, policy)
+    for name, period, policy, values, *kind in channels:
+        ctype = kind[0] if kind else number_type(None)
+        script = builder.AddNamedSystem(name, Script(period, values, size=ctype.size))
+        spec = ChannelSpec(name, "y", ctype, period, policy)
         taps.append((spec, script.get_output_port()))
     recorder = Recorder(builder, "blackbox", taps)
     diagram = builder.Build()
@@ -54,15 +56,20 @@ def record(tmp_path, channels: list[tuple[str, float, str, list[float]]], durati
     recorder.attach(writer)
     simulator.Initialize()
     context = simulator.get_context()
-    for t in [*drains, duration]:
+    for t in drains:
         simulator.AdvanceTo(t)
-        recorder.drain(context, final=t == duration)
+        recorder.drain(context)
+    simulator.AdvanceTo(duration)
+    recorder.drain(context, final=True)
     writer.close("completed")
-    with sqlite3.connect(path) as db:
-        rows = db.execute("SELECT t, channel, payload FROM messages ORDER BY rowid").fetchall()
+    db = sqlite3.connect(path)
+    rows = db.execute("SELECT t, channel, source, payload FROM messages ORDER BY rowid").fetchall()
+    db.close()
     out: dict[str, list] = {f"{name}.y": [] for name, *_ in channels}
-    for t, channel, payload in rows:
+    for t, channel, source, payload in rows:
+        assert source == channel.split(".")[0]
         out[channel].append((t, json.loads(payload)["value"]))
+    out["order"] = [channel for _, channel, _, _ in rows]
     return out
 
 
@@ -113,3 +120,53 @@ def test_the_logs_tick_is_the_greatest_common_divisor_of_the_periods():
     assert base_period([0.04, 0.1]) == pytest.approx(0.02)
     assert base_period([0.002, 0.04, 0.1]) == pytest.approx(0.002)
     assert base_period([0.5]) == pytest.approx(0.5)
+
+
+def test_enumerations_booleans_and_vectors_are_written_as_their_values_each_on_its_own_changes(tmp_path):
+    from cellsim.channels import BOOL, enum_type, vector_type
+    from cellsim.vocabulary import Range
+
+    got = record(tmp_path, [
+        ("e", 0.1, "on_change", [0, 0, 2, 1, 1], enum_type(Range)),
+        ("b", 0.1, "on_change", [1, 0, 0, 1], BOOL),
+        # a vector whose second component alone changes: a change of the channel
+        ("v", 0.1, "on_change", [[1.0, 2.0], [1.0, 2.0], [1.0, 3.5], [1.0, 3.5]], vector_type(2, "m")),
+        ("w", 0.1, "on_change", [[0.5, 0.5], [0.25, 0.5], [0.25, 0.5], [0.25, 0.5]], vector_type(2, "m")),
+    ], duration=0.45, drains=[0.15])
+    assert got["e.y"] == [(0.0, "far"), (0.2, "close"), (0.3, "near")]
+    assert got["b.y"] == [(0.0, True), (0.1, False), (0.3, True)]
+    assert got["v.y"] == [(0.0, [1.0, 2.0]), (0.2, [1.0, 3.5])]
+    assert got["w.y"] == [(0.0, [0.5, 0.5]), (0.1, [0.25, 0.5])]
+
+
+def test_the_messages_of_one_look_are_written_by_period_then_as_declared(tmp_path):
+    """A look at the log writes its channels by period, then in the order declared; what the final drain adds
+    comes last (each channel's messages are in time order; the black box's index orders the rest)."""
+    got = record(tmp_path, [("slow", 0.2, "every_sample", [1.0]), ("zeta", 0.1, "every_sample", [2.0]),
+                            ("alpha", 0.1, "every_sample", [3.0])], duration=0.25)
+    assert got["order"] == ["zeta.y", "alpha.y", "zeta.y", "alpha.y", "slow.y", "zeta.y", "alpha.y", "slow.y"]
+    assert got["slow.y"] == [(0.0, 1.0), (0.2, 1.0)] and got["zeta.y"] == [(0.0, 2.0), (0.1, 2.0), (0.2, 2.0)]
+
+
+def test_a_drain_without_a_black_box_writes_nothing_and_says_so():
+    builder = DiagramBuilder()
+    script = builder.AddNamedSystem("s", Script(0.1, [1.0, 2.0]))
+    recorder = Recorder(builder, "blackbox", [(ChannelSpec("s", "y", number_type(None), 0.1), script.get_output_port())])
+    simulator = Simulator(builder.Build())
+    simulator.Initialize()
+    simulator.AdvanceTo(0.35)
+    assert recorder.drain(simulator.get_context()) == 0 and recorder.name == "blackbox" and recorder.writer is None
+
+
+def test_a_cells_black_box_has_every_channel_from_its_first_instant(tmp_path):
+    """The recorder built by the cell (its blackbox module): every channel of the welding cell has its message at
+    t = 0, and the values are the cell's (the robot starts exchanging the workpiece, in normal mode)."""
+    from conftest import run, welding_cell
+
+    bb = run(welding_cell(), tmp_path / "run", duration=0.3, seed=1)
+    channels = bb.channels()
+    first = {}
+    for m in bb.messages():
+        first.setdefault(m.channel, (m.t, m.value))
+    assert set(first) == set(channels) and all(t == 0.0 for t, _ in first.values())
+    assert first["robot.safety_mode"] == (0.0, "normal") and first["robot.activity"] == (0.0, "exchWrkp")

@@ -414,3 +414,245 @@ def test_of_transitions_whose_guards_overlap_the_first_listed_wins(tmp_path):
     h2.context = h.system.CreateDefaultContext()
     h2.step(sep=0.7)  # only clear -> near holds
     assert h.system.phases[int(h2.phase("H"))] == "near"
+
+
+PROBE = """name: probe
+monitored:
+  sep: {type: number, unit: m}
+  mode: {values: [normal, slow, stopped]}
+controlled:
+  safmod: {values: [normal, ssmon, stopped], default: normal}
+  alarm: {type: bool, default: false}
+macros:
+  close: sep < 1.0
+phases:
+  values: [clear, near, harm]
+  initial: clear
+  mishap: harm
+hazards:
+  H:
+    transitions:
+      - {phase: clear, to: near, when: close and mode == normal}
+      - {phase: near, to: clear, when: sep >= 1.5}
+    demands:
+      near: {safmod: ssmon, alarm: true}
+"""
+
+
+@pytest.mark.parametrize("old, new, said", [
+    ("mode: {values: [normal, slow, stopped]}", "mode: {type: enum}", "4: monitored.mode.values: an enum variable needs its values"),
+    ("alarm: {type: bool, default: false}", "alarm: {type: bool, values: [a], default: false}",
+     "7: controlled.alarm.values: a bool variable has no values list"),
+    ("mode: {values: [normal, slow, stopped]}", "mode: {values: [normal, slow, stopped], unit: m}",
+     "4: monitored.mode.unit: only a number variable has a unit"),
+    ("values: [clear, near, harm]", "values: []", "11: phases.values: a risk model needs at least one phase"),
+    ("values: [clear, near, harm]", "values: [clear, near, near, harm]", "11: phases.values: phases must differ"),
+    ("initial: clear", "initial: calm", "12: phases.initial: 'calm' is not one of the phases (clear, near, harm)"),
+    ("mishap: harm", "mishap: hurt", "13: phases.mishap: 'hurt' is not one of the phases (clear, near, harm)"),
+    ("safmod: {values: [normal, ssmon, stopped], default: normal}", "safmod: {type: number}",
+     "6: controlled.safmod.type: a controlled variable is an enum or a bool (numbers are monitored only)"),
+    ("default: normal}", "default: fast}", "6: controlled.safmod.default: 'fast' is not a value of safmod"),
+    ("alarm: {type: bool, default: false}", "alarm: {type: bool, default: 0}",
+     "7: controlled.alarm.default: 0 is not a value of alarm"),
+    ("  H:\n", "  sep:\n", "14: hazards: hazard names must differ from variables and macros: sep"),
+    ("  H:\n", "  close:\n", "14: hazards: hazard names must differ from variables and macros: close"),
+    ("sep < 1.0", "sep <", "9: macros.close: in macro 'close' (at 1:6 of its text): sep is numeric: expected a number, "
+                           "found end of input"),
+    ("{phase: clear, to: near,", "{phase: calm, to: near,",
+     "17: hazards.H.transitions.0.phase: 'calm' is not a phase of this model (clear, near, harm)"),
+    ("{phase: near, to: clear,", "{phase: near, to: calm,",
+     "18: hazards.H.transitions.1.to: 'calm' is not a phase of this model (clear, near, harm)"),
+    ("when: sep >= 1.5}", "when: sep >= fast}",
+     "18: hazards.H.transitions.1.when: sep is numeric: expected a number, found 'fast'"),
+    ("when: sep >= 1.5}", "when: F sep >= 1.5}", "18: hazards.H.transitions.1.when: temporal operator 'F' is not allowed here"),
+    ("near: {safmod: ssmon, alarm: true}", "calm: {safmod: ssmon}",
+     "20: hazards.H.demands.calm: 'calm' is not a phase of this model (clear, near, harm)"),
+    ("near: {safmod: ssmon, alarm: true}", "near: {siren: true}",
+     "20: hazards.H.demands.near.siren: 'siren' is not a controlled variable (safmod, alarm)"),
+    ("near: {safmod: ssmon, alarm: true}", "near: {safmod: fast}",
+     "20: hazards.H.demands.near.safmod: 'fast' is not a value of safmod (normal, ssmon, stopped)"),
+    ("near: {safmod: ssmon, alarm: true}", "near: {alarm: 1}", "20: hazards.H.demands.near.alarm: 1 is not a value of alarm (False, True)"),
+    ("near: {safmod: ssmon, alarm: true}", "near: {safmod: 2}",
+     "20: hazards.H.demands.near.safmod: 2 is not a value of safmod (normal, ssmon, stopped)"),
+    ("  sep: {type: number, unit: m}\n", "  sep: {type: number, unit: m}\n  speed: {type: number, unit: m/s}\n",
+     "19: hazards.H.transitions.1.when: cannot compare sep (numeric, in m) with speed (numeric, in m/s): the domains differ"),
+])
+def test_every_problem_of_a_risk_model_is_one_error_naming_its_file_line_and_key(tmp_path, old, new, said):
+    assert old in PROBE
+    text = PROBE.replace(old, new, 1)
+    if "speed" in new:
+        text = text.replace("when: sep >= 1.5}", "when: sep >= speed}")
+    path = tmp_path / "probe.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as e:
+        load_risk_model(path)
+    assert str(e.value) == f"{path}:{said}"
+
+
+def test_the_probe_model_loads_as_written():
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "probe.yaml"
+        path.write_text(PROBE)
+        model = load_risk_model(path)
+    assert model.source == str(path) and model.name == "probe" and model.phases.values == ["clear", "near", "harm"]
+    (hazard,) = model.hazards
+    assert [(t.phase, t.to, t.text) for t in hazard.transitions] == [
+        ("clear", "near", "close and mode == normal"), ("near", "clear", "sep >= 1.5")]
+    assert hazard.demands == {"near": {"safmod": "ssmon", "alarm": True}}
+    assert model.vocabulary()["sep"].unit == "m" and model.vocabulary()["H"].values == ("clear", "near", "harm")
+    assert model.demand_rank("safmod", "stopped") == 2 and model.macros == {"close": "sep < 1.0"}
+    guard = hazard.transitions[0].guard
+    assert guard({"sep": 0.5, "mode": "normal", "H": "clear"}) and not guard({"sep": 0.5, "mode": "slow", "H": "clear"})
+
+
+def _pop(mapping, *keys):
+    for key in keys:
+        mapping.pop(key)
+
+
+WELDING_VARIABLES = "safmod, rloc, wact, ract, rngDet, lgtBar, notif, notif_leaveWrkb"
+
+
+@pytest.mark.parametrize("scenario, edit, key, line, problem", [
+    ("welding_cell.yaml", lambda c: _pop(c.monitors, "lgtBar"), "monitors", 139,
+     "the risk model monitors lgtBar: bind them to channels"),
+    ("welding_cell.yaml", lambda c: _pop(c.monitors, "lgtBar", "rloc"), "monitors", 139,
+     "the risk model monitors lgtBar, rloc: bind them to channels"),
+    ("welding_cell.yaml", lambda c: c.monitors.update(speed="robot.tool_speed"), "monitors.speed", 139,
+     f"'speed' is not a monitored variable of the risk model ({WELDING_VARIABLES})"),
+    ("welding_cell.yaml", lambda c: c.commands.update(alarm=["operator.notification"]), "commands.alarm", 148,
+     "'alarm' is not a controlled variable of the risk model (safmod, ract, wact, notif, notif_leaveWrkb)"),
+    ("welding_cell.yaml", lambda c: c.commands.update(wact=["welder.activity_requst"]), "commands.wact.0", 151,
+     "no command input 'welder.activity_requst'; did you mean 'welder.activity_request'? (inputs are written module.input)"),
+    ("welding_cell.yaml", lambda c: c.commands.update(wact=["weldr.activity_request"]), "commands.wact.0", 151,
+     "no command input 'weldr.activity_request'; did you mean 'welder.activity_request'? (inputs are written module.input)"),
+    ("welding_cell.yaml", lambda c: _pop(c.commands, "wact"), "commands", 148, "controlled variable 'wact' drives no command input"),
+    ("welding_cell.yaml", lambda c: c.monitors.update(notif="safety_controller.notiff"), "monitors.notif", 146,
+     "'safety_controller.notiff' is not a command of safety_controller"),
+    ("welding_cell.yaml", lambda c: c.monitors.update(rngDet="range_detector.rang"), "monitors.rngDet", 144,
+     "no channel 'range_detector.rang'; did you mean 'range_detector.range'?"),
+    ("welding_cell.yaml", lambda c: c.monitors.update(rngDet="range_detector.distance"), "monitors.rngDet", 144,
+     "rngDet takes ['far', 'near', 'close'] but the channel carries number"),
+    ("welding_cell.yaml", lambda c: c.monitors.update(lgtBar="robot.safety_mode"), "monitors.lgtBar", 145,
+     "lgtBar takes [False, True] but the channel carries ['normal', 'hguid', 'ssmon', 'pflim', 'srmst', 'stopped', 'unknown']"),
+    ("welding_cell.yaml", lambda c: c.commands.update(safmod=["robot.safety_mode_request", "process_controller.activity_request"]),
+     "commands.safmod.1", 149, "safmod takes ['normal', 'hguid', 'ssmon', 'pflim', 'srmst', 'stopped'] but the channel carries "
+                               "['idle', 'exchWrkp', 'welding', 'off', 'unknown']"),
+    ("palletising_cell.yaml", lambda c: c.monitors.update(dist="robot.tool_speed"), "monitors.dist", 171,
+     "dist is in m but the channel is in m/s"),
+    ("palletising_cell.yaml", lambda c: c.monitors.update(dist="press_scanner.field"), "monitors.dist", 171,
+     "dist is a number but the channel carries ['free', 'protective', 'warning']"),
+    ("palletising_cell.yaml", lambda c: c.monitors.update(curtain="press_scanner.field"), "monitors.curtain", 169,
+     "curtain takes [False, True] but the channel carries ['free', 'protective', 'warning']"),
+])
+def test_a_risk_model_bound_to_the_wrong_channels_or_inputs_is_one_error_at_its_key(scenario, edit, key, line, problem):
+    """The controller's binding of the risk model's variables to the cell's channels and command inputs, each
+    mismatch one error naming the scenario's key and line."""
+    from cellsim.scenario import load_scenario
+    from diagrams.cell import build_cell
+
+    sf = load_scenario(ROOT / "scenarios" / scenario)
+    edit(sf.scenario.behaviours["safety_controller"])
+    with pytest.raises(ConfigError) as e:
+        build_cell(sf, seed=0, duration=1.0, record=False)
+    assert (e.value.source, e.value.key, e.value.line, e.value.problem) == (
+        str(ROOT / "scenarios" / scenario), f"behaviours.safety_controller.{key}", line, problem)
+
+
+TOGGLE = """
+name: toggle
+monitored:
+  sep: {type: number, unit: m}
+  mode: {values: [normal, slow, stopped]}
+controlled:
+  safmod: {values: [normal, ssmon, stopped], default: normal}
+  alarm: {type: bool}
+phases:
+  values: [clear, near, held, harm]
+  initial: clear
+  mishap: harm
+hazards:
+  H:
+    transitions:
+      - {phase: clear, to: near, when: sep < 1.0}
+      - {phase: near, to: clear, when: sep >= 1.5}
+      - {phase: clear, to: held, when: mode == stopped, after: 0.125}
+      - {phase: held, to: clear, when: mode != stopped}
+    demands:
+      near: {safmod: ssmon, alarm: true}
+"""
+
+
+def _toggle(tmp_path, period: float = 0.03125):
+    from cellsim.channels import number_type
+
+    path = tmp_path / "toggle.yaml"
+    path.write_text(TOGGLE)
+    model = load_risk_model(path)
+    mode = enum_type(CodedEnum("mode", [(n, n) for n in ("normal", "slow", "stopped")]))
+    h = Harness.__new__(Harness)
+    h.system = SafetyController("sc", period, model, {"sep": number_type("m"), "mode": mode},
+                                {"safmod": enum_type(SafetyMode), "alarm": BOOL})
+    h.context, h.t, h.inputs = h.system.CreateDefaultContext(), 0.0, {"sep": 3.0, "mode": "normal"}
+    return h, model
+
+
+def _h(h) -> str:
+    return h.system.phases[int(h.phase("H"))]
+
+
+def test_inputs_that_return_to_an_earlier_value_still_move_the_phase_the_new_phase_allows(tmp_path):
+    """The controller skips a period whose inputs are those of a period that changed nothing; inputs that come back
+    after a change are not such a period (the phases moved meanwhile)."""
+    h, _ = _toggle(tmp_path)
+    h.step(sep=3.0).step(sep=3.0)  # settled: nothing to do
+    assert _h(h) == "clear"
+    h.step(sep=0.5)
+    assert _h(h) == "near"
+    h.step(sep=3.0)  # the settled period's inputs again: now near -> clear holds
+    assert _h(h) == "clear"
+
+
+def test_a_timed_transition_fires_when_its_guard_has_held_exactly_its_time(tmp_path):
+    """after: 0.125 s at periods of 1/32 s (binary fractions, exact): held from the first period it holds, it fires on
+    the fifth, 0.125 s later, not one period late."""
+    h, _ = _toggle(tmp_path)
+    h.step(mode="stopped")  # t = 0: the guard holds from now
+    for _ in range(3):
+        h.step()
+        assert _h(h) == "clear"
+    h.step()  # t = 0.125
+    assert _h(h) == "held"
+
+
+def test_an_enumeration_code_outside_its_values_reads_as_no_value(tmp_path):
+    """A monitored enum's code of -1 (no value) or past its values reads as no value, which no comparison matches
+    (not the last value, which -1 would index)."""
+    h, _ = _toggle(tmp_path)
+    for code in (-1.0, 3.0):
+        h.system.monitored_port.FixValue(h.context, np.array([3.0, code]))
+        for _ in range(6):  # longer than the after: 0.125 of mode == stopped
+            h.context.SetTime(h.t)
+            h.context.SetDiscreteState(h.system.EvalUniquePeriodicDiscreteUpdate(h.context))
+            h.t += h.system.period
+        assert _h(h) == "clear", code
+
+
+def test_the_controllers_ports_channels_and_commands_as_its_users_see_them(tmp_path):
+    from cellsim.channels import NO_VALUE
+
+    h, model = _toggle(tmp_path)
+    assert h.system.risk_model is model
+    assert h.system.GetInputPort("monitored").size() == 2
+    specs = {spec.signal: spec for spec, _ in h.system.channels}
+    assert specs["H"].description == "Phase of hazard H" and specs["safmod"].description == "Commanded safmod"
+    assert specs["alarm"].description == "Commanded alarm"
+    h.step()
+    alarm = h.system.GetOutputPort("alarm").Eval(h.context)
+    assert list(alarm) == [NO_VALUE]  # a bool with no default and no demand: no request, not false
+    h.step(sep=0.5)
+    assert list(h.system.GetOutputPort("alarm").Eval(h.context)) == [1.0]
+    assert h.command("safmod") == "ssmon"

@@ -442,3 +442,48 @@ def test_authenticated_frames_match_known_good_bytes_and_any_changed_mac_bit_is_
                               authenticator=Authenticator(message, message_key(bytes(16), message.frame_id), TICK,
                                                           Clock(T0 + 0.125)))
     assert other_key.check(expected, 0.0).fault is Fault.AUTH
+
+
+def test_a_message_is_authenticated_only_with_both_a_freshness_value_and_a_mac():
+    from bridges.secoc import is_authenticated
+
+    assert is_authenticated(CURTAIN)
+    half = cantools.database.load_string(
+        'VERSION ""\nBU_: N\nBO_ 5 Half: 2 N\n SG_ Crc : 0|8@1+ (1,0) [0|255] "" N\n'
+        ' SG_ Freshness : 8|8@1+ (1,0) [0|255] "" N\n', "dbc").get_message_by_name("Half")
+    assert not is_authenticated(half)
+
+
+def test_the_freshness_window_is_refused_when_it_only_just_fails_to_span_watchdog_and_skew():
+    """Binary fractions: ticks of 2^-7 s give 8 low bits a reach of +-1.0 s exactly; a watchdog and skew that add
+    up to it are refused (they must be less), a hair less is taken."""
+    from bridges.secoc import window_problem
+
+    tick = 2.0 ** -7
+    problem = window_problem(CURTAIN, tick, 0.5, 0.5)
+    assert problem == ("its 8-bit freshness value at 0.0078125 s ticks rebuilds only within +-1 s, which must exceed the "
+                       "watchdog (0.5 s) plus the clock skew allowed (0.5 s): widen the Freshness signal or lengthen "
+                       "freshness_tick")
+    assert window_problem(CURTAIN, tick, 0.5 - 2.0 ** -20, 0.5) is None
+
+
+def test_freshness_values_sent_within_one_tick_follow_one_another():
+    clock = Clock(T0 + 0.123)
+    sender = device(clock)
+    values = [sender.next_freshness() for _ in range(4)]
+    first = math.floor((T0 + 0.123) / TICK)
+    assert values == [first, first + 1, first + 2, first + 3]
+    clock.t += 1.0  # the clock moves on: its own count again
+    assert sender.next_freshness() == math.floor((T0 + 1.123) / TICK)
+
+
+def test_a_frame_exactly_half_the_counters_range_old_is_rebuilt_as_old_and_is_late():
+    """The receiver rebuilds the full value nearest its own count; exactly half the range (128 ticks) away is read
+    as past, so an authentic frame that old verifies and is late, not taken as one from the future."""
+    sent = protect(CURTAIN, {"Broken": 1}, 3, device(Clock(T0)))
+    receiver = DeviceChecker(message=CURTAIN, timeout=0.1, recover_after=1,
+                             authenticator=device(Clock(T0 + 128 * TICK)))
+    assert receiver.check(sent, 0.0).fault is Fault.LATE
+    ahead = DeviceChecker(message=CURTAIN, timeout=0.1, recover_after=1,
+                          authenticator=device(Clock(T0 + 127 * TICK)))
+    assert ahead.check(sent, 0.0).fault is Fault.LATE  # nearer: the same value, late

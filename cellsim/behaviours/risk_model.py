@@ -197,9 +197,8 @@ def compile_risk_model(loaded: Loaded[RiskModelFile]) -> RiskModel:
 
     for name in rm.macros:  # every macro, used or not: a broken one is an error where it is written
         key = f"macros.{name}"
-        try:
-            parse(name, vocabulary, rm.macros, source=loaded.source, line_offset=(loaded.line_of(key) or 1) - 1,
-                  allow_temporal=False)
+        try:  # (the error names the file and the key's line; the formula's message says where in its text)
+            parse(name, vocabulary, rm.macros, allow_temporal=False)
         except FormulaError as e:
             raise error(key, e.message) from None
 
@@ -213,10 +212,7 @@ def compile_risk_model(loaded: Loaded[RiskModelFile]) -> RiskModel:
                                 f"'{getattr(tr, end)}' is not a phase of this model ({', '.join(phases)})")
             key = f"hazards.{hname}.transitions.{i}.when"
             try:
-                formula = parse(
-                    tr.when, vocabulary, rm.macros, source=loaded.source,
-                    line_offset=(loaded.line_of(key) or 1) - 1, allow_temporal=False,
-                )
+                formula = parse(tr.when, vocabulary, rm.macros, allow_temporal=False)
             except FormulaError as e:
                 raise error(key, e.message) from None
             transitions.append(CompiledTransition(tr.phase, tr.to, compile_predicate(formula, vocabulary), tr.after, tr.when,

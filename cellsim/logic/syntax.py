@@ -356,6 +356,13 @@ def _domain_kind(domain: Domain) -> str:
     raise TypeError(f"not a domain: {domain!r}")
 
 
+def _described(domain: Domain) -> str:
+    """A domain as an error names it: its kind, and a number's unit."""
+    if isinstance(domain, NumberDomain) and domain.unit:
+        return f"numeric, in {domain.unit}"
+    return _domain_kind(domain)
+
+
 def _same_domain(a: Domain, b: Domain) -> bool:
     if isinstance(a, EnumDomain) and isinstance(b, EnumDomain):
         return set(a.values) == set(b.values)
@@ -599,11 +606,8 @@ class _Parser:
             self.next()
             other = self.vocabulary[tok.text]
             if not _same_domain(domain, other):
-                raise self.error(
-                    tok,
-                    f"cannot compare {name} ({kind}) with {tok.text} ({_domain_kind(other)}): "
-                    "the domains differ",
-                )
+                raise self.error(tok, f"cannot compare {name} ({_described(domain)}) with {tok.text} "
+                                      f"({_described(other)}): the domains differ")
             return Compare(name, op, None, tok.text)
         return Compare(name, op, self.parse_value(name, domain), None)
 

@@ -15,10 +15,9 @@ Drake dispatches a periodic publish at time t *before* the discrete updates at
 t, so a sample taken at t holds what the publisher's update at t - period
 produced. Messages are stamped with that time: the simulated time at which the
 value was published. The sample taken at t = 0 holds the initial state, which
-the publishers' updates at t = 0 replace at once: for a channel looked at every
-update, the next sample is stamped 0 too, so the initial one is dropped (it held
-for no time) and each channel has one message at t = 0. It is kept only when the
-run ends before that next sample.
+the publishers' updates at t = 0 replace at once: the next sample (or, for a
+run that ends before it, the final drain's) is stamped 0 too, so the initial one
+is dropped (it held for no time) and each channel has one message at t = 0.
 
 A run that stops between two samples of a channel (a live run stopped, a run
 interrupted) would lose what its publisher's last update wrote: the final drain
@@ -84,8 +83,8 @@ class Recorder:
         """Write and commit the messages of the samples logged since the last drain; returns how many.
 
         The commit records the simulated time reached as ``recorded_until``.
-        ``final`` marks the last drain of a run (which writes an initial sample
-        that nothing superseded).
+        ``final`` marks the last drain of a run, which also writes what the
+        publishers' last updates wrote that no sample has taken yet.
         """
         log = self.sink.FindMutableLog(root_context)
         rows: list[tuple] = []  # (sample index, channel rank, row)
@@ -99,7 +98,6 @@ class Recorder:
             current = self.sink.get_input_port().Eval(self.sink.GetMyContextFromRoot(root_context))
             for group in self._groups:
                 group.decode_final(current, root_context.get_time(), self.base, rows)
-                group.decode_pending(rows)
         if self.writer is None:
             return 0
         rows.sort(key=lambda r: (r[0], r[1]))
@@ -135,8 +133,7 @@ class _Group:
     def __init__(self, every: int, record: str, channels: list[tuple[int, ChannelSpec, int, int]]):
         self.every = every
         self.on_change = record == "on_change"
-        self.pending: tuple | None = None  # (ticks, times, data) of an initial sample not yet superseded
-        self.last_tick: int | None = None  # the newest sample decoded
+        self.last_tick = -1  # the newest sample decoded (none yet)
         self.channels = channels  # (rank, spec, first row, end row) in the logged vector
         self.rows = np.concatenate([np.arange(a, b) for _, _, a, b in channels])
         local = np.cumsum([0] + [b - a for _, _, a, b in channels])
@@ -149,35 +146,23 @@ class _Group:
 
     def decode(self, ticks: np.ndarray, times: np.ndarray, data: np.ndarray, out: list) -> None:
         due = np.flatnonzero(ticks % self.every == 0)
-        if len(due):
-            self.last_tick = int(ticks[due[-1]])
-        if len(due) and self.pending is not None:
-            self.pending = None  # the initial sample is superseded by this block's first
-        if len(due) and ticks[due[0]] == 0:  # the initial state: the sample at tick ``every``, stamped 0 too, replaces it
-            if len(due) == 1:
-                self.pending = (ticks[due], times[due], data[:, due])
-            due = due[1:]
         if len(due) == 0:
             return
-        self._decode(due, times, data, out)
+        self.last_tick = int(ticks[due[-1]])
+        if ticks[due[0]] == 0:  # the initial state: the sample at tick ``every`` (or the final one), stamped 0 too, replaces it
+            due = due[1:]
+        if len(due):
+            self._decode(due, times, data, out)
 
     def decode_final(self, current: np.ndarray, t: float, base: float, out: list) -> None:
         """At the end of a run (``t``): the values its publishers' last updates wrote, which no sample has
         taken yet (a run stopped between two of its samples), as if sampled at the next tick."""
         tick = int(np.ceil(t / base / self.every - 1e-9)) * self.every
-        if self.last_tick is not None and tick <= self.last_tick:
+        if tick <= self.last_tick:
             return  # sampled already: a run that ends on its grid
-        self.pending = None  # stamped 0 too: what the first update wrote replaces the initial state
         found: list = []
         self._decode(np.array([0]), np.array([tick * base]), current.reshape(-1, 1), found)
         out.extend((_AFTER_EVERY_SAMPLE, rank, row) for _, rank, row in found)
-
-    def decode_pending(self, out: list) -> None:
-        """Write the initial sample if nothing superseded it (a run shorter than one period)."""
-        if self.pending is not None:
-            ticks, times, data = self.pending
-            self.pending = None
-            self._decode(np.arange(len(ticks)), times, data, out)
 
     def _decode(self, due: np.ndarray, times: np.ndarray, data: np.ndarray, out: list) -> None:
         block = data[np.ix_(self.rows, due)]
