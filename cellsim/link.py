@@ -186,8 +186,8 @@ class LinkTrust:
         if self.anomaly_since is None or now - self.anomaly_since > self.masquerade_window:
             self.anomaly_since, self.anomalies = now, 0
         self.anomalies += 1
-        if self.anomalies >= self.masquerade_after and not self.masquerade:
-            self.masquerade, self.clean_run = True, 0
+        if self.anomalies >= self.masquerade_after:
+            self.masquerade = True  # (the message that made the anomaly also restarts the clean run)
 
     def good(self, now: float, values=None) -> Judgement:
         """A good message arrived at ``now``."""

@@ -10,8 +10,8 @@ every unexplained one with the line it changes (``mutmut show``).
     .venv/bin/mutmut run --max-children 2
     .venv/bin/python scripts/mutation_report.py
 
-Exit 0 when every mutant is killed or explained; 1 when one survives unexplained, found no
-test, timed out or was never run; 2 when there is no mutmut run to read. An explanation of
+Exit 0 when every mutant is killed (its tests failed, hung or crashed) or explained; 1 when one
+survives unexplained, found no test or was never run; 2 when there is no mutmut run to read. An explanation of
 a mutant that no longer survives (or no longer exists) is listed as stale, to be removed.
 """
 
@@ -29,6 +29,9 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 EQUIVALENTS = ROOT / "tests" / "mutation_equivalents.yaml"
 KILLED = {1, 3}
+"""mutmut's exit codes of a run that failed: a test caught the mutant."""
+DETECTED = {"timeout", "segfault"}
+"""Outcomes that are detections too: the tests never finished (a loop that no longer ends, a crash)."""
 SURVIVED = 0
 
 
@@ -73,7 +76,7 @@ def main() -> int:
         counts = Counter()
         for name, code in codes.items():
             word = outcome(code)
-            if code in KILLED:
+            if code in KILLED or word in DETECTED:
                 counts["killed"] += 1
                 if name in equivalents:
                     stale.append((name, "killed now"))

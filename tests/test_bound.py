@@ -118,3 +118,19 @@ def test_the_campaign_block_names_what_it_states():
     assert block["conditions"]["A"] == Bound(2, 3, 0.9).to_json() and block["conditions"]["B"]["failures"] == 0
     assert block["conditions"]["B"]["upper_bound"] == upper_bound(0, 3, 0.9)  # at the block's confidence
     assert Bound(0, 0).to_json() == {"failures": 0, "runs": 0, "rate": None, "upper_bound": 1.0}
+
+
+def test_a_cdf_whose_terms_sum_past_one_by_rounding_is_one():
+    """Near k = n, log-space terms can add up to a hair above 1 (1.0000000000000004 for k = 13, n = 14, p = 0.01):
+    a probability is capped at 1."""
+    assert binomial_cdf(13, 14, 0.01) == 1.0 and binomial_cdf(9, 10, 0.01) == 1.0
+
+
+def test_runs_needed_at_another_confidence_uses_that_confidence_throughout():
+    assert (runs_needed(0.1, 0.99), runs_needed(0.01, 0.99), runs_needed(0.5, 0.99)) == (44, 459, 7)
+
+
+def test_a_probability_reads_as_people_write_it():
+    from cellsim.validation.bound import probability
+
+    assert [probability(p) for p in (None, 0.000998345, 0.0372, 0.5, 1.0)] == ["-", "0.000998", "0.0372", "0.5", "1"]

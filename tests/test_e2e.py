@@ -291,3 +291,29 @@ def test_a_stream_of_corrupt_frames_keeps_the_device_corrupt_until_it_stops():
         assert checker.check(bad, 0.04 * i).fault is Fault.CRC
         assert checker.watchdog(0.04 * i + 0.01) is None and checker.link.value == "corrupt", i
     assert checker.watchdog(0.28 + 0.2).fault is Fault.TIMEOUT and checker.link.value == "stale"
+
+
+@pytest.mark.parametrize("spoil", ["short", "range", "jump"])
+def test_a_stream_of_any_faulty_frames_keeps_the_device_corrupt_while_it_comes(spoil):
+    """Short frames, values out of range, counters jumping (a second sender): each arrival of a faulty frame counts
+    as the device heard, so its link stays corrupt past the watchdog, then goes stale when they stop."""
+    from cantools.autosar.end_to_end import compute_profile2_crc
+
+    checker = DeviceChecker(message=SCANNER, timeout=0.1, recover_after=1)
+    good = frames(16)
+    assert checker.check(good[0], 0.0).trusted
+
+    def faulty(i: int) -> bytes:
+        if spoil == "short":
+            return good[i][:-1]
+        if spoil == "range":
+            data = bytearray(good[i])
+            data[2:4] = (65_000).to_bytes(2, "little")
+            data[0] = compute_profile2_crc(bytes(data), data_id(SCANNER.frame_id, i))
+            return bytes(data)
+        return good[(i * 5) % 16]  # counters jumping by 5: anomalies, then a masquerade
+
+    for i in range(1, 8):
+        assert checker.check(faulty(i), 0.04 * i).fault is not None
+        assert checker.watchdog(0.04 * i + 0.01) is None and checker.link.value == "corrupt", (spoil, i)
+    assert checker.watchdog(0.5).fault is Fault.TIMEOUT

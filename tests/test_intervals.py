@@ -111,3 +111,48 @@ def test_a_sets_measure_membership_and_hash():
     sets = {make([(a, a + 1)]) for a in range(10)}
     assert len(sets) == 10 and len({hash(x) for x in sets}) == 10  # distinct sets spread over distinct hashes
     assert make([(1, 2), (2, 3)]) == make([(1, 3)]) and hash(make([(1, 2), (2, 3)])) == hash(make([(1, 3)]))
+
+
+# Every set of whole-number pieces of [0, 6): the 64 unions of its unit cells, so that every pattern of gaps
+# and neighbours (two pieces that merge under a window while an earlier one does not, ...) is met.
+SMALL_END = 6.0
+SMALL_POINTS = [k / 2 for k in range(int(2 * SMALL_END))]
+ALL_SETS = [IntervalSet(0.0, SMALL_END, [(k, k + 1) for k in range(6) if mask >> k & 1]) for mask in range(64)]
+
+
+def _small(flat, predicate):
+    assert canonical(flat) and all(x <= SMALL_END for x in flat), flat
+    got = IntervalSet.from_flat(0.0, SMALL_END, list(flat))
+    assert [holds(got, t) for t in SMALL_POINTS] == [predicate(t) for t in SMALL_POINTS], flat
+
+
+def test_every_small_set_under_every_window_and_connective():
+    for a in ALL_SETS:
+        for lo in range(3):
+            for hi in (lo, lo + 1, lo + 3, math.inf):
+                _small(eventually_flat(list(a.flat), lo, hi, 0.0),
+                       lambda t: any(t + lo < r and t + hi >= l for l, r in a.intervals))
+        for b in ALL_SETS:
+            _small(union_flat(list(a.flat), list(b.flat)), lambda t: holds(a, t) or holds(b, t))
+            _small(intersection_flat(list(a.flat), list(b.flat)), lambda t: holds(a, t) and holds(b, t))
+
+
+def test_every_small_pair_under_until():
+    for phi in ALL_SETS:
+        for psi in ALL_SETS:
+            for hi in (0, 1, 2, math.inf):
+                def until(t):
+                    for c, d in psi.intervals:
+                        witness = max(t, c)
+                        if witness < d and witness <= t + hi and (witness == t or holds(phi, t)) and all(
+                                holds(phi, u) for u in SMALL_POINTS if t <= u < witness):
+                            return True
+                    return False
+
+                _small(until0_flat(list(phi.flat), list(psi.flat), hi), until)
+
+
+def test_a_set_reads_back_as_the_expression_that_makes_it():
+    s = make([(1, 3), (5, 6)])
+    assert repr(s) == "IntervalSet(0.0, 12.0, [(1.0, 3.0), (5.0, 6.0)])"
+    assert eval(repr(s), {"IntervalSet": IntervalSet}) == s

@@ -249,3 +249,11 @@ def test_every_field_of_the_rule_survives_a_round_trip_through_its_state():
     plain.good(0.0)
     again = LinkTrust(timeout=1.0, recover_after=1).restore(plain.state())
     assert again.sequence(7, 0.1, content=5.0) is Fault.REPEATED and again.anomalies == 0
+
+
+def test_a_late_message_at_a_live_clocks_time_does_not_open_the_sequence_to_replays():
+    """As at t near zero, so at a live clock's times: stale by a late message, not silent, an old number is refused."""
+    link = LinkTrust(timeout=0.25, recover_after=1)
+    assert _take(link, 7, 1000.0) is None
+    link.fail(Fault.LATE, 1000.125)
+    assert link.link is PhysicalLink.STALE and link.sequence(5, 1000.125) is Fault.REPEATED

@@ -456,6 +456,9 @@ hazards:
      "7: controlled.alarm.default: 0 is not a value of alarm"),
     ("  H:\n", "  sep:\n", "14: hazards: hazard names must differ from variables and macros: sep"),
     ("  H:\n", "  close:\n", "14: hazards: hazard names must differ from variables and macros: close"),
+    ("hazards:\n  H:\n", "hazards:\n  sep:\n    transitions: []\n  close:\n",
+     "14: hazards: hazard names must differ from variables and macros: close, sep"),
+    ("sep < 1.0", "F sep < 1.0", "9: macros.close: in macro 'close' (at 1:1 of its text): temporal operator 'F' is not allowed here"),
     ("sep < 1.0", "sep <", "9: macros.close: in macro 'close' (at 1:6 of its text): sep is numeric: expected a number, "
                            "found end of input"),
     ("{phase: clear, to: near,", "{phase: calm, to: near,",
@@ -501,6 +504,9 @@ def test_the_probe_model_loads_as_written():
     (hazard,) = model.hazards
     assert [(t.phase, t.to, t.text) for t in hazard.transitions] == [
         ("clear", "near", "close and mode == normal"), ("near", "clear", "sep >= 1.5")]
+    from cellsim.logic.syntax import parse
+
+    assert hazard.transitions[1].formula == parse("sep >= 1.5", model.vocabulary())  # what verify translates
     assert hazard.demands == {"near": {"safmod": "ssmon", "alarm": True}}
     assert model.vocabulary()["sep"].unit == "m" and model.vocabulary()["H"].values == ("clear", "near", "harm")
     assert model.demand_rank("safmod", "stopped") == 2 and model.macros == {"close": "sep < 1.0"}
@@ -547,6 +553,10 @@ WELDING_VARIABLES = "safmod, rloc, wact, ract, rngDet, lgtBar, notif, notif_leav
      "dist is a number but the channel carries ['free', 'protective', 'warning']"),
     ("palletising_cell.yaml", lambda c: c.monitors.update(curtain="press_scanner.field"), "monitors.curtain", 169,
      "curtain takes [False, True] but the channel carries ['free', 'protective', 'warning']"),
+    ("palletising_cell.yaml", lambda c: c.monitors.update(dist="press.cycles_completed"), "monitors.dist", 171,
+     "dist is in m but the channel is in no unit"),
+    ("welding_cell.yaml", lambda c: c.commands.update(wact=["welder.physical_sample"]), "commands.wact.0", 151,
+     "'welder.physical_sample' is not a command input"),
 ])
 def test_a_risk_model_bound_to_the_wrong_channels_or_inputs_is_one_error_at_its_key(scenario, edit, key, line, problem):
     """The controller's binding of the risk model's variables to the cell's channels and command inputs, each
@@ -656,3 +666,32 @@ def test_the_controllers_ports_channels_and_commands_as_its_users_see_them(tmp_p
     h.step(sep=0.5)
     assert list(h.system.GetOutputPort("alarm").Eval(h.context)) == [1.0]
     assert h.command("safmod") == "ssmon"
+
+
+def test_a_bool_command_returns_to_no_request_when_no_hazard_demands_it(tmp_path):
+    from cellsim.channels import NO_VALUE
+
+    h, _ = _toggle(tmp_path)
+    h.step(sep=0.5)
+    assert list(h.system.GetOutputPort("alarm").Eval(h.context)) == [1.0]
+    h.step(sep=3.0)  # clear again: the alarm's demand is gone, and it has no default
+    assert _h(h) == "clear" and list(h.system.GetOutputPort("alarm").Eval(h.context)) == [NO_VALUE]
+    assert h.system.hazard_phases() == {"sc.H": {"initial": "clear", "mishap": "harm"}}
+
+
+def test_a_missing_risk_model_is_an_error_at_its_key_when_the_scenario_loads(tmp_path):
+    from cellsim.scenario import load_scenario
+
+    with pytest.raises(ConfigError) as e:
+        load_scenario(ROOT / "scenarios" / "welding_cell.yaml", [f"safety_controller.risk_model={tmp_path / 'none.yaml'}"])
+    assert e.value.key == "behaviours.safety_controller.risk_model" and "none.yaml" in e.value.problem
+
+
+def test_the_controller_is_the_cells_module_of_its_name_and_the_recorder_taps_it():
+    from cellsim.scenario import load_scenario
+    from diagrams.cell import build_cell
+
+    cell = build_cell(load_scenario(ROOT / "scenarios" / "welding_cell.yaml"), seed=0, duration=1.0, record=True)
+    assert isinstance(cell.modules["safety_controller"], SafetyController)
+    assert cell.recorder.name == "blackbox"
+    assert cell.diagram.HasSubsystemNamed("blackbox.log") and cell.diagram.HasSubsystemNamed("safety_controller.monitors")
