@@ -557,6 +557,11 @@ WELDING_VARIABLES = "safmod, rloc, wact, ract, rngDet, lgtBar, notif, notif_leav
      "dist is in m but the channel is in no unit"),
     ("welding_cell.yaml", lambda c: c.commands.update(wact=["welder.physical_sample"]), "commands.wact.0", 151,
      "'welder.physical_sample' is not a command input"),
+    ("welding_cell.yaml", lambda c: c.commands.update(wact=["welder.activity_request", "process_controller.activity_request"]),
+     "commands.wact.1", 151, "'process_controller.activity_request' expects a different type than the other inputs of wact"),
+    # an input the process already drives: one error at the key, where Drake's own check stopped the build in C++
+    ("welding_cell.yaml", lambda c: c.commands.update(ract=["process_controller.activity_request", "robot.activity"]),
+     "commands.ract.1", 150, "'robot.activity' is already driven by another module of the cell: an input has one driver"),
 ])
 def test_a_risk_model_bound_to_the_wrong_channels_or_inputs_is_one_error_at_its_key(scenario, edit, key, line, problem):
     """The controller's binding of the risk model's variables to the cell's channels and command inputs, each

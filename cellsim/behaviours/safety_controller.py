@@ -190,6 +190,9 @@ def build_safety_controller(cell, name: str, cfg: SafetyControllerConfig) -> Saf
             _check_domain(sf, where, var, risk_model.controlled[var], ctype)
             if var in command_types and command_types[var] != ctype:
                 raise sf.error(where, f"'{target}' expects a different type than the other inputs of {var}")
+            if builder.IsConnectedOrExported(system.GetInputPort(port_name)):
+                raise sf.error(where, f"'{target}' is already driven by another module of the cell: an input has one "
+                                      "driver")
             command_types[var] = ctype
             targets[var].append(system.GetInputPort(port_name))
         if var not in command_types:
