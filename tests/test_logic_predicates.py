@@ -208,3 +208,10 @@ def test_a_temporal_formula_is_refused_for_what_it_is():
     with pytest.raises(FormulaError) as e:
         compile_predicate(Always(BoolVar("lgtBar")), VOC)
     assert str(e.value) == "temporal operators cannot be evaluated on a single valuation"
+
+
+def test_a_negated_set_membership_holds_outside_the_set_only():
+    guard = compile_predicate(parse("not (safmod in {normal, stopped})", VOC), VOC)
+    assert guard({"safmod": "pflim"}) is True and guard({"safmod": "normal"}) is False
+    single = compile_predicate(parse("not (safmod in {normal})", VOC), VOC)
+    assert single({"safmod": "pflim"}) is True and single({"safmod": "normal"}) is False
