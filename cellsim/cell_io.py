@@ -1,6 +1,6 @@
 """How a cell meets the physical world: the I/O choice its one builder takes.
 
-``diagrams.cell.build_cell(sf, io=...)`` is the only place that decides, from one
+``cellsim.diagrams.cell.build_cell(sf, io=...)`` is the only place that decides, from one
 of these, what feeds each entity's physical samples and where the cell's
 channels and commands go; the diagram exports the same channel and command
 ports whichever is chosen (cf. ``MakeHardwareStation(scenario, hardware=...)``).
@@ -97,7 +97,7 @@ class Emulated:
     rates: dict[str, float] = field(default_factory=dict)
     """Entity name -> samples per second, instead of one per update period (a robot's state at 500 Hz)."""
     devices: object = None
-    """The cell's devices speaking their real protocols (``bridges.devices.EmulatedDevices``), or None:
+    """The cell's devices speaking their real protocols (``cellsim.bridges.devices.EmulatedDevices``), or None:
     every entity on its physical key."""
     faults: FaultSchedule = field(default_factory=FaultSchedule)
     process: str = "emulator"

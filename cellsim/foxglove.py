@@ -126,7 +126,7 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
     from cellsim.services.blackbox import BlackBox, BlackBoxError
     from cellsim.validation.check import CheckError, locate_rebuildable_run
     from cellsim.validation.traces import run_end
-    from diagrams.cell import build_cell
+    from cellsim.diagrams.cell import build_cell
 
     destination = Path(destination)
     if destination.is_dir():
@@ -314,7 +314,7 @@ class FoxgloveFeed:
         self.server.stop()
 
     def add_to(self, builder, cell, time_step: float):
-        """Add the system feeding this server to the diagram being built (``diagrams.cell`` calls it)."""
+        """Add the system feeding this server to the diagram being built (``cellsim.diagrams.cell`` calls it)."""
         return add_foxglove_feed(builder, cell, self, time_step)
 
 

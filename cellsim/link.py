@@ -70,7 +70,7 @@ class Fault(str, Enum):
     """The sequence shows two senders (it jumps back and forth, or repeats with other content): every
     message fails until one sender's stable run clears it."""
     AUTH = "auth"
-    """An authenticated frame whose MAC does not verify (``bridges.secoc``): forged, tampered with, made with
+    """An authenticated frame whose MAC does not verify (``cellsim.bridges.secoc``): forged, tampered with, made with
     another key, or too old to place."""
 
 

@@ -1,7 +1,7 @@
 """Physical-twin samples that do not come from the network: none, or a black box replayed.
 
 Every entity has a ``physical_sample`` input ``[t, link, *fields]``. The builder
-(``diagrams.cell``) decides what feeds it:
+(``cellsim.diagrams.cell``) decides what feeds it:
 
 * nothing (a simulated run): the input is fixed to :func:`no_sample`; an entity in
   shadow or twin mode then reads its link stale and fails safe.

@@ -39,7 +39,7 @@ class ModuleKind:
     """What a scenario's ``kind:`` means.
 
     ``build(cell, name, config)`` adds the module's system to ``cell.builder``
-    (a :class:`diagrams.cell.CellBuild`) and returns it (or ``None`` when it
+    (a :class:`cellsim.diagrams.cell.CellBuild`) and returns it (or ``None`` when it
     adds nothing, e.g. a recorder not wanted). Modules are built by ``stage``,
     lower first, then in the order the scenario lists them: entities (0) before
     the behaviours wired to them (10), the safety controller (20), which reads

@@ -36,7 +36,7 @@ from cellsim.services.recorder import DRAIN_PERIOD
 from cellsim.cell_io import SIMULATED, CellIO
 from cellsim.live.systems import TICK
 from cellsim.systems import hazard_phases
-from diagrams.cell import CellDiagram, build_cell, scenario_for
+from cellsim.diagrams.cell import CellDiagram, build_cell, scenario_for
 
 
 

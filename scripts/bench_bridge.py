@@ -71,8 +71,8 @@ def play_devices(bus, loaded, load: float, stop: threading.Event, sent: dict, ca
     frames signed as they are sent (their freshness follows the clock), the others made once."""
     import can
 
-    from bridges.e2e import protect
-    from bridges.secoc import Authenticator, is_authenticated, message_key
+    from cellsim.bridges.e2e import protect
+    from cellsim.bridges.secoc import Authenticator, is_authenticated, message_key
 
     cfg, database = loaded.config, loaded.database
     devices = []
@@ -161,7 +161,7 @@ def run_load(load: float, seconds: float, tmp: Path, key_dir: Path | None, confi
     import can
     import zenoh
 
-    from bridges.config import load_bridge
+    from cellsim.bridges.config import load_bridge
     from cellsim.live import keys, pki
     from cellsim.live.session import session_config
 

@@ -334,9 +334,9 @@ class CommandFrames:
     def __init__(self, bus: str, message_names: list[str], keys: Path, config: str = WELDING_BRIDGE):
         import can
 
-        from bridges.config import load_bridge
-        from bridges.e2e import DeviceChecker
-        from bridges.secoc import Authenticator, message_key
+        from cellsim.bridges.config import load_bridge
+        from cellsim.bridges.e2e import DeviceChecker
+        from cellsim.bridges.secoc import Authenticator, message_key
         from cellsim.live.pki import can_key
 
         loaded = load_bridge(config)

@@ -10,7 +10,7 @@ from cellsim.config.typed_yaml import ConfigError
 from cellsim.scenario import load_scenario
 from cellsim.services.blackbox import BlackBox
 from cellsim.simulation import simulate
-from diagrams.cell import build_cell
+from cellsim.diagrams.cell import build_cell
 
 from conftest import WELDING_CELL, place_operator
 from test_sensors import put_operator

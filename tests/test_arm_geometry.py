@@ -6,7 +6,7 @@ import numpy as np
 from pydrake.systems.analysis import Simulator
 
 from cellsim.entities.arm_geometry import collision_shapes, model_without_collision
-from diagrams.cell import build_cell
+from cellsim.diagrams.cell import build_cell
 
 from conftest import ROOT, welding_cell
 

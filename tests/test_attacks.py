@@ -234,8 +234,8 @@ def test_forged_command_frames_after_the_twin_is_lost_release_no_device(tmp_path
     import can
     from cantools.autosar.end_to_end import compute_profile2_crc
 
-    from bridges.config import load_bridge
-    from bridges.e2e import data_id
+    from cellsim.bridges.config import load_bridge
+    from cellsim.bridges.e2e import data_id
 
     database = load_bridge(ROOT / "bridges" / "welding_cell.yaml").database
     asks = {"SafetyModeRequestAuthenticated": {"SafetyMode": "normal"},

@@ -507,7 +507,7 @@ def test_a_pose_named_moving_is_refused(tmp_path):
 def test_any_identifier_is_a_value_even_the_enum_machinerys_own_words(tmp_path):
     """Names such as mro or _x_ once crashed the enum a cell's vocabulary becomes."""
     from cellsim.scenario import load_scenario
-    from diagrams.cell import build_cell
+    from cellsim.diagrams.cell import build_cell
 
     path = tmp_path / "odd.yaml"
     path.write_text(

@@ -12,9 +12,9 @@ import can
 import pytest
 import zenoh
 
-from bridges.config import load_bridge
-from bridges.daemon import Bridge
-from bridges.e2e import DeviceChecker, protect
+from cellsim.bridges.config import load_bridge
+from cellsim.bridges.daemon import Bridge
+from cellsim.bridges.e2e import DeviceChecker, protect
 from cellsim.channels import BOOL, enum_type, number_type
 from cellsim.config.typed_yaml import ConfigError
 from cellsim.live.codec import FieldCodec
@@ -281,7 +281,7 @@ def test_commands_reach_the_bus_only_in_twin_mode_and_the_safe_ones_when_the_sup
 def test_the_daemon_loop_publishes_device_frames_until_stopped(sessions, e2e_config):
     import threading
 
-    from bridges.daemon import run_bridge
+    from cellsim.bridges.daemon import run_bridge
 
     hub, watcher = sessions
     loaded = load_bridge(e2e_config)
@@ -366,8 +366,8 @@ def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_s
     import threading
     import time
 
-    from bridges.daemon import run_bridge
-    from bridges.ros import decode_joint_state
+    from cellsim.bridges.daemon import run_bridge
+    from cellsim.bridges.ros import decode_joint_state
 
     hub, controller = sessions
     samples: queue.Queue = queue.Queue()
@@ -514,7 +514,7 @@ def test_robot_requests_go_to_the_controller_in_twin_mode_and_a_stop_when_the_tw
 def test_an_emulated_device_fails_safe_on_a_bad_command_frame_as_the_real_one_would(e2e_config):
     from types import SimpleNamespace
 
-    from bridges.devices import EmulatedDevices
+    from cellsim.bridges.devices import EmulatedDevices
 
     loaded = load_bridge(e2e_config)
     bus = can.Bus(interface="virtual", channel="emulated-welder")
@@ -567,7 +567,7 @@ def test_bad_emulate_can_arguments_are_one_line_exit_2(tmp_path, args, expected)
 def test_the_packed_joint_state_is_byte_for_byte_what_rosbags_serialises():
     import numpy as np
 
-    from bridges.ros import JOINT_STATE, JointStateEncoder, typestore
+    from cellsim.bridges.ros import JOINT_STATE, JointStateEncoder, typestore
 
     store = typestore()
     joints = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]
@@ -586,7 +586,7 @@ def test_the_packed_joint_state_is_byte_for_byte_what_rosbags_serialises():
 def test_a_bus_that_refuses_a_frame_does_not_stop_the_daemons_loop(sessions, e2e_config):
     import threading
 
-    from bridges.daemon import run_bridge
+    from cellsim.bridges.daemon import run_bridge
 
     hub, twin = sessions
 

@@ -123,8 +123,8 @@ def test_with_authenticated_frames_a_forger_on_the_bus_fails_the_curtain_safe_fr
 
     from cantools.autosar.end_to_end import compute_profile2_crc
 
-    from bridges.config import load_bridge
-    from bridges.e2e import data_id
+    from cellsim.bridges.config import load_bridge
+    from cellsim.bridges.e2e import data_id
     from live_processes import ChannelWatch
 
     curtain = load_bridge(BRIDGE).database.get_message_by_name("LightCurtainStateAuthenticated")

@@ -7,7 +7,7 @@ import cantools
 import pytest
 from cantools.autosar.end_to_end import check_profile2_crc
 
-from bridges.e2e import DeviceChecker, Fault, data_id, protect
+from cellsim.bridges.e2e import DeviceChecker, Fault, data_id, protect
 
 from conftest import ROOT
 
@@ -145,7 +145,7 @@ def test_a_retransmitted_frame_is_no_masquerade():
 
 # Known-good frames of ScannerState, written out byte for byte: computed once with cantools' own
 # AUTOSAR profile 2 (cantools.autosar.end_to_end.compute_profile2_crc, polynomial 0x2F) over bytes 1..5
-# and the data ID (0x120 + counter) mod 256, not with bridges.e2e.
+# and the data ID (0x120 + counter) mod 256, not with cellsim.bridges.e2e.
 KNOWN_GOOD = [
     (5, {"Range": "near", "Distance": 1.5}, "4f15dc050000"),  # data ID 0x25
     (15, {"Range": "close", "Distance": 60.0}, "ae2f60ea0000"),  # data ID 0x2f; Distance at its DBC maximum
@@ -195,7 +195,7 @@ def test_a_value_outside_its_signal_is_never_encoded_into_a_frame():
     never made of a value clamped or wrapped on the way."""
     import cantools.database
 
-    from bridges.secoc import Authenticator, message_key
+    from cellsim.bridges.secoc import Authenticator, message_key
 
     for values in ({"Range": "far", "Distance": 60.5}, {"Range": 3, "Distance": 1.0}):
         with pytest.raises(cantools.database.EncodeError):
@@ -207,8 +207,8 @@ def test_a_value_outside_its_signal_is_never_encoded_into_a_frame():
 
 
 def test_a_checker_counts_the_faults_its_kind_of_message_can_have():
-    from bridges.e2e import AUTHENTICATED_FAULTS, CAN_FAULTS
-    from bridges.secoc import Authenticator, message_key
+    from cellsim.bridges.e2e import AUTHENTICATED_FAULTS, CAN_FAULTS
+    from cellsim.bridges.secoc import Authenticator, message_key
 
     plain = DeviceChecker(message=SCANNER, timeout=0.1)
     assert list(plain.counts) == [f.value for f in CAN_FAULTS]
@@ -223,7 +223,7 @@ def test_a_checker_counts_the_faults_its_kind_of_message_can_have():
 def test_a_stream_of_forged_frames_keeps_the_device_corrupt_not_stale():
     """While forged authenticated frames keep coming, the device stays failed as corrupt (someone is sending),
     past its watchdog; when they stop it goes stale."""
-    from bridges.secoc import Authenticator, message_key
+    from cellsim.bridges.secoc import Authenticator, message_key
 
     message = DBC.get_message_by_name("ScannerStateAuthenticated")
     key, clock = message_key(bytes(16), message.frame_id), (lambda: 1.8e9)

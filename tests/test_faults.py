@@ -9,7 +9,7 @@ import math
 import pytest
 from conftest import ROOT
 
-from bridges.devices import CAN_FAULTS
+from cellsim.bridges.devices import CAN_FAULTS
 from cellsim.live.emulator import FAULTS as ZENOH_FAULTS
 from cellsim.live.emulator import Fault
 from cellsim.live.faults import ALL_FAULTS, FaultError, check_entities, check_faults, parse_fault, parse_rate
@@ -22,7 +22,7 @@ EXPECTED = ("expected ENTITY=KIND[@T0[-T1]] (seconds, T0 < T1) with KIND one of 
 
 
 def can_devices() -> set[str]:
-    from bridges.config import load_bridge
+    from cellsim.bridges.config import load_bridge
 
     return set(load_bridge(ROOT / "bridges" / "welding_cell.yaml").config.devices)
 

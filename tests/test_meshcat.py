@@ -22,7 +22,7 @@ from cellsim.services.blackbox import BlackBox
 from cellsim.simulation import make_simulator, simulate
 from cellsim.visual.scene import camera_pose
 from cellsim.visual.serve import open_meshcat
-from diagrams.cell import build_cell
+from cellsim.diagrams.cell import build_cell
 
 ROOT = Path(__file__).resolve().parents[1]
 WELDING = ROOT / "scenarios" / "welding_cell.yaml"

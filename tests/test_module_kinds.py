@@ -131,7 +131,7 @@ def test_a_kind_in_the_wrong_section_is_refused(tmp_path, capsys):
 
 def test_every_kind_documents_the_channels_its_systems_publish(tmp_path):
     """The docs of ``cellsim modules`` against the systems two cells build (every shipped kind)."""
-    from diagrams.cell import build_cell
+    from cellsim.diagrams.cell import build_cell
     from test_area_scanner import scanner_cell
     from test_process import press_cell
 
@@ -157,7 +157,7 @@ def test_every_kind_documents_the_channels_its_systems_publish(tmp_path):
 def test_every_kind_documents_the_inputs_others_drive(tmp_path):
     """Every typed input of a built system (what a safety controller's commands may drive) is documented,
     and every documented input exists: the curtain's reset only with its interlock, as it says."""
-    from diagrams.cell import build_cell
+    from cellsim.diagrams.cell import build_cell
 
     from test_process import press_cell
 

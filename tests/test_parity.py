@@ -1,7 +1,7 @@
 """One station: whatever carries the physical side, the cell is the same.
 
 * The welding cell built simulated, replayed, live on Zenoh and emulated exports the same
-  channel and command ports, with the same types (``diagrams.cell.build_cell``).
+  channel and command ports, with the same types (``cellsim.diagrams.cell.build_cell``).
 * A scripted physical session (a light curtain's samples) gives the twin the same black-box
   rows whether it arrives as Zenoh samples or as CAN frames through the bridge daemon.
 """
@@ -20,7 +20,7 @@ from cellsim.live.codec import encode_fields
 from cellsim.live.session import session_config
 from cellsim.scenario import load_scenario
 from cellsim.services.blackbox import BlackBox
-from diagrams.cell import build_cell
+from cellsim.diagrams.cell import build_cell
 
 from conftest import ROOT, run
 from live_processes import can_server, free_port, observer, processes, wait_alive
@@ -102,9 +102,9 @@ def _after_silence(twin, done: threading.Event) -> None:
 
 @pytest.mark.slow
 def test_a_scripted_curtain_gives_the_twin_the_same_rows_over_zenoh_and_over_can_through_the_bridge(tmp_path, cell_keys):
-    from bridges.config import load_bridge
-    from bridges.e2e import protect
-    from bridges.secoc import Authenticator, message_key
+    from cellsim.bridges.config import load_bridge
+    from cellsim.bridges.e2e import protect
+    from cellsim.bridges.secoc import Authenticator, message_key
     from cellsim.live.pki import can_key
 
     rows = {}

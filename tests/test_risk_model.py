@@ -318,7 +318,7 @@ def test_a_number_variable_is_bound_to_a_number_channel_in_its_unit(tmp_path, ch
     import shutil
 
     from cellsim.scenario import load_scenario
-    from diagrams.cell import build_cell
+    from cellsim.diagrams.cell import build_cell
 
     folder = tmp_path / "scenario"
     shutil.copytree(ROOT / "scenarios", folder)
@@ -567,7 +567,7 @@ def test_a_risk_model_bound_to_the_wrong_channels_or_inputs_is_one_error_at_its_
     """The controller's binding of the risk model's variables to the cell's channels and command inputs, each
     mismatch one error naming the scenario's key and line."""
     from cellsim.scenario import load_scenario
-    from diagrams.cell import build_cell
+    from cellsim.diagrams.cell import build_cell
 
     sf = load_scenario(ROOT / "scenarios" / scenario)
     edit(sf.scenario.behaviours["safety_controller"])
@@ -694,7 +694,7 @@ def test_a_missing_risk_model_is_an_error_at_its_key_when_the_scenario_loads(tmp
 
 def test_the_controller_is_the_cells_module_of_its_name_and_the_recorder_taps_it():
     from cellsim.scenario import load_scenario
-    from diagrams.cell import build_cell
+    from cellsim.diagrams.cell import build_cell
 
     cell = build_cell(load_scenario(ROOT / "scenarios" / "welding_cell.yaml"), seed=0, duration=1.0, record=True)
     assert isinstance(cell.modules["safety_controller"], SafetyController)

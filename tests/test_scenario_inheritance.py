@@ -185,7 +185,7 @@ def test_activities_must_be_the_robots(tmp_path, edit, key, expected):
 
 
 def test_what_the_cell_tells_a_person_is_in_its_own_words(tmp_path):
-    from diagrams.cell import build_cell
+    from cellsim.diagrams.cell import build_cell
 
     words = (
         f"base: {WELDING_CELL}\nentities:\n  operator:\n    notifications: [quiet, stepBack, stop]\n"

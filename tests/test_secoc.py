@@ -1,4 +1,4 @@
-"""Authenticated CAN frames (bridges/secoc.py): a forger who has the DBC but not the key fails the link
+"""Authenticated CAN frames (cellsim/bridges/secoc.py): a forger who has the DBC but not the key fails the link
 at his first frame; replays and stale frames are never taken."""
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ from cryptography.hazmat.primitives.ciphers import algorithms
 from cryptography.hazmat.primitives.cmac import CMAC
 from cryptography.hazmat.primitives.kdf.kbkdf import KBKDFCMAC, CounterLocation, Mode
 
-from bridges.config import load_bridge
-from bridges.e2e import DeviceChecker, data_id, protect
-from bridges.secoc import Authenticator, message_key
+from cellsim.bridges.config import load_bridge
+from cellsim.bridges.e2e import DeviceChecker, data_id, protect
+from cellsim.bridges.secoc import Authenticator, message_key
 from cellsim.config.typed_yaml import ConfigError
 from cellsim.link import Fault
 from cellsim.live import pki
@@ -54,7 +54,7 @@ def checker(clock: Clock) -> DeviceChecker:
 
 
 def test_a_frame_carries_the_documented_cmac_and_freshness_and_any_dbc_tool_decodes_it():
-    """The layout of docs/security.md, recomputed here from the standard primitives, not bridges.secoc."""
+    """The layout of docs/security.md, recomputed here from the standard primitives, not cellsim.bridges.secoc."""
     clock = Clock(T0 + 0.123)
     frame = protect(CURTAIN, {"Broken": 1}, 7, device(clock))
     kdf = KBKDFCMAC(algorithms.AES, Mode.CounterMode, 16, 4, 4, CounterLocation.BeforeFixed, b"cellsim SecOC",
@@ -232,8 +232,8 @@ def test_the_daemon_and_the_emulated_devices_authenticate_each_others_frames(tmp
 
     import zenoh
 
-    from bridges.daemon import Bridge
-    from bridges.devices import EmulatedDevices
+    from cellsim.bridges.daemon import Bridge
+    from cellsim.bridges.devices import EmulatedDevices
     from cellsim.channels import number_type
     from cellsim.live.session import session_config
 
@@ -341,7 +341,7 @@ def _forged(message, values: dict, counter: int) -> bytes:
 def test_every_reading_of_the_shipped_cell_refuses_a_forgery_from_its_first_frame():
     """Issue 32: the shipped configuration authenticates every device; a forged frame (CRC and counter right)
     is never a sample, whether it comes first or after the device's own good frames."""
-    from bridges.daemon import Bridge
+    from cellsim.bridges.daemon import Bridge
 
     loaded = load_bridge(AUTHENTICATED)
     assert loaded.e2e_only() == []
@@ -372,7 +372,7 @@ def test_every_command_of_the_shipped_cell_refuses_a_forgery_from_its_first_fram
     counter right) gets the kind's safe values, never what it asks, first or after good frames."""
     from types import SimpleNamespace
 
-    from bridges.devices import EmulatedDevices
+    from cellsim.bridges.devices import EmulatedDevices
     from cellsim.channels import number_type
 
     loaded = load_bridge(AUTHENTICATED)
@@ -445,7 +445,7 @@ def test_authenticated_frames_match_known_good_bytes_and_any_changed_mac_bit_is_
 
 
 def test_a_message_is_authenticated_only_with_both_a_freshness_value_and_a_mac():
-    from bridges.secoc import is_authenticated
+    from cellsim.bridges.secoc import is_authenticated
 
     assert is_authenticated(CURTAIN)
     half = cantools.database.load_string(
@@ -457,7 +457,7 @@ def test_a_message_is_authenticated_only_with_both_a_freshness_value_and_a_mac()
 def test_the_freshness_window_is_refused_when_it_only_just_fails_to_span_watchdog_and_skew():
     """Binary fractions: ticks of 2^-7 s give 8 low bits a reach of +-1.0 s exactly; a watchdog and skew that add
     up to it are refused (they must be less), a hair less is taken."""
-    from bridges.secoc import window_problem
+    from cellsim.bridges.secoc import window_problem
 
     tick = 2.0 ** -7
     problem = window_problem(CURTAIN, tick, 0.5, 0.5)

@@ -7,7 +7,7 @@ import pytest
 from pydrake.systems.analysis import Simulator
 
 from cellsim.vocabulary import Range
-from diagrams.cell import build_cell
+from cellsim.diagrams.cell import build_cell
 
 from conftest import welding_cell
 

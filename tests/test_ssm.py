@@ -194,7 +194,7 @@ def test_the_margin_condition_catches_arms_that_ignore_their_limit(tmp_path):
 def test_in_ssmon_a_speed_limit_with_no_value_stops_the_arm():
     """The robot's speed_limit input fails safe: NaN is 0 m/s in ssmon, ignored in normal."""
     from cellsim.entities.robot import SafetyMode
-    from diagrams.cell import build_cell
+    from cellsim.diagrams.cell import build_cell
 
     cell = build_cell(load_scenario(ASSEMBLY_BENCH), seed=0, duration=1.0, record=False)
     robot = cell.modules["loader"]

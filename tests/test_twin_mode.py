@@ -50,7 +50,7 @@ def test_shadow_without_a_physical_twin_fails_safe(tmp_path):
 
 def shadowed_range_detector(recover_after: int):
     """The welding cell's range detector shadowing its physical twin: (root context, system, its context)."""
-    from diagrams.cell import build_cell
+    from cellsim.diagrams.cell import build_cell
     from pydrake.systems.analysis import Simulator
 
     sf = welding_cell()
@@ -77,7 +77,7 @@ def test_corrupt_samples_fail_safe():
 
 
 def test_commands_go_out_only_in_twin_mode(tmp_path):
-    from diagrams.cell import build_cell
+    from cellsim.diagrams.cell import build_cell
     from pydrake.systems.analysis import Simulator
 
     sf = welding_cell()
@@ -94,7 +94,7 @@ def test_commands_go_out_only_in_twin_mode(tmp_path):
 
 
 def test_leaving_twin_mode_from_a_script_silences_the_commands():
-    from diagrams.cell import build_cell
+    from cellsim.diagrams.cell import build_cell
     from pydrake.systems.analysis import Simulator
 
     built = build_cell(welding_cell(), seed=0, duration=2.0, record=False)
@@ -115,7 +115,7 @@ def test_leaving_twin_mode_from_a_script_silences_the_commands():
 
 
 def test_set_twin_mode_from_a_script():
-    from diagrams.cell import build_cell
+    from cellsim.diagrams.cell import build_cell
     from pydrake.systems.analysis import Simulator
 
     built = build_cell(welding_cell(), seed=0, duration=2.0, record=False)

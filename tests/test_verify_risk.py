@@ -16,7 +16,7 @@ from cellsim.scenario import load_scenario
 from cellsim.verify.expressions import Thresholds
 from cellsim.verify.prism import Command, Module, Program, Var
 from cellsim.verify.risk import risk_modules
-from diagrams.cell import build_cell
+from cellsim.diagrams.cell import build_cell
 
 from conftest import ROOT
 

@@ -113,5 +113,5 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def bridge_main(argv: list[str] | None = None) -> int:
-    """``cellsim-bridge`` and ``python -m bridges``: the bridge daemon on its own (as ``cellsim bridge``)."""
+    """``cellsim-bridge`` and ``python -m cellsim.bridges``: the bridge daemon on its own (as ``cellsim bridge``)."""
     return main(["bridge", *(sys.argv[1:] if argv is None else argv)])

@@ -1,4 +1,4 @@
-"""``cellsim bridge`` (also ``cellsim-bridge``, ``python -m bridges``): the bridge daemon."""
+"""``cellsim bridge`` (also ``cellsim-bridge``, ``python -m cellsim.bridges``): the bridge daemon."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ def add_parser(subparsers) -> None:
         "DBC) and its robot controller's state stream to the twin's physical samples, checking every frame end to "
         "end, and send the twin's commands to the devices of entities in twin mode (safe ones when the twin is "
         "lost). Publishes each device's diagnostics on cellsim/<cell>/diagnostics/<entity>. Runs until interrupted "
-        "(also as cellsim-bridge or python -m bridges).",
+        "(also as cellsim-bridge or python -m cellsim.bridges).",
     )
     bridge.add_argument("bridge_config", type=Path, metavar="CONFIG", help="bridge configuration YAML file")
     bridge.add_argument("--can", metavar="INTERFACE:CHANNEL",
@@ -37,8 +37,8 @@ def run(args) -> int:
     import logging
     import threading
 
-    from bridges.config import load_bridge
-    from bridges.daemon import Bridge, run_bridge
+    from cellsim.bridges.config import load_bridge
+    from cellsim.bridges.daemon import Bridge, run_bridge
 
     loaded = load_bridge(args.bridge_config)
     can_key = _can_key(args, loaded)

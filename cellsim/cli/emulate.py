@@ -83,7 +83,7 @@ def run(args) -> int:
         nonlocal loaded, can_key
         entities = sf.scenario.entities
         if bridge is not None:  # loaded with this scenario: its devices must be this cell's entities
-            from bridges.config import load_bridge
+            from cellsim.bridges.config import load_bridge
 
             loaded = load_bridge(bridge, sf)
             can_key = _can_key(args, loaded)
@@ -96,7 +96,7 @@ def run(args) -> int:
     def emulator(sf, out, session, duration):
         devices = bus = None
         if loaded is not None:
-            from bridges.devices import EmulatedDevices
+            from cellsim.bridges.devices import EmulatedDevices
 
             bus = _open_can_bus(args.can)
             devices = EmulatedDevices(loaded, bus, session, can_key)

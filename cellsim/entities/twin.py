@@ -5,7 +5,7 @@ Every entity is an ``EntitySystem``. Besides its digital behaviour it has
 * input ``physical_sample``: the newest sample from its physical twin, a vector
   ``[t (s, simulation clock), link (PhysicalLink code), *sample_fields]``, as its
   source judged it (``cellsim.link``: freshness, order, recover-after). The
-  builder (``diagrams.cell``) decides the source: none in simulation (the input
+  builder (``cellsim.diagrams.cell``) decides the source: none in simulation (the input
   reads stale), a black box replayed, or Zenoh beside the real cell.
 * input ``twin_mode_request``: ``[serial, TwinMode code]``; the entity switches
   mode at its next update after the serial changes (the live twin's mode control).

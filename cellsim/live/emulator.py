@@ -1,6 +1,6 @@
 """``cellsim emulate``: plays the physical cell in real time, where no hardware is.
 
-The builder makes it (``diagrams.cell.build_cell`` with ``cellsim.cell_io.Emulated``):
+The builder makes it (``cellsim.diagrams.cell.build_cell`` with ``cellsim.cell_io.Emulated``):
 the scenario's entities run as their digital models with the scenario's own
 safety controller, a standalone cell, and each entity's physical state
 (``EntitySystem.physical_state``) leaves through an *outlet* at the entity's
@@ -16,7 +16,7 @@ they take the kind's safe command: a safety-mode request becomes stopped). Its
 black box then has no hazard channels: the evidence is the twin's.
 
 An outlet is by default a :class:`ZenohOutlet` on the entity's physical key. With
-the bridge daemon's configuration (``cellsim emulate --can``, ``bridges.devices``)
+the bridge daemon's configuration (``cellsim emulate --can``, ``cellsim.bridges.devices``)
 an entity that is a CAN device sends protected frames on the bus instead, a robot
 its controller's state stream, each at its device's cycle time, and takes its
 commands the same way: the emulated cell speaks the real protocols, through the
@@ -27,7 +27,7 @@ seconds; the grammar is ``cellsim.live.faults``), as the entity's outlet knows
 them. On Zenoh: ``silence`` (stops publishing), ``freeze`` (repeats its last
 sample, same sequence number), ``corrupt`` (malformed messages), ``delay``
 (samples stamped 1 s in the past), ``replay`` (old samples again, sequence going
-back); on CAN, ``bridges.devices``. At run time, a query on
+back); on CAN, ``cellsim.bridges.devices``. At run time, a query on
 ``cellsim/<cell>/control/fault`` with ``{"entity", "kind", "seconds"}`` injects
 one from the next sample for that long (answered accepted, or refused with the reason).
 """

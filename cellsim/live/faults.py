@@ -3,7 +3,7 @@
 What the command line of ``cellsim emulate`` says about faults and rates, parsed, and the
 rules for which fault applies where: an entity on Zenoh has the faults of its Zenoh outlet
 (``cellsim.live.emulator.FAULTS``); with ``--can``, a CAN device of the bridge configuration
-has the bus faults (``bridges.devices.CAN_FAULTS``) and only those; without ``--can`` there is
+has the bus faults (``cellsim.bridges.devices.CAN_FAULTS``) and only those; without ``--can`` there is
 no bus, so no bus fault. Each problem is a ``FaultError`` whose message is the one line the
 user sees (``cellsim: error: ...``).
 
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Collection, Iterable
 
-from bridges.devices import CAN_FAULTS
+from cellsim.bridges.devices import CAN_FAULTS
 from cellsim.live.emulator import FAULTS as ZENOH_FAULTS
 from cellsim.live.emulator import Fault
 

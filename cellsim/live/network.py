@@ -1,6 +1,6 @@
 """The network side of a live or emulated cell, as its builder made it: clock, start, figures, close.
 
-The builder (``diagrams.cell``) adds the Zenoh systems to the diagram
+The builder (``cellsim.diagrams.cell``) adds the Zenoh systems to the diagram
 (``cellsim.live.systems``) and gathers here what the run needs of them beyond
 ``AdvanceTo``: the clock to start, the physical samples to wait for before
 starting it, the figures for the black box's metadata, and what to undeclare.

@@ -7,7 +7,7 @@
     DIR/<role>.pem        a role's certificate (common name: the role), signed by the CA
     DIR/<role>.key        its private key (mode 0600)
     DIR/can.key           the cell's CAN key (128 bits, hex; mode 0600): authenticated CAN frames'
-                          keys are derived from it (``bridges/secoc.py``)
+                          keys are derived from it (``cellsim/bridges/secoc.py``)
 
 A process needs ``ca.pem`` and its own role's pair, nothing else: copy only those
 to the machine that runs it (and ``can.key`` to the bridge daemon's, where its

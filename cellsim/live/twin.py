@@ -1,6 +1,6 @@
 """``cellsim live``: the scenario twin paced to the wall clock, beside the real cell, on Zenoh.
 
-The builder makes it (``diagrams.cell.build_cell`` with ``cellsim.cell_io.Live``),
+The builder makes it (``cellsim.diagrams.cell.build_cell`` with ``cellsim.cell_io.Live``),
 with the Zenoh systems of ``cellsim.live.systems`` in the diagram:
 
 * every entity takes its physical samples from its physical key through a

@@ -66,7 +66,7 @@ def scenario_safety_case(sf: ScenarioFile) -> SafetyCase:
     Builds the diagram (without recording): this is how a campaign or
     ``scenario check`` finds a bad formula before any run.
     """
-    from diagrams.cell import build_cell
+    from cellsim.diagrams.cell import build_cell
 
     return cell_safety_case(sf, build_cell(sf, seed=sf.scenario.seed, duration=sf.scenario.duration, record=False))
 

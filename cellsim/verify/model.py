@@ -147,7 +147,7 @@ def observer(cell, name, cfg) -> Observer:
 
 
 class AbstractCell:
-    """The abstract model under construction, over a built cell (``diagrams.cell.CellDiagram``)."""
+    """The abstract model under construction, over a built cell (``cellsim.diagrams.cell.CellDiagram``)."""
 
     def __init__(self, cell, period: float, timed: bool = False):
         self.cell = cell

@@ -114,7 +114,7 @@ def twin_mode_assumptions(configs: dict) -> list[str]:
 
 def abstract_model(sf, cell=None, *, timed: bool = False) -> AbstractModel:
     """The abstract model of the scenario's cell (its diagram built once, without recording)."""
-    from diagrams.cell import build_cell
+    from cellsim.diagrams.cell import build_cell
     from cellsim.validation.check import cell_safety_case
 
     times = {}

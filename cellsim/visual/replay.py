@@ -70,7 +70,7 @@ def replay(run: str | Path, meshcat, *, at: float = 0.0, speed: float = 1.0) -> 
     run, or ``at`` outside the run.
     """
     from cellsim.services.blackbox import BlackBox, BlackBoxError
-    from diagrams.cell import build_cell
+    from cellsim.diagrams.cell import build_cell
 
     blackbox, sf, end = check_replay(run, at, speed)
     try:

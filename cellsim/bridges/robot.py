@@ -118,7 +118,7 @@ class RobotLink:
         if cfg.ros_key:
             import zenoh
 
-            from bridges.ros import JointStateEncoder
+            from cellsim.bridges.ros import JointStateEncoder
 
             self._encoder = JointStateEncoder(cfg.joints)
             self._joint_state = self.session.declare_publisher(cfg.ros_key, encoding=zenoh.Encoding.APPLICATION_CDR)

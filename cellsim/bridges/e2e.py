@@ -22,7 +22,7 @@ frames in a row). The daemon forwards each frame's outcome at once; the twin,
 which receives it, applies the recover-after (the debounce is applied once).
 
 E2E protection is not authentication: a message with ``Freshness`` and ``Mac``
-signals is also authenticated (:mod:`bridges.secoc`), checked after the CRC and
+signals is also authenticated (:mod:`cellsim.bridges.secoc`), checked after the CRC and
 before the counter, so a forgery never moves the sequence.
 """
 
@@ -45,7 +45,7 @@ def data_id(frame_id: int, counter: int) -> int:
 
 def protect(message, values: dict, counter: int, authenticator=None) -> bytes:
     """The frame of ``message`` (a cantools Message) with ``values``, ``counter`` and its CRC; with an
-    ``authenticator`` (``bridges.secoc``), also its freshness value and MAC, before the CRC."""
+    ``authenticator`` (``cellsim.bridges.secoc``), also its freshness value and MAC, before the CRC."""
     counter %= COUNTER_MODULO
     signals = {**values, "Crc": 0, "Counter": counter}
     if authenticator is not None:
@@ -59,7 +59,7 @@ def protect(message, values: dict, counter: int, authenticator=None) -> bytes:
 
 CAN_FAULTS = (Fault.LENGTH, Fault.CRC, Fault.COUNTER, Fault.REPEATED, Fault.MASQUERADE, Fault.RANGE, Fault.TIMEOUT)
 AUTHENTICATED_FAULTS = (*CAN_FAULTS, Fault.AUTH, Fault.LATE, Fault.FUTURE)
-"""An authenticated message's frames can also fail their MAC or freshness (``bridges.secoc``)."""
+"""An authenticated message's frames can also fail their MAC or freshness (``cellsim.bridges.secoc``)."""
 PROTECTION = ("Crc", "Counter", "Freshness", "Mac")
 """The signals that protect a frame rather than carry the device's values."""
 
@@ -75,7 +75,7 @@ class DeviceChecker(LinkTrust):
     modulo: int = COUNTER_MODULO
     faults: tuple = CAN_FAULTS
     authenticator: object = None
-    """For an authenticated message, its ``bridges.secoc.Authenticator`` (the receiver's)."""
+    """For an authenticated message, its ``cellsim.bridges.secoc.Authenticator`` (the receiver's)."""
 
     def __post_init__(self):
         if self.authenticator is not None and self.faults == CAN_FAULTS:

@@ -4,11 +4,11 @@ Given the bridge daemon's configuration, the emulator plays
 
 * each CAN device as a node following the DBC: its frames at the device's cycle
   time, with the alive counter and CRC of the end-to-end protection
-  (``bridges.e2e.protect``) and, for an authenticated message, its freshness
-  value and MAC (``bridges.secoc``, keys from the cell's CAN key); a device with
+  (``cellsim.bridges.e2e.protect``) and, for an authenticated message, its freshness
+  value and MAC (``cellsim.bridges.secoc``, keys from the cell's CAN key); a device with
   command frames takes them from the bus and checks them as the real device
   would (a bad, forged or stale frame: the entity kind's *safe command*);
-* each robot's controller over Zenoh: its state stream (``bridges.robot``) at
+* each robot's controller over Zenoh: its state stream (``cellsim.bridges.robot``) at
   the controller's rate, and its requests from the controller's request key.
 
 Everything else stays on its physical key. Faults on the bus
@@ -29,9 +29,9 @@ import threading
 import time
 from collections import deque
 
-from bridges.config import LoadedBridge
-from bridges.e2e import DeviceChecker, protect
-from bridges.secoc import Authenticator, is_authenticated, message_key
+from cellsim.bridges.config import LoadedBridge
+from cellsim.bridges.e2e import DeviceChecker, protect
+from cellsim.bridges.secoc import Authenticator, is_authenticated, message_key
 from cellsim.live import codec, keys
 from cellsim.live.emulator import ZenohOutlet
 

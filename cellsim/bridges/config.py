@@ -83,7 +83,7 @@ class CommandMapping:
 
 @dataclass
 class RobotLinkConfig:
-    """A robot controller streaming its joint state over Zenoh (``bridges/robot.py`` says the format)."""
+    """A robot controller streaming its joint state over Zenoh (``cellsim/bridges/robot.py`` says the format)."""
 
     joints: list[str]
     """The joint names, in the order of the robot entity's q0..q5 (as sensor_msgs/JointState names them)."""
@@ -146,7 +146,7 @@ class BridgeConfig:
     """How often each device's diagnostics are published (s); a change of level is published at once."""
     freshness_tick: Annotated[float, Range(0.0001, 1.0, unit="s")] = 0.01
     """The unit of an authenticated message's freshness value (s): senders and receivers count wall-clock
-    ticks of this length (``bridges/secoc.py``); at most any authenticated message's cycle time."""
+    ticks of this length (``cellsim/bridges/secoc.py``); at most any authenticated message's cycle time."""
 
     def __post_init__(self):
         for entity in self.robots:
@@ -172,8 +172,8 @@ class LoadedBridge:
     """Entity -> its kind's safe command, as command fields (what its device is told when the twin is lost)."""
 
     def authenticated(self) -> list[str]:
-        """The DBC messages of the configuration that are authenticated (``bridges.secoc``)."""
-        from bridges.secoc import is_authenticated
+        """The DBC messages of the configuration that are authenticated (``cellsim.bridges.secoc``)."""
+        from cellsim.bridges.secoc import is_authenticated
 
         return [n for n in dict.fromkeys(m.message for _, m in self.mappings())
                 if is_authenticated(self.database.get_message_by_name(n))]
@@ -242,7 +242,7 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
 
     def check_authentication(key: str, mapping) -> None:
         """An authenticated message's freshness value must span its watchdog, at ticks of at most its cycle."""
-        from bridges.secoc import is_authenticated, window_problem
+        from cellsim.bridges.secoc import is_authenticated, window_problem
         from cellsim.link import LinkTrust
 
         message = messages[mapping.message]
@@ -319,7 +319,7 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
 
 def _entities(sf) -> dict:
     """The scenario's entities as built (their fields, types and safe commands are the kinds')."""
-    from diagrams.cell import build_cell
+    from cellsim.diagrams.cell import build_cell
 
     return build_cell(sf, seed=sf.scenario.seed, duration=sf.scenario.duration, record=False).entities
 

@@ -1,7 +1,7 @@
 """The bridge daemon: a cell's CAN devices and robot controller to its twin, and the twin's commands back.
 
 **In.** Every frame of a configured CAN device passes the black-channel checks
-of ``bridges.e2e``; a good frame becomes the entity's physical sample on
+of ``cellsim.bridges.e2e``; a good frame becomes the entity's physical sample on
 ``cellsim/<cell>/physical/<entity>`` in the live format (``docs/live.md``,
 ``cellsim.live.codec``). Any failure (length, CRC, counter, range, watchdog)
 publishes a link failure at once instead (``{"failed": "corrupt"}`` or
@@ -10,7 +10,7 @@ again after ``recover_after`` good samples (the one debounce, applied by the twi
 A repeated counter is refused and counted. Frames of unknown identifiers are
 counted and dropped; nothing a frame holds stops the daemon. A robot controller's
 state stream over Zenoh is checked and published the same way
-(``bridges.robot``).
+(``cellsim.bridges.robot``).
 
 **Out.** A device whose entity is in twin mode (the twin's ``twin_mode``
 channel) gets the twin's latest command in its protected frames, every cycle
@@ -21,7 +21,7 @@ losing the supervisor makes the cell safer. In model
 or shadow mode nothing is sent: the device answers to its own controls. A
 robot gets requests on its controller's request key the same way.
 
-**Diagnostics** per device (``bridges.diagnostics``) and the daemon's own
+**Diagnostics** per device (``cellsim.bridges.diagnostics``) and the daemon's own
 status (frames, added latency) go out on ``cellsim/<cell>/diagnostics/...``.
 
 Threads: python-can's notifier and Zenoh's callbacks only put what arrives in
@@ -41,11 +41,11 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 
-from bridges.config import LoadedBridge, accepts
-from bridges.diagnostics import DeviceDiagnostics
-from bridges.e2e import DeviceChecker, protect
-from bridges.robot import RobotLink
-from bridges.secoc import Authenticator, is_authenticated, message_key
+from cellsim.bridges.config import LoadedBridge, accepts
+from cellsim.bridges.diagnostics import DeviceDiagnostics
+from cellsim.bridges.e2e import DeviceChecker, protect
+from cellsim.bridges.robot import RobotLink
+from cellsim.bridges.secoc import Authenticator, is_authenticated, message_key
 from cellsim.link import REFUSALS, STALE_FAULTS, Fault, Judgement, LinkTrust
 from cellsim.live import codec, keys
 from cellsim.live.codec import CodecError

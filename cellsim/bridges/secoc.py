@@ -1,6 +1,6 @@
 """Authenticated CAN frames, in the manner of AUTOSAR SecOC: a truncated AES-CMAC and a freshness value.
 
-End-to-end protection (:mod:`bridges.e2e`) finds frames that were corrupted, lost or
+End-to-end protection (:mod:`cellsim.bridges.e2e`) finds frames that were corrupted, lost or
 repeated on the way. It does not find forged ones: anyone on the bus who has the
 DBC can compute a CRC and the next counter. A device that supports it
 *authenticates* its frames instead, with a key a forger does not have. The
