@@ -123,7 +123,7 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
     from mcap.writer import Writer
 
     from cellsim import __version__
-    from cellsim.services.blackbox import BlackBox, BlackBoxError
+    from cellsim.blackbox import BlackBox, BlackBoxError
     from cellsim.validation.check import CheckError, locate_rebuildable_run
     from cellsim.validation.traces import run_end
     from cellsim.diagrams.cell import build_cell

@@ -166,7 +166,7 @@ def describe(name: str) -> dict:
         "inputs": [{"input": s, "type": t, "meaning": m} for s, t, m in kind.inputs],
         "physical_sample_fields": list(kind.sample_fields),
         "command_fields": list(kind.command_fields),
-        "files": list(kind.file_fields),
+        "files": list(kind.files),
     }
 
 
@@ -210,7 +210,7 @@ def schema_markdown() -> str:
     Only cellsim's own module kinds are listed (``cellsim modules`` shows plug-ins too).
     """
     from cellsim import scenario
-    from cellsim.behaviours.risk_model import RiskModelFile
+    from cellsim.kinds.safety_controller.risk_model import RiskModelFile
     from cellsim.campaign.samplers import ChoiceSampler, SimplexSampler, UniformSampler
     from cellsim.config.typed_yaml import MAX_DEPTH, MAX_FILE_CHARS, MAX_NODES
     from cellsim.validation.coverage import MAX_SITUATIONS

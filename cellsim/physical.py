@@ -17,7 +17,7 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from cellsim.channels import ChannelType
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 from cellsim.vocabulary import PhysicalLink
 
 _OK, _STALE = float(PhysicalLink.OK.code), float(PhysicalLink.STALE.code)

@@ -69,8 +69,6 @@ def package_versions() -> dict[str, str]:
 
 INPUTS = "inputs"
 """The folder, in a run folder or a campaign folder, holding copies of the inputs."""
-ROLES = {"model": "robot model", "risk_model": "risk model"}
-"""How a message names the file of a scenario field (the field name by default)."""
 MODEL_SUFFIXES = (".urdf", ".sdf", ".xml")
 """Robot models read as XML for the files they name (``<mesh filename=...>``, ``<uri>``)."""
 
@@ -204,9 +202,8 @@ def read_inputs(sf) -> Inputs:
     sc = sf.scenario
     for section in ("entities", "behaviours", "services"):
         for module, cfg in getattr(sc, section).items():
-            for name in kind_of(cfg).file_fields:
+            for name, role in kind_of(cfg).files.items():
                 key = f"{section}.{module}.{name}"
-                role = ROLES.get(name, name.replace("_", " "))
                 top = InputFile.read(key, role, sf.resolve_path(key, getattr(cfg, name)), module=module)
                 files.append(top)
                 files.extend(_named_files(top))

@@ -18,7 +18,7 @@ import math
 import os
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated
 
 from cellsim.config.typed_yaml import (
     ConfigError,
@@ -195,218 +195,6 @@ class TwinSettings:
             raise FieldError("changes", "twin-mode changes must be in time order")
 
 
-@dataclass
-class SpeedLimits:
-    """Cap on the tool's speed (m/s) in each moving safety mode; srmst and stopped are standstill."""
-
-    normal: Speed = 1.0
-    """Full speed."""
-    hguid: Speed = 0.25
-    """Hand-guided operation."""
-    ssmon: Speed = 0.5
-    """Speed and separation monitoring."""
-    pflim: Speed = 0.25
-    """Power and force limiting (ISO/TS 15066: collaborative speed)."""
-
-
-@dataclass(frozen=True)
-class ToolTarget:
-    """A pose given by where the robot's tool should be; solved into joint angles at load time."""
-
-    tool_at: Vec3
-    """Where the tool frame's origin should be, in the cell (m)."""
-    tool_rpy_deg: tuple[Degrees, Degrees, Degrees] | None = None
-    """The tool frame's orientation in the cell, roll-pitch-yaw (degrees); omitted: any orientation."""
-
-
-@dataclass
-class RobotConfig:
-    kind: Literal["robot"]
-    model: str
-    """URDF of the arm, relative to the scenario file."""
-    named_poses: dict[str, list[JointAngle] | ToolTarget]
-    """The poses the process moves between: joint positions (rad), or a tool target
-    ``{tool_at: [x, y, z], tool_rpy_deg: [r, p, y]}`` solved by inverse kinematics at load time."""
-    base_position: Vec3 = (0.0, 0.0, 0.0)
-    """Where the arm's base_link is fixed in the cell (m)."""
-    base_yaw_deg: Degrees = 0.0
-    """Rotation of the base about the vertical axis (degrees)."""
-    tool_frame: str = "tcp"
-    """The frame of the model whose position gives the robot's location and tool speed."""
-    activities: list[str] = field(default_factory=lambda: ["idle", "working", "off"])
-    """Its activities in the cell's words (ract); the first is its activity before the process starts."""
-    initial_pose: str = "home"
-    """The named pose the arm starts in."""
-    speed_limits: SpeedLimits = field(default_factory=SpeedLimits)
-    """Tool speed cap per moving safety mode (m/s): a limit, never exceeded (the arm plans 0.04 m/s below it)."""
-    braking_time: Annotated[float, Range(0.0, 10.0, lo_open=True, unit="s")] = 0.5
-    """Time to standstill from full speed on srmst or stopped (s)."""
-    period: Period = 0.02
-    """Update period of the controller side (s); a multiple of the plant step."""
-    twin: TwinSettings = field(default_factory=TwinSettings)
-    """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
-
-    def __post_init__(self):
-        if len(set(self.activities)) != len(self.activities) or not all(a.isidentifier() for a in self.activities):
-            raise FieldError("activities", "activities must be distinct identifiers")
-        if not self.activities or UNKNOWN in self.activities:
-            raise FieldError("activities", f"list at least one activity; '{UNKNOWN}' is what a shadowed robot reports")
-        if "moving" in self.named_poses:
-            raise FieldError("named_poses.moving", "'moving' is what reached_pose reads between poses; name the pose otherwise")
-        if self.initial_pose not in self.named_poses:
-            raise FieldError("initial_pose", f"'{self.initial_pose}' is not one of the named_poses")
-        for name, q in self.named_poses.items():
-            if isinstance(q, list) and len(q) != 6:
-                raise FieldError(f"named_poses.{name}", f"needs 6 joint positions, got {len(q)}")
-
-
-@dataclass
-class LightBarrierConfig:
-    """A light curtain; its beams fill a box, broken while a person's geometry is in it."""
-
-    kind: Literal["light_barrier"]
-    center: Vec3
-    """Centre of the box the beams fill (m)."""
-    size: Size3
-    """Size of that box along x, y, z (m)."""
-    period: Period = 0.04
-    """Response time (s). People move every 40 ms in the twin; sampling faster reads the same geometry."""
-    restart_interlock: bool = False
-    """Once broken it stays tripped, after the beams clear, until a reset (a rising edge of its
-    reset input while the beams are clear), as a guard with a manual restart (ISO 13849-1, 5.2.2)."""
-    twin: TwinSettings = field(default_factory=TwinSettings)
-    """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
-
-
-@dataclass
-class RangeDetectorConfig:
-    """A safety scanner: far / near / close from the nearest person's distance to it."""
-
-    kind: Literal["range_detector"]
-    position: Vec3
-    """Where the scanner head is (m); distances are measured from it."""
-    near_below: Distance = 2.0
-    """Below this distance (m) the range reads near."""
-    close_below: Distance = 1.0
-    """Below this distance (m) the range reads close."""
-    noise_std: Annotated[float, Range(0.0, 10.0, unit="m")] = 0.0
-    """Standard deviation of the measured distance (m); drawn from the run's seed."""
-    period: Period = 0.04
-    """Response time (s)."""
-    twin: TwinSettings = field(default_factory=TwinSettings)
-    """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
-
-    def __post_init__(self):
-        if not 0 < self.close_below < self.near_below:
-            raise FieldError("close_below", "needs 0 < close_below < near_below")
-
-
-@dataclass
-class Waypoint:
-    position: Vec2
-    """Where the person stands (x, y in m)."""
-    wait: Seconds = 0.0
-    """Seconds spent at the waypoint."""
-    reach: Vec3 | None = None
-    """A point the operator reaches for with one hand while waiting here."""
-    press: str | None = None
-    """A button pressed on arriving here (held 0.5 s): an entity's input, ``module.input``
-    (a light curtain's restart: ``pallet_curtain.reset``)."""
-
-    def __post_init__(self):
-        if self.press is not None and (self.press.count(".") != 1 or not all(p.isidentifier() for p in self.press.split("."))):
-            raise FieldError("press", f"'{self.press}' is not module.input (an entity and one of its inputs)")
-
-
-@dataclass
-class OperatorConfig:
-    """A person walking an ordered list of waypoints, with body geometry."""
-
-    kind: Literal["operator"]
-    start: Vec2
-    """Where the person stands at t = 0 (x, y in m)."""
-    waypoints: dict[str, Waypoint]
-    """The places walked to, in order, each with a wait and an optional reach."""
-    notifications: list[str] = field(default_factory=lambda: ["none"])
-    """What the cell can tell this person (its notification command input), in the cell's
-    words; the first means there is nothing to say."""
-    alerts: list[str] = field(default_factory=list)
-    """True/false alerts the cell can give this person, each a command input of that name."""
-    start_delay: Seconds = 0.0
-    """Seconds before the person starts walking."""
-    walking_speed: Speed = 1.2
-    """Mean walking speed (m/s)."""
-    speed_jitter: Annotated[float, Range(0.0, 1.0, hi_open=True)] = 0.1
-    """Each leg's speed is drawn uniformly within +-this fraction, from the run's seed."""
-    height: Annotated[float, Range(0.5, 2.5, unit="m")] = 1.75
-    """Body height (m)."""
-    body_radius: Annotated[float, Range(0.05, 1.0, unit="m")] = 0.2
-    """Radius of the torso's capsule (m)."""
-    arm_length: Annotated[float, Range(0.15, 2.0, unit="m")] = 0.7
-    """Reach of the arm from the shoulder (m)."""
-    avoid_fixtures: bool = True
-    """Walk around the layout's fixtures (their footprints grown by body_radius + 5 cm), by the
-    shortest way; false: straight lines, through them."""
-    period: Period = 0.04
-    """Update period (s): how often the body moves in the twin."""
-    twin: TwinSettings = field(default_factory=TwinSettings)
-    """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
-
-    def __post_init__(self):
-        for key, names in (("notifications", self.notifications), ("alerts", self.alerts)):
-            if len(set(names)) != len(names) or not all(n.isidentifier() for n in names):
-                raise FieldError(key, f"{key} must be distinct identifiers")
-        if not self.notifications:
-            raise FieldError("notifications", "list at least the notification meaning 'nothing to say'")
-        clash = set(self.alerts) & {"notification", "physical_sample"}
-        if clash:
-            raise FieldError("alerts", f"'{clash.pop()}' is already an input of a person")
-        if "start" in self.waypoints:
-            raise FieldError("waypoints.start", "'start' is the waypoint channel's value before the walk; name it otherwise")
-
-
-# -- behaviours ---------------------------------------------------------------
-def check_steps(names: list[str], restart_on_request: dict[str, str]) -> None:
-    """A process's steps: at least one, names distinct, restarts naming steps (FieldError)."""
-    if not names:
-        raise FieldError("steps", "needs at least one step")
-    if len(set(names)) != len(names):
-        raise FieldError("steps", "step names must differ")
-    for activity, step in restart_on_request.items():
-        if step not in names:
-            raise FieldError(f"restart_on_request.{activity}", f"'{step}' is not a step")
-
-
-@dataclass
-class SafetyControllerConfig:
-    """The risk-model safety controller: a generic engine executing a risk model file."""
-
-    kind: Literal["safety_controller"]
-    risk_model: str
-    """Risk model YAML, relative to the scenario file."""
-    monitors: dict[str, str]
-    """Risk-model variable -> channel it reads (``module.signal``)."""
-    commands: dict[str, list[str]]
-    """Controlled variable -> command inputs it drives (``module.input``)."""
-    period: Period = 0.02
-    """Control period (s): how often the risk model is evaluated."""
-
-
-@dataclass
-class GroundTruthConfig:
-    """Measures what no sensor reports: the true operator-robot separation."""
-
-    kind: Literal["ground_truth"]
-    period: Period = 0.1
-    """How often the separation is measured (s)."""
-
-
-# -- services -----------------------------------------------------------------
-@dataclass
-class RecorderConfig:
-    """The message snooper: writes every message to the black box (SQLite), committed every simulated second."""
-
-    kind: Literal["blackbox"]
 
 
 @dataclass
@@ -578,9 +366,7 @@ def check_scenario(sf: ScenarioFile) -> None:
     sc = sf.scenario
     for section in ("entities", "behaviours", "services"):
         for name, cfg in getattr(sc, section).items():
-            kind = _kind(sf, f"{section}.{name}", cfg)
-            if kind.check is not None:
-                kind.check(sf, name, cfg)
+            _kind(sf, f"{section}.{name}", cfg).check(sf, name, cfg)
             period = getattr(cfg, "period", None)
             if isinstance(period, float) and not _whole_steps(period, sc.time_step):
                 raise sf.error(
@@ -725,14 +511,14 @@ def export_scenario(sf: ScenarioFile, destination_dir: str | os.PathLike | None 
 
 
 def rebase_file_references(sf: ScenarioFile, to_dir: Path) -> Scenario:
-    """A copy of the scenario whose file references (each kind's ``file_fields``) are relative to ``to_dir``.
+    """A copy of the scenario whose file references (each kind's ``files``) are relative to ``to_dir``.
 
     Each reference is read relative to the file that wrote it (the scenario or a base).
     """
     copy = from_data(Scenario, to_data(sf.scenario))
     for section in ("entities", "behaviours", "services"):
         for module, cfg in getattr(copy, section).items():
-            for name in kind_of(cfg).file_fields:
+            for name in kind_of(cfg).files:
                 target = (sf.file_dir(f"{section}.{module}.{name}") / getattr(cfg, name)).resolve()
                 setattr(cfg, name, os.path.relpath(target, to_dir.resolve()))
     return copy

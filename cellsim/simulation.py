@@ -4,7 +4,7 @@
 so bad input leaves nothing behind, and claims the folder for itself (see
 :class:`RunFolder`). The output folder then holds
 
-* ``blackbox.sqlite``: every message (see ``cellsim.services.blackbox``);
+* ``blackbox.sqlite``: every message (see ``cellsim.blackbox``);
 * ``scenario.yaml``: the resolved scenario, which re-runs the same run;
 * ``inputs/``: copies of the files the run used (risk models, robot models),
   which ``scenario.yaml`` refers to, so the folder re-runs alone (see
@@ -31,8 +31,8 @@ from cellsim.config.typed_yaml import to_data
 from cellsim.provenance import BLACKBOX, INPUTS, RESOLVED_SCENARIO, package_versions, read_inputs, write_run_scenario
 from cellsim.provenance import provenance as make_provenance
 from cellsim.scenario import ScenarioFile
-from cellsim.services.blackbox import BlackBox, BlackBoxWriter
-from cellsim.services.recorder import DRAIN_PERIOD
+from cellsim.blackbox import BlackBox, BlackBoxWriter
+from cellsim.recorder import DRAIN_PERIOD
 from cellsim.cell_io import SIMULATED, CellIO
 from cellsim.live.systems import TICK
 from cellsim.systems import hazard_phases

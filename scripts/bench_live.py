@@ -48,7 +48,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from cellsim.services.blackbox import BlackBox  # noqa: E402
+from cellsim.blackbox import BlackBox  # noqa: E402
 from cellsim.vocabulary import SafetyMode  # noqa: E402
 from live_processes import free_port, wait_alive  # noqa: E402
 

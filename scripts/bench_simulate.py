@@ -13,7 +13,7 @@ cost at most 2x one.
 
 The bare plant is the arm as Drake parses its model, collision geometry included,
 so the plant asks SceneGraph for contacts at every step. The cell's plant holds no
-collision geometry (cellsim.entities.arm_geometry: contact is measured, not
+collision geometry (cellsim.kinds.robot.geometry: contact is measured, not
 simulated), so the same arm without its collision elements is timed too, and the
 cell's ratio to it printed, for a like-for-like view of cellsim's own overhead.
 """
@@ -41,12 +41,12 @@ from pydrake.systems.framework import DiagramBuilder  # noqa: E402
 from pydrake.systems.primitives import TrajectorySource  # noqa: E402
 from pydrake.trajectories import PiecewisePolynomial  # noqa: E402
 
-from cellsim.entities.arm_geometry import model_without_collision  # noqa: E402
-from cellsim.entities.robot import robot_base_pose  # noqa: E402
+from cellsim.kinds.robot.geometry import model_without_collision  # noqa: E402
+from cellsim.kinds.robot.system import robot_base_pose  # noqa: E402
 from cellsim.config.typed_yaml import ConfigError  # noqa: E402
 from cellsim.scenario import load_scenario  # noqa: E402
 from cellsim.simulation import integrate_at_plant_step, simulate  # noqa: E402
-from cellsim.entities.robot import KD, KI, KP  # noqa: E402
+from cellsim.kinds.robot.system import KD, KI, KP  # noqa: E402
 
 SCENARIO = ROOT / "scenarios" / "welding_cell.yaml"
 TWO_ARMS = ROOT / "scenarios" / "assembly_bench.yaml"

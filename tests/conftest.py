@@ -6,8 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from cellsim.scenario import Waypoint, load_scenario
-from cellsim.services.blackbox import BlackBox
+from cellsim.kinds.operator.config import Waypoint
+from cellsim.scenario import load_scenario
+from cellsim.blackbox import BlackBox
 from cellsim.simulation import BLACKBOX, simulate
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -8,7 +8,7 @@ from pydrake.systems.analysis import Simulator
 
 from cellsim.config.typed_yaml import ConfigError
 from cellsim.scenario import load_scenario
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 from cellsim.simulation import simulate
 from cellsim.diagrams.cell import build_cell
 
@@ -98,7 +98,7 @@ def test_without_the_pedestal_the_same_spot_is_in_the_warning_field(tmp_path):
 
 
 def test_a_walk_through_the_fields_is_recorded_in_the_cells_words(tmp_path):
-    from cellsim.scenario import Waypoint
+    from cellsim.kinds.operator.config import Waypoint
 
     sf = place_operator(
         load_scenario(scanner_cell(tmp_path)), (-2.5, -1.0),

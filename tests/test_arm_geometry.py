@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.analysis import Simulator
 
-from cellsim.entities.arm_geometry import collision_shapes, model_without_collision
+from cellsim.kinds.robot.geometry import collision_shapes, model_without_collision
 from cellsim.diagrams.cell import build_cell
 
 from conftest import ROOT, welding_cell

@@ -22,7 +22,7 @@ import pytest
 from conftest import ONE_AT_A_TIME
 
 from cellsim.live.codec import encode_fields
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 
 from live_processes import (ROOT, ChannelWatch, CommandFrames, can_server, free_port, observer, processes, rogue_router,
                             start_emulator, start_twin_and_bridge, wait_alive)

@@ -155,7 +155,7 @@ EXEMPT = {
 
 
 def test_every_number_of_the_scenario_schema_has_a_valid_range():
-    from cellsim.behaviours.risk_model import RiskModelFile
+    from cellsim.kinds.safety_controller.risk_model import RiskModelFile
     from cellsim.scenario import Scenario
 
     assert set(_numbers_without_range(Scenario)) <= EXEMPT and _numbers_without_range(RiskModelFile) == []
@@ -464,7 +464,7 @@ def test_the_schema_reference_gives_every_numbers_range():
     import re
 
     from cellsim import registry
-    from cellsim.behaviours.risk_model import RiskModelFile
+    from cellsim.kinds.safety_controller.risk_model import RiskModelFile
     from cellsim.kinds_doc import SCHEMA_DOC
     from cellsim.scenario import Scenario
 

@@ -419,13 +419,25 @@ def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_s
         # the last state again, byte for byte (a retransmission): refused and counted, nothing published for it
         # (the 50 ms watchdog may publish "stale" meanwhile: only forwarded states are counted here)
         link = bridge.robots["robot"]
-        # the daemon's loop has taken in every state sent so far (states still in its inbox would be forwarded
-        # after the count below is read: the race that made this test flaky)
-        wait_for(lambda: link.checker.last_seq == seq[0], 5, "every state sent taken in")
-        forwarded = link.published - link.failures_published
-        state.put(last[0])
-        wait_for(lambda: link.checker.counts["repeated"] == 1, 5, "the retransmission refused")
-        assert link.published - link.failures_published == forwarded
+        for _ in range(50):
+            # the daemon's loop has taken in every state sent so far (states still in its inbox would be forwarded
+            # after the count below is read)
+            send()
+            wait_for(lambda: link.checker.last_seq == seq[0], 5, "every state sent taken in")
+            with link._lock:
+                forwarded, received = link.published - link.failures_published, link.received
+            state.put(last[0])
+            wait_for(lambda: link.received > received, 5, "the retransmission taken in")
+            with link._lock:  # (held while a message is judged: the judgement is complete)
+                refused = link.checker.counts["repeated"] == 1
+                assert not refused or link.published - link.failures_published == forwarded
+            if refused:
+                break
+            # else 50 ms passed between the two (a loaded machine): the copy is late (its stamp is judged first),
+            # or the watchdog went off and after silence any state starts the sequence afresh (a restarted
+            # sender), as the link rule says; try again
+        else:
+            pytest.fail("the retransmission was never judged a repeat")
         # its seq again with other content (a replay, or a second sender): the failure at once
         state.put(_state(seq[0], time.time(), q0=0.25))
         while (sample := next_sample()).get("failed") != "corrupt":
@@ -450,11 +462,12 @@ def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_s
             pass
         assert sample["failed"] == "stale"
         counts = bridge.robots["robot"].checker.counts
-        assert (counts["repeated"], counts["counter"], counts["range"], counts["late"]) == (1, 1, 1, 1)
+        assert (counts["repeated"], counts["counter"], counts["range"]) == (1, 1, 1)
+        assert counts["late"] >= 1  # (a good state the loaded machine delivered 50 ms late is late too)
         assert counts["timeout"] >= 1
         # its diagnostics went stale, and said so
         deadline = time.monotonic() + 5
-        while (status := statuses.get(timeout=5))["counts"]["late"] < 1 or status["level"] != "STALE":
+        while (status := statuses.get(timeout=5))["counts"]["range"] < 1 or status["counts"]["late"] < 1 or status["level"] != "STALE":
             assert time.monotonic() < deadline
         assert status["entity"] == "robot" and status["counts"]["range"] == 1 and status["received"] >= 5
     finally:

@@ -17,7 +17,7 @@ import can
 import pytest
 from conftest import ONE_AT_A_TIME
 
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 
 from live_processes import (ROOT, assert_supervised, can_server, free_port, observer, offset_of, processes,
                             sim_time_reached, start_emulator, start_twin_and_bridge, wait_alive, wait_for, CommandFrames)

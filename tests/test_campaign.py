@@ -18,7 +18,7 @@ from conftest import ONE_AT_A_TIME, ROOT, WELDING_CELL
 
 from cellsim.cli import main
 from cellsim.scenario import load_scenario
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 from cellsim.simulation import simulate
 
 pytestmark = ONE_AT_A_TIME  # a campaign's two workers take both cores

@@ -11,7 +11,7 @@ import pytest
 from conftest import WELDING_CELL, run, welding_cell
 
 from cellsim.cli import main
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 from cellsim.validation.check import check
 from cellsim.validation.traces import trace_of_run
 

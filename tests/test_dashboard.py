@@ -11,7 +11,7 @@ import sys
 
 import pytest
 
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 
 from live_processes import ROOT, ChannelWatch, TmuxScreen, free_port, observer, processes, wait_alive
 

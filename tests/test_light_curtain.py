@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from cellsim.config.typed_yaml import load_text
-from cellsim.entities.sensors import LightBarrier
-from cellsim.scenario import LightBarrierConfig
+from cellsim.kinds.light_barrier.system import LightBarrier
+from cellsim.kinds.light_barrier.config import LightBarrierConfig
 
 # trusting each sample at once: the interlock is tested here, recovery in test_twin_mode
 CURTAIN = "kind: light_barrier\ncenter: [0, 0, 1]\nsize: [0.02, 0.9, 0.7]\ntwin: {mode: shadow, recover_after: 1}\n"

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import ONE_AT_A_TIME
 
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 
 from live_processes import (ROOT, ChannelWatch, assert_supervised, free_port, observer, offset_of, processes,
                             sim_time_reached, wait_alive)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from cellsim.config.typed_yaml import ConfigError, load_text
-from cellsim.entities.machine import Machine, MachineConfig, supported_mode
+from cellsim.kinds.machine.config import MachineConfig
+from cellsim.kinds.machine.system import Machine, supported_mode
 from cellsim.vocabulary import SafetyMode
 
 PRESS = """

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from cellsim.scenario import load_scenario
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 from cellsim.simulation import make_simulator, simulate
 from cellsim.visual.scene import camera_pose
 from cellsim.visual.serve import open_meshcat

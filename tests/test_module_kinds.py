@@ -15,7 +15,7 @@ import yaml
 from cellsim import registry
 from cellsim.kinds_doc import describe
 from cellsim.scenario import export_scenario, load_scenario
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 
 from conftest import ROOT, WELDING_CELL, welding_cell
 
@@ -45,11 +45,16 @@ class Beacon(CellSystem):
         write_scalar(xd, self._blinks, read_scalar(context, self._blinks) + 1)
 
 
-KIND = ModuleKind(
-    name="beacon", section="behaviours", config=BeaconConfig,
-    build=lambda cell, name, cfg: cell.add(name, Beacon(name, cfg)), stage=10,
-    summary="Counts its updates.", channels=(("blinks", "number", "updates so far"),),
-)
+class BeaconKind(ModuleKind):
+    name = "beacon"
+    section = "behaviours"
+    config = BeaconConfig
+    stage = 10
+    summary = "Counts its updates."
+    channels = (("blinks", "number", "updates so far"),)
+
+    def build(self, cell, name, cfg):
+        return cell.add(name, Beacon(name, cfg))
 '''
 
 
@@ -63,7 +68,7 @@ def site(tmp_path_factory) -> Path:
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: cellsim-beacon\nVersion: 0.1\n")
     (info / "entry_points.txt").write_text(
-        "[cellsim.modules]\nbeacon = cellsim_beacon:KIND\nbroken = cellsim_beacon.missing:KIND\n"
+        "[cellsim.modules]\nbeacon = cellsim_beacon:BeaconKind\nbroken = cellsim_beacon.missing:KIND\n"
     )
     return site
 

@@ -12,7 +12,7 @@ import pytest
 
 from cellsim.config.typed_yaml import ConfigError
 from cellsim.scenario import load_scenario
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 
 from conftest import ONE_AT_A_TIME, ROOT, first_time
 

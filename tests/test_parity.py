@@ -19,7 +19,7 @@ from cellsim.cell_io import Emulated, Live, Replayed, Simulated
 from cellsim.live.codec import encode_fields
 from cellsim.live.session import session_config
 from cellsim.scenario import load_scenario
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 from cellsim.diagrams.cell import build_cell
 
 from conftest import ROOT, run

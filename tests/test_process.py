@@ -6,7 +6,7 @@ import pytest
 
 from cellsim.config.typed_yaml import ConfigError
 from cellsim.scenario import load_scenario
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 from cellsim.simulation import simulate
 
 from conftest import WELDING_CELL, values_between

@@ -17,7 +17,7 @@ import cellsim
 from cellsim.config.typed_yaml import ConfigError
 from cellsim.provenance import changes, read_inputs, snapshot_scenario, write_run_scenario
 from cellsim.scenario import load_scenario
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 from cellsim.simulation import BLACKBOX, simulate
 
 RISK_MODEL = "welding_cell_risk_model.yaml"

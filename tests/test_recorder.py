@@ -1,4 +1,4 @@
-"""The recorder (cellsim.services.recorder) on scripted publishers: which messages a black box gets, with
+"""The recorder (cellsim.recorder) on scripted publishers: which messages a black box gets, with
 which times and values, read back with sqlite3. The rules (the module's docstring): every channel is looked
 at at every update of its publisher, never less often; a value is stamped with the simulated time of the
 update that published it; ``on_change`` writes it when it differs from the last written, ``every_sample`` at
@@ -16,8 +16,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from cellsim.channels import ChannelSpec, number_type
-from cellsim.services.blackbox import BlackBoxWriter
-from cellsim.services.recorder import Recorder
+from cellsim.blackbox import BlackBoxWriter
+from cellsim.recorder import Recorder
 
 
 class Script(LeafSystem):
@@ -114,7 +114,7 @@ def test_channels_whose_periods_are_no_multiple_of_the_shortest_keep_their_own_u
 
 
 def test_the_logs_tick_is_the_greatest_common_divisor_of_the_periods():
-    from cellsim.services.recorder import base_period
+    from cellsim.recorder import base_period
 
     assert base_period([0.02, 0.05, 0.1]) == pytest.approx(0.01)
     assert base_period([0.04, 0.1]) == pytest.approx(0.02)

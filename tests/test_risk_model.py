@@ -7,8 +7,8 @@ import random
 import numpy as np
 import pytest
 
-from cellsim.behaviours.risk_model import load_risk_model
-from cellsim.behaviours.safety_controller import SafetyController
+from cellsim.kinds.safety_controller.risk_model import load_risk_model
+from cellsim.kinds.safety_controller.system import SafetyController
 from cellsim.channels import BOOL, enum_type
 from cellsim.config.typed_yaml import ConfigError
 from cellsim.vocabulary import (

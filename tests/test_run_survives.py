@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from cellsim.cli import main
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 from cellsim.simulation import BLACKBOX
 
 from conftest import WELDING_CELL
@@ -245,7 +245,7 @@ def test_a_kill_at_any_moment_loses_at_most_one_simulated_second(tmp_path, monke
     """The record on disk lags the simulation by at most a second: at every commit, read back by another
     connection, everything the finished record holds before then is already there, and commits come at
     most one simulated second apart (a SIGKILL between two commits loses what came since the first)."""
-    from cellsim.services.blackbox import BlackBoxWriter
+    from cellsim.blackbox import BlackBoxWriter
     from cellsim.simulation import simulate
 
     from conftest import welding_cell

@@ -129,7 +129,7 @@ validation: !replace {{}}
 
 def test_a_cell_speaks_its_own_words_in_its_black_box(tmp_path):
     """Places are the layout's names: no welding-cell word reaches the evidence."""
-    from cellsim.services.blackbox import BlackBox
+    from cellsim.blackbox import BlackBox
     from cellsim.simulation import simulate
 
     path = tmp_path / "own_words.yaml"

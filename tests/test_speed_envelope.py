@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import pytest
 
-from cellsim.abstractions.robot import SpeedEnvelope
+from cellsim.kinds.robot.abstraction import SpeedEnvelope
 from cellsim.scenario import load_scenario
 from cellsim.vocabulary import SafetyMode
 

@@ -13,9 +13,9 @@ import sys
 import numpy as np
 import pytest
 
-from cellsim.behaviours.ssm import SsmParameters
+from cellsim.kinds.ssm.system import SsmParameters
 from cellsim.scenario import load_scenario
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 from cellsim.simulation import simulate
 
 from conftest import ROOT
@@ -73,7 +73,7 @@ def test_a_person_approaching_the_moving_arms_lowers_their_speed_limits_and_the_
     """Issue 23: the operator walks up to the fixture to clear a jam while the arms work: each ssm
     module's figures obey the formula at every sample, the limit falls under the ssmon cap as the
     person nears a moving arm, the arm's measured speed stays under it, and the margin stays >= 0."""
-    from cellsim.behaviours.ssm import parameters_of
+    from cellsim.kinds.ssm.system import parameters_of
 
     summary, out = bench_run
     sf = load_scenario(ASSEMBLY_BENCH)
@@ -193,12 +193,12 @@ def test_the_margin_condition_catches_arms_that_ignore_their_limit(tmp_path):
 
 def test_in_ssmon_a_speed_limit_with_no_value_stops_the_arm():
     """The robot's speed_limit input fails safe: NaN is 0 m/s in ssmon, ignored in normal."""
-    from cellsim.entities.robot import SafetyMode
+    from cellsim.vocabulary import SafetyMode
     from cellsim.diagrams.cell import build_cell
 
     cell = build_cell(load_scenario(ASSEMBLY_BENCH), seed=0, duration=1.0, record=False)
     robot = cell.modules["loader"]
-    motion = robot._start_segment(robot.poses[robot.pose_names.index("home")], robot.pose_names.index("bench_pick"))
+    motion = robot.start_segment(robot.poses[robot.pose_names.index("home")], robot.pose_names.index("bench_pick"))
     for mode, limit, moves in ((SafetyMode.SPEED_SEPARATION, math.nan, False), (SafetyMode.SPEED_SEPARATION, 0.0, False),
                                (SafetyMode.SPEED_SEPARATION, 0.3, True), (SafetyMode.NORMAL, math.nan, True)):
         state = motion

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from cellsim.config.typed_yaml import ConfigError
-from cellsim.entities.robot import ArmKinematics, resolve_poses
+from cellsim.kinds.robot.kind import resolve_poses
+from cellsim.kinds.robot.system import ArmKinematics
 from cellsim.scenario import load_scenario
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 from cellsim.simulation import simulate
 
 from conftest import WELDING_CELL

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cellsim.config.typed_yaml import ConfigError
-from cellsim.entities.operator import CLEARANCE, obstacles, plan_walk, pose_at
+from cellsim.kinds.operator.system import CLEARANCE, obstacles, plan_walk, pose_at
 from cellsim.floorplan import point_in_polygon, shortest_path, signed_area, triangulate
 from cellsim.scenario import load_scenario
 

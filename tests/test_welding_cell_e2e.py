@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cellsim.scenario import Waypoint
+from cellsim.kinds.operator.config import Waypoint
 
 from conftest import first_time, place_operator, run, welding_cell
 

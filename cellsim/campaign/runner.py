@@ -626,7 +626,7 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
 
 def _run_trace(out: Path, run: dict, sc) -> dict | None:
     """A finished run's trace for the report: its trace.json, else (runs of older campaigns) its black box."""
-    from cellsim.services.blackbox import BlackBox, BlackBoxError
+    from cellsim.blackbox import BlackBox, BlackBoxError
     from cellsim.simulation import BLACKBOX
     from cellsim.validation.traces import TraceError, trace_of_run
 
@@ -646,7 +646,7 @@ def _run_trace(out: Path, run: dict, sc) -> dict | None:
 
 def _channel_facts(out: Path, runs: list[dict], aliases: dict[str, str]) -> tuple[dict, dict]:
     """Hazard phases (see :func:`hazard_phases`) and each variable's unit, from the first readable black box."""
-    from cellsim.services.blackbox import BlackBox, BlackBoxError
+    from cellsim.blackbox import BlackBox, BlackBoxError
     from cellsim.simulation import BLACKBOX
 
     for r in runs:

@@ -42,7 +42,7 @@ def run(args) -> int:
     import json
 
     from cellsim.scenario import load_scenario
-    from cellsim.services.blackbox import BlackBoxError
+    from cellsim.blackbox import BlackBoxError
     from cellsim.validation.check import CheckError, check
     from cellsim.validation.config import description_of
     from cellsim.validation.traces import TraceError, write_trace_json
@@ -114,7 +114,7 @@ def check_campaign(args) -> int:
 
     from cellsim.campaign.runner import RESULTS, RUNS
     from cellsim.scenario import load_scenario
-    from cellsim.services.blackbox import BlackBoxError
+    from cellsim.blackbox import BlackBoxError
     from cellsim.validation.bound import campaign_bounds
     from cellsim.validation.check import CheckError, check
     from cellsim.validation.traces import TraceError

@@ -38,7 +38,7 @@ def run(args) -> int:
     if not (math.isfinite(args.start) and args.start >= 0.0):
         raise InputError(f"--start {args.start:g}: expected a time from 0 s")
     if args.replay is not None:
-        from cellsim.services.blackbox import BlackBoxError
+        from cellsim.blackbox import BlackBoxError
         from cellsim.validation.check import CheckError
 
         try:

@@ -25,7 +25,7 @@ class ReplayFeed:
     """A recorded run played back at ``speed`` times real time, from ``start`` (s)."""
 
     def __init__(self, run: str | Path, speed: float = 1.0, start: float = 0.0, clock=time.monotonic):
-        from cellsim.services.blackbox import BlackBox
+        from cellsim.blackbox import BlackBox
         from cellsim.validation.check import locate_run
 
         blackbox, _ = locate_run(run)

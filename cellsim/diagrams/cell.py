@@ -9,7 +9,7 @@
   its module kind (``cellsim.registry``: cellsim's kinds and plug-ins alike;
   a robot kind adds its arm to the plant and its joint controller);
 * geometry: operators, sensor volumes and each arm's collision shapes
-  (``cellsim.entities.arm_geometry``) are SceneGraph sources of their own,
+  (``cellsim.kinds.robot.geometry``) are SceneGraph sources of their own,
   posed only when a sensor or the ground truth queries SceneGraph; all contact
   between them is filtered out (the arm is position controlled and collisions
   are *measured*, by sensors and ground truth, not simulated);
@@ -47,9 +47,9 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, Outpu
 from cellsim import registry
 from cellsim.cell_io import SIMULATED, CellIO, Emulated, Live, Replayed, Simulated, paced
 from cellsim.channels import ChannelSpec
-from cellsim.entities.twin import EntitySystem
+from cellsim.entity import EntitySystem
 from cellsim.scenario import ScenarioFile
-from cellsim.services.recorder import Recorder
+from cellsim.recorder import Recorder
 
 AFTER_ENTITIES = 10
 """Modules of a stage below this are entities and sensors; hooks that need every
@@ -239,8 +239,7 @@ def build_cell(
         for name, cfg in getattr(sc, section).items()
     ]
     for kind, _, name, cfg in modules:
-        if kind.prepare is not None:
-            kind.prepare(cell, name, cfg)
+        kind.prepare(cell, name, cfg)
     plant.Finalize()
 
     hooks_run = False
@@ -326,7 +325,7 @@ def _no_physical_samples(entities) -> list[tuple]:
 def _replay(builder: DiagramBuilder, cell: CellBuild, io: Replayed) -> list[tuple]:
     """A black box plays the physical twin of each entity whose sample fields it recorded."""
     from cellsim.physical import BlackBoxReplay, no_sample, replay_fields
-    from cellsim.services.blackbox import BlackBox
+    from cellsim.blackbox import BlackBox
 
     unknown = set(io.entities or ()) - set(cell.entities)
     if unknown:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from cellsim.config.typed_yaml import ConfigError
 from cellsim.scenario import ScenarioFile, load_scenario
-from cellsim.services.blackbox import BlackBox
+from cellsim.blackbox import BlackBox
 from cellsim.provenance import BLACKBOX, RESOLVED_SCENARIO
 from cellsim.validation.conditions import CheckResult, SafetyCase
 from cellsim.validation.verdict import Verdict

@@ -39,7 +39,7 @@ from cellsim.atomic import write_text
 from cellsim.logic.syntax import BoolDomain, EnumDomain, NumberDomain
 from cellsim.logic.trace import Signal, Trace
 from cellsim.channels import ChannelSpec
-from cellsim.services.blackbox import BlackBox, BlackBoxError
+from cellsim.blackbox import BlackBox, BlackBoxError
 
 Domain = EnumDomain | BoolDomain | NumberDomain
 

@@ -142,8 +142,15 @@ class Observer:
         """Adds nothing: a signal only it publishes has no abstraction (what reads it is left out)."""
 
 
-def observer(cell, name, cfg) -> Observer:
-    return Observer()
+
+def context_of(system):
+    """``root context -> system's context``: how an abstraction calls its system's own measurements."""
+    return lambda root: system.GetMyContextFromRoot(root)
+
+
+def nearest(order):
+    """``values -> the one first in order``: how a sensor combines several people's readings (the most restrictive)."""
+    return lambda values: min(values, key=order.index)
 
 
 class AbstractCell:

@@ -1,6 +1,6 @@
 """A risk model as PRISM modules, exactly as the safety-controller engine executes it.
 
-The engine (``cellsim.behaviours.safety_controller``) does, each control period,
+The engine (``cellsim.kinds.safety_controller.system``) does, each control period,
 on the monitored values and the hazards' phases before the period:
 
 1. for every transition with ``after: d``: while its hazard is in the phase it

@@ -132,9 +132,10 @@ def abstract_model(sf, cell=None, *, timed: bool = False) -> AbstractModel:
     parts = []
     for name, cfg in configs.items():
         kind = registry.kind_of(cfg)
-        if kind.abstraction is None:
+        part = kind.abstraction(abstract, name, cfg)
+        if part is None:
             raise VerifyError(f"kind '{kind.name}' (module '{name}') offers no abstraction: verify cannot model it")
-        parts.append(kind.abstraction(abstract, name, cfg))
+        parts.append(part)
     case = cell_safety_case(sf, cell) if scenario.validation.conditions or scenario.validation.verify else None
     conditions = ConditionProperties(abstract, case, scenario.validation) if case is not None else None
     for part in parts:

@@ -41,7 +41,7 @@ class Replay:
 def check_replay(run: str | Path, at: float = 0.0, speed: float = 1.0):
     """The run's black box, its scenario and its end (s), once ``at`` and ``speed`` are known to fit it;
     ReplayError (one line) otherwise. Everything a replay checks, before anything is opened or drawn."""
-    from cellsim.services.blackbox import BlackBox, BlackBoxError
+    from cellsim.blackbox import BlackBox, BlackBoxError
     from cellsim.validation.check import CheckError, locate_rebuildable_run
     from cellsim.validation.traces import run_end
 
@@ -69,7 +69,7 @@ def replay(run: str | Path, meshcat, *, at: float = 0.0, speed: float = 1.0) -> 
     Raises ReplayError (or the scenario's ConfigError) for a missing or corrupt
     run, or ``at`` outside the run.
     """
-    from cellsim.services.blackbox import BlackBox, BlackBoxError
+    from cellsim.blackbox import BlackBox, BlackBoxError
     from cellsim.diagrams.cell import build_cell
 
     blackbox, sf, end = check_replay(run, at, speed)

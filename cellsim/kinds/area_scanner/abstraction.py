@@ -1,0 +1,25 @@
+"""The area_scanner kind in the abstract cell: the innermost field a person is seen in.
+
+A sensor offers its measurements (``SensorRole``): the floor stands each person at each of its poses
+and calls the sensor's own ``measure`` on the built cell, so the abstract reading is what the twin's
+sensor computes there; several people are combined as the sensor does."""
+
+from __future__ import annotations
+
+from cellsim.verify.model import AbstractCell, ModuleAbstraction, SensedSignal, SensorRole, context_of, nearest
+
+
+class AreaScannerAbstraction(ModuleAbstraction):
+    """The innermost field a person is seen in, and the distance to the nearest person seen."""
+
+    def declare(self, cell: AbstractCell) -> None:
+        sensor, of = self.system, context_of(self.system)
+        values = [self.cfg.clear, *self.cfg.fields]  # the field channel's codes: clear, then innermost first
+        innermost = [*self.cfg.fields, self.cfg.clear]
+        cell.add_sensor(SensorRole(self.name, {
+            "field": SensedSignal(lambda root: values[sensor.measure(of(root))[0]], nearest(innermost)),
+            "distance": SensedSignal(lambda root: sensor.measure(of(root))[1], min),
+        }))
+
+    def build(self, cell: AbstractCell) -> None:
+        """Its readings are the floor's."""

@@ -1,0 +1,172 @@
+"""A safety laser scanner guarding an area with named fields (protective, warning...).
+
+Its fields are volumes of the cell, listed innermost (most restrictive) first:
+a box, or a polygon on the floor extruded between two heights. Each field is
+SceneGraph geometry (a box, a convex prism, or the prisms of its triangles when
+the polygon is not convex), and a person is *in* a field when their geometry
+meets it and the scanner sees them: the segment from the scanner to the point
+of the person deepest in the field passes through no fixture. A person behind
+the press body is not detected, as with the real scanner, whose beams do not
+pass through it. The beams sweep the heights of the fields (a floor-level
+scanner sees legs, not a head above a table).
+
+The ``field`` channel reads the innermost occupied field, else the clear
+reading named by the scenario; ``distance`` is the distance to the nearest
+point of a person the beams reach (``max_range`` when none). Shadowing its physical
+twin with no valid sample, it fails safe: the innermost field, distance 0.
+"""
+
+from __future__ import annotations
+
+
+import numpy as np
+from pydrake.geometry import (
+    GeometryInstance,
+    MakePhongIllustrationProperties,
+    ProximityProperties,
+    Rgba,
+)
+
+from cellsim.channels import enum_type, number_type
+from cellsim.kinds.area_scanner.config import AreaScannerConfig
+from cellsim.kinds.sensing import HEAD_RADIUS, GeometrySensor
+from cellsim.entity import valid_code
+from cellsim.floorplan import Box3
+from cellsim.systems import write_changed
+from cellsim.vocabulary import TwinMode, value_set
+
+class AreaScanner(GeometrySensor):
+    """A safety laser scanner.
+
+    Ports:
+      geometry_query (input): SceneGraph QueryObject.
+      physical_sample (input): [t, link, field code, distance (m)].
+      field (channel): the innermost field a person is seen in, else the clear reading.
+      distance (channel, m): distance from the head to the nearest person seen, at most max_range.
+    Fails safe (innermost field, distance 0) when its physical sample is stale or corrupt.
+    """
+
+    def __init__(self, module: str, cfg: AreaScannerConfig, fixtures):
+        super().__init__(module, cfg.period, cfg.twin, ("field", "distance"))
+        self.cfg = cfg
+        self.position = np.array(cfg.position, float)
+        self.readings = value_set(f"{module}_field", [cfg.clear, *cfg.fields])
+        # fixtures block the beams, except one the scanner is mounted inside
+        self.walls = [box for box in map(Box3.of, fixtures) if not box.contains(self.position)]
+        # the heights the scanner's beams sweep: from its lowest field's bottom to its highest's top
+        bounds = [corner[2] for spec in cfg.fields.values() for corner in spec.corners()]
+        self.band = (min(bounds) - 1e-6, max(bounds) + 1e-6)
+        self.field_ids: list[list] = []
+        self._outputs = [
+            self.declare_channel("field", enum_type(self.readings), cfg.clear, description="Innermost occupied field"),
+            self.declare_channel(
+                "distance", number_type("m"), cfg.max_range, description="Distance to the nearest person seen",
+            ),
+        ]
+
+    def register_geometry(self, scene_graph) -> list:
+        source = scene_graph.RegisterSource(self.module)
+        self.head_id = self.register_head(scene_graph, source, self.position)
+        ids = [self.head_id]
+        for k, (name, spec) in enumerate(self.cfg.fields.items()):
+            shade = [1.0, 0.2 + 0.6 * k / max(1, len(self.cfg.fields) - 1), 0.1, 0.12]
+            pieces = []
+            for i, (pose, shape) in enumerate(spec.shapes(f"{self.module}/{name}")):
+                instance = GeometryInstance(pose, shape, f"{self.module}/{name}/{i}")
+                instance.set_proximity_properties(ProximityProperties())
+                instance.set_illustration_properties(MakePhongIllustrationProperties(shade))
+                pieces.append(scene_graph.RegisterAnchoredGeometry(source, instance))
+            self.field_ids.append(pieces)
+            ids += pieces
+        return ids
+
+    # -- in Meshcat (cellsim.visual.cues) ------------------------------------------------
+    def visual_cues(self, view) -> list:
+        """Each field shaded faint while free, strong while it is the field the scanner reports."""
+        from cellsim.visual.cues import Cue, parts_of
+
+        channel = f"{self.module}.field"
+        cues = []
+        for k, (name, spec) in enumerate(self.cfg.fields.items()):
+            hue = 0.2 + 0.6 * k / max(1, len(self.cfg.fields) - 1)
+            shapes = spec.shapes(f"{self.module}/{name}/cue")
+            looks = {
+                "free": parts_of(f"{self.module}/{name}/free", shapes, Rgba(1.0, hue, 0.1, 0.08)),
+                "occupied": parts_of(f"{self.module}/{name}/occupied", shapes, Rgba(1.0, hue, 0.1, 0.45)),
+            }
+            replaces = tuple(view.geometry_path(piece) for piece in self.field_ids[k])
+            cues.append(Cue(f"{self.module}/{name}", (channel,), looks, _occupied_look(channel, name), replaces))
+        return cues
+
+    def sight(self):
+        """A field reported occupied sees whoever stands within 0.3 m of its footprint's bounding box."""
+        from cellsim.visual.cues import Sight
+
+        channel = f"{self.module}.field"
+        boxes = {}
+        for name, spec in self.cfg.fields.items():
+            corners = np.array(spec.corners())
+            boxes[name] = (corners[:, :2].min(axis=0) - 0.3, corners[:, :2].max(axis=0) + 0.3)
+
+        def sees(values, xy) -> bool:
+            box = boxes.get(values.get(channel))
+            return box is not None and bool(np.all((box[0] <= xy) & (np.asarray(xy) <= box[1])))
+
+        return Sight((channel,), sees)
+
+    def seen(self, point) -> bool:
+        """Whether the beams reach ``point``: within the heights they sweep, through no fixture."""
+        if not self.band[0] <= point[2] <= self.band[1]:
+            return False
+        return not any(wall.blocks(self.position, point) for wall in self.walls)
+
+    def measure(self, context) -> tuple[int, float]:
+        """(code of the innermost field someone is seen in, else clear; distance to the nearest seen)."""
+        query = self.query_port.Eval(context)
+        reading = 0
+        for index, pieces in enumerate(self.field_ids):
+            if self._occupied(query, pieces):
+                reading = index + 1
+                break
+        nearest = self.cfg.max_range
+        for target in self.targets:
+            pair = query.ComputeSignedDistancePairClosestPoints(self.head_id, target)
+            distance = pair.distance + HEAD_RADIUS
+            if distance < nearest and self.seen(_witness_on(query, pair, target)):
+                nearest = distance
+        return reading, nearest
+
+    def _occupied(self, query, pieces) -> bool:
+        for piece in pieces:
+            for target in self.targets:
+                pair = query.ComputeSignedDistancePairClosestPoints(piece, target)
+                if pair.distance <= 0.0 and self.seen(_witness_on(query, pair, target)):
+                    return True
+        return False
+
+    def sample_is_valid(self, sample) -> bool:
+        return valid_code(sample[0], self.readings) and np.isfinite(sample[1]) and sample[1] >= 0.0
+
+    def update(self, context, xd):
+        view = self.consult_physical(context, xd)
+        if view.mode is TwinMode.MODEL:
+            reading, distance = self.measure(context)
+        elif view.sample is None:
+            reading, distance = 1, 0.0  # stale or corrupt: someone may be in the innermost field
+        else:
+            reading, distance = int(view.sample[0]), float(view.sample[1])
+        published = [context.get_discrete_state(g)[0] for g in self._outputs]
+        write_changed(xd, self._outputs, [float(reading), distance], published)
+
+
+def _occupied_look(channel: str, field_name: str):
+    return lambda values: None if values.get(channel) is None else ("occupied" if values[channel] == field_name else "free")
+
+
+def _witness_on(query, pair, geometry) -> np.ndarray:
+    """The pair's witness point on ``geometry``, in the cell (SceneGraph may order the pair either way)."""
+    if pair.id_A == geometry:
+        return query.GetPoseInWorld(geometry) @ pair.p_ACa
+    return query.GetPoseInWorld(geometry) @ pair.p_BCb
+
+

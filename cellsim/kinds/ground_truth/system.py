@@ -1,0 +1,64 @@
+"""Ground truth the sensors cannot give: the true operator-robot separation, and the clearance
+between every pair of robots.
+
+An analysis behaviour (paper, section 6: "capturing the distance between the
+operator and the robot irrespective of the LIDAR blind spots"). In a cell with
+several arms, ``clearance_<a>_<b>`` is the least distance between arm a's and arm
+b's collision shapes: two arms at one fixture that get out of step show it.
+"""
+
+from __future__ import annotations
+
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import QueryObject
+
+from cellsim.channels import number_type
+from cellsim.kinds.ground_truth.config import GroundTruthConfig
+from cellsim.systems import CellSystem, write_scalar
+
+FAR_AWAY = 10.0  # m, reported when there is no operator or no robot
+
+
+class GroundTruth(CellSystem):
+    """Ports:
+    geometry_query (input): SceneGraph QueryObject.
+    separation (channel, m): minimum signed distance between any robot geometry
+      and any operator geometry (negative: they overlap).
+    clearance_<a>_<b> (channel, m), per pair of robots a, b (in the scenario's order): the minimum
+      signed distance between their geometries.
+    """
+
+    def __init__(self, module: str, cfg: GroundTruthConfig, robots: list[str] = ()):
+        """``robots``: the cell's robots, in order (a clearance channel per pair)."""
+        super().__init__(module, cfg.period)
+        self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
+        self.pairs: list = []
+        self._separation = self.declare_channel(
+            "separation", number_type("m"), FAR_AWAY, record="every_sample",
+            description="True minimum operator-robot distance",
+        )
+        self.robot_pairs = [(a, b) for i, a in enumerate(robots) for b in robots[i + 1:]]
+        self._clearances = [
+            self.declare_channel(f"clearance_{a}_{b}", number_type("m"), FAR_AWAY, record="every_sample",
+                                 description=f"True minimum distance between {a} and {b}")
+            for a, b in self.robot_pairs
+        ]
+        self.arm_pairs: list[list] = [[] for _ in self.robot_pairs]
+
+    def set_geometries(self, robot_ids, operator_ids, arms: dict[str, list] | None = None) -> None:
+        """``arms``: each robot's GeometryIds, for the clearances."""
+        self.pairs = [(r, o) for r in robot_ids for o in operator_ids]
+        arms = arms or {}
+        self.arm_pairs = [[(g, h) for g in arms.get(a, ()) for h in arms.get(b, ())] for a, b in self.robot_pairs]
+
+    def update(self, context, xd):
+        if not self.pairs and not any(self.arm_pairs):
+            return
+        query = self.query_port.Eval(context)
+        if self.pairs:
+            nearest = min(query.ComputeSignedDistancePairClosestPoints(a, b).distance for a, b in self.pairs)
+            write_scalar(xd, self._separation, min(nearest, FAR_AWAY))
+        for group, pairs in zip(self._clearances, self.arm_pairs):
+            if pairs:
+                nearest = min(query.ComputeSignedDistancePairClosestPoints(a, b).distance for a, b in pairs)
+                write_scalar(xd, group, min(nearest, FAR_AWAY))

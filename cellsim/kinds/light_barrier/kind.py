@@ -1,0 +1,34 @@
+"""The light_barrier kind: a light curtain whose beams fill a box."""
+
+from __future__ import annotations
+
+from cellsim.entity import TWIN_CHANNELS
+from cellsim.kinds.light_barrier.config import LightBarrierConfig
+from cellsim.kinds.light_barrier.system import LightBarrier
+from cellsim.kinds.sensing import add_sensor
+from cellsim.registry import ModuleKind
+
+
+class LightBarrierKind(ModuleKind):
+    name = "light_barrier"
+    section = "entities"
+    config = LightBarrierConfig
+    summary = "A light curtain whose beams fill a box: broken while a person's geometry is in it; fails safe to broken."
+    sample_fields = ("broken",)
+    channels = (
+        ("broken", "bool", "true while any person's geometry intersects the beams (lgtBar); with restart_interlock, "
+                           "latched: true from the first break until a reset"),
+        ("interrupted", "bool", "only with restart_interlock: the beams interrupted now, latch or not"),
+        *TWIN_CHANNELS,
+    )
+    inputs = (
+        ("reset", "bool", "only with restart_interlock: a rising edge resets a tripped curtain whose beams are clear"),
+    )
+
+    def build(self, cell, name, cfg):
+        return add_sensor(cell, name, LightBarrier(name, cfg))
+
+    def abstraction(self, abstract, name, cfg):
+        from cellsim.kinds.light_barrier.abstraction import LightBarrierAbstraction
+
+        return LightBarrierAbstraction(abstract, name, cfg)

@@ -1,0 +1,159 @@
+"""A person in the abstract cell: anywhere on the floor it can walk, reaching where it reaches.
+
+The abstraction is wider than the scenario's walk on purpose: the person may
+stand at any point of the floor not taken by a fixture (the grid of
+``PersonRole.poses``, at four headings), walk from there to a neighbouring point
+each period (in any order, any number of times: ``verify`` asks what *any* walk
+can do), reach towards every point its waypoints reach for, from wherever that
+point is within arm's length and a step, and press each button its waypoints
+press while standing where that waypoint is. A witness walk is written back as
+this kind's own config: waypoints with waits and reaches.
+"""
+
+from __future__ import annotations
+
+import math
+
+
+from cellsim.kinds.operator.system import REACH_TIME, obstacles, route
+from cellsim.floorplan import point_in_polygon
+from cellsim.verify.model import ModuleAbstraction, AbstractCell, PersonRole, Pose
+
+GRID = 0.1
+"""The floor grid's step (m)."""
+HEADINGS = (0.0, math.pi / 2, math.pi, 3 * math.pi / 2)
+MARGIN = 0.6
+"""How far (m) round the cell's fixtures, zones and walk the floor is sampled."""
+
+
+class PersonAbstraction(ModuleAbstraction):
+    def __init__(self, cell: AbstractCell, name: str, cfg):
+        super().__init__(cell, name, cfg)
+        self.layout = cell.sf.scenario.layout
+
+    def declare(self, cell: AbstractCell) -> None:
+        cfg, layout = self.cfg, self.layout
+        found = obstacles(cfg, layout) if cfg.avoid_fixtures else []
+        self.outlines = tuple(outline for _, outline in found)
+        points = self._grid()
+        poses = [Pose(x, y, yaw) for x, y in points for yaw in HEADINGS]
+        arm = cfg.arm_length + cfg.body_radius + GRID
+        for target in dict.fromkeys(tuple(w.reach) for w in cfg.waypoints.values() if w.reach is not None):
+            for x, y in points:
+                if math.hypot(target[0] - x, target[1] - y) <= arm:
+                    poses.append(Pose(x, y, math.atan2(target[1] - y, target[0] - x), target))
+        first = next(iter(cfg.waypoints.values())).position if cfg.waypoints else (cfg.start[0] + 1.0, cfg.start[1])
+        start = Pose(float(cfg.start[0]), float(cfg.start[1]), math.atan2(first[1] - cfg.start[1], first[0] - cfg.start[0]))
+        own = {"location": self._location, **{flag: self._flag(zone) for flag, zone in layout.operator_flags.items()}}
+        buttons = {}
+        for w in cfg.waypoints.values():
+            if w.press is not None:
+                buttons[f"press_{w.press.replace('.', '_')}"] = tuple(w.position)
+        cell.add_person(PersonRole(self.name, poses, start, self._stand, own, GRID, buttons, travel=self.travel,
+                                   walk=self.walk))
+        cell.assume(f"{self.name} may walk anywhere on the floor at any pace, reach towards "
+                    f"{'the points its waypoints reach for' if any(w.reach for w in cfg.waypoints.values()) else 'nothing'} "
+                    "and press its buttons where its waypoints press them; its arm is either down or fully reached out")
+
+    def build(self, cell: AbstractCell) -> None:
+        """Its place and buttons are the floor's (``cellsim.verify.floor``)."""
+
+    # -- where it stands ----------------------------------------------------------------
+    def _grid(self) -> list[tuple[float, float]]:
+        layout, cfg = self.layout, self.cfg
+        xs, ys = [cfg.start[0]], [cfg.start[1]]
+        for w in cfg.waypoints.values():
+            xs.append(w.position[0])
+            ys.append(w.position[1])
+        for f in layout.fixtures.values():
+            for sx in (-1, 1):
+                xs.append(f.center[0] + sx * f.size[0] / 2)
+                ys.append(f.center[1] + sx * f.size[1] / 2)
+        for zone in (*layout.operator_zones.values(), *layout.operator_flags.values()):
+            xs += [zone.min[0], zone.max[0]]
+            ys += [zone.min[1], zone.max[1]]
+        x0, x1 = math.floor((min(xs) - MARGIN) / GRID), math.ceil((max(xs) + MARGIN) / GRID)
+        y0, y1 = math.floor((min(ys) - MARGIN) / GRID), math.ceil((max(ys) + MARGIN) / GRID)
+        return [
+            (round(i * GRID, 6), round(j * GRID, 6))
+            for i in range(x0, x1 + 1) for j in range(y0, y1 + 1)
+            if not any(point_in_polygon((i * GRID, j * GRID), outline) for outline in self.outlines)
+        ]
+
+    def _stand(self, context, pose: Pose | None) -> None:
+        if pose is None:
+            vector = [1e3, 1e3, 0.0, 0.0, 0.0, 0.0, 0.0]
+        elif pose.reach is None:
+            vector = [pose.x, pose.y, pose.yaw, 0.0, 0.0, 0.0, 0.0]
+        else:
+            vector = [pose.x, pose.y, pose.yaw, 1.0, *pose.reach]
+        self.system.set_pose(context, vector)
+
+    def _location(self, pose: Pose) -> str:
+        standing = (pose.x, pose.y, 1.0)
+        return next((name for name, zone in self.layout.operator_zones.items() if zone.contains(standing)),
+                    self.layout.operator_outside)
+
+    @staticmethod
+    def _flag(zone):
+        return lambda pose: zone.contains((pose.x, pose.y, 1.0))
+
+    # -- a witness's walk as this kind's config --------------------------------------------
+    def _approach(self, pose: Pose) -> tuple[float, float] | None:
+        """Where the walk passes one grid step before a stop, so the person stands there facing ``pose.yaw``
+        (the twin faces the way it walked); None for a reaching stop (it faces the reach) or when that
+        point is inside a fixture."""
+        if pose.reach is not None:
+            return None
+        point = (pose.x - GRID * math.cos(pose.yaw), pose.y - GRID * math.sin(pose.yaw))
+        return None if any(point_in_polygon(point, outline) for outline in self.outlines) else point
+
+    def _walked(self, a: tuple[float, float], b: tuple[float, float]) -> float:
+        points = [a]
+        if self.outlines:
+            points += list(route(a, b, self.outlines) or ())
+        points.append(b)
+        return sum(math.dist(p, q) for p, q in zip(points, points[1:]))
+
+    def travel(self, a: Pose, b: Pose) -> float:
+        """Seconds the person takes from pose a to pose b at its walking speed, round the fixtures:
+        withdrawing the arm at a, walking (through b's approach point), reaching out at b."""
+        approach = self._approach(b)
+        length = (self._walked((a.x, a.y), approach) + GRID) if approach else self._walked((a.x, a.y), (b.x, b.y))
+        arm = REACH_TIME * ((a.reach is not None) + (b.reach is not None))
+        return length / self.cfg.walking_speed + arm
+
+    def walk(self, start: Pose, stops: list[tuple[Pose, float, float]], presses: dict[int, str]) -> dict:
+        """The config keys of a walk from ``start`` through ``stops``: (pose, arrive at (s), leave at (s));
+        ``presses``: stop index -> the button pressed there. A stop that reaches has its arm fully out from
+        ``arrive`` to ``leave`` (the twin takes REACH_TIME either side); any other is walked into through its
+        approach point, so the person faces the pose's heading."""
+        waypoints: dict[str, dict] = {}
+        here, clock, start_delay, previous = start, 0.0, 0.0, None
+        for i, (pose, arrive, leave) in enumerate(stops):
+            if pose.reach is not None:
+                arrive, leave = arrive - REACH_TIME, leave + REACH_TIME
+            way = self.travel(here, pose) - REACH_TIME * ((here.reach is not None) + (pose.reach is not None))
+            depart = max(clock, arrive - way)  # leave the last stop so as to be here on time
+            if previous is None:
+                start_delay = depart
+            else:
+                previous["wait"] = round(depart - clock, 3)
+            clock = depart + way
+            approach = self._approach(pose)
+            if approach is not None:
+                waypoints[f"w{i + 1}_approach"] = {"position": [round(approach[0], 3), round(approach[1], 3)], "wait": 0.0}
+            entry: dict = {"position": [round(pose.x, 3), round(pose.y, 3)], "wait": round(max(leave - clock, 0.0), 3)}
+            if pose.reach is not None:
+                entry["reach"] = [round(v, 3) for v in pose.reach]
+            if i in presses:
+                entry["press"] = presses[i]
+            waypoints[f"w{i + 1}"] = entry
+            here, previous = pose, entry
+        return {
+            "start": [round(start.x, 3), round(start.y, 3)],
+            "start_delay": round(start_delay, 3),
+            "speed_jitter": 0.0,
+            "waypoints": waypoints,
+        }
+

@@ -1,0 +1,389 @@
+"""The human operator: walks waypoints, reaches for things, and has geometry.
+
+The operator is its own SceneGraph geometry source with two frames: the body
+(a capsule torso and a sphere head) and one arm (a capsule from the shoulder).
+The digital behaviour walks the scenario's waypoints in order at a walking speed
+drawn per leg from the run's seed, waits at each, and while waiting at a
+waypoint with a ``reach`` point swings the arm towards that point (0.5 s to
+extend and 0.5 s to withdraw). Each leg is the shortest way around the layout's
+fixtures (their footprints grown by the body's radius and ``CLEARANCE``;
+fixtures overhead, above the person's height, do not count). The whole walk is
+planned when the system is built, so the operator's pose is a pure function of
+time; a waypoint inside a fixture, or one that cannot be reached, is a load error.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import (
+    Capsule,
+    FramePoseVector,
+    GeometryFrame,
+    GeometryInstance,
+    MakePhongIllustrationProperties,
+    ProximityProperties,
+    Rgba,
+    Sphere,
+)
+from pydrake.math import RigidTransform, RotationMatrix
+
+from cellsim.channels import BOOL, enum_type, vector_type
+from cellsim.entity import EntitySystem
+from cellsim.floorplan import Box3, point_in_polygon, shortest_path
+from cellsim.kinds.operator.config import OperatorConfig
+from cellsim.scenario import Layout
+from cellsim.systems import read_scalar, write_scalar
+from cellsim.vocabulary import TwinMode, value_set
+
+REACH_TIME = 0.5  # s to extend or withdraw the arm
+PRESS_TIME = 0.5
+"""How long (s) a person holds a button pressed on arriving at a waypoint."""
+CLEARANCE = 0.05
+"""How far (m) a person keeps their body from a fixture when walking round it."""
+SKIN = (0.85, 0.65, 0.5, 1.0)
+CLOTHES = (0.1, 0.35, 0.8, 1.0)
+SEEN = Rgba(1.0, 0.2, 0.1, 0.9)
+"""The marker above a person's head in Meshcat while a sensor sees them."""
+
+
+@dataclass(frozen=True)
+class Leg:
+    """Walk from ``start`` to waypoint ``index`` during [depart, arrive], then wait until ``leave``."""
+
+    index: int
+    start: np.ndarray
+    end: np.ndarray
+    depart: float
+    arrive: float
+    leave: float
+    reach: np.ndarray | None
+    heading: float | None = None
+    """Walking direction at the end of the leg (rad), None for a leg of zero length."""
+    facing: float | None = None
+    """Direction of the reach point from ``end`` (rad), None without a reach."""
+    corners: tuple = ()
+    """Points walked through between start and end, going round fixtures."""
+
+    def point_at(self, s: float) -> tuple[np.ndarray, float | None]:
+        """Where the person is (and heading, rad) a fraction ``s`` of the way along the leg."""
+        points = [self.start, *self.corners, self.end]
+        lengths = [float(np.linalg.norm(b - a)) for a, b in zip(points, points[1:])]
+        along = s * sum(lengths)
+        for a, b, length in zip(points, points[1:], lengths):
+            if along <= length or b is self.end:
+                way = b - a
+                heading = float(np.arctan2(way[1], way[0])) if length > 1e-9 else self.heading
+                return a + (min(along, length) / length if length > 1e-9 else 0.0) * way, heading
+            along -= length
+        return self.end, self.heading
+
+
+class RouteError(ValueError):
+    """A waypoint a person cannot stand at or reach: ``key`` is the waypoint's key under the operator."""
+
+    def __init__(self, key: str, problem: str):
+        super().__init__(problem)
+        self.key = key
+
+
+def obstacles(cfg: OperatorConfig, layout: Layout) -> list[tuple[str, tuple]]:
+    """(name, footprint grown by the body's radius and CLEARANCE) of each fixture a person walks round."""
+    grow = cfg.body_radius + CLEARANCE
+    return [
+        (name, tuple(tuple(c) for c in Box3.of(f).footprint(grow)))
+        for name, f in layout.fixtures.items()
+        if f.center[2] - f.size[2] / 2 < cfg.height
+    ]
+
+
+def plan_routes(cfg: OperatorConfig, layout: Layout) -> list[tuple]:
+    """For each waypoint, the corners walked through on the way to it (raises RouteError)."""
+    if not cfg.avoid_fixtures:
+        return [() for _ in cfg.waypoints]
+    found = obstacles(cfg, layout)
+    outlines = tuple(outline for _, outline in found)
+    places = [("start", tuple(cfg.start))] + [(f"waypoints.{n}.position", tuple(w.position)) for n, w in cfg.waypoints.items()]
+    for key, xy in places:
+        for name, outline in found:
+            if point_in_polygon(xy, outline) and not _on_edge(xy, outline):
+                raise RouteError(key, f"{list(xy)} is inside fixture '{name}' or too near it for the body "
+                                      f"({cfg.body_radius + CLEARANCE:g} m from its edge)")
+    routes = []
+    for (_, here), (key, there) in zip(places, places[1:]):
+        path = route(here, there, outlines)
+        if path is None:
+            raise RouteError(key, f"no way round the fixtures leads from {list(here)} to {list(there)}")
+        routes.append(path)
+    return routes
+
+
+@functools.lru_cache(maxsize=4096)
+def route(start: tuple, goal: tuple, outlines: tuple) -> tuple | None:
+    path = shortest_path(start, goal, [[np.array(c) for c in outline] for outline in outlines])
+    return None if path is None else tuple(tuple(float(x) for x in p) for p in path[:-1])
+
+
+def _on_edge(xy, outline) -> bool:
+    from cellsim.floorplan import _on_boundary
+
+    return _on_boundary(np.asarray(xy, float), [np.array(c) for c in outline])
+
+
+@dataclass(frozen=True)
+class OperatorPose:
+    xy: np.ndarray
+    yaw: float
+    reach_fraction: float
+    reach_target: np.ndarray  # meaningful when reach_fraction > 0
+    waypoint: int  # index of the waypoint walked to or waited at; -1 before setting off
+
+
+def plan_walk(cfg: OperatorConfig, seed: int, salt: int = 0, layout: Layout | None = None) -> list[Leg]:
+    """The legs of the operator's walk, round the layout's fixtures, with per-leg speeds drawn from ``seed``."""
+    rng = np.random.default_rng([seed, 0x0BE7, salt])
+    routes = plan_routes(cfg, layout) if layout is not None else [() for _ in cfg.waypoints]
+    legs, here, t = [], np.array(cfg.start, float), cfg.start_delay
+    for index, (wp, route) in enumerate(zip(cfg.waypoints.values(), routes)):
+        speed = cfg.walking_speed * (1.0 + cfg.speed_jitter * rng.uniform(-1.0, 1.0))
+        end = np.array(wp.position, float)
+        corners = tuple(np.array(c) for c in route)
+        points = [here, *corners, end]
+        arrive = t + sum(float(np.linalg.norm(b - a)) for a, b in zip(points, points[1:])) / speed
+        reach = None if wp.reach is None else np.array(wp.reach, float)
+        way = end - points[-2]
+        heading = float(np.arctan2(way[1], way[0])) if np.linalg.norm(way) > 1e-9 else None
+        facing = None if reach is None else float(np.arctan2(reach[1] - end[1], reach[0] - end[0]))
+        legs.append(Leg(index, here, end, t, arrive, arrive + wp.wait, reach, heading, facing, corners))
+        here, t = end, arrive + wp.wait
+    return legs
+
+
+def pose_at(legs: list[Leg], start_yaw: float, t: float) -> OperatorPose:
+    """Where the operator is at time ``t``."""
+    yaw, xy = start_yaw, legs[0].start if legs else np.zeros(2)
+    waypoint = -1
+    for leg in legs:
+        if t < leg.depart:
+            break
+        if leg.heading is not None:
+            yaw = leg.heading
+        waypoint = leg.index
+        if t < leg.arrive:
+            xy, heading = leg.point_at((t - leg.depart) / (leg.arrive - leg.depart))
+            return OperatorPose(xy, yaw if heading is None else heading, 0.0, _NO_REACH, waypoint)
+        xy = leg.end
+        if leg.reach is not None and t < leg.leave:
+            fraction = min((t - leg.arrive) / REACH_TIME, (leg.leave - t) / REACH_TIME, 1.0)
+            return OperatorPose(xy, leg.facing, max(fraction, 0.0), leg.reach, waypoint)
+    return OperatorPose(np.asarray(xy, float), yaw, 0.0, _NO_REACH, waypoint)
+
+
+_NO_REACH = np.zeros(3)
+
+
+class Operator(EntitySystem):
+    """A person in the cell.
+
+    Ports:
+      notification (input): code of one of the person's notifications; and one
+        true/false input per alert: what the safety controller tells this person, forwarded to the physical twin's
+        wearable in twin mode.
+      physical_sample (input): [t, link, x, y, yaw, reach_fraction, reach_x, reach_y, reach_z].
+      geometry_pose (output): FramePoseVector of the body and arm frames, for SceneGraph.
+      location (channel): the name of the layout's operator zone the body stands in, else
+        layout.operator_outside (oloc; the welding cell: inCell / none).
+      <flag> (channel, bool), for each of the layout's operator_flags: whether the body
+        stands in that volume (the welding cell: at_table, otab).
+      waypoint (channel): the waypoint walked to or waited at.
+      position (channel, m): [x, y] of the body, every 0.1 s.
+      press_<module>_<input> (output), per button a waypoint presses: 1 for PRESS_TIME
+        after arriving there (model mode only: a physical person presses the real button).
+    """
+
+    POSE_FIELDS = ("x", "y", "yaw", "reach_fraction", "reach_x", "reach_y", "reach_z")
+
+    def __init__(self, module: str, cfg: OperatorConfig, layout: Layout, seed: int, salt: int = 0):
+        super().__init__(module, cfg.period, cfg.twin, self.POSE_FIELDS, ("notification", *cfg.alerts))
+        self.cfg = cfg
+        self.layout = layout
+        self.legs = plan_walk(cfg, seed, salt, layout)
+        first = self.legs[0].end - np.array(cfg.start) if self.legs else np.array([1.0, 0.0])
+        self.start_yaw = float(np.arctan2(first[1], first[0]))
+        self.waypoints = value_set(f"{module}_waypoint", ["start", *cfg.waypoints])
+        # what the cell can tell this person, in its own words
+        self.notification_type = value_set(f"{module}_notification", cfg.notifications)
+        self.notification_port = self.declare_input("notification", ctype=enum_type(self.notification_type), default=0.0)
+        self.alert_ports = [self.declare_input(name, ctype=BOOL, default=0.0) for name in cfg.alerts]
+        initial = pose_at(self.legs, self.start_yaw, 0.0)
+        self._pose = self.declare_state("pose", self._pose_vector(initial))
+        # the cell's own words for where a person is: outside, or one of the layout's zones
+        self.locations = value_set(f"{module}_location", layout.operator_locations())
+        self._zones = [(self.locations(name).code, zone) for name, zone in layout.operator_zones.items()]
+        self._location = self.declare_channel(
+            "location", enum_type(self.locations), layout.operator_outside, description="Where the person stands: a zone of the layout, or outside"
+        )
+        self._flags = [
+            (self.declare_channel(name, BOOL, False, description=f"Standing in the layout's {name} volume"), zone)
+            for name, zone in layout.operator_flags.items()
+        ]
+        self._waypoint = self.declare_channel("waypoint", enum_type(self.waypoints), "start")
+        self._position = self.declare_channel(
+            "position", vector_type(2, "m"), initial.xy)
+        # the buttons this person presses, and where: (button index, leg) per pressing waypoint
+        self.buttons = list(dict.fromkeys(w.press for w in cfg.waypoints.values() if w.press))
+        self._presses = [
+            (self.buttons.index(w.press), leg) for w, leg in zip(cfg.waypoints.values(), self.legs) if w.press
+        ]
+        self._pressing = [self.declare_state(f"press_{b.replace('.', '_')}", [0.0]) for b in self.buttons]
+        self.button_ports = [
+            self.DeclareStateOutputPort(f"press_{b.replace('.', '_')}", g) for b, g in zip(self.buttons, self._pressing)
+        ]
+        self.body_frame = self.arm_frame = None
+        self._last_frame_poses: tuple | None = None  # (pose state, FramePoseVector)
+        self.geometry_ids: list = []
+        self.geometry_pose_port = None
+
+    # -- geometry --------------------------------------------------------------
+    def register_geometry(self, scene_graph) -> list:
+        """Register the body and arm; returns the proximity geometries (for sensors)."""
+        cfg = self.cfg
+        self.source_id = scene_graph.RegisterSource(self.module)
+        self.body_frame = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"{self.module}/body"))
+        self.arm_frame = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"{self.module}/arm"))
+        torso_top = cfg.height - 0.25
+        torso = Capsule(cfg.body_radius, max(torso_top - 2 * cfg.body_radius, 0.01))
+        parts = [
+            (self.body_frame, RigidTransform([0, 0, torso_top / 2]), torso, "torso", CLOTHES),
+            (self.body_frame, RigidTransform([0, 0, cfg.height - 0.12]), Sphere(0.11), "head", SKIN),
+            (self.arm_frame, RigidTransform([0, 0, -cfg.arm_length / 2]), Capsule(0.05, cfg.arm_length - 0.1), "arm", SKIN),
+        ]
+        for frame, pose, shape, name, color in parts:
+            instance = GeometryInstance(pose, shape, f"{self.module}/{name}")
+            instance.set_proximity_properties(ProximityProperties())
+            instance.set_illustration_properties(MakePhongIllustrationProperties(list(color)))
+            self.geometry_ids.append(scene_graph.RegisterGeometry(self.source_id, frame, instance))
+        self.geometry_pose_port = self.DeclareAbstractOutputPort(
+            "geometry_pose",
+            lambda: AbstractValue.Make(FramePoseVector()),
+            self._calc_geometry_pose,
+            prerequisites_of_calc={self.discrete_state_ticket(self._pose)},
+        )
+        return list(self.geometry_ids)
+
+    def _shoulder(self, xy, yaw) -> np.ndarray:
+        side = -(self.cfg.body_radius + 0.06)
+        c, s = np.cos(yaw), np.sin(yaw)
+        return np.array([xy[0] - s * side, xy[1] + c * side, self.cfg.height - 0.33])
+
+    def _calc_geometry_pose(self, context, output):
+        # Drake recomputes this port after every update of the operator, moved or
+        # not; the frame poses are a function of the pose state alone, so the
+        # last ones are kept and reused while the operator holds still.
+        pose = tuple(context.get_discrete_state(self._pose).get_value().tolist())
+        if self._last_frame_poses is None or self._last_frame_poses[0] != pose:
+            self._last_frame_poses = (pose, self.frame_poses(pose))
+        output.set_value(self._last_frame_poses[1])
+
+    def frame_poses(self, pose: tuple) -> FramePoseVector:
+        """The body and arm frames' poses for a pose state ``(x, y, yaw, reach_fraction, *reach_target)``."""
+        x, y, yaw, fraction, rx, ry, rz = pose
+        poses = FramePoseVector()
+        poses.set_value(self.body_frame, RigidTransform(RotationMatrix.MakeZRotation(yaw), [x, y, 0.0]))
+        shoulder = self._shoulder((x, y), yaw)
+        down = np.array([0.0, 0.0, -1.0])
+        direction = down
+        if fraction > 0:
+            towards = np.array([rx, ry, rz]) - shoulder
+            direction = (1 - fraction) * down + fraction * towards / np.linalg.norm(towards)
+            direction /= np.linalg.norm(direction)
+        poses.set_value(self.arm_frame, RigidTransform(RotationMatrix.MakeFromOneVector(-direction, 2), shoulder))
+        return poses
+
+    def set_pose(self, root_context, vector) -> None:
+        """Stand the body in ``root_context`` at ``vector``: x, y (m), yaw (rad), reach fraction and reach point (m)."""
+        self.GetMyMutableContextFromRoot(root_context).get_mutable_discrete_state(self._pose).SetFromVector(np.array(vector))
+
+    def physical_state(self, context) -> list[float]:
+        """x, y (m), yaw (rad), reach fraction and reach point (m): the pose state."""
+        return context.get_discrete_state(self._pose).get_value().tolist()
+
+    # -- in Meshcat (cellsim.visual.cues) --------------------------------------------
+    def visual_cues(self, view) -> list:
+        """A marker above the head while a sensor sees this person (a sensor's sight, at their position)."""
+        from cellsim.visual.cues import Cue, Part
+
+        position = f"{self.module}.position"
+        sights = list(view.sights)
+        marker = Part(
+            f"{view.frame_path(self.body_frame)}/seen", Sphere(0.09), SEEN, RigidTransform([0.0, 0.0, self.cfg.height + 0.2])
+        )
+        channels = tuple(dict.fromkeys([position, *(c for sight in sights for c in sight.channels)]))
+
+        def choose(values):
+            xy = values.get(position)
+            if xy is None or any(v is None for v in xy):
+                return None
+            return "seen" if any(sight.sees(values, tuple(xy)) for sight in sights) else None
+
+        return [Cue(f"{self.module}/seen", channels, {"seen": (marker,)}, choose)]
+
+    replay_channels = ("position",)
+
+    def show_recorded(self, cell, root_context, values: dict) -> None:
+        """Stand the body at its recorded position (m), facing the way it last walked (arm down)."""
+        xy = values.get(f"{self.module}.position")
+        if xy is None or any(v is None for v in xy):
+            return
+        state = self.GetMyMutableContextFromRoot(root_context).get_mutable_discrete_state(self._pose)
+        x0, y0, yaw = state.get_value()[:3]
+        if np.hypot(xy[0] - x0, xy[1] - y0) > 0.01:
+            yaw = float(np.arctan2(xy[1] - y0, xy[0] - x0))
+        state.SetFromVector(np.array([xy[0], xy[1], yaw, 0.0, 0.0, 0.0, 0.0]))
+
+    # -- behaviour ---------------------------------------------------------------
+    def _press_buttons(self, context, xd, digital: bool) -> None:
+        t = context.get_time()
+        held = [0.0] * len(self.buttons)
+        if digital:
+            for button, leg in self._presses:
+                if leg.arrive <= t < leg.arrive + PRESS_TIME - 1e-9:
+                    held[button] = 1.0
+        for group, value in zip(self._pressing, held):
+            if read_scalar(context, group) != value:
+                write_scalar(xd, group, value)
+
+    @staticmethod
+    def _pose_vector(pose: OperatorPose) -> list[float]:
+        x, y = pose.xy.tolist()
+        return [x, y, pose.yaw, pose.reach_fraction, *pose.reach_target.tolist()]
+
+    def update(self, context, xd):
+        view = self.consult_physical(context, xd)
+        current = context.get_discrete_state(self._pose).get_value().tolist()
+        if view.mode is TwinMode.MODEL:
+            pose = pose_at(self.legs, self.start_yaw, context.get_time())
+            vector, waypoint = self._pose_vector(pose), pose.waypoint
+        elif view.sample is None:  # stale or corrupt: hold the last known pose
+            vector, waypoint = current, None
+        else:
+            vector, waypoint = view.sample.tolist(), None
+        self.write_command(
+            xd, view.mode,
+            lambda: (self.notification_port.Eval(context)[0], *(port.Eval(context)[0] for port in self.alert_ports)),
+        )
+        if waypoint is not None and waypoint + 1 != read_scalar(context, self._waypoint):
+            write_scalar(xd, self._waypoint, waypoint + 1)
+        if self.buttons:
+            self._press_buttons(context, xd, view.mode is TwinMode.MODEL)
+        if vector == current:
+            return  # standing still: nothing derived from the pose changes
+        xd.get_mutable_vector(self._pose).SetFromVector(np.array(vector))
+        standing = (vector[0], vector[1], 1.0)  # the body, a metre above the floor
+        write_scalar(xd, self._location, next((code for code, zone in self._zones if zone.contains(standing)), 0.0))
+        for group, zone in self._flags:
+            write_scalar(xd, group, 1.0 if zone.contains(standing) else 0.0)
+        xd.get_mutable_vector(self._position).SetFromVector(np.array(vector[:2]))

@@ -1,0 +1,98 @@
+"""A safety scanner at a point: far / near / close from the nearest person's distance to it."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from cellsim.channels import enum_type, number_type
+from cellsim.entity import valid_code
+from cellsim.kinds.sensing import HEAD_RADIUS, REACH, GeometrySensor
+from cellsim.systems import write_scalar
+from cellsim.vocabulary import Range, TwinMode
+from cellsim.kinds.range_detector.config import RangeDetectorConfig
+
+
+class RangeDetector(GeometrySensor):
+    """A safety scanner at a point, classifying the nearest person's distance.
+
+    Ports:
+      geometry_query (input): SceneGraph QueryObject.
+      physical_sample (input): [t, link, range code, distance (m)].
+      range (channel, far/near/close): close below ``close_below`` m, near below
+        ``near_below`` m, else far (rngDet).
+      distance (channel, m): the measured signed distance from the sensor to the
+        nearest target surface (``near_below`` + 1 m when nobody is nearer).
+    Fails safe (reads close) when its physical sample is stale or corrupt.
+    """
+
+    def __init__(self, module: str, cfg: RangeDetectorConfig, seed: int, duration: float):
+        super().__init__(module, cfg.period, cfg.twin, ("range", "distance"))
+        self.cfg = cfg
+        self.reach = cfg.near_below + 1.0
+        self.position = np.array(cfg.position, float)
+        # measurement noise as a pure function of (seed, tick): a table drawn once
+        ticks = int(math.ceil(duration / cfg.period)) + 2
+        rng = np.random.default_rng([seed, 0x5CA7])
+        self._noise = rng.normal(0.0, cfg.noise_std, ticks) if cfg.noise_std > 0 else None
+        self._range = self.declare_channel("range", enum_type(Range), Range.FAR, description="Range class of the nearest person")
+        self._distance = self.declare_channel(
+            "distance",
+            number_type("m"),
+            self.reach,
+            description="Measured distance to the nearest person",
+        )
+
+    def register_geometry(self, scene_graph) -> list:
+        source = scene_graph.RegisterSource(self.module)
+        self.head_id = self.register_head(scene_graph, source, self.position)
+        return [self.head_id]
+
+    def sight(self):
+        """Near or close sees whoever stands within that range of the sensor (plus REACH / 2)."""
+        from cellsim.visual.cues import Sight
+
+        channel = f"{self.module}.range"
+        within = {Range.NEAR.value: self.cfg.near_below, Range.CLOSE.value: self.cfg.close_below}
+
+        def sees(values, xy) -> bool:
+            limit = within.get(values.get(channel))
+            return limit is not None and math.hypot(xy[0] - self.position[0], xy[1] - self.position[1]) <= limit + REACH / 2
+
+        return Sight((channel,), sees)
+
+    def classify(self, distance: float) -> Range:
+        if distance < self.cfg.close_below:
+            return Range.CLOSE
+        if distance < self.cfg.near_below:
+            return Range.NEAR
+        return Range.FAR
+
+    def measure(self, context) -> float:
+        # The distance from the sensor's point to a target is the distance from the
+        # sensor head (a sphere around that point) plus its radius.
+        query = self.query_port.Eval(context)
+        nearest = self.reach
+        for target in self.targets:
+            distance = query.ComputeSignedDistancePairClosestPoints(self.head_id, target).distance + HEAD_RADIUS
+            if distance < nearest:
+                nearest = distance
+        if self._noise is not None:
+            nearest += self._noise[int(round(context.get_time() / self.period))]
+        return nearest
+
+    def sample_is_valid(self, sample) -> bool:
+        return valid_code(sample[0], Range)
+
+    def update(self, context, xd):
+        view = self.consult_physical(context, xd)
+        if view.mode is TwinMode.MODEL:
+            distance = self.measure(context)
+            reading = self.classify(distance)
+        elif view.sample is None:
+            distance, reading = 0.0, Range.CLOSE
+        else:
+            reading, distance = Range.from_code(view.sample[0]), view.sample[1]
+        write_scalar(xd, self._range, reading.code)
+        write_scalar(xd, self._distance, distance)

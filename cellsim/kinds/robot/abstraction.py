@@ -1,0 +1,252 @@
+"""The robot arm in the abstract cell: where its tool goes on each move, how fast, in which mode.
+
+A move from one named pose to another is a straight line in joint space (as the
+arm's controller drives it); sampling it through the arm's kinematics at load time
+gives the regions of the layout its tool passes through, in order, and a lower
+bound on the periods it spends in each (at the fastest rate the joint limits and
+the normal speed cap allow, ignoring acceleration). In the abstract model the
+tool is in one region of its move and each period it stays (any slower pace:
+safety modes, braking, acceleration) or, once it has been there that long,
+goes on to the next. A move re-targeted before it ends follows a path the
+abstraction does not know: until it arrives, the tool may be in any region.
+
+Its safety mode is the one requested, from the next period on; at first, the one it takes
+at its update at t = 0, which reads the request then (a controller's default command). The tool's speed,
+as read, is any value its ``SpeedEnvelope`` allows: up to the cap in force, and
+after a cap ends, falling to zero within the braking time (read late by the
+telemetry period and the controller's tracking). The model keeps, per threshold
+the guards compare the speed with, a countdown of the periods a speed above it
+(and, where a cap equals it, at it) may still be read; the tool makes progress
+only while some speed may be.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from cellsim.kinds.robot.system import TELEMETRY_PERIOD
+from cellsim.verify.model import ModuleAbstraction, AbstractCell, lookup, set_of
+from cellsim.verify.prism import Command, Module, Var
+from cellsim.vocabulary import SafetyMode
+
+SAMPLES = 200
+"""Points sampled along each move to find the regions it passes through."""
+TRACKING_LAG = 0.06
+"""How far (s) the arm's measured speed may lag its planned speed (the joint controller's tracking)."""
+TRACKING_TOLERANCE = 0.05
+"""How far (m/s) the measured speed may stay above the planned braking line while the arm settles."""
+SETTLE_TIME = 0.1
+"""How long (s) after its planned speed reaches zero the arm may still be read moving."""
+_MODES = tuple(SafetyMode)
+
+
+class RobotAbstraction(ModuleAbstraction):
+    def declare(self, cell: AbstractCell) -> None:
+        """Reads its mode request and target pose (in ``build``)."""
+
+    def _moves(self, period: float, timed: bool) -> dict[tuple[int, int], list[tuple[int, int]]]:
+        """(a, b) -> [(location code, least periods there)] along the move from pose a to pose b."""
+        robot = self.system
+        moves = {}
+        for a in range(len(robot.poses)):
+            for b in range(len(robot.poses)):
+                if a == b:
+                    continue
+                start, goal = robot.poses[a], robot.poses[b]
+                motion = robot.start_segment(start, b)
+                tool_per_s, joint_rate = float(motion[3]), float(motion[4])
+                rate = min(joint_rate, robot.normal_cap / tool_per_s)  # ds/dt at most
+                codes = [robot.locate(robot.kinematics.tool_position(start + s * (goal - start))).code
+                         for s in np.linspace(0.0, 1.0, SAMPLES + 1)]
+                runs: list[list[int]] = []
+                for code in codes:
+                    if runs and runs[-1][0] == code:
+                        runs[-1][1] += 1
+                    else:
+                        runs.append([code, 1])
+                moves[(a, b)] = [(code, max(0, math.floor((count - 1) / SAMPLES / rate / period)) if timed else 0)
+                                 for code, count in runs]
+        return moves
+
+    def build(self, cell: AbstractCell) -> None:
+        r, robot, cfg = self.name, self.system, self.cfg
+        period = cell.period
+        poses = len(robot.poses)
+        moves = self._moves(period, cell.timed)
+        pairs = list(moves)
+        segment = {pair: poses + i for i, pair in enumerate(pairs)}
+        havoc = {b: poses + len(pairs) + b for b in range(poses)}
+        locations = [loc for loc in robot.locations if loc is not robot.unknown_location]
+        seg, k, t, hloc = f"{r}_segment", f"{r}_region", f"{r}_periods", f"{r}_wherever"
+        longest = max((len(v) for v in moves.values()), default=1)
+        most = max((n for v in moves.values() for _, n in v), default=0)
+        target = cell.input(r, "target_pose")
+        initial = robot.pose_names.index(cfg.initial_pose)
+        # with its tool's speed read, the robot moves only while a cap above zero is in force; without, the
+        # cap is not modelled and it may move at any time (more behaviours, and no braking countdown in the state)
+        go = self.motion_allowed() if f"{r}.tool_speed" in cell.reads else "true"
+        commands: list[Command] = []
+
+        def cmd(guard, update):
+            commands.append(Command(guard, (("1", update),)))
+
+        for p in range(poses):  # at rest at pose p
+            here = f"{seg}={p}"
+            cmd(f"{here} & ({target}=-1 | {target}={p})", {})
+            for q in range(poses):
+                if q != p:
+                    cmd(f"{here} & {target}={q}", {seg: str(segment[(p, q)]), k: "0", t: "0"})
+        for (a, b), regions in moves.items():
+            moving = f"{seg}={segment[(a, b)]}"
+            retarget = f"({target}!=-1 & {target}!={b})"
+            for i, (_, n) in enumerate(regions):
+                at = f"{moving} & {k}={i}"
+                cmd(at, {t: f"min({t}+1, {n})"})  # stays (any slower pace)
+                if i + 1 < len(regions):
+                    cmd(f"{at} & {t}>={n} & {go}", {k: str(i + 1), t: "0"})
+                else:
+                    cmd(f"{at} & {t}>={n} & {go}", {seg: str(b), k: "0", t: "0"})
+                for code in range(len(locations)):  # re-targeted: an unknown path
+                    cmd(f"{at} & {retarget}", {seg: f"{poses + len(pairs)} + {target}", k: "0", t: "0", hloc: str(code)})
+        for b in range(poses):
+            lost = f"{seg}={havoc[b]}"
+            for code in range(len(locations)):
+                cmd(f"{lost} & ({target}=-1 | {target}={b})", {hloc: str(code)})
+                cmd(f"{lost} & {target}!=-1 & {target}!={b}", {seg: f"{poses + len(pairs)} + {target}", hloc: str(code)})
+            cmd(f"{lost} & {go}", {seg: str(b), hloc: "0"})  # arrived: where it was lost no longer matters
+        n_segments = poses + len(pairs) + poses
+        cell.add(Module(f"{r}_motion", [
+            Var(seg, 0, n_segments - 1, initial), Var(k, 0, max(longest - 1, 0), 0), Var(t, 0, max(most, 0), 0),
+            Var(hloc, 0, len(locations) - 1, 0),
+        ], commands, comment=f"robot {r}: at rest at a pose, on a move from pose to pose (a region at a time), "
+                             "or re-targeted on a path not modelled"))
+
+        # where the tool is, and which pose it rests at
+        location = {p: robot.locate(robot.kinematics.tool_position(robot.poses[p])).code for p in range(poses)}
+        expr = f"{hloc}"
+        for (a, b), regions in reversed(list(moves.items())):
+            table = {i: code for i, (code, _) in enumerate(regions)}
+            expr = f"({seg}={segment[(a, b)]} ? {lookup(k, table, -1)} : {expr})"
+        expr = f"({seg}<{poses} ? {lookup(seg, location, -1)} : {expr})"
+        cell.define(f"{r}.location", expr)
+        cell.define(f"{r}.reached_pose", f"({seg}<{poses} ? {seg}+1 : 0)")
+
+        # its safety mode, and the speed cap over the last braking time
+        self._safety(cell, period)
+        cell.define(f"{r}.activity", cell.input(r, "activity"))
+        cell.assume(f"{r}'s tool is located on the commanded path (tracking error neglected); its moves take "
+                    + ("at least their time at full speed without acceleration" if cell.timed else "any time from one period on"))
+
+    def _initial_mode(self, cell: AbstractCell) -> int:
+        """The safety mode it first publishes: its update at t = 0 takes the request it reads then."""
+        built = cell.cell
+        context = built.diagram.CreateDefaultContext()
+        built.set_initial_state(context)
+        code = self.system.mode_request_port.Eval(self.system.GetMyContextFromRoot(context))[0]
+        return int(code) if 0 <= code < len(_MODES) else SafetyMode.UNKNOWN.code
+
+    def _safety(self, cell: AbstractCell, period: float) -> None:
+        r, robot = self.name, self.system
+        request = cell.input(r, "safety_mode_request")
+        mode = f"{r}_mode"
+        new_mode = f"({request} >= 0 ? {request} : {SafetyMode.UNKNOWN.code})"
+        initial = self._initial_mode(cell)
+        cell.define(f"{r}.safety_mode", mode)
+        if f"{r}.tool_speed" not in cell.reads:
+            cell.add(Module(f"{r}_safety", [Var(mode, 0, len(_MODES) - 1, initial)],
+                            [Command("true", (("1", {mode: new_mode}),))], comment=f"robot {r}: the requested safety mode"))
+            cell.assume(f"{r} takes a requested safety mode in one period (its speed is read by nobody: not modelled)")
+            return
+        envelope, caps = SpeedEnvelope.of(robot, period), self._caps()
+        encoding = cell.encoding(f"{r}.tool_speed")
+        # one countdown per speed threshold: the periods a speed above it may still be read; one for a speed
+        # at it where a cap equals it (a speed may sit at its cap, never above); one for motion itself
+        countdowns = {"moving": (None, False)}
+        for i, value in enumerate(encoding.values):
+            if value > 0:
+                countdowns[f"over{i}"] = (value, True)
+                if value in caps.values():
+                    countdowns[f"at{i}"] = (value, False)
+        variables, update = [Var(mode, 0, len(_MODES) - 1, initial)], {mode: new_mode}
+        possible = {}  # countdown -> its guard: a speed it counts may be read next period
+        for suffix, (threshold, strict) in countdowns.items():
+            var = f"{r}_{suffix}"
+            refresh = {m.code: envelope.periods(caps[m], threshold, strict) for m in _MODES}
+            variables.append(Var(var, 0, max(refresh.values()), refresh[initial]))
+            update[var] = f"max({var} - 1, {lookup(mode, refresh, 0)})"
+            possible[suffix] = f"({var} > 0 | {set_of(mode, [c for c, n in refresh.items() if n > 0])})"
+        cell.add(Module(f"{r}_safety", variables, [Command("true", (("1", update),))],
+                        comment=f"robot {r}: the requested safety mode, and how many periods more its tool may be "
+                                "read moving above (at) each speed threshold"))
+        var = f"{r}_speed"
+        commands = []
+        for region in range(encoding.regions):
+            i = (region - 1) // 2
+            if region == 0 or encoding.values[i] <= 0:
+                guard = "true"
+            elif region % 2 and f"at{i}" in countdowns:
+                guard = f"{possible[f'at{i}']} | {possible[f'over{i}']}"
+            else:
+                guard = possible[f"over{i}"]
+            commands.append(Command(guard, (("1", {var: str(region)}),)))
+        cell.add(Module(f"{r}_tool_speed", [Var(var, 0, encoding.regions - 1, 0)], commands,
+                        comment=f"robot {r}: its tool's speed (m/s) as read, any value its speed envelope allows"))
+        cell.define(f"{r}.tool_speed", var, encoding)
+        cell.assume(f"{r} takes a requested safety mode in one period; its tool's speed never exceeds the cap of its "
+                    f"mode, and after a cap C ends it falls no slower than from C to zero within the braking time "
+                    f"({self.cfg.braking_time:g} s), read up to {envelope.lag:g} s late (telemetry and tracking) and "
+                    f"up to {envelope.tolerance:g} m/s above that line until it has settled")
+
+    def _caps(self) -> dict[SafetyMode, float]:
+        """Each safety mode's tool speed cap (m/s); unknown: the normal one."""
+        caps = {m: self.system.speed_caps.get(m, 0.0) for m in _MODES}
+        caps[SafetyMode.UNKNOWN] = self.system.normal_cap
+        return caps
+
+    def motion_allowed(self) -> str:
+        """The guard under which the tool may make progress along its move: it may still be moving."""
+        moving = [m.code for m, cap in self._caps().items() if cap > 0]
+        return f"({self.name}_moving > 0 | {set_of(f'{self.name}_mode', moving)})"
+
+
+@dataclass(frozen=True)
+class SpeedEnvelope:
+    """What the tool's speed, as read by the controller, can be after a change of safety mode.
+
+    The arm decelerates at a constant rate that brings it from its full speed to
+    rest within ``braking`` (s) (``cellsim.kinds.robot.system``), so from the moment a cap C
+    ends, its planned speed is at most C (1 - t / braking) and never below the
+    cap that follows. The speed read lags it by ``lag`` (the telemetry period and
+    the joint controller's tracking) and the arm settles onto that line within
+    ``tolerance`` m/s, and within ``settle`` s after it reaches zero. While a cap
+    is in force the speed stays at or below it: the arm plans its speed below the
+    cap (``TRACKING_ALLOWANCE``) by its controller's overshoot. A test holds the
+    twin's readings to this envelope.
+    """
+
+    period: float
+    braking: float
+    lag: float = TELEMETRY_PERIOD + TRACKING_LAG
+    tolerance: float = TRACKING_TOLERANCE
+    settle: float = SETTLE_TIME
+
+    @classmethod
+    def of(cls, robot, period: float) -> "SpeedEnvelope":
+        return cls(period, robot.cfg.braking_time)
+
+    def periods(self, cap: float, threshold: float | None, strict: bool = True) -> int:
+        """Periods, counted from the last period a cap ``cap`` was in force, for which a speed above
+        ``threshold`` (at or above it if not ``strict``; None: any speed) may still be read; 0 when no
+        such speed can be read under that cap at all."""
+        if cap <= 0.0 or (threshold is not None and (cap <= threshold if strict else cap < threshold)):
+            return 0
+        lag = math.ceil(self.lag / self.period - 1e-9)
+        braking = self.braking / self.period
+        longest = lag + math.ceil((self.braking + self.settle) / self.period - 1e-9)
+        if threshold is None or threshold <= self.tolerance:
+            return longest
+        return min(longest, lag + math.ceil(braking * (1.0 - (threshold - self.tolerance) / cap) - 1e-9))
+

@@ -1,0 +1,74 @@
+"""The robot kind's configuration: its model, named poses, speed limits and braking."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Annotated, Literal
+
+from cellsim.config.typed_yaml import FieldError, Range
+from cellsim.scenario import UNKNOWN, Degrees, JointAngle, Period, Speed, TwinSettings, Vec3
+
+
+@dataclass
+class SpeedLimits:
+    """Cap on the tool's speed (m/s) in each moving safety mode; srmst and stopped are standstill."""
+
+    normal: Speed = 1.0
+    """Full speed."""
+    hguid: Speed = 0.25
+    """Hand-guided operation."""
+    ssmon: Speed = 0.5
+    """Speed and separation monitoring."""
+    pflim: Speed = 0.25
+    """Power and force limiting (ISO/TS 15066: collaborative speed)."""
+
+
+@dataclass(frozen=True)
+class ToolTarget:
+    """A pose given by where the robot's tool should be; solved into joint angles at load time."""
+
+    tool_at: Vec3
+    """Where the tool frame's origin should be, in the cell (m)."""
+    tool_rpy_deg: tuple[Degrees, Degrees, Degrees] | None = None
+    """The tool frame's orientation in the cell, roll-pitch-yaw (degrees); omitted: any orientation."""
+
+
+@dataclass
+class RobotConfig:
+    kind: Literal["robot"]
+    model: str
+    """URDF of the arm, relative to the scenario file."""
+    named_poses: dict[str, list[JointAngle] | ToolTarget]
+    """The poses the process moves between: joint positions (rad), or a tool target
+    ``{tool_at: [x, y, z], tool_rpy_deg: [r, p, y]}`` solved by inverse kinematics at load time."""
+    base_position: Vec3 = (0.0, 0.0, 0.0)
+    """Where the arm's base_link is fixed in the cell (m)."""
+    base_yaw_deg: Degrees = 0.0
+    """Rotation of the base about the vertical axis (degrees)."""
+    tool_frame: str = "tcp"
+    """The frame of the model whose position gives the robot's location and tool speed."""
+    activities: list[str] = field(default_factory=lambda: ["idle", "working", "off"])
+    """Its activities in the cell's words (ract); the first is its activity before the process starts."""
+    initial_pose: str = "home"
+    """The named pose the arm starts in."""
+    speed_limits: SpeedLimits = field(default_factory=SpeedLimits)
+    """Tool speed cap per moving safety mode (m/s): a limit, never exceeded (the arm plans 0.04 m/s below it)."""
+    braking_time: Annotated[float, Range(0.0, 10.0, lo_open=True, unit="s")] = 0.5
+    """Time to standstill from full speed on srmst or stopped (s)."""
+    period: Period = 0.02
+    """Update period of the controller side (s); a multiple of the plant step."""
+    twin: TwinSettings = field(default_factory=TwinSettings)
+    """Its twin mode (model, shadow, twin), scheduled changes and when samples go stale."""
+
+    def __post_init__(self):
+        if len(set(self.activities)) != len(self.activities) or not all(a.isidentifier() for a in self.activities):
+            raise FieldError("activities", "activities must be distinct identifiers")
+        if not self.activities or UNKNOWN in self.activities:
+            raise FieldError("activities", f"list at least one activity; '{UNKNOWN}' is what a shadowed robot reports")
+        if "moving" in self.named_poses:
+            raise FieldError("named_poses.moving", "'moving' is what reached_pose reads between poses; name the pose otherwise")
+        if self.initial_pose not in self.named_poses:
+            raise FieldError("initial_pose", f"'{self.initial_pose}' is not one of the named_poses")
+        for name, q in self.named_poses.items():
+            if isinstance(q, list) and len(q) != 6:
+                raise FieldError(f"named_poses.{name}", f"needs 6 joint positions, got {len(q)}")

@@ -1,0 +1,84 @@
+"""The ssm kind: a speed limit wired to its robot, separation from geometry or a sensor's channel."""
+
+from __future__ import annotations
+
+from cellsim.config.typed_yaml import suggest
+from cellsim.kinds.ssm.config import GEOMETRY, SsmConfig
+from cellsim.kinds.ssm.system import SpeedSeparationMonitor, parameters_of
+from cellsim.registry import ModuleKind
+
+
+class SsmKind(ModuleKind):
+    """Speed and separation monitoring of one robot: the speed it may have now."""
+
+    name = "ssm"
+    section = "behaviours"
+    config = SsmConfig
+    summary = ("Speed and separation monitoring (ISO/TS 15066): protective separation distance, margin and the speed "
+               "a robot may have now, which it follows in ssmon.")
+    stage = 10
+    channels = (
+        ("separation", "number, m", "separation to the nearest person (from the arm's geometry, or the sensor)"),
+        ("protective_distance", "number, m", "S_p for the robot's current speed towards the person"),
+        ("margin", "number, m", "separation less S_p (negative: too fast for the separation)"),
+        ("speed_limit", "number, m/s", "the speed the robot may have now; the robot follows it in ssmon"),
+    )
+
+    def build(self, cell, name, cfg):
+        return build_ssm(cell, name, cfg)
+
+    def check(self, sf, name, cfg):
+        _check(sf, name, cfg)
+
+    def abstraction(self, abstract, name, cfg):
+        """It only watches: nothing of it enters the abstract cell."""
+        from cellsim.verify.model import Observer
+
+        return Observer()
+
+
+def build_ssm(cell, name: str, cfg: SsmConfig) -> SpeedSeparationMonitor:
+    """The monitor of ``cfg.robot``: its speed limit wired to the robot, its separation measured."""
+    from cellsim.kinds.robot.system import ArmKinematics
+
+    robot = cell.modules[cfg.robot]
+    robot_cfg = cell.scenario.modules_of_kind("robot")[cfg.robot]
+    kinematics = ArmKinematics(robot.kinematics.model_path, robot_cfg)
+    system = cell.add(name, SpeedSeparationMonitor(name, cfg, parameters_of(cfg, robot_cfg), kinematics,
+                                                   robot_cfg.base_position[:2], robot_cfg.speed_limits.ssmon))
+    cell.builder.Connect(cell.plant.get_state_output_port(cell.robots[cfg.robot]), system.robot_state_port)
+    cell.builder.Connect(system.GetOutputPort("speed_limit"), robot.speed_limit_port)
+    if system.from_geometry:
+        cell.connect_query(system.query_port)
+        system.set_geometries(cell.arm_geometry[cfg.robot], cell.people)
+    else:  # a sensor's distance: every entity is built by now
+        channels = cell.channels()
+        where = f"behaviours.{name}.separation"
+        if cfg.separation not in channels:
+            raise cell.sf.error(where, f"no channel '{cfg.separation}'{suggest(cfg.separation, channels)}")
+        spec, port = channels[cfg.separation]
+        if spec.type.kind != "number" or spec.type.unit != "m":
+            raise cell.sf.error(where, f"'{cfg.separation}' is not a distance in m ({spec.type.kind}, "
+                                f"{spec.type.unit or 'no unit'})")
+        cell.builder.Connect(port, system.separation_port)
+    return system
+
+
+def _check(sf, name: str, cfg: SsmConfig) -> None:
+    """The robot exists and is monitored once; a sensor's separation is a channel in m."""
+    key = f"behaviours.{name}"
+    robots = sf.scenario.modules_of_kind("robot")
+    if cfg.robot not in robots:
+        raise sf.error(f"{key}.robot", f"no robot entity named '{cfg.robot}' ({', '.join(robots) or 'none'})")
+    for other, other_cfg in sf.scenario.modules_of_kind("ssm").items():
+        if other == name:
+            break
+        if other_cfg.robot == cfg.robot:
+            where = sf.locate(f"behaviours.{other}.robot")
+            raise sf.error(f"{key}.robot", f"robot '{cfg.robot}' is already monitored by '{other}' ({where[0]}, "
+                           f"line {where[1]}): one speed limit per robot")
+    if cfg.separation != GEOMETRY:
+        module, _, signal = cfg.separation.partition(".")
+        if module not in sf.scenario.entities or not signal:
+            raise sf.error(f"{key}.separation", f"'{cfg.separation}' is neither geometry nor a sensor's channel "
+                           "(module.signal, e.g. scanner.distance)")

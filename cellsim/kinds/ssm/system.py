@@ -1,0 +1,220 @@
+"""Speed and separation monitoring (ISO/TS 15066, 5.5.4): the protective separation distance and the
+speed a robot may have now.
+
+Every control period it reads the separation d between the robot and the nearest person, either
+measured on the geometry (the arm's collision shapes to every person's body, SceneGraph signed
+distances: an ideal person-tracking sensor, with ``sensor_uncertainty`` added to the distance
+budget) or from a sensor's channel (``separation: scanner.distance``, measured from the sensor,
+not the arm), and the robot's speed towards that person v_r: on the geometry, the velocity of the
+arm's nearest point along the line to the person's nearest point (never less than 0); from a
+sensor, the tool's whole speed (the direction is unknown: its speed in any direction is assumed
+towards the person).
+
+The protective separation distance, with v_h the person's speed (``human_speed``, 1.6 m/s by
+default after ISO 13855), T_r the reaction time, a the robot's braking deceleration and
+T_s = v_r / a its stopping time from v_r:
+
+    S_p = S_h + S_r + S_s + C + Z_d + Z_r
+    S_h = v_h (T_r + T_s)      the person's approach while the robot reacts and stops
+    S_r = v_r T_r              the robot's travel while it reacts
+    S_s = v_r^2 / (2 a)        the robot's stopping distance, braking at a
+    C   = intrusion_distance,  Z_d = sensor_uncertainty,  Z_r = robot_uncertainty
+
+Once this module has ordered a stop (its limit 0), the robot's reaction is under way: T_r in
+S_h and S_r is what is left of it, T_r less the time since the order, down to 0, so a robot
+that has stopped has S_p = C + Z_d + Z_r and a person may stand near it. ``margin`` = d - S_p
+(negative: the robot is too fast for the separation, or touched).
+
+The speed limit is the v_r at which S_p = d, solved exactly, for the separation the robot
+will have when it acts on the limit: the person may come v_h L nearer meanwhile, L the
+latency of this module's period and the robot's (``latency``):
+
+    v_max = sqrt((a T_r + v_h)^2 + 2 a D) - (a T_r + v_h),   D = d - C - Z_d - Z_r - v_h (T_r + L)
+
+(0 when D <= 0). With v_h = 0 and Z_d = Z_r = 0 it is the published form
+v_max = sqrt((a T_r)^2 + 2 a (d - C)) - a T_r. A robot that follows it brakes at a or faster
+keeps ``margin`` >= 0: as d falls by v_h dt, S_p falls by (v_h + a T_r + v_r) dt. In ``ssmon``
+the robot follows ``speed_limit`` continuously (its ``speed_limit`` input); a risk model or a
+condition reads ``margin``. A separation with no value (a stale sensor) reads as 0: the limit
+is 0, the robot stops. A stopped robot starts again only once d exceeds S_p of its first speed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import QueryObject
+
+from cellsim.channels import number_type
+from cellsim.kinds.ssm.config import GEOMETRY, SsmConfig
+from cellsim.systems import CellSystem, read_scalar, write_scalar
+
+FAR_AWAY = 10.0
+"""m: the separation read with nobody in the cell."""
+DISC_RADIUS = 0.5
+"""m: the Meshcat disc round a monitored arm's base."""
+
+
+@dataclass(frozen=True)
+class SsmParameters:
+    """The terms of ISO/TS 15066's formula, in SI units."""
+
+    human_speed: float
+    reaction_time: float
+    deceleration: float
+    intrusion_distance: float = 0.0
+    sensor_uncertainty: float = 0.0
+    robot_uncertainty: float = 0.0
+    latency: float = 0.0
+    """L (s): from a limit computed to the robot moving under it (this module's and the robot's periods)."""
+
+    @property
+    def allowances(self) -> float:
+        """C + Z_d + Z_r (m)."""
+        return self.intrusion_distance + self.sensor_uncertainty + self.robot_uncertainty
+
+    def protective_distance(self, robot_speed: float, reaction: float | None = None) -> float:
+        """S_p (m) for the robot's speed towards the person v_r (m/s); ``reaction``: the reaction time
+        still to come (s), default all of T_r (0 once a stop was ordered T_r ago)."""
+        v_h, a, v_r = self.human_speed, self.deceleration, max(robot_speed, 0.0)
+        t_r = self.reaction_time if reaction is None else reaction
+        stopping_time = v_r / a
+        return v_h * (t_r + stopping_time) + v_r * t_r + v_r * v_r / (2.0 * a) + self.allowances
+
+    def speed_limit(self, separation: float) -> float:
+        """v_max (m/s): the robot speed whose S_p is the separation d (m) less the person's approach
+        over the latency; 0 when none is."""
+        v_h, t_r, a = self.human_speed, self.reaction_time, self.deceleration
+        budget = separation - self.allowances - v_h * (t_r + self.latency)
+        if not budget > 0.0:  # NaN too
+            return 0.0
+        b = a * t_r + v_h
+        return math.sqrt(b * b + 2.0 * a * budget) - b
+
+
+class SpeedSeparationMonitor(CellSystem):
+    """Ports:
+      robot_state (input): the robot's plant state [q (rad), v (rad/s)].
+      geometry_query (input, geometry separation only): SceneGraph's QueryObject.
+      separation_measured (input, a sensor's separation only): that sensor's distance (m).
+      separation (channel, m): the separation d used (negative: overlapping).
+      protective_distance (channel, m): S_p for the robot's current speed towards the person.
+      margin (channel, m): d - S_p.
+      speed_limit (channel, m/s): v_max, the speed the robot may have now (its speed_limit input).
+    """
+
+    def __init__(self, module: str, cfg: SsmConfig, parameters: SsmParameters, kinematics, base_xy=(0.0, 0.0),
+                 cap: float = math.inf):
+        """``base_xy``: where the arm's base stands (m, for its Meshcat cue); ``cap``: its ssmon cap (m/s)."""
+        super().__init__(module, cfg.period)
+        self.parameters = parameters
+        self.kinematics = kinematics
+        self.base_xy = tuple(base_xy)
+        self.cap = cap
+        self.from_geometry = cfg.separation == GEOMETRY
+        self.robot_state_port = self.declare_input("robot_state", 2 * kinematics.num_joints)
+        if self.from_geometry:
+            self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
+        else:
+            self.separation_port = self.declare_input("separation_measured")
+        self.pairs: list = []
+        self.bodies: dict = {}
+        """Arm GeometryId -> the body of the private kinematics plant it is fixed to."""
+        far = parameters.speed_limit(FAR_AWAY)
+        self._stop_ordered = self.declare_state("stop_ordered_at", [math.nan])  # s; NaN: the limit is not 0
+        m = number_type("m")
+        self._separation = self.declare_channel("separation", m, FAR_AWAY, record="every_sample",
+                                                description="Separation to the nearest person")
+        self._protective = self.declare_channel("protective_distance", m, parameters.protective_distance(0.0),
+                                                record="every_sample", description="Protective separation distance S_p")
+        self._margin = self.declare_channel("margin", m, FAR_AWAY - parameters.protective_distance(0.0),
+                                            record="every_sample", description="Separation less S_p")
+        self._limit = self.declare_channel("speed_limit", number_type("m/s"), far, record="every_sample",
+                                           description="Speed the robot may have now")
+
+    # -- in Meshcat (cellsim.visual.cues) ------------------------------------------------
+    LOOKS = {"free": (0.2, 0.75, 0.3), "limited": (0.95, 0.7, 0.1), "stopped": (0.85, 0.1, 0.1),
+             "too_fast": (0.8, 0.1, 0.8)}
+    """The floor disc round the arm's base: its speed free (up to the ssmon cap), limited, stopped by the
+    monitor, or faster than its separation allows (margin < 0)."""
+
+    def visual_cues(self, view) -> list:
+        """A disc on the floor round the arm's base, coloured by what the monitor allows now."""
+        from pydrake.geometry import Cylinder, Rgba
+        from pydrake.math import RigidTransform
+
+        from cellsim.visual.cues import Cue, parts_of
+
+        x, y = self.base_xy
+        disc = [(RigidTransform([x, y, 0.004]), Cylinder(DISC_RADIUS, 0.008))]
+        looks = {look: parts_of(f"{self.module}/ssm/{look}", disc, Rgba(*rgb, 0.55)) for look, rgb in self.LOOKS.items()}
+        return [Cue(f"{self.module}/ssm", (f"{self.module}.margin", f"{self.module}.speed_limit"), looks, self.look)]
+
+    def look(self, values: dict) -> str | None:
+        """The disc's look for the monitor's channel values (None before any)."""
+        margin, limit = values.get(f"{self.module}.margin"), values.get(f"{self.module}.speed_limit")
+        if margin is None or limit is None:
+            return None
+        if margin < 0.0:
+            return "too_fast"
+        if limit <= 0.0:
+            return "stopped"
+        return "limited" if limit < self.cap else "free"
+
+    def set_geometries(self, arm: dict, people: list) -> None:
+        """``arm``: each of the robot's GeometryIds -> the name of the body it is fixed to."""
+        plant = self.kinematics.plant
+        self.bodies = {g: plant.GetBodyByName(body) for g, body in arm.items()}
+        self.pairs = [(g, p) for g in arm for p in people]
+
+    def measure(self, context) -> tuple[float, float]:
+        """(separation d in m, robot speed towards the person v_r in m/s)."""
+        kin = self.kinematics
+        kin.plant.SetPositionsAndVelocities(kin.context, self.robot_state_port.Eval(context))
+        if not self.from_geometry:
+            d = self.separation_port.Eval(context)[0]
+            tool_velocity = kin.tool.CalcSpatialVelocityInWorld(kin.context).translational()
+            return (d if math.isfinite(d) else 0.0), float(np.linalg.norm(tool_velocity))
+        if not self.pairs:
+            return FAR_AWAY, 0.0
+        query = self.query_port.Eval(context)
+        nearest = min((query.ComputeSignedDistancePairClosestPoints(a, b) for a, b in self.pairs),
+                      key=lambda pair: pair.distance)
+        arm = nearest.id_A if nearest.id_A in self.bodies else nearest.id_B
+        p_W = query.GetPoseInWorld(arm) @ (nearest.p_ACa if arm == nearest.id_A else nearest.p_BCb)
+        body = self.bodies[arm]
+        X_WB = body.EvalPoseInWorld(kin.context)
+        velocity = body.EvalSpatialVelocityInWorld(kin.context).Shift(p_W - X_WB.translation()).translational()
+        # nhat_BA_W points from B to A: towards the person when the person is A
+        towards = nearest.nhat_BA_W if arm == nearest.id_B else -nearest.nhat_BA_W
+        speed = float(velocity @ towards) if nearest.distance > 0.0 else float(np.linalg.norm(velocity))
+        return min(nearest.distance, FAR_AWAY), max(speed, 0.0)
+
+    def update(self, context, xd):
+        t = context.get_time()
+        d, v_r = self.measure(context)
+        limit = self.parameters.speed_limit(d)
+        since = read_scalar(context, self._stop_ordered)  # NaN: no stop ordered
+        if limit > 0.0:
+            since = math.nan
+        elif math.isnan(since):
+            since = t
+        reaction = self.parameters.reaction_time if math.isnan(since) else max(0.0, self.parameters.reaction_time - (t - since))
+        protective = self.parameters.protective_distance(v_r, reaction)
+        write_scalar(xd, self._stop_ordered, since)
+        write_scalar(xd, self._separation, d)
+        write_scalar(xd, self._protective, protective)
+        write_scalar(xd, self._margin, d - protective)
+        write_scalar(xd, self._limit, limit)
+
+
+def parameters_of(cfg: SsmConfig, robot_cfg) -> SsmParameters:
+    """The formula's terms; the deceleration defaults to the robot's full speed over its braking time."""
+    deceleration = cfg.deceleration
+    if deceleration is None:
+        deceleration = robot_cfg.speed_limits.normal / robot_cfg.braking_time
+    return SsmParameters(cfg.human_speed, cfg.reaction_time, deceleration, cfg.intrusion_distance,
+                         cfg.sensor_uncertainty, cfg.robot_uncertainty, latency=cfg.period + robot_cfg.period)
