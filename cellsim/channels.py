@@ -15,11 +15,13 @@ boolean is 0 or 1, a number is in SI units (see ``ChannelType.unit``).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
+from cellsim.logic.syntax import BoolDomain, EnumDomain, NumberDomain
 from cellsim.numbers import sig3
 from cellsim.vocabulary import CodedEnum
 
@@ -130,3 +132,21 @@ def value_text(value, *, none: str = "-", true: str = "true", false: str = "fals
     if isinstance(value, float):
         return sig3(value)
     return str(value)
+
+
+# -- as variables of the condition language (cellsim.logic) ---------------------------------------------
+def logic_domain(kind: str, domain: object, unit: str | None) -> EnumDomain | BoolDomain | NumberDomain | None:
+    """The logic domain of a channel (its kind, enum values, unit), or ``None`` for a vector."""
+    if kind == "enum":
+        return EnumDomain(tuple(domain))
+    if kind == "bool":
+        return BoolDomain()
+    if kind == "number":
+        return NumberDomain(unit)
+    return None
+
+
+def channel_domains(specs: Iterable[ChannelSpec]) -> dict[str, EnumDomain | BoolDomain | NumberDomain]:
+    """Domain of every scalar channel a diagram publishes (before anything is recorded)."""
+    domains = {s.name: logic_domain(s.type.kind, s.type.domain(), s.type.unit) for s in specs}
+    return {name: d for name, d in domains.items() if d is not None}

@@ -37,7 +37,7 @@ from typing import Callable
 import numpy as np
 
 from cellsim.channels import NO_VALUE, enum_type
-from cellsim.scenario import TwinSettings
+from cellsim.config.twin import TwinSettings
 from cellsim.systems import CellSystem, read_scalar, write_scalar
 from cellsim.vocabulary import PhysicalLink, TwinMode
 

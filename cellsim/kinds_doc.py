@@ -2,7 +2,7 @@
 
 A kind's parameters are its config dataclass's fields (type, default, and the
 docstring written under the field), its channels and physical-twin fields are
-what its :class:`~cellsim.registry.ModuleKind` declares. Nothing here is written
+what its :class:`~cellsim.kind.ModuleKind` declares. Nothing here is written
 twice, so the listing cannot drift from the code.
 """
 
@@ -211,7 +211,7 @@ def schema_markdown() -> str:
     """
     from cellsim import scenario
     from cellsim.kinds.safety_controller.risk_model import RiskModelFile
-    from cellsim.campaign.samplers import ChoiceSampler, SimplexSampler, UniformSampler
+    from cellsim.config.sampling import ChoiceSampler, SimplexSampler, UniformSampler
     from cellsim.config.typed_yaml import MAX_DEPTH, MAX_FILE_CHARS, MAX_NODES
     from cellsim.validation.coverage import MAX_SITUATIONS
 

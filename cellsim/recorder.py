@@ -35,7 +35,7 @@ from pydrake.systems.framework import DiagramBuilder, OutputPort
 from pydrake.systems.primitives import Multiplexer, VectorLogSink
 
 from cellsim.channels import ChannelSpec
-from cellsim.live.codec import encode_record
+from cellsim.codec import encode_record
 from cellsim.blackbox import BlackBoxWriter
 
 

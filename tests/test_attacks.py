@@ -21,7 +21,7 @@ import time
 import pytest
 from conftest import ONE_AT_A_TIME
 
-from cellsim.live.codec import encode_fields
+from cellsim.codec import encode_fields
 from cellsim.blackbox import BlackBox
 
 from live_processes import (ROOT, ChannelWatch, CommandFrames, can_server, free_port, observer, processes, rogue_router,

@@ -17,7 +17,7 @@ from cellsim.bridges.daemon import Bridge
 from cellsim.bridges.e2e import DeviceChecker, protect
 from cellsim.channels import BOOL, enum_type, number_type
 from cellsim.config.typed_yaml import ConfigError
-from cellsim.live.codec import FieldCodec
+from cellsim.codec import FieldCodec
 from cellsim.live.session import session_config
 from cellsim.vocabulary import Range
 

@@ -1,4 +1,4 @@
-"""The one codec of live messages (cellsim.live.codec), at its exact limits: what it takes, what it
+"""The one codec of live messages (cellsim.codec), at its exact limits: what it takes, what it
 refuses, and how it says so. Every receiver of the twin's network decodes through it, so each limit
 here is a check a forged or broken message meets."""
 
@@ -10,8 +10,8 @@ import math
 import pytest
 
 from cellsim.channels import BOOL, NO_VALUE, enum_type, number_type
-from cellsim.live import codec
-from cellsim.live.codec import MAX_PAYLOAD, MAX_SEQ, MAX_STAMP, CodecError, FieldCodec
+from cellsim import codec
+from cellsim.codec import MAX_PAYLOAD, MAX_SEQ, MAX_STAMP, CodecError, FieldCodec
 from cellsim.vocabulary import Range, SafetyMode
 
 SAMPLE = FieldCodec(("range", "distance", "broken"), (enum_type(Range), number_type("m"), BOOL))

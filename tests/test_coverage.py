@@ -19,12 +19,8 @@ from hypothesis import strategies as st
 from cellsim.logic.mtl import TraceEvaluator
 from cellsim.logic.syntax import BoolDomain, EnumDomain, NumberDomain
 from cellsim.logic.trace import Signal, Trace
-from cellsim.validation.coverage import (
-    CoverageCriterion,
-    CoverageModel,
-    NumberBins,
-    situation_name,
-)
+from cellsim.config.validation import CoverageCriterion, NumberBins
+from cellsim.validation.coverage import CoverageModel, situation_name
 
 WACT = ("idle", "welding", "exchWrkp")
 OLOC = ("none", "inCell", "atTable")

@@ -207,11 +207,11 @@ def test_a_value_outside_its_signal_is_never_encoded_into_a_frame():
 
 
 def test_a_checker_counts_the_faults_its_kind_of_message_can_have():
-    from cellsim.bridges.e2e import AUTHENTICATED_FAULTS, CAN_FAULTS
+    from cellsim.bridges.e2e import AUTHENTICATED_FAULTS, E2E_FAULTS
     from cellsim.bridges.secoc import Authenticator, message_key
 
     plain = DeviceChecker(message=SCANNER, timeout=0.1)
-    assert list(plain.counts) == [f.value for f in CAN_FAULTS]
+    assert list(plain.counts) == [f.value for f in E2E_FAULTS]
     authenticated = DBC.get_message_by_name("ScannerStateAuthenticated")
     signer = Authenticator(authenticated, message_key(bytes(16), authenticated.frame_id), 0.01)
     checked = DeviceChecker(message=authenticated, timeout=0.1, authenticator=signer)

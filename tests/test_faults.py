@@ -9,10 +9,9 @@ import math
 import pytest
 from conftest import ROOT
 
-from cellsim.bridges.devices import CAN_FAULTS
-from cellsim.live.emulator import FAULTS as ZENOH_FAULTS
-from cellsim.live.emulator import Fault
-from cellsim.live.faults import ALL_FAULTS, FaultError, check_entities, check_faults, parse_fault, parse_rate
+from cellsim.cell_io import Fault
+from cellsim.live.faults import (ALL_FAULTS, BUS_FAULTS, ZENOH_FAULTS, FaultError, check_entities, check_faults, parse_fault,
+                                 parse_rate)
 
 ENTITIES = ("robot", "welder", "light_barrier", "range_detector", "operator")
 """The welding cell's entities, in the scenario's order."""
@@ -29,7 +28,7 @@ def can_devices() -> set[str]:
 
 def test_every_kind_of_every_outlet_is_a_fault_zenoh_s_first():
     assert ALL_FAULTS == ("silence", "freeze", "corrupt", "delay", "replay", "drop", "crc", "length", "flood")
-    assert set(ALL_FAULTS) == set(ZENOH_FAULTS) | set(CAN_FAULTS)
+    assert set(ALL_FAULTS) == set(ZENOH_FAULTS) | set(BUS_FAULTS)
 
 
 @pytest.mark.parametrize("text, fault", [
@@ -95,7 +94,7 @@ def test_a_bus_fault_without_can_is_refused():
 
 def test_with_can_a_device_has_the_bus_faults_and_the_others_the_zenoh_faults():
     devices = can_devices()
-    faults = [parse_fault(f"{e}={k}") for e in ENTITIES for k in (CAN_FAULTS if e in devices else ZENOH_FAULTS)]
+    faults = [parse_fault(f"{e}={k}") for e in ENTITIES for k in (BUS_FAULTS if e in devices else ZENOH_FAULTS)]
     check_faults(faults, ENTITIES, devices)
 
 

@@ -10,7 +10,7 @@ import numpy as np
 from pydrake.systems.analysis import Simulator
 
 from cellsim.channels import BOOL
-from cellsim.live.codec import encode_failure, encode_fields
+from cellsim.codec import encode_failure, encode_fields
 from cellsim.live.systems import LiveClock, ZenohSampleSource
 from cellsim.vocabulary import PhysicalLink
 

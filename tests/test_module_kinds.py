@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from cellsim.channels import number_type
-from cellsim.registry import ModuleKind
+from cellsim.kind import ModuleKind
 from cellsim.systems import CellSystem, read_scalar, write_scalar
 
 

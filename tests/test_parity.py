@@ -16,7 +16,7 @@ import pytest
 import zenoh
 
 from cellsim.cell_io import Emulated, Live, Replayed, Simulated
-from cellsim.live.codec import encode_fields
+from cellsim.codec import encode_fields
 from cellsim.live.session import session_config
 from cellsim.scenario import load_scenario
 from cellsim.blackbox import BlackBox

@@ -1,4 +1,4 @@
-"""Tests for cellsim.campaign.samplers: campaign samplers and per-run draws."""
+"""Tests for cellsim.config.sampling: campaign samplers and per-run draws."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cellsim.campaign.samplers import (
+from cellsim.config.sampling import (
     ChoiceSampler,
     Sampler,
     SimplexSampler,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from cellsim.cell_io import Replayed
-from cellsim.scenario import TwinModeChange
+from cellsim.config.twin import TwinModeChange
 from cellsim.vocabulary import PhysicalLink, TwinMode
 
 from conftest import place_operator, run, welding_cell

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Annotated
 
 from cellsim.config.typed_yaml import ConfigError, FieldError, Range, load_file
-from cellsim.live.codec import FieldCodec
+from cellsim.codec import FieldCodec
 
 Seconds = Annotated[float, Range(0.0, 60.0, lo_open=True, unit="s")]
 
@@ -165,7 +165,7 @@ class LoadedBridge:
     cell: str
     """The scenario's name."""
     samples: dict
-    """Entity -> the codec of its physical samples (``cellsim.live.codec.FieldCodec``)."""
+    """Entity -> the codec of its physical samples (``cellsim.codec.FieldCodec``)."""
     commands: dict
     """Entity -> the codec of its command fields."""
     safe: dict

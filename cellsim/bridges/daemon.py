@@ -3,7 +3,7 @@
 **In.** Every frame of a configured CAN device passes the black-channel checks
 of ``cellsim.bridges.e2e``; a good frame becomes the entity's physical sample on
 ``cellsim/<cell>/physical/<entity>`` in the live format (``docs/live.md``,
-``cellsim.live.codec``). Any failure (length, CRC, counter, range, watchdog)
+``cellsim.codec``). Any failure (length, CRC, counter, range, watchdog)
 publishes a link failure at once instead (``{"failed": "corrupt"}`` or
 ``"stale"``): the twin's entity fails safe as its kind says, and trusts the device
 again after ``recover_after`` good samples (the one debounce, applied by the twin).
@@ -47,8 +47,9 @@ from cellsim.bridges.e2e import DeviceChecker, protect
 from cellsim.bridges.robot import RobotLink
 from cellsim.bridges.secoc import Authenticator, is_authenticated, message_key
 from cellsim.link import REFUSALS, STALE_FAULTS, Fault, Judgement, LinkTrust
-from cellsim.live import codec, keys
-from cellsim.live.codec import CodecError
+from cellsim import codec
+from cellsim.live import keys
+from cellsim.codec import CodecError
 
 LATENCY_WINDOW = 100_000
 """Latencies kept for the daemon's status (the newest)."""
@@ -63,7 +64,7 @@ class Device:
     publisher: object
     diagnostics: DeviceDiagnostics = None
     codec: object = None
-    """The entity's sample codec (``cellsim.live.codec.FieldCodec``)."""
+    """The entity's sample codec (``cellsim.codec.FieldCodec``)."""
     signals: list = field(default_factory=list)
     """(sample field, its DBC signal, its ChannelType), in the codec's order."""
     seq: int = 0

@@ -32,10 +32,11 @@ from collections import deque
 from cellsim.bridges.config import LoadedBridge
 from cellsim.bridges.e2e import DeviceChecker, protect
 from cellsim.bridges.secoc import Authenticator, is_authenticated, message_key
-from cellsim.live import codec, keys
+from cellsim import codec
+from cellsim.live.faults import BUS_FAULTS
+from cellsim.live import keys
 from cellsim.live.emulator import ZenohOutlet
 
-CAN_FAULTS = ("drop", "crc", "replay", "length", "flood", "delay")
 DELAY = 0.5
 """How long (s) the ``delay`` fault holds a frame back: longer than any device's watchdog."""
 FLOOD_FRAMES = 20
@@ -45,7 +46,7 @@ FLOOD_FRAMES = 20
 class CanOutlet:
     """One CAN device of the emulated cell: its samples as protected frames, with the bus faults."""
 
-    faults = CAN_FAULTS
+    faults = BUS_FAULTS
 
     def __init__(self, bus, message, fields: dict[str, str], authenticator: Authenticator | None = None):
         self.bus, self.message, self.fields = bus, message, fields
@@ -148,7 +149,7 @@ class EmulatedDevices:
         return {**{e: 1.0 / d.cycle_time for e, d in cfg.devices.items()}, **{e: 1.0 / r.cycle_time for e, r in cfg.robots.items()}}
 
     def fault_kinds(self, entity: str) -> tuple[str, ...] | None:
-        return CAN_FAULTS if entity in self.config.devices else None
+        return BUS_FAULTS if entity in self.config.devices else None
 
     def outlet(self, name: str, entity):
         cfg = self.config

@@ -57,8 +57,8 @@ def protect(message, values: dict, counter: int, authenticator=None) -> bytes:
     return bytes(payload)
 
 
-CAN_FAULTS = (Fault.LENGTH, Fault.CRC, Fault.COUNTER, Fault.REPEATED, Fault.MASQUERADE, Fault.RANGE, Fault.TIMEOUT)
-AUTHENTICATED_FAULTS = (*CAN_FAULTS, Fault.AUTH, Fault.LATE, Fault.FUTURE)
+E2E_FAULTS = (Fault.LENGTH, Fault.CRC, Fault.COUNTER, Fault.REPEATED, Fault.MASQUERADE, Fault.RANGE, Fault.TIMEOUT)
+AUTHENTICATED_FAULTS = (*E2E_FAULTS, Fault.AUTH, Fault.LATE, Fault.FUTURE)
 """An authenticated message's frames can also fail their MAC or freshness (``cellsim.bridges.secoc``)."""
 PROTECTION = ("Crc", "Counter", "Freshness", "Mac")
 """The signals that protect a frame rather than carry the device's values."""
@@ -73,12 +73,12 @@ class DeviceChecker(LinkTrust):
     max_gap: int = 2
     """How far the counter may jump (1: no frame lost; 2: one lost frame tolerated)."""
     modulo: int = COUNTER_MODULO
-    faults: tuple = CAN_FAULTS
+    faults: tuple = E2E_FAULTS
     authenticator: object = None
     """For an authenticated message, its ``cellsim.bridges.secoc.Authenticator`` (the receiver's)."""
 
     def __post_init__(self):
-        if self.authenticator is not None and self.faults == CAN_FAULTS:
+        if self.authenticator is not None and self.faults == E2E_FAULTS:
             self.faults = AUTHENTICATED_FAULTS
         super().__post_init__()
 

@@ -21,7 +21,7 @@ finite and within the configured limits and its safety mode one of the
 vocabulary's (*range*), and a good one must come within the watchdog (*timeout*). A trusted state becomes the robot's physical
 sample (``q0``..``q5`` from ``position``) and a CDR ``sensor_msgs/JointState``
 on the key zenoh-bridge-ros2dds maps to the configured ROS 2 topic. A good state
-is forwarded at once; any fault publishes a failure message (``cellsim.live.codec``)
+is forwarded at once; any fault publishes a failure message (``cellsim.codec``)
 at once: the twin's robot fails safe without waiting for its ``stale_after``, and
 trusts the link again only after ``recover_after`` good samples in a row.
 
@@ -39,7 +39,8 @@ import zlib
 from dataclasses import dataclass, field
 
 from cellsim.link import STALE_FAULTS, Fault, Judgement, LinkTrust
-from cellsim.live import codec, keys
+from cellsim import codec
+from cellsim.live import keys
 from cellsim.vocabulary import SafetyMode
 
 ROBOT_FAULTS = (Fault.CORRUPT, Fault.COUNTER, Fault.REPEATED, Fault.MASQUERADE, Fault.FUTURE, Fault.LATE, Fault.RANGE,

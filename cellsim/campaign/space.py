@@ -2,7 +2,7 @@
 
 ``cellsim falsify`` searches where a campaign samples. Each sampler gives the
 cube some coordinates, in the samplers' sorted name order (as
-:func:`cellsim.campaign.samplers.draw_configuration` serves them):
+:func:`cellsim.config.sampling.draw_configuration` serves them):
 
 * ``uniform`` over ``n`` paths: ``n`` coordinates, ``u -> low + (high - low) u``;
 * ``choice`` over ``n`` paths: ``n`` coordinates, ``u`` picks value ``floor(u k)`` of ``k``;
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cellsim.campaign.samplers import _STEPS, ChoiceSampler, Sampler, SimplexSampler, UniformSampler, _on_grid
+from cellsim.config.sampling import _STEPS, ChoiceSampler, Sampler, SimplexSampler, UniformSampler, _on_grid
 
 __all__ = ["SearchSpace"]
 

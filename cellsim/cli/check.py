@@ -44,7 +44,7 @@ def run(args) -> int:
     from cellsim.scenario import load_scenario
     from cellsim.blackbox import BlackBoxError
     from cellsim.validation.check import CheckError, check
-    from cellsim.validation.config import description_of
+    from cellsim.config.validation import description_of
     from cellsim.validation.traces import TraceError, write_trace_json
 
     if is_campaign(args.run):
@@ -237,7 +237,7 @@ def print_verdicts(run: Path, checked, margins: dict | None = None) -> None:
     from rich.markup import escape
     from rich.table import Table
 
-    from cellsim.validation.config import description_of, formula_of
+    from cellsim.config.validation import description_of, formula_of
     from cellsim.validation.verdict import Verdict
 
     result, conditions = checked.result, checked.case.validation.conditions

@@ -180,7 +180,8 @@ def _open_session(args, role: str, listen_by_default: bool, wait: float = 30.0, 
 def _live_run(args, process: str, listen_by_default: bool, run, check=None):
     """A live process (the twin, the emulator): load, check, open the session, ``run(sf, out, session, duration)``;
     ``process`` is also the session's role (``twin`` or ``emulator``)."""
-    from cellsim.scenario import MAX_DURATION, check_run_length, check_seed
+    from cellsim.config.units import MAX_DURATION
+    from cellsim.scenario import check_run_length, check_seed
 
     sf = _load(args)
     if check is not None:

@@ -23,7 +23,8 @@ def add_parser(subparsers) -> None:
 
 
 def run(args) -> int:
-    from cellsim.live import codec, keys
+    from cellsim import codec
+    from cellsim.live import keys
 
     security = _network_security(args, "engineer")  # a keys problem is said as it is, not as an absent twin
     try:

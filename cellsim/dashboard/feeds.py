@@ -15,7 +15,8 @@ from collections import deque
 from pathlib import Path
 
 from cellsim.dashboard.model import CellModel
-from cellsim.live import codec, keys
+from cellsim import codec
+from cellsim.live import keys
 
 CHANNEL_BACKLOG = 100_000
 """Twin channel messages held between two drains (minutes of a busy cell, should the screen stall)."""

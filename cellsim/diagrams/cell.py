@@ -299,7 +299,7 @@ def scenario_for(sf: ScenarioFile, io: CellIO) -> ScenarioFile:
         return sf
     import copy
 
-    from cellsim.validation.config import Validation
+    from cellsim.config.validation import Validation
     from cellsim.vocabulary import TwinMode
 
     sf = copy.deepcopy(sf)
@@ -348,7 +348,8 @@ def _replay(builder: DiagramBuilder, cell: CellBuild, io: Replayed) -> list[tupl
 def _live(builder: DiagramBuilder, cell: CellBuild, io: Live):
     """The twin on Zenoh: a sample source per entity, every channel and command published, twin modes
     switched on request, the status every second, the describe queryable and the liveliness token."""
-    from cellsim.live import codec, keys
+    from cellsim import codec
+    from cellsim.live import keys
     from cellsim.live.network import NetworkIO
     from cellsim.live.systems import (ChannelPublisher, CommandPublisher, LiveClock, LiveStatus, TwinModeControl,
                                       ZenohSampleSource)

@@ -5,7 +5,7 @@ the scenario's entities run as their digital models with the scenario's own
 safety controller, a standalone cell, and each entity's physical state
 (``EntitySystem.physical_state``) leaves through an *outlet* at the entity's
 update rate (or its ``--rate``) in the format the twin reads
-(``cellsim.live.codec``), the format the bridge daemon publishes too. It keeps its
+(``cellsim.codec``), the format the bridge daemon publishes too. It keeps its
 own black box: the ground truth to compare the twin against.
 
 Commanded by the twin (``--commanded-by-twin``) the scenario's supervisors (its
@@ -37,11 +37,9 @@ from __future__ import annotations
 import math
 import time
 
-from cellsim.cell_io import Fault  # noqa: F401 - the emulator's faults, as the fault grammar makes them
-from cellsim.live import codec
+from cellsim.live.faults import ZENOH_FAULTS
+from cellsim import codec
 
-FAULTS = ("silence", "freeze", "corrupt", "delay", "replay")
-"""The faults of a ZenohOutlet."""
 
 
 class ZenohOutlet:
@@ -51,7 +49,7 @@ class ZenohOutlet:
     ``sim_time``: the emulator's simulated time of the sample, s).
     """
 
-    faults = FAULTS
+    faults = ZENOH_FAULTS
 
     def __init__(self, publisher, encode=lambda t, seq, fields, sim_time: codec.encode_fields(t, seq, fields)):
         self.publisher, self.encode = publisher, encode

@@ -2,8 +2,8 @@
 
 What the command line of ``cellsim emulate`` says about faults and rates, parsed, and the
 rules for which fault applies where: an entity on Zenoh has the faults of its Zenoh outlet
-(``cellsim.live.emulator.FAULTS``); with ``--can``, a CAN device of the bridge configuration
-has the bus faults (``cellsim.bridges.devices.CAN_FAULTS``) and only those; without ``--can`` there is
+(``ZENOH_FAULTS``); with ``--can``, a CAN device of the bridge configuration
+has the bus faults (``BUS_FAULTS``) and only those; without ``--can`` there is
 no bus, so no bus fault. Each problem is a ``FaultError`` whose message is the one line the
 user sees (``cellsim: error: ...``).
 
@@ -15,14 +15,17 @@ from __future__ import annotations
 
 from collections.abc import Collection, Iterable
 
-from cellsim.bridges.devices import CAN_FAULTS
-from cellsim.live.emulator import FAULTS as ZENOH_FAULTS
-from cellsim.live.emulator import Fault
+from cellsim.cell_io import Fault
 
-__all__ = ["ALL_FAULTS", "CAN_FAULTS", "MAX_RATE", "MIN_RATE", "ZENOH_FAULTS", "Fault", "FaultError",
+__all__ = ["ALL_FAULTS", "BUS_FAULTS", "MAX_RATE", "MIN_RATE", "ZENOH_FAULTS", "Fault", "FaultError",
            "check_entities", "check_faults", "parse_fault", "parse_rate"]
 
-ALL_FAULTS = (*ZENOH_FAULTS, *(k for k in CAN_FAULTS if k not in ZENOH_FAULTS))
+ZENOH_FAULTS = ("silence", "freeze", "corrupt", "delay", "replay")
+"""The faults an entity's Zenoh outlet injects (``cellsim.live.emulator.ZenohOutlet``)."""
+BUS_FAULTS = ("drop", "crc", "replay", "length", "flood", "delay")
+"""The faults a CAN device of the emulated cell injects on the bus (``cellsim.bridges.devices.CanOutlet``)."""
+
+ALL_FAULTS = (*ZENOH_FAULTS, *(k for k in BUS_FAULTS if k not in ZENOH_FAULTS))
 """Every fault some outlet knows (Zenoh's, then the bus's): what ``--fault`` accepts before it knows the cell."""
 
 MIN_RATE, MAX_RATE = 0.1, 1000.0
@@ -83,10 +86,10 @@ def check_faults(faults: Iterable[Fault], entities: Collection[str], can_devices
     check_entities(faults, (), entities)
     if can_devices is not None:
         for f in faults:
-            kinds = CAN_FAULTS if f.entity in can_devices else ZENOH_FAULTS
+            kinds = BUS_FAULTS if f.entity in can_devices else ZENOH_FAULTS
             if f.kind not in kinds:
                 raise FaultError(f"--fault {f.entity}={f.kind}: {f.entity} is "
-                                 f"{'a CAN device' if kinds is CAN_FAULTS else 'on Zenoh'}; its faults: {', '.join(kinds)}")
+                                 f"{'a CAN device' if kinds is BUS_FAULTS else 'on Zenoh'}; its faults: {', '.join(kinds)}")
     elif any(f.kind not in ZENOH_FAULTS for f in faults):
         bad = next(f for f in faults if f.kind not in ZENOH_FAULTS)
         raise FaultError(f"--fault {bad.entity}={bad.kind}: a bus fault needs --can; on Zenoh: {', '.join(ZENOH_FAULTS)}")

@@ -37,8 +37,8 @@ from pydrake.systems.framework import LeafSystem
 
 from cellsim.channels import NO_VALUE
 from cellsim.link import Fault, LinkTrust
-from cellsim.live import codec
-from cellsim.live.codec import CodecError, FieldCodec
+from cellsim import codec
+from cellsim.codec import CodecError, FieldCodec
 from cellsim.vocabulary import PhysicalLink, TwinMode
 
 TICK = 0.01

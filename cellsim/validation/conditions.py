@@ -19,7 +19,7 @@ from cellsim.config.typed_yaml import ConfigError, suggest
 from cellsim.logic.mtl import TraceEvaluator
 from cellsim.logic.syntax import Formula, FormulaError, parse, variables_of
 from cellsim.logic.trace import Trace
-from cellsim.validation.config import Validation
+from cellsim.config.validation import Validation
 from cellsim.validation.coverage import CoverageError, CoverageModel
 from cellsim.validation.verdict import Verdict
 
@@ -135,7 +135,7 @@ class SafetyCase:
                 raise ConfigError(*locate(key), where + e.message) from None
 
         macros = {name: formula(f"validation.macros.{name}", text) for name, text in validation.macros.items()}
-        from cellsim.validation.config import Described, formula_of
+        from cellsim.config.validation import Described, formula_of
 
         def entry(key: str, written) -> Formula:  # a bare formula, or {formula, description}: the formula's line
             return formula(key + (".formula" if isinstance(written, Described) else ""), formula_of(written))

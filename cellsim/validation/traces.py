@@ -38,7 +38,7 @@ import numpy as np
 from cellsim.atomic import write_text
 from cellsim.logic.syntax import BoolDomain, EnumDomain, NumberDomain
 from cellsim.logic.trace import Signal, Trace
-from cellsim.channels import ChannelSpec
+from cellsim.channels import logic_domain
 from cellsim.blackbox import BlackBox, BlackBoxError
 
 Domain = EnumDomain | BoolDomain | NumberDomain
@@ -55,26 +55,9 @@ class TraceError(Exception):
         self.variable = variable
 
 
-def domain_of(kind: str, domain: object, unit: str | None) -> Domain | None:
-    """The logic domain of a channel (its kind, enum values, unit), or ``None`` for a vector."""
-    if kind == "enum":
-        return EnumDomain(tuple(domain))
-    if kind == "bool":
-        return BoolDomain()
-    if kind == "number":
-        return NumberDomain(unit)
-    return None
-
-
 def blackbox_domains(bb: BlackBox) -> dict[str, Domain]:
     """Domain of every scalar channel recorded in ``bb``."""
-    domains = {name: domain_of(i.kind, i.domain, i.unit) for name, i in bb.channels().items()}
-    return {name: d for name, d in domains.items() if d is not None}
-
-
-def channel_domains(specs: Iterable[ChannelSpec]) -> dict[str, Domain]:
-    """Domain of every scalar channel a diagram publishes (before anything is recorded)."""
-    domains = {s.name: domain_of(s.type.kind, s.type.domain(), s.type.unit) for s in specs}
+    domains = {name: logic_domain(i.kind, i.domain, i.unit) for name, i in bb.channels().items()}
     return {name: d for name, d in domains.items() if d is not None}
 
 

@@ -66,7 +66,7 @@ class ConditionProperties:
         return self.aliases.get(variable, variable)
 
     def declare(self) -> None:
-        from cellsim.validation.config import description_of
+        from cellsim.config.validation import description_of
 
         for name, formula in self.case.conditions.items():
             description = description_of(self.validation.conditions[name])

@@ -173,7 +173,8 @@ def abstract_model(sf, cell=None, *, timed: bool = False) -> AbstractModel:
 
 
 def _vocabulary(sf, cell):
-    from cellsim.validation.traces import channel_domains, with_aliases
+    from cellsim.channels import channel_domains
+    from cellsim.validation.traces import with_aliases
 
     specs = [spec for spec, _ in cell.channels.values()]
     vocabulary = with_aliases(channel_domains(specs), sf.scenario.validation.variables, cell.channels)

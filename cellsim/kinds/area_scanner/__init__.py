@@ -1,1 +1,1 @@
-"""The area_scanner kind: its config (``config``), system (``system``), abstraction for verify (``abstraction``) and :class:`~cellsim.registry.ModuleKind` (``kind``)."""
+"""The area_scanner kind: its config (``config``), system (``system``), abstraction for verify (``abstraction``) and :class:`~cellsim.kind.ModuleKind` (``kind``)."""

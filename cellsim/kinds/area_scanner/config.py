@@ -11,7 +11,9 @@ from pydrake.math import RigidTransform
 
 from cellsim.config.typed_yaml import FieldError, Range
 from cellsim.floorplan import is_convex, is_simple, signed_area, triangulate
-from cellsim.scenario import Distance, Period, Region, TwinSettings, Vec2, Vec3
+from cellsim.config.layout import Region
+from cellsim.config.twin import TwinSettings
+from cellsim.config.units import Distance, Period, Vec2, Vec3
 
 Height = Annotated[float, Range(0.0, 10.0, unit="m")]
 

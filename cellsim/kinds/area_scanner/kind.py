@@ -6,7 +6,7 @@ from cellsim.entity import TWIN_CHANNELS
 from cellsim.kinds.area_scanner.config import AreaScannerConfig
 from cellsim.kinds.area_scanner.system import AreaScanner
 from cellsim.kinds.sensing import add_sensor
-from cellsim.registry import ModuleKind
+from cellsim.kind import ModuleKind
 
 
 class AreaScannerKind(ModuleKind):

@@ -1,1 +1,1 @@
-"""The blackbox kind: its config (``config``) and :class:`~cellsim.registry.ModuleKind` (``kind``); the recorder itself is the core's (``cellsim.recorder``), which the simulation loop drains."""
+"""The blackbox kind: its config (``config``) and :class:`~cellsim.kind.ModuleKind` (``kind``); the recorder itself is the core's (``cellsim.recorder``), which the simulation loop drains."""

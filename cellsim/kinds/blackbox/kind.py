@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from cellsim.kinds.blackbox.config import RecorderConfig
 from cellsim.recorder import Recorder
-from cellsim.registry import ModuleKind
+from cellsim.kind import ModuleKind
 
 
 class BlackBoxKind(ModuleKind):

@@ -1,1 +1,1 @@
-"""The ground_truth kind: its config (``config``), system (``system``) and :class:`~cellsim.registry.ModuleKind` (``kind``)."""
+"""The ground_truth kind: its config (``config``), system (``system``) and :class:`~cellsim.kind.ModuleKind` (``kind``)."""

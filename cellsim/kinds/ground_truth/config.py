@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from cellsim.scenario import Period
+from cellsim.config.units import Period
 
 
 @dataclass

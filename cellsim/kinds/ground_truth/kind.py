@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from cellsim.kinds.ground_truth.config import GroundTruthConfig
 from cellsim.kinds.ground_truth.system import GroundTruth
-from cellsim.registry import ModuleKind
+from cellsim.kind import ModuleKind
 
 
 class GroundTruthKind(ModuleKind):

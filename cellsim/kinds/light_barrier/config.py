@@ -5,7 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
-from cellsim.scenario import Period, Size3, TwinSettings, Vec3
+from cellsim.config.twin import TwinSettings
+from cellsim.config.units import Period, Size3, Vec3
 
 
 @dataclass

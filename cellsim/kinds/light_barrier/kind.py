@@ -6,7 +6,7 @@ from cellsim.entity import TWIN_CHANNELS
 from cellsim.kinds.light_barrier.config import LightBarrierConfig
 from cellsim.kinds.light_barrier.system import LightBarrier
 from cellsim.kinds.sensing import add_sensor
-from cellsim.registry import ModuleKind
+from cellsim.kind import ModuleKind
 
 
 class LightBarrierKind(ModuleKind):

@@ -6,7 +6,8 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from cellsim.config.typed_yaml import FieldError
-from cellsim.scenario import Period, Seconds, TwinSettings
+from cellsim.config.units import Period, Seconds
+from cellsim.config.twin import TwinSettings
 from cellsim.vocabulary import SafetyMode
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from cellsim.entity import TWIN_CHANNELS
 from cellsim.kinds.machine.config import MachineConfig
 from cellsim.kinds.machine.system import Machine
-from cellsim.registry import ModuleKind
+from cellsim.kind import ModuleKind
 
 
 class MachineKind(ModuleKind):

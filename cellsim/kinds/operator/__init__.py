@@ -1,1 +1,1 @@
-"""The operator kind: its config (``config``), system (``system``), abstraction for verify (``abstraction``) and :class:`~cellsim.registry.ModuleKind` (``kind``)."""
+"""The operator kind: its config (``config``), system (``system``), abstraction for verify (``abstraction``) and :class:`~cellsim.kind.ModuleKind` (``kind``)."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 from cellsim.entity import TWIN_CHANNELS
 from cellsim.kinds.operator.config import OperatorConfig
 from cellsim.kinds.operator.system import Operator, RouteError, plan_routes
-from cellsim.registry import ModuleKind
+from cellsim.kind import ModuleKind
 
 
 class OperatorKind(ModuleKind):

@@ -35,7 +35,7 @@ from cellsim.channels import BOOL, enum_type, vector_type
 from cellsim.entity import EntitySystem
 from cellsim.floorplan import Box3, point_in_polygon, shortest_path
 from cellsim.kinds.operator.config import OperatorConfig
-from cellsim.scenario import Layout
+from cellsim.config.layout import Layout
 from cellsim.systems import read_scalar, write_scalar
 from cellsim.vocabulary import TwinMode, value_set
 

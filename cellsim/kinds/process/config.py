@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from cellsim.config.typed_yaml import FieldError
-from cellsim.scenario import Period, PositiveSeconds, Seconds
+from cellsim.config.units import Period, PositiveSeconds, Seconds
 
 
 def check_steps(names: list[str], restart_on_request: dict[str, str]) -> None:

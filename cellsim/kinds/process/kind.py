@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from cellsim.kinds.process.config import ProcessConfig
 from cellsim.kinds.process.system import Process
-from cellsim.registry import ModuleKind
+from cellsim.kind import Figure, ModuleKind
 
 
 class ProcessKind(ModuleKind):
@@ -28,6 +28,10 @@ class ProcessKind(ModuleKind):
 
     def check(self, sf, name, cfg):
         _check(sf, name, cfg)
+
+    def figures(self, name, cfg):
+        """Cycles completed are the robot's it moves."""
+        return [Figure(cfg.robot, "cycles_completed", "work cycles completed", f"{name}.cycles_completed")]
 
     def abstraction(self, abstract, name, cfg):
         from cellsim.kinds.process.abstraction import ProcessAbstraction

@@ -103,7 +103,7 @@ class Process(CellSystem):
         read and wire it: a bad condition is a ConfigError at its key (file, line, column)."""
         from cellsim.logic.predicates import compile_predicate
         from cellsim.logic.syntax import FormulaError, parse
-        from cellsim.validation.traces import channel_domains
+        from cellsim.channels import channel_domains
 
         channels = cell.channels()
         vocabulary = channel_domains(spec for spec, _ in channels.values())

@@ -1,1 +1,1 @@
-"""The range_detector kind: its config (``config``), system (``system``), abstraction for verify (``abstraction``) and :class:`~cellsim.registry.ModuleKind` (``kind``)."""
+"""The range_detector kind: its config (``config``), system (``system``), abstraction for verify (``abstraction``) and :class:`~cellsim.kind.ModuleKind` (``kind``)."""

@@ -6,7 +6,8 @@ from dataclasses import dataclass, field
 from typing import Annotated, Literal
 
 from cellsim.config.typed_yaml import FieldError, Range
-from cellsim.scenario import Distance, Period, TwinSettings, Vec3
+from cellsim.config.twin import TwinSettings
+from cellsim.config.units import Distance, Period, Vec3
 
 
 @dataclass

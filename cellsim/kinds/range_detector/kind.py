@@ -6,7 +6,7 @@ from cellsim.entity import TWIN_CHANNELS
 from cellsim.kinds.range_detector.config import RangeDetectorConfig
 from cellsim.kinds.range_detector.system import RangeDetector
 from cellsim.kinds.sensing import add_sensor
-from cellsim.registry import ModuleKind
+from cellsim.kind import ModuleKind
 
 
 class RangeDetectorKind(ModuleKind):

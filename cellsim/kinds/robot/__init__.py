@@ -1,1 +1,1 @@
-"""The robot kind: its config (``config``), system (``system``), abstraction for verify (``abstraction``) and :class:`~cellsim.registry.ModuleKind` (``kind``)."""
+"""The robot kind: its config (``config``), system (``system``), abstraction for verify (``abstraction``) and :class:`~cellsim.kind.ModuleKind` (``kind``)."""

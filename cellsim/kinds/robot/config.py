@@ -6,7 +6,9 @@ from dataclasses import dataclass, field
 from typing import Annotated, Literal
 
 from cellsim.config.typed_yaml import FieldError, Range
-from cellsim.scenario import UNKNOWN, Degrees, JointAngle, Period, Speed, TwinSettings, Vec3
+from cellsim.config.layout import UNKNOWN
+from cellsim.config.twin import TwinSettings
+from cellsim.config.units import Degrees, JointAngle, Period, Speed, Vec3
 
 
 @dataclass

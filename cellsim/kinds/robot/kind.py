@@ -15,7 +15,7 @@ from cellsim.kinds.robot.config import RobotConfig, ToolTarget
 from cellsim.kinds.robot.geometry import add_arm_geometry, collision_shapes, model_without_collision
 from cellsim.kinds.robot.system import KD, KI, KP, Robot, robot_base_pose
 from cellsim.kinematics import solve_tool_target
-from cellsim.registry import ModuleKind
+from cellsim.kind import Figure, ModuleKind
 
 
 class RobotKind(ModuleKind):
@@ -49,6 +49,9 @@ class RobotKind(ModuleKind):
 
     def check(self, sf, name, cfg):
         _check(sf, name, cfg)
+
+    def figures(self, name, cfg):
+        return [Figure(name, "final_safety_mode", "final safety mode", f"{name}.safety_mode")]
 
     def abstraction(self, abstract, name, cfg):
         from cellsim.kinds.robot.abstraction import RobotAbstraction

@@ -30,7 +30,7 @@ from pydrake.math import RigidTransform, RollPitchYaw
 from cellsim.channels import enum_type, number_type, vector_type
 from cellsim.entity import EntitySystem, valid_code
 from cellsim.kinds.robot.config import RobotConfig
-from cellsim.scenario import Layout
+from cellsim.config.layout import Layout
 from cellsim.systems import read_scalar, write_changed, write_scalar
 from cellsim.vocabulary import SafetyMode, TwinMode, value_set
 

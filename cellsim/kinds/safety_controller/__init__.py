@@ -1,1 +1,1 @@
-"""The safety_controller kind: its config (``config``), the risk-model language it executes (``risk_model``), its system (``system``), abstraction for verify (``abstraction``) and :class:`~cellsim.registry.ModuleKind` (``kind``)."""
+"""The safety_controller kind: its config (``config``), the risk-model language it executes (``risk_model``), its system (``system``), abstraction for verify (``abstraction``) and :class:`~cellsim.kind.ModuleKind` (``kind``)."""

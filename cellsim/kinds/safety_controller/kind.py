@@ -7,7 +7,7 @@ from cellsim.config.typed_yaml import suggest
 from cellsim.kinds.safety_controller.config import SafetyControllerConfig
 from cellsim.kinds.safety_controller.risk_model import load_risk_model
 from cellsim.kinds.safety_controller.system import SafetyController
-from cellsim.registry import ModuleKind
+from cellsim.kind import ModuleKind
 
 
 class SafetyControllerKind(ModuleKind):

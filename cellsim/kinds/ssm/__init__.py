@@ -1,1 +1,1 @@
-"""The ssm kind: its config (``config``), system (``system``) and :class:`~cellsim.registry.ModuleKind` (``kind``)."""
+"""The ssm kind: its config (``config``), system (``system``) and :class:`~cellsim.kind.ModuleKind` (``kind``)."""

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from typing import Annotated, Literal
 
 from cellsim.config.typed_yaml import Range
-from cellsim.scenario import Period, Speed
+from cellsim.config.units import Period, Speed
 
 GEOMETRY = "geometry"
 """``separation: geometry``: measured from the arm's shapes to every person's body."""

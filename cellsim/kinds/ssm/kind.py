@@ -5,7 +5,7 @@ from __future__ import annotations
 from cellsim.config.typed_yaml import suggest
 from cellsim.kinds.ssm.config import GEOMETRY, SsmConfig
 from cellsim.kinds.ssm.system import SpeedSeparationMonitor, parameters_of
-from cellsim.registry import ModuleKind
+from cellsim.kind import ModuleKind
 
 
 class SsmKind(ModuleKind):

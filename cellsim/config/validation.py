@@ -32,9 +32,91 @@ The formula language is documented in ``docs/condition-language.md``.
 
 from __future__ import annotations
 
+import itertools
+import math
+from bisect import bisect_right
 from dataclasses import dataclass, field
 
-from cellsim.validation.coverage import CoverageCriterion, NumberBins
+
+
+@dataclass
+class CoverageCriterion:
+    """A coverage criterion: the value combinations of ``variables`` that should be seen.
+
+    * ``variables``: the trace variables combined (one variable: single-variable
+      coverage); each must be in the vocabulary, numeric ones need :class:`NumberBins`.
+    * ``description``: free text for reports.
+    * ``when``: a propositional formula (macros allowed); only instants where it holds
+      count as observations.  Empty: all instants count.
+    * ``use_case``: only runs classified with this use case count.  Empty: all runs.
+    """
+
+    variables: list[str]
+    description: str = ""
+    when: str = ""
+    use_case: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.variables:
+            raise ValueError("a coverage criterion needs at least one variable")
+        for name in self.variables:
+            if not isinstance(name, str) or not name:
+                raise ValueError(f"coverage variables must be non-empty names, got {name!r}")
+        repeated = sorted({v for v in self.variables if self.variables.count(v) > 1})
+        if repeated:
+            raise ValueError(f"variables listed twice in a criterion: {', '.join(repeated)}")
+
+
+def number_text(x: float) -> str:
+    """Shortest exact text of ``x``: ``1.0 -> "1"``, ``0.25 -> "0.25"``."""
+    x += 0.0  # -0.0 -> 0.0
+    if x == int(x) and abs(x) < 1e15:
+        return str(int(x))
+    return repr(x)
+
+
+@dataclass
+class NumberBins:
+    """The bins of a numeric variable: finite, strictly increasing ``edges`` e0 < ... < en.
+
+    Bins are half-open, ``[a, b)``, so a value equal to an edge falls in the bin that
+    *starts* there; ``n + 1`` edges give ``n + 2`` bins, named (edges in their shortest
+    exact form: ``1.0`` is written ``1``)::
+
+        "<e0"        v < e0
+        "e0..e1"     e0 <= v < e1      (one per pair of consecutive edges)
+        ">=en"       v >= en
+
+    e.g. ``edges: [0.5, 1, 2]`` gives ``<0.5``, ``0.5..1``, ``1..2``, ``>=2``.
+    """
+
+    edges: list[float]
+    """Finite and strictly increasing, in the variable's unit; n edges give n + 1 bins."""
+
+    def __post_init__(self) -> None:
+        if not self.edges:
+            raise ValueError("bins need at least one edge")
+        for e in self.edges:
+            if isinstance(e, bool) or not isinstance(e, (int, float)) or not math.isfinite(e):
+                raise ValueError(f"bin edges must be finite numbers, got {e!r}")
+        self.edges = [float(e) for e in self.edges]
+        for a, b in itertools.pairwise(self.edges):
+            if not a < b:
+                raise ValueError(
+                    f"bin edges must be strictly increasing: {number_text(a)} is followed by "
+                    f"{number_text(b)}"
+                )
+
+    @property
+    def labels(self) -> tuple[str, ...]:
+        """The bin names, in increasing order."""
+        text = [number_text(e) for e in self.edges]
+        inner = [f"{a}..{b}" for a, b in itertools.pairwise(text)]
+        return (f"<{text[0]}", *inner, f">={text[-1]}")
+
+    def index(self, value: float) -> int:
+        """The position of ``value``'s bin in :attr:`labels`."""
+        return bisect_right(self.edges, value)
 
 
 @dataclass

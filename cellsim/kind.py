@@ -1,0 +1,112 @@
+"""What a module kind is: the base class a kind subclasses, cellsim's own and a plug-in's alike.
+
+A *module kind* is the unit a user extends: a typed config (a dataclass with
+``kind: Literal["name"]``), the Drake system it builds into a cell's diagram, and
+what the rest of cellsim needs of it (its channels and physical-twin fields, its
+files, its abstraction for ``cellsim verify``). A kind lives in one folder
+(cellsim's in ``cellsim/kinds/<kind>/``) and subclasses :class:`ModuleKind`::
+
+    from cellsim.kind import ModuleKind
+
+    class ConveyorKind(ModuleKind):
+        name = "conveyor"
+        section = "entities"
+        config = ConveyorConfig
+        summary = "A belt carrying parts from the infeed to the robot."
+
+        def build(self, cell, name, cfg):
+            return cell.add(name, Conveyor(name, cfg))
+
+and its package's ``pyproject.toml`` names the class in the ``cellsim.modules``
+entry-point group, where :mod:`cellsim.registry` finds it::
+
+    [project.entry-points."cellsim.modules"]
+    conveyor = "my_cell.conveyor:ConveyorKind"
+
+This module imports nothing of cellsim: a kind depends on it, and the registry
+loads kinds by name, so the two never form a circle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
+
+Section = Literal["entities", "behaviours", "services"]
+SECTIONS: tuple[Section, ...] = ("entities", "behaviours", "services")
+Doc = tuple[str, str, str]
+"""A documented channel or input: ``(signal, type, meaning)``."""
+
+
+@dataclass(frozen=True)
+class Figure:
+    """A figure of a run's summary: the last value ``channel`` took, about module ``subject``."""
+
+    subject: str
+    """The module the figure is about (a process's cycles are its robot's)."""
+    key: str
+    """Its key in a campaign's results (``cycles_completed``)."""
+    label: str
+    """What the summary calls it (``work cycles completed``)."""
+    channel: str
+    """The channel read (``process_controller.cycles_completed``)."""
+
+
+class ModuleKind:
+    """What a scenario's ``kind:`` means: subclass it and set the class attributes; override
+    :meth:`build` (always) and :meth:`prepare`, :meth:`check` and :meth:`abstraction` as the kind needs.
+
+    Modules are built by ``stage``, lower first, then in the order the scenario lists them:
+    entities (0) before the behaviours wired to them (10), the safety controller (20), which
+    reads every channel, and the recorder (30), which taps them all.
+    """
+
+    name: ClassVar[str]
+    """The ``kind:`` a scenario writes."""
+    section: ClassVar[Section]
+    """Where a scenario lists its modules: entities, behaviours or services."""
+    config: ClassVar[type]
+    """Its config dataclass (with ``kind: Literal[name]``)."""
+    summary: ClassVar[str]
+    """One sentence for ``cellsim modules`` and the schema's docs."""
+    stage: ClassVar[int] = 0
+    supervises: ClassVar[bool] = False
+    """A supervisor of the cell (a safety controller): a cell emulated under the twin's command
+    (``cellsim emulate --commanded-by-twin``) leaves it out, the twin's supervises instead."""
+    files: ClassVar[dict[str, str]] = {}
+    """Config fields naming files relative to the scenario (rebased when it is exported, copied into a
+    campaign's snapshot) -> what a message calls the file (``robot model``)."""
+    sample_fields: ClassVar[tuple[str, ...]] = ()
+    """An entity's physical-sample fields (its physical twin's state), for docs and bridges."""
+    command_fields: ClassVar[tuple[str, ...]] = ()
+    """An entity's command fields (what it sends its physical twin in twin mode)."""
+    channels: ClassVar[tuple[Doc, ...]] = ()
+    """Documented channels; a test checks them against built systems."""
+    inputs: ClassVar[tuple[Doc, ...]] = ()
+    """Documented inputs others drive (a safety controller's ``commands:`` as ``MODULE.input``, a process);
+    a test checks them against built systems."""
+
+    def build(self, cell: Any, name: str, cfg: Any) -> Any:
+        """Add the module's system to ``cell.builder`` (a :class:`cellsim.diagrams.cell.CellBuild`) and return it
+        (or ``None`` when it adds nothing, e.g. a recorder not wanted)."""
+        raise NotImplementedError(f"kind '{self.name}' builds nothing")
+
+    def prepare(self, cell: Any, name: str, cfg: Any) -> None:
+        """Before the plant is finalised (a robot adds its arm model to the plant)."""
+
+    def check(self, sf: Any, name: str, cfg: Any) -> None:
+        """Cross-checks at load time, without building: raise the scenario file's ConfigError (files exist,
+        referenced modules exist)."""
+
+    def figures(self, name: str, cfg: Any) -> list[Figure]:
+        """The figures of a run's summary the module gives (its channels' last values): none by default."""
+        return []
+
+    def abstraction(self, abstract: Any, name: str, cfg: Any) -> Any:
+        """What the module is in the abstract model ``cellsim verify`` checks (a
+        ``cellsim.verify.model.Abstraction``), or None: a kind without one cannot be verified (``verify``
+        says so and stops)."""
+        return None
+
+    def __repr__(self) -> str:
+        return f"<module kind {self.name!r} ({type(self).__module__}.{type(self).__qualname__})>"
