@@ -22,12 +22,15 @@ import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 
+from cellsim import registry
 from cellsim.atomic import LOCK, FolderBusy, folder_lock
 from cellsim.config.typed_yaml import to_data
+from cellsim.hazards import HazardCounts, HazardPhases
+from cellsim.kind import Figure
 from cellsim.provenance import BLACKBOX, INPUTS, RESOLVED_SCENARIO, package_versions, read_inputs, write_run_scenario
 from cellsim.provenance import provenance as make_provenance
 from cellsim.scenario import ScenarioFile
@@ -45,42 +48,17 @@ class OutputExistsError(Exception):
 
 
 @dataclass
-class HazardCounts:
-    raised: int = 0
-    """Times the hazard left its initial phase (was detected)."""
-    handled: int = 0
-    """Times it came back to its initial phase."""
-    mishaps: int = 0
-    """Times it entered its mishap phase."""
-
-
-@dataclass
-class RobotFigures:
-    """One robot's figures of a run."""
-
-    cycles_completed: int = 0
-    """Cycles completed by the process that moves it."""
-    final_safety_mode: str | None = None
-
-    def to_json(self) -> dict:
-        return {"cycles_completed": self.cycles_completed, "final_safety_mode": self.final_safety_mode}
-
-
-@dataclass
 class RunSummary:
     out_dir: Path
     seed: int
     status: str
     sim_time: float
     wall_time: float
-    cycles_completed: int
     hazards: dict[str, HazardCounts] = field(default_factory=dict)
-    final_safety_mode: str | None = None
-    robots: dict[str, RobotFigures] = field(default_factory=dict)
-    """Each robot's figures, in the scenario's order (``cycles_completed`` and ``final_safety_mode``
-    above are the first robot's, or the only one's)."""
-    safety_case: object | None = None
-    """The scenario's compiled validation (a ``SafetyCase``), when it has conditions."""
+    """Each hazard's counts, by its channel (``safety_controller.HRW``)."""
+    figures: list[tuple[Figure, object]] = field(default_factory=list)
+    """The figures the modules' kinds give (:meth:`cellsim.kind.ModuleKind.figures`), each with its value
+    (None: its channel has no message), in the scenario's order."""
 
     @property
     def real_time_factor(self) -> float:
@@ -89,6 +67,13 @@ class RunSummary:
     @property
     def mishap(self) -> bool:
         return any(h.mishaps for h in self.hazards.values())
+
+    def figures_json(self) -> dict[str, dict[str, object]]:
+        """``{subject: {key: value}}``: what a campaign's results keep of the figures."""
+        out: dict[str, dict[str, object]] = {}
+        for figure, value in self.figures:
+            out.setdefault(figure.subject, {})[figure.key] = value
+        return out
 
 
 RUN_FILES = (BLACKBOX, BLACKBOX + "-wal", BLACKBOX + "-shm", BLACKBOX + "-journal", RESOLVED_SCENARIO)
@@ -166,6 +151,7 @@ def simulate(
     meshcat_wait: tuple | None = None,
     on_progress: Callable[[float, float], None] | None = None,
     provenance: dict | None = None,
+    before_run: Callable[[Any], None] | None = None,
 ) -> RunSummary:
     """Run ``sf`` with the I/O ``io`` (``cellsim.cell_io``: simulated by default), recording to ``out_dir``.
 
@@ -177,6 +163,10 @@ def simulate(
 
     The black box's ``provenance`` metadata is :func:`cellsim.provenance.provenance`
     of the run's inputs, updated with ``provenance`` (a campaign names itself there).
+
+    ``before_run(cell)`` is called with the built cell before the run folder is touched: what it
+    refuses (``cellsim.validation.check.simulate_and_check`` compiles the safety conditions against
+    the cell's channels there) leaves nothing written.
     """
     from cellsim.scenario import check_run_length, check_seed
 
@@ -193,21 +183,17 @@ def simulate(
 
     # Everything that can fail on bad input happens before the folder is touched:
     # building the diagram checks the wiring and loads the risk model, and the
-    # safety conditions are compiled against the channels it publishes.
+    # caller's before_run its own inputs against the cell.
     cell = build_cell(sf, seed=seed, duration=duration, io=io, meshcat=meshcat, meshcat_wait=meshcat_wait)
     try:
-        case = None
-        if cell.sf.scenario.validation.conditions:
-            from cellsim.validation.check import cell_safety_case
-
-            case = cell_safety_case(cell.sf, cell)
+        if before_run is not None:
+            before_run(cell)
         simulator = make_simulator(cell)
         inputs.check_unchanged()  # what was built is what was read, copied and hashed
         with RunFolder(out_dir, overwrite):
             summary = _record(cell, simulator, out_dir, seed, duration, on_progress, inputs, record)
     finally:
         cell.close()
-    summary.safety_case = case
     return summary
 
 
@@ -272,7 +258,7 @@ def _record(cell, simulator, out_dir: Path, seed: int, duration: float, on_progr
         if status == "stopped":
             writer.set_metadata(duration=sim_time)
         writer.close(status)
-    return summarise(out_dir, seed, status, sim_time, wall)
+    return summarise(out_dir, seed, status, sim_time, wall, figures_of(sf))
 
 
 def make_simulator(cell: CellDiagram) -> Simulator:
@@ -298,38 +284,29 @@ def integrate_at_plant_step(simulator: Simulator, time_step: float) -> None:
     simulator.get_mutable_integrator().set_fixed_step_mode(True)
 
 
-def summarise(out_dir: Path, seed: int, status: str, sim_time: float, wall_time: float) -> RunSummary:
+def figures_of(sf: ScenarioFile) -> list[Figure]:
+    """The figures of a run of ``sf``, as its modules' kinds give them, in the scenario's order."""
+    sc = sf.scenario
+    return [figure for section in registry.SECTIONS for name, cfg in getattr(sc, section).items()
+            for figure in registry.kind_of(cfg).figures(name, cfg)]
+
+
+def summarise(out_dir: Path, seed: int, status: str, sim_time: float, wall_time: float,
+              figures: list[Figure] = ()) -> RunSummary:
     """Read a run's summary back from its black box.
 
-    Hazards are the channels the metadata's ``hazards`` names, each with its risk
-    model's initial and mishap phases: raised counts leaving the initial phase,
-    handled counts returning to it, mishaps counts entering the mishap phase.
+    Hazards are the channels the metadata's ``hazards`` names, each counted by its risk
+    model's phases (:class:`cellsim.hazards.HazardPhases`); each of ``figures`` is its
+    channel's last value.
     """
     with BlackBox(out_dir / BLACKBOX) as bb:
         channels, metadata = bb.channels(), bb.metadata()
-        scenario = metadata.get("scenario", {})
-        summary = RunSummary(out_dir, seed, status, sim_time, wall_time, 0)
+        summary = RunSummary(out_dir, seed, status, sim_time, wall_time)
         for name, phases in (metadata.get("hazards") or {}).items():
             values = bb.series(name).values if name in channels else []
-            initial, mishap = phases.get("initial"), phases.get("mishap")
-            summary.hazards[name.rpartition(".")[2]] = HazardCounts(
-                raised=sum(v != initial and (i == 0 or values[i - 1] == initial) for i, v in enumerate(values)),
-                handled=sum(v == initial and i > 0 and values[i - 1] != initial for i, v in enumerate(values)),
-                mishaps=sum(v == mishap and (i == 0 or values[i - 1] != mishap) for i, v in enumerate(values)) if mishap else 0,
-            )
-        behaviours = scenario.get("behaviours", {})
-        robots = [n for n, e in scenario.get("entities", {}).items() if e.get("kind") == "robot"]
-        summary.robots = {name: RobotFigures() for name in robots}
-        for name, info in channels.items():
-            if name.endswith(".cycles_completed") and info.source in behaviours:
-                values = bb.series(name).values
-                moved = behaviours[info.source].get("robot", "robot")  # a process moves one robot
-                if moved in summary.robots:
-                    summary.robots[moved].cycles_completed = int(values[-1]) if values else 0
-            elif name.endswith(".safety_mode") and info.source in summary.robots:
-                values = bb.series(name).values
-                summary.robots[info.source].final_safety_mode = values[-1] if values else None
-        if robots:
-            first = summary.robots[robots[0]]
-            summary.cycles_completed, summary.final_safety_mode = first.cycles_completed, first.final_safety_mode
+            summary.hazards[name] = HazardPhases.of(phases).counts(values)
+        for figure in figures:
+            values = bb.series(figure.channel).values if figure.channel in channels else []
+            last = values[-1] if values else None
+            summary.figures.append((figure, int(last) if isinstance(last, float) and last.is_integer() else last))
     return summary

@@ -430,7 +430,7 @@ def _summary(results: Mapping, runs: Sequence[Mapping]) -> dict:
             ("Completed", totals.get("completed", sum(1 for r in runs if r.get("status") == "completed"))),
             ("Failed", totals.get("failed", sum(1 for r in runs if _is_failed(r)))),
             ("Violating runs", totals.get("violating_runs", len(_violating_runs(runs)))),
-            *_robot_figures(runs),
+            *_run_figures(runs),
             *_cluster_figures(_dict(results.get("cluster"))),
         ],
         "coverage": percent(_overall(coverage)) if "overall" in coverage else None,
@@ -438,20 +438,21 @@ def _summary(results: Mapping, runs: Sequence[Mapping]) -> dict:
     }
 
 
-def _robot_figures(runs: Sequence[Mapping]) -> list[tuple[str, object]]:
-    """Work cycles per completed run, by robot (labelled when the cell has several)."""
-    cycles: dict[str, list[int]] = {}
+def _run_figures(runs: Sequence[Mapping]) -> list[tuple[str, object]]:
+    """Each numeric figure of the runs' summaries (a robot's work cycles) over the completed runs: its value,
+    or its range and median; by subject when several modules give it."""
+    found: dict[tuple[str, str], list[float]] = {}
     for run in runs:
-        for robot, figures in _dict(run.get("robots")).items():
-            value = _dict(figures).get("cycles_completed")
-            if run.get("status") == "completed" and is_number(value):
-                cycles.setdefault(str(robot), []).append(int(value))
-    if not cycles:
-        return []
-    labelled = len(cycles) > 1
-    return [(f"Work cycles per run{f' ({robot})' if labelled else ''}",
-             str(c[0]) if min(c) == max(c) else f"{min(c)} to {max(c)}, median {median(c):g}")
-            for robot, c in cycles.items()]
+        if run.get("status") != "completed":
+            continue
+        for subject, figures in _dict(run.get("figures")).items():
+            for key, value in _dict(figures).items():
+                if is_number(value):
+                    found.setdefault((str(key), str(subject)), []).append(value)
+    keys = [key for key, _ in found]
+    return [(f"{key.replace('_', ' ').capitalize()} per run{f' ({subject})' if keys.count(key) > 1 else ''}",
+             f"{v[0]:g}" if min(v) == max(v) else f"{min(v):g} to {max(v):g}, median {median(v):g}")
+            for (key, subject), v in found.items()]
 
 
 def _cluster_figures(cluster: Mapping) -> list[tuple[str, object]]:

@@ -43,7 +43,7 @@ def run(args) -> int:
     from rich.console import Console
 
     from cellsim.scenario import check_run_length, check_seed
-    from cellsim.simulation import simulate
+    from cellsim.validation.check import simulate_and_check
 
     sf = _load(args)
     if args.duration is not None:
@@ -66,7 +66,7 @@ def run(args) -> int:
         meshcat_wait = (wait, console.print)
     try:
         with _progress(console, args.quiet) as report:
-            summary = simulate(
+            done = simulate_and_check(
                 sf,
                 out,
                 seed=args.seed,
@@ -76,9 +76,9 @@ def run(args) -> int:
                 meshcat_wait=meshcat_wait,
                 on_progress=report,
             )
-        checked = _check_of(summary)
+        checked = done.checked.result if done.checked is not None else None
         if not args.quiet:
-            print_summary(summary, checked)
+            print_summary(done.summary, checked)
         if meshcat is not None and sys.stdin is not None and sys.stdin.isatty():
             from cellsim.visual.serve import serve_until_closed
 
@@ -86,7 +86,7 @@ def run(args) -> int:
     finally:
         if meshcat is not None:
             del meshcat
-    return EXIT_FINDING if summary.mishap or (checked is not None and not checked.all_hold) else EXIT_OK
+    return EXIT_FINDING if done.finding else EXIT_OK
 
 
 class _progress:
@@ -119,15 +119,6 @@ class _progress:
             self.bar.stop()
 
 
-def _check_of(summary):
-    """The run's check result, or None when the scenario has no safety conditions."""
-    from cellsim.validation.check import check
-
-    if summary.safety_case is None:
-        return None
-    return check(summary.out_dir, case=summary.safety_case).result
-
-
 def print_summary(summary, checked=None) -> None:
     from rich.console import Console
     from rich.table import Table
@@ -138,16 +129,15 @@ def print_summary(summary, checked=None) -> None:
     table.add_column()
     table.add_row("status", summary.status)
     table.add_row("seed", str(summary.seed))
-    labelled = len(summary.robots) > 1  # several robots: each figure names its robot
-    for robot, figures in (summary.robots.items() if labelled else [(None, summary)]):
-        table.add_row("work cycles completed" + (f" ({robot})" if robot else ""), str(figures.cycles_completed))
-    for name, counts in summary.hazards.items():
+    labels = [figure.label for figure, _ in summary.figures]
+    for figure, value in summary.figures:  # a label several modules give names each one's subject
+        subject = f" ({figure.subject})" if labels.count(figure.label) > 1 else ""
+        table.add_row(figure.label + subject, "-" if value is None else str(value))
+    for channel, counts in summary.hazards.items():
         verdict = f"raised {counts.raised}, handled {counts.handled}"
         if counts.mishaps:
             verdict += f", [red]MISHAPS {counts.mishaps}[/red]"
-        table.add_row(f"hazard {name}", verdict)
-    for robot, figures in (summary.robots.items() if labelled else [(None, summary)]):
-        table.add_row("final safety mode" + (f" ({robot})" if robot else ""), figures.final_safety_mode or "-")
+        table.add_row(f"hazard {channel.rpartition('.')[2]}", verdict)
     if checked is not None:
         line = _conditions_line(checked)
         table.add_row("safety conditions", line if checked.all_hold else f"{line} (details: cellsim check {summary.out_dir})")

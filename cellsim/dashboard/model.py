@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cellsim.hazards import HazardPhases
 from cellsim.channels import value_text
 from cellsim.numbers import instant, measure
 
@@ -59,7 +60,8 @@ class CellModel:
     """The dashboard's picture of one cell."""
 
     def __init__(self, description: dict):
-        from cellsim.validation.traces import domain_of, validator_of
+        from cellsim.channels import logic_domain
+        from cellsim.validation.traces import validator_of
 
         self.scenario: dict = description.get("scenario") or {}
         self.name: str = self.scenario.get("name", "?")
@@ -71,7 +73,7 @@ class CellModel:
             for name, cfg in (self.scenario.get(section) or {}).items()
         }
         self.entities = [name for name in (self.scenario.get("entities") or {})]
-        self._domains = {name: domain_of(c["kind"], c["domain"], c.get("unit")) for name, c in self.channels.items()}
+        self._domains = {name: logic_domain(c["kind"], c["domain"], c.get("unit")) for name, c in self.channels.items()}
         self._valid = {name: validator_of(d) for name, d in self._domains.items() if d is not None}
         self.values: dict[str, object] = {}
         self.changed_at: dict[str, float] = {}
@@ -176,9 +178,7 @@ class CellModel:
         if signal == "twin_mode":
             self.log(f"{module}: twin mode {previous} -> {value}")
         elif name in self.hazards:
-            phases = self.hazards[name]
-            level = "ERROR" if value == phases.get("mishap") else "OK" if value == phases.get("initial") else "WARN"
-            self.log(f"hazard {signal}: {previous} -> {value}", level)
+            self.log(f"hazard {signal}: {previous} -> {value}", HazardPhases.of(self.hazards[name]).level(value))
         elif signal == "physical_link":
             self.log(f"{module}: physical link {value}", LINK_LEVEL.get(value, "WARN"))
 
@@ -192,8 +192,7 @@ class CellModel:
         for channel, phases in self.hazards.items():
             phase = self.values.get(channel, phases.get("initial"))
             since = self.sim_time - self.changed_at.get(channel, 0.0)
-            level = "ERROR" if phase == phases.get("mishap") else "OK" if phase == phases.get("initial") else "WARN"
-            rows.append((channel.rpartition(".")[2], str(phase), max(0.0, since), level))
+            rows.append((channel.rpartition(".")[2], str(phase), max(0.0, since), HazardPhases.of(phases).level(phase)))
         return rows
 
     def cell_rows(self) -> list[tuple[str, str]]:
@@ -295,7 +294,7 @@ class CellModel:
         except Exception as e:  # noqa: BLE001 - a trace the checker refuses is shown, never fatal
             self._verdicts = [("(conditions)", f"cannot evaluate: {e}", "ERROR", "")]
             return self._verdicts
-        from cellsim.validation.config import description_of
+        from cellsim.config.validation import description_of
 
         rows, why = [], {}
         for name, verdict in result.verdicts.items():
@@ -324,7 +323,7 @@ class CellModel:
             return self._case
         from cellsim.config.typed_yaml import from_data
         from cellsim.validation.conditions import SafetyCase
-        from cellsim.validation.config import Validation
+        from cellsim.config.validation import Validation
         from cellsim.validation.traces import with_aliases
 
         data = self.scenario.get("validation") or {}

@@ -21,11 +21,11 @@ from cellsim.blackbox import BlackBox
 from cellsim.provenance import BLACKBOX, RESOLVED_SCENARIO
 from cellsim.validation.conditions import CheckResult, SafetyCase
 from cellsim.validation.verdict import Verdict
+from cellsim.channels import channel_domains
 from cellsim.validation.traces import (
     RunTrace,
     TraceError,
     blackbox_domains,
-    channel_domains,
     trace_of_run,
     with_aliases,
 )
@@ -105,6 +105,39 @@ def locate_rebuildable_run(run: str | os.PathLike, purpose: str) -> tuple[Path, 
     if scenario is None:
         raise CheckError(f"{run}: no scenario.yaml beside the black box; {purpose}")
     return blackbox, load_scenario(scenario)
+
+
+@dataclass
+class CheckedSimulation:
+    """A run simulated and checked: its summary, and its check (None: the scenario has no conditions)."""
+
+    summary: object
+    """The run's :class:`cellsim.simulation.RunSummary`."""
+    checked: CheckedRun | None
+
+    @property
+    def finding(self) -> bool:
+        """A safety finding: a hazard reached its mishap phase, or a condition does not hold."""
+        return self.summary.mishap or (self.checked is not None and not self.checked.result.all_hold)
+
+
+def simulate_and_check(sf: ScenarioFile, out: str | os.PathLike, *, always_check: bool = False,
+                       **simulate_args) -> CheckedSimulation:
+    """Simulate ``sf`` into ``out`` (:func:`cellsim.simulation.simulate` with ``simulate_args``) and check the run
+    against its safety conditions: what the CLI's ``simulate``, each run of a campaign or a search, and
+    ``verify``'s witness replays do. The conditions are compiled against the built cell before the run folder
+    is touched, so a bad formula leaves nothing written. A scenario without conditions is checked only
+    ``always_check`` (a campaign's runs: their use cases and coverage)."""
+    from cellsim.simulation import simulate
+
+    cases: list[SafetyCase] = []
+
+    def compile_conditions(cell) -> None:
+        if always_check or cell.sf.scenario.validation.conditions:
+            cases.append(cell_safety_case(cell.sf, cell))
+
+    summary = simulate(sf, out, before_run=compile_conditions, **simulate_args)
+    return CheckedSimulation(summary, check(out, case=cases[0]) if cases else None)
 
 
 def check(run: str | os.PathLike, sf: ScenarioFile | None = None, *, case: SafetyCase | None = None) -> CheckedRun:

@@ -191,8 +191,7 @@ def _merge_missing(document: dict, extra: dict) -> None:
 def replay(model, checked: Checked, out: Path, on_stage=None) -> Replay:
     """Write, simulate and check the witness (then later starts of it) until the twin shows the violation."""
     from cellsim.scenario import load_scenario
-    from cellsim.simulation import simulate
-    from cellsim.validation.check import check
+    from cellsim.validation.check import simulate_and_check
     from cellsim.validation.verdict import Verdict
 
     say = on_stage or (lambda text: None)
@@ -203,10 +202,10 @@ def replay(model, checked: Checked, out: Path, on_stage=None) -> Replay:
         say(f"twin: simulating {scenario.name}")
         sf = load_scenario(scenario)
         run = out / "runs" / scenario.stem
-        simulate(sf, run, seed=sf.scenario.seed, overwrite=True)
+        done = simulate_and_check(sf, run, seed=sf.scenario.seed, overwrite=True)
         outcome.runs.append(run)
-        checked_run = check(run, sf)
-        violated = [n for n, v in checked_run.result.verdicts.items() if v.status is Verdict.VIOLATED]
+        checked_run = done.checked
+        violated = [n for n, v in checked_run.result.verdicts.items() if v.status is Verdict.VIOLATED] if checked_run else []
         outcome.violated = violated
         if _shows(checked, checked_run, violated):
             outcome.confirmed, outcome.shift = True, shift
