@@ -31,9 +31,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from cellsim.campaign.runner import (  # noqa: E402
-    RESULT, RESULTS, TRACE, CampaignPlan, _safety_case, finish, run_campaign, run_dir,
+    RESULT, RESULTS, TRACE, CampaignPlan, finish, run_campaign, run_dir,
 )
 from cellsim.scenario import load_scenario  # noqa: E402
+from cellsim.validation.check import scenario_safety_case  # noqa: E402
 from cellsim.simulation import BLACKBOX  # noqa: E402
 
 SCENARIO = ROOT / "scenarios" / "two_operators.yaml"
@@ -116,7 +117,7 @@ def main() -> None:
         runs = grow(Path(tmp) / "real", out, args.runs)
         sf = load_scenario(SCENARIO)
         big = CampaignPlan(str(SCENARIO), (), args.seed, args.runs)
-        case = _safety_case(big)
+        case = scenario_safety_case(sf)
         t0 = time.perf_counter()
         outcome = finish(big, out, sf, case, runs, 0, t0)
         total = time.perf_counter() - t0

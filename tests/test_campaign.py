@@ -211,14 +211,14 @@ def _die(*args):
 
 
 def test_a_dead_worker_stops_the_campaign_with_a_clear_error(tmp_path, monkeypatch):
-    import cellsim.campaign.runner as runner
+    import cellsim.campaign.engine as engine
 
     out = tmp_path / "c"
-    monkeypatch.setattr(runner, "execute_run", _die)  # spawned workers import this module: patch by reference
-    plan = runner.CampaignPlan(str(WELDING_CELL), (), 0, 2, 5.0)
-    with pytest.raises(runner.CampaignError, match="worker process died.*run the same command again"):
-        with runner.worker_pool(2) as workers:
-            runner._run_parallel(plan, out, [0, 1], workers, {}, lambda: None)
+    monkeypatch.setattr(engine, "execute_run", _die)  # spawned workers import this module: patch by reference
+    plan = engine.CampaignPlan(str(WELDING_CELL), (), 0, 2, 5.0)
+    with pytest.raises(engine.CampaignError, match="worker process died.*run the same command again"):
+        with engine.worker_pool(2) as workers:
+            engine.run_all(workers, plan, out, [(0, None, None), (1, None, None)], {}, lambda result: None)
 
 
 def test_runs_that_cannot_be_simulated_are_reported_and_the_campaign_exits_2(tmp_path, capsys):
@@ -534,7 +534,7 @@ def test_a_refused_start_writes_nothing_and_leaves_an_earlier_campaign_as_it_was
     def cannot(inputs, dest, overrides):
         raise SnapshotError(f"cannot snapshot the inputs into {dest}: the copies load back to other files")
 
-    monkeypatch.setattr("cellsim.campaign.runner.snapshot_scenario", cannot)
+    monkeypatch.setattr("cellsim.campaign.engine.snapshot_scenario", cannot)
     replace = "--restart" if command == "campaign" else "--overwrite"
     for target, flags in ((out, [replace]), (tmp_path / "fresh", [])):
         assert main([*base, "--out", str(target), *flags]) == 2

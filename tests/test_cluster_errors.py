@@ -7,7 +7,7 @@ import concurrent.futures
 
 import pytest
 
-import cellsim.campaign.runner as runner
+import cellsim.campaign.engine as engine
 from cellsim.campaign.cluster import ClusterError
 
 
@@ -27,6 +27,6 @@ def test_a_failure_on_the_cluster_is_one_campaign_error_that_says_how_to_resume(
             pass
 
     monkeypatch.setattr("cellsim.campaign.cluster.ClusterPool", FailingCluster)
-    with pytest.raises(runner.CampaignError, match="has cellsim 0.0, the campaign 0.1; .*run the same command again"):
-        with runner.worker_pool(2, "tcp://127.0.0.1:1", tmp_path) as workers:
-            runner._run_parallel(None, tmp_path, [0], workers, {}, lambda: None)
+    with pytest.raises(engine.CampaignError, match="has cellsim 0.0, the campaign 0.1; .*run the same command again"):
+        with engine.worker_pool(2, "tcp://127.0.0.1:1", tmp_path) as workers:
+            engine.run_all(workers, None, tmp_path, [(0, None, None)], {}, lambda result: None)

@@ -15,7 +15,7 @@ from conftest import ONE_AT_A_TIME, ROOT, WELDING_CELL
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cellsim.campaign.samplers import ChoiceSampler, SimplexSampler, UniformSampler, draw_configuration
+from cellsim.config.sampling import ChoiceSampler, SimplexSampler, UniformSampler, draw_configuration
 from cellsim.campaign.space import SearchSpace
 from cellsim.logic import parse
 from cellsim.logic.robustness import meeting

@@ -10,7 +10,7 @@ campaign but the scheduler:
   (``<worker dir>/cellsim-inputs/<digest>``) and every run it is given is made
   from there. A worker that joins later fetches it from a peer.
 * **outputs**: the worker simulates and checks the run in a scratch folder of its
-  own, exactly as a local worker does (:func:`cellsim.campaign.runner.execute_run`),
+  own, exactly as a local worker does (:func:`cellsim.campaign.engine.execute_run`),
   and returns the run folder's files. The campaign writes them under
   ``OUT/runs/NNNN``, ``result.json`` last, as a local run does: resume, content
   identity and provenance work the same way.
@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import concurrent.futures
 import hashlib
-import os
 import shutil
 import threading
 import uuid

@@ -46,13 +46,10 @@ campaign gives its ``bounds``).
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import os
 import time
-from concurrent.futures import FIRST_COMPLETED, wait
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -60,11 +57,11 @@ from typing import Callable
 import numpy as np
 
 from cellsim.atomic import LOCK
-from cellsim.campaign import runner
-from cellsim.campaign.runner import PLAN, CampaignError, CampaignPlan, execute_run
+from cellsim.campaign import engine, runner
+from cellsim.campaign.engine import PLAN, CampaignError, CampaignPlan
 from cellsim.campaign.space import SearchSpace
 from cellsim.logic.syntax import Always, Compare, Eventually, Formula, Until
-from cellsim.provenance import INPUTS, SnapshotError, command_line, provenance, read_inputs, snapshot_scenario
+from cellsim.provenance import INPUTS, provenance
 
 METHODS = ("cmaes", "qd", "random")
 NOT_A_SAMPLE = ("the runs of a falsification search are chosen by the search, not drawn at random: "
@@ -310,52 +307,37 @@ def run_falsify(
     method or a scenario with nothing to search, and CampaignError for a folder in
     use or holding other files (unless ``overwrite``), all before any run starts.
     """
-    from cellsim.scenario import load_scenario
-    from cellsim.validation.check import scenario_safety_case
-
     out = Path(out)
     wall_start = time.perf_counter()
     if plan.method not in METHODS:
         raise ValueError(f"unknown method {plan.method!r}; one of {', '.join(METHODS)}")
-    runner._base_scenario.cache_clear()
-    runner._safety_case.cache_clear()
-    given = load_scenario(plan.scenario, plan.overrides)
-    case = scenario_safety_case(given)
-    unknown = [c for c in plan.conditions if c not in case.conditions]
+    runs = engine.set_up(plan.scenario, plan.overrides, plan.seed, plan.duration)
+    unknown = [c for c in plan.conditions if c not in runs.case.conditions]
     if unknown:
-        raise ValueError(f"no condition named {', '.join(unknown)}; conditions: {', '.join(case.conditions)}")
-    sc = given.scenario
+        raise ValueError(f"no condition named {', '.join(unknown)}; conditions: {', '.join(runs.case.conditions)}")
+    sc = runs.scenario.scenario
     space = SearchSpace(sc.campaign.samplers, {name: point.paths for name, point in sc.configuration_points.items()})
     if space.dimension == 0:
         raise ValueError(f"{plan.scenario}: nothing to search: its campaign.samplers draw no configuration point "
                          "(add samplers for the values to search over)")
-    inputs = read_inputs(given)
-    identity = inputs.identity(plan.overrides, plan.seed, plan.duration)
     # every refusal before the folder is touched (an earlier search or campaign it replaces included)
     if out.exists() and any(p.name != LOCK for p in out.iterdir()):
         if not overwrite:
             raise CampaignError(f"{out} is not empty; choose another --out, or pass --overwrite to replace it")
         if not (out / PLAN).is_file():
             raise CampaignError(f"{out} holds files no cellsim search or campaign wrote; choose another --out")
-    runner.check_scheduler(scheduler)
-    runner.check_snapshot(inputs, plan.overrides)
-    with runner.claimed(out, f"{out} is being written by another cellsim process; choose another --out"):
-        runner.discard(out)
-        return _search(plan, out, jobs, on_progress, batch, inputs, identity, space, wall_start, scheduler)
+    engine.check_scheduler(scheduler)
+    engine.check_snapshot(runs.inputs, plan.overrides)
+    with engine.claimed(out, f"{out} is being written by another cellsim process; choose another --out"):
+        engine.discard(out)
+        return _search(plan, out, jobs, on_progress, batch, runs, space, wall_start, scheduler)
 
 
-def _search(plan: FalsifyPlan, out: Path, jobs, on_progress, batch, inputs, identity, space, wall_start,
+def _search(plan: FalsifyPlan, out: Path, jobs, on_progress, batch, runs, space, wall_start,
             scheduler=None) -> FalsifyOutcome:
-    from cellsim.scenario import load_scenario
-    from cellsim.validation.check import scenario_safety_case
-
-    try:
-        snapshot, pins = snapshot_scenario(inputs, out / INPUTS, plan.overrides)
-    except SnapshotError as e:
-        raise CampaignError(str(e)) from None
-    worker_plan = CampaignPlan(str(snapshot.resolve()), (*plan.overrides, *pins), plan.seed, plan.budget, plan.duration)
-    sf = load_scenario(worker_plan.scenario, worker_plan.overrides)
-    case = scenario_safety_case(sf)
+    campaign_plan = CampaignPlan(plan.scenario, plan.overrides, plan.seed, plan.budget, plan.duration)
+    worker_plan = engine.snapshot_plan(campaign_plan, out, runs.inputs)
+    sf, case = runs.scenario, runs.case
     duration = plan.duration if plan.duration is not None else sf.scenario.duration
     scorer = Scorer(case, plan.conditions, duration)
     use_cases = list(case.use_cases)
@@ -363,16 +345,13 @@ def _search(plan: FalsifyPlan, out: Path, jobs, on_progress, batch, inputs, iden
                          scorer, use_cases)
     search_record = {"method": plan.method, "budget": plan.budget, "batch": searcher.batch,
                      "conditions": list(scorer.targets), "guides": scorer.guides, "dimension": space.dimension}
-    runner._write_json(out / PLAN, {"identity": identity, "runs": plan.budget, "scenario": plan.scenario,
-                                    "search": search_record})
-    origin = {"command": command_line(), "cwd": os.getcwd(),
-              "campaign": {"folder": str(out.resolve()), "scenario": plan.scenario, "inputs_hash": identity["hash"],
-                           "search": plan.method}}
+    engine.write_json(out / PLAN, {"identity": runs.identity, "runs": plan.budget, "scenario": plan.scenario,
+                                   "search": search_record})
+    origin = engine.origin_of(out, plan.scenario, runs.identity, search=plan.method)
     results: dict[int, dict] = {}
     first: int | None = None
     generation = 0
-    with runner.worker_pool(jobs, scheduler, out / INPUTS) as workers:
-        submit = workers.submit
+    with engine.worker_pool(jobs, scheduler, out / INPUTS) as workers:
         if on_progress is not None:  # under way: its checks passed, its workers ready
             on_progress(SearchProgress(0, plan.budget, math.inf, 0))
         while len(results) < plan.budget and first is None:
@@ -380,16 +359,15 @@ def _search(plan: FalsifyPlan, out: Path, jobs, on_progress, batch, inputs, iden
             start = len(results)
             tasks = []
             for k, point in enumerate(points):
-                index = start + k
                 place = {"method": plan.method, "batch": generation, "point": [round(float(x), 12) for x in point]}
-                tasks.append((index, space.decode(point), place))
-            batch_results = _evaluate(submit, worker_plan, out, tasks, origin, scorer)
+                tasks.append((start + k, space.decode(point), place))
+            batch_results = _evaluate(workers, worker_plan, out, tasks, origin, scorer)
             for index, result in sorted(batch_results.items()):
                 result["search"]["score"] = scorer.score(result)
                 results[index] = result
                 if first is None and scorer.violates(result):
                     first = index
-                runner._write_json(runner.run_dir(out, index) / runner.RESULT, result)
+                engine.write_json(engine.run_dir(out, index) / engine.RESULT, result)
             told = [k for k in range(len(points)) if start + k in batch_results]
             searcher.tell([points[k] for k in told], [batch_results[start + k] for k in told],
                           [batch_results[start + k]["search"]["score"] for k in told])
@@ -398,47 +376,33 @@ def _search(plan: FalsifyPlan, out: Path, jobs, on_progress, batch, inputs, iden
                 on_progress(SearchProgress(len(results), plan.budget, min(r["search"]["score"] for r in results.values()),
                                            sum(1 for r in results.values() if scorer.violates(r))))
         cluster = workers.record()
-    runs = [results[i] for i in sorted(results)]
-    best = min(runs, key=lambda r: r["search"]["score"])
+    done = [results[i] for i in sorted(results)]
+    best = min(done, key=lambda r: r["search"]["score"])
     search_record.update(
-        runs=len(runs), first_violation=first, runs_to_first_violation=None if first is None else first + 1,
+        runs=len(done), first_violation=first, runs_to_first_violation=None if first is None else first + 1,
         best={"index": best["index"], "score": best["search"]["score"]},
         not_a_sample=NOT_A_SAMPLE,
     )
     if isinstance(searcher, QualityDiversity):
         search_record["archive"] = searcher.cells()
-    campaign_plan = dataclasses.replace(worker_plan, scenario=plan.scenario, overrides=plan.overrides)
-    outcome = runner.finish(campaign_plan, out, sf, case, runs, 0, wall_start, provenance(identity), search=search_record,
-                             cluster=cluster)
+    outcome = runner.finish(campaign_plan, out, sf, case, done, 0, wall_start, provenance(runs.identity),
+                            search=search_record, cluster=cluster)
     return FalsifyOutcome(outcome.results, outcome.results_path, outcome.report_path)
 
 
-def _evaluate(submit, plan: CampaignPlan, out: Path, tasks, origin, scorer: Scorer) -> dict[int, dict]:
-    """Run one batch; stops starting runs once one violates a targeted condition (those started finish)."""
-    if submit is None:
-        done = {}
-        for index, configuration, place in tasks:
-            done[index] = execute_run(plan, out, index, origin, configuration, place)
-            if scorer.violates(done[index]):
-                break
-        return done
-    index_of = {submit(execute_run, plan, out, index, origin, configuration, place): index
-                for index, configuration, place in tasks}
-    pending, done = set(index_of), {}
-    try:
-        while pending:
-            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
-            for future in finished:
-                if not future.cancelled():
-                    result = future.result()
-                    done[result["index"]] = result
-            violating = [i for i, r in done.items() if scorer.violates(r)]
-            if violating:  # runs after the first violation are not started; those before it finish
-                for future in pending:
-                    if index_of[future] > min(violating):
-                        future.cancel()
-    except BrokenProcessPool as e:
-        raise CampaignError(f"a worker process died ({e}); the runs so far are in {out}") from None
+def _evaluate(workers, plan: CampaignPlan, out: Path, tasks, origin, scorer: Scorer) -> dict[int, dict]:
+    """Run one batch; runs after the first that violates a targeted condition are not started (those before
+    it, and those running, finish)."""
+    done: dict[int, dict] = {}
+
+    def take(result: dict) -> None:
+        done[result["index"]] = result
+
+    def cutoff() -> int | None:
+        violating = [i for i, r in done.items() if scorer.violates(r)]
+        return min(violating) + 1 if violating else None
+
+    engine.run_all(workers, plan, out, tasks, origin, take, cutoff, lost="the runs so far are in {out}")
     return done
 
 
