@@ -14,7 +14,7 @@ A physical link that failed (the bridge daemon's checks refused its physical twi
 data, or its watchdog expired) is said with a failure in place of the fields, so the
 entity fails safe at once instead of after its ``stale_after``::
 
-    {"t": 1795000000.125, "seq": 43, "failed": "stale"}     # or "corrupt"
+    {"t": 1795000000.125, "seq": 43, "failed": "crc"}     # the fault, as cellsim.link.Fault names it
 
 A twin channel's value: ``{"t": ..., "sim_time": ..., "value": ...}``, the value as
 the black box writes it (``ChannelType.decode``). A twin-mode request:
@@ -34,6 +34,7 @@ import math
 from dataclasses import dataclass
 
 from cellsim.channels import NO_VALUE, ChannelType, number_type
+from cellsim.link import LINK_FAILURES, Fault
 
 MAX_PAYLOAD = 64 * 1024
 """The largest message (bytes) any receiver decodes: a sample of a few dozen fields is well under 2 kB."""
@@ -41,8 +42,8 @@ MAX_STAMP = 1e12
 """Time stamps beyond this (s) are not times (UNIX time is about 1.8e9)."""
 MAX_SEQ = 2**53
 """Sequence numbers beyond this are not counts a sender reaches."""
-FAILURES = ("stale", "corrupt")
-"""What a failure message may say of a physical link (``PhysicalLink`` values)."""
+FAILURES = tuple(f.value for f in LINK_FAILURES)
+"""What a failure message may say of a physical link: the fault that failed it (``cellsim.link.Fault``)."""
 
 
 class CodecError(ValueError):
@@ -61,8 +62,8 @@ class Message:
     t: float
     """The sender's wall-clock stamp (s)."""
     seq: int
-    failure: str | None
-    """``stale`` or ``corrupt`` for a failure message, else None."""
+    failure: Fault | None
+    """The fault that failed the link, for a failure message; else None."""
     codes: list[float] | None
     """The fields as port codes (None for a failure)."""
 
@@ -183,7 +184,7 @@ class FieldCodec:
         if failure is not None:
             if failure not in FAILURES:
                 raise CodecError(f"'failed' is not one of {', '.join(FAILURES)}")
-            return Message(t, seq, failure, None)
+            return Message(t, seq, Fault(failure), None)
         return Message(t, seq, None, self.codes(message.get("fields")))
 
 
@@ -201,11 +202,11 @@ def encode_fields(t: float, seq: int, fields: dict) -> bytes:
     return dumps({"t": t, "seq": seq, "fields": fields})
 
 
-def encode_failure(t: float, seq: int, failure: str) -> bytes:
-    """The message saying the physical link failed (``failure``: one of FAILURES)."""
-    if failure not in FAILURES:
-        raise ValueError(f"not a link failure: {failure!r}")
-    return dumps({"t": t, "seq": seq, "failed": failure})
+def encode_failure(t: float, seq: int, fault: Fault) -> bytes:
+    """The message saying the physical link failed by ``fault`` (one of LINK_FAILURES)."""
+    if fault not in LINK_FAILURES:
+        raise ValueError(f"not a link failure: {fault!r}")
+    return dumps({"t": t, "seq": seq, "failed": Fault(fault).value})
 
 
 # -- twin channels ---------------------------------------------------------------------------

@@ -29,6 +29,17 @@ Freshness is judged by the receiver's clock: arrival times decide stale, the
 sender's stamp only decides late and future. A sender that restarts (its
 sequence counting from 1 again) is heard once its old stream has gone stale.
 
+Every receiver applies the rule in one order (:meth:`LinkTrust.receive`): the
+message's integrity first (it decodes; its CRC, length or MAC: the receiver's
+own checks), then its stamp (when it carries one), then its sequence, then its
+values' range, and only then is it good.
+
+One fault vocabulary (:class:`Fault`) runs from the frame to the black box: the
+bridge forwards the fault it found by its name (``{"failed": "crc"}``,
+``cellsim.codec``), and the twin fails its link by that same fault
+(:func:`failed_link`: ``timeout`` and ``late`` make a link stale, every other
+failure corrupt).
+
 The debounce is applied once, by the receiver that acts on the data: the bridge
 forwards every frame's outcome at once (a good frame as a sample, a bad one as a
 failure message), and the twin's sample source gates it.
@@ -78,6 +89,13 @@ STALE_FAULTS = frozenset({Fault.TIMEOUT, Fault.LATE})
 """Faults that make a link stale; every other failure makes it corrupt."""
 REFUSALS = frozenset({Fault.REPEATED, Fault.FUTURE})
 """Faults that refuse one message without failing the link."""
+LINK_FAILURES = tuple(f for f in Fault if f not in REFUSALS)
+"""Faults that fail a link: what a failure message may name."""
+
+
+def failed_link(fault: Fault) -> PhysicalLink:
+    """The state a link fails into by ``fault`` (not a refusal): stale on a timeout or a late message, else corrupt."""
+    return PhysicalLink.STALE if fault in STALE_FAULTS else PhysicalLink.CORRUPT
 
 
 @dataclass
@@ -189,6 +207,18 @@ class LinkTrust:
         if self.anomalies >= self.masquerade_after:
             self.masquerade = True  # (the message that made the anomaly also restarts the clean run)
 
+    def receive(self, now: float, seq: int, content: float | None = None, *, stamp: float | None = None,
+                wall: float | None = None, values=None, in_range=None) -> Judgement:
+        """Judge a message that passed its integrity checks, in the rule's one order: its ``stamp`` (the
+        sender's wall clock, against the receiver's ``wall``; when it carries one), its sequence ``seq``
+        (``content``: a hash, telling a repeat from another sender), then ``in_range(values)`` (a fault for
+        values it may not carry, or None); fails (or refuses) it on the first fault, else it is good."""
+        fault = self.stamp(stamp, wall) if stamp is not None else None
+        fault = fault or self.sequence(seq, now, content)
+        if fault is None and in_range is not None:
+            fault = in_range(values)
+        return self.fail(fault, now) if fault is not None else self.good(now, values)
+
     def good(self, now: float, values=None) -> Judgement:
         """A good message arrived at ``now``."""
         self.last_good = now
@@ -208,7 +238,7 @@ class LinkTrust:
             return Judgement(False, None, fault)
         self._count(fault)
         self.good_in_a_row = 0
-        self.link = PhysicalLink.STALE if fault in STALE_FAULTS else PhysicalLink.CORRUPT
+        self.link = failed_link(fault)
         if now is not None and self.link is PhysicalLink.CORRUPT:
             self.last_heard = now
         return Judgement(False, None, fault)

@@ -17,9 +17,9 @@ from cellsim.bridges.daemon import Bridge
 from cellsim.bridges.e2e import DeviceChecker, protect
 from cellsim.channels import BOOL, enum_type, number_type
 from cellsim.config.typed_yaml import ConfigError
-from cellsim.codec import FieldCodec
+from cellsim.codec import FAILURES, FieldCodec
 from cellsim.live.session import session_config
-from cellsim.vocabulary import Range
+from cellsim.vocabulary import Range, TwinMode
 
 from conftest import ROOT
 from live_processes import free_port, wait_for
@@ -109,7 +109,7 @@ def test_checked_frames_become_samples_and_any_failure_a_link_failure_at_once(se
         bad[0] ^= 0xFF
         counter[0] += 1
         assert send(bytes(bad)).fault.value == "crc"
-        assert next_sample()[1]["failed"] == "corrupt"
+        assert next_sample()[1]["failed"] == "crc"  # forwarded by the fault its check found
         # the same frame twice (a repeated counter): refused and counted, nothing published
         frame = protect(curtain, {"Broken": 1}, counter[0])
         counter[0] += 1
@@ -122,7 +122,7 @@ def test_checked_frames_become_samples_and_any_failure_a_link_failure_at_once(se
         assert send(b"\x00\x01", frame_id=0x7FF) is None and bridge.unknown_frames == 1
         # silence: the watchdog says stale
         bridge.check_watchdogs(now=0.02 * counter[0] + 1.0)
-        assert next_sample()[1]["failed"] == "stale"
+        assert next_sample()[1]["failed"] == "timeout"
         assert bridge.devices[curtain.frame_id].checker.counts["repeated"] == 1
     finally:
         subscriber.undeclare()
@@ -185,6 +185,9 @@ def test_enumerations_go_out_by_name(e2e_config):
          "map each physical-sample field of range_detector exactly once: range, distance"),
         ("fields: {safety_mode: SafetyMode, activity: Activity}", "fields: {safety_mode: SafetyMode, activity: SafetyMode}",
          "devices.welder.fields.activity", "signal SafetyMode can carry normal, hguid"),
+        ("    - message: WelderCommandAuthenticated\n      fields: {ActivityRequest: activity_request, Weld: command}",
+         "    - message: SafetyModeRequestAuthenticated\n      fields: {SafetyMode: safety_mode_request}",
+         "commands.welder.1.message", "'SafetyModeRequestAuthenticated' is already the frame of commands.welder.0"),
         ("fields: {SafetyMode: safety_mode_request}", "fields: {SafetyMode: mode_request}",
          "commands.welder.0.fields.SafetyMode", "'mode_request' is not a command field of welder"),
         ("fields: {ActivityRequest: activity_request, Weld: command}", "fields: {ActivityRequest: safety_mode_request, Weld: command}",
@@ -206,7 +209,7 @@ def test_a_configuration_that_does_not_match_its_dbc_or_scenario_is_one_error_na
 def test_what_a_device_is_told_when_the_twin_is_lost_is_its_kinds_safe_command(e2e_config):
     loaded = load_bridge(e2e_config)
     assert loaded.safe["welder"] == {"safety_mode_request": "stopped", "activity_request": "off", "command": 0.0}
-    assert [loaded.safe_signals(m) for m in loaded.config.commands["welder"]] == [
+    assert [loaded.signals(m).safe_signals() for m in loaded.config.commands["welder"]] == [
         {"SafetyMode": "stopped"}, {"ActivityRequest": "off", "Weld": 0.0}]
     assert loaded.safe["robot"]["safety_mode_request"] == "stopped"
 
@@ -250,12 +253,12 @@ def test_commands_reach_the_bus_only_in_twin_mode_and_the_safe_ones_when_the_sup
         token = twin.liveliness().declare_token("cellsim/welding_cell/alive/twin")
         # shadow mode: nothing goes to the bus, whatever the twin says
         mode.put(json.dumps({"t": time.time(), "sim_time": 0.0, "value": "shadow"}))
-        until(lambda: bridge._modes.get("welder") == "shadow", "shadow mode heard")
+        until(lambda: bridge.twin_mode("welder") is TwinMode.SHADOW, "shadow mode heard")
         assert frames_now(time.monotonic()) == []
         # twin mode: the twin's request goes out
         mode.put(json.dumps({"t": time.time(), "sim_time": 0.1, "value": "twin"}))
         command.put(json.dumps({"t": time.time(), "seq": 1, "fields": {"safety_mode_request": "ssmon", "activity_request": None, "command": 1.0}}))
-        until(lambda: "welder" in bridge._commands and bridge._twin_alive and bridge._modes.get("welder") == "twin",
+        until(lambda: "welder" in bridge._commands and bridge._twin_alive and bridge.twin_mode("welder") is TwinMode.TWIN,
               "command heard")
         assert set(frames_now(time.monotonic())) == {"ssmon"}
         # its commands stop for longer than the watchdog: the safe request, stopped
@@ -380,8 +383,8 @@ def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_s
     ]
     state = controller.declare_publisher("cellsim/welding_cell/controller/robot/state")
     bridge = Bridge(load_bridge(e2e_config), hub)
-    stop = threading.Event()
-    loop = threading.Thread(target=run_bridge, args=(bridge, None, stop), daemon=True)
+    stop, cycled = threading.Event(), threading.Event()  # cycled: set by every turn of the daemon's loop
+    loop = threading.Thread(target=run_bridge, args=(bridge, None, stop), kwargs={"on_cycle": cycled.set}, daemon=True)
     loop.start()
     seq = [0]
 
@@ -395,6 +398,8 @@ def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_s
     def next_sample() -> dict:
         return samples.get(timeout=5)
 
+    STALE = ("timeout", "late")  # what a loaded machine may publish meanwhile: the watchdog, a late copy
+
     try:
         deadline = time.monotonic() + 10
         while True:  # until the daemon's subscription is in place (a good state is forwarded at once)
@@ -406,7 +411,7 @@ def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_s
                 continue
             if "fields" in sample:
                 break
-            assert sample["failed"] == "corrupt" or sample["failed"] == "stale"  # not yet trusted
+            assert sample["failed"] in FAILURES, sample  # not yet trusted (a link failure, by its fault)
         assert sample["fields"] == {"q0": 0.5, "q1": -1.0, "q2": 1.2, "q3": 0.0, "q4": 1.57, "q5": 0.0,
                                     "safety_mode": "normal", "activity": "moving", "reached_pose": None}
         payload, encoding = joint_states.get(timeout=5)
@@ -417,17 +422,17 @@ def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_s
         assert abs(message.header.stamp.sec + message.header.stamp.nanosec * 1e-9 - time.time()) < 5
         assert payload[:4] == b"\x00\x01\x00\x00" and "cdr" in encoding.lower()  # CDR little endian, as ROS 2 sends
         # the last state again, byte for byte (a retransmission): refused and counted, nothing published for it
-        # (the 50 ms watchdog may publish "stale" meanwhile: only forwarded states are counted here)
+        # (the 50 ms watchdog may publish "timeout" meanwhile: only forwarded states are counted here)
         link = bridge.robots["robot"]
         for _ in range(50):
             # the daemon's loop has taken in every state sent so far (states still in its inbox would be forwarded
             # after the count below is read)
             send()
-            wait_for(lambda: link.checker.last_seq == seq[0], 5, "every state sent taken in")
+            wait_for(lambda: link.checker.last_seq == seq[0], 5, "every state sent taken in", poll=cycled)
             with link._lock:
                 forwarded, received = link.published - link.failures_published, link.received
             state.put(last[0])
-            wait_for(lambda: link.received > received, 5, "the retransmission taken in")
+            wait_for(lambda: link.received > received, 5, "the retransmission taken in", poll=cycled)
             with link._lock:  # (held while a message is judged: the judgement is complete)
                 refused = link.checker.counts["repeated"] == 1
                 assert not refused or link.published - link.failures_published == forwarded
@@ -440,27 +445,27 @@ def test_the_robot_controllers_state_becomes_the_robots_sample_and_a_ros_joint_s
             pytest.fail("the retransmission was never judged a repeat")
         # its seq again with other content (a replay, or a second sender): the failure at once
         state.put(_state(seq[0], time.time(), q0=0.25))
-        while (sample := next_sample()).get("failed") != "corrupt":
-            assert "fields" in sample or sample["failed"] == "stale", sample
+        while (sample := next_sample()).get("failed") != "counter":
+            assert "fields" in sample or sample["failed"] in STALE, sample
         while "fields" not in next_sample():  # forwarded again with the next good state
             send()
         # one out of range, one late: the failure at once, each counted
-        for over, failure in (({"q0": 9.0}, "corrupt"), ({"late": True}, "stale")):
+        for over, failure in (({"q0": 9.0}, "range"), ({"late": True}, "late")):
             if over.get("late"):
                 seq[0] += 1
                 state.put(_state(seq[0], time.time() - 1.0))
             else:
                 send(**over)
-            # (samples of good states still on their way come first; the watchdog may say stale before)
+            # (samples of good states still on their way come first; the watchdog may time out before)
             while (sample := next_sample()).get("failed") != failure:
-                assert "fields" in sample or sample["failed"] == "stale", sample
+                assert "fields" in sample or sample["failed"] in STALE, sample
             assert sample == {"t": pytest.approx(time.time(), abs=2), "seq": pytest.approx(0, abs=10**9), "failed": failure}
             while "fields" not in next_sample():  # forwarded again with the next good state
                 send()
         # silence: the watchdog (50 ms) says stale
         while "fields" in (sample := next_sample()):
             pass
-        assert sample["failed"] == "stale"
+        assert sample["failed"] == "timeout"
         counts = bridge.robots["robot"].checker.counts
         assert (counts["repeated"], counts["counter"], counts["range"]) == (1, 1, 1)
         assert counts["late"] >= 1  # (a good state the loaded machine delivered 50 ms late is late too)
@@ -503,11 +508,11 @@ def test_robot_requests_go_to_the_controller_in_twin_mode_and_a_stop_when_the_tw
 
     try:
         mode.put(json.dumps({"t": time.time(), "sim_time": 0.0, "value": "shadow"}))
-        take_until(lambda: bridge._modes.get("robot") == "shadow" and bridge._twin_alive)
+        take_until(lambda: bridge.twin_mode("robot") is TwinMode.SHADOW and bridge._twin_alive)
         bridge.send_commands()
         assert bridge.robots["robot"].requests_sent == 0  # shadow: the controller answers to its own program
         mode.put(json.dumps({"t": time.time(), "sim_time": 0.1, "value": "twin"}))
-        take_until(lambda: bridge._modes.get("robot") == "twin")
+        take_until(lambda: bridge.twin_mode("robot") is TwinMode.TWIN)
         command.put(json.dumps({"t": time.time(), "seq": 1, "fields": fields}))
         take_until(lambda: "robot" in bridge._commands)  # a changed command goes out at once
         assert requests.get(timeout=5)["fields"] == fields
@@ -613,7 +618,7 @@ def test_a_bus_that_refuses_a_frame_does_not_stop_the_daemons_loop(sessions, e2e
             raise can.CanOperationError("transmit buffer full")
 
     bridge = Bridge(load_bridge(e2e_config), hub, bus=FullBus())
-    bridge._twin_alive, bridge._modes = True, {"welder": "twin"}  # commands are due every cycle
+    bridge._twin_alive, bridge._modes = True, {"welder": TwinMode.TWIN}  # commands are due every cycle
     stop, cycles = threading.Event(), [0]
 
     def on_cycle():
@@ -715,3 +720,19 @@ def test_the_daemon_says_at_start_which_messages_go_without_authentication(tmp_p
     assert all(w.endswith(": a test of the E2E checks") for w in warnings)
     shipped = load_bridge(SHIPPED)
     assert shipped.e2e_only() == [] and len(shipped.authenticated()) == 5  # the shipped cell: every message
+
+
+def test_a_twin_mode_that_is_not_one_is_refused_and_the_mode_stays_as_it_was(sessions, e2e_config):
+    from cellsim import codec
+
+    hub, _ = sessions
+    bridge = Bridge(load_bridge(e2e_config), hub)
+    try:
+        bridge.take(("mode", "welder", codec.encode_value(1.0, 0.5, "twin"), 0.0))
+        assert bridge.twin_mode("welder") is TwinMode.TWIN and bridge.refused_messages == 0
+        for bad in (codec.encode_value(1.0, 0.6, "flying"), codec.encode_value(1.0, 0.7, 3), b"{not json"):
+            bridge.take(("mode", "welder", bad, 0.0))
+        assert bridge.twin_mode("welder") is TwinMode.TWIN and bridge.refused_messages == 3
+        assert bridge.twin_mode("robot") is None  # never heard: no command goes out for it
+    finally:
+        bridge.close()

@@ -12,6 +12,7 @@ import pytest
 from cellsim.channels import BOOL, NO_VALUE, enum_type, number_type
 from cellsim import codec
 from cellsim.codec import MAX_PAYLOAD, MAX_SEQ, MAX_STAMP, CodecError, FieldCodec
+from cellsim.link import REFUSALS, Fault
 from cellsim.vocabulary import Range, SafetyMode
 
 SAMPLE = FieldCodec(("range", "distance", "broken"), (enum_type(Range), number_type("m"), BOOL))
@@ -121,12 +122,17 @@ def test_a_null_field_is_no_request_only_where_fields_may_be_null():
         "field 'range': None is not ['far', 'near', 'close']")
 
 
-def test_a_failure_message_says_stale_or_corrupt_and_nothing_else():
-    for failure in ("stale", "corrupt"):
-        decoded = SAMPLE.decode(codec.encode_failure(5.0, 3, failure))
-        assert (decoded.t, decoded.seq, decoded.failure, decoded.codes) == (5.0, 3, failure, None)
-    assert str(refused(json.dumps({"t": 1.0, "seq": 1, "failed": "fine"}).encode())) == (
-        "'failed' is not one of stale, corrupt")
+def test_a_failure_message_names_the_fault_that_failed_the_link_and_nothing_else():
+    for fault in Fault:
+        if fault in REFUSALS:  # a refused message fails no link: no failure message says it
+            with pytest.raises(ValueError, match="not a link failure"):
+                codec.encode_failure(1.0, 1, fault)
+            continue
+        decoded = SAMPLE.decode(codec.encode_failure(5.0, 3, fault))
+        assert (decoded.t, decoded.seq, decoded.failure, decoded.codes) == (5.0, 3, fault, None)
+        assert json.loads(codec.encode_failure(5.0, 3, fault))["failed"] == fault.value
+    assert str(refused(json.dumps({"t": 1.0, "seq": 1, "failed": "stale"}).encode())) == (
+        "'failed' is not one of " + ", ".join(f.value for f in Fault if f not in REFUSALS))
     with pytest.raises(ValueError, match="not a link failure"):
         codec.encode_failure(1.0, 1, "ok")
 
@@ -174,7 +180,7 @@ def test_a_json_error_is_quoted_to_eighty_characters():
 
 def test_messages_are_compact_json_with_their_documented_keys():
     assert codec.encode_fields(1.5, 2, {"a": 1}) == b'{"t":1.5,"seq":2,"fields":{"a":1}}'
-    assert codec.encode_failure(1.5, 3, "stale") == b'{"t":1.5,"seq":3,"failed":"stale"}'
+    assert codec.encode_failure(1.5, 3, Fault.TIMEOUT) == b'{"t":1.5,"seq":3,"failed":"timeout"}'
     assert codec.encode_value(1.5, 2.25, True) == b'{"t":1.5,"sim_time":2.25,"value":true}'
     assert codec.encode_mode_request("robot", "twin", "me") == b'{"entity":"robot","mode":"twin","by":"me"}'
     assert codec.encode_answer(False, "no") == b'{"accepted":false,"reason":"no"}'

@@ -233,14 +233,14 @@ def test_malformed_messages_are_counted_never_fatal(welding_run):
         ("cellsim/welding_cell/twin/robot/safety_mode", b'{"sim_time": 2.0, "value": "ssmon"}'),
         # a stale robot: its joints unknown (NaN, null in JSON), its physical link failed
         ("cellsim/welding_cell/twin/robot/joint_positions", b'{"sim_time": 2.5, "value": [null, null, null, null, null, null]}'),
-        ("cellsim/welding_cell/physical/robot", b'{"t": 1.0, "seq": 3, "failed": "stale"}'),
+        ("cellsim/welding_cell/physical/robot", b'{"t": 1.0, "seq": 3, "failed": "timeout"}'),
     ]:
         feed._inbox.append((key, payload))
     feed.drain()
     # (the malformed physical sample was followed by a newer one: only the newest is decoded)
     assert model.dropped == 6 and model.values["robot.safety_mode"] == "ssmon"
     robot = next(row for row in model.entity_rows() if row["entity"] == "robot")
-    assert (robot["twin"], robot["physical"]) == ("-", "link stale")
+    assert (robot["twin"], robot["physical"]) == ("-", "link stale (timeout)")
     assert model.hazard_rows() and model.conditions(force=True)
 
 

@@ -11,6 +11,7 @@ from pydrake.systems.analysis import Simulator
 
 from cellsim.channels import BOOL
 from cellsim.codec import encode_failure, encode_fields
+from cellsim.link import Fault
 from cellsim.live.systems import LiveClock, ZenohSampleSource
 from cellsim.vocabulary import PhysicalLink
 
@@ -43,10 +44,11 @@ def test_a_failure_message_makes_the_link_stale_or_corrupt_at_once_and_a_sample_
     now = time.time()
     source.deliver(encode_fields(now, 1, {"broken": False}))
     assert _after(source, simulator, 0.05)[1:].tolist() == [OK, 0.0]
-    source.deliver(encode_failure(now, 2, "corrupt"))
+    source.deliver(encode_failure(now, 2, Fault.CRC))  # the bridge forwards the fault its checks found
     assert _after(source, simulator, 0.09)[1] == CORRUPT
-    source.deliver(encode_failure(now, 3, "stale"))
+    source.deliver(encode_failure(now, 3, Fault.TIMEOUT))
     assert _after(source, simulator, 0.13)[1] == STALE
+    assert source.rejected == 0  # a forwarded failure is the link's, not a message refused
     source.deliver(encode_fields(now, 4, {"broken": True}))
     assert _after(source, simulator, 0.17)[1:].tolist() == [OK, 1.0]
 

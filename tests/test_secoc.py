@@ -25,7 +25,7 @@ from cellsim.bridges.secoc import Authenticator, message_key
 from cellsim.config.typed_yaml import ConfigError
 from cellsim.link import Fault
 from cellsim.live import pki
-from cellsim.vocabulary import PhysicalLink
+from cellsim.vocabulary import PhysicalLink, TwinMode
 
 from conftest import ROOT
 
@@ -279,11 +279,11 @@ def test_the_daemon_and_the_emulated_devices_authenticate_each_others_frames(tmp
                          Authenticator(CURTAIN, os.urandom(16), loaded.config.freshness_tick))
         forger_bus.send(can.Message(arbitration_id=curtain_id, data=forged, is_extended_id=False))
         assert deliver_one().fault is Fault.AUTH
-        wait_for(lambda: not samples.empty() and samples.queue[-1].get("failed") == "corrupt", 5, "a link failure")
+        wait_for(lambda: not samples.empty() and samples.queue[-1].get("failed") == "auth", 5, "a link failure")
         assert bridge.devices[curtain_id].checker.counts["auth"] == 1
         # the welder: the daemon's authenticated requests in twin mode, checked by the emulated device
         assert devices.feed_commands(SimpleNamespace(module="welder"), source)
-        bridge._modes["welder"], bridge._twin_alive = "twin", True
+        bridge._modes["welder"], bridge._twin_alive = TwinMode.TWIN, True
         bridge._commands["welder"] = {"safety_mode_request": "ssmon", "activity_request": None, "command": 0.0}
         bridge._command_links["welder"].good(bridge.clock())
         for _ in range(3):  # trusted after three good frames in a row
@@ -362,7 +362,7 @@ def test_every_reading_of_the_shipped_cell_refuses_a_forgery_from_its_first_fram
                 counter += 1
             judgement = bridge.handle(message.frame_id, _forged(message, values[entity], counter))
             assert judgement.fault is Fault.AUTH, (entity, judgement)
-            assert session.published[key][-1]["failed"] == "corrupt", entity  # a failure, at once
+            assert session.published[key][-1]["failed"] == "auth", entity  # a failure by its fault, at once
             forged_samples = session.published[key][3 if not first else 0:]
             assert all("fields" not in p for p in forged_samples), (entity, forged_samples)
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated
 
+from cellsim.bridges.signals import NONE, SignalMap
 from cellsim.config.typed_yaml import ConfigError, FieldError, Range, load_file
 from cellsim.codec import FieldCodec
 
@@ -170,6 +171,9 @@ class LoadedBridge:
     """Entity -> the codec of its command fields."""
     safe: dict
     """Entity -> its kind's safe command, as command fields (what its device is told when the twin is lost)."""
+    frames: dict = field(default_factory=dict)
+    """DBC message name -> its ``SignalMap`` (``cellsim.bridges.signals``): the fields of a device's sample frame
+    or of a command frame, the one conversion the daemon and the emulated devices share."""
 
     def authenticated(self) -> list[str]:
         """The DBC messages of the configuration that are authenticated (``cellsim.bridges.secoc``)."""
@@ -191,11 +195,9 @@ class LoadedBridge:
         return lines + [f"{m.message} to {e}: {m.e2e_only}" for e, ms in cfg.commands.items() for m in ms
                         if m.e2e_only is not None]
 
-    def safe_signals(self, mapping: CommandMapping) -> dict:
-        """The frame's signal values of the entity's safe command (``none`` for no request)."""
-        entity = next(e for e, ms in self.config.commands.items() if mapping in ms)
-        return {signal: "none" if self.safe[entity][field] is None else self.safe[entity][field]
-                for signal, field in mapping.fields.items()}
+    def signals(self, mapping: DeviceMapping | CommandMapping):
+        """The ``SignalMap`` of a device's or a command's frame."""
+        return self.frames[mapping.message]
 
 
 def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
@@ -227,10 +229,15 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
         raise error("dbc", f"not a DBC file cantools can read: {' '.join(str(e).split())[:200]}") from None
     messages = {m.name: m for m in database.messages}
 
+    used: dict[str, str] = {}  # message name -> the key that maps it
+
     def protected_message(key: str, name: str):
-        """The DBC message ``name``, which must exist and carry the end-to-end protection."""
+        """The DBC message ``name``, which must exist, be mapped once and carry the end-to-end protection."""
         if name not in messages:
             raise error(f"{key}.message", f"no message '{name}' in {cfg.dbc} ({', '.join(messages)})")
+        if name in used:
+            raise error(f"{key}.message", f"'{name}' is already the frame of {used[name]}: a message is one frame")
+        used[name] = key
         message = messages[name]
         names = {s.name for s in message.signals}
         if not {"Crc", "Counter"} <= names:
@@ -301,7 +308,7 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
                 if field_name not in codec.names:
                     raise error(f"{key}.fields.{signal_name}", f"'{field_name}' is not a command field of {name} "
                                 f"({', '.join(codec.names)})")
-                value = "none" if safe[name][field_name] is None else safe[name][field_name]
+                value = NONE if safe[name][field_name] is None else safe[name][field_name]
                 if not accepts(signal, value):
                     raise error(f"{key}.fields.{signal_name}", f"{name}'s safe command {field_name} = {value} is not "
                                 f"a value of signal {signal_name} ({choices_text(signal)})")
@@ -314,7 +321,15 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
                         f"{', '.join(samples[name].names)})")
         codec = commands[name] = FieldCodec.commands_of(entity)
         safe[name] = codec.fields([entity.safe_command()[f] for f in codec.names])
-    return LoadedBridge(cfg, database, path, sf.scenario.name, samples, commands, safe)
+    frames = {}
+    for name, device in cfg.devices.items():
+        frames[device.message] = SignalMap.of_device(messages[device.message], device.fields,
+                                                     dict(zip(samples[name].names, samples[name].types)))
+    for name, mappings in cfg.commands.items():
+        for mapping in mappings:
+            frames[mapping.message] = SignalMap.of_command(messages[mapping.message], mapping.fields, safe[name],
+                                                           dict(zip(commands[name].names, commands[name].types)))
+    return LoadedBridge(cfg, database, path, sf.scenario.name, samples, commands, safe, frames)
 
 
 def _entities(sf) -> dict:

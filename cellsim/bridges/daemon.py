@@ -4,8 +4,8 @@
 of ``cellsim.bridges.e2e``; a good frame becomes the entity's physical sample on
 ``cellsim/<cell>/physical/<entity>`` in the live format (``docs/live.md``,
 ``cellsim.codec``). Any failure (length, CRC, counter, range, watchdog)
-publishes a link failure at once instead (``{"failed": "corrupt"}`` or
-``"stale"``): the twin's entity fails safe as its kind says, and trusts the device
+publishes a link failure at once instead, naming the fault (``{"failed": "crc"}``,
+``cellsim.link.Fault``): the twin's entity fails safe as its kind says, and trusts the device
 again after ``recover_after`` good samples (the one debounce, applied by the twin).
 A repeated counter is refused and counted. Frames of unknown identifiers are
 counted and dropped; nothing a frame holds stops the daemon. A robot controller's
@@ -41,14 +41,15 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 
-from cellsim.bridges.config import LoadedBridge, accepts
+from cellsim.bridges.config import LoadedBridge
 from cellsim.bridges.diagnostics import DeviceDiagnostics
 from cellsim.bridges.e2e import DeviceChecker, protect
 from cellsim.bridges.robot import RobotLink
 from cellsim.bridges.secoc import Authenticator, is_authenticated, message_key
-from cellsim.link import REFUSALS, STALE_FAULTS, Fault, Judgement, LinkTrust
+from cellsim.link import REFUSALS, Fault, Judgement, LinkTrust
 from cellsim import codec
 from cellsim.live import keys
+from cellsim.vocabulary import TwinMode
 from cellsim.codec import CodecError
 
 LATENCY_WINDOW = 100_000
@@ -63,10 +64,8 @@ class Device:
     checker: DeviceChecker
     publisher: object
     diagnostics: DeviceDiagnostics = None
-    codec: object = None
-    """The entity's sample codec (``cellsim.codec.FieldCodec``)."""
-    signals: list = field(default_factory=list)
-    """(sample field, its DBC signal, its ChannelType), in the codec's order."""
+    signals: object = None
+    """Its frame's ``cellsim.bridges.signals.SignalMap``: the frame's signals as the entity's sample fields."""
     seq: int = 0
     published: int = 0
     failures_published: int = 0
@@ -108,11 +107,7 @@ class Bridge:
             checker = DeviceChecker(message=message, timeout=mapping.watchdog, recover_after=cfg.recover_after,
                                     authenticator=self._authenticator(message))
             publisher = self.session.declare_publisher(keys.physical(cell, entity))
-            device = Device(entity, mapping, message, checker, publisher)
-            device.codec = loaded.samples[entity]
-            device.signals = [(name, message.get_signal_by_name(signal), ctype)
-                              for name, ctype in zip(device.codec.names, device.codec.types)
-                              for signal in [mapping.fields[name]]]
+            device = Device(entity, mapping, message, checker, publisher, signals=loaded.signals(mapping))
             device.diagnostics = DeviceDiagnostics(entity, mapping.message, checker, 1.0 / mapping.cycle_time,
                                                    self.session.declare_publisher(keys.diagnostics(cell, entity)))
             self.devices[message.frame_id] = device
@@ -122,9 +117,8 @@ class Bridge:
             link.diagnostics = DeviceDiagnostics(entity, "robot controller", link.checker, 1.0 / link_cfg.cycle_time,
                                                  self.session.declare_publisher(keys.diagnostics(cell, entity)))
             self.robots[entity] = link
-        self._frames = {  # each command frame's message, signals, safe values and signer, looked up once
-            mapping.message: (message, {n: message.get_signal_by_name(n) for n in mapping.fields},
-                              loaded.safe_signals(mapping), self._authenticator(message))
+        self._frames = {  # each command frame's message, signal map and signer, looked up once
+            mapping.message: (message, loaded.signals(mapping), self._authenticator(message))
             for mappings in cfg.commands.values() for mapping in mappings
             for message in [database.get_message_by_name(mapping.message)]
         }
@@ -140,7 +134,7 @@ class Bridge:
                 watchdogs.append(cfg.robots[entity].command_watchdog)
             self._command_links[entity] = LinkTrust(timeout=min(watchdogs), recover_after=1, max_gap=1_000_000,
                                                     faults=tuple(Fault))
-        self._modes: dict[str, str] = {}  # entity -> its twin mode, as the twin publishes it
+        self._modes: dict[str, TwinMode] = {}  # entity -> its twin mode, as the twin publishes it
         self._twin_alive = False
         self._counters: dict[str, int] = {}
         self._due: dict[tuple, float] = {}  # (entity, frame) -> when it is next sent
@@ -178,7 +172,7 @@ class Bridge:
         device.diagnostics.frame()
         judgement = device.checker.check(bytes(data), now)
         if judgement.good:
-            self._publish(device, codec.encode_fields(time.time(), self._next(device), self._fields(device, judgement.values)))
+            self._publish(device, codec.encode_fields(time.time(), self._next(device), device.signals.fields(judgement.values)))
         elif judgement.fault not in REFUSALS:
             self._publish_failure(device, judgement.fault)
         return judgement
@@ -209,7 +203,7 @@ class Bridge:
     def _send_commands(self, now: float, due_only: bool = False, only: str | None = None) -> None:
         cfg = self.loaded.config
         for entity in [*cfg.commands, *cfg.robots]:
-            if (only is not None and entity != only) or self._modes.get(entity) != "twin":
+            if (only is not None and entity != only) or self._modes.get(entity) is not TwinMode.TWIN:
                 continue  # not in twin mode (or never heard of): the device answers to its own controls
             link = self._command_links[entity]
             link.watchdog(now)
@@ -226,8 +220,8 @@ class Bridge:
                 if mapping is None:
                     self.robots[entity].send(None if lost else fields, now)
                 else:
-                    self._send(mapping, self._frames[mapping.message][2] if lost else self._signals(mapping, fields),
-                               safe=lost)
+                    signals = self._frames[mapping.message][1]
+                    self._send(mapping, signals.safe_signals() if lost else signals.signals(fields), safe=lost)
 
     def take_inbox(self) -> None:
         """Take in everything the network threads handed over (see :meth:`take`)."""
@@ -257,8 +251,10 @@ class Bridge:
             except CodecError:
                 self.refused_messages += 1
                 return
-            if isinstance(value, str):
-                self._modes[entity] = value
+            try:
+                self._modes[entity] = TwinMode(value)
+            except ValueError:  # not a twin mode: refused, the mode as it was
+                self.refused_messages += 1
             return
         self._take_command(entity, payload, arrived)
 
@@ -273,18 +269,19 @@ class Bridge:
             self.refused_messages += 1
             link.fail(Fault.CORRUPT, now)
             return
-        fault = link.stamp(message.t, time.time()) or link.sequence(message.seq, now, zlib.crc32(payload))
-        if fault is not None:
+        if link.receive(now, message.seq, zlib.crc32(payload), stamp=message.t, wall=time.time()).fault is not None:
             self.refused_messages += 1
-            link.fail(fault, now)
             return
-        link.good(now)
         fields = self.loaded.commands[entity].fields(message.codes)
         previous = self._commands.get(entity)
         self._commands[entity] = fields
-        if fields != previous and self._modes.get(entity) == "twin" and self._twin_alive:
+        if fields != previous and self._modes.get(entity) is TwinMode.TWIN and self._twin_alive:
             self._send_commands(now, only=entity)  # a changed command goes out at once
             self.command_latencies.append(time.perf_counter() - arrived)
+
+    def twin_mode(self, entity: str) -> TwinMode | None:
+        """The entity's twin mode as the twin last published it (None: not heard yet)."""
+        return self._modes.get(entity)
 
     # -- status ----------------------------------------------------------------------
     def publish_diagnostics(self, now: float | None = None) -> None:
@@ -319,24 +316,10 @@ class Bridge:
                 pass
 
     # -- helpers ---------------------------------------------------------------------
-    def _signals(self, mapping, fields: dict) -> dict:
-        """The frame's signal values for the twin's command ``fields`` (safe values for what is missing)."""
-        _, signals, safe, _ = self._frames[mapping.message]
-        values = {}
-        for signal_name, field_name in mapping.fields.items():
-            value = fields.get(field_name, safe[signal_name])
-            signal = signals[signal_name]
-            if value is None and signal.choices is not None:
-                value = "none"
-            if not accepts(signal, value):
-                value = safe[signal_name]  # not a value of the signal: the safe one
-            values[signal_name] = value if signal.choices is not None else float(value)
-        return values
-
     def _send(self, mapping, values: dict, safe: bool) -> None:
         import can
 
-        message, _, _, authenticator = self._frames[mapping.message]
+        message, _, authenticator = self._frames[mapping.message]
         counter = self._counters.get(mapping.message, 0)
         self._counters[mapping.message] = counter + 1
         data = protect(message, values, counter, authenticator)
@@ -345,24 +328,9 @@ class Bridge:
         self.frames_sent += 1
         self.safe_frames_sent += 1 if safe else 0
 
-    @staticmethod
-    def _fields(device: Device, values: dict) -> dict:
-        """A frame's signals as the entity's sample fields, typed as the entity takes them."""
-        fields = {}
-        for name, signal, ctype in device.signals:
-            value = values[signal.name]
-            if signal.choices is not None:
-                fields[name] = str(signal.choices[int(value)])
-            elif ctype.kind == "bool":
-                fields[name] = bool(value)
-            else:
-                fields[name] = float(value)
-        return fields
-
     def _publish_failure(self, device: Device, fault: Fault) -> None:
         device.failures_published += 1
-        failure = "stale" if fault in STALE_FAULTS else "corrupt"
-        self._publish(device, codec.encode_failure(time.time(), self._next(device), failure))
+        self._publish(device, codec.encode_failure(time.time(), self._next(device), fault))
 
     @staticmethod
     def _next(device: Device) -> int:

@@ -24,7 +24,6 @@ dropped when it ends). A robot controller has the Zenoh faults of
 from __future__ import annotations
 
 import json
-import math
 import threading
 import time
 from collections import deque
@@ -32,6 +31,7 @@ from collections import deque
 from cellsim.bridges.config import LoadedBridge
 from cellsim.bridges.e2e import DeviceChecker, protect
 from cellsim.bridges.secoc import Authenticator, is_authenticated, message_key
+from cellsim.bridges.signals import SignalMap, Unsendable
 from cellsim import codec
 from cellsim.live.faults import BUS_FAULTS
 from cellsim.live import keys
@@ -48,8 +48,8 @@ class CanOutlet:
 
     faults = BUS_FAULTS
 
-    def __init__(self, bus, message, fields: dict[str, str], authenticator: Authenticator | None = None):
-        self.bus, self.message, self.fields = bus, message, fields
+    def __init__(self, bus, message, signals: SignalMap, authenticator: Authenticator | None = None):
+        self.bus, self.message, self.signals = bus, message, signals
         self.authenticator = authenticator
         self.counter = 0
         self.last: bytes | None = None
@@ -61,7 +61,10 @@ class CanOutlet:
 
         if fault != "delay" and self.held:
             self.held.clear()  # the delay ended: what it held back is lost
-        data = self._frame(fields)
+        try:
+            data = self._frame(fields)
+        except Unsendable:
+            return 0  # a sample no frame can carry is not sent: the receiver's watchdog fails the device safe
         if fault == "replay" and self.last is not None:
             data = self.last
         elif fault == "crc":
@@ -87,19 +90,7 @@ class CanOutlet:
         return len(frames)
 
     def _frame(self, fields: dict) -> bytes:
-        values = {}
-        for field_name, signal_name in self.fields.items():
-            signal = self.message.get_signal_by_name(signal_name)
-            value = fields[field_name]
-            if signal.choices is not None:
-                values[signal_name] = str(value)
-            elif isinstance(value, bool):
-                values[signal_name] = int(value)
-            else:  # a number: within the signal's range (a scanner's "nobody in range" distance is its maximum)
-                lo = signal.minimum if signal.minimum is not None else -math.inf
-                hi = signal.maximum if signal.maximum is not None else math.inf
-                values[signal_name] = min(max(float(value), lo), hi) if math.isfinite(float(value)) else hi
-        data = protect(self.message, values, self.counter, self.authenticator)
+        data = protect(self.message, self.signals.signals(fields), self.counter, self.authenticator)
         self.counter += 1
         return data
 
@@ -156,7 +147,7 @@ class EmulatedDevices:
         if name in cfg.devices:
             device = cfg.devices[name]
             message = self.loaded.database.get_message_by_name(device.message)
-            return CanOutlet(self.bus, message, device.fields, self._authenticator(message))
+            return CanOutlet(self.bus, message, self.loaded.signals(device), self._authenticator(message))
         if name in cfg.robots:
             return ZenohOutlet(self.session.declare_publisher(keys.controller_state(self.loaded.cell, name)), RobotStateEncoder())
         return None
@@ -171,10 +162,9 @@ class EmulatedDevices:
         if name not in cfg.commands:
             return False
         mappings = cfg.commands[name]
-        types = dict(zip(source.inputs, source.codec.types))
-        self._entities[name] = {"source": source, "types": types, "seq": 0,
-                                "values": {m.message: self._command_fields(m, self.loaded.safe_signals(m), types)
-                                           for m in mappings}}
+        safe = self.loaded.safe[name]
+        self._entities[name] = {"source": source, "names": source.inputs, "seq": 0,
+                                "values": {m.message: {f: safe[f] for f in m.fields.values()} for m in mappings}}
         for mapping in mappings:
             message = self.loaded.database.get_message_by_name(mapping.message)
             checker = DeviceChecker(message=message, timeout=mapping.watchdog, recover_after=cfg.recover_after,
@@ -199,38 +189,19 @@ class EmulatedDevices:
             return
         name, mapping, checker = feed
         verdict = checker.check(bytes(frame.data), time.monotonic())
-        signals = dict(verdict.values) if verdict.trusted else self.loaded.safe_signals(mapping)
-        if verdict.trusted:  # numbers as decoded; enumerations by name
-            message = checker.message
-            for signal_name in list(signals):
-                choices = message.get_signal_by_name(signal_name).choices
-                if choices is not None:
-                    signals[signal_name] = str(choices[int(signals[signal_name])])
+        if verdict.trusted:
+            carried = self.loaded.signals(mapping).fields(verdict.values)
+        else:
+            carried = {f: self.loaded.safe[name][f] for f in mapping.fields.values()}
         with self._lock:
             state = self._entities[name]
             self.command_frames += 1
-            state["values"][mapping.message] = self._command_fields(mapping, signals, state["types"])
+            state["values"][mapping.message] = carried
             state["seq"] += 1
             fields = {k: v for values in state["values"].values() for k, v in values.items()}
-            fields = {n: fields.get(n) for n in state["types"]}
+            fields = {n: fields.get(n) for n in state["names"]}
             payload = codec.encode_fields(time.time(), state["seq"], fields)
         state["source"].deliver(payload)
-
-    @staticmethod
-    def _command_fields(mapping, signals: dict, types: dict | None = None) -> dict:
-        """The entity's command fields a frame's signals carry (``none``: no request)."""
-        fields = {}
-        for signal_name, field_name in mapping.fields.items():
-            value = signals[signal_name]
-            ctype = (types or {}).get(field_name)
-            if value == "none":
-                value = None
-            elif ctype is not None and ctype.kind == "bool":
-                value = bool(value)
-            elif ctype is not None and ctype.kind != "enum":
-                value = float(value)
-            fields[field_name] = value
-        return fields
 
     def close(self) -> None:
         if self._notifier is not None:

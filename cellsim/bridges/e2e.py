@@ -97,20 +97,18 @@ class DeviceChecker(LinkTrust):
             fault = self.authenticator.verify(data, int(values["Freshness"]), int(values["Mac"]), self)
             if fault is not None:
                 return self.fail(fault, now)
-        fault = self.sequence(data[1] & 0x0F, now, zlib.crc32(data))
-        if fault is not None:
-            return self.fail(fault, now)
-        if not self._in_range(values):
-            return self.fail(Fault.RANGE, now)
-        return self.good(now, {k: v for k, v in values.items() if k not in PROTECTION})
+        carried = {k: v for k, v in values.items() if k not in PROTECTION}
+        return self.receive(now, data[1] & 0x0F, zlib.crc32(data), values=carried,
+                            in_range=lambda _: self._in_range(values))
 
-    def _in_range(self, values: dict) -> bool:
+    def _in_range(self, values: dict) -> Fault | None:
+        """RANGE for a signal beyond its DBC range or an enumeration's code it does not name."""
         for signal in self.message.signals:
             value = values[signal.name]
             if signal.choices is not None and signal.name not in PROTECTION:
                 if int(value) not in signal.choices:
-                    return False
+                    return Fault.RANGE
             lo, hi = signal.minimum, signal.maximum
             if (lo is not None and value < lo - 1e-9) or (hi is not None and value > hi + 1e-9):
-                return False
-        return True
+                return Fault.RANGE
+        return None

@@ -38,7 +38,7 @@ import threading
 import zlib
 from dataclasses import dataclass, field
 
-from cellsim.link import STALE_FAULTS, Fault, Judgement, LinkTrust
+from cellsim.link import Fault, Judgement, LinkTrust
 from cellsim import codec
 from cellsim.live import keys
 from cellsim.vocabulary import SafetyMode
@@ -74,15 +74,18 @@ class RobotStateChecker(LinkTrust):
             velocity = [codec.number(v, "velocity", 1e6) for v in velocity]
         except codec.CodecError:
             return self.fail(Fault.CORRUPT, now)
-        fault = self.stamp(t, time.time() if wall is None else wall) or self.sequence(seq, now, zlib.crc32(payload))
-        if fault is not None:
-            return self.fail(fault, now)
+        return self.receive(now, seq, zlib.crc32(payload), stamp=t, wall=time.time() if wall is None else wall,
+                            values={**state, "position": position, "velocity": velocity}, in_range=self._in_range)
+
+    def _in_range(self, state: dict) -> Fault | None:
+        """RANGE for a state with other than six joints, a joint beyond its limit or speed, an unknown mode."""
+        position, velocity = state["position"], state["velocity"]
         if (len(position) != self.joints or len(velocity) != self.joints
                 or not all(abs(q) <= self.joint_limit for q in position)
                 or not all(abs(v) <= self.max_joint_speed for v in velocity)
                 or state["safety_mode"] not in _MODES):
-            return self.fail(Fault.RANGE, now)
-        return self.good(now, {**state, "position": position, "velocity": velocity})
+            return Fault.RANGE
+        return None
 
 
 @dataclass
@@ -170,8 +173,7 @@ class RobotLink:
 
         # a timeout or a late state: the controller's data is stale; anything else: corrupt
         self.failures_published += 1
-        failure = "stale" if fault in STALE_FAULTS else "corrupt"
-        self._publish(codec.encode_failure(time.time(), self._next(), failure))
+        self._publish(codec.encode_failure(time.time(), self._next(), fault))
 
     def _next(self) -> int:
         self._seq += 1

@@ -29,7 +29,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cellsim.codec import FAILURES
 from cellsim.hazards import HazardPhases
+from cellsim.link import Fault, failed_link
 from cellsim.channels import value_text
 from cellsim.numbers import instant, measure
 
@@ -362,8 +364,10 @@ def _joints(values) -> list[float] | None:
 
 
 def _failure(message) -> str:
-    if isinstance(message, dict) and message.get("failed"):
-        return f"link {message['failed']}"
+    """What a failure message says of a physical link: ``link stale (timeout)``, ``link corrupt (crc)``."""
+    if isinstance(message, dict) and message.get("failed") in FAILURES:
+        fault = Fault(message["failed"])
+        return f"link {failed_link(fault).value} ({fault.value})"
     return "-"
 
 

@@ -162,12 +162,14 @@ class _LinkSource(LeafSystem):
                 self.refused(str(e), e.kind)
                 trust.fail(Fault.CORRUPT, arrival)
             else:
-                fault = trust.stamp(message.t, wall) or trust.sequence(message.seq, arrival, zlib.crc32(payload))
-                if fault is not None:
-                    self.refused(fault.value)
-                    trust.fail(fault, arrival)
-                else:
-                    self.take(message, arrival, trust, state)
+                judgement = trust.receive(arrival, message.seq, zlib.crc32(payload), stamp=message.t, wall=wall,
+                                          values=message, in_range=self.carried_fault)
+                if judgement.good:
+                    self.take(message, arrival, judgement, state)
+                elif message.failure is None:
+                    self.refused(judgement.fault.value)  # the message itself: its stamp or its order
+                elif self.failure_refused:
+                    self.refused("a failure in place of a command")
             if trust.link in _FAILURES:
                 failed = trust.link
         trust.watchdog(context.get_time())
@@ -178,7 +180,15 @@ class _LinkSource(LeafSystem):
         """A copy of the state the drain writes."""
         raise NotImplementedError
 
-    def take(self, message, arrival: float, trust: LinkTrust, state: np.ndarray) -> None:  # pragma: no cover
+    failure_refused = False
+    """Whether a failure message is refused (a command is never one) rather than taken as the link's failure."""
+
+    def carried_fault(self, message) -> Fault | None:  # pragma: no cover - abstract
+        """The fault a message in order carries (a failure message's), or None: the link fails by it."""
+        raise NotImplementedError
+
+    def take(self, message, arrival: float, judgement, state: np.ndarray) -> None:  # pragma: no cover - abstract
+        """Write a good message (trusted, or recovering) into the state the drain writes."""
         raise NotImplementedError
 
     def settle(self, trust: LinkTrust, state: np.ndarray, xd, failed) -> None:  # pragma: no cover
@@ -206,11 +216,10 @@ class ZenohSampleSource(_LinkSource):
     def begin(self, context) -> np.ndarray:
         return context.get_discrete_state(self._sample).get_value().copy()
 
-    def take(self, message, arrival: float, trust: LinkTrust, sample: np.ndarray) -> None:
-        if message.failure is not None:  # the bridge's checks refused its device's data
-            trust.fail(Fault.TIMEOUT if message.failure == "stale" else Fault.CORRUPT, arrival)
-            return
-        trust.good(arrival, message.codes)
+    def carried_fault(self, message) -> Fault | None:
+        return message.failure  # the bridge's checks refused its device's data: the link fails by that fault
+
+    def take(self, message, arrival: float, judgement, sample: np.ndarray) -> None:
         sample[0], sample[2:] = arrival, message.codes
 
     def settle(self, trust: LinkTrust, sample: np.ndarray, xd, failed) -> None:
@@ -248,11 +257,13 @@ class ZenohCommandSource(_LinkSource):
     def begin(self, context) -> np.ndarray:
         return context.get_discrete_state(self._values).get_value().copy()
 
-    def take(self, message, arrival: float, trust: LinkTrust, values: np.ndarray) -> None:
-        if message.failure is not None:  # a command is never a failure
-            self.refused("a failure in place of a command")
-            trust.fail(Fault.CORRUPT, arrival)
-        elif trust.good(arrival).trusted:
+    failure_refused = True
+
+    def carried_fault(self, message) -> Fault | None:
+        return None if message.failure is None else Fault.CORRUPT  # a command is never a failure
+
+    def take(self, message, arrival: float, judgement, values: np.ndarray) -> None:
+        if judgement.trusted:
             values[:] = message.codes
 
     def settle(self, trust: LinkTrust, values: np.ndarray, xd, failed) -> None:
