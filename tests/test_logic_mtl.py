@@ -28,7 +28,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cellsim.logic.intervals import IntervalSet
-from cellsim.logic.mtl import TraceEvaluator, Verdict, evaluate, satisfaction
+from cellsim.logic.mtl import Evaluation, TraceEvaluator, evaluate, satisfaction
 from cellsim.logic.syntax import (
     Always,
     And,
@@ -270,10 +270,10 @@ DETECTED = "G((HS_e and HS == inact) -> (HS_e U[0, 0.5s] HS == act))"
 @pytest.mark.parametrize(
     "t_act, verdict",
     [
-        (1.25, Verdict(True, None)),
-        (1.5, Verdict(True, None)),  # exactly at the deadline: in time
-        (1.5 + 1e-9, Verdict(False, 1.0)),  # just after: violated when HS_e began
-        (2.0, Verdict(False, 1.0)),
+        (1.25, Evaluation(True, None)),
+        (1.5, Evaluation(True, None)),  # exactly at the deadline: in time
+        (1.5 + 1e-9, Evaluation(False, 1.0)),  # just after: violated when HS_e began
+        (2.0, Evaluation(False, 1.0)),
     ],
 )
 def test_until_deadline_at_half_a_second(t_act, verdict):
@@ -294,7 +294,7 @@ def test_until_witness_when_the_situation_ends_at_detection():
         0.0,
         10.0,
     )
-    assert evaluate(cell(DETECTED), trace) == Verdict(True, None)
+    assert evaluate(cell(DETECTED), trace) == Evaluation(True, None)
     assert evaluate(cell("not HS == act U HS == act"), trace).holds
 
 
@@ -319,13 +319,13 @@ def test_unbounded_eventualities_are_strong_at_the_end():
         10.0,
     )
     # the hazard activated at 9 s is never mitigated before the run ends
-    assert evaluate(cell("G(HC == act -> F HC == mit)"), trace) == Verdict(False, 9.0)
-    assert evaluate(cell("G(HC == act -> F[0, 2] HC == mit)"), trace) == Verdict(True, None)
-    assert evaluate(cell("F(not otab)"), trace) == Verdict(False, 0.0)
-    assert evaluate(cell("F(oloc == none)"), trace) == Verdict(True, None)
-    assert evaluate(cell("G(not HC == mis)"), trace) == Verdict(True, None)
-    assert evaluate(cell("HC == inact U HC == mis"), trace) == Verdict(False, 0.0)
-    assert evaluate(cell("HC == inact W HC == mis"), trace) == Verdict(False, 0.0)
+    assert evaluate(cell("G(HC == act -> F HC == mit)"), trace) == Evaluation(False, 9.0)
+    assert evaluate(cell("G(HC == act -> F[0, 2] HC == mit)"), trace) == Evaluation(True, None)
+    assert evaluate(cell("F(not otab)"), trace) == Evaluation(False, 0.0)
+    assert evaluate(cell("F(oloc == none)"), trace) == Evaluation(True, None)
+    assert evaluate(cell("G(not HC == mis)"), trace) == Evaluation(True, None)
+    assert evaluate(cell("HC == inact U HC == mis"), trace) == Evaluation(False, 0.0)
+    assert evaluate(cell("HC == inact W HC == mis"), trace) == Evaluation(False, 0.0)
 
 
 def test_bounded_operators_are_not_violated_by_the_end_of_the_trace():
@@ -353,8 +353,8 @@ def test_signal_starting_late_is_undefined_before():
     assert satisfaction(cell("HS == inact"), trace) == IntervalSet(0, 10, [(2, 4)])
     assert satisfaction(cell("HS != inact"), trace) == IntervalSet(0, 10, [(4, 10)])
     assert satisfaction(cell("not HS == inact"), trace) == IntervalSet(0, 10, [(0, 2), (4, 10)])
-    assert evaluate(cell("G(HS == inact or HS != inact)"), trace) == Verdict(False, 0.0)
-    assert evaluate(cell("G(not HS == mis)"), trace) == Verdict(False, 4.0)
+    assert evaluate(cell("G(HS == inact or HS != inact)"), trace) == Evaluation(False, 0.0)
+    assert evaluate(cell("G(not HS == mis)"), trace) == Evaluation(False, 4.0)
     assert trace.value_at("HS", 1.0) is None
     assert trace.value_at("HS", 2.0) == "inact"
 
@@ -382,12 +382,12 @@ def test_missing_signal():
 def test_violated_at_for_windowed_always():
     voc = {"p": BoolDomain()}
     trace = Trace({"p": sig((0, True), (0.5, False), (0.7, True), (3, False))}, 0, 10)
-    assert evaluate(parse("G p", voc), trace) == Verdict(False, 0.5)
-    assert evaluate(parse("G[1, 2] p", voc), trace) == Verdict(True, None)
-    assert evaluate(parse("G[1, 3] p", voc), trace) == Verdict(False, 3.0)
-    assert evaluate(parse("G[0.6, 5] p", voc), trace) == Verdict(False, 0.6)
-    assert evaluate(parse("not G p", voc), trace) == Verdict(True, None)
-    assert evaluate(parse("F(not p)", voc), trace) == Verdict(True, None)
+    assert evaluate(parse("G p", voc), trace) == Evaluation(False, 0.5)
+    assert evaluate(parse("G[1, 2] p", voc), trace) == Evaluation(True, None)
+    assert evaluate(parse("G[1, 3] p", voc), trace) == Evaluation(False, 3.0)
+    assert evaluate(parse("G[0.6, 5] p", voc), trace) == Evaluation(False, 0.6)
+    assert evaluate(parse("not G p", voc), trace) == Evaluation(True, None)
+    assert evaluate(parse("F(not p)", voc), trace) == Evaluation(True, None)
 
 
 # --------------------------------------------------------------------------- data classes
@@ -468,7 +468,7 @@ def test_deadline_exactly_half_a_second_after_the_hazard(t_hazard, t_act, holds)
         30.0,
     )
     verdict = evaluate(cell(DETECTED), trace)
-    assert verdict == (Verdict(True, None) if holds else Verdict(False, t_hazard))
+    assert verdict == (Evaluation(True, None) if holds else Evaluation(False, t_hazard))
 
 
 @pytest.mark.parametrize("stint, exercised", [(1.0, False), (1.000000001, True), (0.7, False), (1.3, True)])

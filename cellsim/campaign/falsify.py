@@ -60,7 +60,7 @@ from cellsim.atomic import LOCK
 from cellsim.campaign import engine, runner
 from cellsim.campaign.engine import PLAN, CampaignError, CampaignPlan
 from cellsim.campaign.space import SearchSpace
-from cellsim.logic.syntax import Always, Compare, Eventually, Formula, Until
+from cellsim.logic.syntax import Formula, numeric_comparisons, walk
 from cellsim.provenance import INPUTS, provenance
 
 METHODS = ("cmaes", "qd", "random")
@@ -115,24 +115,9 @@ class FalsifyOutcome:
 def scales(formula: Formula) -> tuple[float, float]:
     """The units a condition's space and time margins are divided by: its largest moved threshold
     (1 when all are 0) and its longest bounded window (s; 1 when it has none)."""
-    thresholds, windows = [], []
-
-    def walk(node) -> None:
-        if isinstance(node, Compare) and isinstance(node.value, (int, float)) and not isinstance(node.value, bool):
-            thresholds.append(abs(float(node.value)))
-        if isinstance(node, (Eventually, Always, Until)) and math.isfinite(node.hi):
-            windows.append(node.hi)
-        for child in _children(node):
-            walk(child)
-
-    walk(formula)
+    thresholds = [abs(float(node.threshold)) for node in numeric_comparisons(formula)]
+    windows = [node.hi for node in walk(formula) if node.temporal and math.isfinite(node.hi)]
     return (max(thresholds, default=0.0) or 1.0), (max(windows, default=0.0) or 1.0)
-
-
-def _children(node) -> tuple:
-    from cellsim.logic.robustness import _children as children
-
-    return children(node)
 
 
 def _number(x) -> float:

@@ -4,13 +4,13 @@
 * :mod:`.predicates` - :func:`compile_predicate` for propositional guards;
 * :mod:`.trace` - :class:`Signal`, :class:`Trace` (piecewise-constant recorded runs);
 * :mod:`.intervals` - :class:`IntervalSet` (unions of half-open intervals);
-* :mod:`.mtl` - :func:`satisfaction`, :func:`evaluate`, :class:`Verdict`.
+* :mod:`.mtl` - :func:`satisfaction`, :func:`evaluate`, :class:`Evaluation`.
 
 The language reference is ``docs/condition-language.md``.
 """
 
 from .intervals import IntervalSet
-from .mtl import TraceEvaluator, Verdict, evaluate, satisfaction
+from .mtl import Evaluation, TraceEvaluator, evaluate, satisfaction
 from .predicates import compile_predicate
 from .syntax import (
     Always,
@@ -46,6 +46,7 @@ __all__ = [
     "Compare",
     "Const",
     "EnumDomain",
+    "Evaluation",
     "Eventually",
     "Formula",
     "FormulaError",
@@ -59,7 +60,6 @@ __all__ = [
     "Trace",
     "TraceEvaluator",
     "Until",
-    "Verdict",
     "Vocabulary",
     "check",
     "compile_predicate",

@@ -46,18 +46,23 @@ from .syntax import (
     Not,
     Or,
     Until,
+    Visitor,
 )
 from .trace import Trace, to_seconds, to_ticks
 
-__all__ = ["Verdict", "IntervalSet", "TraceEvaluator", "satisfaction", "evaluate"]
+__all__ = ["Evaluation", "IntervalSet", "TraceEvaluator", "satisfaction", "evaluate"]
 
 _ORDER = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge}
 _ALL = {"==": operator.eq, "!=": operator.ne, **_ORDER}
 
 
 @dataclass
-class Verdict:
-    """The verdict of a condition on a trace.
+class Evaluation:
+    """What evaluating a formula on a trace gives: whether it holds, and where it first failed.
+
+    Two-valued, and about a formula; the verdict of a safety condition on a run
+    (which may also be inconclusive, or lack data) is
+    :class:`cellsim.validation.verdict.Verdict`, made from this.
 
     ``holds`` is the truth value at the start of the trace.  ``violated_at`` is
     ``None`` when the condition holds.  Otherwise, for a condition of the form
@@ -94,8 +99,11 @@ start is conclusive when the two agree. Negation swaps them.
 """
 
 
-class TraceEvaluator:
+class TraceEvaluator(Visitor):
     """Evaluates formulas on one trace, sharing the satisfaction sets of sub-formulas.
+
+    As a :class:`~cellsim.logic.syntax.Visitor`, ``visit(node, mode)`` computes the
+    satisfaction set of one operator from its operands' (``_sat``, memoised).
 
     Sub-formulas are memoised by value (ASTs are hashable), so a macro used twice in
     a condition, or an atom shared by several conditions evaluated with the same
@@ -117,8 +125,8 @@ class TraceEvaluator:
         flat = [to_seconds(x) for x in self._sat(formula, DEFAULT)]
         return IntervalSet.from_flat(self.trace.start, self.trace.end, flat)
 
-    def evaluate(self, formula: Formula) -> Verdict:
-        """The :class:`Verdict` of ``formula`` at the start of the trace."""
+    def evaluate(self, formula: Formula) -> Evaluation:
+        """The :class:`Evaluation` of ``formula`` at the start of the trace."""
         s = self.start
         if isinstance(formula, Always):
             # First violation of G[a,b] p: the earliest instant of the window
@@ -128,11 +136,11 @@ class TraceEvaluator:
             for k in range(0, len(bad), 2):
                 if bad[k + 1] - lo > s:
                     if bad[k] - hi <= s:
-                        return Verdict(False, to_seconds(max(bad[k], s + lo)))
+                        return Evaluation(False, to_seconds(max(bad[k], s + lo)))
                     break
-            return Verdict(True, None)
+            return Evaluation(True, None)
         holds = self._holds_at_start(formula, DEFAULT)
-        return Verdict(holds, None if holds else self.trace.start)
+        return Evaluation(holds, None if holds else self.trace.start)
 
     def conclusive(self, formula: Formula) -> bool:
         """Whether every continuation of the trace past its end gives the same verdict.
@@ -154,24 +162,21 @@ class TraceEvaluator:
         key = (node, mode)
         result = self._memo.get(key)
         if result is None:
-            method = self._DISPATCH.get(type(node))
-            if method is None:
-                raise TypeError(f"not a formula: {node!r}")
-            if type(node) in _ATOMS and mode != DEFAULT:
-                result = self._sat(node, DEFAULT)  # what was recorded does not depend on the future
+            if mode != DEFAULT and not node.children():
+                result = self._sat(node, DEFAULT)  # an atom: what was recorded does not depend on the future
             else:
-                result = method(self, node, mode)
+                result = self.visit(node, mode)
             self._memo[key] = result
         return result
 
-    def _const(self, node: Const, mode: int) -> Flat:
+    def visit_Const(self, node: Const, mode: int) -> Flat:
         return [self.start, self.end] if node.value else []
 
-    def _boolvar(self, node: BoolVar, mode: int) -> Flat:
+    def visit_BoolVar(self, node: BoolVar, mode: int) -> Flat:
         los, his, vals = self.trace.tick_segments(node.name)
         return _collect(los, his, [v is not None and bool(v) for v in vals])
 
-    def _compare(self, node: Compare, mode: int) -> Flat:
+    def visit_Compare(self, node: Compare, mode: int) -> Flat:
         if node.other is not None:
             return self._compare_vars(node)
         los, his, vals = self.trace.tick_segments(node.var)
@@ -209,15 +214,15 @@ class TraceEvaluator:
                 j += 1
         return out
 
-    def _inset(self, node: InSet, mode: int) -> Flat:
+    def visit_InSet(self, node: InSet, mode: int) -> Flat:
         los, his, vals = self.trace.tick_segments(node.var)
         values = node.values
         return _collect(los, his, [v in values for v in vals])
 
-    def _not(self, node: Not, mode: int) -> Flat:
+    def visit_Not(self, node: Not, mode: int) -> Flat:
         return complement_flat(self._sat(node.arg, -mode), self.start, self.end)
 
-    def _and(self, node: And, mode: int) -> Flat:
+    def visit_And(self, node: And, mode: int) -> Flat:
         args = node.args
         acc = self._sat(args[0], mode)
         for arg in args[1:]:
@@ -226,7 +231,7 @@ class TraceEvaluator:
             acc = intersection_flat(acc, self._sat(arg, mode))
         return acc
 
-    def _or(self, node: Or, mode: int) -> Flat:
+    def visit_Or(self, node: Or, mode: int) -> Flat:
         full = [self.start, self.end]
         acc = self._sat(node.args[0], mode)
         for arg in node.args[1:]:
@@ -235,7 +240,7 @@ class TraceEvaluator:
             acc = union_flat(acc, self._sat(arg, mode))
         return acc
 
-    def _implies(self, node: Implies, mode: int) -> Flat:
+    def visit_Implies(self, node: Implies, mode: int) -> Flat:
         lhs = self._sat(node.lhs, -mode)
         if not lhs:
             return [self.start, self.end]
@@ -247,7 +252,7 @@ class TraceEvaluator:
         cut = e - hi
         return [cut if cut > s else s, e] if cut < e else []
 
-    def _eventually(self, node: Eventually, mode: int) -> Flat:
+    def visit_Eventually(self, node: Eventually, mode: int) -> Flat:
         lo, hi = _bounds(node)
         result = eventually_flat(self._sat(node.arg, mode), lo, hi, self.start)
         if mode == OPTIMISTIC or (mode == DEFAULT and hi < math.inf):
@@ -255,14 +260,14 @@ class TraceEvaluator:
             result = union_flat(result, self._cut(hi))
         return result
 
-    def _always(self, node: Always, mode: int) -> Flat:
+    def visit_Always(self, node: Always, mode: int) -> Flat:
         lo, hi = _bounds(node)
         result = always_flat(self._sat(node.arg, mode), lo, hi, self.start, self.end)
         if mode == PESSIMISTIC:  # only windows seen to the end are sure
             result = intersection_flat(result, complement_flat(self._cut(hi), self.start, self.end))
         return result
 
-    def _until(self, node: Until, mode: int) -> Flat:
+    def visit_Until(self, node: Until, mode: int) -> Flat:
         s, e = self.start, self.end
         lo, hi = _bounds(node)
         phi = self._sat(node.lhs, mode)
@@ -291,23 +296,6 @@ class TraceEvaluator:
                 result = union_flat(result, [tail, e])
         return result
 
-    _DISPATCH = {
-        Const: _const,
-        BoolVar: _boolvar,
-        Compare: _compare,
-        InSet: _inset,
-        Not: _not,
-        And: _and,
-        Or: _or,
-        Implies: _implies,
-        Eventually: _eventually,
-        Always: _always,
-        Until: _until,
-    }
-
-
-_ATOMS = (Const, BoolVar, Compare, InSet)
-
 
 def _bounds(node) -> tuple:
     """A temporal operator's window ``[lo, hi]`` in ticks (``hi`` may be infinite)."""
@@ -319,6 +307,6 @@ def satisfaction(formula: Formula, trace: Trace) -> IntervalSet:
     return TraceEvaluator(trace).satisfaction(formula)
 
 
-def evaluate(formula: Formula, trace: Trace) -> Verdict:
-    """The :class:`Verdict` of ``formula`` on ``trace`` (see :class:`Verdict`)."""
+def evaluate(formula: Formula, trace: Trace) -> Evaluation:
+    """The :class:`Evaluation` of ``formula`` on ``trace`` (see :class:`Evaluation`)."""
     return TraceEvaluator(trace).evaluate(formula)

@@ -33,6 +33,7 @@ from .syntax import (
     InSet,
     Not,
     Or,
+    Visitor,
     Vocabulary,
     check,
     is_temporal,
@@ -54,7 +55,7 @@ def compile_predicate(formula: Formula, vocabulary: Vocabulary) -> Predicate:
     if is_temporal(formula):
         raise FormulaError("temporal operators cannot be evaluated on a single valuation")
     check(formula, vocabulary, allow_temporal=False)
-    fn = _compile(formula)  # always a fresh function object: safe to annotate
+    fn = _COMPILER.visit(formula)  # always a fresh function object: safe to annotate
     fn.variables = variables_of(formula)  # type: ignore[attr-defined]
     fn.formula = formula  # type: ignore[attr-defined]
     return fn
@@ -136,25 +137,37 @@ def _junction(fs: tuple[Predicate, ...], disjunction: bool) -> Predicate:
     return conj
 
 
-def _compile(node: Formula) -> Predicate:
-    if isinstance(node, Compare):
+class _Compiler(Visitor):
+    """A propositional formula as a closure, one operator at a time (``visit(node)``)."""
+
+    refused = dict.fromkeys(("Always", "Eventually", "Until"),
+                            "a guard is evaluated on one valuation: it has no future to look at")
+
+    def refuse(self, node: Formula, why: str) -> Predicate:
+        raise FormulaError(f"not a propositional formula: {node!r}")
+
+    def visit_Compare(self, node: Compare) -> Predicate:
         if node.other is not None:
             return _compare_vars(node.var, node.op, node.other)
         return _compare_const(node.var, node.op, node.value)
-    if isinstance(node, InSet):
+
+    def visit_InSet(self, node: InSet) -> Predicate:
         name, values = node.var, frozenset(node.values)
         if len(values) == 1:
             (c,) = values
             return lambda v: v[name] == c
         return lambda v: v[name] in values
-    if isinstance(node, BoolVar):
+
+    def visit_BoolVar(self, node: BoolVar) -> Predicate:
         name = node.name
         return lambda v: True if v[name] else False
-    if isinstance(node, Const):
+
+    def visit_Const(self, node: Const) -> Predicate:
         if node.value:
             return lambda v: True
         return lambda v: False
-    if isinstance(node, Not):
+
+    def visit_Not(self, node: Not) -> Predicate:
         arg = node.arg
         # Peephole: negated leaves become a single comparison.
         if isinstance(arg, InSet) and len(arg.values) > 1:
@@ -163,11 +176,18 @@ def _compile(node: Formula) -> Predicate:
         if isinstance(arg, BoolVar):
             name = arg.name
             return lambda v: False if v[name] else True
-        f = _compile(arg)
+        f = self.visit(arg)
         return lambda v: not f(v)
-    if isinstance(node, (And, Or)):
-        return _junction(tuple(_compile(a) for a in node.args), isinstance(node, Or))
-    if isinstance(node, Implies):
-        a, b = _compile(node.lhs), _compile(node.rhs)
+
+    def visit_And(self, node: And) -> Predicate:
+        return _junction(tuple(self.visit(a) for a in node.args), False)
+
+    def visit_Or(self, node: Or) -> Predicate:
+        return _junction(tuple(self.visit(a) for a in node.args), True)
+
+    def visit_Implies(self, node: Implies) -> Predicate:
+        a, b = self.visit(node.lhs), self.visit(node.rhs)
         return lambda v: (not a(v)) or b(v)
-    raise FormulaError(f"not a propositional formula: {node!r}")
+
+
+_COMPILER = _Compiler()

@@ -31,7 +31,8 @@ import math
 from dataclasses import dataclass, replace
 
 from .mtl import TraceEvaluator
-from .syntax import Always, And, BoolVar, Compare, Const, Eventually, Formula, Implies, InSet, Not, Or, Until
+from .syntax import (Always, And, Compare, Const, Eventually, Formula, Implies, Not, Until, Visitor,
+                     numeric_comparisons, walk)
 from .trace import TICKS_PER_SECOND, Trace, to_ticks
 
 _SHIFTABLE = {"<", "<=", ">", ">="}
@@ -56,42 +57,62 @@ def shifted(node: Formula, space: float, time: float, positive: bool = True) -> 
     """``node`` made harder by ``space`` on every numeric threshold and ``time`` on every bounded
     deadline (easier for negative amounts); ``positive``: whether ``node`` counts for the condition
     (False under a negation or on the left of ``->``)."""
-    sign = 1.0 if positive else -1.0
-    if isinstance(node, (Const, BoolVar, InSet)):
+    return _Shift(space, time).visit(node, positive)
+
+
+class _Shift(Visitor):
+    """:func:`shifted`, one operator at a time: ``visit(node, positive)``."""
+
+    def __init__(self, space: float, time: float) -> None:
+        self.space, self.time = space, time
+
+    def _children(self, node: Formula, positive: bool) -> Formula:
+        """``node`` with each of its sub-formulas shifted, all counting as ``node`` does."""
+        return node.with_children(*(self.visit(child, positive) for child in node.children()))
+
+    def visit_Const(self, node: Const, positive: bool) -> Formula:
         return node
-    if isinstance(node, Compare):
-        value = node.value
-        if space == 0 or node.op not in _SHIFTABLE or isinstance(value, bool) or not isinstance(value, (int, float)):
+
+    visit_BoolVar = visit_InSet = visit_Const
+
+    def visit_Compare(self, node: Compare, positive: bool) -> Formula:
+        value = node.threshold
+        if self.space == 0 or node.op not in _SHIFTABLE or value is None:
             return node
-        delta = sign * space
+        delta = (1.0 if positive else -1.0) * self.space
         return replace(node, value=value - delta if node.op in ("<", "<=") else value + delta)
-    if isinstance(node, Not):
-        return Not(shifted(node.arg, space, time, not positive))
-    if isinstance(node, And):
-        return And(tuple(shifted(a, space, time, positive) for a in node.args))
-    if isinstance(node, Or):
-        return Or(tuple(shifted(a, space, time, positive) for a in node.args))
-    if isinstance(node, Implies):
-        return Implies(shifted(node.lhs, space, time, not positive), shifted(node.rhs, space, time, positive))
-    if isinstance(node, Eventually):
-        arg = shifted(node.arg, space, time, positive)
+
+    def visit_Not(self, node: Not, positive: bool) -> Formula:
+        return Not(self.visit(node.arg, not positive))
+
+    def visit_And(self, node: And, positive: bool) -> Formula:
+        return self._children(node, positive)
+
+    visit_Or = visit_And
+
+    def visit_Implies(self, node: Implies, positive: bool) -> Formula:
+        return Implies(self.visit(node.lhs, not positive), self.visit(node.rhs, positive))
+
+    def visit_Eventually(self, node: Eventually, positive: bool) -> Formula:
+        moved = self._children(node, positive)
         if math.isinf(node.hi):
-            return replace(node, arg=arg)
-        hi = node.hi - sign * time
-        return replace(node, arg=arg, hi=hi) if hi >= node.lo else Const(False)
-    if isinstance(node, Always):
-        arg = shifted(node.arg, space, time, positive)
+            return moved
+        hi = node.hi - (1.0 if positive else -1.0) * self.time
+        return replace(moved, hi=hi) if hi >= node.lo else Const(False)
+
+    def visit_Always(self, node: Always, positive: bool) -> Formula:
+        moved = self._children(node, positive)
         if math.isinf(node.hi):
-            return replace(node, arg=arg)
-        hi = node.hi + sign * time
-        return replace(node, arg=arg, hi=hi) if hi >= node.lo else Const(True)
-    if isinstance(node, Until):
-        lhs, rhs = shifted(node.lhs, space, time, positive), shifted(node.rhs, space, time, positive)
+            return moved
+        hi = node.hi + (1.0 if positive else -1.0) * self.time
+        return replace(moved, hi=hi) if hi >= node.lo else Const(True)
+
+    def visit_Until(self, node: Until, positive: bool) -> Formula:
+        moved = self._children(node, positive)
         if node.weak or math.isinf(node.hi):
-            return replace(node, lhs=lhs, rhs=rhs)
-        hi = node.hi - sign * time
-        return replace(node, lhs=lhs, rhs=rhs, hi=hi) if hi >= node.lo else Const(False)
-    raise TypeError(f"not a formula: {node!r}")
+            return moved
+        hi = node.hi - (1.0 if positive else -1.0) * self.time
+        return replace(moved, hi=hi) if hi >= node.lo else Const(False)
 
 
 def robustness(formula: Formula, trace: Trace) -> Robustness:
@@ -130,38 +151,18 @@ def _space(formula: Formula, trace: Trace, holds, verdict: bool) -> float:
 
 def _distances(formula: Formula, trace: Trace) -> set[float]:
     out: set[float] = set()
-
-    def walk(node) -> None:
-        if isinstance(node, Compare):
-            value = node.value
-            if node.op in _SHIFTABLE and not isinstance(value, bool) and isinstance(value, (int, float)) \
-                    and node.var in trace.signals:
-                _, _, values = trace.segments(node.var)
-                out.update(abs(value - v) for v in values
-                           if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v != value)
-            return
-        for child in _children(node):
-            walk(child)
-
-    walk(formula)
+    for node in numeric_comparisons(formula):
+        value = node.threshold
+        if node.op in _SHIFTABLE and node.var in trace.signals:
+            _, _, values = trace.segments(node.var)
+            out.update(abs(value - v) for v in values
+                       if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v != value)
     return out
-
-
-def _children(node) -> tuple:
-    if isinstance(node, (Not, Eventually, Always)):
-        return (node.arg,)
-    if isinstance(node, (And, Or)):
-        return node.args
-    if isinstance(node, (Implies, Until)):
-        return (node.lhs, node.rhs)
-    return ()
 
 
 def _time(formula: Formula, trace: Trace, holds, verdict: bool) -> float:
     """Bisected over whole ticks (1 ns), the grid every window is evaluated on: exact."""
-    windows = [node.hi for node in _nodes(formula)
-               if isinstance(node, (Eventually, Always, Until)) and math.isfinite(node.hi)
-               and not (isinstance(node, Until) and node.weak)]
+    windows = [node.hi for node in walk(formula) if _moved_window(node)]
     if not windows:
         return math.inf if verdict else -math.inf
     sign = 1.0 if verdict else -1.0
@@ -183,10 +184,9 @@ def _time(formula: Formula, trace: Trace, holds, verdict: bool) -> float:
     return low / TICKS_PER_SECOND if verdict else -high / TICKS_PER_SECOND
 
 
-def _nodes(node):
-    yield node
-    for child in _children(node):
-        yield from _nodes(child)
+def _moved_window(node: Formula) -> bool:
+    """Whether ``node`` has a deadline the time margin moves: a bounded window, not ``W``'s."""
+    return node.temporal and math.isfinite(node.hi) and not (isinstance(node, Until) and node.weak)
 
 
 def meeting(first: Formula, second: Formula, trace: Trace) -> float:

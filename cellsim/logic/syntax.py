@@ -27,6 +27,12 @@ The grammar, the typing rules and the semantics are documented in
 
 Every AST node is a frozen (hashable) dataclass; :func:`format_formula` prints the
 canonical text, which :func:`parse` reads back to an equal AST.
+
+The tree is walked one way: every node gives its sub-formulas (``children()``,
+:class:`Node`), :func:`walk` yields every node, and a pass that does something
+different per operator (printing, type checking, evaluation, margins, PRISM,
+explanations) is a :class:`Visitor`, which must handle or refuse each class of
+:data:`NODE_CLASSES`.
 """
 
 from __future__ import annotations
@@ -35,9 +41,9 @@ import difflib
 import math
 import re
 from bisect import bisect_right
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from typing import TypeAlias, Union
+from typing import Any, ClassVar, TypeAlias, Union
 
 __all__ = [
     "FormulaError",
@@ -58,6 +64,11 @@ __all__ = [
     "Eventually",
     "Until",
     "Formula",
+    "Node",
+    "NODE_CLASSES",
+    "walk",
+    "numeric_comparisons",
+    "Visitor",
     "KEYWORDS",
     "COMPARISON_OPERATORS",
     "parse",
@@ -160,22 +171,56 @@ def _check_bounds(node: object, lo: float, hi: float) -> None:
     object.__setattr__(node, "hi", hi)
 
 
+class Node:
+    """What every node of the AST (every formula) is and says about itself.
+
+    The tree is walked through these methods only, so a pass that does the same at
+    every node (:func:`walk`, :func:`variables_of`, :func:`is_temporal`) is written
+    once here; a pass that does something different per operator is a
+    :class:`Visitor`.  A node class is defined by its sub-formulas (``children``),
+    how to rebuild it with others (``with_children``), the variables it reads
+    itself (``variables``) and whether it is a temporal operator (``temporal``).
+    """
+
+    __slots__ = ()
+
+    temporal: ClassVar[bool] = False
+    """Whether the operator speaks of other instants than the present (``G F U W``)."""
+
+    def children(self) -> tuple[Formula, ...]:
+        """The sub-formulas, in the order they are written; ``()`` for an atom."""
+        return ()
+
+    def with_children(self, *children: Formula) -> Formula:
+        """The same operator (same window, values...) over ``children`` instead."""
+        if children:
+            raise ValueError(f"{type(self).__name__} has no sub-formulas")
+        return self  # type: ignore[return-value]
+
+    def variables(self) -> tuple[str, ...]:
+        """The variables this node reads itself (not those of its sub-formulas)."""
+        return ()
+
+
 @dataclass(frozen=True, slots=True)
-class Const:
+class Const(Node):
     """``true`` or ``false``."""
 
     value: bool
 
 
 @dataclass(frozen=True, slots=True)
-class BoolVar:
+class BoolVar(Node):
     """A boolean variable used as a formula."""
 
     name: str
 
+    def variables(self) -> tuple[str, ...]:
+        return (self.name,)
+
 
 @dataclass(frozen=True, slots=True)
-class Compare:
+class Compare(Node):
     """``var OP value`` (``other is None``) or ``var OP other`` (``value is None``)."""
 
     var: str
@@ -189,9 +234,21 @@ class Compare:
         if (self.value is None) == (self.other is None):
             raise ValueError("Compare needs exactly one of value and other")
 
+    def variables(self) -> tuple[str, ...]:
+        return (self.var,) if self.other is None else (self.var, self.other)
+
+    @property
+    def threshold(self) -> float | None:
+        """The number a variable is compared with (``speed <= 0.5``: 0.5); ``None`` when it is
+        compared with a symbol, a boolean or another variable."""
+        value = self.value
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return None
+        return value
+
 
 @dataclass(frozen=True, slots=True)
-class InSet:
+class InSet(Node):
     """``var in {v1, v2, ...}``."""
 
     var: str
@@ -203,10 +260,19 @@ class InSet:
             raise ValueError("InSet needs at least one value")
         object.__setattr__(self, "values", values)
 
+    def variables(self) -> tuple[str, ...]:
+        return (self.var,)
+
 
 @dataclass(frozen=True, slots=True)
-class Not:
+class Not(Node):
     arg: Formula
+
+    def children(self) -> tuple[Formula, ...]:
+        return (self.arg,)
+
+    def with_children(self, arg: Formula) -> Formula:
+        return Not(arg)
 
 
 def _check_args(node: object, args: object) -> None:
@@ -217,7 +283,7 @@ def _check_args(node: object, args: object) -> None:
 
 
 @dataclass(frozen=True, slots=True)
-class And:
+class And(Node):
     """Conjunction of two or more operands (a chain ``a and b and c`` is one node)."""
 
     args: tuple[Formula, ...]
@@ -225,9 +291,15 @@ class And:
     def __post_init__(self) -> None:
         _check_args(self, self.args)
 
+    def children(self) -> tuple[Formula, ...]:
+        return self.args
+
+    def with_children(self, *args: Formula) -> Formula:
+        return And(args)
+
 
 @dataclass(frozen=True, slots=True)
-class Or:
+class Or(Node):
     """Disjunction of two or more operands."""
 
     args: tuple[Formula, ...]
@@ -235,39 +307,57 @@ class Or:
     def __post_init__(self) -> None:
         _check_args(self, self.args)
 
+    def children(self) -> tuple[Formula, ...]:
+        return self.args
+
+    def with_children(self, *args: Formula) -> Formula:
+        return Or(args)
+
 
 @dataclass(frozen=True, slots=True)
-class Implies:
+class Implies(Node):
     lhs: Formula
     rhs: Formula
 
+    def children(self) -> tuple[Formula, ...]:
+        return (self.lhs, self.rhs)
+
+    def with_children(self, lhs: Formula, rhs: Formula) -> Formula:
+        return Implies(lhs, rhs)
+
 
 @dataclass(frozen=True, slots=True)
-class Always:
+class _WindowOf(Node):
+    """What ``G`` and ``F`` share: one argument over a window ``[lo, hi]`` (not a node class itself)."""
+
+    arg: Formula
+    lo: float = 0.0
+    hi: float = math.inf
+
+    temporal: ClassVar[bool] = True
+
+    def __post_init__(self) -> None:
+        _check_bounds(self, self.lo, self.hi)
+
+    def children(self) -> tuple[Formula, ...]:
+        return (self.arg,)
+
+    def with_children(self, arg: Formula) -> Formula:
+        return type(self)(arg, self.lo, self.hi)
+
+
+@dataclass(frozen=True, slots=True)
+class Always(_WindowOf):
     """``G[lo, hi] arg``."""
 
-    arg: Formula
-    lo: float = 0.0
-    hi: float = math.inf
-
-    def __post_init__(self) -> None:
-        _check_bounds(self, self.lo, self.hi)
-
 
 @dataclass(frozen=True, slots=True)
-class Eventually:
+class Eventually(_WindowOf):
     """``F[lo, hi] arg``."""
 
-    arg: Formula
-    lo: float = 0.0
-    hi: float = math.inf
-
-    def __post_init__(self) -> None:
-        _check_bounds(self, self.lo, self.hi)
-
 
 @dataclass(frozen=True, slots=True)
-class Until:
+class Until(Node):
     """``lhs U[lo, hi] rhs`` (``weak=False``) or ``lhs W[lo, hi] rhs`` (``weak=True``)."""
 
     lhs: Formula
@@ -276,14 +366,83 @@ class Until:
     hi: float = math.inf
     weak: bool = False
 
+    temporal: ClassVar[bool] = True
+
     def __post_init__(self) -> None:
         _check_bounds(self, self.lo, self.hi)
+
+    def children(self) -> tuple[Formula, ...]:
+        return (self.lhs, self.rhs)
+
+    def with_children(self, lhs: Formula, rhs: Formula) -> Formula:
+        return Until(lhs, rhs, self.lo, self.hi, self.weak)
 
 
 Formula: TypeAlias = Union[
     Const, BoolVar, Compare, InSet, Not, And, Or, Implies, Always, Eventually, Until
 ]
-_TEMPORAL = (Always, Eventually, Until)
+NODE_CLASSES: tuple[type[Node], ...] = (
+    Const, BoolVar, Compare, InSet, Not, And, Or, Implies, Always, Eventually, Until
+)
+"""Every node class, atoms first: what a :class:`Visitor` must handle or refuse."""
+
+# --------------------------------------------------------------------------- traversal
+
+
+def walk(formula: Formula) -> Iterator[Formula]:
+    """Every node of ``formula``: the node, then its children's nodes in order (pre-order).
+
+    A shared sub-formula (a macro used twice) is yielded each time it appears.
+    Raises ``TypeError`` on anything that is not a formula.
+    """
+    stack = [formula]
+    while stack:
+        node = stack.pop()
+        if not isinstance(node, Node):
+            raise TypeError(f"not a formula: {node!r}")
+        yield node
+        stack.extend(reversed(node.children()))
+
+
+def numeric_comparisons(formula: Formula) -> Iterator[Compare]:
+    """The comparisons of a variable with a number (``speed <= 0.5``) in ``formula``, in order:
+    the thresholds a margin moves and an abstraction keeps apart."""
+    for node in walk(formula):
+        if isinstance(node, Compare) and node.threshold is not None:
+            yield node
+
+
+class Visitor:
+    """A pass that does something different for each operator of the language.
+
+    ``visit(node, *args)`` calls ``self.visit_<NodeClass>(node, *args)``; the methods
+    recurse by calling ``visit`` on the children they need.  A pass either handles
+    a node class (defines its method) or refuses it: ``refused`` maps the class's
+    name to why, and visiting such a node calls :meth:`refuse`, which a pass
+    overrides to raise its own error.  ``tests/test_logic_passes.py`` checks that
+    every pass handles or refuses every class of :data:`NODE_CLASSES`, so a new
+    operator cannot be forgotten by one.
+    """
+
+    refused: ClassVar[Mapping[str, str]] = {}
+    """Node class name -> why this pass has no meaning for it."""
+
+    def visit(self, node: Formula, *args: Any) -> Any:
+        if not isinstance(node, Node):
+            raise TypeError(f"not a formula: {node!r}")
+        name = type(node).__name__
+        method = getattr(self, "visit_" + name, None)
+        if method is not None:
+            return method(node, *args)
+        if name in self.refused:
+            return self.refuse(node, self.refused[name])
+        raise NotImplementedError(
+            f"{type(self).__name__} has no visit_{name}: the pass neither handles nor refuses {name}"
+        )
+
+    def refuse(self, node: Formula, why: str) -> Any:
+        """Called on a node of a class in ``refused``; raises (by default a ``TypeError``)."""
+        raise TypeError(f"{type(self).__name__}: {why}: {node!r}")
 
 # --------------------------------------------------------------------------- lexer
 
@@ -743,87 +902,72 @@ def check(formula: Formula, vocabulary: Vocabulary, *, allow_temporal: bool = Tr
         elif isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value):
             raise FormulaError(f"{name} is numeric: {value!r} is not a number")
 
-    def visit(node: Formula) -> None:
-        if isinstance(node, Const):
-            return
-        if isinstance(node, BoolVar):
-            if not isinstance(domain_of(node.name), BoolDomain):
-                raise FormulaError(f"{node.name} is not boolean; compare it with a value")
-        elif isinstance(node, Compare):
-            domain = domain_of(node.var)
-            if node.op not in _EQUALITY_OPERATORS and not isinstance(domain, NumberDomain):
-                raise FormulaError(
-                    f"{node.op!r} is not defined for {_domain_kind(domain)} variable {node.var}"
-                )
-            if node.other is not None:
-                if not _same_domain(domain, domain_of(node.other)):
-                    raise FormulaError(
-                        f"cannot compare {node.var} with {node.other}: the domains differ"
-                    )
-            else:
-                value_ok(node.var, domain, node.value)
-        elif isinstance(node, InSet):
-            domain = domain_of(node.var)
-            for value in node.values:
-                value_ok(node.var, domain, value)
-        elif isinstance(node, Not):
-            visit(node.arg)
-        elif isinstance(node, (And, Or)):
-            for arg in node.args:
-                visit(arg)
-        elif isinstance(node, Implies):
-            visit(node.lhs)
-            visit(node.rhs)
-        elif isinstance(node, _TEMPORAL):
-            if not allow_temporal:
-                op = {Always: "G", Eventually: "F"}.get(type(node)) or ("W" if node.weak else "U")
-                raise FormulaError(f"temporal operator {op!r} is not allowed here")
-            if isinstance(node, Until):
-                visit(node.lhs)
-                visit(node.rhs)
-            else:
-                visit(node.arg)
-        else:
-            raise TypeError(f"not a formula: {node!r}")
+    checker = _Checker(domain_of, value_ok, allow_temporal)
+    for node in walk(formula):
+        checker.visit(node)
 
-    visit(formula)
+
+class _Checker(Visitor):
+    """The typing rules of one node (its children are checked on their own: see :func:`check`)."""
+
+    def __init__(self, domain_of, value_ok, allow_temporal: bool) -> None:
+        self.domain_of = domain_of
+        self.value_ok = value_ok
+        self.allow_temporal = allow_temporal
+
+    def visit_Const(self, node: Const) -> None:
+        pass
+
+    def visit_BoolVar(self, node: BoolVar) -> None:
+        if not isinstance(self.domain_of(node.name), BoolDomain):
+            raise FormulaError(f"{node.name} is not boolean; compare it with a value")
+
+    def visit_Compare(self, node: Compare) -> None:
+        domain = self.domain_of(node.var)
+        if node.op not in _EQUALITY_OPERATORS and not isinstance(domain, NumberDomain):
+            raise FormulaError(
+                f"{node.op!r} is not defined for {_domain_kind(domain)} variable {node.var}"
+            )
+        if node.other is not None:
+            if not _same_domain(domain, self.domain_of(node.other)):
+                raise FormulaError(
+                    f"cannot compare {node.var} with {node.other}: the domains differ"
+                )
+        else:
+            self.value_ok(node.var, domain, node.value)
+
+    def visit_InSet(self, node: InSet) -> None:
+        domain = self.domain_of(node.var)
+        for value in node.values:
+            self.value_ok(node.var, domain, value)
+
+    def visit_Not(self, node: Not) -> None:
+        pass
+
+    visit_And = visit_Or = visit_Implies = visit_Not
+
+    def _temporal(self, op: str) -> None:
+        if not self.allow_temporal:
+            raise FormulaError(f"temporal operator {op!r} is not allowed here")
+
+    def visit_Always(self, node: Always) -> None:
+        self._temporal("G")
+
+    def visit_Eventually(self, node: Eventually) -> None:
+        self._temporal("F")
+
+    def visit_Until(self, node: Until) -> None:
+        self._temporal("W" if node.weak else "U")
 
 
 def variables_of(formula: Formula) -> frozenset[str]:
     """The variables a formula reads (both sides of variable-variable comparisons)."""
-    found: set[str] = set()
-    stack = [formula]
-    while stack:
-        node = stack.pop()
-        if isinstance(node, BoolVar):
-            found.add(node.name)
-        elif isinstance(node, Compare):
-            found.add(node.var)
-            if node.other is not None:
-                found.add(node.other)
-        elif isinstance(node, InSet):
-            found.add(node.var)
-        elif isinstance(node, (Not, Always, Eventually)):
-            stack.append(node.arg)
-        elif isinstance(node, (And, Or)):
-            stack.extend(node.args)
-        elif isinstance(node, (Implies, Until)):
-            stack.append(node.lhs)
-            stack.append(node.rhs)
-    return frozenset(found)
+    return frozenset(name for node in walk(formula) for name in node.variables())
 
 
 def is_temporal(formula: Formula) -> bool:
     """Whether the formula contains a temporal operator (``G``, ``F``, ``U``, ``W``)."""
-    if isinstance(formula, _TEMPORAL):
-        return True
-    if isinstance(formula, Not):
-        return is_temporal(formula.arg)
-    if isinstance(formula, (And, Or)):
-        return any(is_temporal(a) for a in formula.args)
-    if isinstance(formula, Implies):
-        return is_temporal(formula.lhs) or is_temporal(formula.rhs)
-    return False
+    return any(node.temporal for node in walk(formula))
 
 
 # --------------------------------------------------------------------------- printer
@@ -860,45 +1004,58 @@ def _fmt_interval(lo: float, hi: float) -> str:
 
 
 def _fmt(node: Formula, min_prec: int) -> str:
-    text, prec = _fmt_node(node)
+    text, prec = _PRINTER.visit(node)
     return f"({text})" if prec < min_prec else text
 
 
-def _prefixed(op: str, arg: Formula) -> str:
-    """``G``/``F`` applied to ``arg``: ``G x``, ``G F x``, else ``G(...)`` (readability)."""
-    text, prec = _fmt_node(arg)
-    if prec == _ATOM or isinstance(arg, (Always, Eventually)):
-        return f"{op} {text}"
-    return f"{op}({text})"
+class _Printer(Visitor):
+    """A node's canonical text and the precedence of its outermost operator."""
 
-
-def _fmt_node(node: Formula) -> tuple[str, int]:
-    if isinstance(node, Const):
+    def visit_Const(self, node: Const) -> tuple[str, int]:
         return ("true" if node.value else "false"), _ATOM
-    if isinstance(node, BoolVar):
+
+    def visit_BoolVar(self, node: BoolVar) -> tuple[str, int]:
         return node.name, _ATOM
-    if isinstance(node, Compare):
+
+    def visit_Compare(self, node: Compare) -> tuple[str, int]:
         rhs = node.other if node.other is not None else _fmt_value(node.value)
         return f"{node.var} {node.op} {rhs}", _ATOM
-    if isinstance(node, InSet):
+
+    def visit_InSet(self, node: InSet) -> tuple[str, int]:
         values = ", ".join(_fmt_value(v) for v in sorted(node.values, key=_sort_key))
         return f"{node.var} in {{{values}}}", _ATOM
-    if isinstance(node, Not):
+
+    def visit_Not(self, node: Not) -> tuple[str, int]:
         return f"not {_fmt(node.arg, _PREFIX)}", _PREFIX
-    if isinstance(node, Always):
-        return _prefixed("G" + _fmt_interval(node.lo, node.hi), node.arg), _PREFIX
-    if isinstance(node, Eventually):
-        return _prefixed("F" + _fmt_interval(node.lo, node.hi), node.arg), _PREFIX
-    if isinstance(node, Until):
+
+    def visit_Always(self, node: Always) -> tuple[str, int]:
+        return self._prefixed("G" + _fmt_interval(node.lo, node.hi), node.arg), _PREFIX
+
+    def visit_Eventually(self, node: Eventually) -> tuple[str, int]:
+        return self._prefixed("F" + _fmt_interval(node.lo, node.hi), node.arg), _PREFIX
+
+    def _prefixed(self, op: str, arg: Formula) -> str:
+        """``G``/``F`` applied to ``arg``: ``G x``, ``G F x``, else ``G(...)`` (readability)."""
+        text, prec = self.visit(arg)
+        if prec == _ATOM or (prec == _PREFIX and arg.temporal):  # an atom, or G/F
+            return f"{op} {text}"
+        return f"{op}({text})"
+
+    def visit_Until(self, node: Until) -> tuple[str, int]:
         op = ("W" if node.weak else "U") + _fmt_interval(node.lo, node.hi)
         return f"{_fmt(node.lhs, _PREFIX)} {op} {_fmt(node.rhs, _UNTIL)}", _UNTIL
-    if isinstance(node, And):
+
+    def visit_And(self, node: And) -> tuple[str, int]:
         return " and ".join(_fmt(a, _UNTIL) for a in node.args), _AND
-    if isinstance(node, Or):
+
+    def visit_Or(self, node: Or) -> tuple[str, int]:
         return " or ".join(_fmt(a, _AND) for a in node.args), _OR
-    if isinstance(node, Implies):
+
+    def visit_Implies(self, node: Implies) -> tuple[str, int]:
         return f"{_fmt(node.lhs, _OR)} -> {_fmt(node.rhs, _IMPLIES)}", _IMPLIES
-    raise TypeError(f"not a formula: {node!r}")
+
+
+_PRINTER = _Printer()
 
 
 def format_formula(formula: Formula) -> str:

@@ -183,18 +183,18 @@ class SafetyCase:
         missing = tuple(sorted(variables_of(formula) - recorded))
         if missing:
             return ConditionVerdict(Verdict.MISSING_DATA, missing=missing)
-        verdict = evaluator.evaluate(formula)
+        evaluation = evaluator.evaluate(formula)
         if not complete and not evaluator.conclusive(formula):
             return ConditionVerdict(
-                Verdict.INCONCLUSIVE, verdict.violated_at, reading="holds so far" if verdict.holds else "violated so far"
+                Verdict.INCONCLUSIVE, evaluation.violated_at, reading="holds so far" if evaluation.holds else "violated so far"
             )
-        if verdict.holds:
+        if evaluation.holds:
             return ConditionVerdict(Verdict.HOLDS, None)
         from cellsim.validation.explain import Explainer
 
         explainer = Explainer(evaluator, self.macros)
         return ConditionVerdict(
-            Verdict.VIOLATED, verdict.violated_at,
-            explanation=explainer.explain(formula, verdict.violated_at),
-            evidence=explainer.evidence(formula, verdict.violated_at),
+            Verdict.VIOLATED, evaluation.violated_at,
+            explanation=explainer.explain(formula, evaluation.violated_at),
+            evidence=explainer.evidence(formula, evaluation.violated_at),
         )

@@ -24,12 +24,7 @@ import math
 from cellsim.channels import value_text
 from cellsim.numbers import instant
 from cellsim.logic.mtl import TraceEvaluator
-from cellsim.logic.syntax import (
-    Always, And, BoolVar, Compare, Const, Eventually, Formula, Implies, InSet, Not, Or, Until, format_formula,
-    variables_of,
-)
-
-_ATOMS = (Compare, InSet, BoolVar, Const)
+from cellsim.logic.syntax import Always, And, Formula, Not, Until, Visitor, format_formula, variables_of, walk
 
 
 class Explainer:
@@ -40,6 +35,8 @@ class Explainer:
         self.trace = evaluator.trace
         self.names = {formula: name for name, formula in (macros or {}).items()}
         """A macro's expanded formula -> its name (conditions hold macros expanded)."""
+        self._window, self._held, self._conjunct = _Window(self), _Held(self), _Conjunct(self)
+        self._failed, self._value = _Failed(self), _Value(self)
 
     def explain(self, formula: Formula, at: float) -> str:
         """Why ``formula`` does not hold at the start (its first violation at ``at``, for a ``G``)."""
@@ -55,9 +52,8 @@ class Explainer:
         ``rows`` maps each macro (by name) and atom (as written) of the condition, in
         the order they appear, to the intervals ``[[from, to], ...]`` (s) where it held.
         """
-        t = at if isinstance(formula, Always) else self.trace.start
-        body = formula.arg if isinstance(formula, Always) else formula
-        lo, hi = self._window(body, t) or (t, t)
+        t, body = (at, formula.arg) if isinstance(formula, Always) else (self.trace.start, formula)
+        lo, hi = self._window.visit(body, t) or (t, t)
         rows = {}
         for part in self._parts(formula):  # every one: the atom a condition waited for comes last
             name = self._name(part)
@@ -65,79 +61,29 @@ class Explainer:
                 rows[name] = [[round(a, 6), round(b, 6)] for a, b in self.evaluator.satisfaction(part)]
         return {"at": at, "window": [round(lo, 6), round(hi, 6)], "rows": rows}
 
-    def _window(self, f: Formula, t: float) -> tuple[float, float] | None:
-        """The first temporal window of ``f`` evaluated at ``t`` (the consequent's, for ``->``)."""
-        if isinstance(f, Implies):
-            return self._window(f.rhs, t)
-        if isinstance(f, (Until, Eventually, Always)):
-            return t + f.lo, min(t + f.hi, self.trace.end)
-        if isinstance(f, Not):
-            return self._window(f.arg, t)
-        if isinstance(f, (And, Or)):
-            return next((w for w in (self._window(a, t) for a in f.args) if w), None)
-        return None
-
     def _parts(self, f: Formula):
         """The macros and atoms of ``f``, outermost first (a macro's own parts follow it)."""
-        if f in self.names or (isinstance(f, _ATOMS) and not isinstance(f, Const)):
-            yield f
-        if isinstance(f, _ATOMS):
-            return
-        for child in _children(f):
-            yield from self._parts(child)
+        return (node for node in walk(f) if node in self.names or node.variables())
 
-    # -- what held --------------------------------------------------------------------------
+    # -- what held ---------------------------------------------------------------------------
     def _true(self, f: Formula, t: float) -> str:
         if f in self.names:
             since = self._since(f, t)
             parts = ", ".join(self._part(p, t) for p in _conjuncts(f))
             return f"{self.names[f]} true from {instant(since)} ({parts})"
-        if isinstance(f, And):
-            return "; ".join(self._true(a, t) for a in f.args)
-        if isinstance(f, _ATOMS):
-            return self._value(f, t)
-        if isinstance(f, Not):
-            return self._false(f.arg, t)
-        return f"{format_formula(f)} true"
+        return self._held.visit(f, t)
 
     def _part(self, f: Formula, t: float) -> str:
         """One conjunct of a macro that held: a macro's name, an atom's values."""
         if f in self.names:
             return self.names[f]
-        if isinstance(f, _ATOMS):
-            return self._value(f, t)
-        if isinstance(f, Or):  # the alternative that held
-            held = [a for a in f.args if self._holds(a, t)]
-            return self._part(held[0], t) if held else format_formula(f)
-        return format_formula(f)
+        return self._conjunct.visit(f, t)
 
     # -- what failed ------------------------------------------------------------------------
     def _false(self, f: Formula, t: float, named: bool = True) -> str:
         if named and f in self.names:
             return f"{self.names[f]} false ({self._false(f, t, named=False)})"
-        if isinstance(f, Implies):
-            return f"{self._true(f.lhs, t)}; {self._false(f.rhs, t)}"
-        if isinstance(f, Until):
-            return self._until(f, t)
-        if isinstance(f, Eventually):
-            lo, hi = t + f.lo, t + f.hi
-            window = f"from {instant(lo)} " + (f"to {instant(hi)}" if math.isfinite(hi) and hi < self.trace.end else "to the end of the run")
-            return f"{self._stayed(f.arg, lo, min(hi, self.trace.end))}; {self._name(f.arg)} never held {window}"
-        if isinstance(f, Always):
-            first = self._first(self._not_sat(f.arg), t + f.lo, t + f.hi)
-            if first is None:
-                return f"{format_formula(f)} does not hold"
-            return f"{self._name(f.arg)} failed at {instant(first)}: {self._false(f.arg, first)}"
-        if isinstance(f, Not):
-            return self._true(f.arg, t)
-        if isinstance(f, And):
-            failed = [a for a in f.args if not self._holds(a, t)]
-            return "; ".join(self._false(a, t) for a in failed) if failed else f"{format_formula(f)} does not hold"
-        if isinstance(f, Or):
-            return "; ".join(self._false(a, t) for a in f.args)
-        if isinstance(f, _ATOMS):
-            return self._value(f, t)
-        return f"{format_formula(f)} does not hold at {instant(t)}"
+        return self._failed.visit(f, t)
 
     def _until(self, f: Until, t: float) -> str:
         lo, hi = t + f.lo, t + f.hi
@@ -176,15 +122,6 @@ class Explainer:
                 return max(a, lo)
         return None
 
-    def _value(self, f: Formula, t: float) -> str:
-        """An atom's variables and their values at ``t``: ``rloc = sharedTbl``, ``lgtBar`` / ``not lgtBar``."""
-        if isinstance(f, Const):
-            return "true" if f.value else "false"
-        if isinstance(f, BoolVar):
-            return f.name if self._at(f.name, t) else f"not {f.name}"
-        names = [f.var] + ([f.other] if isinstance(f, Compare) and f.other else [])
-        return ", ".join(f"{n} = {_text(self._at(n, t))}" for n in names)
-
     def _stayed(self, f: Formula, lo: float, hi: float) -> str:
         """What the variables of ``f`` did over ``[lo, hi]``: stayed a value, or went through values."""
         parts = []
@@ -202,14 +139,134 @@ class Explainer:
         return None if signal is None else signal.value_at(t)
 
 
-def _children(f: Formula) -> tuple[Formula, ...]:
-    if isinstance(f, (And, Or)):
-        return f.args
-    if isinstance(f, (Implies, Until)):
-        return (f.lhs, f.rhs)
-    if isinstance(f, (Not, Always, Eventually)):
-        return (f.arg,)
-    return ()
+# The questions the explainer asks of a formula at an instant ``t``, one operator at a time:
+# ``visit(f, t)``. They recurse through the explainer's own methods, which name a macro first.
+
+
+class _Reading:
+    """What the questions share: the explainer ``x`` they are asked for."""
+
+    def __init__(self, explainer: Explainer) -> None:
+        self.x = explainer
+
+
+class _Value(_Reading, Visitor):
+    """An atom's variables and their values at ``t``: ``rloc = sharedTbl``, ``lgtBar`` / ``not lgtBar``."""
+
+    refused = {name: "an operator has no value of its own: only an atom has"
+               for name in ("Not", "And", "Or", "Implies", "Always", "Eventually", "Until")}
+
+    def visit_Const(self, f, t: float) -> str:
+        return "true" if f.value else "false"
+
+    def visit_BoolVar(self, f, t: float) -> str:
+        return f.name if self.x._at(f.name, t) else f"not {f.name}"
+
+    def visit_Compare(self, f, t: float) -> str:
+        return ", ".join(f"{n} = {_text(self.x._at(n, t))}" for n in f.variables())
+
+    visit_InSet = visit_Compare
+
+
+class _Window(_Reading, Visitor):
+    """The first temporal window of ``f`` evaluated at ``t`` (the consequent's, for ``->``), or None."""
+
+    def visit_Const(self, f, t: float) -> None:
+        return None
+
+    visit_BoolVar = visit_Compare = visit_InSet = visit_Const
+
+    def visit_Not(self, f, t: float) -> tuple[float, float] | None:
+        return self.visit(f.arg, t)
+
+    def visit_And(self, f, t: float) -> tuple[float, float] | None:
+        return next((w for w in (self.visit(a, t) for a in f.args) if w), None)
+
+    visit_Or = visit_And
+
+    def visit_Implies(self, f, t: float) -> tuple[float, float] | None:
+        return self.visit(f.rhs, t)
+
+    def visit_Always(self, f, t: float) -> tuple[float, float]:
+        return t + f.lo, min(t + f.hi, self.x.trace.end)
+
+    visit_Eventually = visit_Until = visit_Always
+
+
+class _Held(_Reading, Visitor):
+    """What held of ``f`` at ``t`` (``f`` not a macro)."""
+
+    def visit_Const(self, f, t: float) -> str:
+        return self.x._value.visit(f, t)
+
+    visit_BoolVar = visit_Compare = visit_InSet = visit_Const
+
+    def visit_And(self, f, t: float) -> str:
+        return "; ".join(self.x._true(a, t) for a in f.args)
+
+    def visit_Not(self, f, t: float) -> str:
+        return self.x._false(f.arg, t)
+
+    def visit_Or(self, f, t: float) -> str:
+        return f"{format_formula(f)} true"
+
+    visit_Implies = visit_Always = visit_Eventually = visit_Until = visit_Or
+
+
+class _Conjunct(_Reading, Visitor):
+    """One conjunct of a macro that held (not itself a macro): an atom's values, the alternative that held."""
+
+    def visit_Const(self, f, t: float) -> str:
+        return self.x._value.visit(f, t)
+
+    visit_BoolVar = visit_Compare = visit_InSet = visit_Const
+
+    def visit_Or(self, f, t: float) -> str:
+        held = [a for a in f.args if self.x._holds(a, t)]
+        return self.x._part(held[0], t) if held else format_formula(f)
+
+    def visit_Not(self, f, t: float) -> str:
+        return format_formula(f)
+
+    visit_And = visit_Implies = visit_Always = visit_Eventually = visit_Until = visit_Not
+
+
+class _Failed(_Reading, Visitor):
+    """What failed of ``f`` at ``t`` (``f`` not a macro, or named already)."""
+
+    def visit_Const(self, f, t: float) -> str:
+        return self.x._value.visit(f, t)
+
+    visit_BoolVar = visit_Compare = visit_InSet = visit_Const
+
+    def visit_Implies(self, f, t: float) -> str:
+        return f"{self.x._true(f.lhs, t)}; {self.x._false(f.rhs, t)}"
+
+    def visit_Until(self, f, t: float) -> str:
+        return self.x._until(f, t)
+
+    def visit_Eventually(self, f, t: float) -> str:
+        x = self.x
+        lo, hi = t + f.lo, t + f.hi
+        window = f"from {instant(lo)} " + (f"to {instant(hi)}" if math.isfinite(hi) and hi < x.trace.end else "to the end of the run")
+        return f"{x._stayed(f.arg, lo, min(hi, x.trace.end))}; {x._name(f.arg)} never held {window}"
+
+    def visit_Always(self, f, t: float) -> str:
+        x = self.x
+        first = x._first(x._not_sat(f.arg), t + f.lo, t + f.hi)
+        if first is None:
+            return f"{format_formula(f)} does not hold"
+        return f"{x._name(f.arg)} failed at {instant(first)}: {x._false(f.arg, first)}"
+
+    def visit_Not(self, f, t: float) -> str:
+        return self.x._true(f.arg, t)
+
+    def visit_And(self, f, t: float) -> str:
+        failed = [a for a in f.args if not self.x._holds(a, t)]
+        return "; ".join(self.x._false(a, t) for a in failed) if failed else f"{format_formula(f)} does not hold"
+
+    def visit_Or(self, f, t: float) -> str:
+        return "; ".join(self.x._false(a, t) for a in f.args)
 
 
 def _conjuncts(f: Formula) -> tuple[Formula, ...]:

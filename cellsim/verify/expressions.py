@@ -20,7 +20,7 @@ from __future__ import annotations
 import bisect
 from dataclasses import dataclass
 
-from cellsim.logic.syntax import And, BoolVar, Compare, Const, Implies, InSet, Not, Or
+from cellsim.logic.syntax import And, BoolVar, Compare, Const, Implies, InSet, Not, Or, Visitor, numeric_comparisons
 from cellsim.verify.prism import Enum
 
 
@@ -57,42 +57,59 @@ Encoding = Enum | Thresholds | type(bool)
 
 def to_prism(formula, encodings: dict[str, Encoding], names: dict[str, str] | None = None) -> str:
     """The PRISM expression of ``formula``; ``names`` maps a variable to its PRISM name (default: itself)."""
-    names = names or {}
+    return _Prism(encodings, names or {}).visit(formula)
 
-    def name(var: str) -> str:
-        if var not in encodings:
-            raise VerifyError(f"variable '{var}' has no abstraction in the model")
-        return names.get(var, var)
 
-    def go(node) -> str:
-        if isinstance(node, Const):
-            return "true" if node.value else "false"
-        if isinstance(node, BoolVar):
-            return name(node.name)
-        if isinstance(node, Not):
-            return f"!({go(node.arg)})"
-        if isinstance(node, And):
-            return "(" + " & ".join(go(a) for a in node.args) + ")"
-        if isinstance(node, Or):
-            return "(" + " | ".join(go(a) for a in node.args) + ")"
-        if isinstance(node, Implies):
-            return f"(!({go(node.lhs)}) | ({go(node.rhs)}))"
-        if isinstance(node, InSet):
-            return "(" + " | ".join(go(Compare(node.var, "==", value)) for value in sorted(node.values, key=str)) + ")"
-        if isinstance(node, Compare):
-            return compare(node)
+_TEMPORAL = "a temporal operator has no place in a guard of the abstract model"
+
+
+class _Prism(Visitor):
+    """:func:`to_prism`, one operator at a time."""
+
+    refused = {"Always": _TEMPORAL, "Eventually": _TEMPORAL, "Until": _TEMPORAL}
+
+    def __init__(self, encodings: dict[str, Encoding], names: dict[str, str]) -> None:
+        self.encodings, self.names = encodings, names
+
+    def refuse(self, node, why: str) -> str:
         raise VerifyError(f"'{type(node).__name__}' (a temporal operator) has no place in a guard of the abstract model")
 
-    def compare(node: Compare) -> str:
-        encoding = encodings.get(node.var)
-        left = name(node.var)
+    def name(self, var: str) -> str:
+        if var not in self.encodings:
+            raise VerifyError(f"variable '{var}' has no abstraction in the model")
+        return self.names.get(var, var)
+
+    def visit_Const(self, node: Const) -> str:
+        return "true" if node.value else "false"
+
+    def visit_BoolVar(self, node: BoolVar) -> str:
+        return self.name(node.name)
+
+    def visit_Not(self, node: Not) -> str:
+        return f"!({self.visit(node.arg)})"
+
+    def visit_And(self, node: And) -> str:
+        return "(" + " & ".join(self.visit(a) for a in node.args) + ")"
+
+    def visit_Or(self, node: Or) -> str:
+        return "(" + " | ".join(self.visit(a) for a in node.args) + ")"
+
+    def visit_Implies(self, node: Implies) -> str:
+        return f"(!({self.visit(node.lhs)}) | ({self.visit(node.rhs)}))"
+
+    def visit_InSet(self, node: InSet) -> str:
+        return "(" + " | ".join(self.visit(Compare(node.var, "==", value)) for value in sorted(node.values, key=str)) + ")"
+
+    def visit_Compare(self, node: Compare) -> str:
+        encoding = self.encodings.get(node.var)
+        left = self.name(node.var)
         op = {"==": "=", "!=": "!="}.get(node.op, node.op)
         if node.other is not None:
-            other = encodings.get(node.other)
+            other = self.encodings.get(node.other)
             if isinstance(encoding, Thresholds) or isinstance(other, Thresholds):
                 raise VerifyError(f"{node.var} {node.op} {node.other}: two numbers compared with each other cannot be "
                                   "abstracted by thresholds")
-            return f"({left} {op} {name(node.other)})"
+            return f"({left} {op} {self.name(node.other)})"
         if isinstance(encoding, Enum):
             return f"({left} {op} {encoding.code(node.value)})"
         if encoding is bool:
@@ -103,29 +120,8 @@ def to_prism(formula, encodings: dict[str, Encoding], names: dict[str, str] | No
             return f"({left} {op} {point})"  # regions are ordered as the numbers are: < <= > >= = != all exact
         raise VerifyError(f"variable '{node.var}' has no abstraction in the model")
 
-    return go(formula)
-
 
 def thresholds_of(formulas, variable: str) -> Thresholds:
     """The constants ``variable`` is compared with in ``formulas`` (parsed condition-language formulas)."""
-    found: set[float] = set()
-
-    def visit(node) -> None:
-        if isinstance(node, Compare) and node.var == variable and node.other is None:
-            found.add(float(node.value))
-        for child in _children(node):
-            visit(child)
-
-    for formula in formulas:
-        visit(formula)
+    found = {float(node.value) for formula in formulas for node in numeric_comparisons(formula) if node.var == variable}
     return Thresholds(tuple(sorted(found)))
-
-
-def _children(node):
-    if isinstance(node, Not):
-        return (node.arg,)
-    if isinstance(node, (And, Or)):
-        return node.args
-    if isinstance(node, Implies):
-        return (node.lhs, node.rhs)
-    return ()

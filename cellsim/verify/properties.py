@@ -27,12 +27,11 @@ import math
 import re
 from dataclasses import dataclass
 
-from cellsim.logic.syntax import Always, Compare, Eventually, FormulaError, Implies, Until, parse, variables_of
+from cellsim.logic.syntax import (Always, Const, Eventually, FormulaError, Implies, Until, is_temporal, numeric_comparisons,
+                                  parse, variables_of)
 from cellsim.verify.expressions import VerifyError, to_prism
 from cellsim.verify.model import AbstractCell, Property
 from cellsim.verify.prism import Command, Module, Var
-
-_TEMPORAL = (Always, Eventually, Until)
 
 
 @dataclass
@@ -85,9 +84,8 @@ class ConditionProperties:
     def _reads(self, formula, variables: dict[str, str], by: str) -> None:
         for channel in variables.values():
             self.cell.read(channel, by, required=False)
-        for node in _nodes(formula):
-            if isinstance(node, Compare) and node.other is None and not isinstance(node.value, (str, bool)):
-                self.cell.compares(self.channel(node.var), [node.value])
+        for node in numeric_comparisons(formula):
+            self.cell.compares(self.channel(node.var), [node.value])
 
     def build(self) -> None:
         cell = self.cell
@@ -134,7 +132,7 @@ class ConditionProperties:
                     formula = parse(source, vocabulary, macros)
                 except FormulaError as e:
                     raise VerifyError(f"verify.{name}: \"{source}\": {e.message}") from None
-                if any(isinstance(n, _TEMPORAL) for n in _nodes(formula)):
+                if is_temporal(formula):
                     raise VerifyError(f"verify.{name}: \"{source}\" has a temporal operator; write time with PCTL's own")
                 variables = {v: self.channel(v) for v in variables_of(formula)}
                 missing = sorted(v for v, ch in variables.items() if ch not in cell.signals)
@@ -171,8 +169,6 @@ def _shape(formula):
             if isinstance(rhs, Until) and not rhs.weak and rhs.lo == 0.0 and math.isfinite(rhs.hi) and _timeless(rhs.lhs) and _timeless(rhs.rhs):
                 return "bounded response", (body.lhs, rhs.lhs, rhs.rhs, rhs.hi)
             if isinstance(rhs, Eventually) and rhs.lo == 0.0 and math.isfinite(rhs.hi) and _timeless(rhs.arg):
-                from cellsim.logic.syntax import Const
-
                 return "bounded response", (body.lhs, Const(True), rhs.arg, rhs.hi)
             if isinstance(rhs, Eventually) and not math.isfinite(rhs.hi):
                 return "G(a -> F b) with no bound on F: a liveness property, which runs of any length could satisfy"
@@ -181,16 +177,4 @@ def _shape(formula):
 
 
 def _timeless(formula) -> bool:
-    return not any(isinstance(n, _TEMPORAL) for n in _nodes(formula))
-
-
-def _nodes(formula):
-    stack = [formula]
-    while stack:
-        node = stack.pop()
-        yield node
-        for name in ("arg", "lhs", "rhs"):
-            child = getattr(node, name, None)
-            if child is not None and not isinstance(child, (str, float, int)):
-                stack.append(child)
-        stack.extend(getattr(node, "args", ()) or ())
+    return not is_temporal(formula)

@@ -129,7 +129,7 @@ def _none(guards: list[str]) -> str:
 
 
 def _always(formula) -> bool:
-    return isinstance(formula, Const) and formula.value
+    return formula == Const(True)
 
 
 __all__ = ["RiskModules", "Thresholds", "monitored_encodings", "risk_modules"]
