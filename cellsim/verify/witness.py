@@ -207,18 +207,19 @@ def replay(model, checked: Checked, out: Path, on_stage=None) -> Replay:
         checked_run = done.checked
         violated = [n for n, v in checked_run.result.verdicts.items() if v.status is Verdict.VIOLATED] if checked_run else []
         outcome.violated = violated
-        if _shows(checked, checked_run, violated):
+        if _shows(checked, done.summary, violated):
             outcome.confirmed, outcome.shift = True, shift
             return outcome
     return outcome
 
 
-def _shows(checked: Checked, run, violated: list[str]) -> bool:
+def _shows(checked: Checked, summary, violated: list[str]) -> bool:
+    """Whether the twin's run shows what the model checker found: the condition violated, or the hazard's
+    mishap reached (as the run's summary counts it, ``cellsim.hazards``)."""
     prop = checked.prop
     if prop.condition is not None:
         return prop.condition in violated
     if prop.hazard is not None:
-        channel, mishap = prop.hazard
-        values = run.trace.to_json().get(channel, [])
-        return any(value == mishap for _, value in values)
+        counts = summary.hazards.get(prop.hazard[0])
+        return counts is not None and counts.mishaps > 0
     return False
