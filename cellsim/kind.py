@@ -23,14 +23,16 @@ entry-point group, where :mod:`cellsim.registry` finds it::
     [project.entry-points."cellsim.modules"]
     conveyor = "my_cell.conveyor:ConveyorKind"
 
-This module imports nothing of cellsim: a kind depends on it, and the registry
-loads kinds by name, so the two never form a circle.
+This module imports nothing of cellsim but the foundation's channel types: a kind
+depends on it, and the registry loads kinds by name, so the two never form a circle.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal
+
+from cellsim.channels import ChannelType
 
 Section = Literal["entities", "behaviours", "services"]
 SECTIONS: tuple[Section, ...] = ("entities", "behaviours", "services")
@@ -50,6 +52,23 @@ class Figure:
     """What the summary calls it (``work cycles completed``)."""
     channel: str
     """The channel read (``process_controller.cycles_completed``)."""
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """An entity's physical protocol, declared by its kind from its config alone (no system built): what
+    its physical twin reports, what it is told, and what it is told when its supervisor is lost.
+
+    The bridge daemon maps these fields to DBC signals (``cellsim.bridges.config``); a test checks each
+    shipped cell's protocols against the built systems' channels, inputs and safe commands."""
+
+    samples: tuple[tuple[str, ChannelType], ...]
+    """(sample field, its type), in the entity's order: enums and booleans as such, other fields numbers (SI)."""
+    commands: tuple[tuple[str, ChannelType], ...] = ()
+    """(command field, its type), in the entity's order."""
+    safe: dict[str, object] = field(default_factory=dict)
+    """The safe command, command field -> value by name (None: no request): what the physical twin is told
+    when its supervisor is lost."""
 
 
 class ModuleKind:
@@ -97,6 +116,11 @@ class ModuleKind:
     def check(self, sf: Any, name: str, cfg: Any) -> None:
         """Cross-checks at load time, without building: raise the scenario file's ConfigError (files exist,
         referenced modules exist)."""
+
+    def protocol(self, name: str, cfg: Any) -> Protocol | None:
+        """An entity's physical protocol (:class:`Protocol`), from its config; None for a module without a
+        physical twin (a behaviour, a service)."""
+        return None
 
     def figures(self, name: str, cfg: Any) -> list[Figure]:
         """The figures of a run's summary the module gives (its channels' last values): none by default."""

@@ -159,6 +159,36 @@ def test_every_kind_documents_the_channels_its_systems_publish(tmp_path):
     assert seen == set(registry.kind_names())
 
 
+def test_each_entitys_protocol_declared_by_its_kind_is_what_its_built_system_speaks(tmp_path):
+    """The protocol a kind declares from its config alone (what the bridge daemon learns, building
+    nothing) against the built systems of four cells: the same fields in the same order, the same types
+    (an enum's values, a boolean, a number), the same safe command."""
+    from cellsim.codec import FieldCodec
+    from cellsim.diagrams.cell import build_cell
+    from test_area_scanner import scanner_cell
+
+    def described(types) -> list:
+        return [t.domain() for t in types]
+
+    seen = set()
+    for sf in (welding_cell(), load_scenario(ROOT / "scenarios" / "palletising_cell.yaml"),
+               load_scenario(scanner_cell(tmp_path)), load_scenario(ROOT / "scenarios" / "assembly_bench.yaml"),
+               load_scenario(ROOT / "scenarios" / "two_operators.yaml")):
+        built = build_cell(sf, seed=0, duration=1.0, record=False)
+        for name, cfg in sf.scenario.entities.items():
+            protocol, system = registry.kind_of(cfg).protocol(name, cfg), built.modules[name]
+            samples, commands = FieldCodec.samples_of(system), FieldCodec.commands_of(system)
+            assert [n for n, _ in protocol.samples] == list(samples.names), name
+            assert described(t for _, t in protocol.samples) == described(samples.types), name
+            assert [n for n, _ in protocol.commands] == list(commands.names), name
+            assert described(t for _, t in protocol.commands) == described(commands.types), name
+            safe = commands.fields([system.safe_command()[f] for f in commands.names])
+            assert protocol.safe == safe, name
+            seen.add(cfg.kind)
+    assert seen == set(registry.kind_names("entities"))
+    assert all(registry.get(k).protocol("x", None) is None for k in registry.kind_names("behaviours"))
+
+
 def test_every_kind_documents_the_inputs_others_drive(tmp_path):
     """Every typed input of a built system (what a safety controller's commands may drive) is documented,
     and every documented input exists: the curtain's reset only with its interlock, as it says."""

@@ -219,7 +219,7 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
         if not scenario.is_file():
             raise error("scenario", f"file not found: {cfg.scenario}")
         sf = load_scenario(scenario)
-    entities = _entities(sf)
+    protocols = _protocols(sf)
     dbc = path.parent / cfg.dbc
     if not dbc.is_file():
         raise error("dbc", f"file not found: {cfg.dbc}")
@@ -274,16 +274,15 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
             raise error(key, f"no signal '{signal_name}' in message '{message.name}'")
         return signals[signal_name]
 
-    def entity_of(key: str, name: str):
-        if name not in entities:
-            raise error(key, f"no entity named '{name}' in {sf.source} (entities: {', '.join(entities)})")
-        return entities[name]
+    def protocol_of(key: str, name: str):
+        if name not in protocols:
+            raise error(key, f"no entity named '{name}' in {sf.source} (entities: {', '.join(protocols)})")
+        return protocols[name]
 
     samples, commands, safe = {}, {}, {}
     for name, device in cfg.devices.items():
         key = f"devices.{name}"
-        entity = entity_of(key, name)
-        codec = samples[name] = FieldCodec.samples_of(entity)
+        codec = samples[name] = _samples(protocol_of(key, name))
         if set(device.fields) != set(codec.names):
             raise error(f"{key}.fields", f"map each physical-sample field of {name} exactly once: {', '.join(codec.names)}")
         message = protected_message(key, device.message)
@@ -296,9 +295,9 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
                 raise error(f"{key}.fields.{field_name}", f"signal {signal_name} can carry {', '.join(outside)}, "
                             f"which {name}.{field_name} never takes ({', '.join(types[field_name].domain())})")
     for name, mappings in cfg.commands.items():
-        entity = entity_of(f"commands.{name}", name)
-        codec = commands[name] = FieldCodec.commands_of(entity)
-        safe[name] = codec.fields([entity.safe_command()[f] for f in codec.names])
+        protocol = protocol_of(f"commands.{name}", name)
+        codec = commands[name] = _commands(protocol)
+        safe[name] = dict(protocol.safe)
         for i, mapping in enumerate(mappings):
             key = f"commands.{name}.{i}"
             message = protected_message(key, mapping.message)
@@ -313,14 +312,14 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
                     raise error(f"{key}.fields.{signal_name}", f"{name}'s safe command {field_name} = {value} is not "
                                 f"a value of signal {signal_name} ({choices_text(signal)})")
     for name in cfg.robots:
-        entity = entity_of(f"robots.{name}", name)
-        samples[name] = FieldCodec.samples_of(entity)
+        protocol = protocol_of(f"robots.{name}", name)
+        samples[name] = _samples(protocol)
         needed = {*(f"q{i}" for i in range(6)), "safety_mode", "activity", "reached_pose"}
         if set(samples[name].names) != needed:
             raise error(f"robots.{name}", f"'{name}' is not a six-axis robot (its sample fields: "
                         f"{', '.join(samples[name].names)})")
-        codec = commands[name] = FieldCodec.commands_of(entity)
-        safe[name] = codec.fields([entity.safe_command()[f] for f in codec.names])
+        commands[name] = _commands(protocol)
+        safe[name] = dict(protocol.safe)
     frames = {}
     for name, device in cfg.devices.items():
         frames[device.message] = SignalMap.of_device(messages[device.message], device.fields,
@@ -332,11 +331,25 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
     return LoadedBridge(cfg, database, path, sf.scenario.name, samples, commands, safe, frames)
 
 
-def _entities(sf) -> dict:
-    """The scenario's entities as built (their fields, types and safe commands are the kinds')."""
-    from cellsim.diagrams.cell import build_cell
+def _protocols(sf) -> dict:
+    """Each entity's physical protocol (``cellsim.kind.Protocol``), as its kind declares it from its config:
+    fields, types and safe commands, learnt without building the cell."""
+    from cellsim.registry import kind_of
 
-    return build_cell(sf, seed=sf.scenario.seed, duration=sf.scenario.duration, record=False).entities
+    found = {}
+    for name, cfg in sf.scenario.entities.items():
+        protocol = kind_of(cfg).protocol(name, cfg)
+        if protocol is not None:
+            found[name] = protocol
+    return found
+
+
+def _samples(protocol) -> FieldCodec:
+    return FieldCodec(tuple(n for n, _ in protocol.samples), tuple(t for _, t in protocol.samples))
+
+
+def _commands(protocol) -> FieldCodec:
+    return FieldCodec(tuple(n for n, _ in protocol.commands), tuple(t for _, t in protocol.commands), nullable=True)
 
 
 def _choices_outside(signal, ctype) -> list[str]:

@@ -6,7 +6,9 @@ from cellsim.entity import TWIN_CHANNELS
 from cellsim.kinds.area_scanner.config import AreaScannerConfig
 from cellsim.kinds.area_scanner.system import AreaScanner
 from cellsim.kinds.sensing import add_sensor
-from cellsim.kind import ModuleKind
+from cellsim.channels import enum_type, number_type
+from cellsim.kind import ModuleKind, Protocol
+from cellsim.vocabulary import value_set
 
 
 class AreaScannerKind(ModuleKind):
@@ -20,6 +22,10 @@ class AreaScannerKind(ModuleKind):
         ("distance", "number, m", "distance to the nearest person seen, at most max_range"),
         *TWIN_CHANNELS,
     )
+
+    def protocol(self, name, cfg):
+        fields = enum_type(value_set(f"{name}_field", [cfg.clear, *cfg.fields]))
+        return Protocol((("field", fields), ("distance", number_type(None))))
 
     def build(self, cell, name, cfg):
         return add_sensor(cell, name, AreaScanner(name, cfg, cell.scenario.layout.fixtures.values()))

@@ -6,7 +6,8 @@ from cellsim.entity import TWIN_CHANNELS
 from cellsim.kinds.light_barrier.config import LightBarrierConfig
 from cellsim.kinds.light_barrier.system import LightBarrier
 from cellsim.kinds.sensing import add_sensor
-from cellsim.kind import ModuleKind
+from cellsim.channels import BOOL
+from cellsim.kind import ModuleKind, Protocol
 
 
 class LightBarrierKind(ModuleKind):
@@ -24,6 +25,9 @@ class LightBarrierKind(ModuleKind):
     inputs = (
         ("reset", "bool", "only with restart_interlock: a rising edge resets a tripped curtain whose beams are clear"),
     )
+
+    def protocol(self, name, cfg):
+        return Protocol((("broken", BOOL),))
 
     def build(self, cell, name, cfg):
         return add_sensor(cell, name, LightBarrier(name, cfg))

@@ -5,7 +5,9 @@ from __future__ import annotations
 from cellsim.entity import TWIN_CHANNELS
 from cellsim.kinds.machine.config import MachineConfig
 from cellsim.kinds.machine.system import Machine
-from cellsim.kind import ModuleKind
+from cellsim.channels import enum_type, number_type
+from cellsim.kind import ModuleKind, Protocol
+from cellsim.vocabulary import SafetyMode, value_set
 
 
 class MachineKind(ModuleKind):
@@ -27,6 +29,15 @@ class MachineKind(ModuleKind):
         ("activity_request", "enum", "an activity a safety controller requests (e.g. its off one), or none"),
         ("command", "number", "1 while its process starts (with a cycle_time) or operates it"),
     )
+
+    def protocol(self, name, cfg):
+        modes, activities = enum_type(SafetyMode), enum_type(value_set(f"{name}_activity", cfg.activities))
+        return Protocol(
+            (("safety_mode", modes), ("activity", activities)),
+            (("safety_mode_request", modes), ("activity_request", activities), ("command", number_type(None))),
+            # its supervisor lost: stopped, its off activity requested, no work commanded
+            {"safety_mode_request": SafetyMode.STOPPED.value, "activity_request": cfg.off, "command": 0.0},
+        )
 
     def build(self, cell, name, cfg):
         return cell.add(name, Machine(name, cfg))

@@ -5,7 +5,9 @@ from __future__ import annotations
 from cellsim.entity import TWIN_CHANNELS
 from cellsim.kinds.operator.config import OperatorConfig
 from cellsim.kinds.operator.system import Operator, RouteError, plan_routes
-from cellsim.kind import ModuleKind
+from cellsim.channels import BOOL, enum_type, number_type
+from cellsim.kind import ModuleKind, Protocol
+from cellsim.vocabulary import value_set
 
 
 class OperatorKind(ModuleKind):
@@ -26,6 +28,15 @@ class OperatorKind(ModuleKind):
         ("position", "vector, m", "x, y of the body, every 0.1 s"),
         *TWIN_CHANNELS,
     )
+
+    def protocol(self, name, cfg):
+        notifications = enum_type(value_set(f"{name}_notification", cfg.notifications))
+        return Protocol(
+            tuple((field, number_type(None)) for field in Operator.POSE_FIELDS),
+            (("notification", notifications), *((alert, BOOL) for alert in cfg.alerts)),
+            # the supervisor lost: the first notification (no request), no alert
+            {"notification": cfg.notifications[0], **{alert: False for alert in cfg.alerts}},
+        )
 
     def build(self, cell, name, cfg):
         return build_operator(cell, name, cfg)

@@ -6,7 +6,9 @@ from cellsim.entity import TWIN_CHANNELS
 from cellsim.kinds.range_detector.config import RangeDetectorConfig
 from cellsim.kinds.range_detector.system import RangeDetector
 from cellsim.kinds.sensing import add_sensor
-from cellsim.kind import ModuleKind
+from cellsim.channels import enum_type, number_type
+from cellsim.kind import ModuleKind, Protocol
+from cellsim.vocabulary import Range
 
 
 class RangeDetectorKind(ModuleKind):
@@ -20,6 +22,9 @@ class RangeDetectorKind(ModuleKind):
         ("distance", "number, m", "measured distance to the nearest person"),
         *TWIN_CHANNELS,
     )
+
+    def protocol(self, name, cfg):
+        return Protocol((("range", enum_type(Range)), ("distance", number_type(None))))
 
     def build(self, cell, name, cfg):
         return add_sensor(cell, name, RangeDetector(name, cfg, cell.seed, cell.duration))

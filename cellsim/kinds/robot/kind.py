@@ -13,9 +13,11 @@ from pydrake.multibody.parsing import Parser
 from cellsim.entity import TWIN_CHANNELS
 from cellsim.kinds.robot.config import RobotConfig, ToolTarget
 from cellsim.kinds.robot.geometry import add_arm_geometry, collision_shapes, model_without_collision
-from cellsim.kinds.robot.system import KD, KI, KP, Robot, robot_base_pose
+from cellsim.kinds.robot.system import HOLD, KD, KI, KP, Robot, robot_base_pose
 from cellsim.kinematics import solve_tool_target
-from cellsim.kind import Figure, ModuleKind
+from cellsim.channels import enum_type, number_type
+from cellsim.kind import Figure, ModuleKind, Protocol
+from cellsim.vocabulary import SafetyMode, value_set
 
 
 class RobotKind(ModuleKind):
@@ -40,6 +42,18 @@ class RobotKind(ModuleKind):
         ("speed_limit", "number, m/s", "the tool speed an ssm module allows now; followed in ssmon, below its cap"),
     )
     files = {"model": "robot model"}
+
+    def protocol(self, name, cfg):
+        modes, number = enum_type(SafetyMode), number_type(None)
+        activities = enum_type(value_set(f"{name}_activity", [*cfg.activities, "unknown"]))
+        poses = enum_type(value_set(f"{name}_pose", ["moving", *cfg.named_poses]))
+        return Protocol(
+            (*((f"q{i}", number) for i in range(6)), ("safety_mode", modes), ("activity", activities),
+             ("reached_pose", poses)),
+            (("safety_mode_request", modes), ("activity", activities), ("target_pose", number)),
+            # its supervisor lost: stopped, its first activity, holding where it is
+            {"safety_mode_request": SafetyMode.STOPPED.value, "activity": cfg.activities[0], "target_pose": HOLD},
+        )
 
     def prepare(self, cell, name, cfg):
         _add_arm(cell, name, cfg)

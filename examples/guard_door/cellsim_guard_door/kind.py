@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from cellsim.channels import BOOL
 from cellsim.entity import TWIN_CHANNELS
-from cellsim.kind import ModuleKind
+from cellsim.kind import ModuleKind, Protocol
 from cellsim.kinds.sensing import add_sensor
 
 from cellsim_guard_door.config import GuardDoorConfig
@@ -22,6 +23,10 @@ class GuardDoorKind(ModuleKind):
         ("open", "bool", "true while any person's geometry is in the doorway (the door switch reads open)"),
         *TWIN_CHANNELS,
     )
+
+    def protocol(self, name, cfg):
+        """What its physical twin reports: the interlock switch, one boolean (no commands)."""
+        return Protocol((("open", BOOL),))
 
     def build(self, cell, name, cfg):
         return add_sensor(cell, name, GuardDoor(name, cfg))
