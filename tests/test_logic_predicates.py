@@ -215,3 +215,23 @@ def test_a_negated_set_membership_holds_outside_the_set_only():
     assert guard({"safmod": "pflim"}) is True and guard({"safmod": "normal"}) is False
     single = compile_predicate(parse("not (safmod in {normal})", VOC), VOC)
     assert single({"safmod": "pflim"}) is True and single({"safmod": "normal"}) is False
+
+
+@pytest.mark.parametrize("width", [2, 4, 5, 7])
+def test_a_wide_or_and_and_give_their_value_beyond_the_unrolled_widths(width):
+    """Two to four operands are unrolled; wider ones loop: both ways the same value, every operand counted."""
+    ors = compile_predicate(Or(tuple(BoolVar(f"b{i}") for i in range(width))), {f"b{i}": BoolDomain() for i in range(width)})
+    ands = compile_predicate(And(tuple(BoolVar(f"b{i}") for i in range(width))), {f"b{i}": BoolDomain() for i in range(width)})
+    for true_at in [None, *range(width)]:
+        valuation = {f"b{i}": i == true_at for i in range(width)}
+        assert ors(valuation) is (true_at is not None)
+        assert ands({k: not v for k, v in valuation.items()}) is (true_at is None)
+
+
+def test_the_compiler_itself_refuses_a_temporal_operator_naming_it():
+    """compile_predicate checks a guard first; the compiler's own refusal is the second line, said the same way."""
+    from cellsim.logic.predicates import _Compiler
+    from cellsim.logic.syntax import Always, FormulaError
+
+    with pytest.raises(FormulaError, match=r"not a propositional formula: Always\("):
+        _Compiler().visit(Always(BoolVar("lgtBar")))

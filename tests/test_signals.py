@@ -88,3 +88,59 @@ def test_the_bridge_gives_every_mapped_frame_one_signal_map():
     for entity, mappings in cfg.commands.items():
         for mapping in mappings:
             assert set(loaded.signals(mapping).safe_signals()) == set(mapping.fields)
+
+
+UNBOUNDED = cantools.database.load_string('''VERSION ""
+BU_: Device Bridge
+BO_ 100 Level: 4 Device
+ SG_ Crc : 0|8@1+ (1,0) [0|255] "" Bridge
+ SG_ Counter : 8|4@1+ (1,0) [0|15] "" Bridge
+ SG_ Level : 16|16@1- (0.01,0) [0|0] "m" Bridge
+''', database_format="dbc").get_message_by_name("Level")
+"""A message whose signal has no range ([0|0]: cantools gives it no minimum and no maximum)."""
+
+
+def test_types_decide_what_comes_back_a_boolean_is_a_bool_not_a_number():
+    curtain = SignalMap.of_device(DBC.get_message_by_name("LightCurtainState"), {"broken": "Broken"}, {"broken": BOOL})
+    back = _round_trip(curtain, {"broken": True})["broken"]
+    assert back is True  # (1.0 == True: compare identity)
+    untyped = SignalMap.of_device(DBC.get_message_by_name("LightCurtainState"), {"broken": "Broken"})
+    assert type(_round_trip(untyped, {"broken": True})["broken"]) is float  # no type given: a number
+    reset = SignalMap.of_command(DBC.get_message_by_name("LightCurtainState"), {"Broken": "reset"}, {"reset": False},
+                                 {"reset": BOOL})
+    assert _round_trip(reset, {"reset": True})["reset"] is True
+
+
+def test_a_safe_command_with_no_request_is_the_signals_none():
+    welder = SignalMap.of_command(DBC.get_message_by_name("WelderCommand"),
+                                  {"ActivityRequest": "activity_request", "Weld": "command"},
+                                  {"activity_request": None, "command": 0.0})
+    assert welder.safe_signals() == {"ActivityRequest": NONE, "Weld": 0.0}
+
+
+def test_a_value_that_is_no_number_is_refused_for_a_sample_and_replaced_by_the_safe_value_for_a_command():
+    scanner = _scanner()
+    with pytest.raises(Unsendable, match="is not a number"):
+        scanner.signals({"range": "far", "distance": "near"})
+    with pytest.raises(Unsendable, match=r"\(far, near, close\)"):  # the values it may take, named
+        scanner.signals({"range": "nowhere", "distance": 1.0})
+    distance = SignalMap.of_command(DBC.get_message_by_name("ScannerState"), {"Distance": "limit"}, {"limit": 30.0})
+    assert distance.signals({"limit": "far"}) == {"Distance": 30.0}
+    assert distance.signals({"limit": None}) == {"Distance": 30.0}
+    # the ends of the signal's range are commands it can carry
+    assert distance.signals({"limit": 0.0}) == {"Distance": 0.0}
+    assert distance.signals({"limit": 60.0}) == {"Distance": 60.0}
+    assert distance.signals({"limit": 60.001}) == {"Distance": 30.0}
+
+
+def test_a_signal_without_a_range_takes_any_finite_number_and_no_infinity():
+    level = SignalMap.of_device(UNBOUNDED, {"level": "Level"})
+    assert level.signals({"level": -250.0}) == {"Level": -250.0}
+    assert level.signals({"level": 250.0}) == {"Level": 250.0}
+    for endless in (math.inf, -math.inf):  # no range end to send it as
+        with pytest.raises(Unsendable, match="Level"):
+            level.signals({"level": endless})
+    command = SignalMap.of_command(UNBOUNDED, {"Level": "level"}, {"level": 0.5})
+    assert command.signals({"level": -250.0}) == {"Level": -250.0}
+    assert command.signals({"level": 250.0}) == {"Level": 250.0}
+    assert command.signals({"level": math.inf}) == {"Level": 0.5} and command.signals({"level": -math.inf}) == {"Level": 0.5}

@@ -12,9 +12,9 @@ decided here once:
 * a boolean is 0 or 1;
 * a number is the signal's physical value: a sample beyond the signal's range is
   sent as the range's end (a scanner with nobody in range reads its maximum
-  distance, ``inf``), a sample that is no number (NaN) cannot be sent at all
-  (:class:`Unsendable`: the device skips the frame and the receiver's watchdog
-  fails it safe);
+  distance, ``inf``), a sample that is no number (NaN, or infinite where the
+  signal has no range) cannot be sent at all (:class:`Unsendable`: the device
+  skips the frame and the receiver's watchdog fails it safe);
 * a command the frame cannot carry (a value missing, not among the signal's
   names, not finite, or beyond its range) is sent as the entity kind's *safe
   command* for that signal: a command is never bent into another one.
@@ -50,12 +50,12 @@ class SignalMap:
         self.pairs = tuple(pairs)
         self.safe = None if safe is None else dict(safe)
         types = types or {}
-        self._rows = []  # (field, signal, its value names or None, kind of the field)
+        self._rows = []  # (field, signal, its value names or None, whether the field is a boolean)
         for field_name, signal_name in self.pairs:
             signal = message.get_signal_by_name(signal_name)
             names = None if signal.choices is None else {str(v): code for code, v in signal.choices.items()}
             ctype = types.get(field_name)
-            self._rows.append((field_name, signal, names, getattr(ctype, "kind", "number")))
+            self._rows.append((field_name, signal, names, ctype is not None and ctype.kind == "bool"))
 
     @classmethod
     def of_device(cls, message, fields: Mapping[str, str], types: Mapping | None = None) -> "SignalMap":
@@ -106,21 +106,22 @@ class SignalMap:
         lo = -math.inf if signal.minimum is None else signal.minimum
         hi = math.inf if signal.maximum is None else signal.maximum
         if command:
-            return number if lo <= number <= hi else self.safe[signal.name]
-        if math.isnan(number):
-            raise Unsendable(f"{self.message.name}.{signal.name}: {value!r} is not a number")
-        return min(max(number, lo), hi)
+            return number if math.isfinite(number) and lo <= number <= hi else self.safe[signal.name]
+        clamped = min(max(number, lo), hi)
+        if not math.isfinite(clamped):  # NaN, or infinite where the signal has no range to end it
+            raise Unsendable(f"{self.message.name}.{signal.name}: {value!r} is not a number it can carry")
+        return clamped
 
     # -- signals -> fields -------------------------------------------------------------
     def fields(self, values: Mapping[str, object]) -> dict[str, object]:
         """The entity's fields of a frame's decoded signal ``values`` (codes, not names)."""
         fields = {}
-        for field_name, signal, names, kind in self._rows:
+        for field_name, signal, names, boolean in self._rows:
             value = values[signal.name]
             if names is not None:
                 value = str(signal.choices[int(value)])
                 fields[field_name] = None if value == NONE and self.safe is not None else value
-            elif kind == "bool":
+            elif boolean:
                 fields[field_name] = bool(value)
             else:
                 fields[field_name] = float(value)
