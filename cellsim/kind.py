@@ -55,6 +55,32 @@ class Figure:
 
 
 @dataclass(frozen=True)
+class Glance:
+    """One line a dashboard shows of a module: ``label`` (``{name}`` is the module's name) and the value of
+    its channel ``signal``, with ``unit`` (SI) when it is a number; beyond ``far`` it reads "far"."""
+
+    panel: Literal["cell", "robot"]
+    """The dashboard's panel it goes in: the cell at a glance, or the arms and the people near them."""
+    label: str
+    signal: str
+    unit: str = ""
+    far: float | None = None
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """How a dashboard sets an entity beside its physical twin: the twin's vector channel ``signal`` against
+    the sample ``fields`` (SI), shown times ``scale`` in ``unit``, differing beyond ``tolerance`` (SI).
+    Without one, each sample field is compared with the twin's channel of its name."""
+
+    signal: str
+    fields: tuple[str, ...]
+    tolerance: float
+    scale: float = 1.0
+    unit: str = ""
+
+
+@dataclass(frozen=True)
 class Protocol:
     """An entity's physical protocol, declared by its kind from its config alone (no system built): what
     its physical twin reports, what it is told, and what it is told when its supervisor is lost.
@@ -104,6 +130,12 @@ class ModuleKind:
     inputs: ClassVar[tuple[Doc, ...]] = ()
     """Documented inputs others drive (a safety controller's ``commands:`` as ``MODULE.input``, a process);
     a test checks them against built systems."""
+    formats: ClassVar[tuple[tuple[str, str, type], ...]] = ()
+    """The file formats it reads, for the schema's docs: (heading, one sentence, the file's dataclass)."""
+    glance: ClassVar[tuple[Glance, ...]] = ()
+    """What a dashboard shows of each module of the kind, at a glance."""
+    comparison: ClassVar[Comparison | None] = None
+    """How a dashboard compares an entity of the kind with its physical twin (None: field by field)."""
 
     def build(self, cell: Any, name: str, cfg: Any) -> Any:
         """Add the module's system to ``cell.builder`` (a :class:`cellsim.diagrams.cell.CellBuild`) and return it

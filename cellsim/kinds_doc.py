@@ -210,7 +210,6 @@ def schema_markdown() -> str:
     Only cellsim's own module kinds are listed (``cellsim modules`` shows plug-ins too).
     """
     from cellsim import scenario
-    from cellsim.kinds.safety_controller.risk_model import RiskModelFile
     from cellsim.config.sampling import ChoiceSampler, SimplexSampler, UniformSampler
     from cellsim.config.typed_yaml import MAX_DEPTH, MAX_FILE_CHARS, MAX_NODES
     from cellsim.validation.coverage import MAX_SITUATIONS
@@ -256,14 +255,11 @@ def schema_markdown() -> str:
     for sampler in (UniformSampler, ChoiceSampler, SimplexSampler):
         doc = " ".join((sampler.__doc__ or "").split("\n\n")[0].split())
         lines += [f"### `{_kind_literal(sampler)}`", "", doc, "", *_table(parameters(sampler)), ""]
-    lines += [
-        "## Risk model file",
-        "",
-        "The file a `safety_controller` names (format: docs/risk-model.md).",
-        "",
-        *_table(parameters(RiskModelFile)),
-        "",
-    ]
+    for name in registry.kind_names():
+        kind = registry.get(name)
+        if kind.config.__module__.startswith("cellsim."):
+            for heading, sentence, schema in kind.formats:  # the files a kind reads (a risk model)
+                lines += [f"## {heading}", "", sentence, "", *_table(parameters(schema)), ""]
     return "\n".join(lines)
 
 

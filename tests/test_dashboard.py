@@ -257,3 +257,28 @@ def test_the_bridge_daemons_diagnostics_set_an_entitys_link_level_and_are_logged
     model.apply_diagnostics("light_barrier", {"level": "ERROR", "message": "failed: crc 1", "counts": {"crc": 1}})
     assert row()["level"] == "ERROR" and row()["diagnostics"] == "ERROR"  # the worse of the twin's and the daemon's
     assert model.events[-1].text == "light_barrier: link OK -> ERROR (failed: crc 1)"
+
+
+def test_each_kind_says_what_the_dashboard_shows_of_it_and_a_kind_not_installed_shows_nothing():
+    """The panels are asked of the kinds (ModuleKind.glance, .comparison), not written per kind."""
+    import math
+
+    import yaml
+
+    from cellsim.dashboard.model import CellModel
+    from cellsim.scenario import export_scenario, load_scenario
+
+    scenario = yaml.safe_load(export_scenario(load_scenario(ROOT / "scenarios" / "welding_cell.yaml")))
+    scenario["entities"]["door"] = {"kind": "guard_door"}  # a plug-in this machine does not have
+    model = CellModel({"scenario": scenario, "channels": {}, "hazards": {}})
+    model.values.update({"robot.safety_mode": "pflim", "robot.tool_speed": 0.25, "ground_truth.separation": 2e9,
+                         "process_controller.cycles_completed": 3.0, "robot.joint_positions": [0.0] * 6})
+    assert model.cell_rows()[:3] == [("robot safety mode", "pflim"), ("process step", "-"), ("cycles completed", "3")]
+    assert model.robot_rows() == [("robot location", "-"), ("robot activity", "-"), ("robot tool speed", "0.250 m/s"),
+                                  ("true separation", "far")]
+    # the robot's comparison: its joints in degrees, differing beyond 20 degrees
+    model.physical["robot"] = {"fields": {f"q{i}": (math.radians(25.0) if i == 2 else 0.0) for i in range(6)}}
+    robot = next(row for row in model.entity_rows() if row["entity"] == "robot")
+    assert (robot["twin"], robot["physical"], robot["diverges"]) == ("0 0 0 0 0 0 deg", "0 0 25 0 0 0 deg", True)
+    door = next(row for row in model.entity_rows() if row["entity"] == "door")
+    assert (door["kind"], door["twin"]) == ("guard_door", "-")

@@ -42,9 +42,6 @@ CONDITIONS_EVERY = 0.5
 """Simulated seconds at least between evaluations of the safety conditions, when a variable they read changed."""
 CONDITIONS_AT_LEAST_EVERY = 2.0
 """... and at most between two evaluations (time passing alone can close an obligation: a deadline)."""
-JOINT_DIVERGENCE = math.radians(20.0)
-"""A physical joint further than this from the twin's is highlighted (rad): beyond what the 0.1 s
-between two of the twin's joint-position messages explains at a cobot's joint speeds."""
 
 
 def worst(levels) -> str:
@@ -185,8 +182,24 @@ class CellModel:
             self.log(f"{module}: physical link {value}", LINK_LEVEL.get(value, "WARN"))
 
     # -- views -------------------------------------------------------------------------
-    def of_kind(self, kind: str) -> list[str]:
-        return [name for name, k in self.kinds.items() if k == kind]
+    def kind(self, module: str):
+        """The module's kind (``cellsim.kind.ModuleKind``), or None when it is not installed here."""
+        from cellsim import registry
+
+        try:
+            return registry.get(self.kinds.get(module, "?"))
+        except registry.KindError:
+            return None
+
+    def glance_rows(self, panel: str) -> list[tuple[str, str]]:
+        """What each module's kind shows in ``panel`` (``ModuleKind.glance``), modules in the scenario's order."""
+        rows = []
+        for module in self.kinds:
+            for line in getattr(self.kind(module), "glance", ()):
+                if line.panel != panel:
+                    continue
+                rows.append((line.label.format(name=module), _glanced(self.values.get(f"{module}.{line.signal}"), line)))
+        return rows
 
     def hazard_rows(self) -> list[tuple[str, str, float, str]]:
         """(hazard, phase, seconds in that phase, level) of each hazard."""
@@ -198,33 +211,19 @@ class CellModel:
         return rows
 
     def cell_rows(self) -> list[tuple[str, str]]:
-        """The cell at a glance: safety modes, the safety controller's demands, the process."""
-        rows = []
-        for robot in self.of_kind("robot"):
-            rows.append((f"{robot} safety mode", _text(self.values.get(f"{robot}.safety_mode"))))
-        for controller in self.of_kind("safety_controller"):
-            for name, meta in self.channels.items():
-                if meta["source"] == controller and name not in self.hazards:
-                    value = self.values.get(name)
-                    if value is not None or name.rpartition(".")[2].startswith("notif"):
-                        rows.append((name.rpartition(".")[2], _text(value)))
-        for process in self.of_kind("process"):
-            rows.append(("process step", _text(self.values.get(f"{process}.step"))))
-            cycles = self.values.get(f"{process}.cycles_completed")
-            rows.append(("cycles completed", "-" if cycles is None else f"{cycles:g}"))
+        """The cell at a glance: what each kind shows there (safety modes, the process), and what each supervisor
+        (a safety controller) demands: its channels other than its hazards."""
+        rows = self.glance_rows("cell")
+        for module in self.kinds:
+            if getattr(self.kind(module), "supervises", False):
+                for name, meta in self.channels.items():
+                    if meta["source"] == module and name not in self.hazards and self.values.get(name) is not None:
+                        rows.append((name.rpartition(".")[2], _text(self.values.get(name))))
         return rows
 
     def robot_rows(self) -> list[tuple[str, str]]:
-        rows = []
-        separation = next((self.values.get(f"{g}.separation") for g in self.of_kind("ground_truth")), None)
-        for robot in self.of_kind("robot"):
-            speed = self.values.get(f"{robot}.tool_speed")
-            rows += [(f"{robot} location", _text(self.values.get(f"{robot}.location"))),
-                     (f"{robot} activity", _text(self.values.get(f"{robot}.activity"))),
-                     (f"{robot} tool speed", "-" if speed is None else measure(speed, "m/s"))]
-        if separation is not None:
-            rows.append(("true separation", "far" if separation > 1e3 else measure(separation, "m")))
-        return rows
+        """The arms and the people near them: what each kind shows there."""
+        return self.glance_rows("robot")
 
     def entity_rows(self) -> list[dict]:
         """Per entity: twin mode, link level and sample age, the bridge's diagnostics level, and
@@ -248,17 +247,19 @@ class CellModel:
         """The twin's and the physical twin's values of an entity, and whether they differ."""
         message = self.physical.get(entity)
         fields = message.get("fields") if isinstance(message, dict) else None
-        if self.kinds.get(entity) == "robot":
-            q = _joints(self.values.get(f"{entity}.joint_positions"))
-            twin = "-" if q is None else " ".join(f"{math.degrees(x):.0f}" for x in q) + " deg"
+        comparison = getattr(self.kind(entity), "comparison", None)
+        if comparison is not None:  # a vector channel against several sample fields (a robot's joints)
+            text_of = lambda xs: " ".join(f"{x * comparison.scale:.0f}" for x in xs) + f" {comparison.unit}"  # noqa: E731
+            twin_values = _finite_numbers(self.values.get(f"{entity}.{comparison.signal}"))
+            twin = "-" if twin_values is None else text_of(twin_values)
             if not isinstance(fields, dict):
                 return twin, _failure(message), False
-            physical_q = _joints([fields.get(f"q{i}") for i in range(6)])
-            if physical_q is None:
+            physical_values = _finite_numbers([fields.get(f) for f in comparison.fields])
+            if physical_values is None:
                 return twin, "malformed", True
-            physical = " ".join(f"{math.degrees(x):.0f}" for x in physical_q) + " deg"
-            diverges = q is not None and len(q) == 6 and float(np.max(np.abs(np.subtract(q, physical_q)))) > JOINT_DIVERGENCE
-            return twin, physical, diverges
+            diverges = (twin_values is not None and len(twin_values) == len(physical_values)
+                        and float(np.max(np.abs(np.subtract(twin_values, physical_values)))) > comparison.tolerance)
+            return twin, text_of(physical_values), diverges
         shown = [f for f in (fields or {}) if f"{entity}.{f}" in self.channels] or \
             [n.partition(".")[2] for n, m in self.channels.items() if m["source"] == entity
              and n.partition(".")[2] not in ("twin_mode", "physical_link")][:2]
@@ -354,8 +355,18 @@ def _text(value) -> str:
     return value_text(value, true="yes", false="no")
 
 
-def _joints(values) -> list[float] | None:
-    """Joint positions (rad) if ``values`` is a list of finite numbers, else None (a stale link's NaNs are None)."""
+def _glanced(value, line) -> str:
+    """A value as a kind's glance line shows it: a number with its unit (``far`` beyond its ``far``), a count
+    as a whole number, anything else as text."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return _text(value)
+    if line.far is not None and value > line.far:
+        return "far"
+    return measure(value, line.unit) if line.unit else f"{value:g}"
+
+
+def _finite_numbers(values) -> list[float] | None:
+    """``values`` if it is a list of finite numbers, else None (a stale robot's joints, NaN, are None)."""
     if not isinstance(values, list) or not values:
         return None
     if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in values):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from cellsim.kinds.ground_truth.config import GroundTruthConfig
 from cellsim.kinds.ground_truth.system import GroundTruth
-from cellsim.kind import ModuleKind
+from cellsim.kind import Glance, ModuleKind
 
 
 class GroundTruthKind(ModuleKind):
@@ -16,6 +16,7 @@ class GroundTruthKind(ModuleKind):
     summary = ("Measures what no sensor reports: the true minimum distance between every robot and every person, and "
                "between every pair of robots.")
     stage = 10
+    glance = (Glance("robot", "true separation", "separation", "m", far=1e3),)
     channels = (
         ("separation", "number, m", "true minimum person-robot distance (negative: overlap)"),
         ("clearance_<a>_<b>", "number, m", "per pair of robots a, b: the true minimum distance between them"),

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from cellsim.kinds.process.config import ProcessConfig
 from cellsim.kinds.process.system import Process
-from cellsim.kind import Figure, ModuleKind
+from cellsim.kind import Figure, Glance, ModuleKind
 
 
 class ProcessKind(ModuleKind):
@@ -15,6 +15,7 @@ class ProcessKind(ModuleKind):
     config = ProcessConfig
     summary = "A process controller for any cell: the robot's moves and dwells, machines' cycles started and awaited, machines operated."
     stage = 10
+    glance = (Glance("cell", "process step", "step"), Glance("cell", "cycles completed", "cycles_completed"))
     channels = (
         ("step", "enum", "the current step's name"),
         ("cycles_completed", "number", "process cycles completed so far"),

@@ -7,6 +7,8 @@ and adds the controller side (``build``).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from pydrake.multibody.parsing import Parser
 
@@ -16,7 +18,7 @@ from cellsim.kinds.robot.geometry import add_arm_geometry, collision_shapes, mod
 from cellsim.kinds.robot.system import HOLD, KD, KI, KP, Robot, robot_base_pose
 from cellsim.kinematics import solve_tool_target
 from cellsim.channels import enum_type, number_type
-from cellsim.kind import Figure, ModuleKind, Protocol
+from cellsim.kind import Comparison, Figure, Glance, ModuleKind, Protocol
 from cellsim.vocabulary import SafetyMode, value_set
 
 
@@ -42,6 +44,16 @@ class RobotKind(ModuleKind):
         ("speed_limit", "number, m/s", "the tool speed an ssm module allows now; followed in ssmon, below its cap"),
     )
     files = {"model": "robot model"}
+    glance = (
+        Glance("cell", "{name} safety mode", "safety_mode"),
+        Glance("robot", "{name} location", "location"),
+        Glance("robot", "{name} activity", "activity"),
+        Glance("robot", "{name} tool speed", "tool_speed", "m/s"),
+    )
+    comparison = Comparison("joint_positions", tuple(f"q{i}" for i in range(6)), tolerance=math.radians(20.0),
+                            scale=180.0 / math.pi, unit="deg")
+    """A physical joint further than 20 degrees from the twin's differs: beyond what the 0.1 s between two of the
+    twin's joint-position messages explains at a cobot's joint speeds."""
 
     def protocol(self, name, cfg):
         modes, number = enum_type(SafetyMode), number_type(None)
