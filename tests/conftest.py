@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from cellsim.kinds.operator.config import Waypoint
@@ -77,3 +78,14 @@ def cell_keys(tmp_path_factory):
 @pytest.fixture
 def tmp_run(tmp_path):
     return tmp_path / "run"
+
+
+def legs_distance(point, xy, yaw: float = 0.0, body_radius: float = 0.2, height: float = 1.75) -> float:
+    """Hand computation: the distance (m) from ``point`` (at leg height, below the knees) to the nearer lower leg of a
+    person standing at ``xy`` facing ``yaw``: each a vertical capsule of radius ``LIMB_RADIUS['lower_leg']`` (scaled
+    by the height) 0.45 body_radius to either side of the body's middle (cellsim.body)."""
+    from cellsim.body import LIMB_RADIUS
+
+    side = np.array([-np.sin(yaw), np.cos(yaw)]) * 0.45 * body_radius
+    radius = LIMB_RADIUS["lower_leg"] * height / 1.75
+    return min(float(np.hypot(*(np.asarray(point[:2]) - (np.asarray(xy) + s * side)))) - radius for s in (1, -1))

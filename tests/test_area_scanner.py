@@ -12,7 +12,7 @@ from cellsim.blackbox import BlackBox
 from cellsim.simulation import simulate
 from cellsim.diagrams.cell import build_cell
 
-from conftest import WELDING_CELL, place_operator
+from conftest import WELDING_CELL, legs_distance, place_operator
 from test_sensors import put_operator
 
 # A scanner at the welder's south-west corner, 0.2 m above the floor. The
@@ -85,7 +85,8 @@ def test_the_scanner_does_not_see_through_a_fixture(cell):
     _, hidden = reading(built, context, *BEHIND_PEDESTAL)
     field, seen = reading(built, context, BEHIND_PEDESTAL[0], BEHIND_PEDESTAL[1] + 0.6)  # stepped out from behind
     assert hidden == pytest.approx(10.0)  # nobody seen: max_range
-    assert field == "warning" and seen == pytest.approx(np.hypot(1.3 + 0.567, 0.45 + 0.796) - 0.2, abs=0.15)
+    assert field == "warning" and seen == pytest.approx(
+        legs_distance((1.3, -0.45), (BEHIND_PEDESTAL[0], BEHIND_PEDESTAL[1] + 0.6)), abs=1e-6)
 
 
 def test_without_the_pedestal_the_same_spot_is_in_the_warning_field(tmp_path):
@@ -109,8 +110,8 @@ def test_a_walk_through_the_fields_is_recorded_in_the_cells_words(tmp_path):
         field = bb.series("press_scanner.field").values
         distance = bb.series("press_scanner.distance").values
     assert field[:4] == ["free", "warning", "protective", "warning"] and field[-1] == "free"
-    # nearest at the waypoint: the body's axis 0.93 m from the head, its surface 0.2 m nearer
-    assert min(distance) == pytest.approx(np.hypot(0.75, 0.55) - 0.2, abs=0.03)
+    # nearest at the waypoint, facing east (+x) as they walked: the scanner's beams meet the lower legs
+    assert min(distance) == pytest.approx(legs_distance((1.3, -0.45), (0.55, -1.0), yaw=0.0), abs=0.03)
     # within range from the first update to the last: its max_range (10 m), the state before any update,
     # is never recorded (it was, as a reading at t = 0, while the distance was recorded every 0.1 s)
     assert 10.0 not in distance and distance[0] == pytest.approx(distance[-1], abs=1e-6)

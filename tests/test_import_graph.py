@@ -41,7 +41,7 @@ LAYERS = {
         "cellsim.kind", "cellsim.live.keys", "cellsim.live.pki"),
     1: ("cellsim.systems", "cellsim.registry", "cellsim.scenario", "cellsim.entity", "cellsim.cell_io",
         "cellsim.physical", "cellsim.recorder", "cellsim.verify.model", "cellsim.verify.prism",
-        "cellsim.verify.expressions", "cellsim.verify.risk", "cellsim.visual.cues"),
+        "cellsim.verify.expressions", "cellsim.verify.risk", "cellsim.visual.cues", "cellsim.body", "cellsim.proximity"),
     2: ("cellsim.kinds",),
     3: ("cellsim.diagrams", "cellsim.simulation", "cellsim.provenance", "cellsim.live", "cellsim.visual.live",
         "cellsim.visual.scene"),

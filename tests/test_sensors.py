@@ -9,7 +9,8 @@ from pydrake.systems.analysis import Simulator
 from cellsim.vocabulary import Range
 from cellsim.diagrams.cell import build_cell
 
-from conftest import welding_cell
+from cellsim.body import LIMB_RADIUS
+from conftest import legs_distance, welding_cell
 
 
 @pytest.fixture(scope="module")
@@ -60,13 +61,15 @@ def test_light_barrier_truth_table(cell, pose, broken):
 
 
 def test_range_detector_measures_distance_to_the_body(cell):
+    """At 0.2 m above the floor the detector sees the person's lower legs (cellsim.body): facing it, away from it, or
+    sideways while near (farther off, a hand hanging at the side is nearer than the legs)."""
     built, context = cell
-    sensor = np.array(built.modules["range_detector"].cfg.position[:2])
-    body_radius = built.modules["operator"].cfg.body_radius
-    for surface_distance in (0.3, 0.9, 1.5, 2.4):
-        x, y = sensor - [surface_distance + body_radius, 0.0]
-        put_operator(built, context, x, y)
-        assert range_distance(built, context) == pytest.approx(surface_distance, abs=1e-6)
+    sensor = np.array(built.modules["range_detector"].cfg.position)
+    for offset in (0.3, 0.9, 1.5, 2.4):
+        for yaw in (0.0, np.pi) + ((np.pi / 2, 2.0) if offset < 1.0 else ()):
+            xy = sensor[:2] - [offset, 0.0]
+            put_operator(built, context, *xy, yaw=yaw)
+            assert range_distance(built, context) == pytest.approx(legs_distance(sensor, xy, yaw), abs=1e-6)
 
 
 @pytest.mark.parametrize(
@@ -84,7 +87,9 @@ def test_range_detector_measures_distance_to_the_body(cell):
 def test_range_detector_truth_table_from_geometry(cell, distance, reading):
     built, context = cell
     rd = built.modules["range_detector"]
-    x, y = np.array(rd.cfg.position[:2]) - [distance + 0.2, 0.0]
+    # facing the sensor, each lower leg's surface ``distance`` from it: legs 0.09 m to either side, 0.06 m thick
+    side, radius = 0.45 * 0.2, LIMB_RADIUS["lower_leg"]
+    x, y = np.array(rd.cfg.position[:2]) - [np.sqrt((distance + radius) ** 2 - side**2), 0.0]
     put_operator(built, context, x, y)
     assert rd.classify(range_distance(built, context)) is reading
 
@@ -104,11 +109,11 @@ def test_range_detector_sees_the_nearest_of_two_operators():
     built = build_cell(sf, seed=0, duration=1.0, record=False)
     context = Simulator(built.diagram).get_mutable_context()
     built.set_initial_state(context)
-    sensor = np.array(built.modules["range_detector"].cfg.position[:2])
+    sensor = np.array(built.modules["range_detector"].cfg.position)
     for name, gap in (("operator", 1.8), ("operator_2", 0.6)):
         op = built.modules[name]
-        x, y = sensor - [gap + 0.2, 0.0]
+        x, y = sensor[:2] - [gap, 0.0]
         op.GetMyMutableContextFromRoot(context).get_mutable_discrete_state(op.group("pose")).SetFromVector(
             np.array([x, y, 0, 0, 0, 0, 0])
         )
-    assert range_distance(built, context) == pytest.approx(0.6, abs=1e-6)
+    assert range_distance(built, context) == pytest.approx(legs_distance(sensor, sensor[:2] - [0.6, 0.0]), abs=1e-6)

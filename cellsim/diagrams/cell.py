@@ -154,6 +154,15 @@ class CellBuild:
     """Robot name -> each of its GeometryIds -> the name of the arm's body it is fixed to."""
     foreign_geometry: list = field(default_factory=list)
     """GeometryIds registered outside the plant (all contact is filtered out)."""
+    bodies: dict[str, LeafSystem] = field(default_factory=dict)
+    """Person name -> their system, which has body regions (``regions``: GeometryId -> region name), ``pose_port``
+    and ``previous_pose_port`` and ``frame_poses(pose)``: what the harm service measures."""
+    arm_mass: dict[str, float] = field(default_factory=dict)
+    """Robot name -> its effective mass in a contact (kg): half its moving links' mass plus its payload."""
+    fixture_geometry: dict = field(default_factory=dict)
+    """The layout's fixtures as proximity geometry: GeometryId -> fixture name (what a body can be pinned against)."""
+    measured_pairs: list[tuple[list, list]] = field(default_factory=list)
+    """(geometries, geometries) whose pairs a broadphase query returns (:meth:`measure_between`)."""
     recorder: Recorder | None = None
     prepared: dict[str, object] = field(default_factory=dict)
     """What a kind's ``prepare`` left for its ``build``, by module name."""
@@ -174,12 +183,19 @@ class CellBuild:
         return system
 
     def register_geometry(self, system, person: bool = False) -> list:
-        """Register a system's own SceneGraph geometry (``system.register_geometry``)."""
+        """Register a system's own SceneGraph geometry (``system.register_geometry``); a ``person``'s body
+        regions are what sensors detect and the harm service judges."""
         ids = system.register_geometry(self.scene_graph)
         self.foreign_geometry += ids
         if person:
             self.people += ids
+            self.bodies[system.module] = system
         return ids
+
+    def measure_between(self, these: list, those: list) -> None:
+        """Let SceneGraph's broadphase queries (``ComputeSignedDistancePairwiseClosestPoints``) return the pairs of
+        one of ``these`` and one of ``those``: every other pair stays filtered out."""
+        self.measured_pairs.append((list(these), list(those)))
 
     def connect_query(self, port) -> None:
         """Give an input port the SceneGraph's query object (a sensor measuring geometry)."""
@@ -233,6 +249,8 @@ def build_cell(
     plant.set_name("plant")
     _add_fixtures(plant, sf)
     cell = CellBuild(sf, builder, plant, scene_graph, seed, duration, record)
+    cell.fixture_geometry = _fixture_geometry(scene_graph, sf)
+    cell.foreign_geometry += list(cell.fixture_geometry)
     modules = [
         (registry.kind_of(cfg), section, name, cfg)
         for section in registry.SECTIONS
@@ -251,7 +269,7 @@ def build_cell(
     cell._run_hooks()
     for hook in cell._last_hooks:
         hook()
-    _filter_all_contact(plant, scene_graph, cell.foreign_geometry)
+    _filter_all_contact(plant, scene_graph, cell.foreign_geometry, cell.measured_pairs)
 
     # -- the I/O: the one place that decides what the physical side is ---------------------
     fixed_inputs: list[tuple] = []
@@ -456,12 +474,31 @@ def _add_fixtures(plant: MultibodyPlant, sf: ScenarioFile) -> None:
         plant.RegisterVisualGeometry(world, pose, shape, f"fixture/{name}", np.array(fixture.color))
 
 
-def _filter_all_contact(plant: MultibodyPlant, scene_graph, foreign_geometry: list) -> None:
-    """No geometry pair takes part in contact: geometry is for measuring, not for contact."""
+def _fixture_geometry(scene_graph, sf: ScenarioFile) -> dict:
+    """The layout's fixtures as anchored proximity geometry of their own source: GeometryId -> name."""
+    from pydrake.geometry import GeometryInstance, ProximityProperties
+
+    source = scene_graph.RegisterSource("layout")
+    found = {}
+    for name, fixture in sf.scenario.layout.fixtures.items():
+        pose = RigidTransform(RollPitchYaw(0.0, 0.0, np.radians(fixture.yaw_deg)), list(fixture.center))
+        instance = GeometryInstance(pose, Box(*fixture.size), f"fixture/{name}/proximity")
+        instance.set_proximity_properties(ProximityProperties())
+        found[scene_graph.RegisterAnchoredGeometry(source, instance)] = name
+    return found
+
+
+def _filter_all_contact(plant: MultibodyPlant, scene_graph, foreign_geometry: list, measured: list) -> None:
+    """No geometry pair takes part in contact (geometry is for measuring, not for contact), and broadphase
+    queries return only the ``measured`` pairs. The plant has no collision geometry of its own, so it asks
+    for no contacts whatever the filters allow."""
     ids = list(foreign_geometry)
     for i in range(plant.num_bodies()):
         ids += plant.GetCollisionGeometriesForBody(plant.get_body(BodyIndex(i)))
-    scene_graph.collision_filter_manager().Apply(CollisionFilterDeclaration().ExcludeWithin(GeometrySet(ids)))
+    declaration = CollisionFilterDeclaration().ExcludeWithin(GeometrySet(ids))
+    for these, those in measured:
+        declaration.AllowBetween(GeometrySet(these), GeometrySet(those))
+    scene_graph.collision_filter_manager().Apply(declaration)
 
 
 def _channels(modules: dict[str, LeafSystem]) -> dict[str, tuple[ChannelSpec, OutputPort]]:

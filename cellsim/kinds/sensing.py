@@ -26,6 +26,7 @@ class GeometrySensor(EntitySystem):
         super().__init__(module, period, twin, sample_fields)
         self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
         self.targets: tuple = ()
+        self.target_set: frozenset = frozenset()
 
     def register_head(self, scene_graph, source, position) -> object:
         """The sensor head: a small sphere at ``position`` that distances are measured from; its GeometryId."""
@@ -34,9 +35,16 @@ class GeometrySensor(EntitySystem):
         head.set_illustration_properties(MakePhongIllustrationProperties([0.9, 0.9, 0.1, 1.0]))
         return scene_graph.RegisterAnchoredGeometry(source, head)
 
+    @property
+    def volumes(self) -> list:
+        """The sensor's volumes (GeometryIds) whose overlap with a person's body a broadphase query finds; none by
+        default (a sensor measuring pair by pair)."""
+        return []
+
     def set_targets(self, geometry_ids) -> None:
         """The geometries this sensor detects (people)."""
         self.targets = tuple(geometry_ids)
+        self.target_set = frozenset(self.targets)
 
 
 def add_sensor(cell, name: str, sensor: GeometrySensor) -> GeometrySensor:
@@ -45,4 +53,28 @@ def add_sensor(cell, name: str, sensor: GeometrySensor) -> GeometrySensor:
     cell.register_geometry(sensor)
     cell.connect_query(sensor.query_port)
     cell.after_entities(lambda: sensor.set_targets(cell.people))
+    cell.after_entities(lambda: cell.measure_between(list(getattr(sensor, "volumes", ())), cell.people))
     return sensor
+
+
+def blind_spots(name: str, blackbox, channel: str) -> list:
+    """Each interval a sensor's blind-spot channel (``channel``: the field a person truly is in that the reading
+    does not cover, ``none`` otherwise) names a field, as findings of the run (:class:`cellsim.kind.Finding`)."""
+    from cellsim.kind import Finding
+
+    if channel not in blackbox.channels():
+        return []
+    series = blackbox.series(channel)
+    found, start, current = [], None, "none"
+    for t, value in zip(series.times.tolist(), series.values):
+        if value != current and current != "none":
+            found.append(Finding(name, "blind spot", start, t, _blind_text(name, current), {"field": current}))
+        if value != current:
+            start, current = t, value
+    if current != "none":
+        found.append(Finding(name, "blind spot", start, None, _blind_text(name, current), {"field": current}))
+    return found
+
+
+def _blind_text(name: str, field: str) -> str:
+    return f"a person truly in {name}'s {field} field, which it reported free"

@@ -20,6 +20,7 @@ class AreaScannerKind(ModuleKind):
     channels = (
         ("field", "enum", "the innermost field a person is seen in (not through fixtures), else the clear reading"),
         ("distance", "number, m", "distance to the nearest person seen, at most max_range"),
+        ("unseen", "enum", "blind spot: the innermost field a person truly meets that the reading does not cover, else none"),
         *TWIN_CHANNELS,
     )
 
@@ -33,6 +34,11 @@ class AreaScannerKind(ModuleKind):
     def check(self, sf, name, cfg):
         """The scanner and every corner of its fields lie within the cell (its layout's extent)."""
         _check(sf, name, cfg)
+
+    def findings(self, name, cfg, blackbox):
+        from cellsim.kinds.sensing import blind_spots
+
+        return blind_spots(name, blackbox, f"{name}.unseen")
 
     def abstraction(self, abstract, name, cfg):
         from cellsim.kinds.area_scanner.abstraction import AreaScannerAbstraction

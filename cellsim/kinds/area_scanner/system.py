@@ -43,6 +43,9 @@ class AreaScanner(GeometrySensor):
       physical_sample (input): [t, link, field code, distance (m)].
       field (channel): the innermost field a person is seen in, else the clear reading.
       distance (channel, m): distance from the head to the nearest person seen, at most max_range.
+      unseen (channel): a blind spot: the innermost field a person's body truly meets (by the geometry, through
+        fixtures and outside the beams' heights too) when the reading does not cover it (clear, or an outer
+        field), else none.
     Fails safe (innermost field, distance 0) when its physical sample is stale or corrupt.
     """
 
@@ -57,12 +60,22 @@ class AreaScanner(GeometrySensor):
         bounds = [corner[2] for spec in cfg.fields.values() for corner in spec.corners()]
         self.band = (min(bounds) - 1e-6, max(bounds) + 1e-6)
         self.field_ids: list[list] = []
+        self.field_of: dict = {}
+        """Each field piece's GeometryId -> the field's index (0: innermost)."""
+        self.unseen_readings = value_set(f"{module}_unseen", ["none", *cfg.fields])
+        self._unseen = self.declare_channel(
+            "unseen", enum_type(self.unseen_readings), "none",
+            description="Blind spot: the innermost field a person truly is in, when the reading does not cover it")
         self._outputs = [
             self.declare_channel("field", enum_type(self.readings), cfg.clear, description="Innermost occupied field"),
             self.declare_channel(
                 "distance", number_type("m"), cfg.max_range, description="Distance to the nearest person seen",
             ),
         ]
+
+    @property
+    def volumes(self) -> list:
+        return list(self.field_of)
 
     def register_geometry(self, scene_graph) -> list:
         source = scene_graph.RegisterSource(self.module)
@@ -77,6 +90,7 @@ class AreaScanner(GeometrySensor):
                 instance.set_illustration_properties(MakePhongIllustrationProperties(shade))
                 pieces.append(scene_graph.RegisterAnchoredGeometry(source, instance))
             self.field_ids.append(pieces)
+            self.field_of.update(dict.fromkeys(pieces, k))
             ids += pieces
         return ids
 
@@ -120,43 +134,59 @@ class AreaScanner(GeometrySensor):
             return False
         return not any(wall.blocks(self.position, point) for wall in self.walls)
 
+    def occupancy(self, query) -> tuple[int, int]:
+        """(code of the innermost field someone is seen in, else clear; code of the innermost field someone's
+        body truly meets, seen or not, else clear), from one broadphase query of the pairs overlapping now."""
+        seen = truly = len(self.field_ids) + 1
+        targets = self.target_set
+        for pair in query.ComputeSignedDistancePairwiseClosestPoints(0.0):
+            if pair.distance > 0.0:
+                continue
+            if pair.id_A in self.field_of and pair.id_B in targets:
+                index, target = self.field_of[pair.id_A] + 1, pair.id_B
+            elif pair.id_B in self.field_of and pair.id_A in targets:
+                index, target = self.field_of[pair.id_B] + 1, pair.id_A
+            else:
+                continue
+            truly = min(truly, index)
+            if index < seen and self.seen(_witness_on(query, pair, target)):
+                seen = index
+        clear = len(self.field_ids) + 1
+        return (0 if seen == clear else seen), (0 if truly == clear else truly)
+
     def measure(self, context) -> tuple[int, float]:
         """(code of the innermost field someone is seen in, else clear; distance to the nearest seen)."""
         query = self.query_port.Eval(context)
-        reading = 0
-        for index, pieces in enumerate(self.field_ids):
-            if self._occupied(query, pieces):
-                reading = index + 1
-                break
+        reading, _ = self.occupancy(query)
+        return reading, self.nearest_seen(query)
+
+    def nearest_seen(self, query) -> float:
+        """Distance (m) from the head to the nearest point of a person the beams reach, at most max_range."""
         nearest = self.cfg.max_range
         for target in self.targets:
             pair = query.ComputeSignedDistancePairClosestPoints(self.head_id, target)
             distance = pair.distance + HEAD_RADIUS
             if distance < nearest and self.seen(_witness_on(query, pair, target)):
                 nearest = distance
-        return reading, nearest
-
-    def _occupied(self, query, pieces) -> bool:
-        for piece in pieces:
-            for target in self.targets:
-                pair = query.ComputeSignedDistancePairClosestPoints(piece, target)
-                if pair.distance <= 0.0 and self.seen(_witness_on(query, pair, target)):
-                    return True
-        return False
+        return nearest
 
     def sample_is_valid(self, sample) -> bool:
         return valid_code(sample[0], self.readings) and np.isfinite(sample[1]) and sample[1] >= 0.0
 
     def update(self, context, xd):
         view = self.consult_physical(context, xd)
+        query = self.query_port.Eval(context)
+        seen, truly = self.occupancy(query)  # the geometry: what the scanner would see, and where people truly are
         if view.mode is TwinMode.MODEL:
-            reading, distance = self.measure(context)
+            reading, distance = seen, self.nearest_seen(query)
         elif view.sample is None:
             reading, distance = 1, 0.0  # stale or corrupt: someone may be in the innermost field
         else:
             reading, distance = int(view.sample[0]), float(view.sample[1])
-        published = [context.get_discrete_state(g)[0] for g in self._outputs]
-        write_changed(xd, self._outputs, [float(reading), distance], published)
+        # a blind spot: someone truly in a field more restrictive than the reading (clear reads as beyond them all)
+        unseen = truly if truly and (reading == 0 or truly < reading) else 0
+        published = [context.get_discrete_state(g)[0] for g in (*self._outputs, self._unseen)]
+        write_changed(xd, [*self._outputs, self._unseen], [float(reading), distance, float(unseen)], published)
 
 
 def _occupied_look(channel: str, field_name: str):

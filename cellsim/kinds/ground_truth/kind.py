@@ -36,4 +36,5 @@ def build_ground_truth(cell, name: str, cfg: GroundTruthConfig) -> GroundTruth:
     system = cell.add(name, GroundTruth(name, cfg, list(cell.arm_geometry)))
     cell.connect_query(system.query_port)
     system.set_geometries(cell.robot_geometry, cell.people, cell.arm_geometry)  # every entity exists at this stage
+    cell.measure_between(cell.robot_geometry, cell.people)  # its broadphase query finds their pairs
     return system

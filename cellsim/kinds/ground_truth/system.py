@@ -14,7 +14,8 @@ from pydrake.geometry import QueryObject
 
 from cellsim.channels import number_type
 from cellsim.kinds.ground_truth.config import GroundTruthConfig
-from cellsim.systems import CellSystem, write_scalar
+from cellsim.proximity import nearest_since
+from cellsim.systems import CellSystem, read_scalar, write_scalar
 
 FAR_AWAY = 10.0  # m, reported when there is no operator or no robot
 
@@ -29,6 +30,7 @@ class GroundTruth(CellSystem):
     """
 
     def __init__(self, module: str, cfg: GroundTruthConfig, robots: list[str] = ()):
+        self.robot_ids = self.person_ids = frozenset()
         """``robots``: the cell's robots, in order (a clearance channel per pair)."""
         super().__init__(module, cfg.period)
         self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
@@ -48,6 +50,7 @@ class GroundTruth(CellSystem):
     def set_geometries(self, robot_ids, operator_ids, arms: dict[str, list] | None = None) -> None:
         """``arms``: each robot's GeometryIds, for the clearances."""
         self.pairs = [(r, o) for r in robot_ids for o in operator_ids]
+        self.robot_ids, self.person_ids = frozenset(robot_ids), frozenset(operator_ids)
         arms = arms or {}
         self.arm_pairs = [[(g, h) for g in arms.get(a, ()) for h in arms.get(b, ())] for a, b in self.robot_pairs]
 
@@ -56,8 +59,9 @@ class GroundTruth(CellSystem):
             return
         query = self.query_port.Eval(context)
         if self.pairs:
-            nearest = min(query.ComputeSignedDistancePairClosestPoints(a, b).distance for a, b in self.pairs)
-            write_scalar(xd, self._separation, min(nearest, FAR_AWAY))
+            last = read_scalar(context, self._separation)
+            nearest = nearest_since(query, self.robot_ids, self.person_ids, last, self.period, FAR_AWAY)
+            write_scalar(xd, self._separation, FAR_AWAY if nearest is None else min(nearest.distance, FAR_AWAY))
         for group, pairs in zip(self._clearances, self.arm_pairs):
             if pairs:
                 nearest = min(query.ComputeSignedDistancePairClosestPoints(a, b).distance for a, b in pairs)

@@ -73,12 +73,17 @@ class LightBarrier(GeometrySensor):
         near = lambda xy: abs(xy[0] - x) <= sx / 2 + REACH and abs(xy[1] - y) <= sy / 2 + REACH  # noqa: E731
         return Sight((channel,), lambda values, xy: bool(values.get(channel)) and near(xy))
 
+    @property
+    def volumes(self) -> list:
+        return [self.beam_id]
+
     def measure(self, context) -> bool:
+        """Whether a person's body meets the beams: one broadphase query of the pairs overlapping now."""
         query = self.query_port.Eval(context)
-        return any(
-            query.ComputeSignedDistancePairClosestPoints(self.beam_id, target).distance <= 0.0
-            for target in self.targets
-        )
+        beam, targets = self.beam_id, self.target_set
+        return any(pair.distance <= 0.0 and ((pair.id_A == beam and pair.id_B in targets)
+                                             or (pair.id_B == beam and pair.id_A in targets))
+                   for pair in query.ComputeSignedDistancePairwiseClosestPoints(0.0))
 
     def update(self, context, xd):
         view = self.consult_physical(context, xd)

@@ -25,7 +25,7 @@ class OperatorKind(ModuleKind):
         ("location", "enum", "the layout.operator_zones zone stood in, else layout.operator_outside (oloc)"),
         ("<flag>", "bool", "for each of layout.operator_flags: standing in that volume (otab)"),
         ("waypoint", "enum", "the waypoint walked to or waited at"),
-        ("position", "vector, m", "x, y of the body, every 0.1 s"),
+        ("position", "vector, m", "x, y of the body, at every update"),
         *TWIN_CHANNELS,
     )
 

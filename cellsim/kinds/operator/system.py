@@ -1,7 +1,9 @@
 """The human operator: walks waypoints, reaches for things, and has geometry.
 
-The operator is its own SceneGraph geometry source with two frames: the body
-(a capsule torso and a sphere head) and one arm (a capsule from the shoulder).
+The operator is its own SceneGraph geometry source with two frames, the body and
+the right arm, carrying the body's named regions (:mod:`cellsim.body`:
+head, face, neck, back, chest, abdomen, pelvis, arms, hands, legs) that sensors see
+and the harm service judges.
 The digital behaviour walks the scenario's waypoints in order at a walking speed
 drawn per leg from the run's seed, waits at each, and while waiting at a
 waypoint with a ``reach`` point swings the arm towards that point (0.5 s to
@@ -20,7 +22,6 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import (
-    Capsule,
     FramePoseVector,
     GeometryFrame,
     GeometryInstance,
@@ -34,6 +35,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from cellsim.channels import BOOL, enum_type, vector_type
 from cellsim.entity import EntitySystem
 from cellsim.floorplan import Box3, point_in_polygon, shortest_path
+from cellsim.body import SHOULDER, body_pieces, shoulder_offset
 from cellsim.kinds.operator.config import OperatorConfig
 from cellsim.config.layout import Layout
 from cellsim.systems import read_scalar, write_scalar
@@ -44,8 +46,6 @@ PRESS_TIME = 0.5
 """How long (s) a person holds a button pressed on arriving at a waypoint."""
 CLEARANCE = 0.05
 """How far (m) a person keeps their body from a fixture when walking round it."""
-SKIN = (0.85, 0.65, 0.5, 1.0)
-CLOTHES = (0.1, 0.35, 0.8, 1.0)
 SEEN = Rgba(1.0, 0.2, 0.1, 0.9)
 """The marker above a person's head in Meshcat while a sensor sees them."""
 
@@ -194,12 +194,14 @@ class Operator(EntitySystem):
         wearable in twin mode.
       physical_sample (input): [t, link, x, y, yaw, reach_fraction, reach_x, reach_y, reach_z].
       geometry_pose (output): FramePoseVector of the body and arm frames, for SceneGraph.
+      pose, previous_pose (outputs): the pose state [x, y (m), yaw (rad), reach fraction, reach point (m)]
+        now and before the last update (equal while standing still): how the body moves, for the harm service.
       location (channel): the name of the layout's operator zone the body stands in, else
         layout.operator_outside (oloc; the welding cell: inCell / none).
       <flag> (channel, bool), for each of the layout's operator_flags: whether the body
         stands in that volume (the welding cell: at_table, otab).
       waypoint (channel): the waypoint walked to or waited at.
-      position (channel, m): [x, y] of the body, every 0.1 s.
+      position (channel, m): [x, y] of the body, at every update.
       press_<module>_<input> (output), per button a waypoint presses: 1 for PRESS_TIME
         after arriving there (model mode only: a physical person presses the real button).
     """
@@ -220,6 +222,9 @@ class Operator(EntitySystem):
         self.alert_ports = [self.declare_input(name, ctype=BOOL, default=0.0) for name in cfg.alerts]
         initial = pose_at(self.legs, self.start_yaw, 0.0)
         self._pose = self.declare_state("pose", self._pose_vector(initial))
+        self._previous_pose = self.declare_state("previous_pose", self._pose_vector(initial))
+        self.pose_port = self.DeclareStateOutputPort("pose", self._pose)
+        self.previous_pose_port = self.DeclareStateOutputPort("previous_pose", self._previous_pose)
         # the cell's own words for where a person is: outside, or one of the layout's zones
         self.locations = value_set(f"{module}_location", layout.operator_locations())
         self._zones = [(self.locations(name).code, zone) for name, zone in layout.operator_zones.items()]
@@ -245,27 +250,26 @@ class Operator(EntitySystem):
         self.body_frame = self.arm_frame = None
         self._last_frame_poses: tuple | None = None  # (pose state, FramePoseVector)
         self.geometry_ids: list = []
+        self.regions: dict = {}
+        """Each body GeometryId -> the name of its region (``cellsim.body.REGIONS``)."""
         self.geometry_pose_port = None
 
     # -- geometry --------------------------------------------------------------
     def register_geometry(self, scene_graph) -> list:
-        """Register the body and arm; returns the proximity geometries (for sensors)."""
+        """Register the body's regions (:mod:`cellsim.body`); returns their proximity geometries
+        (for sensors and the harm service; ``regions`` maps each to its region's name)."""
         cfg = self.cfg
         self.source_id = scene_graph.RegisterSource(self.module)
         self.body_frame = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"{self.module}/body"))
         self.arm_frame = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"{self.module}/arm"))
-        torso_top = cfg.height - 0.25
-        torso = Capsule(cfg.body_radius, max(torso_top - 2 * cfg.body_radius, 0.01))
-        parts = [
-            (self.body_frame, RigidTransform([0, 0, torso_top / 2]), torso, "torso", CLOTHES),
-            (self.body_frame, RigidTransform([0, 0, cfg.height - 0.12]), Sphere(0.11), "head", SKIN),
-            (self.arm_frame, RigidTransform([0, 0, -cfg.arm_length / 2]), Capsule(0.05, cfg.arm_length - 0.1), "arm", SKIN),
-        ]
-        for frame, pose, shape, name, color in parts:
-            instance = GeometryInstance(pose, shape, f"{self.module}/{name}")
+        frames = {"body": self.body_frame, "arm": self.arm_frame}
+        for piece in body_pieces(cfg.height, cfg.body_radius, cfg.arm_length):
+            instance = GeometryInstance(piece.pose, piece.shape, f"{self.module}/{piece.name}/{len(self.geometry_ids)}")
             instance.set_proximity_properties(ProximityProperties())
-            instance.set_illustration_properties(MakePhongIllustrationProperties(list(color)))
-            self.geometry_ids.append(scene_graph.RegisterGeometry(self.source_id, frame, instance))
+            instance.set_illustration_properties(MakePhongIllustrationProperties(list(piece.color)))
+            geometry = scene_graph.RegisterGeometry(self.source_id, frames[piece.frame], instance)
+            self.geometry_ids.append(geometry)
+            self.regions[geometry] = piece.region
         self.geometry_pose_port = self.DeclareAbstractOutputPort(
             "geometry_pose",
             lambda: AbstractValue.Make(FramePoseVector()),
@@ -275,9 +279,9 @@ class Operator(EntitySystem):
         return list(self.geometry_ids)
 
     def _shoulder(self, xy, yaw) -> np.ndarray:
-        side = -(self.cfg.body_radius + 0.06)
+        side = -shoulder_offset(self.cfg.body_radius)  # the right shoulder
         c, s = np.cos(yaw), np.sin(yaw)
-        return np.array([xy[0] - s * side, xy[1] + c * side, self.cfg.height - 0.33])
+        return np.array([xy[0] - s * side, xy[1] + c * side, (SHOULDER - 0.02) * self.cfg.height])
 
     def _calc_geometry_pose(self, context, output):
         # Drake recomputes this port after every update of the operator, moved or
@@ -304,8 +308,11 @@ class Operator(EntitySystem):
         return poses
 
     def set_pose(self, root_context, vector) -> None:
-        """Stand the body in ``root_context`` at ``vector``: x, y (m), yaw (rad), reach fraction and reach point (m)."""
-        self.GetMyMutableContextFromRoot(root_context).get_mutable_discrete_state(self._pose).SetFromVector(np.array(vector))
+        """Stand the body in ``root_context`` at ``vector``: x, y (m), yaw (rad), reach fraction and reach point (m);
+        still (its previous pose the same)."""
+        own = self.GetMyMutableContextFromRoot(root_context)
+        for group in (self._pose, self._previous_pose):
+            own.get_mutable_discrete_state(group).SetFromVector(np.array(vector, float))
 
     def physical_state(self, context) -> list[float]:
         """x, y (m), yaw (rad), reach fraction and reach point (m): the pose state."""
@@ -380,7 +387,10 @@ class Operator(EntitySystem):
         if self.buttons:
             self._press_buttons(context, xd, view.mode is TwinMode.MODEL)
         if vector == current:
+            if context.get_discrete_state(self._previous_pose).get_value().tolist() != current:
+                xd.get_mutable_vector(self._previous_pose).SetFromVector(np.array(current))  # still since then
             return  # standing still: nothing derived from the pose changes
+        xd.get_mutable_vector(self._previous_pose).SetFromVector(np.array(current))
         xd.get_mutable_vector(self._pose).SetFromVector(np.array(vector))
         standing = (vector[0], vector[1], 1.0)  # the body, a metre above the floor
         write_scalar(xd, self._location, next((code for code, zone in self._zones if zone.contains(standing)), 0.0))
