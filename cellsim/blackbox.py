@@ -229,9 +229,11 @@ class BlackBox:
         return [Message(t, c, s, json.loads(p)["value"]) for t, c, s, p in rows]
 
     def iter_values(self, channels: list[str]):
-        """``(t, channel, value)`` of the messages of ``channels``, in publication order."""
+        """``(t, channel, value)`` of the messages of ``channels``, in time order (publication order within an
+        instant). Rows are written as the recorder looks at them, a slow channel's value after a faster one's
+        published later, so the file's order is not time order."""
         marks = ",".join("?" * len(channels))
-        query = f"SELECT t, channel, payload FROM messages WHERE channel IN ({marks}) ORDER BY rowid"
+        query = f"SELECT t, channel, payload FROM messages WHERE channel IN ({marks}) ORDER BY t, rowid"
         try:
             cursor = self._db.execute(query, list(channels))
             for t, channel, payload in cursor:  # row by row: memory stays flat however long the run

@@ -8,8 +8,10 @@
 * ``/tf``: the links of every robot as ``foxglove.FrameTransforms`` (frame ``<robot>/<link>`` in
   ``world``) at each recorded joint state;
 * ``/scene``: the cell as ``foxglove.SceneUpdate``: every box, cylinder, sphere and capsule
-  SceneGraph holds (fixtures, sensor volumes, the arms' shapes, people's bodies), the still
-  ones once, the moving ones at each recorded pose.
+  SceneGraph holds (fixtures, sensor volumes, the arms' shapes, people's body regions), the still
+  ones once, the moving ones at each recorded pose; a module with a ``recolour(values)`` hook
+  colours geometry by its recorded channels (the harm service: a body region in contact, amber
+  within its limit and red above it).
 
 The poses come from the cell rebuilt from the run's ``scenario.yaml``, put in each recorded
 state by its modules (``show_recorded``, as ``cellsim replay`` does): no kind is named here.
@@ -182,10 +184,14 @@ def scene_shapes(scene_graph) -> list[tuple]:
     return shapes
 
 
-def scene_update(t: float, shapes: list[tuple], query, moving_only: bool) -> dict:
-    """A foxglove.SceneUpdate of ``shapes`` (all, or only those that move) posed by ``query``."""
-    return {"deletions": [], "entities": [_entity(t, g, kind, fields, query.GetPoseInWorld(g))
-                                          for g, moving, kind, fields in shapes if moving or not moving_only]}
+def scene_update(t: float, shapes: list[tuple], query, moving_only: bool, colours: dict | None = None) -> dict:
+    """A foxglove.SceneUpdate of ``shapes`` (all, or only those that move) posed by ``query``; ``colours``: GeometryId ->
+    (r, g, b, a) drawn instead of a shape's own (a body region in contact)."""
+    colours = colours or {}
+    return {"deletions": [], "entities": [
+        _entity(t, g, kind, fields if g not in colours else {**fields, "color": dict(zip("rgba", colours[g]))},
+                query.GetPoseInWorld(g))
+        for g, moving, kind, fields in shapes if moving or not moving_only]}
 
 
 def frame_transforms(t: float, plant, robots: dict, pose_of) -> dict:
@@ -215,6 +221,7 @@ def _write_scene(writer, cell, recorded, wanted: list[str] = ()) -> int:
     plant_context = plant.GetMyContextFromRoot(context)
     sg_context = scene_graph.GetMyContextFromRoot(context)
     showing = [system for system in cell.modules.values() if hasattr(system, "show_recorded")]
+    recolouring = [system for system in cell.modules.values() if hasattr(system, "recolour")]
     sequence = [0]
 
     def emit(topic: str, t: float, message: dict) -> None:
@@ -224,7 +231,8 @@ def _write_scene(writer, cell, recorded, wanted: list[str] = ()) -> int:
 
     def moment(t: float, moving_only: bool, tf: bool) -> None:
         query = scene_graph.get_query_output_port().Eval(sg_context)
-        emit("/scene", t, scene_update(t, shapes, query, moving_only))
+        colours = {g: rgba for system in recolouring for g, rgba in system.recolour(values).items()}
+        emit("/scene", t, scene_update(t, shapes, query, moving_only, colours))
         if tf:
             emit("/tf", t, frame_transforms(t, plant, cell.robots,
                                             lambda body: plant.EvalBodyPoseInWorld(plant_context, body)))

@@ -55,6 +55,28 @@ class Figure:
 
 
 @dataclass(frozen=True)
+class Finding:
+    """What a run showed that its summary and report name with times and places, read back from its black box
+    by the module's kind (:meth:`ModuleKind.findings`): a contact with a person, the closest approach, a blind spot."""
+
+    subject: str
+    """The module that measured it (``harm``, ``scanner``)."""
+    what: Literal["contact", "closest approach", "blind spot"]
+    start: float
+    """When it began (s)."""
+    end: float | None
+    """When it ended (s); None: it lasted to the end of the run, or it is an instant."""
+    text: str
+    """One line for people: what, where, how hard."""
+    data: dict = field(default_factory=dict)
+    """Its values, for reports (SI units; ``severity``, ``region``, ``field``...)."""
+
+    def to_json(self) -> dict:
+        return {"subject": self.subject, "what": self.what, "start": self.start, "end": self.end, "text": self.text,
+                **self.data}
+
+
+@dataclass(frozen=True)
 class Glance:
     """One line a dashboard shows of a module: ``label`` (``{name}`` is the module's name) and the value of
     its channel ``signal``, with ``unit`` (SI) when it is a number; beyond ``far`` it reads "far"."""
@@ -136,6 +158,9 @@ class ModuleKind:
     """What a dashboard shows of each module of the kind, at a glance."""
     comparison: ClassVar[Comparison | None] = None
     """How a dashboard compares an entity of the kind with its physical twin (None: field by field)."""
+    default_module: ClassVar[str | None] = None
+    """A module every scenario has: one of this kind under this name, with its config's defaults, is added
+    to the kind's section when a scenario lists none of the kind (the harm service)."""
 
     def build(self, cell: Any, name: str, cfg: Any) -> Any:
         """Add the module's system to ``cell.builder`` (a :class:`cellsim.diagrams.cell.CellBuild`) and return it
@@ -157,6 +182,18 @@ class ModuleKind:
     def figures(self, name: str, cfg: Any) -> list[Figure]:
         """The figures of a run's summary the module gives (its channels' last values): none by default."""
         return []
+
+    def findings(self, name: str, cfg: Any, blackbox: Any) -> list[Finding]:
+        """What the module's channels in a run's black box (a ``cellsim.blackbox.BlackBox``) show that the run's
+        summary and report must name (contacts, blind spots): none by default."""
+        return []
+
+    def conditions(self, name: str, cfg: Any) -> dict[str, Any]:
+        """The safety conditions every scenario with this module is judged by, name -> ``Described``
+        (``cellsim.config.validation``): added to the scenario's own unless it waives one with a reason
+        (``validation.waive``). A condition reading a channel the built cell lacks is left out. Several
+        modules giving a condition of one name are judged together (each must hold)."""
+        return {}
 
     def abstraction(self, abstract: Any, name: str, cfg: Any) -> Any:
         """What the module is in the abstract model ``cellsim verify`` checks (a

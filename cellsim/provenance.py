@@ -203,6 +203,8 @@ def read_inputs(sf) -> Inputs:
     for section in ("entities", "behaviours", "services"):
         for module, cfg in getattr(sc, section).items():
             for name, role in kind_of(cfg).files.items():
+                if getattr(cfg, name) is None:
+                    continue  # an optional file not given
                 key = f"{section}.{module}.{name}"
                 top = InputFile.read(key, role, sf.resolve_path(key, getattr(cfg, name)), module=module)
                 files.append(top)

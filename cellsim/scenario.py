@@ -175,11 +175,29 @@ def _shortcut(scenario: Scenario):
 def load_scenario(path: str | os.PathLike, overrides: list[str] | tuple[str, ...] = ()) -> ScenarioFile:
     """Load, override and check a scenario; raises ConfigError on any bad input."""
     loaded = load_file(Scenario, path, base_key="base")
+    _add_default_modules(loaded.value)  # before the overrides: ``--set harm.cutoff=...`` sets the default's
     apply_overrides(loaded, list(overrides), resolve=_shortcut(loaded.value))
     sf = ScenarioFile(loaded, list(overrides))
     _load_validation_file(sf)
     check_scenario(sf)
     return sf
+
+
+def _add_default_modules(sc: Scenario) -> None:
+    """Every kind's ``default_module`` (the harm service) where the scenario lists none of that kind."""
+    from cellsim import registry
+
+    for name in registry.kind_names():
+        try:
+            kind = registry.get(name)
+        except KindError:
+            continue  # a broken plug-in is reported where a scenario uses it
+        module = kind.default_module
+        if module is None or sc.modules_of_kind(kind.name):
+            continue
+        if any(module in getattr(sc, section) for section in ("entities", "behaviours", "services")):
+            continue  # the name is the scenario's own module: nothing is added behind its back
+        getattr(sc, kind.section)[module] = kind.config(kind=kind.name)
 
 
 def _load_validation_file(sf: ScenarioFile) -> None:
@@ -361,6 +379,8 @@ def rebase_file_references(sf: ScenarioFile, to_dir: Path) -> Scenario:
     for section in ("entities", "behaviours", "services"):
         for module, cfg in getattr(copy, section).items():
             for name in kind_of(cfg).files:
+                if getattr(cfg, name) is None:
+                    continue  # an optional file not given
                 target = (sf.file_dir(f"{section}.{module}.{name}") / getattr(cfg, name)).resolve()
                 setattr(cfg, name, os.path.relpath(target, to_dir.resolve()))
     return copy

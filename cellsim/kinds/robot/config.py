@@ -55,6 +55,9 @@ class RobotConfig:
     """The named pose the arm starts in."""
     speed_limits: SpeedLimits = field(default_factory=SpeedLimits)
     """Tool speed cap per moving safety mode (m/s): a limit, never exceeded (the arm plans 0.04 m/s below it)."""
+    payload: Annotated[float, Range(0.0, 1000.0, unit="kg")] = 0.0
+    """Mass the tool carries (kg): with half the moving links' mass, the robot's effective mass in a contact
+    (ISO/TS 15066 Annex A), which the harm service judges contacts by."""
     braking_time: Annotated[float, Range(0.0, 10.0, lo_open=True, unit="s")] = 0.5
     """Time to standstill from full speed on srmst or stopped (s)."""
     period: Period = 0.02

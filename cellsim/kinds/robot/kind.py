@@ -34,8 +34,8 @@ class RobotKind(ModuleKind):
         ("activity", "enum", "one of its activities, or unknown (ract)"),
         ("location", "enum", "the layout.robot_regions region holding the tool, else layout.robot_elsewhere (rloc)"),
         ("reached_pose", "enum", "the named pose the arm rests at, or moving"),
-        ("joint_positions", "vector, rad", "measured joint positions, every 0.1 s"),
-        ("tool_speed", "number, m/s", "measured tool speed, every 0.1 s"),
+        ("joint_positions", "vector, rad", "measured joint positions, at every update"),
+        ("tool_speed", "number, m/s", "measured tool speed, at every update"),
         *TWIN_CHANNELS,
     )
     inputs = (
@@ -148,6 +148,23 @@ def _first_line(error: Exception) -> str:
     return text[:300]
 
 
+def effective_mass(plant, instance, payload: float) -> float:
+    """m_R of ISO/TS 15066 Annex A (kg): half the mass of the arm's moving links (its bodies not welded to the
+    world) plus the payload."""
+    from pydrake.multibody.tree import JointIndex
+
+    welded, grown = {plant.world_body().index()}, True
+    while grown:  # follow weld joints out from the world
+        grown = False
+        for j in range(plant.num_joints()):
+            joint = plant.get_joint(JointIndex(j))
+            if joint.num_velocities() == 0 and joint.parent_body().index() in welded and joint.child_body().index() not in welded:
+                welded.add(joint.child_body().index())
+                grown = True
+    moving = sum(plant.get_body(b).default_mass() for b in plant.GetBodyIndices(instance) if b not in welded)
+    return 0.5 * moving + payload
+
+
 def build_robot(cell, name: str, cfg: RobotConfig) -> Robot:
     """The arm's controller side, its joint controller, and its geometry for ground truth."""
     from pydrake.systems.controllers import InverseDynamicsController
@@ -167,6 +184,7 @@ def build_robot(cell, name: str, cfg: RobotConfig) -> Robot:
     builder.Connect(controller.get_output_port_control(), plant.get_actuation_input_port(instance))
     ids = add_arm_geometry(cell, name, instance, cell.prepared[name])
     cell.arm_geometry[name] = {g: shape.body for g, shape in zip(ids, cell.prepared[name])}
+    cell.arm_mass[name] = effective_mass(cell.plant, instance, cfg.payload)
     cell.robot_geometry += ids
     cell.foreign_geometry += ids  # contact between them and anything is filtered out
     return robot

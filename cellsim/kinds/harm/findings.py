@@ -1,0 +1,84 @@
+"""What a run's black box shows of harm: every contact, and the closest approach of a robot to a person."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cellsim.kind import Finding
+from cellsim.kinds.harm.system import NONE
+
+
+def _series(bb, channel):
+    return bb.series(channel) if channel in bb.channels() else None
+
+
+def harm_findings(name: str, bb) -> list[Finding]:
+    """The contacts (each interval the worst contact's region is not none, with its worst severity) and the closest
+    approach (the least separation of any robot, where and when)."""
+    region = _series(bb, f"{name}.contact_region")
+    if region is None:
+        return []
+    others = {key: _series(bb, f"{name}.{key}") for key in ("severity", "contact_person", "contact_part", "contact_kind",
+                                                            "contact_speed", "nearest_region")}
+    found = []
+    start = None
+    for i, (t, value) in enumerate(zip(region.times.tolist(), region.values)):
+        if value != NONE and start is None:
+            start = t
+        if value == NONE and start is not None:
+            found.append(_contact(name, others, region, start, t))
+            start = None
+    if start is not None:
+        found.append(_contact(name, others, region, start, None))
+    approach = _closest(name, bb, others)
+    return ([approach] if approach is not None else []) + found
+
+
+def _contact(name, others, region, start, end) -> Finding:
+    severity = others["severity"]
+    inside = (severity.times >= start) & ((severity.times < end) if end is not None else True)
+    times = severity.times[inside].tolist()
+    values = [severity.values[i] for i in np.flatnonzero(inside)]
+    if not values:  # the contact's severity is what held when it began
+        times, values = [start], [severity.value_at(start)]
+    worst = int(np.argmax(values))
+    at = times[worst]
+    data = {
+        "severity": float(values[worst]),
+        "region": region.value_at(at),
+        "person": others["contact_person"].value_at(at),
+        "part": others["contact_part"].value_at(at),
+        "kind": others["contact_kind"].value_at(at),
+        "speed": float(others["contact_speed"].value_at(at)),
+        "worst_at": at,
+    }
+    harm = "HARM" if data["severity"] > 1 else "within the limit"
+    text = (f"{data['kind'].replace('_', '-')} contact of {data['part']} with {data['person']}'s {data['region'].replace('_', ' ')} "
+            f"at {data['speed']:.3g} m/s: severity {data['severity']:.3g} ({harm})")
+    return Finding(name, "contact", start, end, text, data)
+
+
+def _closest(name, bb, others) -> Finding | None:
+    best = None
+    for channel in bb.channels():
+        if not channel.startswith(f"{name}.separation_"):
+            continue
+        series = bb.series(channel)
+        if not len(series):
+            continue
+        i = int(np.argmin(series.values))
+        if best is None or series.values[i] < best[0]:
+            best = (float(series.values[i]), float(series.times[i]), channel.removeprefix(f"{name}.separation_"))
+    if best is None:
+        return None
+    distance, t, robot = best
+    region = others["nearest_region"].value_at(t) if others["nearest_region"] is not None else None
+    if region in (None, NONE):
+        return Finding(name, "closest approach", t, None, f"no robot came within {distance:.3g} m of anybody",
+                       {"distance": distance, "robot": robot})
+    severity = others["severity"].value_at(t) or 0.0
+    text = f"{robot} came within {distance:.3g} m of a person's {region.replace('_', ' ')} at {t:.3f} s"
+    if distance <= 0:
+        text = f"{robot} touched a person's {region.replace('_', ' ')} at {t:.3f} s (severity {severity:.3g})"
+    return Finding(name, "closest approach", t, None, text,
+                   {"distance": distance, "robot": robot, "region": region, "severity": float(severity)})

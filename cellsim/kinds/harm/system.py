@@ -1,0 +1,310 @@
+"""The harm service: what the robots do to each person's body, measured on the geometry.
+
+One SceneGraph broadphase query returns the pairs of a robot part (an arm's collision shape) and a
+body region (:mod:`cellsim.body`) nearer than ``cutoff``: every ``far_period`` while it returns
+none (nothing can close the cut-off in between, see ``HarmConfig.far_period``), and at every plant
+step while it returns some. A cell where nobody is near an arm costs one query per ``far_period``. For each robot part touching a region (signed distance <= 0):
+
+* the relative speed along the contact normal, ``v_rel``: the arm's point towards the region
+  (the plant's body velocity at the contact point) less the region's point towards the arm
+  (its motion over the person's last update period);
+* its kind: *quasi-static* (clamping) when a fixture, another robot or another part of the arm
+  lies within ``clamp_gap`` on the far side of the region (within ``clamp_angle_deg`` of the
+  push), else *transient*;
+* its severity against the limits table (:mod:`cellsim.kinds.harm.limits`): above 1 is harm.
+
+The channels report the worst contact at each instant, recorded as it changes (at the rate it
+happens), and each robot's least true distance to any region (up to ``cutoff``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import QueryObject
+
+from cellsim.channels import enum_type, number_type
+from cellsim.kinds.harm.config import MAX_CLOSING_SPEED, HarmConfig
+from cellsim.kinds.harm.limits import QUASI_STATIC, TRANSIENT, BodyLimits, severity
+from cellsim.body import REGIONS
+from cellsim.systems import CellSystem, write_changed
+from cellsim.vocabulary import value_set
+
+NONE = "none"
+"""What the contact channels read while no robot part touches anybody."""
+CONTACT_KINDS = (NONE, TRANSIENT, QUASI_STATIC)
+
+
+@dataclass(frozen=True)
+class Part:
+    """A robot part: the robot, the plant body it is fixed to, and the robot's effective mass (kg)."""
+
+    robot: str
+    body: object
+    """The plant's BodyIndex."""
+    mass: float
+    name: str
+
+
+@dataclass(frozen=True)
+class RegionGeometry:
+    person: int
+    """Index of the person (in ``people``)."""
+    region: str
+    frame: object
+    """The person's SceneGraph frame the region is fixed to."""
+
+
+class HarmMonitor(CellSystem):
+    """Ports:
+      geometry_query (input): SceneGraph's QueryObject.
+      body_poses, body_velocities (inputs): the plant's body poses and spatial velocities (world frame).
+      <person>_pose, <person>_previous_pose (inputs): each person's pose state now and at their last update.
+      severity (channel): the worst contact's severity now (v_rel / v_max; 0: no contact; above 1: harm).
+      clamping (channel): the worst quasi-static (clamping) contact's severity now (0: none).
+      contact_region, contact_person, contact_part, contact_kind (channels): the worst contact's body region,
+        person, robot part and kind (none: no contact).
+      contact_speed (channel, m/s): its relative speed along the contact normal.
+      separation_<robot> (channel, m): the robot's least true distance to any body region (negative:
+        overlapping), read up to ``cutoff``.
+      nearest_region (channel): the body region nearest to any robot within ``cutoff``, else none.
+    """
+
+    def __init__(self, module: str, cfg: HarmConfig, step: float, limits: BodyLimits, robots: dict[str, float],
+                 people: list[str], parts: list[str], plant):
+        """``robots``: each robot's effective mass (kg); ``people``: the persons' module names; ``parts``: every
+        robot part's name (``<robot>_<link>``); ``plant``: the cell's MultibodyPlant (its output ports' types)."""
+        super().__init__(module, step)
+        self.cfg = cfg
+        self.far_every = max(1, int(round(cfg.far_period / step)))
+        self.reach = MAX_CLOSING_SPEED * cfg.far_period
+        """m: a pair farther apart than this at one look cannot touch before the next (``far_period`` later)."""
+        self._near = self.declare_state("near", [0.0])  # 1 while the last look found a pair within the cut-off
+        self.limits = limits
+        self.robots = list(robots)
+        self.people = list(people)
+        self.cos_clamp = math.cos(math.radians(cfg.clamp_angle_deg))
+        self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
+        self.body_poses_port = self.DeclareAbstractInputPort("body_poses", plant.get_body_poses_output_port().Allocate())
+        self.body_velocities_port = self.DeclareAbstractInputPort(
+            "body_velocities", plant.get_body_spatial_velocities_output_port().Allocate())
+        self.pose_ports = []
+        self.person_systems: list = []
+        self.parts: dict = {}  # arm GeometryId -> Part
+        self.bodies: dict = {}  # region GeometryId -> RegionGeometry
+        self.clamps: list = []  # GeometryIds a region can be pinned against
+        self.fixtures: dict = {}  # the layout's fixtures: GeometryId -> name
+        self.region_type = value_set(f"{module}_region", [NONE, *REGIONS])
+        self.person_type = value_set(f"{module}_person", [NONE, *people])
+        self.part_type = value_set(f"{module}_part", [NONE, *parts])
+        self.kind_type = value_set(f"{module}_contact_kind", CONTACT_KINDS)
+        m, speed = number_type("m"), number_type("m/s")
+        self._outputs = [
+            self.declare_channel("severity", number_type(None), 0.0, description="Worst contact's severity now (above 1: harm)"),
+            self.declare_channel("clamping", number_type(None), 0.0, description="Worst clamping contact's severity now"),
+            self.declare_channel("contact_region", enum_type(self.region_type), NONE, description="Body region of the worst contact"),
+            self.declare_channel("contact_person", enum_type(self.person_type), NONE, description="Person of the worst contact"),
+            self.declare_channel("contact_part", enum_type(self.part_type), NONE, description="Robot part of the worst contact"),
+            self.declare_channel("contact_kind", enum_type(self.kind_type), NONE, description="Transient or quasi-static (clamping)"),
+            self.declare_channel("contact_speed", speed, 0.0, description="Worst contact's relative speed along its normal"),
+            self.declare_channel("nearest_region", enum_type(self.region_type), NONE, description="Body region nearest a robot"),
+            *(self.declare_channel(f"separation_{robot}", m, cfg.cutoff, description=f"True least distance from {robot} to a body")
+              for robot in self.robots),
+        ]
+        # nobody near: no contact (codes 0: none), each separation at the cut-off
+        self._clear = [0.0] * (len(self._outputs) - len(self.robots)) + [cfg.cutoff] * len(self.robots)
+        self._first_far = 7  # nearest_region and the separations: measured to the cut-off at each far look
+
+    def add_person(self, name: str, system) -> tuple:
+        """Declare a person's pose inputs; returns the (pose, previous pose) ports to connect."""
+        ports = (self.declare_input(f"{name}_pose", 7), self.declare_input(f"{name}_previous_pose", 7))
+        self.pose_ports.append(ports)
+        self.person_systems.append(system)
+        return ports
+
+    def set_geometries(self, inspector, parts: dict, bodies: dict, fixtures: dict) -> None:
+        """``parts``: arm GeometryId -> Part; ``bodies``: region GeometryId -> (person index, region); ``fixtures``:
+        the layout's fixtures, GeometryId -> name."""
+        self.fixtures = dict(fixtures)
+        self.parts = dict(parts)
+        self.bodies = {g: RegionGeometry(p, region, inspector.GetFrameId(g)) for g, (p, region) in bodies.items()}
+        self.clamps = [*fixtures, *parts]  # what a region can be pinned against: fixtures, every arm's shapes
+
+    # -- in Meshcat (cellsim.visual.cues) ------------------------------------------------------------
+    LOOKS = {"touched": (1.0, 0.75, 0.1, 0.9), "harm": (0.9, 0.05, 0.05, 0.95)}
+    """A body region in contact: amber within its limit, red above it (severity above 1)."""
+
+    replay_channels = ("contact_person", "contact_region", "severity")
+
+    def show_recorded(self, cell, root_context, values: dict) -> None:
+        """Nothing to pose: the contact is drawn by colour (``visual_cues``, ``recolour``)."""
+
+    def contact_look(self, values: dict) -> tuple[str, str, str] | None:
+        """(person, region, look) of the worst contact in the channels' ``values``; None without one."""
+        person, region, level = (values.get(f"{self.module}.{s}") for s in self.replay_channels)
+        if region in (None, NONE):
+            return None
+        return person, region, "harm" if (level or 0.0) > 1.0 else "touched"
+
+    def recolour(self, values: dict) -> dict:
+        """The recorded worst contact's body region, coloured by its severity: GeometryId -> (r, g, b, a)."""
+        contact = self.contact_look(values)
+        if contact is None:
+            return {}
+        person, region, look = contact
+        return {g: self.LOOKS[look] for g, body in self.bodies.items()
+                if body.region == region and self.people[body.person] == person}
+
+    def visual_cues(self, view) -> list:
+        """Each body region, while the worst contact is with it, drawn over in amber (within the limit) or red (harm)."""
+        from pydrake.geometry import Rgba
+
+        from cellsim.visual.cues import Cue, Part
+
+        inspector = view.inspector
+        channels = tuple(f"{self.module}.{s}" for s in self.replay_channels)
+        grouped: dict[tuple[int, str], list] = {}
+        for geometry, body in self.bodies.items():
+            grouped.setdefault((body.person, body.region), []).append(geometry)
+        cues = []
+        for (person, region), geometries in grouped.items():
+            name = f"{self.module}/{self.people[person]}/{region}"
+            looks = {look: tuple(
+                Part(f"{view.frame_path(inspector.GetFrameId(g))}/harm_{region}_{look}/{i}", inspector.GetShape(g),
+                     Rgba(*rgba), inspector.GetPoseInFrame(g), 1.08) for i, g in enumerate(geometries))
+                for look, rgba in self.LOOKS.items()}
+            cues.append(Cue(name, channels, looks, self._look_of(self.people[person], region)))
+        return cues
+
+    def _look_of(self, person: str, region: str):
+        """A cue's choice for one person's region: its look while the worst contact is with it, else none."""
+
+        def choose(values):
+            contact = self.contact_look(values)
+            return contact[2] if contact is not None and contact[:2] == (person, region) else None
+
+        return choose
+
+    # -- measuring ------------------------------------------------------------------------------
+    def update(self, context, xd):
+        near = context.get_discrete_state(self._near).GetAtIndex(0) > 0.0
+        far_look = round(context.get_time() / self.period) % self.far_every == 0
+        if not (near or far_look):
+            return  # nothing was within reach at the last look: nothing can touch before the next
+        query = self.query_port.Eval(context)
+        # every far_period: the pairs within the cut-off; in between, while near: those within reach of a contact
+        within = self.cfg.cutoff if far_look else self.reach
+        pairs = [p for p in query.ComputeSignedDistancePairwiseClosestPoints(within) if self._ours(p)]
+        now_near = any(p.distance <= self.reach for p in pairs)
+        if now_near != near:
+            xd.get_mutable_vector(self._near).SetAtIndex(0, 1.0 if now_near else 0.0)
+        values = self.measure(context, query, pairs) if pairs else list(self._clear)
+        previous = [context.get_discrete_state(g).GetAtIndex(0) for g in self._outputs]
+        if not far_look:  # what lies beyond reach (nothing found within it) stays as the last far look saw it
+            for i in range(self._first_far, len(values)):
+                if values[i] == self._clear[i]:
+                    values[i] = previous[i]
+        write_changed(xd, self._outputs, values, previous)
+
+    def reading(self, context) -> dict:
+        """What the service measures at ``context``'s instant (its own context), channel by channel, decoded: the
+        worst contact's severity, region, person, part, kind and speed, and each robot's separation."""
+        query = self.query_port.Eval(context)
+        pairs = [p for p in query.ComputeSignedDistancePairwiseClosestPoints(self.cfg.cutoff) if self._ours(p)]
+        values = self.measure(context, query, pairs) if pairs else list(self._clear)
+        return {spec.signal: spec.type.decode([value]) for (spec, _), value in zip(self.channels, values)}
+
+    def _ours(self, pair) -> bool:
+        """A robot part and a body region (the broadphase also returns pairs other modules measure)."""
+        return (pair.id_A in self.bodies and pair.id_B in self.parts) or (pair.id_B in self.bodies and pair.id_A in self.parts)
+
+    def measure(self, context, query, pairs) -> list[float]:
+        """The channels' values for the pairs the broadphase found near."""
+        separation = dict.fromkeys(self.robots, self.cfg.cutoff)
+        nearest, nearest_distance = NONE, self.cfg.cutoff
+        touching = []
+        for pair in pairs:  # distances alone first: most near pairs touch nothing
+            region, other = (pair.id_A, pair.id_B) if pair.id_A in self.bodies else (pair.id_B, pair.id_A)
+            part = self.parts[other]
+            if pair.distance < separation[part.robot]:
+                separation[part.robot] = pair.distance
+            if pair.distance < nearest_distance:
+                nearest, nearest_distance = self.bodies[region].region, pair.distance
+            if pair.distance <= 0.0:
+                touching.append((pair, region, part))
+        worst = (0.0, NONE, NONE, NONE, NONE, 0.0)  # severity, region, person, part, kind, speed
+        clamping = 0.0
+        motion = _Motion(self, context)
+        for pair, region, part in touching:
+            body = self.bodies[region]
+            on_a = pair.id_A == region
+            p_W = query.GetPoseInWorld(region) @ (pair.p_ACa if on_a else pair.p_BCb)
+            push = pair.nhat_BA_W if on_a else -pair.nhat_BA_W  # from the arm (B, or A) into the region
+            speed = float((motion.of_part(part, p_W) - motion.of_region(body, p_W)) @ push)
+            kind = QUASI_STATIC if self._pinned(query, region, pair.id_B if on_a else pair.id_A, part, push) else TRANSIENT
+            level = severity(self.limits.regions[body.region], part.mass, kind, speed)
+            if kind == QUASI_STATIC:
+                clamping = max(clamping, level)
+            if level > worst[0] or worst[1] == NONE:
+                worst = (level, body.region, self.people[body.person], part.name, kind, max(speed, 0.0))
+        level, region, person, part, kind, speed = worst
+        return [
+            level, clamping, self.region_type(region).code, self.person_type(person).code, self.part_type(part).code,
+            self.kind_type(kind).code, speed, self.region_type(nearest).code, *(separation[r] for r in self.robots),
+        ]
+
+    def _pinned(self, query, region, touching, part: Part, push) -> bool:
+        """Whether something the region cannot pass (a fixture, an arm's shape on another body) lies within
+        clamp_gap behind it, along the push. Asked only of a region being touched: it costs nothing otherwise."""
+        for other in self.clamps:
+            if other == touching:
+                continue
+            behind = self.parts.get(other)
+            if behind is not None and behind.robot == part.robot and behind.body == part.body:
+                continue  # the same link, another of its shapes
+            pair = query.ComputeSignedDistancePairClosestPoints(region, other)
+            if pair.distance > self.cfg.clamp_gap:
+                continue
+            away = -pair.nhat_BA_W if pair.id_A == region else pair.nhat_BA_W  # from the region towards it
+            if float(away @ push) >= self.cos_clamp:
+                return True
+        return False
+
+
+class _Motion:
+    """Velocities of points of the arms and of the people at one instant (evaluated when first asked)."""
+
+    def __init__(self, monitor: HarmMonitor, context):
+        self.monitor, self.context = monitor, context
+        self._bodies = self._velocities = None
+        self._frames: dict = {}
+
+    def of_part(self, part: Part, p_W) -> np.ndarray:
+        """Velocity (m/s) of the arm's point at ``p_W`` (m), from the plant's body pose and spatial velocity."""
+        if self._bodies is None:
+            self._bodies = self.monitor.body_poses_port.Eval(self.context)
+            self._velocities = self.monitor.body_velocities_port.Eval(self.context)
+        index = int(part.body)
+        X_WB = self._bodies[index]
+        return self._velocities[index].Shift(p_W - X_WB.translation()).translational()
+
+    def of_region(self, body: RegionGeometry, p_W) -> np.ndarray:
+        """Velocity (m/s) of the person's point at ``p_W``: where it was at their previous update, to where it is."""
+        poses = self._frames.get(body.person)
+        if poses is None:
+            system = self.monitor.person_systems[body.person]
+            now_port, before_port = self.monitor.pose_ports[body.person]
+            now, before = now_port.Eval(self.context), before_port.Eval(self.context)
+            if np.array_equal(now, before):
+                poses = self._frames[body.person] = ()
+            else:
+                poses = self._frames[body.person] = (system.frame_poses(tuple(now)), system.frame_poses(tuple(before)),
+                                                     system.period)
+        if not poses:
+            return np.zeros(3)
+        now, before, period = poses
+        X_now, X_before = now.value(body.frame), before.value(body.frame)
+        return (p_W - X_before @ (X_now.inverse() @ p_W)) / period

@@ -1,0 +1,242 @@
+"""Harm measured on the body: contact per region, its kind and its severity, against hand computations.
+
+The arm is put in contact with a person standing still (their pose and previous pose equal), and the
+contacting link is given a pure translation along the contact normal at a chosen speed (its joint
+velocities from the link's Jacobian), so the relative speed is known. The permissible speeds are
+computed here from the shipped limits table and the UR10 model's link masses, read with ElementTree.
+"""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ElementTree
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from pydrake.multibody.tree import JacobianWrtVariable
+from pydrake.systems.analysis import Simulator
+
+from cellsim.diagrams.cell import build_cell
+from cellsim.kinematics import solve_tool_target
+from cellsim.scenario import load_scenario
+
+ROOT = Path(__file__).resolve().parents[1]
+CELL = ROOT / "scenarios" / "machine_tending.yaml"
+LIMITS = yaml.safe_load((ROOT / "cellsim" / "kinds" / "harm" / "body_limits.yaml").read_text())["regions"]
+
+
+def robot_mass() -> float:
+    """m_R by hand: half the UR10's links but its base, plus the cell's 2 kg payload."""
+    tree = ElementTree.parse(ROOT / "scenarios" / "models" / "ur10.urdf")
+    masses = {link.get("name"): float(link.find("inertial/mass").get("value"))
+              for link in tree.iter("link") if link.find("inertial/mass") is not None}
+    return 0.5 * sum(m for name, m in masses.items() if name != "base_link") + 2.0
+
+
+def v_max(region: str, transient: bool) -> float:
+    """ISO/TS 15066 Annex A's permissible speed, by hand from the table."""
+    row = LIMITS[region]
+    force = row["force"] * (row["transient_factor"] if transient else 1.0)
+    mu = 1.0 / (1.0 / row["effective_mass"] + 1.0 / robot_mass())
+    return force / math.sqrt(row["spring_constant"] * 1000.0 * mu)
+
+
+@pytest.fixture(scope="module")
+def cell():
+    built = build_cell(load_scenario(CELL), seed=0, duration=1.0, record=False)
+    simulator = Simulator(built.diagram)
+    built.set_initial_state(simulator.get_mutable_context())
+    return built, simulator.get_mutable_context()
+
+
+def stand(built, context, x, y, yaw, reach=None):
+    """The operator standing still at (x, y) facing yaw, reaching fully for ``reach`` if given."""
+    pose = [x, y, yaw, 0.0, 0.0, 0.0, 0.0] if reach is None else [x, y, yaw, 1.0, *reach]
+    built.modules["operator"].set_pose(context, pose)
+
+
+def region_geometry(built, context, region: str, side: str = ""):
+    person = built.modules["operator"]
+    query = built.modules["harm"].query_port.Eval(built.modules["harm"].GetMyContextFromRoot(context))
+    for geometry, name in person.regions.items():
+        if name == region and (not side or f"{region}_{side}/" in query.inspector().GetName(geometry)):
+            return geometry, query
+    raise LookupError(region)
+
+
+def tool_at(built, context, point, rpy=None) -> None:
+    robot = built.modules["robot"]
+    cfg = robot.cfg
+    q = solve_tool_target(robot.kinematics.model_path, (*cfg.base_position, cfg.base_yaw_deg), cfg.tool_frame,
+                          tuple(float(v) for v in point), rpy, (tuple(robot.initial_positions),)).q
+    assert q is not None, f"the arm cannot put its tool at {point}"
+    plant = built.plant
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+    plant.SetPositions(plant_context, built.robots["robot"], np.array(q))
+    plant.SetVelocities(plant_context, built.robots["robot"], np.zeros(6))
+
+
+def nearest_part(built, context, geometry):
+    """The robot part nearest ``geometry``: (distance, its pair, its body's name)."""
+    harm = built.modules["harm"]
+    query = harm.query_port.Eval(harm.GetMyContextFromRoot(context))
+    best = min(((query.ComputeSignedDistancePairClosestPoints(part, geometry), part) for part in harm.parts),
+               key=lambda found: found[0].distance)
+    pair, part = best
+    return pair.distance, pair, harm.parts[part]
+
+
+def touch(built, context, geometry, start, end, rpy=None, depth=0.004):
+    """Move the tool from ``start`` (clear of the region) towards ``end`` until the arm overlaps it by about ``depth``."""
+    start, end = np.asarray(start, float), np.asarray(end, float)
+    lo, hi = 0.0, 1.0  # fractions of the way: clear at lo, overlapping at hi
+    tool_at(built, context, end, rpy)
+    assert nearest_part(built, context, geometry)[0] < 0, "the end point does not reach the region"
+    for _ in range(30):
+        mid = (lo + hi) / 2
+        tool_at(built, context, start + mid * (end - start), rpy)
+        distance = nearest_part(built, context, geometry)[0]
+        if -depth <= distance < 0:
+            return
+        lo, hi = (mid, hi) if distance >= 0 else (lo, mid)
+    raise AssertionError("no contact found")
+
+
+def drive(built, context, body_index, velocity) -> None:
+    """Joint velocities giving the arm's body ``body_index`` a pure translation at ``velocity`` (m/s)."""
+    plant = built.plant
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+    frame = plant.get_body(body_index).body_frame()
+    J = plant.CalcJacobianSpatialVelocity(plant_context, JacobianWrtVariable.kV, frame, np.zeros(3),
+                                          plant.world_frame(), plant.world_frame())
+    v = np.linalg.lstsq(J, np.concatenate([np.zeros(3), velocity]), rcond=None)[0]
+    assert np.allclose(J @ v, np.concatenate([np.zeros(3), velocity]), atol=1e-9), "the arm cannot move so here"
+    plant.SetVelocities(plant_context, built.robots["robot"], v)
+
+
+def reading_at(built, context, geometry, speed):
+    """Drive the contacting link into the region at ``speed`` (m/s) along the contact normal; the harm reading."""
+    _, pair, part = nearest_part(built, context, geometry)
+    push = pair.nhat_BA_W if pair.id_A == geometry else -pair.nhat_BA_W  # from the arm into the region
+    drive(built, context, part.body, speed * push)
+    harm = built.modules["harm"]
+    return harm.reading(harm.GetMyContextFromRoot(context)), part
+
+
+def test_the_effective_masses_are_the_hand_computed_ones(cell):
+    built, _ = cell
+    assert built.modules["harm"].parts and all(
+        part.mass == pytest.approx(robot_mass(), rel=1e-9) for part in built.modules["harm"].parts.values())
+
+
+@pytest.mark.parametrize("region, side, placement", [
+    # a hand stretched out in front, touched from above
+    ("hand", "right", dict(person=(0.3, -1.15, math.pi / 2), reach=(0.3, -0.45, 1.05), approach=(0.0, 0.0, 0.25))),
+    # the chest, touched from in front
+    ("chest", "", dict(person=(0.3, -1.0, math.pi / 2), reach=None, approach=(0.0, 0.35, 0.0))),
+])
+def test_severity_crosses_one_at_the_hand_computed_permissible_speed(cell, region, side, placement):
+    built, context = cell
+    x, y, yaw = placement["person"]
+    stand(built, context, x, y, yaw, placement["reach"])
+    geometry, query = region_geometry(built, context, region, side)
+    centre = query.GetPoseInWorld(geometry).translation()
+    touch(built, context, geometry, centre + placement["approach"], centre)
+    limit = v_max(region, transient=True)
+    for fraction in (0.5, 0.99, 1.01, 1.5):
+        reading, part = reading_at(built, context, geometry, fraction * limit)
+        assert reading["contact_region"] == region and reading["contact_kind"] == "transient"
+        assert reading["contact_part"] == part.name
+        assert reading["contact_speed"] == pytest.approx(fraction * limit, rel=1e-5)
+        assert reading["severity"] == pytest.approx(fraction, rel=1e-5)
+        assert (reading["severity"] > 1) is (fraction > 1)
+    # moving away from the region is no harm, however fast
+    reading, _ = reading_at(built, context, geometry, -2.0)
+    assert reading["contact_region"] == region and reading["severity"] == 0.0
+
+
+def test_a_hand_pressed_onto_the_bench_is_clamped(cell):
+    """The hand on the bench's top, the tool pressing down on it: quasi-static, judged by the quasi-static force."""
+    built, context = cell
+    bench_top = 0.9
+    # the person at the bench's south end reaches onto it; lower the reach until the hand rests on the top
+    hand = None
+    for z in np.arange(1.05, 0.85, -0.005):
+        stand(built, context, -0.95, -0.95, math.pi / 2, (-0.95, -0.45, z))
+        hand, query = region_geometry(built, context, "hand", "right")
+        bench = next(g for g, name in built.modules["harm"].fixtures.items() if name == "bench")
+        gap = query.ComputeSignedDistancePairClosestPoints(hand, bench).distance
+        if 0.0 < gap <= 0.01:
+            break
+    else:
+        raise AssertionError("the hand never rests on the bench")
+    centre = query.GetPoseInWorld(hand).translation()
+    touch(built, context, hand, centre + [0.0, 0.0, 0.25], centre, rpy=(0.0, 180.0, 0.0))
+    assert centre[2] > bench_top
+    limit = v_max("hand", transient=False)
+    for fraction in (0.9, 1.1):
+        reading, _ = reading_at(built, context, hand, fraction * limit)
+        assert reading["contact_region"] == "hand" and reading["contact_kind"] == "quasi_static"
+        assert reading["severity"] == pytest.approx(fraction, rel=1e-5)
+        assert reading["clamping"] == pytest.approx(fraction, rel=1e-5)
+
+
+def test_a_head_contact_is_harm_at_any_speed(cell):
+    built, context = cell
+    stand(built, context, 0.3, -1.0, math.pi / 2)
+    head, query = region_geometry(built, context, "head")
+    centre = query.GetPoseInWorld(head).translation()
+    touch(built, context, head, centre + [0.3, 0.0, 0.1], centre)  # from the person's right side, a little above
+    for speed in (0.0, 0.01, 0.05):
+        reading, _ = reading_at(built, context, head, speed)
+        assert reading["contact_region"] == "head" and reading["contact_kind"] == "transient"
+        assert reading["severity"] == pytest.approx(2.0 + speed / v_max("head", transient=False), rel=1e-5)
+
+
+def test_nobody_near_reads_no_contact_and_the_cut_off(cell):
+    built, context = cell
+    stand(built, context, -3.5, -2.0, 0.0)
+    tool_at(built, context, (0.6, 0.3, 1.2))
+    harm = built.modules["harm"]
+    reading = harm.reading(harm.GetMyContextFromRoot(context))
+    assert reading["severity"] == 0.0 and reading["contact_region"] == "none" and reading["nearest_region"] == "none"
+    assert reading["separation_robot"] == pytest.approx(harm.cfg.cutoff)
+
+
+def test_a_person_walking_into_a_still_arm_brings_the_speed(cell):
+    """The relative speed counts the person's own motion: their chest moving at 0.25 m/s onto a still tool."""
+    built, context = cell
+    stand(built, context, 0.3, -1.0, math.pi / 2)
+    chest, query = region_geometry(built, context, "chest")
+    centre = query.GetPoseInWorld(chest).translation()
+    touch(built, context, chest, centre + [0.0, 0.35, 0.0], centre)
+    person = built.modules["operator"]
+    step = 0.25 * person.period  # walked forward (+y) this far in their last update
+    own = person.GetMyMutableContextFromRoot(context)
+    own.get_mutable_discrete_state(person.group("previous_pose")).SetFromVector(
+        np.array([0.3, -1.0 - step, math.pi / 2, 0.0, 0.0, 0.0, 0.0]))
+    harm = built.modules["harm"]
+    reading = harm.reading(harm.GetMyContextFromRoot(context))
+    assert reading["contact_region"] == "chest"
+    assert reading["contact_speed"] == pytest.approx(0.25, rel=1e-3)
+    assert reading["severity"] == pytest.approx(0.25 / v_max("chest", transient=True), rel=1e-3)
+
+
+def test_the_touched_region_is_drawn_amber_within_its_limit_and_red_above_it(cell):
+    """Meshcat's cues and the Foxglove export's colours name the same region, by the recorded contact."""
+    from cellsim.visual.cues import CueView
+
+    built, _ = cell
+    harm = built.modules["harm"]
+    cues = {cue.name: cue for cue in harm.visual_cues(CueView(built.scene_graph))}
+    hand = {"harm.contact_person": "operator", "harm.contact_region": "hand", "harm.severity": 1.4}
+    assert cues["harm/operator/hand"].choose(hand) == "harm"
+    assert cues["harm/operator/hand"].choose({**hand, "harm.severity": 0.6}) == "touched"
+    assert cues["harm/operator/chest"].choose(hand) is None
+    assert cues["harm/operator/hand"].choose({**hand, "harm.contact_region": "none"}) is None
+    coloured = harm.recolour(hand)
+    hands = {g for g, body in harm.bodies.items() if body.region == "hand"}
+    assert set(coloured) == hands and len(hands) == 2 and all(rgba == harm.LOOKS["harm"] for rgba in coloured.values())
+    assert harm.recolour({}) == {}
