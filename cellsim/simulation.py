@@ -30,7 +30,7 @@ from cellsim import registry
 from cellsim.atomic import LOCK, FolderBusy, folder_lock
 from cellsim.config.typed_yaml import to_data
 from cellsim.hazards import HazardCounts, HazardPhases
-from cellsim.kind import Figure
+from cellsim.kind import Figure, Finding
 from cellsim.provenance import BLACKBOX, INPUTS, RESOLVED_SCENARIO, package_versions, read_inputs, write_run_scenario
 from cellsim.provenance import provenance as make_provenance
 from cellsim.scenario import ScenarioFile
@@ -59,6 +59,21 @@ class RunSummary:
     figures: list[tuple[Figure, object]] = field(default_factory=list)
     """The figures the modules' kinds give (:meth:`cellsim.kind.ModuleKind.figures`), each with its value
     (None: its channel has no message), in the scenario's order."""
+    findings: list[Finding] = field(default_factory=list)
+    """What the modules' kinds find in the black box (:meth:`cellsim.kind.ModuleKind.findings`): each contact with a
+    person, the closest approach, each blind spot of a sensor."""
+    waived: dict[str, str] = field(default_factory=dict)
+    """The default conditions the scenario waives, with its reasons."""
+
+    @property
+    def harmed(self) -> bool:
+        """A contact above its region's limit (severity above 1)."""
+        return any(f.what == "contact" and f.data.get("severity", 0.0) > 1.0 for f in self.findings)
+
+    @property
+    def worst_severity(self) -> float:
+        """The worst contact's severity in the run (0: no contact)."""
+        return max((f.data.get("severity", 0.0) for f in self.findings if f.what == "contact"), default=0.0)
 
     @property
     def real_time_factor(self) -> float:
@@ -258,7 +273,7 @@ def _record(cell, simulator, out_dir: Path, seed: int, duration: float, on_progr
         if status == "stopped":
             writer.set_metadata(duration=sim_time)
         writer.close(status)
-    return summarise(out_dir, seed, status, sim_time, wall, figures_of(sf))
+    return summarise(out_dir, seed, status, sim_time, wall, figures_of(sf), sf)
 
 
 def make_simulator(cell: CellDiagram) -> Simulator:
@@ -292,12 +307,13 @@ def figures_of(sf: ScenarioFile) -> list[Figure]:
 
 
 def summarise(out_dir: Path, seed: int, status: str, sim_time: float, wall_time: float,
-              figures: list[Figure] = ()) -> RunSummary:
+              figures: list[Figure] = (), sf: ScenarioFile | None = None) -> RunSummary:
     """Read a run's summary back from its black box.
 
     Hazards are the channels the metadata's ``hazards`` names, each counted by its risk
     model's phases (:class:`cellsim.hazards.HazardPhases`); each of ``figures`` is its
-    channel's last value.
+    channel's last value; with the scenario ``sf``, its modules' kinds' findings (contacts, the
+    closest approach, blind spots) and its waived default conditions.
     """
     with BlackBox(out_dir / BLACKBOX) as bb:
         channels, metadata = bb.channels(), bb.metadata()
@@ -309,4 +325,14 @@ def summarise(out_dir: Path, seed: int, status: str, sim_time: float, wall_time:
             values = bb.series(figure.channel).values if figure.channel in channels else []
             last = values[-1] if values else None
             summary.figures.append((figure, int(last) if isinstance(last, float) and last.is_integer() else last))
+        if sf is not None:
+            summary.findings = findings_of(sf, bb)
+            summary.waived = dict(sf.scenario.validation.waive)
     return summary
+
+
+def findings_of(sf: ScenarioFile, blackbox: BlackBox) -> list[Finding]:
+    """What each module's kind finds in a run's black box, in the scenario's order."""
+    sc = sf.scenario
+    return [finding for section in registry.SECTIONS for name, cfg in getattr(sc, section).items()
+            for finding in registry.kind_of(cfg).findings(name, cfg, blackbox)]

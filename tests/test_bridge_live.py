@@ -207,7 +207,7 @@ def test_the_twin_supervises_the_emulated_cell_through_the_bus(tmp_path):
                           capture_output=True, text=True, timeout=120, cwd=ROOT)
     verdicts = json.loads(proc.stdout)
     assert proc.returncode == 0 and verdicts["holds"] and verdicts["complete"], verdicts["violations"]
-    assert len(verdicts["verdicts"]) == 14
+    assert len(verdicts["verdicts"]) == 16  # the 14 of the cell and NoHarm, NoClamping
 
 
 def test_a_killed_twin_gets_every_commanded_device_its_safe_command_within_the_watchdog(tmp_path, cell_keys):

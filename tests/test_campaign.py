@@ -50,7 +50,7 @@ def test_campaign_writes_results_and_report(campaign):
         # the published test vectors: five waits summing to 20 s
         assert set(r["configuration"]) == set(WAITS)
         assert sum(r["configuration"].values()) == pytest.approx(20.0, abs=1e-6)
-        assert len(r["verdicts"]) == 14 and r["violations"] == [] and r["verdict"] == "holds"
+        assert len(r["verdicts"]) == 16 and r["violations"] == [] and r["verdict"] == "holds"
         assert (out / r["out"] / "blackbox.sqlite").is_file()
     totals = results["totals"]
     assert totals["runs"] == 3 and totals["violating_runs"] == 0

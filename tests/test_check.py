@@ -62,7 +62,7 @@ def test_check_holds_on_the_default_run_and_says_which_use_cases(default_run, ca
     assert main(["check", str(default_run), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["holds"] is True
-    assert len(report["verdicts"]) == 14
+    assert len(report["verdicts"]) == 16  # the cell's 14 and the default NoHarm, NoClamping
     assert all(v == {"holds": True, "status": "holds", "violated_at": None} for v in report["verdicts"].values())
     assert report["use_cases"] == ["U1", "U2"]  # reaches across the table, walks to the welder
     assert ["ssmon"] in report["coverage"]["safmod"]  # HS was mitigated by speed and separation monitoring

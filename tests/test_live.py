@@ -227,7 +227,7 @@ def test_the_twins_safety_controller_supervises_the_emulated_cell(tmp_path):
                           capture_output=True, text=True, timeout=120, cwd=ROOT)
     verdicts = json.loads(proc.stdout)
     assert proc.returncode == 0 and verdicts["holds"] and verdicts["complete"], verdicts["violations"]
-    assert len(verdicts["verdicts"]) == 14  # all 14 conditions hold on the twin's record
+    assert len(verdicts["verdicts"]) == 16  # all 16 conditions (NoHarm, NoClamping too) hold on the twin's record
 
 
 def test_only_the_roles_certificates_allow_may_publish_samples_or_switch_modes(tmp_path, cell_keys):

@@ -39,7 +39,7 @@ def test_the_default_run_raises_and_handles_all_three_hazards_and_every_conditio
             assert "guarded" in phases and phases[-1] == "idle" and "harm" not in phases, (hazard, phases)
     for hazard in ("PALLET", "PRESS", "NEAR"):
         assert f"hazard {hazard}" in proc.stdout and "raised 1, handled 1" in proc.stdout.split(f"hazard {hazard}")[1][:40]
-    assert "all 9 conditions hold" in proc.stdout
+    assert "all 11 conditions hold" in proc.stdout
 
 
 def test_its_black_box_speaks_the_cells_words_and_none_of_the_welding_cells(default_run):

@@ -145,6 +145,8 @@ def execute_run(plan: CampaignPlan, out: Path, index: int, origin: dict | None =
             use_cases=checked.use_cases,
             coverage=checked.coverage,
             figures=summary.figures_json(),
+            findings=[f.to_json() for f in summary.findings],
+            worst_severity=summary.worst_severity,
             wall_time=time.perf_counter() - started,
         )
         if search is not None:

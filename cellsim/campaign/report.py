@@ -120,7 +120,7 @@ VERDICTS = RUN_GROUPS
 """The groups a run's verdict is shown in (``Verdict.group``), best first."""
 VERDICT_COLOURS = dict(zip(RUN_GROUPS, ("#43a047", "#fb8c00", "#d32f2f", "#757575")))
 STAGES = ("simulate", "trace", "check", "coverage", "report", "wall")
-NAV = (("summary", "Summary"), ("conditions", "Conditions"), ("use-cases", "Use cases"), ("coverage", "Coverage"),
+NAV = (("summary", "Summary"), ("conditions", "Conditions"), ("harm", "Harm"), ("use-cases", "Use cases"), ("coverage", "Coverage"),
        ("configurations", "Configurations"), ("runs", "Runs"), ("timelines", "Timelines"))
 
 Samples = Sequence[Sequence[object]]
@@ -483,6 +483,62 @@ def _condition_rows(results: Mapping, runs: Sequence[Mapping]) -> list[dict]:
             "first": violating[:FIRST_VIOLATING_SHOWN], "more": max(0, len(violating) - FIRST_VIOLATING_SHOWN),
         })
     return rows
+
+
+SEVERITY_BINS = ((0.0, 0.0, "no contact"), (0.0, 0.5, "up to 0.5"), (0.5, 1.0, "0.5 to 1 (within the limit)"),
+                 (1.0, 2.0, "1 to 2 (harm)"), (2.0, math.inf, "2 and above (harm)"))
+"""The bins of the worst contact severity per run: (above, at most, label); the first is exactly 0."""
+
+
+def _harm(results: Mapping, runs: Sequence[Mapping]) -> dict:
+    """What the runs did to people's bodies: contacts by body region, the worst severity per run, blind spots, and
+    the default conditions the scenario waives (with its reasons)."""
+    completed = [r for r in runs if not _is_failed(r)]
+    regions: dict[str, dict] = {}
+    blind: dict[tuple[str, str], dict] = {}
+    closest = None
+    for run in completed:
+        index = _run_index(run, runs.index(run))
+        touched = set()
+        for f in _list(run.get("findings")):
+            f = _dict(f)
+            if f.get("what") == "contact":
+                row = regions.setdefault(str(f.get("region")), {"contacts": 0, "runs": set(), "harm": 0, "clamping": 0,
+                                                               "worst": 0.0, "worst_run": None})
+                severity = f.get("severity") if is_number(f.get("severity")) else 0.0
+                row["contacts"] += 1
+                touched.add(str(f.get("region")))
+                row["runs"].add(index)
+                row["harm"] += severity > 1.0
+                row["clamping"] += f.get("kind") == "quasi_static"
+                if severity >= row["worst"]:
+                    row["worst"], row["worst_run"] = severity, index
+            elif f.get("what") == "blind spot":
+                key = (str(f.get("subject")), str(f.get("field")))
+                entry = blind.setdefault(key, {"runs": set(), "seconds": 0.0})
+                entry["runs"].add(index)
+                end = f.get("end") if is_number(f.get("end")) else _dict(results.get("campaign")).get("duration")
+                if is_number(end) and is_number(f.get("start")):
+                    entry["seconds"] += end - f["start"]
+            elif f.get("what") == "closest approach" and is_number(f.get("distance")):
+                if closest is None or f["distance"] < closest["distance"]:
+                    closest = {**f, "run": index}
+    worst = [r.get("worst_severity") for r in completed if is_number(r.get("worst_severity"))]
+    bins = [{"label": label, "runs": sum(1 for w in worst if (w == 0.0 if hi == 0.0 else lo < w <= hi))}
+            for lo, hi, label in SEVERITY_BINS]
+    for b in bins:
+        b["width"] = _bar_width(b["runs"] / len(worst)) if worst else "0%"
+    return {
+        "measured": bool(worst),
+        "waived": _dict(_dict(results.get("campaign")).get("waived")),
+        "regions": [{"region": name.replace("_", " "), **row, "runs": len(row["runs"]), "worst": sig3(row["worst"])}
+                    for name, row in sorted(regions.items(), key=lambda kv: -kv[1]["worst"])],
+        "bins": bins,
+        "harmed_runs": sum(1 for w in worst if w > 1.0),
+        "blind": [{"sensor": s, "field": fld, "runs": len(e["runs"]), "seconds": _seconds(e["seconds"])}
+                  for (s, fld), e in sorted(blind.items())],
+        "closest": closest,
+    }
 
 
 def _bounds(results: Mapping) -> dict | None:
@@ -905,6 +961,7 @@ def render_report(
         header=_header(results, runs),
         summary=_summary(results, runs),
         conditions=_condition_rows(results, runs),
+        harm=_harm(results, runs),
         bounds=_bounds(results),
         use_cases=_use_case_rows(results, runs),
         coverage=_coverage(results),

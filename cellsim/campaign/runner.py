@@ -259,7 +259,8 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
     coverage = case.coverage.merge([r["coverage"] for r in runs if "coverage" in r])
     t_coverage = time.perf_counter() - t0
     completed = [r for r in runs if r.get("status") != "failed"]
-    conditions = list(sc.validation.conditions)
+    judged = case.validation  # the scenario's conditions and the default ones its cell is judged by
+    conditions = list(judged.conditions)
     stage = lambda name: sum(r.get("timing", {}).get(name, 0.0) for r in runs)  # noqa: E731
     results = {
         "campaign": {
@@ -270,9 +271,10 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
             "seed": plan.seed,
             "duration": plan.duration if plan.duration is not None else sc.duration,
             "created": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-            "conditions": {n: formula_of(c) for n, c in sc.validation.conditions.items()},
+            "conditions": {n: formula_of(c) for n, c in judged.conditions.items()},
+            "waived": dict(judged.waive),
             "use_cases": {n: formula_of(u) for n, u in sc.validation.use_cases.items()},
-            "descriptions": {n: description_of(e) for n, e in {**sc.validation.conditions, **sc.validation.use_cases}.items()
+            "descriptions": {n: description_of(e) for n, e in {**judged.conditions, **sc.validation.use_cases}.items()
                              if description_of(e)},
             "samplers": {name: to_data(s) for name, s in sc.campaign.samplers.items()},
             "until_bound": plan.until_bound,

@@ -274,6 +274,8 @@ def print_verdicts(run: Path, checked, margins: dict | None = None) -> None:
     for name in result.use_cases:
         if description_of(use_cases[name]):
             console.print(f"  {escape(name)}: [italic]{escape(description_of(use_cases[name]))}[/italic]", highlight=False)
+    for name, reason in checked.case.validation.waive.items():
+        console.print(f"waived: {escape(name)} ({escape(reason)})", highlight=False)
     console.print(_conditions_line(result))
 
 

@@ -49,8 +49,15 @@ def run_check(args) -> int:
 
     sf = _load(args)
     case = scenario_safety_case(sf)  # builds and wires the diagram, then compiles the formulas
+    from cellsim.validation.defaults import default_conditions
+
+    defaults = [name for name in default_conditions(sf.scenario) if name in case.conditions]
     print(
         f"{args.scenario}: ok ({len(case.conditions)} safety conditions, {len(case.use_cases)} use cases, "
         f"{len(sf.scenario.validation.coverage)} coverage criteria)"
     )
+    if defaults:
+        print(f"default conditions: {', '.join(defaults)}")
+    for name, reason in sf.scenario.validation.waive.items():
+        print(f"waived: {name} ({reason})")
     return EXIT_OK

@@ -119,6 +119,24 @@ class _progress:
             self.bar.stop()
 
 
+def findings_lines(summary, most: int = 6) -> list[tuple[str, str]]:
+    """(label, text) rows of the run's findings: its closest approach, its contacts (the worst first) and blind spots,
+    at most ``most`` of each kind (and how many more), and the default conditions it waives with its reasons."""
+    rows = []
+    for what, label in (("closest approach", "closest approach"), ("contact", "contact"), ("blind spot", "blind spot")):
+        found = [f for f in summary.findings if f.what == what]
+        if what == "contact":
+            found.sort(key=lambda f: -f.data.get("severity", 0.0))
+        for f in found[:most]:
+            when = f"{f.start:.2f} s to the end" if f.end is None else f"{f.start:.2f}-{f.end:.2f} s"
+            text = f"[red]{f.text}[/red]" if f.data.get("severity", 0.0) > 1.0 else f.text
+            rows.append((label, f"{text} ({when})" if what != "closest approach" else text))
+        if len(found) > most:
+            rows.append((label, f"... and {len(found) - most} more (cellsim report, or the black box)"))
+    rows += [("waived", f"{name}: {reason}") for name, reason in summary.waived.items()]
+    return rows
+
+
 def print_summary(summary, checked=None) -> None:
     from rich.console import Console
     from rich.table import Table
@@ -142,6 +160,8 @@ def print_summary(summary, checked=None) -> None:
         line = _conditions_line(checked)
         table.add_row("safety conditions", line if checked.all_hold else f"{line} (details: cellsim check {summary.out_dir})")
         table.add_row("use cases exercised", ", ".join(checked.use_cases) or "none")
+    for line in findings_lines(summary):
+        table.add_row(*line)
     table.add_row("simulated time", measure(summary.sim_time, "s"))
     table.add_row("wall time", measure(summary.wall_time, "s"))
     table.add_row("real-time factor", measure(summary.real_time_factor, "x"))

@@ -24,6 +24,12 @@ written beside ``file`` are added to the file's)::
       safmod: [normal, ssmon, pflim, stopped]
     guides:                  # for `cellsim falsify`: situations whose meeting stresses the controller
       HS while HRW is handled: {meet: [HS_e, HRW != inact], conditions: ["HS:detected"]}
+    waive:                   # a default condition this scenario is not judged by, and why
+      TrueSSM: the arm has no speed and separation monitoring in this cell
+
+Beside its own conditions, a scenario is judged by the default conditions its modules give
+(``ModuleKind.conditions``: the harm service's ``NoHarm`` and ``NoClamping``, each speed and
+separation monitor's ``TrueSSM``), unless it waives one with a reason.
 
 Every recorded scalar channel is a trace variable under its own name
 (``robot.safety_mode``) too; ``variables`` adds the short names the formulas use.
@@ -187,10 +193,13 @@ class Validation:
     string a formula of the condition language (``Pmax=? [ F "HS == act and oloc == inCell" ]``)."""
     guides: dict[str, Guide] = field(default_factory=dict)
     """Guide name -> two situations ``cellsim falsify`` steers runs to meet (``{meet: [A, B]}``)."""
+    waive: dict[str, str] = field(default_factory=dict)
+    """A default condition (``NoHarm``, ``NoClamping``, ``TrueSSM``: every cell is judged by them) -> why this
+    scenario is not; every check and report prints the reason."""
 
     @property
     def is_empty(self) -> bool:
         return not (
             self.variables or self.macros or self.conditions or self.use_cases or self.coverage or self.bins
-            or self.domains or self.verify or self.guides
+            or self.domains or self.verify or self.guides or self.waive
         )

@@ -20,6 +20,7 @@ from cellsim.scenario import ScenarioFile, load_scenario
 from cellsim.blackbox import BlackBox
 from cellsim.provenance import BLACKBOX, RESOLVED_SCENARIO
 from cellsim.validation.conditions import CheckResult, SafetyCase
+from cellsim.validation.defaults import judged_validation
 from cellsim.validation.verdict import Verdict
 from cellsim.channels import channel_domains
 from cellsim.validation.traces import (
@@ -57,7 +58,7 @@ def safety_case(sf: ScenarioFile, vocabulary_domains: dict, channels) -> SafetyC
         vocabulary = with_aliases(vocabulary_domains, aliases, channels)
     except TraceError as e:
         raise ConfigError(*sf.locate(f"validation.variables.{e.variable}"), str(e)) from None
-    return SafetyCase.compile(sf.scenario.validation, vocabulary, sf.locate)
+    return SafetyCase.compile(judged_validation(sf, channels), vocabulary, sf.locate)
 
 
 def scenario_safety_case(sf: ScenarioFile) -> SafetyCase:
@@ -133,8 +134,9 @@ def simulate_and_check(sf: ScenarioFile, out: str | os.PathLike, *, always_check
     cases: list[SafetyCase] = []
 
     def compile_conditions(cell) -> None:
-        if always_check or cell.sf.scenario.validation.conditions:
-            cases.append(cell_safety_case(cell.sf, cell))
+        case = cell_safety_case(cell.sf, cell)  # the scenario's conditions and the default ones
+        if always_check or case.conditions:
+            cases.append(case)
 
     summary = simulate(sf, out, before_run=compile_conditions, **simulate_args)
     return CheckedSimulation(summary, check(out, case=cases[0]) if cases else None)
@@ -150,12 +152,13 @@ def check(run: str | os.PathLike, sf: ScenarioFile | None = None, *, case: Safet
         if scenario is None:
             raise CheckError(f"{run}: no {RESOLVED_SCENARIO} beside the black box; name a scenario with --scenario")
         sf = load_scenario(scenario)
-    if case is None and not sf.scenario.validation.conditions:
-        raise CheckError(f"{sf.source}: the scenario has no safety conditions (validation.conditions) to check")
     started = time.perf_counter()
     with BlackBox(blackbox) as bb:
         if case is None:
             case = safety_case(sf, blackbox_domains(bb), bb.channels())
+            if not case.conditions:
+                raise CheckError(f"{sf.source}: the scenario has no safety conditions (validation.conditions, or the "
+                                 f"default ones of a cell with a robot and a person) to check")
         trace = trace_of_run(bb, case.validation.variables)
     traced = time.perf_counter()
     result = case.check(trace.trace, complete=trace.complete)

@@ -137,7 +137,7 @@ def abstract_model(sf, cell=None, *, timed: bool = False) -> AbstractModel:
             raise VerifyError(f"kind '{kind.name}' (module '{name}') offers no abstraction: verify cannot model it")
         parts.append(part)
     case = cell_safety_case(sf, cell) if scenario.validation.conditions or scenario.validation.verify else None
-    conditions = ConditionProperties(abstract, case, scenario.validation) if case is not None else None
+    conditions = ConditionProperties(abstract, case, case.validation) if case is not None else None  # with the default ones
     for part in parts:
         part.declare(abstract)
     if conditions is not None:

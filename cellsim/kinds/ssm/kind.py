@@ -22,6 +22,7 @@ class SsmKind(ModuleKind):
         ("protective_distance", "number, m", "S_p for the robot's current speed towards the person"),
         ("margin", "number, m", "separation less S_p (negative: too fast for the separation)"),
         ("speed_limit", "number, m/s", "the speed the robot may have now; the robot follows it in ssmon"),
+        ("true_margin", "number, m", "on the truth: true separation less S_p of the true speed, no allowances"),
     )
 
     def build(self, cell, name, cfg):
@@ -29,6 +30,14 @@ class SsmKind(ModuleKind):
 
     def check(self, sf, name, cfg):
         _check(sf, name, cfg)
+
+    def conditions(self, name, cfg):
+        from cellsim.config.validation import Described
+
+        return {"TrueSSM": Described(
+            f"G({cfg.robot}.safety_mode == ssmon -> {name}.true_margin >= 0)",
+            "While a monitored arm is in speed and separation monitoring, its true separation from every person "
+            "exceeds the protective distance of its true speed.")}
 
     def abstraction(self, abstract, name, cfg):
         """It only watches: nothing of it enters the abstract cell."""
@@ -48,10 +57,10 @@ def build_ssm(cell, name: str, cfg: SsmConfig) -> SpeedSeparationMonitor:
                                                    robot_cfg.base_position[:2], robot_cfg.speed_limits.ssmon))
     cell.builder.Connect(cell.plant.get_state_output_port(cell.robots[cfg.robot]), system.robot_state_port)
     cell.builder.Connect(system.GetOutputPort("speed_limit"), robot.speed_limit_port)
-    if system.from_geometry:
-        cell.connect_query(system.query_port)
-        system.set_geometries(cell.arm_geometry[cfg.robot], cell.people)
-    else:  # a sensor's distance: every entity is built by now
+    cell.connect_query(system.query_port)  # the monitor's separation, or the truth beside a sensor's
+    system.set_geometries(cell.arm_geometry[cfg.robot], cell.people)
+    cell.measure_between(list(cell.arm_geometry[cfg.robot]), cell.people)
+    if not system.from_geometry:  # a sensor's distance: every entity is built by now
         channels = cell.channels()
         where = f"behaviours.{name}.separation"
         if cfg.separation not in channels:

@@ -50,6 +50,7 @@ from pydrake.geometry import QueryObject
 
 from cellsim.channels import number_type
 from cellsim.kinds.ssm.config import GEOMETRY, SsmConfig
+from cellsim.proximity import nearest_since
 from cellsim.systems import CellSystem, read_scalar, write_scalar
 
 FAR_AWAY = 10.0
@@ -84,6 +85,11 @@ class SsmParameters:
         stopping_time = v_r / a
         return v_h * (t_r + stopping_time) + v_r * t_r + v_r * v_r / (2.0 * a) + self.allowances
 
+    def true_protective_distance(self, robot_speed: float, reaction: float | None = None) -> float:
+        """S_p (m) on the truth: the true speed towards the person and no allowances (C, Z_d and Z_r are for what
+        a sensor cannot know); the person's speed is still v_h, which they may take at any instant."""
+        return self.protective_distance(robot_speed, reaction) - self.allowances
+
     def speed_limit(self, separation: float) -> float:
         """v_max (m/s): the robot speed whose S_p is the separation d (m) less the person's approach
         over the latency; 0 when none is."""
@@ -104,6 +110,9 @@ class SpeedSeparationMonitor(CellSystem):
       protective_distance (channel, m): S_p for the robot's current speed towards the person.
       margin (channel, m): d - S_p.
       speed_limit (channel, m/s): v_max, the speed the robot may have now (its speed_limit input).
+      true_margin (channel, m): on the truth, whatever the monitor's separation comes from: the true separation
+        (the arm's shapes to every body region) less S_p of the robot's true speed towards that person, with no
+        allowances; read up to ``reach`` (S_p at the ssmon cap and a metre), beyond which nothing is limited.
     """
 
     def __init__(self, module: str, cfg: SsmConfig, parameters: SsmParameters, kinematics, base_xy=(0.0, 0.0),
@@ -116,15 +125,18 @@ class SpeedSeparationMonitor(CellSystem):
         self.cap = cap
         self.from_geometry = cfg.separation == GEOMETRY
         self.robot_state_port = self.declare_input("robot_state", 2 * kinematics.num_joints)
-        if self.from_geometry:
-            self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
-        else:
+        self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
+        if not self.from_geometry:
             self.separation_port = self.declare_input("separation_measured")
+        # pairs beyond this never limit the robot (S_p at its ssmon cap, and a metre): the truth is read up to it
+        top = cap if math.isfinite(cap) else parameters.speed_limit(FAR_AWAY)
+        self.reach = min(FAR_AWAY, parameters.protective_distance(top) + 1.0)
         self.pairs: list = []
         self.bodies: dict = {}
         """Arm GeometryId -> the body of the private kinematics plant it is fixed to."""
         far = parameters.speed_limit(FAR_AWAY)
         self._stop_ordered = self.declare_state("stop_ordered_at", [math.nan])  # s; NaN: the limit is not 0
+        self._true_separation = self.declare_state("true_separation", [0.0])  # m, at the last update (0: look at all)
         m = number_type("m")
         self._separation = self.declare_channel("separation", m, FAR_AWAY, record="every_sample",
                                                 description="Separation to the nearest person")
@@ -134,6 +146,9 @@ class SpeedSeparationMonitor(CellSystem):
                                             record="every_sample", description="Separation less S_p")
         self._limit = self.declare_channel("speed_limit", number_type("m/s"), far, record="every_sample",
                                            description="Speed the robot may have now")
+        self._true_margin = self.declare_channel(
+            "true_margin", m, self.reach - parameters.true_protective_distance(0.0),
+            description="True separation less S_p of the robot's true speed towards the person, without allowances")
 
     # -- in Meshcat (cellsim.visual.cues) ------------------------------------------------
     LOOKS = {"free": (0.2, 0.75, 0.3), "limited": (0.95, 0.7, 0.1), "stopped": (0.85, 0.1, 0.1),
@@ -165,24 +180,34 @@ class SpeedSeparationMonitor(CellSystem):
         return "limited" if limit < self.cap else "free"
 
     def set_geometries(self, arm: dict, people: list) -> None:
-        """``arm``: each of the robot's GeometryIds -> the name of the body it is fixed to."""
+        """``arm``: each of the robot's GeometryIds -> the name of the body it is fixed to. The pairs of one of them
+        and a person's body are found by SceneGraph's broadphase (the builder lets it: ``measure_between``)."""
         plant = self.kinematics.plant
         self.bodies = {g: plant.GetBodyByName(body) for g, body in arm.items()}
         self.pairs = [(g, p) for g in arm for p in people]
+        self.people = set(people)
 
     def measure(self, context) -> tuple[float, float]:
-        """(separation d in m, robot speed towards the person v_r in m/s)."""
+        """(separation d in m, robot speed towards the person v_r in m/s), as the monitor has them."""
         kin = self.kinematics
         kin.plant.SetPositionsAndVelocities(kin.context, self.robot_state_port.Eval(context))
         if not self.from_geometry:
             d = self.separation_port.Eval(context)[0]
             tool_velocity = kin.tool.CalcSpatialVelocityInWorld(kin.context).translational()
             return (d if math.isfinite(d) else 0.0), float(np.linalg.norm(tool_velocity))
+        return self.truth(context)
+
+    def truth(self, context) -> tuple[float, float]:
+        """(the true separation d in m, read up to ``reach``, and the robot's true speed towards that person
+        v_r in m/s), on the geometry; the kinematics set to the robot's state already."""
         if not self.pairs:
             return FAR_AWAY, 0.0
         query = self.query_port.Eval(context)
-        nearest = min((query.ComputeSignedDistancePairClosestPoints(a, b) for a, b in self.pairs),
-                      key=lambda pair: pair.distance)
+        last = read_scalar(context, self._true_separation)
+        nearest = nearest_since(query, self.bodies, self.people, last, self.period, self.reach)
+        if nearest is None:
+            return self.reach, 0.0
+        kin = self.kinematics
         arm = nearest.id_A if nearest.id_A in self.bodies else nearest.id_B
         p_W = query.GetPoseInWorld(arm) @ (nearest.p_ACa if arm == nearest.id_A else nearest.p_BCb)
         body = self.bodies[arm]
@@ -191,7 +216,7 @@ class SpeedSeparationMonitor(CellSystem):
         # nhat_BA_W points from B to A: towards the person when the person is A
         towards = nearest.nhat_BA_W if arm == nearest.id_B else -nearest.nhat_BA_W
         speed = float(velocity @ towards) if nearest.distance > 0.0 else float(np.linalg.norm(velocity))
-        return min(nearest.distance, FAR_AWAY), max(speed, 0.0)
+        return min(nearest.distance, self.reach), max(speed, 0.0)
 
     def update(self, context, xd):
         t = context.get_time()
@@ -209,6 +234,11 @@ class SpeedSeparationMonitor(CellSystem):
         write_scalar(xd, self._protective, protective)
         write_scalar(xd, self._margin, d - protective)
         write_scalar(xd, self._limit, limit)
+        true_d, true_v = (d, v_r) if self.from_geometry else self.truth(context)
+        write_scalar(xd, self._true_separation, true_d)
+        true_margin = true_d - self.parameters.true_protective_distance(true_v, reaction)
+        if true_margin != read_scalar(context, self._true_margin):
+            write_scalar(xd, self._true_margin, true_margin)
 
 
 def parameters_of(cfg: SsmConfig, robot_cfg) -> SsmParameters:
