@@ -46,17 +46,15 @@ class CellSystem(LeafSystem):
         *,
         record: RecordPolicy = "on_change",
         description: str = "",
-        every: int = 1,
     ) -> int:
         """Declare a published channel ``<module>.<signal>``; returns its state group.
 
-        ``every``: the module refreshes the channel at every ``every``-th update
-        only (telemetry that nothing needs faster), so its period is that many
-        update periods; ``due(context, every)`` says when.
+        The recorder looks at it at every update of the module (its period): a channel is never recorded
+        less often than its publisher can change it, so a check judges the values a reader acted on.
         """
         group = self.declare_state(signal, ctype.encode(initial))
         port = self.DeclareStateOutputPort(signal, group)
-        spec = ChannelSpec(self.module, signal, ctype, self.period * every, record, description)
+        spec = ChannelSpec(self.module, signal, ctype, self.period, record, description)
         self.channels.append((spec, port))
         return group
 
@@ -84,11 +82,6 @@ class CellSystem(LeafSystem):
 
     def group(self, name: str) -> int:
         return self._groups[name]
-
-    def due(self, context, every: int) -> bool:
-        """Whether the update at the context's time is one of every ``every``-th (from t = 0)."""
-        return every == 1 or round(context.get_time() / self.period) % every == 0
-
 
     # -- update -------------------------------------------------------------
     def _on_update(self, context, xd):

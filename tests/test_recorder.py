@@ -51,6 +51,7 @@ def record(tmp_path, channels: list[tuple], duration: float,
     recorder = Recorder(builder, "blackbox", taps)
     diagram = builder.Build()
     simulator = Simulator(diagram)
+    tmp_path.mkdir(parents=True, exist_ok=True)
     path = tmp_path / "bb.sqlite"
     writer = BlackBoxWriter(path)
     recorder.attach(writer)
@@ -170,3 +171,51 @@ def test_a_cells_black_box_has_every_channel_from_its_first_instant(tmp_path):
         first.setdefault(m.channel, (m.t, m.value))
     assert set(first) == set(channels) and all(t == 0.0 for t, _ in first.values())
     assert first["robot.safety_mode"] == (0.0, "normal") and first["robot.activity"] == (0.0, "exchWrkp")
+
+
+def _holds(tmp_path, channels, duration, formula) -> tuple[bool, float | None]:
+    """Record scripted publishers, read the black box back as a trace and judge ``formula`` on it."""
+    from cellsim.blackbox import BlackBox
+    from cellsim.logic.mtl import TraceEvaluator
+    from cellsim.logic.syntax import parse
+    from cellsim.validation.traces import trace_of_run
+
+    record(tmp_path, channels, duration)
+    with BlackBox(tmp_path / "bb.sqlite") as bb:
+        run = trace_of_run(bb)
+    evaluation = TraceEvaluator(run.trace).evaluate(parse(formula, run.vocabulary))
+    return evaluation.holds, evaluation.violated_at
+
+
+# A scanner updating every 0.04 s reads a person at 0.5 m for one update at t = 1.04 s (an excursion of 0.04 s,
+# shorter than 0.1 s, between two tenths); a controller updating every 0.02 s reads it at 1.06 s and slows the arm.
+SCAN = ("scan", 0.04, "on_change", [5.0] * 26 + [0.5] + [5.0] * 30)
+CONTROL = ("ctl", 0.02, "on_change", [0.0] * 53 + [1.0] * 3 + [0.0] * 40)
+
+
+def test_a_violation_shorter_than_a_tenth_of_a_second_is_caught(tmp_path):
+    holds, at = _holds(tmp_path, [SCAN, CONTROL], 2.0, "G(scan.y >= 1)")
+    assert not holds and at == pytest.approx(1.04)
+
+
+def test_a_reaction_in_time_is_judged_on_the_values_the_controller_acted_on(tmp_path):
+    """The controller reacted one of its periods after the scanner's reading: ``F[0, 0.03s]`` holds. Recorded
+    only every 0.1 s (as the robot's telemetry once was), the reaction would have read 0.06 s late."""
+    holds, _ = _holds(tmp_path, [SCAN, CONTROL], 2.0, "G(scan.y < 1 -> F[0, 0.03s] ctl.y == 1)")
+    assert holds
+    got = record(tmp_path / "again", [SCAN, CONTROL], 2.0)
+    assert got["ctl.y"][:2] == [(0.0, 0.0), (1.06, 1.0)] and got["scan.y"][1] == (1.04, 0.5)
+
+
+def test_the_robots_speed_and_joints_are_recorded_at_every_update_of_its_controller(tmp_path):
+    """While the arm moves its measured speed and joints change at each 20 ms update, and each is in the black box."""
+    from conftest import welding_cell
+    from cellsim.simulation import simulate
+
+    simulate(welding_cell(), tmp_path / "run", duration=3.0)
+    db = sqlite3.connect(tmp_path / "run" / "blackbox.sqlite")
+    for channel in ("robot.tool_speed", "robot.joint_positions"):
+        times = np.array([t for (t,) in db.execute("SELECT t FROM messages WHERE channel = ? ORDER BY t", (channel,))])
+        steps = np.round(np.diff(times), 9)
+        assert len(times) > 50 and np.allclose(steps / 0.02, np.round(steps / 0.02)) and np.median(steps) == pytest.approx(0.02)
+    db.close()

@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 
 FRAME_PERIOD = 0.1
-"""Seconds of the run between recorded frames (joint positions and positions are recorded every 0.1 s)."""
+"""Seconds of the run between the frames a replay draws (the black box holds joint positions and positions as
+they changed, at their publishers' rates)."""
 
 
 class ReplayError(Exception):

@@ -27,7 +27,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cellsim.kinds.robot.system import TELEMETRY_PERIOD
 from cellsim.verify.model import ModuleAbstraction, AbstractCell, lookup, set_of
 from cellsim.verify.prism import Command, Module, Var
 from cellsim.vocabulary import SafetyMode
@@ -219,7 +218,7 @@ class SpeedEnvelope:
     The arm decelerates at a constant rate that brings it from its full speed to
     rest within ``braking`` (s) (``cellsim.kinds.robot.system``), so from the moment a cap C
     ends, its planned speed is at most C (1 - t / braking) and never below the
-    cap that follows. The speed read lags it by ``lag`` (the telemetry period and
+    cap that follows. The speed read lags it by ``lag`` (the controller's period and
     the joint controller's tracking) and the arm settles onto that line within
     ``tolerance`` m/s, and within ``settle`` s after it reaches zero. While a cap
     is in force the speed stays at or below it: the arm plans its speed below the
@@ -229,13 +228,13 @@ class SpeedEnvelope:
 
     period: float
     braking: float
-    lag: float = TELEMETRY_PERIOD + TRACKING_LAG
+    lag: float = TRACKING_LAG
     tolerance: float = TRACKING_TOLERANCE
     settle: float = SETTLE_TIME
 
     @classmethod
     def of(cls, robot, period: float) -> "SpeedEnvelope":
-        return cls(period, robot.cfg.braking_time)
+        return cls(period, robot.cfg.braking_time, lag=robot.period + TRACKING_LAG)
 
     def periods(self, cap: float, threshold: float | None, strict: bool = True) -> int:
         """Periods, counted from the last period a cap ``cap`` was in force, for which a speed above

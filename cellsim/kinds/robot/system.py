@@ -43,8 +43,6 @@ HOLD = -1.0
 STANDSTILL_MODES = frozenset({SafetyMode.MONITORED_STOP, SafetyMode.STOPPED})
 _MODES = tuple(SafetyMode)
 _SEGMENT_SAMPLES = 24
-TELEMETRY_PERIOD = 0.1
-"""Joint positions and tool speed are published every 0.1 s (s)."""
 TRACKING_ALLOWANCE = 0.04
 """The arm plans its tool speed this far below a mode's speed cap (m/s): the joint controller
 overshoots a planned speed by up to about that much as an acceleration ends, and the measured
@@ -115,8 +113,8 @@ class Robot(EntitySystem):
       location (channel): the name of the layout's robot region holding the tool, else
         layout.robot_elsewhere (rloc; the welding cell: atTable / sharedTbl / atWeldSpot / inCell).
       reached_pose (channel): the named pose the arm rests at, or ``moving``.
-      joint_positions (channel, rad): measured q, every 0.1 s.
-      tool_speed (channel, m/s): measured tool speed, every 0.1 s.
+      joint_positions (channel, rad): measured q, at every update (recorded as it changes).
+      tool_speed (channel, m/s): measured tool speed, at every update (recorded as it changes).
 
     In shadow or twin mode with no valid physical sample (stale or corrupt), it
     fails safe: safety mode, activity and location read ``unknown``, the pose
@@ -178,13 +176,9 @@ class Robot(EntitySystem):
             self.declare_channel("location", enum_type(self.locations), published[2], description="Where the tool is: a region of the layout, or elsewhere"),
             self.declare_channel("reached_pose", enum_type(self.reached_poses), published[3]),
         ]
-        self._telemetry_every = max(1, round(TELEMETRY_PERIOD / self.period))
-        self._q = self.declare_channel(
-            "joint_positions", vector_type(n, "rad"), q0, record="every_sample", every=self._telemetry_every
-        )
-        self._tool_speed = self.declare_channel(
-            "tool_speed", number_type("m/s"), 0.0, record="every_sample", every=self._telemetry_every
-        )
+        # measured at every update, recorded as they change: what a reader at the controller's rate could act on
+        self._q = self.declare_channel("joint_positions", vector_type(n, "rad"), q0)
+        self._tool_speed = self.declare_channel("tool_speed", number_type("m/s"), 0.0)
 
     # -- in Meshcat (cellsim.visual.cues) ------------------------------------------------
     def visual_cues(self, view) -> list:
@@ -265,11 +259,7 @@ class Robot(EntitySystem):
 
         measured = self.measured_state_port.Eval(context)
         kin = self.kinematics
-        telemetry = self.due(context, self._telemetry_every)
-        if telemetry:
-            kin.plant.SetPositionsAndVelocities(kin.context, measured)
-        else:
-            kin.plant.SetPositions(kin.context, measured[:6])
+        kin.plant.SetPositionsAndVelocities(kin.context, measured)
         location = self.locate(kin.tool.CalcPoseInWorld(kin.context).translation())
         codes = [float(mode.code), float(activity), float(location.code), float(reached)]
         write_changed(xd, self._published, codes, published)
@@ -278,10 +268,9 @@ class Robot(EntitySystem):
             xd.get_mutable_vector(self._state).SetFromVector(np.concatenate((codes, kept)))
         if desired is not None:
             xd.get_mutable_vector(self._desired).SetFromVector(desired)
-        if telemetry:
-            vx, vy, vz = kin.tool.CalcSpatialVelocityInWorld(kin.context).translational()
-            xd.get_mutable_vector(self._q).SetFromVector(measured[:6])
-            write_scalar(xd, self._tool_speed, math.sqrt(vx * vx + vy * vy + vz * vz))
+        vx, vy, vz = kin.tool.CalcSpatialVelocityInWorld(kin.context).translational()
+        xd.get_mutable_vector(self._q).SetFromVector(measured[:6])
+        write_scalar(xd, self._tool_speed, math.sqrt(vx * vx + vy * vy + vz * vz))
 
     def _report_unknown(self, xd, published: list, state: np.ndarray, context) -> None:
         """Fail safe in shadow or twin mode with no valid sample: report what must be assumed.
@@ -295,9 +284,8 @@ class Robot(EntitySystem):
         write_changed(xd, self._published, codes, published)
         if codes != published:
             xd.get_mutable_vector(self._state).SetFromVector(np.concatenate((codes, state[4:])))
-        if self.due(context, self._telemetry_every):
-            xd.get_mutable_vector(self._q).SetFromVector(np.full(6, np.nan))
-            write_scalar(xd, self._tool_speed, np.nan)
+        xd.get_mutable_vector(self._q).SetFromVector(np.full(6, np.nan))
+        write_scalar(xd, self._tool_speed, np.nan)
 
     def _rest_at(self, q) -> np.ndarray:
         """Motion state of an arm standing at q (no segment)."""
