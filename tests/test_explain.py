@@ -64,22 +64,22 @@ def test_check_explains_the_misuse_runs_violation_in_the_table_and_the_json(tmp_
     run = tmp_path / "misuse"
     subprocess.run([sys.executable, "-m", "cellsim", "simulate", str(ROOT / "scenarios" / "two_operators.yaml"),
                     "--out", str(run), "--quiet", *VIOLATING], capture_output=True, timeout=300, cwd=ROOT)
-    expected = ("HRW_e true from 12.82 s (permissive, working, rloc = sharedTbl, lgtBar); HRW = inact; "
-                "HRW stayed inact; HRW == act required by 13.32 s")
+    expected = ("HRW_e true from 12.68 s (permissive, working, rloc = sharedTbl, lgtBar); HRW = inact; "
+                "HRW stayed inact; HRW == act required by 13.18 s")
     proc = subprocess.run([sys.executable, "-m", "cellsim", "check", str(run), "--json"], capture_output=True, text=True,
                           timeout=120, cwd=ROOT)
     verdict = json.loads(proc.stdout)["verdicts"]["HRW:detected"]
     assert proc.returncode == 1 and verdict["explanation"] == expected
     # its evidence: the window, and every macro and atom, down to the phase that never came
-    assert verdict["evidence"]["window"] == [12.82, 13.32]
+    assert verdict["evidence"]["window"] == [12.68, 13.18]
     assert list(verdict["evidence"]["rows"]) == [
         "HRW_e", "permissive", "working",  # permissive is one atom: it is drawn once, by its name
         "ract in {exchWrkp, unknown, welding}", "wact == welding", "rloc in {sharedTbl, unknown}", "lgtBar",
         "HRW == inact", "HRW == act"]
-    assert not any(lo <= 12.82 < hi for lo, hi in verdict["evidence"]["rows"]["HRW == act"])
+    assert not any(lo <= 12.68 < hi for lo, hi in verdict["evidence"]["rows"]["HRW == act"])
     proc = subprocess.run([sys.executable, "-m", "cellsim", "check", str(run)], capture_output=True, text=True, timeout=120,
                           cwd=ROOT, env={**__import__("os").environ, "COLUMNS": "400"})
-    assert f"HRW:detected violated at 12.82 s: {expected}" in proc.stdout
+    assert f"HRW:detected violated at 12.68 s: {expected}" in proc.stdout
 
 
 def _evidence(text: str, signals: dict, end: float = 10.0) -> dict:
