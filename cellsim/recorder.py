@@ -51,26 +51,33 @@ class Recorder:
         self.name = name
         self.specs = [spec for spec, _ in channels]
         self.writer: BlackBoxWriter | None = None
-        sizes = [spec.type.size for spec in self.specs]
         self.base = base_period([spec.period for spec in self.specs])
-        mux = builder.AddNamedSystem(f"{name}.multiplexer", Multiplexer(sizes))
-        for i, (_, port) in enumerate(channels):
-            builder.Connect(port, mux.get_input_port(i))
-        self.sink = builder.AddNamedSystem(f"{name}.log", VectorLogSink(sum(sizes), self.base))
-        builder.Connect(mux.get_output_port(0), self.sink.get_input_port())
-        offsets = np.cumsum([0] + sizes)
         # Channels in the order the messages of one instant are written: by
-        # sample period, then as declared. Channels looked at equally often and
+        # sample period, then as declared. Channels of one period are multiplexed
+        # into one log sampled at that period (a module updated at every plant step
+        # does not make every channel be logged that often); within it, channels
         # recorded alike form a group, decoded together.
         order = sorted(range(len(self.specs)), key=lambda i: (round(self.specs[i].period, 9), i))
-        groups: dict[tuple, list[int]] = {}
+        by_period: dict[int, list[int]] = {}
         for i in order:
-            spec = self.specs[i]
-            groups.setdefault((round(spec.period / self.base), spec.record), []).append(i)
-        self._groups = [
-            _Group(every, record, [(order.index(i), self.specs[i], offsets[i], offsets[i + 1]) for i in members])
-            for (every, record), members in groups.items()
-        ]
+            by_period.setdefault(round(self.specs[i].period / self.base), []).append(i)
+        self._logs: list[tuple] = []  # (sink, its groups)
+        for every, members in by_period.items():
+            sizes = [self.specs[i].type.size for i in members]
+            suffix = "" if len(by_period) == 1 else f"_{every * self.base:g}s"
+            mux = builder.AddNamedSystem(f"{name}.multiplexer{suffix}", Multiplexer(sizes))
+            for k, i in enumerate(members):
+                builder.Connect(channels[i][1], mux.get_input_port(k))
+            sink = builder.AddNamedSystem(f"{name}.log{suffix}", VectorLogSink(sum(sizes), every * self.base))
+            builder.Connect(mux.get_output_port(0), sink.get_input_port())
+            offsets = np.cumsum([0] + sizes)
+            groups: dict[str, list[int]] = {}
+            for k, i in enumerate(members):
+                groups.setdefault(self.specs[i].record, []).append(k)
+            self._logs.append((sink, [
+                _Group(every, record, [(order.index(members[k]), self.specs[members[k]], offsets[k], offsets[k + 1])
+                                       for k in ks])
+                for record, ks in groups.items()]))
 
     def attach(self, writer: BlackBoxWriter) -> None:
         """Write to ``writer`` from now on (a diagram is built before its output exists)."""
@@ -84,18 +91,19 @@ class Recorder:
         ``final`` marks the last drain of a run, which also writes what the
         publishers' last updates wrote that no sample has taken yet.
         """
-        log = self.sink.FindMutableLog(root_context)
-        rows: list[tuple] = []  # (sample index, channel rank, row)
-        if log.num_samples():
-            times, data = log.sample_times().copy(), log.data().copy()
-            log.Clear()
-            ticks = np.rint(times / self.base).astype(np.int64)
-            for group in self._groups:
-                group.decode(ticks, times, data, rows)
-        if final:
-            current = self.sink.get_input_port().Eval(self.sink.GetMyContextFromRoot(root_context))
-            for group in self._groups:
-                group.decode_final(current, root_context.get_time(), self.base, rows)
+        rows: list[tuple] = []  # (sample's tick, channel rank, row)
+        for sink, groups in self._logs:
+            log = sink.FindMutableLog(root_context)
+            if log.num_samples():
+                times, data = log.sample_times().copy(), log.data().copy()
+                log.Clear()
+                ticks = np.rint(times / self.base).astype(np.int64)
+                for group in groups:
+                    group.decode(ticks, times, data, rows)
+            if final:
+                current = sink.get_input_port().Eval(sink.GetMyContextFromRoot(root_context))
+                for group in groups:
+                    group.decode_final(current, root_context.get_time(), self.base, rows)
         if self.writer is None:
             return 0
         rows.sort(key=lambda r: (r[0], r[1]))
@@ -150,7 +158,7 @@ class _Group:
         if ticks[due[0]] == 0:  # the initial state: the sample at tick ``every`` (or the final one), stamped 0 too, replaces it
             due = due[1:]
         if len(due):
-            self._decode(due, times, data, out)
+            self._decode(due, times, data, out, ticks)
 
     def decode_final(self, current: np.ndarray, t: float, base: float, out: list) -> None:
         """At the end of a run (``t``): the values its publishers' last updates wrote, which no sample has
@@ -162,7 +170,7 @@ class _Group:
         self._decode(np.array([0]), np.array([tick * base]), current.reshape(-1, 1), found)
         out.extend((_AFTER_EVERY_SAMPLE, rank, row) for _, rank, row in found)
 
-    def _decode(self, due: np.ndarray, times: np.ndarray, data: np.ndarray, out: list) -> None:
+    def _decode(self, due: np.ndarray, times: np.ndarray, data: np.ndarray, out: list, ticks=None) -> None:
         block = data[np.ix_(self.rows, due)]
         if self.on_change:
             with_last = np.concatenate((self.last[:, None], block), axis=1)
@@ -186,4 +194,4 @@ class _Group:
                 payload = cache.get(code)
                 if payload is None:
                     payload = cache[code] = encode_record(spec.type.decode(values))
-            out.append((k, rank, (t, spec.name, spec.module, payload)))
+            out.append((k if ticks is None else int(ticks[k]), rank, (t, spec.name, spec.module, payload)))
