@@ -26,6 +26,7 @@ class OperatorKind(ModuleKind):
         ("<flag>", "bool", "for each of layout.operator_flags: standing in that volume (otab)"),
         ("waypoint", "enum", "the waypoint walked to or waited at"),
         ("position", "vector, m", "x, y of the body, at every update"),
+        ("posture", "vector", "yaw (rad), reach fraction, reach point x, y, z (m): how the body turns and reaches"),
         *TWIN_CHANNELS,
     )
 

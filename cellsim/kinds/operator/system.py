@@ -36,6 +36,7 @@ from cellsim.channels import BOOL, enum_type, vector_type
 from cellsim.entity import EntitySystem
 from cellsim.floorplan import Box3, point_in_polygon, shortest_path
 from cellsim.body import SHOULDER, body_pieces, shoulder_offset
+from cellsim.body import reach as body_reach
 from cellsim.kinds.operator.config import OperatorConfig
 from cellsim.config.layout import Layout
 from cellsim.systems import read_scalar, write_scalar
@@ -202,6 +203,7 @@ class Operator(EntitySystem):
         stands in that volume (the welding cell: at_table, otab).
       waypoint (channel): the waypoint walked to or waited at.
       position (channel, m): [x, y] of the body, at every update.
+      posture (channel): [yaw (rad), reach fraction, reach point x, y, z (m)]: how the body turns and reaches.
       press_<module>_<input> (output), per button a waypoint presses: 1 for PRESS_TIME
         after arriving there (model mode only: a physical person presses the real button).
     """
@@ -238,6 +240,9 @@ class Operator(EntitySystem):
         self._waypoint = self.declare_channel("waypoint", enum_type(self.waypoints), "start")
         self._position = self.declare_channel(
             "position", vector_type(2, "m"), initial.xy)
+        self._posture = self.declare_channel(
+            "posture", vector_type(5, None), self._pose_vector(initial)[2:],
+            description="yaw (rad), reach fraction, reach point (m): how the body turns and reaches")
         # the buttons this person presses, and where: (button index, leg) per pressing waypoint
         self.buttons = list(dict.fromkeys(w.press for w in cfg.waypoints.values() if w.press))
         self._presses = [
@@ -252,6 +257,8 @@ class Operator(EntitySystem):
         self.geometry_ids: list = []
         self.regions: dict = {}
         """Each body GeometryId -> the name of its region (``cellsim.body.REGIONS``)."""
+        self.reach = body_reach(cfg.body_radius, cfg.arm_length)
+        """m: no region of the body lies farther than this from its vertical axis (at x, y of the pose)."""
         self.geometry_pose_port = None
 
     # -- geometry --------------------------------------------------------------
@@ -338,18 +345,22 @@ class Operator(EntitySystem):
 
         return [Cue(f"{self.module}/seen", channels, {"seen": (marker,)}, choose)]
 
-    replay_channels = ("position",)
+    replay_channels = ("position", "posture")
 
     def show_recorded(self, cell, root_context, values: dict) -> None:
-        """Stand the body at its recorded position (m), facing the way it last walked (arm down)."""
+        """Stand the body at its recorded position (m), turned and reaching as recorded (a black box without the
+        posture: facing the way it last walked, arm down)."""
         xy = values.get(f"{self.module}.position")
         if xy is None or any(v is None for v in xy):
             return
         state = self.GetMyMutableContextFromRoot(root_context).get_mutable_discrete_state(self._pose)
-        x0, y0, yaw = state.get_value()[:3]
-        if np.hypot(xy[0] - x0, xy[1] - y0) > 0.01:
-            yaw = float(np.arctan2(xy[1] - y0, xy[0] - x0))
-        state.SetFromVector(np.array([xy[0], xy[1], yaw, 0.0, 0.0, 0.0, 0.0]))
+        posture = values.get(f"{self.module}.posture")
+        if posture is None or any(v is None for v in posture):
+            x0, y0, yaw = state.get_value()[:3]
+            if np.hypot(xy[0] - x0, xy[1] - y0) > 0.01:
+                yaw = float(np.arctan2(xy[1] - y0, xy[0] - x0))
+            posture = [yaw, 0.0, 0.0, 0.0, 0.0]
+        state.SetFromVector(np.array([xy[0], xy[1], *posture], float))
 
     # -- behaviour ---------------------------------------------------------------
     def _press_buttons(self, context, xd, digital: bool) -> None:
@@ -397,3 +408,4 @@ class Operator(EntitySystem):
         for group, zone in self._flags:
             write_scalar(xd, group, 1.0 if zone.contains(standing) else 0.0)
         xd.get_mutable_vector(self._position).SetFromVector(np.array(vector[:2]))
+        xd.get_mutable_vector(self._posture).SetFromVector(np.array(vector[2:]))
