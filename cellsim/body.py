@@ -22,6 +22,7 @@ arm, forearm, hand). A user who needs another body scales these through the conf
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from pydrake.geometry import Box, Capsule, Sphere
@@ -64,6 +65,12 @@ class Piece:
     @property
     def name(self) -> str:
         return f"{self.region}_{self.side}" if self.side else self.region
+
+
+def reach(body_radius: float, arm_length: float) -> float:
+    """How far (m) from the body's vertical axis any of its regions may lie, in any posture: an arm stretched out
+    from the shoulder (and the hand's thickness), or the trunk's corner."""
+    return max(shoulder_offset(body_radius) + arm_length + LIMB_RADIUS["hand"], math.sqrt(2.0) * body_radius)
 
 
 def shoulder_offset(body_radius: float) -> float:

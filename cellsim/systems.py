@@ -10,9 +10,13 @@ module, and the module's cost scales with its own update rate.
 from __future__ import annotations
 
 import numpy as np
-from pydrake.systems.framework import BasicVector, InputPort, LeafSystem, OutputPort
+from pydrake.systems.framework import BasicVector, EventStatus, InputPort, LeafSystem, OutputPort
 
 from cellsim.channels import ChannelSpec, ChannelType, RecordPolicy
+
+
+UNCHANGED = EventStatus.DidNothing()
+"""What an update that wrote nothing returns (``CellSystem.update``)."""
 
 
 class CellSystem(LeafSystem):
@@ -21,7 +25,9 @@ class CellSystem(LeafSystem):
     Subclasses declare channels, inputs and internal state in ``__init__`` and
     implement ``update(context, xd)``, reading inputs and their own current state
     from ``context`` and writing the next state into ``xd`` (DiscreteValues).
-    Groups not written keep their value.
+    Groups not written keep their value. An update that writes nothing may return
+    ``UNCHANGED``: Drake then leaves the module's state, and everything computed from
+    it, as it was (a module updated at every plant step that mostly has nothing to do).
     """
 
     def __init__(self, module: str, period: float):
@@ -85,7 +91,7 @@ class CellSystem(LeafSystem):
 
     # -- update -------------------------------------------------------------
     def _on_update(self, context, xd):
-        self.update(context, xd)
+        return self.update(context, xd)
 
     def update(self, context, xd) -> None:  # pragma: no cover - abstract
         raise NotImplementedError

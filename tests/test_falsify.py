@@ -312,3 +312,18 @@ def test_the_seeded_fault_violates_separation_only_in_its_zone_and_only_in_the_f
                                  capture_output=True, text=True, timeout=120, cwd=ROOT)
         violations = json.loads(checked.stdout)["violations"]
         assert any("Separation" in str(v) for v in violations) == expected, (scenario, depth, violations)
+
+
+def test_cmaes_searches_a_space_of_one_configuration_point_and_finds_a_default_condition(tmp_path):
+    """The cma library needs two dimensions: one configuration point is searched beside an idle coordinate. The
+    standoff cell's narrow zone (1 of 200 of its campaign's runs) violates TrueSSM, a default condition nobody
+    wrote in the scenario, and the search climbs the true margin to it."""
+    done = _cellsim("falsify", ROOT / "scenarios" / "machine_tending_standoff.yaml", "--condition", "TrueSSM",
+                    "--method", "cmaes", "--budget", "40", "--seed", "1", "--jobs", "2", "--out", tmp_path / "f")
+    assert done.returncode == 1, done.stderr
+    results = json.loads((tmp_path / "f" / "results.json").read_text())
+    found = results["search"]["runs_to_first_violation"]
+    assert found is not None and found <= 40
+    violating = [r for r in results["runs"] if "TrueSSM" in r.get("violations", ())]
+    standoff = "operator.waypoints.bench_south.position.1"
+    assert violating and all(r["configuration"][standoff] > -1.7 for r in violating)

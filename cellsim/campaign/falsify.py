@@ -187,7 +187,10 @@ class RandomSearch:
 
 
 class CmaesSearch:
-    """CMA-ES on the score, in the unit cube, from the space's middle configuration."""
+    """CMA-ES on the score, in the unit cube, from the space's middle configuration.
+
+    The cma library needs two dimensions at least: a space of one configuration point searches a second,
+    idle coordinate beside it (the runs never see it)."""
 
     def __init__(self, space: SearchSpace, seed: int, batch: int | None):
         import cma
@@ -196,15 +199,19 @@ class CmaesSearch:
                    "tolx": 0, "tolstagnation": 10**9}
         if batch:
             options["popsize"] = batch
-        self.es = cma.CMAEvolutionStrategy(space.centre().tolist(), SIGMA0, options)
+        self.dimension = space.dimension
+        start = space.centre().tolist() + [0.5] * max(0, 2 - self.dimension)
+        self.es = cma.CMAEvolutionStrategy(start, SIGMA0, options)
         self.batch = self.es.popsize
+        self._asked: list = []
 
     def ask(self) -> list[np.ndarray]:
-        return [np.asarray(x) for x in self.es.ask()]
+        self._asked = [np.asarray(x) for x in self.es.ask()]
+        return [x[: self.dimension] for x in self._asked]
 
     def tell(self, points, results, scores) -> None:
         if len(points) == self.es.popsize:  # a batch cut short by the budget is not told
-            self.es.tell(points, scores)
+            self.es.tell(self._asked, scores)
 
 
 class QualityDiversity:

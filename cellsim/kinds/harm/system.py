@@ -30,7 +30,7 @@ from cellsim.channels import enum_type, number_type
 from cellsim.kinds.harm.config import MAX_CLOSING_SPEED, HarmConfig
 from cellsim.kinds.harm.limits import QUASI_STATIC, TRANSIENT, BodyLimits, severity
 from cellsim.body import REGIONS
-from cellsim.systems import CellSystem, write_changed
+from cellsim.systems import UNCHANGED, CellSystem, write_changed
 from cellsim.vocabulary import value_set
 
 NONE = "none"
@@ -116,7 +116,8 @@ class HarmMonitor(CellSystem):
         ]
         # nobody near: no contact (codes 0: none), each separation at the cut-off
         self._clear = [0.0] * (len(self._outputs) - len(self.robots)) + [cfg.cutoff] * len(self.robots)
-        self._first_far = 7  # nearest_region and the separations: measured to the cut-off at each far look
+        # nearest_region and the separations (the last channels): measured to the cut-off at each far look
+        self._first_far = len(self._outputs) - len(self.robots) - 1
 
     def add_person(self, name: str, system) -> tuple:
         """Declare a person's pose inputs; returns the (pose, previous pose) ports to connect."""
@@ -132,6 +133,24 @@ class HarmMonitor(CellSystem):
         self.parts = dict(parts)
         self.bodies = {g: RegionGeometry(p, region, inspector.GetFrameId(g)) for g, (p, region) in bodies.items()}
         self.clamps = [*fixtures, *parts]  # what a region can be pinned against: fixtures, every arm's shapes
+        # each arm body's shapes within a sphere about a point fixed to it: (body index, centre in its frame, radius)
+        spheres: dict = {}
+        for geometry, part in self.parts.items():
+            centre, radius = _bounding_sphere(inspector.GetShape(geometry), inspector.GetPoseInFrame(geometry))
+            spheres.setdefault(int(part.body), []).append((centre, radius))
+        self.spheres = [(body, centre, radius) for body, found in spheres.items() for centre, radius in found]
+
+    def _far(self, context) -> bool:
+        """Whether every robot part is farther than the cut-off from every person, by bounding volumes alone (each
+        part's sphere, each person's vertical cylinder of radius ``reach``): then no query is needed at all."""
+        poses = self.body_poses_port.Eval(context)
+        people = [(port.Eval(context), system.reach) for (port, _), system in zip(self.pose_ports, self.person_systems)]
+        for body, centre, radius in self.spheres:
+            c = poses[body] @ centre
+            for pose, reach in people:
+                if math.hypot(c[0] - pose[0], c[1] - pose[1]) - radius - reach <= self.cfg.cutoff:
+                    return False
+        return True
 
     # -- in Meshcat (cellsim.visual.cues) ------------------------------------------------------------
     LOOKS = {"touched": (1.0, 0.75, 0.1, 0.9), "harm": (0.9, 0.05, 0.05, 0.95)}
@@ -193,7 +212,13 @@ class HarmMonitor(CellSystem):
         near = context.get_discrete_state(self._near).GetAtIndex(0) > 0.0
         far_look = round(context.get_time() / self.period) % self.far_every == 0
         if not (near or far_look):
-            return  # nothing was within reach at the last look: nothing can touch before the next
+            return UNCHANGED  # nothing was within reach at the last look: nothing can touch before the next
+        if far_look and not near and self._far(context):
+            previous = [context.get_discrete_state(g).GetAtIndex(0) for g in self._outputs]
+            if previous == self._clear:
+                return UNCHANGED
+            write_changed(xd, self._outputs, self._clear, previous)
+            return None
         query = self.query_port.Eval(context)
         # every far_period: the pairs within the cut-off; in between, while near: those within reach of a contact
         within = self.cfg.cutoff if far_look else self.reach
@@ -272,6 +297,24 @@ class HarmMonitor(CellSystem):
             if float(away @ push) >= self.cos_clamp:
                 return True
         return False
+
+
+def _bounding_sphere(shape, pose) -> tuple[np.ndarray, float]:
+    """(centre in the body's frame, radius) of a sphere holding ``shape`` posed at ``pose`` in the body's frame; an
+    infinite radius for a shape this does not know (it is then never judged far)."""
+    from pydrake.geometry import Box, Capsule, Cylinder, Sphere
+
+    if isinstance(shape, Sphere):
+        radius = shape.radius()
+    elif isinstance(shape, Box):
+        radius = 0.5 * math.sqrt(shape.width() ** 2 + shape.depth() ** 2 + shape.height() ** 2)
+    elif isinstance(shape, Cylinder):
+        radius = math.hypot(shape.radius(), shape.length() / 2)
+    elif isinstance(shape, Capsule):
+        radius = shape.radius() + shape.length() / 2
+    else:
+        radius = math.inf
+    return pose.translation(), radius
 
 
 class _Motion:

@@ -112,7 +112,7 @@ class SpeedSeparationMonitor(CellSystem):
       speed_limit (channel, m/s): v_max, the speed the robot may have now (its speed_limit input).
       true_margin (channel, m): on the truth, whatever the monitor's separation comes from: the true separation
         (the arm's shapes to every body region) less S_p of the robot's true speed towards that person, with no
-        allowances; read up to ``reach`` (S_p at the ssmon cap and a metre), beyond which nothing is limited.
+        allowances; read up to FAR_AWAY (a falsification search climbs it from anywhere in the cell).
     """
 
     def __init__(self, module: str, cfg: SsmConfig, parameters: SsmParameters, kinematics, base_xy=(0.0, 0.0),
@@ -128,9 +128,6 @@ class SpeedSeparationMonitor(CellSystem):
         self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
         if not self.from_geometry:
             self.separation_port = self.declare_input("separation_measured")
-        # pairs beyond this never limit the robot (S_p at its ssmon cap, and a metre): the truth is read up to it
-        top = cap if math.isfinite(cap) else parameters.speed_limit(FAR_AWAY)
-        self.reach = min(FAR_AWAY, parameters.protective_distance(top) + 1.0)
         self.pairs: list = []
         self.bodies: dict = {}
         """Arm GeometryId -> the body of the private kinematics plant it is fixed to."""
@@ -147,7 +144,7 @@ class SpeedSeparationMonitor(CellSystem):
         self._limit = self.declare_channel("speed_limit", number_type("m/s"), far, record="every_sample",
                                            description="Speed the robot may have now")
         self._true_margin = self.declare_channel(
-            "true_margin", m, self.reach - parameters.true_protective_distance(0.0),
+            "true_margin", m, FAR_AWAY - parameters.true_protective_distance(0.0),
             description="True separation less S_p of the robot's true speed towards the person, without allowances")
 
     # -- in Meshcat (cellsim.visual.cues) ------------------------------------------------
@@ -198,15 +195,15 @@ class SpeedSeparationMonitor(CellSystem):
         return self.truth(context)
 
     def truth(self, context) -> tuple[float, float]:
-        """(the true separation d in m, read up to ``reach``, and the robot's true speed towards that person
+        """(the true separation d in m, read up to FAR_AWAY, and the robot's true speed towards that person
         v_r in m/s), on the geometry; the kinematics set to the robot's state already."""
         if not self.pairs:
             return FAR_AWAY, 0.0
         query = self.query_port.Eval(context)
         last = read_scalar(context, self._true_separation)
-        nearest = nearest_since(query, self.bodies, self.people, last, self.period, self.reach)
+        nearest = nearest_since(query, self.bodies, self.people, last, self.period, FAR_AWAY)
         if nearest is None:
-            return self.reach, 0.0
+            return FAR_AWAY, 0.0
         kin = self.kinematics
         arm = nearest.id_A if nearest.id_A in self.bodies else nearest.id_B
         p_W = query.GetPoseInWorld(arm) @ (nearest.p_ACa if arm == nearest.id_A else nearest.p_BCb)
@@ -216,7 +213,7 @@ class SpeedSeparationMonitor(CellSystem):
         # nhat_BA_W points from B to A: towards the person when the person is A
         towards = nearest.nhat_BA_W if arm == nearest.id_B else -nearest.nhat_BA_W
         speed = float(velocity @ towards) if nearest.distance > 0.0 else float(np.linalg.norm(velocity))
-        return min(nearest.distance, self.reach), max(speed, 0.0)
+        return min(nearest.distance, FAR_AWAY), max(speed, 0.0)
 
     def update(self, context, xd):
         t = context.get_time()
