@@ -452,3 +452,36 @@ def test_hostile_strings_in_the_scenario_are_text_on_the_page_not_markup(browser
     page.locator("#run-filter").fill("</script>")  # filtering reads the rows' text, not their markup
     assert page.locator("#run-count").inner_text() == "1 of 3 runs"  # run 0's configuration value
     opened.close()
+
+
+# --------------------------------------------------------------------------- harm, in a real campaign's report
+
+
+@pytest.fixture(scope="module")
+def tending(tmp_path_factory):
+    """Four runs of the fenceless machine-tending cell: blind spots in every run, TrueSSM violated in some."""
+    out = tmp_path_factory.mktemp("browser") / "tending"
+    code = main(["campaign", str(ROOT / "scenarios" / "machine_tending.yaml"), "--runs", "4", "--jobs", "2", "--seed", "0",
+                 "--out", str(out), "--quiet"])
+    return out, code, json.loads((out / "results.json").read_text())
+
+
+def test_the_harm_section_shows_contacts_severities_and_blind_spots(browser, tending):
+    out, code, results = tending
+    opened = Opened(browser, out / "report.html", "#harm")
+    page = opened.page
+    section = page.locator("#harm")
+    assert section.is_visible() and page.locator("nav a[href='#harm']").count() == 1
+    assert "No run harmed a person" in section.locator("#harm-statement").inner_text()
+    rows = section.locator("#harm-severity tbody tr")
+    counts = {rows.nth(i).locator("th").inner_text(): int(rows.nth(i).locator("td").first.inner_text())
+              for i in range(rows.count())}
+    assert sum(counts.values()) == 4 and counts["no contact"] == sum(r["worst_severity"] == 0 for r in results["runs"])
+    blind = section.locator("#blind-spots tbody tr")
+    shown = {(blind.nth(i).locator("td").nth(0).inner_text(), blind.nth(i).locator("td").nth(1).inner_text())
+             for i in range(blind.count())}
+    recorded = {(f["subject"], f["field"]) for r in results["runs"] for f in r["findings"] if f["what"] == "blind spot"}
+    assert shown == recorded and ("scanner", "protective") in shown
+    conditions = page.locator("#conditions").inner_text()
+    assert "TrueSSM" in conditions and "NoHarm" in conditions and "NoClamping" in conditions
+    opened.close(screenshot=out / "harm.png")
