@@ -121,3 +121,13 @@ def test_the_resolved_scenario_keeps_the_harm_service(tmp_path):
     assert {"harm.severity", "harm.clamping", "harm.separation_robot"} <= channels
     again = tmp_path / "again"
     assert cellsim("simulate", str(out / "scenario.yaml"), "--out", str(again), "--duration", "2", timeout=300).returncode == 0
+
+
+def test_a_look_too_rare_for_its_cut_off_is_refused(tmp_path):
+    """Between two looks nothing may close the cut-off: a far_period too long for it is one line, exit 2."""
+    out = tmp_path / "run"
+    done = cellsim("simulate", str(TENDING), "--out", str(out), "--set", "harm.cutoff=0.1", "--set", "harm.far_period=0.05")
+    assert done.returncode == 2
+    line = one_line(done.stderr)
+    assert "far_period" in line and "shorten far_period or widen cutoff" in line
+    assert not out.exists()
