@@ -191,8 +191,16 @@ class ClusterPool:
             if future.set_running_or_notify_cancel():
                 future.set_result(result)
 
+        def cancelled(f) -> None:
+            # No executor stands behind this future to tell its waiters that it was cancelled (a process pool
+            # does): without it, concurrent.futures.wait() never counts it done, and a search that stops with
+            # a run in flight waits for ever.
+            if f.cancelled():
+                task.cancel()
+                f.set_running_or_notify_cancel()
+
         task.add_done_callback(done)
-        future.add_done_callback(lambda f: task.cancel() if f.cancelled() else None)
+        future.add_done_callback(cancelled)
         return future
 
     def retries(self) -> int:
