@@ -22,7 +22,7 @@ def test_the_cells_plant_has_no_collision_geometry_and_the_arms_shapes_are_measu
     shapes, _ = collision_shapes(UR10, "robot")
     truth = built.modules["ground_truth"]
     query = truth.query_port.Eval(truth.GetMyContextFromRoot(sim.get_context()))
-    robot_ids = {r for r, _ in truth.pairs}
+    robot_ids = set(truth.robot_ids)
     assert len(robot_ids) == len(shapes) == 8
     # each shape sits where the plant puts its link: the base link's shape is at the base
     inspector = query.inspector()

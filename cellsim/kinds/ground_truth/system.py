@@ -34,7 +34,6 @@ class GroundTruth(CellSystem):
         """``robots``: the cell's robots, in order (a clearance channel per pair)."""
         super().__init__(module, cfg.period)
         self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
-        self.pairs: list = []
         self._separation = self.declare_channel(
             "separation", number_type("m"), FAR_AWAY, record="every_sample",
             description="True minimum operator-robot distance",
@@ -49,16 +48,16 @@ class GroundTruth(CellSystem):
 
     def set_geometries(self, robot_ids, operator_ids, arms: dict[str, list] | None = None) -> None:
         """``arms``: each robot's GeometryIds, for the clearances."""
-        self.pairs = [(r, o) for r in robot_ids for o in operator_ids]
         self.robot_ids, self.person_ids = frozenset(robot_ids), frozenset(operator_ids)
         arms = arms or {}
         self.arm_pairs = [[(g, h) for g in arms.get(a, ()) for h in arms.get(b, ())] for a, b in self.robot_pairs]
 
     def update(self, context, xd):
-        if not self.pairs and not any(self.arm_pairs):
+        people_and_robots = bool(self.robot_ids and self.person_ids)
+        if not people_and_robots and not any(self.arm_pairs):
             return
         query = self.query_port.Eval(context)
-        if self.pairs:
+        if people_and_robots:
             last = read_scalar(context, self._separation)
             nearest = nearest_since(query, self.robot_ids, self.person_ids, last, self.period, FAR_AWAY)
             write_scalar(xd, self._separation, FAR_AWAY if nearest is None else min(nearest.distance, FAR_AWAY))

@@ -221,12 +221,10 @@ class HarmMonitor(CellSystem):
             return None
         query = self.query_port.Eval(context)
         # every far_period: the pairs within the cut-off; in between, while near: those within reach of a contact
-        within = self.cfg.cutoff if far_look else self.reach
-        pairs = [p for p in query.ComputeSignedDistancePairwiseClosestPoints(within) if self._ours(p)]
+        pairs, values = self._look(context, query, self.cfg.cutoff if far_look else self.reach)
         now_near = any(p.distance <= self.reach for p in pairs)
         if now_near != near:
             xd.get_mutable_vector(self._near).SetAtIndex(0, 1.0 if now_near else 0.0)
-        values = self.measure(context, query, pairs) if pairs else list(self._clear)
         previous = [context.get_discrete_state(g).GetAtIndex(0) for g in self._outputs]
         if not far_look:  # what lies beyond reach (nothing found within it) stays as the last far look saw it
             for i in range(self._first_far, len(values)):
@@ -237,10 +235,13 @@ class HarmMonitor(CellSystem):
     def reading(self, context) -> dict:
         """What the service measures at ``context``'s instant (its own context), channel by channel, decoded: the
         worst contact's severity, region, person, part, kind and speed, and each robot's separation."""
-        query = self.query_port.Eval(context)
-        pairs = [p for p in query.ComputeSignedDistancePairwiseClosestPoints(self.cfg.cutoff) if self._ours(p)]
-        values = self.measure(context, query, pairs) if pairs else list(self._clear)
+        _, values = self._look(context, self.query_port.Eval(context), self.cfg.cutoff)
         return {spec.signal: spec.type.decode([value]) for (spec, _), value in zip(self.channels, values)}
+
+    def _look(self, context, query, within: float) -> tuple[list, list[float]]:
+        """(the robot-part/body-region pairs within ``within`` (m), the channels' values they give)."""
+        pairs = [p for p in query.ComputeSignedDistancePairwiseClosestPoints(within) if self._ours(p)]
+        return pairs, (self.measure(context, query, pairs) if pairs else list(self._clear))
 
     def _ours(self, pair) -> bool:
         """A robot part and a body region (the broadphase also returns pairs other modules measure)."""
