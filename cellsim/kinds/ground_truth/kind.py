@@ -35,6 +35,6 @@ class GroundTruthKind(ModuleKind):
 def build_ground_truth(cell, name: str, cfg: GroundTruthConfig) -> GroundTruth:
     system = cell.add(name, GroundTruth(name, cfg, list(cell.arm_geometry)))
     cell.connect_query(system.query_port)
-    system.set_geometries(cell.robot_geometry, cell.people, cell.arm_geometry)  # every entity exists at this stage
-    cell.measure_between(cell.robot_geometry, cell.people)  # its broadphase query finds their pairs
+    # every entity exists at this stage
+    system.set_geometries(cell.scene_graph.model_inspector(), cell.robot_geometry, cell.people, cell.arm_geometry)
     return system

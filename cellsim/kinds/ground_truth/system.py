@@ -14,8 +14,8 @@ from pydrake.geometry import QueryObject
 
 from cellsim.channels import number_type
 from cellsim.kinds.ground_truth.config import GroundTruthConfig
-from cellsim.proximity import nearest_since
-from cellsim.systems import CellSystem, read_scalar, write_scalar
+from cellsim.proximity import NearestPair
+from cellsim.systems import CellSystem, write_scalar
 
 FAR_AWAY = 10.0  # m, reported when there is no operator or no robot
 
@@ -44,24 +44,25 @@ class GroundTruth(CellSystem):
                                  description=f"True minimum distance between {a} and {b}")
             for a, b in self.robot_pairs
         ]
-        self.arm_pairs: list[list] = [[] for _ in self.robot_pairs]
+        self.separation_pair = None
+        self.arm_pairs: list = [None for _ in self.robot_pairs]
 
-    def set_geometries(self, robot_ids, operator_ids, arms: dict[str, list] | None = None) -> None:
-        """``arms``: each robot's GeometryIds, for the clearances."""
+    def set_geometries(self, inspector, robot_ids, operator_ids, arms: dict[str, list] | None = None) -> None:
+        """``inspector``: SceneGraph's model inspector; ``arms``: each robot's GeometryIds, for the clearances."""
         self.robot_ids, self.person_ids = frozenset(robot_ids), frozenset(operator_ids)
+        self.separation_pair = NearestPair(inspector, robot_ids, operator_ids)
         arms = arms or {}
-        self.arm_pairs = [[(g, h) for g in arms.get(a, ()) for h in arms.get(b, ())] for a, b in self.robot_pairs]
+        self.arm_pairs = [NearestPair(inspector, arms.get(a, ()), arms.get(b, ())) for a, b in self.robot_pairs]
 
     def update(self, context, xd):
-        people_and_robots = bool(self.robot_ids and self.person_ids)
+        people_and_robots = bool(self.separation_pair)
         if not people_and_robots and not any(self.arm_pairs):
             return
         query = self.query_port.Eval(context)
         if people_and_robots:
-            last = read_scalar(context, self._separation)
-            nearest = nearest_since(query, self.robot_ids, self.person_ids, last, self.period, FAR_AWAY)
-            write_scalar(xd, self._separation, FAR_AWAY if nearest is None else min(nearest.distance, FAR_AWAY))
+            nearest = self.separation_pair(query, FAR_AWAY)
+            write_scalar(xd, self._separation, FAR_AWAY if nearest is None else nearest.distance)
         for group, pairs in zip(self._clearances, self.arm_pairs):
             if pairs:
-                nearest = min(query.ComputeSignedDistancePairClosestPoints(a, b).distance for a, b in pairs)
-                write_scalar(xd, group, min(nearest, FAR_AWAY))
+                nearest = pairs(query, FAR_AWAY)
+                write_scalar(xd, group, FAR_AWAY if nearest is None else nearest.distance)

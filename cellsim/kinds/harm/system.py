@@ -28,6 +28,7 @@ from pydrake.geometry import QueryObject
 
 from cellsim.channels import enum_type, number_type
 from cellsim.kinds.harm.config import MAX_CLOSING_SPEED, HarmConfig
+from cellsim.proximity import bounding_sphere
 from cellsim.kinds.harm.limits import QUASI_STATIC, TRANSIENT, BodyLimits, severity
 from cellsim.body import REGIONS
 from cellsim.systems import UNCHANGED, CellSystem, write_changed
@@ -82,7 +83,9 @@ class HarmMonitor(CellSystem):
         self.far_every = max(1, int(round(cfg.far_period / step)))
         self.reach = MAX_CLOSING_SPEED * cfg.far_period
         """m: a pair farther apart than this at one look cannot touch before the next (``far_period`` later)."""
-        self._near = self.declare_state("near", [0.0])  # 1 while the last look found a pair within the cut-off
+        self._near = self.declare_state("near", [0.0])  # 1 while the last look found a pair within reach
+        # two events: the far look every far_period, and the plant-step update (update) that measures only while near
+        self.DeclarePeriodicDiscreteUpdateEvent(self.far_every * step, 0.0, self._far_look)
         self.limits = limits
         self.robots = list(robots)
         self.people = list(people)
@@ -136,7 +139,7 @@ class HarmMonitor(CellSystem):
         # each arm body's shapes within a sphere about a point fixed to it: (body index, centre in its frame, radius)
         spheres: dict = {}
         for geometry, part in self.parts.items():
-            centre, radius = _bounding_sphere(inspector.GetShape(geometry), inspector.GetPoseInFrame(geometry))
+            centre, radius = bounding_sphere(inspector.GetShape(geometry), inspector.GetPoseInFrame(geometry))
             spheres.setdefault(int(part.body), []).append((centre, radius))
         self.spheres = [(body, centre, radius) for body, found in spheres.items() for centre, radius in found]
 
@@ -209,18 +212,30 @@ class HarmMonitor(CellSystem):
 
     # -- measuring ------------------------------------------------------------------------------
     def update(self, context, xd):
-        near = context.get_discrete_state(self._near).GetAtIndex(0) > 0.0
+        """At every plant step: measure while the last look found a pair within reach, else nothing (the far look
+        every ``far_period``, :meth:`_far_look`, decides). One state read on the common path, as this runs at the
+        plant's rate."""
+        if context.get_discrete_state(self._near).GetAtIndex(0) == 0.0:
+            return UNCHANGED
         far_look = round(context.get_time() / self.period) % self.far_every == 0
-        if not (near or far_look):
-            return UNCHANGED  # nothing was within reach at the last look: nothing can touch before the next
-        if far_look and not near and self._far(context):
+        return self._measure(context, xd, far_look, near=True)
+
+    def _far_look(self, context, xd):
+        """Every ``far_period`` while nothing was within reach: is anything within the cut-off now?"""
+        if context.get_discrete_state(self._near).GetAtIndex(0) != 0.0:
+            return UNCHANGED  # near: the plant-step update measures at this instant
+        if self._far(context):
             previous = [context.get_discrete_state(g).GetAtIndex(0) for g in self._outputs]
             if previous == self._clear:
                 return UNCHANGED
             write_changed(xd, self._outputs, self._clear, previous)
             return None
+        return self._measure(context, xd, True, near=False)
+
+    def _measure(self, context, xd, far_look: bool, near: bool):
+        """Measure now: at a far look, every pair within the cut-off; in between (while near), those within reach of
+        a contact. Switches the plant-step measuring on or off as a pair comes within reach or leaves it."""
         query = self.query_port.Eval(context)
-        # every far_period: the pairs within the cut-off; in between, while near: those within reach of a contact
         pairs, values = self._look(context, query, self.cfg.cutoff if far_look else self.reach)
         now_near = any(p.distance <= self.reach for p in pairs)
         if now_near != near:
@@ -231,6 +246,7 @@ class HarmMonitor(CellSystem):
                 if values[i] == self._clear[i]:
                     values[i] = previous[i]
         write_changed(xd, self._outputs, values, previous)
+        return None
 
     def reading(self, context) -> dict:
         """What the service measures at ``context``'s instant (its own context), channel by channel, decoded: the
@@ -298,24 +314,6 @@ class HarmMonitor(CellSystem):
             if float(away @ push) >= self.cos_clamp:
                 return True
         return False
-
-
-def _bounding_sphere(shape, pose) -> tuple[np.ndarray, float]:
-    """(centre in the body's frame, radius) of a sphere holding ``shape`` posed at ``pose`` in the body's frame; an
-    infinite radius for a shape this does not know (it is then never judged far)."""
-    from pydrake.geometry import Box, Capsule, Cylinder, Sphere
-
-    if isinstance(shape, Sphere):
-        radius = shape.radius()
-    elif isinstance(shape, Box):
-        radius = 0.5 * math.sqrt(shape.width() ** 2 + shape.depth() ** 2 + shape.height() ** 2)
-    elif isinstance(shape, Cylinder):
-        radius = math.hypot(shape.radius(), shape.length() / 2)
-    elif isinstance(shape, Capsule):
-        radius = shape.radius() + shape.length() / 2
-    else:
-        radius = math.inf
-    return pose.translation(), radius
 
 
 class _Motion:

@@ -58,8 +58,7 @@ def build_ssm(cell, name: str, cfg: SsmConfig) -> SpeedSeparationMonitor:
     cell.builder.Connect(cell.plant.get_state_output_port(cell.robots[cfg.robot]), system.robot_state_port)
     cell.builder.Connect(system.GetOutputPort("speed_limit"), robot.speed_limit_port)
     cell.connect_query(system.query_port)  # the monitor's separation, or the truth beside a sensor's
-    system.set_geometries(cell.arm_geometry[cfg.robot], cell.people)
-    cell.measure_between(list(cell.arm_geometry[cfg.robot]), cell.people)
+    system.set_geometries(cell.scene_graph.model_inspector(), cell.arm_geometry[cfg.robot], cell.people)
     if not system.from_geometry:  # a sensor's distance: every entity is built by now
         channels = cell.channels()
         where = f"behaviours.{name}.separation"

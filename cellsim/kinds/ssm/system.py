@@ -50,7 +50,7 @@ from pydrake.geometry import QueryObject
 
 from cellsim.channels import number_type
 from cellsim.kinds.ssm.config import GEOMETRY, SsmConfig
-from cellsim.proximity import nearest_since
+from cellsim.proximity import NearestPair
 from cellsim.systems import CellSystem, read_scalar, write_scalar
 
 FAR_AWAY = 10.0
@@ -128,12 +128,12 @@ class SpeedSeparationMonitor(CellSystem):
         self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
         if not self.from_geometry:
             self.separation_port = self.declare_input("separation_measured")
-        self.pairs: list = []
+        self.pairs = None
+        """Finds the nearest pair of an arm's shape and a person's body region (``set_geometries``)."""
         self.bodies: dict = {}
         """Arm GeometryId -> the body of the private kinematics plant it is fixed to."""
         far = parameters.speed_limit(FAR_AWAY)
         self._stop_ordered = self.declare_state("stop_ordered_at", [math.nan])  # s; NaN: the limit is not 0
-        self._true_separation = self.declare_state("true_separation", [0.0])  # m, at the last update (0: look at all)
         m = number_type("m")
         self._separation = self.declare_channel("separation", m, FAR_AWAY, record="every_sample",
                                                 description="Separation to the nearest person")
@@ -176,13 +176,12 @@ class SpeedSeparationMonitor(CellSystem):
             return "stopped"
         return "limited" if limit < self.cap else "free"
 
-    def set_geometries(self, arm: dict, people: list) -> None:
-        """``arm``: each of the robot's GeometryIds -> the name of the body it is fixed to. The pairs of one of them
-        and a person's body are found by SceneGraph's broadphase (the builder lets it: ``measure_between``)."""
+    def set_geometries(self, inspector, arm: dict, people: list) -> None:
+        """``inspector``: SceneGraph's model inspector; ``arm``: each of the robot's GeometryIds -> the name of the
+        body it is fixed to; ``people``: every person's body regions (GeometryIds)."""
         plant = self.kinematics.plant
         self.bodies = {g: plant.GetBodyByName(body) for g, body in arm.items()}
-        self.pairs = [(g, p) for g in arm for p in people]
-        self.people = set(people)
+        self.pairs = NearestPair(inspector, list(arm), people)
 
     def measure(self, context) -> tuple[float, float]:
         """(separation d in m, robot speed towards the person v_r in m/s), as the monitor has them."""
@@ -200,8 +199,7 @@ class SpeedSeparationMonitor(CellSystem):
         if not self.pairs:
             return FAR_AWAY, 0.0
         query = self.query_port.Eval(context)
-        last = read_scalar(context, self._true_separation)
-        nearest = nearest_since(query, self.bodies, self.people, last, self.period, FAR_AWAY)
+        nearest = self.pairs(query, FAR_AWAY)
         if nearest is None:
             return FAR_AWAY, 0.0
         kin = self.kinematics
@@ -232,7 +230,6 @@ class SpeedSeparationMonitor(CellSystem):
         write_scalar(xd, self._margin, d - protective)
         write_scalar(xd, self._limit, limit)
         true_d, true_v = (d, v_r) if self.from_geometry else self.truth(context)
-        write_scalar(xd, self._true_separation, true_d)
         true_margin = true_d - self.parameters.true_protective_distance(true_v, reaction)
         if true_margin != read_scalar(context, self._true_margin):
             write_scalar(xd, self._true_margin, true_margin)
