@@ -20,6 +20,8 @@ class LightBarrierKind(ModuleKind):
         ("broken", "bool", "true while any person's geometry intersects the beams (lgtBar); with restart_interlock, "
                            "latched: true from the first break until a reset"),
         ("interrupted", "bool", "only with restart_interlock: the beams interrupted now, latch or not"),
+        ("unseen", "enum", "blind spot: beams while a person truly meets the beams that the curtain reports clear "
+                           "(its physical twin's sample), else none"),
         *TWIN_CHANNELS,
     )
     inputs = (
@@ -31,6 +33,11 @@ class LightBarrierKind(ModuleKind):
 
     def build(self, cell, name, cfg):
         return add_sensor(cell, name, LightBarrier(name, cfg))
+
+    def findings(self, name, cfg, blackbox):
+        from cellsim.kinds.sensing import blind_spots
+
+        return blind_spots(name, blackbox, f"{name}.unseen")
 
     def abstraction(self, abstract, name, cfg):
         from cellsim.kinds.light_barrier.abstraction import LightBarrierAbstraction

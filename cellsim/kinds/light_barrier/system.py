@@ -6,10 +6,10 @@ from __future__ import annotations
 from pydrake.geometry import Box, GeometryInstance, MakePhongIllustrationProperties, ProximityProperties, Rgba
 from pydrake.math import RigidTransform
 
-from cellsim.channels import BOOL
+from cellsim.channels import BOOL, enum_type
 from cellsim.kinds.sensing import REACH, GeometrySensor
 from cellsim.systems import read_scalar, write_scalar
-from cellsim.vocabulary import TwinMode
+from cellsim.vocabulary import TwinMode, value_set
 from cellsim.kinds.light_barrier.config import LightBarrierConfig
 
 BEAMS_CLEAR = Rgba(1.0, 0.15, 0.1, 0.12)
@@ -26,6 +26,8 @@ class LightBarrier(GeometrySensor):
       broken (channel, bool): true while any target geometry intersects the beams; with
         restart_interlock, *latched*: from the first break until a reset.
       interrupted (channel, bool, with restart_interlock): the beams interrupted now, latch or not.
+      unseen (channel): a blind spot: ``beams`` while a person's body truly meets the beams (by the geometry)
+        and the curtain reports them clear (its physical twin's sample, in shadow or twin mode), else none.
     Fails safe (reads broken and interrupted) when its physical sample is stale or corrupt.
     """
 
@@ -36,6 +38,10 @@ class LightBarrier(GeometrySensor):
         self._broken = self.declare_channel(
             "broken", BOOL, False, description="Beams interrupted (with a restart interlock: tripped until reset)"
         )
+        self.unseen_readings = value_set(f"{module}_unseen", ["none", "beams"])
+        self._unseen = self.declare_channel(
+            "unseen", enum_type(self.unseen_readings), "none",
+            description="Blind spot: a person truly in the beams while the curtain reports them clear")
         if cfg.restart_interlock:
             self.reset_port = self.declare_input("reset", ctype=BOOL, default=0.0)
             self._reset_seen = self.declare_state("reset_seen", [0.0])
@@ -87,16 +93,21 @@ class LightBarrier(GeometrySensor):
 
     def update(self, context, xd):
         view = self.consult_physical(context, xd)
+        truly = False  # a body in the beams the reading does not show (in model mode the reading is the geometry)
         if view.mode is TwinMode.MODEL:
             broken = self.measure(context)
         elif view.sample is None:
             broken = True
         else:
             broken = view.sample[0] > 0.5
+            truly = not broken and self.query_port.HasValue(context) and self.measure(context)
         if self.cfg.restart_interlock:
             write_scalar(xd, self._interrupted, 1.0 if broken else 0.0)
             broken = self._interlocked(context, xd, broken)
         write_scalar(xd, self._broken, 1.0 if broken else 0.0)
+        unseen = 1.0 if truly and not broken else 0.0
+        if unseen != read_scalar(context, self._unseen):
+            write_scalar(xd, self._unseen, unseen)
 
     def _interlocked(self, context, xd, beams_broken: bool) -> bool:
         """Tripped from the first break until a reset (a rising edge) while the beams are clear."""

@@ -20,6 +20,8 @@ class RangeDetectorKind(ModuleKind):
     channels = (
         ("range", "enum", "far / near / close (rngDet)"),
         ("distance", "number, m", "measured distance to the nearest person"),
+        ("unseen", "enum", "blind spot: near or close while a person truly is in that zone and the reading (noise, "
+                           "or the physical sensor's sample) says farther, else none"),
         *TWIN_CHANNELS,
     )
 
@@ -28,6 +30,11 @@ class RangeDetectorKind(ModuleKind):
 
     def build(self, cell, name, cfg):
         return add_sensor(cell, name, RangeDetector(name, cfg, cell.seed, cell.duration))
+
+    def findings(self, name, cfg, blackbox):
+        from cellsim.kinds.sensing import blind_spots
+
+        return blind_spots(name, blackbox, f"{name}.unseen")
 
     def abstraction(self, abstract, name, cfg):
         from cellsim.kinds.range_detector.abstraction import RangeDetectorAbstraction

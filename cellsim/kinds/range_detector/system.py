@@ -9,8 +9,8 @@ import numpy as np
 from cellsim.channels import enum_type, number_type
 from cellsim.entity import valid_code
 from cellsim.kinds.sensing import HEAD_RADIUS, REACH, GeometrySensor
-from cellsim.systems import write_scalar
-from cellsim.vocabulary import Range, TwinMode
+from cellsim.systems import read_scalar, write_scalar
+from cellsim.vocabulary import Range, TwinMode, value_set
 from cellsim.kinds.range_detector.config import RangeDetectorConfig
 
 
@@ -24,6 +24,8 @@ class RangeDetector(GeometrySensor):
         ``near_below`` m, else far (rngDet).
       distance (channel, m): the measured signed distance from the sensor to the
         nearest target surface (``near_below`` + 1 m when nobody is nearer).
+      unseen (channel, none/near/close): a blind spot: the zone a person truly is in (by the geometry, with no
+        noise) while the reading says farther (its noise, or its physical twin's sample), else none.
     Fails safe (reads close) when its physical sample is stale or corrupt.
     """
 
@@ -43,6 +45,10 @@ class RangeDetector(GeometrySensor):
             self.reach,
             description="Measured distance to the nearest person",
         )
+        self.unseen_readings = value_set(f"{module}_unseen", ["none", Range.NEAR.value, Range.CLOSE.value])
+        self._unseen = self.declare_channel(
+            "unseen", enum_type(self.unseen_readings), "none",
+            description="Blind spot: the zone a person truly is in that the reading does not cover")
 
     def register_geometry(self, scene_graph) -> list:
         source = scene_graph.RegisterSource(self.module)
@@ -70,16 +76,21 @@ class RangeDetector(GeometrySensor):
         return Range.FAR
 
     def measure(self, context) -> float:
-        # The distance from the sensor's point to a target is the distance from the
-        # sensor head (a sphere around that point) plus its radius.
+        """The distance (m) the sensor reads: the true one plus its noise."""
+        nearest = self.true_distance(context)
+        if self._noise is not None:
+            nearest += self._noise[int(round(context.get_time() / self.period))]
+        return nearest
+
+    def true_distance(self, context) -> float:
+        """The distance (m) from the sensor's point to the nearest target, up to ``reach``, with no noise. The
+        distance from the point is the distance from the sensor head (a sphere around it) plus its radius."""
         query = self.query_port.Eval(context)
         nearest = self.reach
         for target in self.targets:
             distance = query.ComputeSignedDistancePairClosestPoints(self.head_id, target).distance + HEAD_RADIUS
             if distance < nearest:
                 nearest = distance
-        if self._noise is not None:
-            nearest += self._noise[int(round(context.get_time() / self.period))]
         return nearest
 
     def sample_is_valid(self, sample) -> bool:
@@ -88,11 +99,25 @@ class RangeDetector(GeometrySensor):
     def update(self, context, xd):
         view = self.consult_physical(context, xd)
         if view.mode is TwinMode.MODEL:
-            distance = self.measure(context)
+            true_distance = self.true_distance(context)
+            distance = true_distance
+            if self._noise is not None:
+                distance += self._noise[int(round(context.get_time() / self.period))]
             reading = self.classify(distance)
         elif view.sample is None:
-            distance, reading = 0.0, Range.CLOSE
+            true_distance, distance, reading = None, 0.0, Range.CLOSE
         else:
             reading, distance = Range.from_code(view.sample[0]), view.sample[1]
+            true_distance = self.true_distance(context) if self.query_port.HasValue(context) else None
         write_scalar(xd, self._range, reading.code)
         write_scalar(xd, self._distance, distance)
+        # a blind spot: someone truly in a zone more restrictive than the reading (noise, or the physical sensor)
+        truly = Range.FAR if true_distance is None else self.classify(true_distance)
+        unseen = truly.value if _RESTRICTIVE[truly] > _RESTRICTIVE[reading] else "none"
+        code = self.unseen_readings(unseen).code
+        if code != read_scalar(context, self._unseen):
+            write_scalar(xd, self._unseen, code)
+
+
+_RESTRICTIVE = {Range.FAR: 0, Range.NEAR: 1, Range.CLOSE: 2}
+"""How restrictive each reading is: a person truly nearer than the reading says is unseen."""
