@@ -89,6 +89,8 @@ def reduced_mass(human: float, robot: float) -> float:
 def permissible_speed(limits: RegionLimits, robot_mass: float, kind: str) -> float:
     """v_max (m/s) of a contact of ``kind`` with the region, for a robot of effective mass ``robot_mass`` (kg);
     0 for a transient contact the table does not permit."""
+    if kind not in (TRANSIENT, QUASI_STATIC):
+        raise ValueError(f"a contact's kind is {TRANSIENT} or {QUASI_STATIC}, not {kind!r}")
     force = limits.force
     if kind == TRANSIENT:
         if limits.transient_factor is None:
