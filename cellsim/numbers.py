@@ -53,6 +53,13 @@ def percent(fraction: object) -> str:
     return measure(100.0 * float(fraction), "%") if is_number(fraction) else "n/a"  # type: ignore[arg-type]
 
 
+def probability(p: float | None) -> str:
+    """A probability for people: 0.000998, 0.0372, 0.5, 1."""
+    if p is None:
+        return "-"
+    return f"{p:.3g}"
+
+
 def instant(t: float) -> str:
     """A moment of a run: ``12.84 s``."""
     return f"{t:.2f} s"

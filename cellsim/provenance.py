@@ -98,10 +98,19 @@ class InputFile:
     ref: str | None = None
     """The reference as written in the parent."""
 
+    in_memory: bool = False
+    """Not read from ``path``: a scenario built in Python, its text made here (nothing on disk to re-read)."""
+
     @classmethod
     def read(cls, key: str, role: str, path: Path, **kwargs) -> "InputFile":
         data = Path(path).read_bytes()
         return cls(key, role, Path(path), data, hashlib.sha256(data).hexdigest(), **kwargs)
+
+    @classmethod
+    def of_text(cls, key: str, role: str, path: Path, text: str) -> "InputFile":
+        """An input that is no file: ``text`` stands for it, as if read from ``path``."""
+        data = text.encode("utf-8")
+        return cls(key, role, Path(path), data, hashlib.sha256(data).hexdigest(), in_memory=True)
 
     @property
     def named_absolutely(self) -> bool:
@@ -142,6 +151,8 @@ class Inputs:
     def check_unchanged(self) -> None:
         """ConfigError if a file no longer holds the bytes read (edited meanwhile)."""
         for f in self.files:
+            if f.in_memory:
+                continue
             try:
                 same = f.path.read_bytes() == f.data
             except OSError:
@@ -193,7 +204,12 @@ def read_inputs(sf) -> Inputs:
     """The files the loaded scenario ``sf`` uses, read now (OSError if one cannot be)."""
     from cellsim.registry import kind_of
 
-    files = [InputFile.read("scenario", "scenario", Path(sf.source).resolve())]
+    if getattr(sf, "built_in_code", False):  # no file: the scenario's own text, as a file of it would read
+        from cellsim.config.typed_yaml import dump_yaml, to_data
+
+        files = [InputFile.of_text("scenario", "scenario built in Python", Path(sf.source), dump_yaml(to_data(sf.scenario)))]
+    else:
+        files = [InputFile.read("scenario", "scenario", Path(sf.source).resolve())]
     # the scenario's bases (``base: other.yaml``), nearest first
     for i, base in enumerate((getattr(sf.loaded, "files", None) or [sf.source])[1:], start=1):
         files.append(InputFile.read(f"base {i}", "scenario base", Path(base).resolve()))

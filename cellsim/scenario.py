@@ -112,6 +112,9 @@ class ScenarioFile:
     overrides: list[str] = field(default_factory=list)
     validation_file: Loaded[Validation] | None = None
     """Where ``validation`` was read from, when the scenario names a file for it."""
+    built_in_code: bool = False
+    """Built in Python (:func:`scenario_in_code`), not read from a file: ``source`` names no file, and the run's
+    provenance records the scenario's text as YAML."""
 
     @property
     def scenario(self) -> Scenario:
@@ -178,6 +181,24 @@ def load_scenario(path: str | os.PathLike, overrides: list[str] | tuple[str, ...
     _add_default_modules(loaded.value)  # before the overrides: ``--set harm.cutoff=...`` sets the default's
     apply_overrides(loaded, list(overrides), resolve=_shortcut(loaded.value))
     sf = ScenarioFile(loaded, list(overrides))
+    _load_validation_file(sf)
+    check_scenario(sf)
+    return sf
+
+
+def scenario_in_code(scenario: Scenario, base_dir: str | os.PathLike = ".") -> ScenarioFile:
+    """A scenario built in Python, checked as a file's would be; raises ConfigError naming the key.
+
+    ``scenario``'s modules may be their kinds' config dataclasses or plain mappings with a ``kind``: the
+    scenario goes through the same conversion and checks as a file's. Files it names (a robot model, a risk
+    model, a validation file) are relative to ``base_dir``. Errors name ``<name> (built in Python)`` and the key.
+    """
+    base = Path(base_dir).resolve()
+    source = str(base / f"<{scenario.name} (built in Python)>")
+    value = from_data(Scenario, to_data(scenario), source)
+    loaded = Loaded(value=value, source=source, lines={})
+    _add_default_modules(value)
+    sf = ScenarioFile(loaded, [], built_in_code=True)
     _load_validation_file(sf)
     check_scenario(sf)
     return sf

@@ -167,6 +167,7 @@ def simulate(
     on_progress: Callable[[float, float], None] | None = None,
     provenance: dict | None = None,
     before_run: Callable[[Any], None] | None = None,
+    extend: Callable[[Any], None] | None = None,
 ) -> RunSummary:
     """Run ``sf`` with the I/O ``io`` (``cellsim.cell_io``: simulated by default), recording to ``out_dir``.
 
@@ -182,6 +183,8 @@ def simulate(
     ``before_run(cell)`` is called with the built cell before the run folder is touched: what it
     refuses (``cellsim.validation.check.simulate_and_check`` compiles the safety conditions against
     the cell's channels there) leaves nothing written.
+
+    ``extend(cell)``: a script's own systems added to the diagram (:func:`cellsim.diagrams.cell.build_cell`).
     """
     from cellsim.scenario import check_run_length, check_seed
 
@@ -199,7 +202,8 @@ def simulate(
     # Everything that can fail on bad input happens before the folder is touched:
     # building the diagram checks the wiring and loads the risk model, and the
     # caller's before_run its own inputs against the cell.
-    cell = build_cell(sf, seed=seed, duration=duration, io=io, meshcat=meshcat, meshcat_wait=meshcat_wait)
+    cell = build_cell(sf, seed=seed, duration=duration, io=io, meshcat=meshcat, meshcat_wait=meshcat_wait,
+                      extend=extend)
     try:
         if before_run is not None:
             before_run(cell)

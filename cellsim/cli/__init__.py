@@ -76,9 +76,8 @@ def _main(argv: list[str] | None) -> int:
         parser.print_help(sys.stderr)
         return EXIT_INPUT
     with _interrupt_deferred():  # pydrake's loader reports an interrupt with its own traceback
-        from cellsim.config.typed_yaml import ConfigError
+        from cellsim.api import ConfigError, OutputExistsError
         from cellsim.live.session import SessionConfigError
-        from cellsim.simulation import OutputExistsError
 
     try:
         with _terminate_as_interrupt():

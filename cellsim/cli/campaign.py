@@ -52,7 +52,7 @@ def add_parser(subparsers) -> None:
 def run(args) -> int:
     from rich.console import Console
 
-    from cellsim.campaign.runner import CampaignError, CampaignPlan, run_campaign
+    from cellsim import api
 
     sf = _load_for_runs(args, {"runs": 100_000, "jobs": 256})
     runs = args.runs or sf.scenario.campaign.runs
@@ -60,13 +60,12 @@ def run(args) -> int:
     if args.until_bound is not None:
         runs = _runs_for_bound(args, console)
     out = args.out or Path("campaigns") / f"{sf.scenario.name}-seed{args.seed}"
-    plan = CampaignPlan(str(args.scenario.resolve()), tuple(args.overrides), args.seed, runs, args.duration,
-                        until_bound=args.until_bound)
     try:
         with _campaign_progress(console, args.quiet, runs) as report:
-            outcome = run_campaign(plan, out, jobs=args.jobs, on_progress=report, restart=args.restart,
-                                   scheduler=args.scheduler)
-    except CampaignError as e:
+            outcome = api.campaign(sf, out, runs=runs, seed=args.seed, duration=args.duration, jobs=args.jobs,
+                                   scheduler=args.scheduler, restart=args.restart, until_bound=args.until_bound,
+                                   progress=report)
+    except api.CampaignError as e:
         raise InputError(str(e)) from None
     except KeyboardInterrupt:
         print(f"cellsim: interrupted; finished runs are kept in {out}: run the same command again to resume", file=sys.stderr)
@@ -86,14 +85,14 @@ def run(args) -> int:
 
 def _runs_for_bound(args, console) -> int:
     """The runs ``--until-bound P`` takes with none violating, said before they start."""
-    from cellsim.validation.bound import CONFIDENCE, runs_needed
+    from cellsim.api import CONFIDENCE, runs_needed
 
     target = args.until_bound
     if args.runs is not None:
         raise InputError("--until-bound sets the number of runs: give it or --runs, not both")
     if not 0.0 < target < 1.0:
         raise InputError(f"--until-bound must be a probability in (0, 1), got {target:g}")
-    runs = runs_needed(target, CONFIDENCE)
+    runs = runs_needed(target)
     if runs > 100_000:
         raise InputError(f"--until-bound {target:g} needs {runs:,} runs without a violation; a campaign has at most "
                          "100,000 (split it, or aim at a larger probability)")
@@ -167,7 +166,7 @@ def _until_bound_text(overall: dict, target: float) -> str:
 
 def _bound_text(bounds: dict) -> str:
     """Any condition's rate and bound, and each violated condition's (``cellsim check OUT`` lists all)."""
-    from cellsim.validation.bound import probability
+    from cellsim.numbers import probability
 
     def figures(f):
         return f"{f['failures']} of {f['runs']} runs, rate {probability(f['rate'])}, at most {probability(f['upper_bound'])}"

@@ -41,23 +41,19 @@ def add_parser(subparsers) -> None:
 def run(args) -> int:
     import json
 
-    from cellsim.scenario import load_scenario
-    from cellsim.blackbox import BlackBoxError
-    from cellsim.validation.check import CheckError, check
-    from cellsim.config.validation import description_of
-    from cellsim.validation.traces import TraceError, write_trace_json
+    from cellsim import api
 
-    if is_campaign(args.run):
+    if api.is_campaign(args.run):
         return check_campaign(args)
     try:
-        sf = load_scenario(args.scenario) if args.scenario else None
-        checked = check(args.run, sf)
-    except (CheckError, BlackBoxError, TraceError) as e:
+        sf = api.load_scenario(args.scenario) if args.scenario else None
+        checked = api.check(args.run, sf)
+    except api.CheckError as e:
         raise InputError(str(e)) from None
     result = checked.result
-    margins = _margins(checked) if args.robustness else None
+    margins = api.robustness(checked) if args.robustness else None
     if args.export_trace:
-        write_trace_json(checked.trace, args.export_trace)
+        api.export_trace(checked, args.export_trace)
     if args.json:
         json.dump(
             {
@@ -66,9 +62,10 @@ def run(args) -> int:
                 "verdict": result.verdict.value,
                 "complete": checked.trace.complete,
                 "verdicts": result.verdicts_json(),
-                "descriptions": {n: description_of(c) for n, c in {**checked.case.validation.conditions,
-                                                                      **checked.case.validation.use_cases}.items()
-                                 if description_of(c)},
+                "descriptions": {n: api.formula_and_description(c)[1]
+                                 for n, c in {**checked.case.validation.conditions,
+                                              **checked.case.validation.use_cases}.items()
+                                 if api.formula_and_description(c)[1]},
                 "violations": result.violations,
                 "undecided": result.undecided,
                 "use_cases": result.use_cases,
@@ -84,13 +81,6 @@ def run(args) -> int:
     return EXIT_OK if result.all_hold else EXIT_FINDING
 
 
-def _margins(checked) -> dict:
-    """Each condition's robustness on the run (cellsim.logic.robustness)."""
-    from cellsim.logic.robustness import robustness
-
-    return {name: robustness(formula, checked.trace.trace) for name, formula in checked.case.conditions.items()}
-
-
 PROGRESS_FROM = 50
 """Checking a campaign of this many runs or more shows a progress bar (on standard error)."""
 
@@ -102,67 +92,49 @@ def _margin(x: float, unit: str = "") -> str:
     return f"{x:.3g}{unit}" if math.isfinite(x) else ("any" if x > 0 else "none")
 
 
-def is_campaign(path: Path) -> bool:
-    from cellsim.campaign.runner import PLAN
-
-    return path.is_dir() and (path / PLAN).is_file()
-
-
 def check_campaign(args) -> int:
     """Every run of a campaign folder checked, and the bound they give per condition."""
     import json
 
-    from cellsim.campaign.runner import RESULTS, RUNS
-    from cellsim.scenario import load_scenario
-    from cellsim.blackbox import BlackBoxError
-    from cellsim.validation.bound import campaign_bounds
-    from cellsim.validation.check import CheckError, check
-    from cellsim.validation.traces import TraceError
-
-    for flag, given in (("--export-trace", args.export_trace), ("--robustness", args.robustness)):
-        if given:
-            raise InputError(f"{args.run} is a campaign folder: {flag} takes one run (check one of {args.run / RUNS})")
-    try:
-        sf = load_scenario(args.scenario) if args.scenario else None
-    except CheckError as e:
-        raise InputError(str(e)) from None
-    folders = sorted(p for p in (args.run / RUNS).glob("*") if p.is_dir())
-    if not folders:
-        raise InputError(f"{args.run}: a campaign folder with no runs yet")
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-    runs, conditions = [], {}
-    with Progress(TextColumn("checking runs"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                  console=Console(stderr=True), transient=True, disable=len(folders) < PROGRESS_FROM) as progress:
-        task = progress.add_task("check", total=len(folders))
-        for folder in folders:
-            progress.advance(task)
-            try:
-                result = check(folder, sf).result
-            except (CheckError, BlackBoxError, TraceError) as e:  # a run that never finished, or was damaged
-                runs.append({"run": folder.name, "status": "failed", "error": str(e)})
-                continue
-            conditions.update(dict.fromkeys(result.verdicts))
-            runs.append({"run": folder.name, "status": "completed", "violations": result.violations,
-                         "undecided": result.undecided})
-    from cellsim.campaign.falsify import NOT_A_SAMPLE, read_search
+    from cellsim import api
 
-    if read_search(args.run) is not None:  # a search chose these runs: they bound nothing
-        return _report_search_runs(args, runs, list(conditions), NOT_A_SAMPLE)
+    for flag, given in (("--export-trace", args.export_trace), ("--robustness", args.robustness)):
+        if given:
+            raise InputError(f"{args.run} is a campaign folder: {flag} takes one run (check one of its runs)")
+    bar = None
+
+    def report(done: int, total: int) -> None:  # a progress bar on standard error, for a large campaign
+        nonlocal bar
+        if total < PROGRESS_FROM:
+            return
+        if bar is None:
+            bar = Progress(TextColumn("checking runs"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                           console=Console(stderr=True), transient=True)
+            bar.start()
+            bar.add_task("check", total=total)
+        bar.update(bar.task_ids[0], completed=done)
+
     try:
-        sampling = json.loads((args.run / RESULTS).read_text())["bounds"]["sampling"]
-    except (OSError, ValueError, KeyError, TypeError):
-        sampling = f"not recorded ({args.run / RESULTS} is missing or has no bounds): state it yourself"
-    bounds = campaign_bounds(runs, list(conditions), sampling)
+        sf = api.load_scenario(args.scenario) if args.scenario else None
+        found = api.check_campaign(args.run, sf, progress=report)
+    except api.CheckError as e:
+        raise InputError(str(e)) from None
+    finally:
+        if bar is not None:
+            bar.stop()
+    if found.bounds is None:  # a search chose these runs: they bound nothing
+        return _report_search_runs(args, found.runs, found.conditions, found.not_a_sample)
     if args.json:
-        json.dump({"campaign": str(args.run), "bounds": bounds, "runs": runs}, sys.stdout, indent=2)
+        json.dump({"campaign": str(args.run), "bounds": found.bounds, "runs": found.runs}, sys.stdout, indent=2)
         sys.stdout.write("\n")
     else:
-        print_bounds(args.run, bounds, runs)
-    if _uncheckable(args.run, runs):
+        print_bounds(args.run, found.bounds, found.runs)
+    if _uncheckable(args.run, found.runs):
         return EXIT_INPUT
-    return EXIT_FINDING if bounds["overall"]["failures"] else EXIT_OK
+    return EXIT_FINDING if found.bounds["overall"]["failures"] else EXIT_OK
 
 
 def _uncheckable(folder: Path, runs: list[dict]) -> bool:
@@ -208,8 +180,7 @@ def print_bounds(folder: Path, bounds: dict, runs: list[dict]) -> None:
     from rich.markup import escape
     from rich.table import Table
 
-    from cellsim.numbers import percent
-    from cellsim.validation.bound import probability
+    from cellsim.numbers import percent, probability
 
     table = Table(title=f"Safety conditions over the runs of {folder}", title_justify="left")
     for column in ("condition", "violating runs", "rate", f"upper bound ({percent(bounds['confidence'])})"):
@@ -237,8 +208,7 @@ def print_verdicts(run: Path, checked, margins: dict | None = None) -> None:
     from rich.markup import escape
     from rich.table import Table
 
-    from cellsim.config.validation import description_of, formula_of
-    from cellsim.validation.verdict import Verdict
+    from cellsim.api import Verdict, formula_and_description
 
     result, conditions = checked.result, checked.case.validation.conditions
     table = Table(title=f"Safety conditions on {run}", title_justify="left")
@@ -254,10 +224,10 @@ def print_verdicts(run: Path, checked, margins: dict | None = None) -> None:
             verdict.status, f"[yellow]{verdict.describe()}[/yellow]"
         )
         when = "" if verdict.violated_at is None or verdict.holds else f"t = {instant(verdict.violated_at)}"
-        description = description_of(conditions[name])
+        formula, description = formula_and_description(conditions[name])
         cells = [_margin(margins[name].space), _margin(margins[name].time, " s")] if margins else []
         table.add_row(name, mark, when, *cells,
-                      escape(formula_of(conditions[name])) + (f"\n[italic]{escape(description)}[/italic]" if description else ""))
+                      escape(formula) + (f"\n[italic]{escape(description)}[/italic]" if description else ""))
     console = Console()
     if not checked.trace.complete:
         console.print(
@@ -272,8 +242,9 @@ def print_verdicts(run: Path, checked, margins: dict | None = None) -> None:
     use_cases = checked.case.validation.use_cases
     console.print(f"use cases exercised: {', '.join(result.use_cases) or 'none'}")
     for name in result.use_cases:
-        if description_of(use_cases[name]):
-            console.print(f"  {escape(name)}: [italic]{escape(description_of(use_cases[name]))}[/italic]", highlight=False)
+        _, description = formula_and_description(use_cases[name])
+        if description:
+            console.print(f"  {escape(name)}: [italic]{escape(description)}[/italic]", highlight=False)
     for name, reason in checked.case.validation.waive.items():
         console.print(f"waived: {escape(name)} ({escape(reason)})", highlight=False)
     console.print(_conditions_line(result))

@@ -137,23 +137,23 @@ def _add_live_args(parser: argparse.ArgumentParser, duration_default: str) -> No
 
 
 def _load(args):
-    from cellsim.scenario import load_scenario
+    from cellsim import api
 
-    return load_scenario(args.scenario, args.overrides)
+    return api.load_scenario(args.scenario, args.overrides)
 
 
 def _load_for_runs(args, limits: dict[str, int]):
     """A campaign's or search's scenario, after its counts (``--FLAG`` in [1, most]), seed and duration are checked."""
-    from cellsim.scenario import check_run_length, check_seed
+    from cellsim import api
 
     for flag, most in limits.items():
         value = getattr(args, flag)
         if value is not None and not 1 <= value <= most:
             raise InputError(f"--{flag} must be in [1, {most}], got {value}")
-    check_seed(args.seed, "--seed")
+    api.check_seed(args.seed, "--seed")
     sf = _load(args)
     if args.duration is not None:
-        check_run_length(sf, args.duration, "--duration")
+        api.check_duration(sf, args.duration, "--duration")
     return sf
 
 
@@ -180,16 +180,16 @@ def _open_session(args, role: str, listen_by_default: bool, wait: float = 30.0, 
 def _live_run(args, process: str, listen_by_default: bool, run, check=None):
     """A live process (the twin, the emulator): load, check, open the session, ``run(sf, out, session, duration)``;
     ``process`` is also the session's role (``twin`` or ``emulator``)."""
+    from cellsim import api
     from cellsim.config.units import MAX_DURATION
-    from cellsim.scenario import check_run_length, check_seed
 
     sf = _load(args)
     if check is not None:
         check(sf)  # before any session is opened
     duration = MAX_DURATION if args.duration is None else args.duration
-    check_run_length(sf, duration, "--duration")
+    api.check_duration(sf, duration, "--duration")
     if args.seed is not None:
-        check_seed(args.seed, "--seed")
+        api.check_seed(args.seed, "--seed")
     out = args.out or Path("runs") / f"{sf.scenario.name}-{process}-{datetime.now():%Y%m%d-%H%M%S}"
     session = _open_session(args, process, listen_by_default)
     try:

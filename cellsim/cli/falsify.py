@@ -46,19 +46,17 @@ def add_parser(subparsers) -> None:
 def run(args) -> int:
     from rich.console import Console
 
-    from cellsim.campaign.falsify import FalsifyPlan, run_falsify
-    from cellsim.campaign.runner import CampaignError
+    from cellsim import api
 
     sf = _load_for_runs(args, {"budget": 100_000, "jobs": 256, "batch": 10_000})
     out = args.out or Path("campaigns") / f"{sf.scenario.name}-falsify-{args.method}-seed{args.seed}"
-    plan = FalsifyPlan(str(args.scenario.resolve()), tuple(args.overrides), args.seed, args.budget, args.method,
-                       args.duration, tuple(args.condition))
     console = Console(stderr=True, quiet=args.quiet)
     try:
         with _search_progress(console, args.quiet, args.budget) as report:
-            outcome = run_falsify(plan, out, jobs=args.jobs, on_progress=report, overwrite=args.overwrite, batch=args.batch,
-                                  scheduler=args.scheduler)
-    except (CampaignError, ValueError) as e:
+            outcome = api.falsify(sf, out, budget=args.budget, method=args.method, conditions=args.condition,
+                                  seed=args.seed, duration=args.duration, jobs=args.jobs, batch=args.batch,
+                                  scheduler=args.scheduler, overwrite=args.overwrite, progress=report)
+    except (api.CampaignError, ValueError) as e:
         raise InputError(str(e)) from None
     except KeyboardInterrupt:
         print(f"cellsim: interrupted; the runs so far are in {out}/runs", file=sys.stderr)

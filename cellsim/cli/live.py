@@ -37,8 +37,7 @@ def add_parser(subparsers) -> None:
 
 
 def run(args) -> int:
-    from cellsim.cell_io import Live
-    from cellsim.simulation import simulate
+    from cellsim import api
 
     feed = None
 
@@ -49,10 +48,8 @@ def run(args) -> int:
         if args.foxglove is not None and not 0 <= args.foxglove <= 65535:
             raise InputError(f"--foxglove {args.foxglove}: expected a port from 0 to 65535")
         if args.foxglove is not None:  # bound before the session opens and anything is said or written
-            from cellsim.foxglove import FoxgloveFeed
-
             try:
-                feed = FoxgloveFeed(args.foxglove_host, args.foxglove, f"cellsim {sf.scenario.name}")
+                feed = api.FoxgloveFeed(args.foxglove_host, args.foxglove, f"cellsim {sf.scenario.name}")
             except Exception as e:  # noqa: BLE001 - the SDK raises its own errors for a port in use
                 raise InputError(f"--foxglove {args.foxglove}: cannot serve on {args.foxglove_host}: {e}") from None
 
@@ -61,9 +58,9 @@ def run(args) -> int:
             print(f"cellsim live: {sf.scenario.name} twin running, recording to {out}", file=sys.stderr)
         if feed is not None:  # said even with --quiet: the port (of 0, any free one) is what a viewer needs
             print(f"cellsim live: Foxglove on ws://{args.foxglove_host}:{feed.port}", file=sys.stderr, flush=True)
-        summary = simulate(sf, out, io=Live(session, args.wait_physical, foxglove=feed), seed=args.seed,
-                           duration=duration)
-        return EXIT_FINDING if summary.mishap else EXIT_OK
+        run = api.simulate(sf, out, io=api.Live(session, args.wait_physical, foxglove=feed), seed=args.seed,
+                           duration=duration, check=False)
+        return EXIT_FINDING if run.summary.mishap else EXIT_OK
 
     try:
         return _live_run(args, "twin", True, twin, check)

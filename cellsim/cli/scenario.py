@@ -32,26 +32,22 @@ def add_parser(subparsers) -> None:
 
 
 def run_export(args) -> int:
-    from cellsim.scenario import export_scenario
+    from cellsim import api
 
     sf = _load(args)
     if args.out is None:
-        sys.stdout.write(export_scenario(sf))
+        sys.stdout.write(api.scenario_yaml(sf))
     else:
-        from cellsim.atomic import write_text
-
-        write_text(args.out, export_scenario(sf, destination_dir=args.out.resolve().parent))
+        api.save_scenario(sf, args.out)
     return EXIT_OK
 
 
 def run_check(args) -> int:
-    from cellsim.validation.check import scenario_safety_case
+    from cellsim import api
 
     sf = _load(args)
-    case = scenario_safety_case(sf)  # builds and wires the diagram, then compiles the formulas
-    from cellsim.validation.defaults import default_conditions
-
-    defaults = [name for name in default_conditions(sf.scenario) if name in case.conditions]
+    case = api.compile_conditions(sf)  # builds and wires the diagram, then compiles the formulas
+    defaults = [name for name in api.default_conditions(sf) if name in case.conditions]
     print(
         f"{args.scenario}: ok ({len(case.conditions)} safety conditions, {len(case.use_cases)} use cases, "
         f"{len(sf.scenario.validation.coverage)} coverage criteria)"

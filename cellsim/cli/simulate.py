@@ -42,14 +42,13 @@ def add_parser(subparsers) -> None:
 def run(args) -> int:
     from rich.console import Console
 
-    from cellsim.scenario import check_run_length, check_seed
-    from cellsim.validation.check import simulate_and_check
+    from cellsim import api
 
     sf = _load(args)
     if args.duration is not None:
-        check_run_length(sf, args.duration, "--duration")
+        api.check_duration(sf, args.duration, "--duration")
     if args.seed is not None:
-        check_seed(args.seed, "--seed")
+        api.check_seed(args.seed, "--seed")
     out = args.out or Path("runs") / f"{sf.scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"
     console = Console(stderr=True, quiet=args.quiet)
     meshcat = meshcat_wait = None
@@ -66,16 +65,8 @@ def run(args) -> int:
         meshcat_wait = (wait, console.print)
     try:
         with _progress(console, args.quiet) as report:
-            done = simulate_and_check(
-                sf,
-                out,
-                seed=args.seed,
-                duration=args.duration,
-                overwrite=args.overwrite,
-                meshcat=meshcat,
-                meshcat_wait=meshcat_wait,
-                on_progress=report,
-            )
+            done = api.simulate(sf, out, seed=args.seed, duration=args.duration, overwrite=args.overwrite,
+                                meshcat=meshcat, meshcat_wait=meshcat_wait, progress=report)
         checked = done.checked.result if done.checked is not None else None
         if not args.quiet:
             print_summary(done.summary, checked)

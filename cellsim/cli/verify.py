@@ -34,22 +34,17 @@ def add_parser(subparsers) -> None:
 def run(args) -> int:
     import json
 
-    from cellsim.verify.expressions import VerifyError
-    from cellsim.verify.run import verify
-    from cellsim.verify.witness import replay
+    from cellsim import api
 
     sf = _load(args)
     say = (lambda text: None) if args.json else (lambda text: print(f"  {text}", file=sys.stderr))
-    try:
-        result = verify(sf, export=args.export, timed=args.timed, on_stage=say)
-    except VerifyError as e:
-        raise InputError(f"{args.scenario}: {e}") from None
     out = args.out or Path("runs") / f"{sf.scenario.name}-verify"
-    replays = {}
-    if args.replay:
-        for checked in result.results:
-            if checked.witness is not None:
-                replays[checked.prop.name] = replay(result.model, checked, out, on_stage=say)
+    try:
+        result = api.verify(sf, export=args.export, timed=args.timed, replay_in=out if args.replay else None,
+                            progress=say)
+    except api.VerifyError as e:
+        raise InputError(f"{args.scenario}: {e}") from None
+    replays = result.replays
     if args.json:
         json.dump(_json(result, replays), sys.stdout, indent=2)
         sys.stdout.write("\n")
@@ -91,7 +86,7 @@ def _print(result, replays, export) -> None:
     from rich.markup import escape
     from rich.table import Table
 
-    from cellsim.verify.storm import EXPLICIT_LIMIT
+    from cellsim.api import EXPLICIT_LIMIT
 
     console = Console(highlight=False)
     stats, model = result.stats, result.model

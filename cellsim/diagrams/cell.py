@@ -54,6 +54,10 @@ from cellsim.recorder import Recorder
 AFTER_ENTITIES = 10
 """Modules of a stage below this are entities and sensors; hooks that need every
 person's or robot's geometry run once they are all built."""
+EXTEND_STAGE = 25
+"""A script's ``extend`` hook (:func:`build_cell`) runs once every module of a lower stage is built
+(entities, sensors, behaviours, controllers) and before those of this stage or above (the recorder),
+so the systems it adds as modules are recorded like any other."""
 
 
 @dataclass
@@ -218,6 +222,26 @@ class CellBuild:
         """Every channel published by the modules built so far, in build order."""
         return _channels(self.modules)
 
+    def channel(self, name: str) -> OutputPort:
+        """The output port of channel ``<module>.<signal>`` (e.g. ``range_detector.range``): what a script's system
+        reads. KeyError naming the channels there are when there is no such channel."""
+        found = self.channels()
+        if name not in found:
+            raise KeyError(f"no channel '{name}'; channels: {', '.join(found)}")
+        return found[name][1]
+
+    def module_input(self, name: str):
+        """The input port ``<module>.<input>`` (e.g. ``robot.safety_mode_request``): what a script's system drives.
+        KeyError naming the module's inputs when it has no such input."""
+        module, _, port = name.partition(".")
+        if module not in self.modules:
+            raise KeyError(f"no module '{module}'; modules: {', '.join(self.modules)}")
+        system = self.modules[module]
+        if not system.HasInputPort(port):
+            names = [system.get_input_port(i).get_name() for i in range(system.num_input_ports())]
+            raise KeyError(f"module '{module}' has no input '{port}'; inputs: {', '.join(names)}")
+        return system.GetInputPort(port)
+
     def _run_hooks(self) -> None:
         hooks, self._hooks = self._hooks, []
         for hook in hooks:
@@ -233,12 +257,16 @@ def build_cell(
     record: bool = True,
     meshcat: Meshcat | None = None,
     meshcat_wait: tuple | None = None,
+    extend: Callable[[CellBuild], None] | None = None,
 ) -> CellDiagram:
     """Assemble the scenario's Diagram with the I/O ``io``. Raises ConfigError for wiring the scenario gets wrong.
 
     Each module is built by its kind (:mod:`cellsim.registry`): this function
     names no concrete kind. ``meshcat_wait``: ``(seconds, say)`` to wait for a
     browser to open Meshcat before simulated time runs (``CellDiagram.start``).
+    ``extend(cell)``: a script's own systems, added once the cell's modules are built and before the recorder
+    (:data:`EXTEND_STAGE`): ``cell.add(name, system)`` makes a system a module (its channels recorded),
+    ``cell.builder`` connects it to ``cell.channel(...)`` and ``cell.module_input(...)``.
     """
     sf = scenario_for(sf, io)
     sc = sf.scenario
@@ -265,8 +293,15 @@ def build_cell(
         if kind.stage >= AFTER_ENTITIES and not hooks_run:
             cell._run_hooks()
             hooks_run = True
+        if kind.stage >= EXTEND_STAGE and extend is not None:
+            cell._run_hooks()
+            extend(cell)
+            extend = None
         kind.build(cell, name, cfg)
     cell._run_hooks()
+    if extend is not None:  # a scenario with no recorder
+        extend(cell)
+        cell._run_hooks()
     for hook in cell._last_hooks:
         hook()
     _filter_all_contact(plant, scene_graph, cell.foreign_geometry, cell.measured_pairs)

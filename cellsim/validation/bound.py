@@ -23,6 +23,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from cellsim.numbers import probability  # noqa: F401  (formatting, with the other numbers for people)
+
 CONFIDENCE = 0.95
 """The confidence of every bound cellsim states."""
 METHOD = "exact one-sided Clopper-Pearson bound"
@@ -127,8 +129,3 @@ def campaign_bounds(runs: list[dict], conditions: list[str], sampling: str, conf
     }
 
 
-def probability(p: float | None) -> str:
-    """A probability for people: 0.000998, 0.0372, 0.5, 1."""
-    if p is None:
-        return "-"
-    return f"{p:.3g}"

@@ -80,6 +80,8 @@ class Verification:
     times: dict[str, float]
     largest: ModelStats | None = None
     """The largest of the models built (the cell with one monitor)."""
+    replays: dict = field(default_factory=dict)
+    """Property name -> its witness replayed in the twin (:func:`cellsim.verify.witness.replay`), when asked for."""
 
     @property
     def holds(self) -> bool:

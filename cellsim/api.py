@@ -1,0 +1,537 @@
+"""cellsim's public Python API: every task of the command line, from a script or a notebook.
+
+``import cellsim`` gives these names (``cellsim.__all__``); they are the public face and will stay. The
+command line is a user of them: ``cellsim simulate`` calls :func:`simulate`, ``cellsim campaign``
+:func:`campaign`, and so on, so a script and the CLI give the same black boxes and results files.
+
+By task (docs/scripting.md has each as an example):
+
+* a scenario: :func:`load_scenario` (a YAML file, with ``--set`` style overrides), or
+  :func:`scenario_in_code` (the scenario's dataclasses built in Python; :func:`kind_config` gives a module
+  kind's config class); :func:`save_scenario` writes one as YAML;
+* the cell's Drake diagram: :func:`build`, with ``extend`` to add or replace systems before it is built
+  (``cell.add``, ``cell.channel``, ``cell.module_input``, ``cell.builder``), and :class:`CellSystem`, the base
+  of a module whose outputs are recorded channels;
+* a run: :func:`simulate` (headless; with Meshcat; live, with ``io``) returns a :class:`Run`: its
+  summary, its black box, its trace as arrays (:meth:`Run.series`) and as a pandas DataFrame
+  (:meth:`Run.dataframe`), its verdicts (:meth:`Run.check`) and explanations (:meth:`Run.explain`);
+* evidence: :func:`check` (a run folder against its conditions), :func:`campaign`, :func:`falsify`,
+  :func:`verify`, each with a ``progress`` callback.
+
+Errors are exceptions with one line each: :class:`ConfigError` names the file, line and key of bad input
+(a scenario built in Python: its name and the key), :class:`CheckError`, :class:`CampaignError`,
+:class:`OutputExistsError` say what is wrong with a path.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Sequence
+
+from cellsim.config.typed_yaml import ConfigError
+from cellsim.config.validation import Validation
+from cellsim.scenario import Scenario, ScenarioFile, load_scenario, scenario_in_code
+
+if TYPE_CHECKING:
+    from cellsim.blackbox import BlackBox, Series
+    from cellsim.campaign.falsify import FalsifyOutcome, SearchProgress
+    from cellsim.campaign.runner import CampaignOutcome, Progress
+    from cellsim.diagrams.cell import CellBuild, CellDiagram
+    from cellsim.simulation import RunSummary
+    from cellsim.validation.check import CheckedRun
+    from cellsim.verify.run import Verification
+
+__all__ = [
+    "CONFIDENCE", "CampaignError", "CellSystem", "CheckError", "ConfigError", "EXPLICIT_LIMIT", "FoxgloveFeed",
+    "Live", "OutputExistsError", "Run", "Scenario", "ScenarioFile", "Validation", "Verdict", "VerifyError",
+    "build", "campaign", "check", "check_campaign", "check_duration", "check_seed", "compile_conditions",
+    "default_conditions", "export_trace", "falsify", "formula_and_description", "is_campaign", "kind_config",
+    "load_scenario", "robustness", "runs_needed", "save_scenario", "scenario_in_code", "scenario_yaml",
+    "simulate", "verify",
+]
+
+Extend = Callable[["CellBuild"], None]
+"""A script's hook on the diagram being built: ``extend(cell)`` (:func:`build`)."""
+
+
+def __getattr__(name: str):
+    """The error types and base classes, imported when first asked for (they pull Drake in)."""
+    if name == "Live":
+        from cellsim.cell_io import Live
+
+        return Live
+    if name == "FoxgloveFeed":
+        from cellsim.foxglove import FoxgloveFeed
+
+        return FoxgloveFeed
+    if name == "CONFIDENCE":
+        from cellsim.validation.bound import CONFIDENCE
+
+        return CONFIDENCE
+    if name == "VerifyError":
+        from cellsim.verify.expressions import VerifyError
+
+        return VerifyError
+    if name == "EXPLICIT_LIMIT":
+        from cellsim.verify.storm import EXPLICIT_LIMIT
+
+        return EXPLICIT_LIMIT
+    if name == "Verdict":
+        from cellsim.validation.verdict import Verdict
+
+        return Verdict
+    if name == "CellSystem":
+        from cellsim.systems import CellSystem
+
+        return CellSystem
+    if name == "CheckError":
+        from cellsim.validation.check import CheckError
+
+        return CheckError
+    if name == "CampaignError":
+        from cellsim.campaign.engine import CampaignError
+
+        return CampaignError
+    if name == "OutputExistsError":
+        from cellsim.simulation import OutputExistsError
+
+        return OutputExistsError
+    raise AttributeError(f"module 'cellsim.api' has no attribute {name!r}")
+
+
+# -- scenarios ----------------------------------------------------------------------------------
+def kind_config(kind: str) -> type:
+    """The config dataclass of module kind ``kind`` (``robot``, ``operator``, a plug-in's): what a scenario
+    built in Python lists under ``entities``, ``behaviours`` or ``services``. KeyError naming the kinds there
+    are for an unknown one."""
+    from cellsim import registry
+
+    if kind not in registry.kind_names():
+        raise KeyError(f"no module kind '{kind}'; kinds: {', '.join(registry.kind_names())}")
+    return registry.get(kind).config
+
+
+def save_scenario(scenario: ScenarioFile, path: str | os.PathLike) -> Path:
+    """Write ``scenario`` (resolved: overrides applied, validation inline) as YAML at ``path``, its file
+    references made relative to the new file's folder; returns the path. A campaign's workers read the
+    scenario from a file: save a scenario built in Python to run a campaign of it."""
+    from cellsim.atomic import write_text
+
+    path = Path(path)
+    write_text(path, scenario_yaml(scenario, path.resolve().parent))
+    return path
+
+
+def check_seed(seed: int, name: str = "seed") -> None:
+    """ConfigError (naming ``name``: a script's or a command's own argument) unless ``seed`` is a valid seed."""
+    from cellsim.scenario import check_seed as check
+
+    check(seed, name)
+
+
+def check_duration(scenario: ScenarioFile, duration: float, name: str = "duration") -> None:
+    """ConfigError (naming ``name``) unless ``duration`` (s) is a run length ``scenario`` can take: positive, at
+    most a day, and few enough plant steps and module updates."""
+    from cellsim.scenario import check_run_length
+
+    check_run_length(scenario, duration, name)
+
+
+def scenario_yaml(scenario: ScenarioFile, relative_to: str | os.PathLike | None = None) -> str:
+    """The scenario resolved (overrides applied, validation inline) as YAML text; its file references relative to
+    the folder ``relative_to`` (default: the scenario's own)."""
+    from cellsim.scenario import export_scenario
+
+    return export_scenario(scenario, destination_dir=None if relative_to is None else Path(relative_to))
+
+
+def compile_conditions(scenario: ScenarioFile | str | os.PathLike):
+    """The scenario's safety case compiled against its cell (the diagram built and wired, every formula checked
+    against the channels it records): ``conditions`` (the scenario's and the default ones), ``use_cases``.
+    Raises ConfigError naming the file, line and key of a bad formula."""
+    from cellsim.validation.check import scenario_safety_case
+
+    return scenario_safety_case(_checked(scenario))
+
+
+def default_conditions(scenario: ScenarioFile) -> list[str]:
+    """The names of the default conditions the scenario's modules give (``NoHarm``, ``TrueSSM``...), waived or not."""
+    from cellsim.validation.defaults import default_conditions as defaults
+
+    return list(defaults(scenario.scenario))
+
+
+def _checked(scenario: ScenarioFile | str | os.PathLike) -> ScenarioFile:
+    """A loaded scenario as given, its checks run again (a script may have changed it since it was loaded)."""
+    from cellsim.scenario import check_scenario
+
+    if not isinstance(scenario, ScenarioFile):
+        return load_scenario(scenario)
+    check_scenario(scenario)
+    return scenario
+
+
+# -- the diagram ----------------------------------------------------------------------------------
+def build(scenario: ScenarioFile | str | os.PathLike, *, seed: int | None = None, duration: float | None = None,
+          extend: Extend | None = None, record: bool = False, meshcat=None) -> "CellDiagram":
+    """The cell's Drake diagram, built and not yet simulated (``cell.diagram``, ``cell.plant``, ``cell.modules``,
+    ``cell.channels``: every channel's output port by ``<module>.<signal>``, also exported from the diagram under
+    that name).
+
+    ``extend(cell)`` runs once the scenario's modules are built, before the recorder taps their channels: add a
+    system of your own with ``cell.add(name, system)`` (a :class:`CellSystem` is recorded like any module) or
+    ``cell.builder.AddSystem``, and wire it with ``cell.builder.Connect`` to ``cell.channel("range_detector.range")``
+    and ``cell.module_input("robot.safety_mode_request")``. To replace a module (the risk-model engine), delete it
+    from the scenario first (``del sf.scenario.behaviours["safety_controller"]``): inputs nothing drives take
+    their defaults."""
+    from cellsim.diagrams.cell import build_cell
+
+    sf = _checked(scenario)
+    return build_cell(sf, seed=sf.scenario.seed if seed is None else seed,
+                      duration=sf.scenario.duration if duration is None else duration,
+                      record=record, meshcat=meshcat, extend=extend)
+
+
+# -- runs -----------------------------------------------------------------------------------------
+def simulate(scenario: ScenarioFile | str | os.PathLike, out: str | os.PathLike | None = None, *,
+             seed: int | None = None, duration: float | None = None, overwrite: bool = False,
+             extend: Extend | None = None, meshcat=None, meshcat_wait: tuple | None = None, io=None,
+             progress: Callable[[float, float], None] | None = None, check: bool = True) -> "Run":
+    """Run the scenario and record its black box in ``out`` (default: ``runs/<scenario>-seed<seed>``), as
+    ``cellsim simulate`` does; returns the :class:`Run`.
+
+    ``seed``, ``duration``: the scenario's unless given. ``extend``: systems of your own (:func:`build`).
+    ``meshcat``: a ``pydrake.geometry.Meshcat`` to draw the run in, at real time (``meshcat_wait``:
+    ``(seconds, say)`` to wait for a browser first). ``io``: the physical side, a ``cellsim.cell_io`` choice
+    (``Live`` beside a real cell, ``Emulated``, ``Replayed``); simulated by default. ``progress(t, duration)``
+    after every simulated second. ``check``: judge the run against the scenario's conditions and the default
+    ones (:attr:`Run.verdicts`), compiled before the folder is touched so a bad formula writes nothing.
+
+    Raises ConfigError (bad scenario or wiring), OutputExistsError (``out`` holds a run, without ``overwrite``).
+    """
+    from cellsim.cell_io import SIMULATED
+    from cellsim.validation.check import simulate_and_check
+    from cellsim.simulation import simulate as simulate_run
+
+    sf = _checked(scenario)
+    seed = sf.scenario.seed if seed is None else seed
+    out = Path(out) if out is not None else Path("runs") / f"{sf.scenario.name}-seed{seed}"
+    args = dict(seed=seed, duration=duration, overwrite=overwrite, meshcat=meshcat, meshcat_wait=meshcat_wait,
+                on_progress=progress, io=SIMULATED if io is None else io, extend=extend)
+    if not check:
+        return Run(out, simulate_run(sf, out, **args), None)
+    done = simulate_and_check(sf, out, **args)
+    return Run(out, done.summary, done.checked)
+
+
+@dataclass
+class Run:
+    """A recorded run: its folder, what :func:`simulate` summed up, and its verdicts.
+
+    The black box (``out/blackbox.sqlite``) is an SQLite file any tool reads; this class reads it for you.
+    """
+
+    out: Path
+    """The run's folder: ``blackbox.sqlite`` and ``scenario.yaml`` (the resolved scenario, which re-runs it)."""
+    summary: "RunSummary"
+    """Status, simulated and wall time, hazards' counts, figures, findings (contacts, closest approach, blind
+    spots), waived default conditions."""
+    checked: "CheckedRun | None" = None
+    """The run judged against its conditions (None: not checked, or a scenario with none)."""
+
+    @classmethod
+    def open(cls, out: str | os.PathLike) -> "Run":
+        """A run recorded earlier (by :func:`simulate` or ``cellsim simulate``): its summary read back from its
+        black box and the scenario recorded beside it (its wall time is not recorded: 0)."""
+        from cellsim.blackbox import BlackBox
+        from cellsim.simulation import BLACKBOX, RESOLVED_SCENARIO, figures_of, summarise
+
+        out = Path(out)
+        with BlackBox(out / BLACKBOX) as bb:
+            meta = bb.metadata()
+        sf = load_scenario(out / RESOLVED_SCENARIO)
+        summary = summarise(out, int(meta.get("seed", sf.scenario.seed)), str(meta.get("status", "unknown")),
+                            float(meta.get("recorded_until", meta.get("duration", 0.0))), 0.0, figures_of(sf), sf)
+        return cls(out, summary, None)
+
+    @property
+    def blackbox_path(self) -> Path:
+        return self.out / "blackbox.sqlite"
+
+    def blackbox(self) -> "BlackBox":
+        """The black box, open for reading (use as a context manager: ``with run.blackbox() as bb``)."""
+        from cellsim.blackbox import BlackBox
+
+        return BlackBox(self.blackbox_path)
+
+    def channels(self) -> list[str]:
+        """Every recorded channel, ``<module>.<signal>``."""
+        with self.blackbox() as bb:
+            return list(bb.channels())
+
+    def series(self, *channels: str) -> dict[str, "Series"]:
+        """Each channel's messages as arrays: ``series[name].times`` (s, numpy) and ``.values`` (each holds from
+        its time until the next). KeyError for a channel the run did not record."""
+        with self.blackbox() as bb:
+            return {name: bb.series(name) for name in channels}
+
+    def dataframe(self, channels: Sequence[str] | None = None, *, period: float | None = None):
+        """The trace as a pandas DataFrame: one column per channel (default: every scalar channel), indexed by
+        time (s). Without ``period``, a row at every instant any of them changed; with it, rows every ``period``
+        seconds. Each value is the channel's latest message at that time (it holds until the next): what a
+        reader of the channel saw. A vector channel's elements are columns ``<channel>[i]``."""
+        try:
+            import pandas as pd
+        except ImportError:  # pragma: no cover - pandas comes with cellsim's dependencies
+            raise ImportError("Run.dataframe needs pandas: pip install 'cellsim[scripting]'") from None
+        with self.blackbox() as bb:
+            known = bb.channels()
+            names = list(channels) if channels is not None else [n for n, c in known.items() if c.kind != "vector"]
+            series = {name: bb.series(name) for name in names}
+        columns = {}
+        for name, s in series.items():
+            values = list(s.values)
+            if values and isinstance(values[0], list):
+                for i in range(len(values[0])):
+                    columns[f"{name}[{i}]"] = pd.Series([v[i] for v in values], index=s.times)
+            else:
+                columns[name] = pd.Series(values, index=s.times, dtype=object if _textual(values) else float)
+        if period is not None:
+            end = self.summary.sim_time
+            index = [round(k * period, 9) for k in range(int(math.floor(end / period + 1e-9)) + 1)]
+        else:
+            index = sorted({t for c in columns.values() for t in c.index})
+        frame = pd.DataFrame({name: _held(c, index) for name, c in columns.items()}, index=index)
+        frame.index.name = "t"
+        return frame
+
+    @property
+    def finding(self) -> bool:
+        """A safety finding: a hazard reached its mishap phase, or a condition does not hold (what makes
+        ``cellsim simulate`` exit 1)."""
+        return self.summary.mishap or (self.checked is not None and not self.checked.result.all_hold)
+
+    @property
+    def verdicts(self) -> dict[str, str]:
+        """Each condition's verdict on this run (``holds``, ``violated``, ``inconclusive``, ...), judged when it
+        was simulated (or by :meth:`check`)."""
+        if self.checked is None:
+            self.check()
+        return {name: v.status.value for name, v in self.checked.result.verdicts.items()}
+
+    def check(self, scenario: ScenarioFile | None = None) -> "CheckedRun":
+        """Judge the run against ``scenario``'s conditions (default: its own) and the default ones; the result
+        has ``result.verdicts`` (each condition's), ``result.violations`` and ``verdict`` (the run's)."""
+        self.checked = check(self.out, scenario)
+        return self.checked
+
+    def explain(self, condition: str) -> str | None:
+        """Why ``condition`` is violated on this run, with the time of its first violation; None when it holds
+        (or is undecided: its verdict says why). KeyError for a condition the run was not judged by."""
+        if self.checked is None:
+            self.check()
+        verdict = self.checked.result.verdicts[condition]
+        if verdict.explanation is None:
+            return None
+        return f"violated at {verdict.violated_at:g} s: {verdict.explanation}"
+
+
+def _textual(values: list) -> bool:
+    return any(isinstance(v, str) for v in values)
+
+
+def _held(column, index):
+    """``column``'s values held from each of its times, read at ``index``'s times."""
+    import pandas as pd
+
+    return column[~column.index.duplicated(keep="last")].reindex(pd.Index(index), method="ffill")
+
+
+def check(run: str | os.PathLike | Run, scenario: ScenarioFile | None = None) -> "CheckedRun":
+    """Judge a recorded run (its folder, or its black box) against ``scenario``'s conditions (default: the run's
+    own scenario, recorded beside it) and the default ones, as ``cellsim check`` does.
+
+    Returns the checked run: ``result.verdicts`` (each condition's, with ``status``, ``violated_at`` and
+    ``explanation``), ``result.violations``, ``result.undecided``, ``result.use_cases``, ``result.coverage``,
+    ``trace`` (the trace judged; ``trace.complete``: the run reached its end), ``case`` (the conditions).
+    Raises CheckError when the run cannot be checked (no black box, a damaged one, no conditions)."""
+    from cellsim.blackbox import BlackBoxError
+    from cellsim.validation.check import CheckError
+    from cellsim.validation.check import check as check_run
+    from cellsim.validation.traces import TraceError
+
+    try:
+        return check_run(run.out if isinstance(run, Run) else run, scenario)
+    except (BlackBoxError, TraceError) as e:
+        raise CheckError(str(e)) from None
+
+
+def robustness(checked: "CheckedRun") -> dict:
+    """Each condition's margins on a checked run: how far its thresholds (``space``, in their units) and deadlines
+    (``time``, s) could move against it before its verdict changes; negative when violated
+    (docs/condition-language.md, Robustness)."""
+    from cellsim.logic.robustness import robustness as margins
+
+    return {name: margins(formula, checked.trace.trace) for name, formula in checked.case.conditions.items()}
+
+
+def export_trace(checked: "CheckedRun", path: str | os.PathLike) -> None:
+    """Write a checked run's trace as JSON: ``{variable: [[t, value], ...]}``."""
+    from cellsim.validation.traces import write_trace_json
+
+    write_trace_json(checked.trace, Path(path))
+
+
+def formula_and_description(entry) -> tuple[str, str]:
+    """(formula, description) of a condition or use case as a scenario writes it (bare, or with a description)."""
+    from cellsim.config.validation import description_of, formula_of
+
+    return formula_of(entry), description_of(entry)
+
+
+def is_campaign(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is a campaign's (or a search's) folder."""
+    from cellsim.campaign.runner import PLAN
+
+    path = Path(path)
+    return path.is_dir() and (path / PLAN).is_file()
+
+
+@dataclass
+class CampaignCheck:
+    """Every run of a campaign folder judged again (:func:`check_campaign`)."""
+
+    folder: Path
+    runs: list[dict]
+    """Per run: ``run`` (its folder's name), ``status`` (completed or failed), ``violations``, ``undecided``, or
+    ``error`` when it cannot be checked."""
+    conditions: list[str]
+    bounds: dict | None
+    """Per condition and for any condition: violating runs, rate and exact upper bound, with the sampling
+    distribution they hold under; None for a search's runs (:attr:`not_a_sample` says why)."""
+    not_a_sample: str | None = None
+
+    @property
+    def uncheckable(self) -> list[dict]:
+        return [r for r in self.runs if r["status"] == "failed"]
+
+
+def check_campaign(folder: str | os.PathLike, scenario: ScenarioFile | None = None, *,
+                   progress: Callable[[int, int], None] | None = None) -> CampaignCheck:
+    """Judge every run of a campaign (or search) folder, as ``cellsim check FOLDER`` does, and bound the violation
+    rate per condition; ``progress(done, total)`` after each run. Runs that cannot be checked are listed, never
+    dropped silently. Raises CheckError for a folder with no runs."""
+    import json
+
+    from cellsim.campaign.falsify import NOT_A_SAMPLE, read_search
+    from cellsim.campaign.runner import RESULTS, RUNS
+    from cellsim.validation.bound import campaign_bounds
+    from cellsim.validation.check import CheckError
+
+    folder = Path(folder)
+    folders = sorted(p for p in (folder / RUNS).glob("*") if p.is_dir())
+    if not folders:
+        raise CheckError(f"{folder}: a campaign folder with no runs yet")
+    runs, conditions = [], {}
+    for done, path in enumerate(folders, start=1):
+        try:
+            result = check(path, scenario).result
+        except CheckError as e:  # a run that never finished, or was damaged
+            runs.append({"run": path.name, "status": "failed", "error": str(e)})
+        else:
+            conditions.update(dict.fromkeys(result.verdicts))
+            runs.append({"run": path.name, "status": "completed", "violations": result.violations,
+                         "undecided": result.undecided})
+        if progress is not None:
+            progress(done, len(folders))
+    if read_search(folder) is not None:  # a search chose these runs: they bound nothing
+        return CampaignCheck(folder, runs, list(conditions), None, NOT_A_SAMPLE)
+    try:
+        sampling = json.loads((folder / RESULTS).read_text())["bounds"]["sampling"]
+    except (OSError, ValueError, KeyError, TypeError):
+        sampling = f"not recorded ({folder / RESULTS} is missing or has no bounds): state it yourself"
+    return CampaignCheck(folder, runs, list(conditions), campaign_bounds(runs, list(conditions), sampling))
+
+
+# -- evidence -------------------------------------------------------------------------------------
+def _scenario_file(scenario: ScenarioFile | str | os.PathLike) -> tuple[str, tuple[str, ...]]:
+    """(the scenario's file, its overrides): what a campaign's workers load again."""
+    if isinstance(scenario, ScenarioFile):
+        if scenario.built_in_code:
+            raise ConfigError(scenario.source, None, "", "a campaign's runs read their scenario from a file: save it "
+                              "first (cellsim.save_scenario) and give that file")
+        return str(Path(scenario.source).resolve()), tuple(scenario.overrides)
+    return str(Path(scenario).resolve()), ()
+
+
+def campaign(scenario: ScenarioFile | str | os.PathLike, out: str | os.PathLike, *, runs: int | None = None,
+             seed: int = 0, duration: float | None = None, jobs: int = 1, scheduler: str | None = None,
+             restart: bool = False, until_bound: float | None = None,
+             progress: Callable[["Progress"], None] | None = None) -> "CampaignOutcome":
+    """Run (or resume) a campaign into ``out``, as ``cellsim campaign`` does: ``results.json``, ``report.html``,
+    a folder per run. ``runs``: the scenario's ``campaign.runs`` unless given. ``jobs`` local processes, or a Dask
+    ``scheduler`` address. ``progress(p)`` after every run (``p.done``, ``p.total``, ``p.violating_runs``,
+    ``p.failed``, ``p.coverage``). Returns the outcome (``results``: what results.json holds)."""
+    from cellsim.campaign.runner import CampaignPlan, run_campaign
+
+    path, overrides = _scenario_file(scenario)
+    sf = scenario if isinstance(scenario, ScenarioFile) else load_scenario(path)
+    plan = CampaignPlan(path, overrides, seed, sf.scenario.campaign.runs if runs is None else runs, duration,
+                        until_bound=until_bound)
+    return run_campaign(plan, out, jobs=jobs, on_progress=progress, restart=restart, scheduler=scheduler)
+
+
+def falsify(scenario: ScenarioFile | str | os.PathLike, out: str | os.PathLike, *, budget: int,
+            method: str = "cmaes", conditions: Sequence[str] = (), seed: int = 0, duration: float | None = None,
+            jobs: int = 1, batch: int | None = None, scheduler: str | None = None, overwrite: bool = False,
+            progress: Callable[["SearchProgress"], None] | None = None) -> "FalsifyOutcome":
+    """Search the scenario's configuration points for runs that violate ``conditions`` (default: all), as
+    ``cellsim falsify`` does, spending at most ``budget`` runs: ``method`` ``cmaes``, ``qd`` or ``random``.
+    ``progress(p)`` after every batch (``p.done``, ``p.budget``, ``p.best``, ``p.violating``). A search's runs are
+    no random sample: its results carry no bound."""
+    from cellsim.campaign.falsify import FalsifyPlan, run_falsify
+
+    path, overrides = _scenario_file(scenario)
+    plan = FalsifyPlan(path, overrides, seed, budget, method, duration, tuple(conditions))
+    return run_falsify(plan, out, jobs=jobs, on_progress=progress, overwrite=overwrite, batch=batch,
+                       scheduler=scheduler)
+
+
+def runs_needed(probability: float, confidence: float | None = None) -> int:
+    """How many runs with no violation bound the violation rate below ``probability`` at ``confidence`` (default:
+    the campaigns' 95 %), by the exact (Clopper-Pearson) bound a campaign reports."""
+    from cellsim.validation.bound import CONFIDENCE
+    from cellsim.validation.bound import runs_needed as needed
+
+    return needed(probability, CONFIDENCE if confidence is None else confidence)
+
+
+def verify(scenario: ScenarioFile | str | os.PathLike, *, export: str | os.PathLike | None = None,
+           timed: bool = False, replay_in: str | os.PathLike | None = None,
+           progress: Callable[[str], None] | None = None) -> "Verification":
+    """Model-check the scenario's abstraction with Storm, as ``cellsim verify`` does: ``result.results`` holds
+    each property's value, whether it holds, and a witness path where it does not; ``result.model.cell.assumptions``
+    the abstraction's assumptions. ``export``: also write the PRISM model and properties (a folder).
+    ``replay_in``: replay each witness in the twin, writing its runs in that folder: ``result.replays[name]``
+    says whether the twin confirms it. ``progress(stage)`` as each stage starts. Raises VerifyError for a
+    scenario the abstraction cannot take."""
+    from cellsim.verify.run import verify as verify_cell
+    from cellsim.verify.witness import replay
+
+    result = verify_cell(_checked(scenario), export=None if export is None else Path(export), timed=timed,
+                         on_stage=progress)
+    if replay_in is not None:
+        for checked in result.results:
+            if checked.witness is not None:
+                result.replays[checked.prop.name] = replay(result.model, checked, Path(replay_in), on_stage=progress)
+    return result
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)
+
+
+_ANY: Any = None  # keeps typing's Any imported for the annotations above
