@@ -2,7 +2,7 @@
 
 ``import cellsim`` gives these names (``cellsim.__all__``); they are the public face and will stay. The
 command line is a user of them: ``cellsim simulate`` calls :func:`simulate`, ``cellsim campaign``
-:func:`campaign`, and so on, so a script and the CLI give the same black boxes and results files.
+:func:`run_campaign`, and so on, so a script and the CLI give the same black boxes and results files.
 
 By task (docs/scripting.md has each as an example):
 
@@ -15,8 +15,9 @@ By task (docs/scripting.md has each as an example):
 * a run: :func:`simulate` (headless; with Meshcat; live, with ``io``) returns a :class:`Run`: its
   summary, its black box, its trace as arrays (:meth:`Run.series`) and as a pandas DataFrame
   (:meth:`Run.dataframe`), its verdicts (:meth:`Run.check`) and explanations (:meth:`Run.explain`);
-* evidence: :func:`check` (a run folder against its conditions), :func:`campaign`, :func:`falsify`,
-  :func:`verify`, each with a ``progress`` callback.
+* evidence: :func:`check` (a run folder against its conditions), :func:`check_campaign`, :func:`run_campaign`,
+  :func:`falsify`, :func:`verify_cell`, each with a ``progress`` callback. (Not ``campaign`` and ``verify``:
+  those are cellsim's own packages, ``cellsim.campaign`` and ``cellsim.verify``.)
 
 Errors are exceptions with one line each: :class:`ConfigError` names the file, line and key of bad input
 (a scenario built in Python: its name and the key), :class:`CheckError`, :class:`CampaignError`,
@@ -31,9 +32,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
+from cellsim.config.layout import Fixture, Layout, Region
 from cellsim.config.typed_yaml import ConfigError
 from cellsim.config.validation import Validation
-from cellsim.scenario import Scenario, ScenarioFile, load_scenario, scenario_in_code
+from cellsim.scenario import CampaignConfig, ConfigurationPoint, Scenario, ScenarioFile, load_scenario, scenario_in_code
 
 if TYPE_CHECKING:
     from cellsim.blackbox import BlackBox, Series
@@ -45,12 +47,13 @@ if TYPE_CHECKING:
     from cellsim.verify.run import Verification
 
 __all__ = [
-    "CONFIDENCE", "CampaignError", "CellSystem", "CheckError", "ConfigError", "EXPLICIT_LIMIT", "FoxgloveFeed",
-    "Live", "OutputExistsError", "Run", "Scenario", "ScenarioFile", "Validation", "Verdict", "VerifyError",
-    "build", "campaign", "check", "check_campaign", "check_duration", "check_seed", "compile_conditions",
-    "default_conditions", "export_trace", "falsify", "formula_and_description", "is_campaign", "kind_config",
-    "load_scenario", "robustness", "runs_needed", "save_scenario", "scenario_in_code", "scenario_yaml",
-    "simulate", "verify",
+    "CONFIDENCE", "CampaignConfig", "CampaignError", "CellSystem", "CheckError", "ConfigError",
+    "ConfigurationPoint", "EXPLICIT_LIMIT", "Fixture", "FoxgloveFeed", "Layout", "Live", "OutputExistsError",
+    "Region", "Run", "Scenario", "ScenarioFile", "Validation", "Verdict", "VerifyError", "build", "check",
+    "check_campaign", "check_duration", "check_seed", "compile_conditions", "default_conditions",
+    "export_trace", "falsify", "formula_and_description", "is_campaign", "kind_config", "load_scenario",
+    "module", "open_meshcat", "robustness", "run_campaign", "runs_needed", "save_scenario", "scenario_in_code",
+    "scenario_yaml", "simulate", "verify_cell",
 ]
 
 Extend = Callable[["CellBuild"], None]
@@ -59,6 +62,10 @@ Extend = Callable[["CellBuild"], None]
 
 def __getattr__(name: str):
     """The error types and base classes, imported when first asked for (they pull Drake in)."""
+    if name == "open_meshcat":
+        from cellsim.visual.serve import open_meshcat
+
+        return open_meshcat
     if name == "Live":
         from cellsim.cell_io import Live
 
@@ -112,6 +119,15 @@ def kind_config(kind: str) -> type:
     if kind not in registry.kind_names():
         raise KeyError(f"no module kind '{kind}'; kinds: {', '.join(registry.kind_names())}")
     return registry.get(kind).config
+
+
+def module(kind: str, **fields):
+    """A module's config of kind ``kind``, from its fields as a scenario file writes them (strings for enums,
+    lists for tuples, mappings for nested configs), converted and checked as a file's: ConfigError naming the
+    field for a bad one. ``cellsim.module("light_barrier", center=(-1.37, 0, 1.25), size=(0.02, 0.9, 0.7))``."""
+    from cellsim.config.typed_yaml import from_data, to_data
+
+    return from_data(kind_config(kind), {"kind": kind, **to_data(fields)}, f"<{kind} module built in Python>")
 
 
 def save_scenario(scenario: ScenarioFile, path: str | os.PathLike) -> Path:
@@ -467,7 +483,7 @@ def _scenario_file(scenario: ScenarioFile | str | os.PathLike) -> tuple[str, tup
     return str(Path(scenario).resolve()), ()
 
 
-def campaign(scenario: ScenarioFile | str | os.PathLike, out: str | os.PathLike, *, runs: int | None = None,
+def run_campaign(scenario: ScenarioFile | str | os.PathLike, out: str | os.PathLike, *, runs: int | None = None,
              seed: int = 0, duration: float | None = None, jobs: int = 1, scheduler: str | None = None,
              restart: bool = False, until_bound: float | None = None,
              progress: Callable[["Progress"], None] | None = None) -> "CampaignOutcome":
@@ -475,13 +491,14 @@ def campaign(scenario: ScenarioFile | str | os.PathLike, out: str | os.PathLike,
     a folder per run. ``runs``: the scenario's ``campaign.runs`` unless given. ``jobs`` local processes, or a Dask
     ``scheduler`` address. ``progress(p)`` after every run (``p.done``, ``p.total``, ``p.violating_runs``,
     ``p.failed``, ``p.coverage``). Returns the outcome (``results``: what results.json holds)."""
-    from cellsim.campaign.runner import CampaignPlan, run_campaign
+    from cellsim.campaign.runner import CampaignPlan
+    from cellsim.campaign.runner import run_campaign as run
 
     path, overrides = _scenario_file(scenario)
     sf = scenario if isinstance(scenario, ScenarioFile) else load_scenario(path)
     plan = CampaignPlan(path, overrides, seed, sf.scenario.campaign.runs if runs is None else runs, duration,
                         until_bound=until_bound)
-    return run_campaign(plan, out, jobs=jobs, on_progress=progress, restart=restart, scheduler=scheduler)
+    return run(plan, out, jobs=jobs, on_progress=progress, restart=restart, scheduler=scheduler)
 
 
 def falsify(scenario: ScenarioFile | str | os.PathLike, out: str | os.PathLike, *, budget: int,
@@ -509,7 +526,7 @@ def runs_needed(probability: float, confidence: float | None = None) -> int:
     return needed(probability, CONFIDENCE if confidence is None else confidence)
 
 
-def verify(scenario: ScenarioFile | str | os.PathLike, *, export: str | os.PathLike | None = None,
+def verify_cell(scenario: ScenarioFile | str | os.PathLike, *, export: str | os.PathLike | None = None,
            timed: bool = False, replay_in: str | os.PathLike | None = None,
            progress: Callable[[str], None] | None = None) -> "Verification":
     """Model-check the scenario's abstraction with Storm, as ``cellsim verify`` does: ``result.results`` holds
@@ -518,10 +535,10 @@ def verify(scenario: ScenarioFile | str | os.PathLike, *, export: str | os.PathL
     ``replay_in``: replay each witness in the twin, writing its runs in that folder: ``result.replays[name]``
     says whether the twin confirms it. ``progress(stage)`` as each stage starts. Raises VerifyError for a
     scenario the abstraction cannot take."""
-    from cellsim.verify.run import verify as verify_cell
+    from cellsim.verify.run import verify
     from cellsim.verify.witness import replay
 
-    result = verify_cell(_checked(scenario), export=None if export is None else Path(export), timed=timed,
+    result = verify(_checked(scenario), export=None if export is None else Path(export), timed=timed,
                          on_stage=progress)
     if replay_in is not None:
         for checked in result.results:

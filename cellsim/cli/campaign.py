@@ -62,7 +62,7 @@ def run(args) -> int:
     out = args.out or Path("campaigns") / f"{sf.scenario.name}-seed{args.seed}"
     try:
         with _campaign_progress(console, args.quiet, runs) as report:
-            outcome = api.campaign(sf, out, runs=runs, seed=args.seed, duration=args.duration, jobs=args.jobs,
+            outcome = api.run_campaign(sf, out, runs=runs, seed=args.seed, duration=args.duration, jobs=args.jobs,
                                    scheduler=args.scheduler, restart=args.restart, until_bound=args.until_bound,
                                    progress=report)
     except api.CampaignError as e:

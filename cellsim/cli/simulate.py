@@ -53,14 +53,14 @@ def run(args) -> int:
     console = Console(stderr=True, quiet=args.quiet)
     meshcat = meshcat_wait = None
     if args.meshcat:
-        from cellsim.visual.serve import WAIT_DEFAULT, open_meshcat
+        from cellsim.visual.serve import WAIT_DEFAULT
 
         wait = args.meshcat_wait
         if wait is None:
             wait = WAIT_DEFAULT if sys.stdin is not None and sys.stdin.isatty() else 0.0
         if not (0.0 <= wait <= 3600.0):
             raise InputError(f"--meshcat-wait {wait:g}: expected 0 to 3600 seconds")
-        meshcat = open_meshcat()
+        meshcat = api.open_meshcat()
         console.print(f"Meshcat: [link={meshcat.web_url()}]{meshcat.web_url()}[/link]")
         meshcat_wait = (wait, console.print)
     try:

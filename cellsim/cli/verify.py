@@ -40,7 +40,7 @@ def run(args) -> int:
     say = (lambda text: None) if args.json else (lambda text: print(f"  {text}", file=sys.stderr))
     out = args.out or Path("runs") / f"{sf.scenario.name}-verify"
     try:
-        result = api.verify(sf, export=args.export, timed=args.timed, replay_in=out if args.replay else None,
+        result = api.verify_cell(sf, export=args.export, timed=args.timed, replay_in=out if args.replay else None,
                             progress=say)
     except api.VerifyError as e:
         raise InputError(f"{args.scenario}: {e}") from None

@@ -230,6 +230,16 @@ class CellBuild:
             raise KeyError(f"no channel '{name}'; channels: {', '.join(found)}")
         return found[name][1]
 
+    def code_of(self, channel: str, value) -> float:
+        """The number channel ``<module>.<signal>`` carries for ``value``: an enum's word as its code (``code_of(
+        "range_detector.range", "close")``), a bool as 0 or 1, a number as itself. What a script's system compares
+        a channel's port with, or writes to an input of that type (``robot.safety_mode_request`` takes the codes of
+        ``robot.safety_mode``). KeyError for an unknown channel, ValueError for a value it cannot carry."""
+        found = self.channels()
+        if channel not in found:
+            raise KeyError(f"no channel '{channel}'; channels: {', '.join(found)}")
+        return float(found[channel][0].type.encode(value)[0])
+
     def module_input(self, name: str):
         """The input port ``<module>.<input>`` (e.g. ``robot.safety_mode_request``): what a script's system drives.
         KeyError naming the module's inputs when it has no such input."""

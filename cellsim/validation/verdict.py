@@ -16,6 +16,9 @@ from enum import Enum
 
 
 class Verdict(str, Enum):
+    """A condition's verdict on a run (or a run's: the worst of its conditions'): holds, violated, inconclusive
+    (the run ended before the formula could be decided), missing data (a channel it reads has no value), failed."""
+
     HOLDS = "holds"
     VIOLATED = "violated"
     INCONCLUSIVE = "inconclusive"

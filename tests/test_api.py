@@ -1,0 +1,312 @@
+"""The public Python API (issue 37): every task from ``import cellsim`` alone, no cellsim submodule named.
+
+Load a scenario with overrides, or build one in code; build its diagram and put a system of one's own into it;
+simulate and read the run back as arrays, a DataFrame, verdicts and explanations; campaigns, searches and
+verification with the same results the CLI writes. The CLI's commands are users of this API.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import sqlite3
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+import cellsim
+
+ROOT = Path(__file__).resolve().parents[1]
+WELDING = ROOT / "scenarios" / "welding_cell.yaml"
+sys.path.insert(0, str(ROOT / "diagrams"))
+
+
+def _rows(blackbox: Path) -> list[tuple]:
+    """A black box's messages, read with sqlite3 (not cellsim's reader)."""
+    db = sqlite3.connect(blackbox)
+    try:
+        return db.execute("SELECT t, channel, source, payload FROM messages ORDER BY rowid").fetchall()
+    finally:
+        db.close()
+
+
+def test_the_public_names_are_documented_and_need_no_submodule():
+    assert set(cellsim.__all__) == set(dir(cellsim)) - {"__version__"}
+    for name in cellsim.__all__:
+        value = getattr(cellsim, name)
+        assert value is not None
+        if callable(value) and not isinstance(value, type(cellsim)):
+            assert (value.__doc__ or "").strip(), f"cellsim.{name} has no docstring"
+    with pytest.raises(AttributeError):
+        cellsim.no_such_thing  # noqa: B018
+    # no public name is shadowed by a cellsim package of that name once every package is imported
+    import importlib
+    import pkgutil
+
+    for found in pkgutil.walk_packages(cellsim.__path__, "cellsim."):
+        if not found.name.endswith("__main__") and not found.name.startswith(
+                ("cellsim.kinds.", "cellsim.bridges.", "cellsim.live.", "cellsim.dashboard.")):
+            importlib.import_module(found.name)
+    from cellsim import api
+
+    assert all(getattr(cellsim, name) is getattr(api, name) for name in cellsim.__all__)
+
+
+def test_a_scenario_loads_with_overrides_and_a_bad_one_is_one_error_naming_file_line_and_key(tmp_path):
+    sf = cellsim.load_scenario(WELDING, ["seed=7", "operator.walking_speed=1.0"])
+    assert sf.scenario.seed == 7 and sf.scenario.entities["operator"].walking_speed == 1.0
+    with pytest.raises(cellsim.ConfigError) as e:
+        cellsim.load_scenario(WELDING, ["range_detector.near_below=-3"])
+    assert "range_detector.near_below" in str(e.value) and "\n" not in str(e.value)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(WELDING.read_text().replace("walking_speed: 1.2", "walking_speed: fast"))
+    with pytest.raises(cellsim.ConfigError) as e:
+        cellsim.load_scenario(bad)
+    assert e.value.source == str(bad) and e.value.line is not None and "walking_speed" in e.value.key
+
+
+def test_a_module_built_in_code_is_checked_as_a_files_and_names_the_field():
+    curtain = cellsim.module("light_barrier", center=(-1.37, 0.0, 1.25), size=(0.02, 0.9, 0.7))
+    assert isinstance(curtain, cellsim.kind_config("light_barrier")) and curtain.size == (0.02, 0.9, 0.7)
+    with pytest.raises(cellsim.ConfigError) as e:
+        cellsim.module("light_barrier", center=(0, 0, 1), size=(0.02, -0.9, 0.7))
+    assert "size" in e.value.key
+    with pytest.raises(KeyError, match="no module kind 'lidar'"):
+        cellsim.kind_config("lidar")
+
+
+def test_the_welding_cell_in_code_and_from_yaml_give_the_same_black_box(tmp_path):
+    from welding_cell import SCENARIOS, welding_cell
+
+    in_code = cellsim.scenario_in_code(welding_cell(), base_dir=SCENARIOS)
+    assert in_code.built_in_code and "built in Python" in in_code.source
+    a = cellsim.simulate(in_code, tmp_path / "code", seed=3, duration=12.0)
+    b = cellsim.simulate(cellsim.load_scenario(WELDING), tmp_path / "yaml", seed=3, duration=12.0)
+    rows = _rows(a.out / "blackbox.sqlite")
+    assert len(rows) > 500 and rows == _rows(b.out / "blackbox.sqlite")
+    assert a.verdicts == b.verdicts
+    # the run re-runs alone: its folder holds the resolved scenario, which loads
+    assert cellsim.load_scenario(a.out / "scenario.yaml").scenario.name == "welding_cell"
+
+
+def test_a_bad_scenario_built_in_code_names_its_key():
+    from welding_cell import SCENARIOS, welding_cell
+
+    scenario = welding_cell()
+    scenario.entities["robot"].initial_pose = "nowhere"
+    with pytest.raises(cellsim.ConfigError) as e:
+        cellsim.scenario_in_code(scenario, base_dir=SCENARIOS)
+    assert "welding_cell (built in Python)" in str(e.value) and "initial_pose" in str(e.value)
+
+
+def test_a_run_reads_back_as_arrays_a_dataframe_verdicts_and_explanations(tmp_path):
+    ticks = []
+    run = cellsim.simulate(cellsim.load_scenario(WELDING), tmp_path / "run", seed=0, duration=6.0,
+                           progress=lambda t, total: ticks.append((t, total)))
+    assert ticks == [(float(k), 6.0) for k in range(1, 7)]
+    assert run.summary.status == "completed" and run.summary.sim_time == pytest.approx(6.0)
+    series = run.series("ground_truth.separation", "robot.safety_mode")
+    separation = series["ground_truth.separation"]
+    assert isinstance(separation.times, np.ndarray) and separation.times[0] == 0.0
+    rows = [r for r in _rows(run.out / "blackbox.sqlite") if r[1] == "ground_truth.separation"]
+    assert [json.loads(r[3])["value"] for r in rows] == pytest.approx(separation.values)
+    frame = run.dataframe(["ground_truth.separation", "robot.safety_mode"])
+    assert list(frame.columns) == ["ground_truth.separation", "robot.safety_mode"] and frame.index.name == "t"
+    # each value holds from its message on: read at any instant, the frame says what a reader saw then
+    t = float(separation.times[7]) + 0.05
+    held = frame["ground_truth.separation"][frame.index <= t].iloc[-1]
+    assert held == pytest.approx(separation.value_at(t))
+    sampled = run.dataframe(["ground_truth.separation"], period=0.5)
+    assert list(sampled.index) == pytest.approx([0.5 * k for k in range(13)])
+    assert sampled["ground_truth.separation"].iloc[4] == pytest.approx(separation.value_at(2.0))
+    vectors = run.dataframe(["robot.joint_positions"])
+    assert [c for c in vectors.columns] == [f"robot.joint_positions[{i}]" for i in range(6)]
+    # the verdicts, and why one does not hold
+    assert run.verdicts["NoHarm"] == "holds" and run.verdicts["Final:Tbl"] == "violated"
+    why = run.explain("Final:Tbl")
+    assert why.startswith("violated at") and "otab" in why
+    assert run.explain("NoHarm") is None
+    assert cellsim.check(run).result.verdicts.keys() == run.checked.result.verdicts.keys()
+    again = cellsim.Run.open(run.out)
+    assert again.summary.status == "completed" and again.verdicts == run.verdicts
+
+
+class NaiveController(LeafSystem):
+    """A hand-written safety controller: it stops the arm while the light curtain is broken and otherwise lets it
+    run at full speed, ignoring the range detector (the point: a condition catches it)."""
+
+    def __init__(self, broken: float, normal: float, stopped: float, heed_scanner: float | None = None):
+        super().__init__()
+        self.normal, self.stopped, self.heed = normal, stopped, heed_scanner
+        self.curtain = self.DeclareVectorInputPort("curtain", 1)
+        self.scanner = self.DeclareVectorInputPort("scanner", 1)
+        self.broken = broken
+        self.DeclareVectorOutputPort("mode", 1, self._mode)
+
+    def _mode(self, context, output: BasicVector) -> None:
+        stop = self.curtain.Eval(context)[0] == self.broken
+        if self.heed is not None and self.scanner.Eval(context)[0] == self.heed:
+            stop = True
+        output.SetAtIndex(0, self.stopped if stop else self.normal)
+
+
+def _with_controller(tmp_path, name: str, heed_scanner: bool):
+    """The welding cell with its risk-model engine replaced by a hand-written controller, judged by a condition
+    written here."""
+    sf = cellsim.load_scenario(WELDING)
+    del sf.scenario.behaviours["safety_controller"]
+    sf.scenario.validation = cellsim.Validation(conditions={
+        "StopsWhenClose": "G(range_detector.range == close -> F[0, 0.5s] robot.safety_mode == stopped)"})
+    wired = {}
+
+    def extend(cell):
+        controller = cell.builder.AddSystem(NaiveController(
+            cell.code_of("light_barrier.broken", True), cell.code_of("robot.safety_mode", "normal"),
+            cell.code_of("robot.safety_mode", "stopped"),
+            cell.code_of("range_detector.range", "close") if heed_scanner else None))
+        cell.builder.Connect(cell.channel("light_barrier.broken"), controller.GetInputPort("curtain"))
+        cell.builder.Connect(cell.channel("range_detector.range"), controller.GetInputPort("scanner"))
+        cell.builder.Connect(controller.GetOutputPort("mode"), cell.module_input("robot.safety_mode_request"))
+        wired["controller"] = controller
+
+    built = cellsim.build(sf, extend=extend)
+    assert wired["controller"] in built.diagram.GetSystems() and "safety_controller" not in built.modules
+    assert built.diagram.HasOutputPort("range_detector.range")  # the named ports, exported as they are named
+    return cellsim.simulate(sf, tmp_path / name, seed=0, duration=24.0, extend=extend)
+
+
+def test_a_hand_written_controller_replaces_the_risk_model_engine_and_check_judges_it(tmp_path):
+    naive = _with_controller(tmp_path, "naive", heed_scanner=False)
+    assert naive.verdicts["StopsWhenClose"] == "violated" and naive.finding
+    assert "range_detector.range" in naive.explain("StopsWhenClose") or "close" in naive.explain("StopsWhenClose")
+    careful = _with_controller(tmp_path, "careful", heed_scanner=True)
+    assert careful.verdicts["StopsWhenClose"] == "holds"
+    # the arm took the modes each controller asked for: the naive one stops only for the curtain, the careful one
+    # also while the scanner reads close with the curtain clear
+    channels = ["robot.safety_mode", "light_barrier.broken", "range_detector.range"]
+    for run, stops_for_scanner in ((naive, False), (careful, True)):
+        frame = run.dataframe(channels)
+        mode = frame["robot.safety_mode"]
+        stops = frame[(mode == "stopped") & (mode.shift() != "stopped")]  # each stop, with what was read as it began
+        assert len(stops) and stops["light_barrier.broken"].astype(bool).any()
+        assert bool((~stops["light_barrier.broken"].astype(bool)).any()) is stops_for_scanner
+
+
+def test_a_scripts_system_added_as_a_module_is_recorded(tmp_path):
+    class Ticks(cellsim.CellSystem):
+        """Counts its own updates: a channel of the script's own."""
+
+        def __init__(self):
+            super().__init__("ticks", 0.5)
+            from_channel = self.declare_state("n", [0.0])
+            self._n = from_channel
+            self.DeclareStateOutputPort("count", from_channel)
+
+        def update(self, context, xd):
+            xd.get_mutable_vector(self._n).SetAtIndex(0, context.get_discrete_state(self._n).GetAtIndex(0) + 1)
+
+    added = {}
+
+    def extend(cell):
+        added["ticks"] = cell.add("ticks", Ticks())
+        with pytest.raises(KeyError, match="no channel 'nowhere.x'"):
+            cell.channel("nowhere.x")
+        with pytest.raises(KeyError, match="module 'robot' has no input 'throttle'; inputs: "):
+            cell.module_input("robot.throttle")
+
+    run = cellsim.simulate(cellsim.load_scenario(WELDING), tmp_path / "ticks", duration=2.0, extend=extend)
+    assert "ticks" in added and run.summary.status == "completed"
+
+
+def test_the_cli_and_the_api_write_the_same_black_box(tmp_path):
+    api_run = cellsim.simulate(cellsim.load_scenario(WELDING, ["seed=5"]), tmp_path / "api", duration=8.0)
+    done = subprocess.run([sys.executable, "-m", "cellsim", "simulate", str(WELDING), "--set", "seed=5",
+                           "--duration", "8", "--out", str(tmp_path / "cli"), "--quiet"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode in (0, 1), done.stderr
+    assert _rows(tmp_path / "cli" / "blackbox.sqlite") == _rows(api_run.out / "blackbox.sqlite")
+
+
+def _comparable(results: dict) -> dict:
+    """A campaign's results.json without what differs between two processes writing it (times, commands)."""
+    drop = {"timing", "provenance", "wall_time", "command", "rerun", "created", "started", "finished"}
+
+    def clean(value):
+        if isinstance(value, dict):
+            return {k: clean(v) for k, v in value.items() if k not in drop}
+        if isinstance(value, list):
+            return [clean(v) for v in value]
+        return value
+
+    return clean(results)
+
+
+@pytest.mark.slow
+def test_campaign_falsify_and_verify_from_python_match_the_cli(tmp_path):
+    seen = []
+    outcome = cellsim.run_campaign(WELDING, tmp_path / "api", runs=3, duration=6.0, jobs=1, progress=seen.append)
+    assert [p.done for p in seen] == [0, 1, 2, 3] and seen[-1].total == 3  # said as it starts, then per run
+    done = subprocess.run([sys.executable, "-m", "cellsim", "campaign", str(WELDING), "--runs", "3", "--duration",
+                           "6", "--jobs", "1", "--out", str(tmp_path / "cli"), "--quiet"],
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode in (0, 1), done.stderr
+    cli = json.loads((tmp_path / "cli" / "results.json").read_text())
+    assert _comparable(outcome.results) == _comparable(cli)
+    checked = cellsim.check_campaign(tmp_path / "api")
+    assert checked.bounds["overall"]["runs"] == 3 and not checked.uncheckable
+
+    steps = []
+    search = cellsim.falsify(WELDING, tmp_path / "search", budget=4, method="random", duration=6.0,
+                             conditions=["Final:Cell"], progress=steps.append)
+    assert steps and steps[-1].done == 4 and search.results["search"]["method"] == "random"
+    assert cellsim.check_campaign(tmp_path / "search").bounds is None  # a search's runs bound nothing
+
+    stages = []
+    result = cellsim.verify_cell(WELDING, progress=stages.append)
+    assert stages and result.results and result.model.cell.assumptions
+    done = subprocess.run([sys.executable, "-m", "cellsim", "verify", str(WELDING), "--json"],
+                          capture_output=True, text=True, timeout=600)
+    cli = json.loads(done.stdout)
+    assert {p["name"]: p["holds"] for p in cli["properties"]} == {r.prop.name: r.holds for r in result.results}
+
+
+def test_a_campaign_of_a_scenario_built_in_code_asks_for_its_file(tmp_path):
+    from welding_cell import SCENARIOS, welding_cell
+
+    sf = cellsim.scenario_in_code(welding_cell(), base_dir=SCENARIOS)
+    with pytest.raises(cellsim.ConfigError, match="save it first"):
+        cellsim.run_campaign(sf, tmp_path / "c", runs=1)
+    (tmp_path / "saved").mkdir()
+    saved = cellsim.save_scenario(sf, tmp_path / "saved" / "welding_cell.yaml")
+    again = cellsim.load_scenario(saved)
+    assert again.scenario.entities["robot"].named_poses == sf.scenario.entities["robot"].named_poses
+
+
+def test_the_two_arm_cell_in_code_runs_and_its_own_conditions_hold(tmp_path):
+    from two_arm_cell import SCENARIOS, two_arm_cell
+
+    run = cellsim.simulate(cellsim.scenario_in_code(two_arm_cell(), base_dir=SCENARIOS), tmp_path / "two")
+    assert run.verdicts == {"ArmsApart": "holds", "PartHanded": "holds", "NoHarm": "holds", "NoClamping": "holds"}
+    clearance = run.series("ground_truth.clearance_loader_assembler")["ground_truth.clearance_loader_assembler"]
+    assert 0.05 < min(clearance.values) < 0.6  # they work at one fixture: near, never touching
+
+
+API_COMMANDS = ("simulate", "check", "campaign", "falsify", "verify", "scenario", "live")
+"""The commands whose work the API does. The others run tools beside the twin (the bridge daemon, the emulator,
+keys, the dashboard, replays, exports, the module catalogue, twin-mode requests)."""
+FRONT_END = {"cellsim.api", "cellsim", "cellsim.numbers", "cellsim.visual.serve"}
+"""What those commands may import of cellsim besides its cli package: the API, the numbers' formatting for
+people, and the terminal's handling of a Meshcat server (waiting for Enter)."""
+
+
+def test_the_clis_commands_import_the_api_not_internals():
+    for command in API_COMMANDS:
+        tree = ast.parse((ROOT / "cellsim" / "cli" / f"{command}.py").read_text())
+        used = {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom) and node.module}
+        used |= {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
+        internal = {m for m in used if m.startswith("cellsim") and not m.startswith("cellsim.cli")} - FRONT_END
+        assert not internal, f"cellsim/cli/{command}.py imports {sorted(internal)}"
