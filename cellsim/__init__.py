@@ -15,7 +15,7 @@ Every name here is :mod:`cellsim.api`'s (docs/scripting.md, docs/api.md); the na
 first used: ``import cellsim`` does not import Drake until a name that needs it is.
 """
 
-__version__ = "0.1.0"
+from cellsim.version import __version__  # noqa: F401
 
 from cellsim.api import __all__  # noqa: E402  (the public names; each loaded when first used)
 

@@ -47,13 +47,13 @@ if TYPE_CHECKING:
     from cellsim.verify.run import Verification
 
 __all__ = [
-    "CONFIDENCE", "CampaignConfig", "CampaignError", "CellSystem", "CheckError", "ConfigError",
-    "ConfigurationPoint", "EXPLICIT_LIMIT", "Fixture", "FoxgloveFeed", "Layout", "Live", "OutputExistsError",
-    "Region", "Run", "Scenario", "ScenarioFile", "Validation", "Verdict", "VerifyError", "build", "check",
-    "check_campaign", "check_duration", "check_seed", "compile_conditions", "default_conditions",
-    "export_trace", "falsify", "formula_and_description", "is_campaign", "kind_config", "load_scenario",
-    "module", "open_meshcat", "robustness", "run_campaign", "runs_needed", "save_scenario", "scenario_in_code",
-    "scenario_yaml", "simulate", "verify_cell",
+    "CONFIDENCE", "CampaignConfig", "CampaignError", "CellBuild", "CellDiagram", "CellSystem", "CheckError",
+    "ConfigError", "ConfigurationPoint", "EXPLICIT_LIMIT", "Fixture", "FoxgloveFeed", "Layout", "Live",
+    "OutputExistsError", "Region", "Run", "Scenario", "ScenarioFile", "Validation", "Verdict", "VerifyError",
+    "build", "check", "check_campaign", "check_duration", "check_seed", "compile_conditions",
+    "default_conditions", "export_trace", "falsify", "formula_and_description", "is_campaign", "kind_config",
+    "load_scenario", "module", "open_meshcat", "robustness", "run_campaign", "runs_needed", "save_scenario",
+    "scenario_in_code", "scenario_yaml", "simulate", "verify_cell",
 ]
 
 Extend = Callable[["CellBuild"], None]
@@ -62,6 +62,10 @@ Extend = Callable[["CellBuild"], None]
 
 def __getattr__(name: str):
     """The error types and base classes, imported when first asked for (they pull Drake in)."""
+    if name in ("CellBuild", "CellDiagram"):
+        from cellsim.diagrams import cell
+
+        return getattr(cell, name)
     if name == "open_meshcat":
         from cellsim.visual.serve import open_meshcat
 
@@ -275,6 +279,7 @@ class Run:
 
     @property
     def blackbox_path(self) -> Path:
+        """The run's black box: an SQLite file (``messages``, ``channels``, ``metadata`` tables)."""
         return self.out / "blackbox.sqlite"
 
     def blackbox(self) -> "BlackBox":

@@ -124,7 +124,7 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
     """Write the run at ``run`` (a run folder or its black box) to ``destination`` as MCAP."""
     from mcap.writer import Writer
 
-    from cellsim import __version__
+    from cellsim.version import __version__
     from cellsim.blackbox import BlackBox, BlackBoxError
     from cellsim.validation.check import CheckError, locate_rebuildable_run
     from cellsim.validation.traces import run_end
@@ -312,6 +312,7 @@ class FoxgloveFeed:
         self.port = self.server.port
 
     def channel(self, topic: str, schema_name: str, schema: dict):
+        """A channel of the feed on ``topic`` whose messages follow ``schema`` (JSON Schema) under ``schema_name``."""
         import foxglove
 
         return foxglove.Channel(topic, schema=foxglove.Schema(name=schema_name, encoding="jsonschema",
@@ -319,6 +320,7 @@ class FoxgloveFeed:
                                 message_encoding="json", context=self.context)
 
     def close(self) -> None:
+        """Stop serving: the WebSocket server closes and its port is freed."""
         self.server.stop()
 
     def add_to(self, builder, cell, time_step: float):

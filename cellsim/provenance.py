@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-import cellsim
+from cellsim.version import __version__
 from cellsim.atomic import write_text
 from cellsim.config.typed_yaml import ConfigError, dump_yaml, from_data, to_data
 
@@ -132,7 +132,7 @@ class Inputs:
         """
         essence = {
             "format": IDENTITY_FORMAT,
-            "cellsim": cellsim.__version__,
+            "cellsim": __version__,
             "overrides": list(overrides),
             "seed": seed,
             "duration": duration,

@@ -97,6 +97,7 @@ class Scenario:
                 seen[name] = section
 
     def modules_of_kind(self, kind: str) -> dict[str, object]:
+        """Every module of kind ``kind``, by name, whatever its section."""
         found = {}
         for section in (self.entities, self.behaviours, self.services):
             found.update({n: c for n, c in section.items() if c.kind == kind})
@@ -118,14 +119,17 @@ class ScenarioFile:
 
     @property
     def scenario(self) -> Scenario:
+        """The scenario's dataclasses, overrides applied: change them in a script before building or simulating."""
         return self.loaded.value
 
     @property
     def source(self) -> str:
+        """The scenario's file (for a scenario built in Python, a name in ``base_dir`` that is no file)."""
         return self.loaded.source
 
     @property
     def base_dir(self) -> Path:
+        """The folder the scenario's relative file references are read from."""
         return Path(self.loaded.source).resolve().parent
 
     def error(self, key: str, problem: str) -> ConfigError:

@@ -87,6 +87,7 @@ class CellSystem(LeafSystem):
         return self.DeclareVectorInputPort(name, size)
 
     def group(self, name: str) -> int:
+        """The discrete-state group of a channel or internal state declared under ``name``."""
         return self._groups[name]
 
     # -- update -------------------------------------------------------------
@@ -94,6 +95,7 @@ class CellSystem(LeafSystem):
         return self.update(context, xd)
 
     def update(self, context, xd) -> None:  # pragma: no cover - abstract
+        """The module's periodic update: read inputs and state from ``context``, write the next state into ``xd``."""
         raise NotImplementedError
 
 

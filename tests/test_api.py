@@ -310,3 +310,19 @@ def test_the_clis_commands_import_the_api_not_internals():
         used |= {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
         internal = {m for m in used if m.startswith("cellsim") and not m.startswith("cellsim.cli")} - FRONT_END
         assert not internal, f"cellsim/cli/{command}.py imports {sorted(internal)}"
+
+
+def test_the_api_reference_is_what_the_code_says():
+    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "api_reference.py"), "--check"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+
+
+def test_the_scripting_guide_names_only_public_names():
+    """Every ``cellsim.<name>`` the guide uses is in ``cellsim.__all__``."""
+    import re
+
+    text = (ROOT / "docs" / "scripting.md").read_text()
+    used = set(re.findall(r"\bcellsim\.([A-Za-z_]+)\(", text)) | set(re.findall(r"`cellsim\.([A-Za-z_]+)`", text))
+    used.discard("__all__")
+    assert used and used <= set(cellsim.__all__), used - set(cellsim.__all__)

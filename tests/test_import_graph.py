@@ -18,7 +18,8 @@ The layers, lowest first (docs/architecture.md draws them):
    the simulation loop, provenance;
 4. applications: check, campaign, falsify, verify, replay, Foxglove, the bridge,
    the dashboard, the kinds' docs;
-5. the command line (``cellsim.cli`` and every ``__main__``).
+5. the front ends: the public Python API (``cellsim.api``, re-exported by the package ``cellsim``) and the
+   command line (``cellsim.cli`` and every ``__main__``), which uses it.
 
 A module may import its own layer and those below. A string-named load (the
 registry loading a kind) is how a lower layer reaches a higher one without
@@ -36,7 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("cellsim",)
 
 LAYERS = {
-    0: ("cellsim", "cellsim.numbers", "cellsim.vocabulary", "cellsim.atomic", "cellsim.config", "cellsim.floorplan",
+    0: ("cellsim.version", "cellsim.hazards", "cellsim.numbers", "cellsim.vocabulary", "cellsim.atomic", "cellsim.config", "cellsim.floorplan",
         "cellsim.kinematics", "cellsim.logic", "cellsim.link", "cellsim.channels", "cellsim.codec", "cellsim.blackbox",
         "cellsim.kind", "cellsim.live.keys", "cellsim.live.pki"),
     1: ("cellsim.systems", "cellsim.registry", "cellsim.scenario", "cellsim.entity", "cellsim.cell_io",
@@ -47,7 +48,7 @@ LAYERS = {
         "cellsim.visual.scene"),
     4: ("cellsim.validation", "cellsim.campaign", "cellsim.verify", "cellsim.visual", "cellsim.foxglove",
         "cellsim.bridges", "cellsim.dashboard", "cellsim.kinds_doc"),
-    5: ("cellsim.cli", "cellsim.__main__"),
+    5: ("cellsim", "cellsim.api", "cellsim.cli", "cellsim.__main__"),
 }
 """Layer -> the modules and packages in it; a module is in the layer of its longest listed prefix."""
 LOADED_BY_NAME = re.compile(r"^(cellsim(?:\.\w+)+):\w+$")

@@ -97,10 +97,10 @@ def run_remotely(execute_run, plan, inputs_dir: str, digest: str, snapshot: dict
 
     from distributed import get_worker
 
-    import cellsim
+    from cellsim.version import __version__
 
-    if cellsim.__version__ != version:
-        raise ClusterError(f"worker {get_worker().address} has cellsim {cellsim.__version__}, the campaign {version}")
+    if __version__ != version:
+        raise ClusterError(f"worker {get_worker().address} has cellsim {__version__}, the campaign {version}")
     base = Path(get_worker().local_directory)
     cache = base / CACHE / digest
     if not cache.is_dir():
@@ -153,7 +153,7 @@ class ClusterPool:
             from distributed import Client
         except ImportError as e:  # pragma: no cover - distributed is a dependency
             raise ClusterError(f"--scheduler needs the distributed package ({e})") from None
-        import cellsim
+        from cellsim.version import __version__
 
         try:
             self.client = Client(address, timeout=CONNECT_TIMEOUT, set_as_default=False)
@@ -161,7 +161,7 @@ class ClusterPool:
             raise ClusterError(f"cannot reach the Dask scheduler at {address}: {e}") from None
         self.address = address
         self.result_name = result_name
-        self.version = cellsim.__version__
+        self.version = __version__
         self.inputs_dir = str(inputs_dir.resolve())
         self.digest, snapshot = read_snapshot(inputs_dir)
         self.snapshot = self.client.scatter(snapshot, broadcast=True, hash=False)

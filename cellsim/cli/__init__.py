@@ -101,7 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
         "record black boxes, and gather safety evidence.",
         epilog=EXIT_CODES,
     )
-    from cellsim import __version__
+    from cellsim.version import __version__
 
     parser.add_argument("--version", action="version", version=f"cellsim {__version__}")
     sub = parser.add_subparsers(metavar="COMMAND")

@@ -41,6 +41,7 @@ class Region:
             raise FieldError("max", "each coordinate of max must exceed min")
 
     def contains(self, p) -> bool:
+        """Whether point ``p`` (x, y, z in m) lies in the box, its faces included."""
         return all(lo <= x <= hi for lo, x, hi in zip(self.min, p, self.max))
 
 

@@ -199,6 +199,7 @@ class Validation:
 
     @property
     def is_empty(self) -> bool:
+        """Whether the section says nothing at all (no variables, macros, conditions, use cases, coverage or bins)."""
         return not (
             self.variables or self.macros or self.conditions or self.use_cases or self.coverage or self.bins
             or self.domains or self.verify or self.guides or self.waive

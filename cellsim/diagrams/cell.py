@@ -109,14 +109,17 @@ class CellDiagram:
         return {} if self.network is None else {"live": self.network.metadata()}
 
     def close(self) -> None:
+        """Close the network side of a live or emulated cell (nothing for a simulated one)."""
         if self.network is not None:
             self.network.close()
 
     def entity(self, name: str) -> EntitySystem:
+        """The system of entity ``name`` (KeyError if the cell has no module of that name)."""
         return self.modules[name]
 
     @property
     def entities(self) -> dict[str, EntitySystem]:
+        """Every entity's system, by module name: what has a physical twin."""
         return {name: m for name, m in self.modules.items() if isinstance(m, EntitySystem)}
 
     def set_initial_state(self, context) -> None:
@@ -176,6 +179,7 @@ class CellBuild:
 
     @property
     def scenario(self):
+        """The scenario being built (its dataclasses)."""
         return self.sf.scenario
 
     def add(self, name: str, system: LeafSystem) -> LeafSystem:
@@ -206,6 +210,7 @@ class CellBuild:
         self.builder.Connect(self.scene_graph.get_query_output_port(), port)
 
     def after_entities(self, hook: Callable[[], None]) -> None:
+        """Run ``hook`` once every entity is built (a sensor learning every person's geometry)."""
         self._hooks.append(hook)
 
     def after_all(self, hook: Callable[[], None]) -> None:
@@ -231,10 +236,10 @@ class CellBuild:
         return found[name][1]
 
     def code_of(self, channel: str, value) -> float:
-        """The number channel ``<module>.<signal>`` carries for ``value``: an enum's word as its code (``code_of(
-        "range_detector.range", "close")``), a bool as 0 or 1, a number as itself. What a script's system compares
-        a channel's port with, or writes to an input of that type (``robot.safety_mode_request`` takes the codes of
-        ``robot.safety_mode``). KeyError for an unknown channel, ValueError for a value it cannot carry."""
+        """The number channel ``<module>.<signal>`` carries for ``value``: an enum's word as its code
+        (``code_of("range_detector.range", "close")``), a bool as 0 or 1, a number as itself. What a script's system
+        compares a channel's port with, or writes to an input of that type (``robot.safety_mode_request`` takes the
+        codes of ``robot.safety_mode``). KeyError for an unknown channel, ValueError for a value it cannot carry."""
         found = self.channels()
         if channel not in found:
             raise KeyError(f"no channel '{channel}'; channels: {', '.join(found)}")
