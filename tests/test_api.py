@@ -43,17 +43,7 @@ def test_the_public_names_are_documented_and_need_no_submodule():
             assert (value.__doc__ or "").strip(), f"cellsim.{name} has no docstring"
     with pytest.raises(AttributeError):
         cellsim.no_such_thing  # noqa: B018
-    # no public name is shadowed by a cellsim package of that name once every package is imported
-    import importlib
-    import pkgutil
 
-    for found in pkgutil.walk_packages(cellsim.__path__, "cellsim."):
-        if not found.name.endswith("__main__") and not found.name.startswith(
-                ("cellsim.kinds.", "cellsim.bridges.", "cellsim.live.", "cellsim.dashboard.")):
-            importlib.import_module(found.name)
-    from cellsim import api
-
-    assert all(getattr(cellsim, name) is getattr(api, name) for name in cellsim.__all__)
 
 
 def test_a_scenario_loads_with_overrides_and_a_bad_one_is_one_error_naming_file_line_and_key(tmp_path):
@@ -220,6 +210,44 @@ def test_a_scripts_system_added_as_a_module_is_recorded(tmp_path):
 
     run = cellsim.simulate(cellsim.load_scenario(WELDING), tmp_path / "ticks", duration=2.0, extend=extend)
     assert "ticks" in added and run.summary.status == "completed"
+
+
+def test_a_run_drawn_in_meshcat_from_a_script_draws_the_cell_and_records_the_same_run(tmp_path):
+    meshcat = cellsim.open_meshcat()
+    try:
+        drawn = cellsim.simulate(cellsim.load_scenario(WELDING), tmp_path / "drawn", duration=0.5, meshcat=meshcat)
+        assert meshcat.web_url().startswith("http://localhost:")
+        assert meshcat.HasPath("/drake/visualizer/fixture/fence_north_outline")  # the cell, drawn
+        assert drawn.summary.real_time_factor < 1.5  # paced to the wall clock
+    finally:
+        del meshcat
+    plain = cellsim.simulate(cellsim.load_scenario(WELDING), tmp_path / "plain", duration=0.5)
+    assert _rows(drawn.out / "blackbox.sqlite") == _rows(plain.out / "blackbox.sqlite")
+
+
+def test_an_extra_logger_in_a_built_diagram_logs_a_channel_at_its_own_rate():
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.primitives import LogVectorOutput
+
+    logs = {}
+
+    def extend(cell):
+        logs["separation"] = LogVectorOutput(cell.channel("ground_truth.separation"), cell.builder, 0.01)
+
+    built = cellsim.build(cellsim.load_scenario(WELDING), extend=extend)
+    simulator = Simulator(built.diagram)
+    built.set_initial_state(simulator.get_mutable_context())
+    simulator.AdvanceTo(1.0)
+    log = logs["separation"].FindLog(simulator.get_context())
+    assert log.num_samples() == 101 and 2.0 < log.data()[0, -1] < 4.0  # the operator starts well away
+
+
+def test_the_cells_in_code_run_as_scripts(tmp_path):
+    done = subprocess.run([sys.executable, str(ROOT / "diagrams" / "two_arm_cell.py"), "--out", str(tmp_path / "two"),
+                           "--duration", "4"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "completed" in done.stdout and "ArmsApart: holds" in done.stdout
+    assert (tmp_path / "two" / "blackbox.sqlite").is_file()
 
 
 def test_the_cli_and_the_api_write_the_same_black_box(tmp_path):
