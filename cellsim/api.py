@@ -535,8 +535,9 @@ def verify_cell(scenario: ScenarioFile | str | os.PathLike, *, export: str | os.
            timed: bool = False, replay_in: str | os.PathLike | None = None,
            progress: Callable[[str], None] | None = None) -> "Verification":
     """Model-check the scenario's abstraction with Storm, as ``cellsim verify`` does: ``result.results`` holds
-    each property's value, whether it holds, and a witness path where it does not; ``result.model.cell.assumptions``
-    the abstraction's assumptions. ``export``: also write the PRISM model and properties (a folder).
+    each property's value, whether it holds in the abstraction, and a witness path where it does not;
+    ``result.endings()`` each property's final verdict (holds; violated: a witness the twin confirms; undecided,
+    with why) and ``result.exit_code`` the CLI's; ``result.model.cell.assumptions`` the abstraction's assumptions. ``export``: also write the PRISM model and properties (a folder).
     ``replay_in``: replay each witness in the twin, writing its runs in that folder: ``result.replays[name]``
     says whether the twin confirms it. ``progress(stage)`` as each stage starts. Raises VerifyError for a
     scenario the abstraction cannot take."""
@@ -545,6 +546,7 @@ def verify_cell(scenario: ScenarioFile | str | os.PathLike, *, export: str | os.
 
     result = verify(_checked(scenario), export=None if export is None else Path(export), timed=timed,
                          on_stage=progress)
+    result.replayed = replay_in is not None
     if replay_in is not None:
         for checked in result.results:
             if checked.witness is not None:

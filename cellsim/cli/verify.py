@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from cellsim.cli.common import EXIT_FINDING, EXIT_OK, InputError, _add_set, _load
+from cellsim.cli.common import InputError, _add_set, _load
 
 
 def add_parser(subparsers) -> None:
@@ -15,9 +15,11 @@ def add_parser(subparsers) -> None:
         description="Build an abstract model of the cell (an MDP: every module kind's abstraction, the risk model "
         "exactly as the controller executes it, the floor cut into places by what the sensors read) and check it with "
         "Storm: each hazard's mishap unreachable, each validation condition of a checkable shape, and the validation "
-        "file's own PCTL (verify:). A violated property's witness is written as a scenario under --out, simulated and "
-        "checked: the twin confirms it or refutes it. Exits 0 when every safety property holds, 1 when one is violated, "
-        "2 on bad input. docs/verify.md says what a result means.",
+        "file's own PCTL (verify:). A property violated in the model has its witness written as a scenario under --out, "
+        "simulated and checked: the twin confirms it (the property is VIOLATED) or refutes it (UNDECIDED: the "
+        "abstraction is too coarse there). Exits 0 when every property holds, 1 when one is violated (a witness the "
+        "twin confirms), 3 when none is but one is undecided (refuted, not replayed, or no witness), 2 on bad input. "
+        "docs/verify.md says what a result means.",
     )
     p.add_argument("scenario", type=Path, help="scenario YAML")
     p.add_argument("--out", type=Path, help="folder for witnesses and their runs (default: runs/<scenario>-verify)")
@@ -50,13 +52,15 @@ def run(args) -> int:
         sys.stdout.write("\n")
     else:
         _print(result, replays, args.export)
-    return EXIT_OK if result.holds else EXIT_FINDING
+    return result.exit_code
 
 
 def _json(result, replays) -> dict:
     stats = result.stats
+    endings = {f.name: f for f in result.endings()}
     return {
         "holds": result.holds,
+        "exit_code": result.exit_code,
         "states": stats.states, "transitions": stats.transitions, "choices": stats.choices,
         "largest_states": (result.largest or stats).states,
         "engine": "symbolic" if stats.symbolic else "explicit",
@@ -66,6 +70,8 @@ def _json(result, replays) -> dict:
         "properties": [
             {
                 "name": r.prop.name, "description": r.prop.description, "value": r.value, "holds": r.holds,
+                "ending": None if endings[r.prop.name].ending is None else endings[r.prop.name].ending.value,
+                "reason": endings[r.prop.name].reason,
                 "witness_periods": len(r.witness) if r.witness else None,
                 "twin": None if r.prop.name not in replays else {
                     "confirmed": replays[r.prop.name].confirmed,
@@ -90,14 +96,15 @@ def _print(result, replays, export) -> None:
 
     console = Console(highlight=False)
     stats, model = result.stats, result.model
+    endings = {f.name: f for f in result.endings()}
     table = Table(title=f"cellsim verify: {escape(model.cell.sf.scenario.name)}", title_justify="left")
-    for column in ("property", "value", "result", "twin"):
+    for column in ("property", "value", "in the model", "twin", "verdict"):
         table.add_column(column)
     for r in result.results:
         if r.holds is None:
             verdict = "(value)"
         else:
-            verdict = "[green]holds[/]" if r.holds else "[red]VIOLATED[/]"
+            verdict = "[green]holds[/]" if r.holds else "[red]violated[/]"
         value = f"{r.value:.6g}" if isinstance(r.value, float) else str(r.value)
         twin = ""
         if r.holds is False and r.witness is None:
@@ -106,8 +113,14 @@ def _print(result, replays, export) -> None:
             rp = replays[r.prop.name]
             twin = (f"[red]confirmed[/] ({escape(rp.scenarios[-1].name)})" if rp.confirmed
                     else "[yellow]refuted[/]: the abstraction is too coarse here")
-        table.add_row(escape(r.prop.name), value, verdict, twin)
+        ending = endings[r.prop.name].ending
+        final = {None: "", "holds": "[green]HOLDS[/]", "violated": "[red]VIOLATED[/]",
+                 "undecided": "[yellow]UNDECIDED[/]"}[None if ending is None else ending.value]
+        table.add_row(escape(r.prop.name), value, verdict, twin, final)
     console.print(table)
+    for f in endings.values():
+        if f.ending is not None and f.ending.value == "undecided":
+            console.print(f"  undecided: {escape(f.name)}: {escape(f.reason)}")
     for s in model.skipped:
         console.print(f"  not checked: {escape(s.name)}: {escape(s.reason)}")
     times = result.times

@@ -82,6 +82,23 @@ class Verification:
     """The largest of the models built (the cell with one monitor)."""
     replays: dict = field(default_factory=dict)
     """Property name -> its witness replayed in the twin (:func:`cellsim.verify.witness.replay`), when asked for."""
+    replayed: bool = False
+    """Whether the witnesses were replayed on the twin (a witness nobody tried leaves its property undecided)."""
+
+    def endings(self) -> list:
+        """Each property's final verdict (:mod:`cellsim.verify.endings`): holds, violated (a witness the twin
+        confirms) or undecided (with what blocks a verdict); None for a numeric query."""
+        from cellsim.verify.endings import ending_of
+
+        return [ending_of(r, self.replays.get(r.prop.name), replayed=self.replayed, symbolic=self.stats.symbolic)
+                for r in self.results]
+
+    @property
+    def exit_code(self) -> int:
+        """0 every property holds, 1 one is violated (confirmed by the twin), 3 none is but one is undecided."""
+        from cellsim.verify.endings import exit_code
+
+        return exit_code(self.endings())
 
     @property
     def holds(self) -> bool:

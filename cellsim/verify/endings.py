@@ -1,0 +1,75 @@
+"""A property's final verdict: the one rule that turns what Storm and the twin said into holds, violated or undecided.
+
+``cellsim verify`` checks an abstraction, which allows more than the cell does. Its answer about the cell is:
+
+* **holds**: Storm proved the property in the abstraction, so it holds in every behaviour the abstraction covers
+  (its assumptions say which);
+* **violated**: Storm found a witness and the twin, running it, violates the property too: a path the cell takes;
+* **undecided**: Storm found a witness the twin does not confirm (refuted: the abstraction is too coarse there, and
+  refinement ran out of budget), or one nobody tried on the twin (not replayed, or no witness at all from decision
+  diagrams). Never reported as a violation: the reason says what blocks a verdict.
+
+The exit code follows the endings (:func:`exit_code`): 0 every property holds, 1 one is violated, 3 none is
+violated but one is undecided; 2 stays bad input.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+
+class Ending(str, Enum):
+    """A property's final verdict."""
+
+    HOLDS = "holds"
+    VIOLATED = "violated"
+    UNDECIDED = "undecided"
+
+
+EXIT_UNDECIDED = 3
+"""``cellsim verify``'s exit code when no property is violated and one is undecided."""
+
+
+@dataclass(frozen=True)
+class Final:
+    """One property's ending and why."""
+
+    name: str
+    ending: Ending | None
+    """None: a numeric query (its value is the answer, with no verdict)."""
+    reason: str
+
+
+def ending_of(checked, replay, *, replayed: bool, symbolic: bool, refinements: list[str] = ()) -> Final:
+    """The ending of one checked property (``checked``: :class:`cellsim.verify.storm.Checked`), given its witness's
+    replay on the twin (``replay``: :class:`cellsim.verify.witness.Replay` or None), whether witnesses were replayed
+    at all, whether the model was checked as decision diagrams, and the refinements tried on it."""
+    name = checked.prop.name
+    if checked.holds is None:
+        return Final(name, None, "a value, not a verdict")
+    if checked.holds:
+        return Final(name, Ending.HOLDS, "proved in the abstraction")
+    tried = f"; refined: {', '.join(refinements)}" if refinements else ""
+    if checked.witness is None:
+        why = ("no witness: the model was checked as decision diagrams, which give none" if symbolic
+               else "no witness")
+        return Final(name, Ending.UNDECIDED, why + tried)
+    if replay is None:
+        why = ("the witness was not replayed on the twin (--no-replay)" if not replayed
+               else "the witness has no replay")
+        return Final(name, Ending.UNDECIDED, why + tried)
+    if replay.confirmed:
+        return Final(name, Ending.VIOLATED, f"the twin confirms the witness: {replay.runs[-1]}")
+    return Final(name, Ending.UNDECIDED, f"the twin refutes the witness in {len(replay.runs)} runs: the abstraction "
+                                         f"allows a behaviour the cell does not show{tried}")
+
+
+def exit_code(endings: list[Final]) -> int:
+    """0 every property holds, 1 one is violated, :data:`EXIT_UNDECIDED` none violated and one undecided."""
+    found = {f.ending for f in endings}
+    if Ending.VIOLATED in found:
+        return 1
+    if Ending.UNDECIDED in found:
+        return EXIT_UNDECIDED
+    return 0
