@@ -13,6 +13,9 @@
   colours geometry by its recorded channels (the harm service: a body region in contact, amber
   within its limit and red above it).
 
+``/tf`` and ``/scene`` are Foxglove's official messages, declared with the official schemas and encoded as
+foxglove-sdk gives them (protobuf): any Foxglove, or any reader with those schemas, reads them.
+
 The poses come from the cell rebuilt from the run's ``scenario.yaml``, put in each recorded
 state by its modules (``show_recorded``, as ``cellsim replay`` does): no kind is named here.
 The file is written beside its destination and renamed into place: an error leaves nothing.
@@ -34,44 +37,60 @@ from cellsim.live.systems import HEARTBEAT, TICK
 
 FRAME_TRANSFORMS = "foxglove.FrameTransforms"
 SCENE_UPDATE = "foxglove.SceneUpdate"
+"""The official Foxglove messages the 3D view reads: declared and encoded as foxglove-sdk gives them (protobuf)."""
 
 
 class ExportError(Exception):
     """A run that cannot be exported (the message is one line)."""
 
 
-def _vector(*names: str) -> dict:
-    return {"type": "object", "properties": {n: {"type": "number"} for n in names}}
+def official(message: str):
+    """Foxglove's own message type ``foxglove.<message>`` (from foxglove-sdk: the official schema, protobuf)."""
+    import foxglove.messages
+
+    return getattr(foxglove.messages, message.removeprefix("foxglove."))
 
 
-_TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
-_POSE = {"type": "object", "properties": {"position": _vector("x", "y", "z"), "orientation": _vector("x", "y", "z", "w")}}
-_COLOR = _vector("r", "g", "b", "a")
-_PRIMITIVE = {"type": "object", "properties": {"pose": _POSE, "size": _vector("x", "y", "z"), "color": _COLOR}}
-_CYLINDER = {"type": "object", "properties": {**_PRIMITIVE["properties"], "bottom_scale": {"type": "number"},
-                                              "top_scale": {"type": "number"}}}
+def official_schema(message: str):
+    """(name, encoding, data) of Foxglove's official schema of ``foxglove.<message>``: what the MCAP file and the
+    live feed declare, so that any Foxglove reads them (``data``: a protobuf FileDescriptorSet)."""
+    schema = official(message).get_schema()
+    return schema.name, schema.encoding, bytes(schema.data)
 
-SCHEMAS = {
-    # the parts of Foxglove's published JSON schemas these messages use
-    FRAME_TRANSFORMS: {
-        "title": FRAME_TRANSFORMS, "type": "object",
-        "properties": {"transforms": {"type": "array", "items": {
-            "type": "object", "properties": {
-                "timestamp": _TIME, "parent_frame_id": {"type": "string"}, "child_frame_id": {"type": "string"},
-                "translation": _vector("x", "y", "z"), "rotation": _vector("x", "y", "z", "w")}}}},
-    },
-    SCENE_UPDATE: {
-        "title": SCENE_UPDATE, "type": "object",
-        "properties": {
-            "deletions": {"type": "array", "items": {"type": "object"}},
-            "entities": {"type": "array", "items": {"type": "object", "properties": {
-                "timestamp": _TIME, "frame_id": {"type": "string"}, "id": {"type": "string"},
-                "lifetime": _TIME, "frame_locked": {"type": "boolean"},
-                "cubes": {"type": "array", "items": _PRIMITIVE},
-                "spheres": {"type": "array", "items": _PRIMITIVE},
-                "cylinders": {"type": "array", "items": _CYLINDER}}}}},
-    },
-}
+
+def _message(kind: str, value):
+    """``value`` (plain data as :func:`scene_update` and :func:`frame_transforms` build it) as Foxglove's message of
+    ``kind``, field by field: the one place our dicts become the official types."""
+    import foxglove.messages as m
+
+    if kind == SCENE_UPDATE:
+        return m.SceneUpdate(deletions=[], entities=[_message("entity", e) for e in value["entities"]])
+    if kind == FRAME_TRANSFORMS:
+        return m.FrameTransforms(transforms=[m.FrameTransform(
+            timestamp=_message("time", t["timestamp"]), parent_frame_id=t["parent_frame_id"],
+            child_frame_id=t["child_frame_id"], translation=m.Vector3(**t["translation"]),
+            rotation=m.Quaternion(**t["rotation"])) for t in value["transforms"]])
+    if kind == "entity":
+        primitives = {"cubes": m.CubePrimitive, "spheres": m.SpherePrimitive, "cylinders": m.CylinderPrimitive}
+        shapes = {name: [make(**{k: _message(k, v) if k in ("pose", "size", "color") else v for k, v in p.items()})
+                         for p in value.get(name, [])] for name, make in primitives.items()}
+        return m.SceneEntity(timestamp=_message("time", value["timestamp"]), frame_id=value["frame_id"], id=value["id"],
+                             lifetime=m.Duration(value["lifetime"]["sec"], value["lifetime"]["nsec"]),
+                             frame_locked=value["frame_locked"], **shapes)
+    if kind == "time":
+        return m.Timestamp(value["sec"], value["nsec"])
+    if kind == "pose":
+        return m.Pose(position=m.Vector3(**value["position"]), orientation=m.Quaternion(**value["orientation"]))
+    if kind == "size":
+        return m.Vector3(**value)
+    if kind == "color":
+        return m.Color(**value)
+    raise ValueError(f"no Foxglove message for {kind!r}")
+
+
+def encoded(kind: str, value) -> bytes:
+    """``value`` encoded as Foxglove's official ``kind`` message (protobuf)."""
+    return bytes(_message(kind, value).encode())
 
 
 @dataclass
@@ -210,10 +229,11 @@ def _write_scene(writer, cell, recorded, wanted: list[str] = ()) -> int:
     """/scene: the still geometry once, then the moving geometry at each moment the modules' recorded state
     (``wanted``: joint positions, people's positions) changes; /tf: the arms' frames once per recorded joint
     state (at t = 0 only if no robot's state is recorded)."""
-    ids = {}
-    for schema_name, topic in ((FRAME_TRANSFORMS, "/tf"), (SCENE_UPDATE, "/scene")):
-        schema = writer.register_schema(name=schema_name, encoding="jsonschema", data=json.dumps(SCHEMAS[schema_name]).encode())
-        ids[topic] = writer.register_channel(topic=topic, message_encoding="json", schema_id=schema)
+    ids, kinds = {}, {"/tf": FRAME_TRANSFORMS, "/scene": SCENE_UPDATE}
+    for topic, kind in kinds.items():
+        name, encoding, data = official_schema(kind)
+        schema = writer.register_schema(name=name, encoding=encoding, data=data)
+        ids[topic] = writer.register_channel(topic=topic, message_encoding=encoding, schema_id=schema)
     context = cell.diagram.CreateDefaultContext()
     cell.set_initial_state(context)
     scene_graph, plant = cell.scene_graph, cell.plant
@@ -226,7 +246,7 @@ def _write_scene(writer, cell, recorded, wanted: list[str] = ()) -> int:
 
     def emit(topic: str, t: float, message: dict) -> None:
         writer.add_message(ids[topic], log_time=_ns(t), publish_time=_ns(t), sequence=sequence[0],
-                           data=json.dumps(message).encode())
+                           data=encoded(kinds[topic], message))
         sequence[0] += 1
 
     def moment(t: float, moving_only: bool, tf: bool) -> None:
@@ -319,6 +339,13 @@ class FoxgloveFeed:
                                                               data=json.dumps(schema).encode()),
                                 message_encoding="json", context=self.context)
 
+    def official_channel(self, topic: str, message: str):
+        """A channel of the feed on ``topic`` carrying Foxglove's official ``message`` (its schema, protobuf)."""
+        import foxglove.channels
+
+        kind = getattr(foxglove.channels, message.removeprefix("foxglove.") + "Channel")
+        return kind(topic, context=self.context)
+
     def close(self) -> None:
         """Stop serving: the WebSocket server closes and its port is freed."""
         self.server.stop()
@@ -351,8 +378,8 @@ class FoxgloveFeedSystem(LeafSystem):
             self.inputs.append((spec, self.DeclareVectorInputPort(spec.name, port.size()), topic))
         self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
         self.poses_port = self.DeclareAbstractInputPort("body_poses", self.plant.get_body_poses_output_port().Allocate())
-        self.tf = feed.channel("/tf", FRAME_TRANSFORMS, SCHEMAS[FRAME_TRANSFORMS])
-        self.scene = feed.channel("/scene", SCENE_UPDATE, SCHEMAS[SCENE_UPDATE])
+        self.tf = feed.official_channel("/tf", FRAME_TRANSFORMS)
+        self.scene = feed.official_channel("/scene", SCENE_UPDATE)
         self._last: dict[str, tuple] = {}
         self.DeclarePeriodicPublishEvent(TICK, time_step, self._publish_channels)  # as the Zenoh publisher
         self.DeclarePeriodicPublishEvent(SCENE_PERIOD, 0.0, self._publish_scene)
@@ -370,10 +397,10 @@ class FoxgloveFeedSystem(LeafSystem):
         t = context.get_time()
         # the whole scene every time: a client that connects late sees the still geometry too
         query = self.query_port.Eval(context)
-        self.scene.log(json.dumps(scene_update(t, self.shapes, query, moving_only=False)), log_time=_ns(t))
+        self.scene.log(_message(SCENE_UPDATE, scene_update(t, self.shapes, query, moving_only=False)), log_time=_ns(t))
         poses = self.poses_port.Eval(context)
         transforms = frame_transforms(t, self.plant, self.robots, lambda body: poses[int(body.index())])
-        self.tf.log(json.dumps(transforms), log_time=_ns(t))
+        self.tf.log(_message(FRAME_TRANSFORMS, transforms), log_time=_ns(t))
 
 
 def add_foxglove_feed(builder, cell, feed: FoxgloveFeed, time_step: float) -> FoxgloveFeedSystem:

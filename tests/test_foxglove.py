@@ -1,5 +1,7 @@
 """``cellsim export RUN --mcap FILE``: the black box as MCAP, read back with the mcap reader (not
-the writer that made it), every message per channel, the arms' frames and the cell in 3D."""
+the writer that made it), every message per channel, the arms' frames and the cell in 3D. The frames
+and the scene are Foxglove's official messages: every one decodes with the official schema, by a
+decoder nobody here wrote (mcap-protobuf-support, Google's protobuf)."""
 
 from __future__ import annotations
 
@@ -18,6 +20,30 @@ from cellsim.simulation import simulate
 from conftest import ROOT
 
 ASSEMBLY_BENCH = ROOT / "scenarios" / "assembly_bench.yaml"
+OFFICIAL = ("foxglove.FrameTransforms", "foxglove.SceneUpdate")
+
+
+def _official_schema(name: str) -> bytes:
+    """Foxglove's own schema of ``name`` as foxglove-sdk ships it (a protobuf FileDescriptorSet)."""
+    import foxglove.messages
+
+    return bytes(getattr(foxglove.messages, name.removeprefix("foxglove.")).get_schema().data)
+
+
+def _decode(schema_name: str, encoding: str, schema_data: bytes, data: bytes):
+    """A message as plain data: JSON as JSON; protobuf decoded with the schema it was declared with, by
+    mcap-protobuf-support and Google's protobuf (zero values written out, as Foxglove shows them)."""
+    from types import SimpleNamespace
+
+    from google.protobuf.json_format import MessageToDict
+    from mcap_protobuf.decoder import DecoderFactory
+
+    if encoding in ("json", "jsonschema"):
+        return json.loads(data)
+    assert encoding == "protobuf", encoding
+    decoder = DecoderFactory().decoder_for("protobuf", SimpleNamespace(id=hash(schema_name) & 0xFFFF, name=schema_name,
+                                                                       encoding="protobuf", data=schema_data))
+    return MessageToDict(decoder(data), preserving_proto_field_name=True, always_print_fields_with_no_presence=True)
 
 
 @pytest.fixture(scope="module")
@@ -30,8 +56,14 @@ def exported(tmp_path_factory):
     with open(base / "run.mcap", "rb") as stream:
         reader = make_reader(stream)
         summary = reader.get_summary()
-        messages = [(channel.topic, schema.name, schema.encoding, message.log_time, json.loads(message.data))
+        messages = [(channel.topic, schema.name, schema.encoding, message.log_time,
+                     _decode(schema.name, schema.encoding, schema.data, message.data))
                     for schema, channel, message in reader.iter_messages(log_time_order=True)]
+        declared = {channel.topic: (schema.name, schema.encoding, schema.data, channel.message_encoding)
+                    for schema, channel, _ in reader.iter_messages(topics=["/tf", "/scene"])}
+    # the frames and the scene are declared with Foxglove's official schemas, exactly as foxglove-sdk has them
+    for topic, name in (("/tf", OFFICIAL[0]), ("/scene", OFFICIAL[1])):
+        assert declared[topic] == (name, "protobuf", _official_schema(name), "protobuf")
     return base, done.stdout, summary, messages
 
 
@@ -116,8 +148,11 @@ def test_the_live_twin_is_served_on_foxglove_websocket(tmp_path):
                     assert message["capabilities"] == []
                 if message["op"] == "advertise":
                     channels.update({c["topic"]: c for c in message["channels"]})
-            assert channels["/tf"]["schemaName"] == "foxglove.FrameTransforms"
-            assert channels["/scene"]["schemaName"] == "foxglove.SceneUpdate"
+            import base64
+
+            for topic, name in (("/tf", OFFICIAL[0]), ("/scene", OFFICIAL[1])):  # the official schemas, no other
+                assert channels[topic]["schemaName"] == name and channels[topic]["encoding"] == "protobuf"
+                assert base64.b64decode(channels[topic]["schema"]) == _official_schema(name)
             schema = json.loads(channels["/robot/safety_mode"]["schema"])
             assert "normal" in schema["properties"]["value"]["enum"]
             wanted = {i: topic for i, topic in enumerate(("/robot/safety_mode", "/tf", "/scene"), 1)}
@@ -133,7 +168,11 @@ def test_the_live_twin_is_served_on_foxglove_websocket(tmp_path):
                 frame = ws.recv(timeout=30)
                 if isinstance(frame, bytes) and frame[0] == 1:  # messageData: op, subscription, log time, payload
                     subscription, log_time = struct.unpack_from("<IQ", frame, 1)
-                    got.setdefault(wanted[subscription], json.loads(frame[13:]))
+                    c = channels[wanted[subscription]]
+                    schema_data = (base64.b64decode(c["schema"]) if c["encoding"] == "protobuf"
+                                   else c["schema"].encode())
+                    got.setdefault(wanted[subscription], _decode(c["schemaName"], c["encoding"], schema_data,
+                                                                 frame[13:]))
                     late = max(late, log_time)
             # a client that subscribes 2 s into the run to a channel that has not changed since t = 0
             # (the curtain: nobody at the table) still gets its value, from the heartbeat
