@@ -60,57 +60,32 @@ Extend = Callable[["CellBuild"], None]
 """A script's hook on the diagram being built: ``extend(cell)`` (:func:`build`)."""
 
 
+_LOADED_WHEN_ASKED = {
+    "CellSystem": "cellsim.systems:CellSystem",
+    "CellBuild": "cellsim.diagrams.cell:CellBuild",
+    "CellDiagram": "cellsim.diagrams.cell:CellDiagram",
+    "CheckError": "cellsim.validation.check:CheckError",
+    "CampaignError": "cellsim.campaign.engine:CampaignError",
+    "OutputExistsError": "cellsim.simulation:OutputExistsError",
+    "Verdict": "cellsim.validation.verdict:Verdict",
+    "VerifyError": "cellsim.verify.expressions:VerifyError",
+    "EXPLICIT_LIMIT": "cellsim.verify.storm:EXPLICIT_LIMIT",
+    "CONFIDENCE": "cellsim.validation.bound:CONFIDENCE",
+    "Live": "cellsim.cell_io:Live",
+    "FoxgloveFeed": "cellsim.foxglove:FoxgloveFeed",
+    "open_meshcat": "cellsim.visual.serve:open_meshcat",
+}
+"""Public names whose modules pull Drake (or a server) in: imported when first asked for."""
+
+
 def __getattr__(name: str):
-    """The error types and base classes, imported when first asked for (they pull Drake in)."""
-    if name in ("CellBuild", "CellDiagram"):
-        from cellsim.diagrams import cell
+    target = _LOADED_WHEN_ASKED.get(name)
+    if target is None:
+        raise AttributeError(f"module 'cellsim.api' has no attribute {name!r}")
+    import importlib
 
-        return getattr(cell, name)
-    if name == "open_meshcat":
-        from cellsim.visual.serve import open_meshcat
-
-        return open_meshcat
-    if name == "Live":
-        from cellsim.cell_io import Live
-
-        return Live
-    if name == "FoxgloveFeed":
-        from cellsim.foxglove import FoxgloveFeed
-
-        return FoxgloveFeed
-    if name == "CONFIDENCE":
-        from cellsim.validation.bound import CONFIDENCE
-
-        return CONFIDENCE
-    if name == "VerifyError":
-        from cellsim.verify.expressions import VerifyError
-
-        return VerifyError
-    if name == "EXPLICIT_LIMIT":
-        from cellsim.verify.storm import EXPLICIT_LIMIT
-
-        return EXPLICIT_LIMIT
-    if name == "Verdict":
-        from cellsim.validation.verdict import Verdict
-
-        return Verdict
-    if name == "CellSystem":
-        from cellsim.systems import CellSystem
-
-        return CellSystem
-    if name == "CheckError":
-        from cellsim.validation.check import CheckError
-
-        return CheckError
-    if name == "CampaignError":
-        from cellsim.campaign.engine import CampaignError
-
-        return CampaignError
-    if name == "OutputExistsError":
-        from cellsim.simulation import OutputExistsError
-
-        return OutputExistsError
-    raise AttributeError(f"module 'cellsim.api' has no attribute {name!r}")
+    module, _, attribute = target.partition(":")
+    return getattr(importlib.import_module(module), attribute)
 
 
 # -- scenarios ----------------------------------------------------------------------------------

@@ -11,13 +11,8 @@ service (every cell has it) judges any contact, and the conditions are written h
 
 from __future__ import annotations
 
-import argparse
-from pathlib import Path
-
 import cellsim
-
-SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
-"""Where the arm's model is found (``models/ur10.urdf``)."""
+from run_cell import SCENARIOS  # noqa: F401  (where the files this cell names are found)
 
 
 def arm(base_y: float, yaw: float, activities: list[str], poses: dict) -> object:
@@ -91,19 +86,7 @@ def two_arm_cell() -> cellsim.Scenario:
     )
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--duration", type=float, default=None)
-    parser.add_argument("--out", type=Path, default=Path("runs") / "two_arm_cell")
-    parser.add_argument("--overwrite", action="store_true")
-    args = parser.parse_args()
-    sf = cellsim.scenario_in_code(two_arm_cell(), base_dir=SCENARIOS)
-    run = cellsim.simulate(sf, args.out, seed=args.seed, duration=args.duration, overwrite=args.overwrite)
-    print(f"{run.summary.status}: {run.out / 'blackbox.sqlite'}")
-    for name, verdict in run.verdicts.items():
-        print(f"  {name}: {verdict}")
-
-
 if __name__ == "__main__":
-    main()
+    from run_cell import main
+
+    main(two_arm_cell, __doc__.splitlines()[0])

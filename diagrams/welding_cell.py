@@ -11,13 +11,8 @@ values, they give the same black box for the same seed (tests/test_api.py).
 
 from __future__ import annotations
 
-import argparse
-from pathlib import Path
-
 import cellsim
-
-SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
-"""Where the files this cell names (the arm's model, the risk model, the validation) are found."""
+from run_cell import SCENARIOS  # noqa: F401  (where the files this cell names are found)
 
 
 def welding_cell() -> cellsim.Scenario:
@@ -129,19 +124,7 @@ def welding_cell() -> cellsim.Scenario:
     )
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--duration", type=float, default=None)
-    parser.add_argument("--out", type=Path, default=Path("runs") / "welding_cell-in-code")
-    parser.add_argument("--overwrite", action="store_true")
-    args = parser.parse_args()
-    sf = cellsim.scenario_in_code(welding_cell(), base_dir=SCENARIOS)
-    run = cellsim.simulate(sf, args.out, seed=args.seed, duration=args.duration, overwrite=args.overwrite)
-    print(f"{run.summary.status}: {run.out / 'blackbox.sqlite'}")
-    for name, verdict in run.verdicts.items():
-        print(f"  {name}: {verdict}")
-
-
 if __name__ == "__main__":
-    main()
+    from run_cell import main
+
+    main(welding_cell, __doc__.splitlines()[0])
