@@ -507,26 +507,25 @@ def runs_needed(probability: float, confidence: float | None = None) -> int:
 
 
 def verify_cell(scenario: ScenarioFile | str | os.PathLike, *, export: str | os.PathLike | None = None,
-           timed: bool = False, replay_in: str | os.PathLike | None = None,
-           progress: Callable[[str], None] | None = None) -> "Verification":
+                timed: bool = False, replay_in: str | os.PathLike | None = None, refine: int | None = None,
+                progress: Callable[[str], None] | None = None) -> "Verification":
     """Model-check the scenario's abstraction with Storm, as ``cellsim verify`` does: ``result.results`` holds
     each property's value, whether it holds in the abstraction, and a witness path where it does not;
     ``result.endings()`` each property's final verdict (holds; violated: a witness the twin confirms; undecided,
-    with why) and ``result.exit_code`` the CLI's; ``result.model.cell.assumptions`` the abstraction's assumptions. ``export``: also write the PRISM model and properties (a folder).
-    ``replay_in``: replay each witness in the twin, writing its runs in that folder: ``result.replays[name]``
-    says whether the twin confirms it. ``progress(stage)`` as each stage starts. Raises VerifyError for a
+    with why) and ``result.exit_code`` the CLI's; ``result.model.cell.assumptions`` the abstraction's assumptions.
+    ``export``: also write the PRISM model and properties (a folder). ``replay_in``: replay each witness in the
+    twin, writing its runs in that folder (``result.replays[name]``), and where the twin refutes one, refine the
+    abstraction where the witness departs from the cell and check again, at most ``refine`` times (default
+    3; ``result.refinements`` lists them). ``progress(stage)`` as each stage starts. Raises VerifyError for a
     scenario the abstraction cannot take."""
+    from cellsim.verify.refine import DEFAULT_BUDGET, verify_with_twin
     from cellsim.verify.run import verify
-    from cellsim.verify.witness import replay
 
-    result = verify(_checked(scenario), export=None if export is None else Path(export), timed=timed,
-                         on_stage=progress)
-    result.replayed = replay_in is not None
-    if replay_in is not None:
-        for checked in result.results:
-            if checked.witness is not None:
-                result.replays[checked.prop.name] = replay(result.model, checked, Path(replay_in), on_stage=progress)
-    return result
+    sf, export = _checked(scenario), None if export is None else Path(export)
+    if replay_in is None:
+        return verify(sf, export=export, timed=timed, on_stage=progress)
+    return verify_with_twin(sf, Path(replay_in), budget=DEFAULT_BUDGET if refine is None else refine, timed=timed,
+                            export=export, on_stage=progress)
 
 
 def __dir__() -> list[str]:

@@ -96,7 +96,7 @@ def test_a_witness_is_written_as_a_scenario_over_the_verified_one_and_run_on_the
     """Each violated property's witness walk is a scenario (base: the verified one) that loads, runs
     and is checked; verify reports the twin's answer (confirmed or refuted) for it."""
     out = tmp_path / "witnesses"
-    done = _verify(str(WELDING_CELL), "--json", "--out", str(out))
+    done = _verify(str(WELDING_CELL), "--json", "--out", str(out), "--refine", "0")
     result = json.loads(done.stdout)
     violated = [p for p in result["properties"] if p["holds"] is False]
     assert violated, "the welding cell's detection conditions have witnesses in the any-pace abstraction"
@@ -134,7 +134,7 @@ def test_two_operators_break_the_single_operator_assumption_and_the_twin_confirm
     """verify finds a missed detection in the two-operator cell, writes it as a walk of both people,
     and the twin confirms it: `cellsim check`, run on its own on that run, reports the violation."""
     out = tmp_path / "witnesses"
-    done = _verify(str(ROOT / "scenarios" / "two_operators.yaml"), "--json", "--out", str(out))
+    done = _verify(str(ROOT / "scenarios" / "two_operators.yaml"), "--json", "--out", str(out), "--refine", "0")
     assert done.returncode == 1, done.stderr
     result = json.loads(done.stdout)
     assert all(p["holds"] for p in result["properties"] if p["name"].endswith(":mishap"))
@@ -174,7 +174,7 @@ def test_a_witness_of_a_cell_verified_with_set_overrides_keeps_them(tmp_path):
     """The witness scenario is the cell that was verified: its --set values are written into it
     (the walk's own keys win: an override of the replaced waypoints has nothing to apply to)."""
     out = tmp_path / "witnesses"
-    done = _verify(str(WELDING_CELL), "--json", "--out", str(out), "--set", "range_detector.near_below=2.5",
+    done = _verify(str(WELDING_CELL), "--json", "--out", str(out), "--refine", "0", "--set", "range_detector.near_below=2.5",
                    "--set", "operator.walking_speed=1.0", "--set", "operator.waypoints.bench.wait=3")
     properties = json.loads(done.stdout)["properties"]
     twins = [p["twin"] for p in properties if p["twin"]]
@@ -253,3 +253,42 @@ def test_verify_states_what_it_assumes_of_entities_that_follow_their_physical_tw
     assert curtain.startswith("light_barrier follows its physical twin (shadow mode):") and "never stale" in curtain
     assert welder.startswith("welder follows its physical twin (model mode, twin mode from 5 s):")
     assert "commands are assumed to reach the physical twin" in welder
+
+
+@pytest.mark.slow
+def test_a_witness_the_twin_refutes_is_refined_where_it_departs_from_the_cell(tmp_path):
+    """The welding cell's any-pace witnesses have the operator cross a place faster than it walks: the twin refutes
+    them, verify says which variable at which period shows it, models the operator's pace, and checks again; what
+    stays refuted ends undecided, naming the refinement, never violated."""
+    out = tmp_path / "witnesses"
+    done = _verify(str(WELDING_CELL), "--json", "--out", str(out), "--refine", "1")
+    result = json.loads(done.stdout)
+    (refinement,) = result["refinements"]
+    assert refinement["refinement"] == "operator:pace" and refinement["step"] == 1
+    assert refinement["why"].startswith("operator_place crosses place") and "m/s that takes at least" in refinement["why"]
+    assert any("no faster than 1.32 m/s" in a for a in result["assumptions"])  # the refined model says so
+    for p in result["properties"]:
+        if p["twin"]:
+            assert p["ending"] == ("violated" if p["twin"]["confirmed"] else "undecided")
+            if not p["twin"]["confirmed"]:
+                assert p["reason"].endswith("refined: operator:pace")
+            assert all("refined-1" in s for s in p["twin"]["scenarios"])  # the refined model's witnesses replayed
+    endings = {p["ending"] for p in result["properties"]}
+    assert done.returncode == (1 if "violated" in endings else 3 if "undecided" in endings else 0)
+
+
+@pytest.mark.slow
+def test_the_paced_model_has_no_witness_faster_than_the_person_walks():
+    """Soundness of the refinement the other way round: every witness of the model with the operator's pace has the
+    operator crossing each place in no fewer periods than its walking speed allows."""
+    from cellsim.verify.floor import crossing_periods, pace_violation
+    from cellsim.verify.run import verify
+
+    result = verify(load_scenario(WELDING_CELL), refinements=frozenset({"operator:pace"}))
+    cell = result.model.cell
+    (person,) = cell.places.people
+    assert person.role.max_speed == pytest.approx(1.32) and crossing_periods(person, cell.period, 1.32)
+    witnesses = [r.witness for r in result.results if r.witness]
+    assert witnesses
+    for witness in witnesses:
+        assert pace_violation(person, witness, cell.period, 1.32) is None

@@ -28,6 +28,10 @@ def add_parser(subparsers) -> None:
     p.add_argument("--timed", action="store_true",
                    help="bound the cell's durations (moves, dwells, cycles) below: closer witnesses, far more states")
     p.add_argument("--no-replay", dest="replay", action="store_false", help="do not replay witnesses on the twin")
+    p.add_argument("--refine", type=int, default=None, metavar="N",
+                   help="where the twin refutes a witness, refine the abstraction where the witness departs from the cell "
+                        "(a person crossing a place faster than it walks...) and check again, at most N times "
+                        "(default 3; 0: never)")
     p.add_argument("--json", action="store_true", help="print the results as JSON on standard output")
     _add_set(p)
     p.set_defaults(handler=run)
@@ -38,12 +42,14 @@ def run(args) -> int:
 
     from cellsim import api
 
+    if args.refine is not None and not 0 <= args.refine <= 20:
+        raise InputError(f"--refine {args.refine}: expected 0 to 20 refinements")
     sf = _load(args)
     say = (lambda text: None) if args.json else (lambda text: print(f"  {text}", file=sys.stderr))
     out = args.out or Path("runs") / f"{sf.scenario.name}-verify"
     try:
         result = api.verify_cell(sf, export=args.export, timed=args.timed, replay_in=out if args.replay else None,
-                            progress=say)
+                                 refine=args.refine, progress=say)
     except api.VerifyError as e:
         raise InputError(f"{args.scenario}: {e}") from None
     replays = result.replays
@@ -61,6 +67,8 @@ def _json(result, replays) -> dict:
     return {
         "holds": result.holds,
         "exit_code": result.exit_code,
+        "refinements": [{"step": r.step, "refinement": r.key, "property": r.prop, "why": r.why}
+                        for r in result.refinements],
         "states": stats.states, "transitions": stats.transitions, "choices": stats.choices,
         "largest_states": (result.largest or stats).states,
         "engine": "symbolic" if stats.symbolic else "explicit",
@@ -118,6 +126,8 @@ def _print(result, replays, export) -> None:
                  "undecided": "[yellow]UNDECIDED[/]"}[None if ending is None else ending.value]
         table.add_row(escape(r.prop.name), value, verdict, twin, final)
     console.print(table)
+    for r in result.refinements:
+        console.print(f"  refinement {r.step}: {escape(str(r))}")
     for f in endings.values():
         if f.ending is not None and f.ending.value == "undecided":
             console.print(f"  undecided: {escape(f.name)}: {escape(f.reason)}")

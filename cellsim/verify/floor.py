@@ -131,6 +131,73 @@ def _places(cell, person: PersonRole, poses: list[Pose], readings: list[tuple], 
     return PersonPlaces(person, places, neighbours, place_of[0], f"{person.module}_place", signals)
 
 
+ENTERED_AT_START = -1
+"""The place a person 'came from' in its starting place (it stands at its start pose)."""
+
+
+def crossing_periods(person: PersonPlaces, period: float, speed: float) -> dict[tuple[int, int, int], int]:
+    """(came from, place, going to) -> the least number of periods spent in the place, entering it from the first
+    and leaving it to the third, at ``speed`` (m/s) at most (every triple with a bound above zero).
+
+    The person enters at a pose of the place touching the one it came from (its start pose, in its starting place)
+    and leaves from a pose touching the next: it has walked at least the distance between those poses less a grid
+    step at either end (it changes place somewhere between two touching poses). A step in the model is one
+    period, so a crossing of d metres takes at least ceil(d / (speed * period)) periods, the last one included."""
+    step = person.role.step
+    cell_of = {}
+    for place in person.places:
+        for pose in place.poses:
+            cell_of.setdefault((round(pose.x / step), round(pose.y / step)), set()).add(place.index)
+
+    def border(place: Place, other: int | None) -> list[tuple[float, float]]:
+        """Points of ``place`` touching place ``other`` (a grid neighbour or the same point)."""
+        found = []
+        for pose in place.poses:
+            cx, cy = round(pose.x / step), round(pose.y / step)
+            if any(other in cell_of.get((cx + dx, cy + dy), ()) for dx in (-1, 0, 1) for dy in (-1, 0, 1)):
+                found.append((pose.x, pose.y))
+        return list(dict.fromkeys(found))
+
+    need = {}
+    for place in person.places:
+        exits = {b: border(place, b) for b in person.neighbours[place.index]}
+        entries = {a: border(place, a) for a in person.neighbours[place.index]}
+        if place.index == person.start:
+            entries[ENTERED_AT_START] = [(person.role.start.x, person.role.start.y)]
+        for a, ins in entries.items():
+            for b, outs in exits.items():
+                if a == b or not ins or not outs:
+                    continue
+                distance = min(math.dist(p, q) for p in ins for q in outs) - (2 * step if a != ENTERED_AT_START else step)
+                periods = math.ceil(distance / (speed * period) - 1e-9) if distance > 0 else 0
+                if periods > 1:  # one period is what any step takes
+                    need[(a, place.index, b)] = periods
+    return need
+
+
+def pace_violation(person: PersonPlaces, witness: list[dict], period: float, speed: float) -> str | None:
+    """Where a witness has ``person`` cross a place faster than ``speed`` allows (the first such crossing), said as
+    which variable, at which period, and why; None if it never does."""
+    need = crossing_periods(person, period, speed)
+    var = person.variable
+    came, entered, here = ENTERED_AT_START, 0, None
+    for k, state in enumerate(witness):
+        place = state.get(var)
+        if place is None:
+            return None
+        if here is None:
+            here = place
+            continue
+        if place != here:
+            least = need.get((came, here, place), 1)
+            if k - entered < least:
+                return (f"{var} crosses place {here} (from {'its start' if came == ENTERED_AT_START else f'place {came}'} "
+                        f"to place {place}) in {k - entered} period(s) at {entered * period:g}-{k * period:g} s; at "
+                        f"{speed:.3g} m/s that takes at least {least} ({least * period:g} s)")
+            came, entered, here = here, k, place
+    return None
+
+
 def press_variable(module: str, port: str) -> str:
     """The PRISM variable saying whether a person presses a button this period."""
     return f"{module}_pressing_{port}"
@@ -153,19 +220,23 @@ def build_floor(cell: AbstractCell, places: Places) -> None:
             presses[press_var] = set_of(var, near)
             variables.append(Var(press_var, boolean=True))
             cell.define(f"{role.module}.{port}", f"({press_var} ? 1 : 0)", Enum(("0", "1")))
+        paced = _paced(cell, person, variables)
         commands = []
         for place in person.places:
             for there in sorted({place.index, *person.neighbours[place.index]}):
-                for pressed in itertools.product((False, True), repeat=len(presses)):
-                    update = {var: str(there)} if there != place.index else {}
-                    guard = f"{var}={place.index}"
-                    for (press_var, where), on in zip(presses.items(), pressed):
-                        update[press_var] = "true" if on else "false"
-                        if on:
-                            guard += f" & {where}"
-                    commands.append(Command(guard, (("1", update),)))
-        cell.add(Module(f"{role.module}_floor", variables, commands,
-                        comment=f"{role.module}: one of {n} places of the floor; each period it stays or steps to a neighbour"))
+                for pace_guard, pace_update in paced(place.index, there):
+                    for pressed in itertools.product((False, True), repeat=len(presses)):
+                        update = {var: str(there)} if there != place.index else {}
+                        update.update(pace_update)
+                        guard = f"{var}={place.index}" + pace_guard
+                        for (press_var, where), on in zip(presses.items(), pressed):
+                            update[press_var] = "true" if on else "false"
+                            if on:
+                                guard += f" & {where}"
+                        commands.append(Command(guard, (("1", update),)))
+        how = (f"each period it stays or steps to a neighbour, crossing a place no faster than {role.max_speed:.3g} m/s"
+               if role.max_speed else "each period it stays or steps to a neighbour")
+        cell.add(Module(f"{role.module}_floor", variables, commands, comment=f"{role.module}: one of {n} places of the floor; {how}"))
         for k, signal in enumerate(person.signals):
             table = {place.index: place.reading[k] for place in person.places}
             encoding = cell.encoding(signal)
@@ -179,6 +250,31 @@ def build_floor(cell: AbstractCell, places: Places) -> None:
         _combine(cell, signal, parts, sensed[signal])
     cell.assume(f"the floor is sampled on a grid ({', '.join(f'{p.role.module}: {p.role.step:g} m, {len(p.places)} places' for p in places.people)}); "
                 "a feature thinner than a step may fall between its points")
+
+
+def _paced(cell: AbstractCell, person: PersonPlaces, variables: list):
+    """The guards and updates that keep ``person`` from crossing a place faster than its ``max_speed`` (none without
+    one): ``paced(here, there)`` -> [(guard suffix, update)] for the step from place ``here`` to ``there``."""
+    speed = person.role.max_speed
+    if not speed:
+        return lambda here, there: [("", {})]
+    need = crossing_periods(person, cell.period, speed)
+    var, came, dwell = person.variable, f"{person.variable}_from", f"{person.variable}_dwell"
+    most = max(need.values(), default=1)
+    variables += [Var(came, ENTERED_AT_START, len(person.places) - 1, ENTERED_AT_START), Var(dwell, 0, most, 0)]
+
+    def paced(here: int, there: int) -> list[tuple[str, dict]]:
+        if here == there:  # staying: one more period here (counted up to the longest crossing)
+            return [("", {dwell: f"min({dwell}+1, {most})"})]
+        leave = {came: str(here), dwell: "0"}
+        slow = {a: k for (a, p, b), k in need.items() if p == here and b == there}
+        if not slow:
+            return [("", leave)]
+        # from where it came: the periods the crossing takes (dwell counts the periods after the first)
+        fast = " & ".join(f"!({came}={a} & {dwell}<{k - 1})" for a, k in sorted(slow.items()))
+        return [(f" & {fast}", leave)]
+
+    return paced
 
 
 def _combine(cell: AbstractCell, signal: str, parts: list[str], sensed) -> None:

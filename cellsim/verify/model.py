@@ -76,6 +76,9 @@ class PersonRole:
     """Seconds it takes to walk from one pose to another (for a witness's timing)."""
     walk: Callable[..., dict] | None = None
     """``walk(start, stops, presses)``: its scenario config keys for a witness walk (see ``cellsim.verify.witness``)."""
+    max_speed: float | None = None
+    """m/s: the fastest the person walks, where its pace is modelled (a place then takes the periods its crossing
+    takes at that speed); None: any pace (a place may be crossed in one period)."""
 
 
 @dataclass
@@ -156,9 +159,13 @@ def nearest(order):
 class AbstractCell:
     """The abstract model under construction, over a built cell (``cellsim.diagrams.cell.CellDiagram``)."""
 
-    def __init__(self, cell, period: float, timed: bool = False):
+    def __init__(self, cell, period: float, timed: bool = False, refinements: frozenset = frozenset()):
         self.cell = cell
         self.timed = timed
+        self.refinements = frozenset(refinements)
+        """The refinements switched on (``<module>:<what>``, e.g. ``operator:pace``): what each module's abstraction
+        models more finely because a twin-refuted witness showed where it was too coarse
+        (:meth:`ModuleAbstraction.refinement`)."""
         """Whether the cell's own durations (moves, dwells, cycles) are bounded below in the model;
         without, each may take any number of periods from one on (more behaviours, far fewer states)."""
         self.sf = cell.sf
@@ -336,3 +343,9 @@ class ModuleAbstraction:
 
     def build(self, cell: AbstractCell) -> None:
         pass
+
+    def refinement(self, cell: AbstractCell, witness: list[dict]) -> tuple[str, str] | None:
+        """Where a witness the twin refuted does what this module cannot: ``(refinement, why)``, the refinement
+        (``<module>:<what>``) that models it more finely and which variable at which period shows it, or None
+        (nothing of this module's). ``witness``: the model's variables at each period."""
+        return None

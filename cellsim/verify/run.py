@@ -31,6 +31,8 @@ class AbstractModel:
     """Property name -> the label of its bad states (safety properties)."""
     times: dict[str, float] = field(default_factory=dict)
     header: str = ""
+    parts: list = field(default_factory=list)
+    """Each module's abstraction (:class:`cellsim.verify.model.ModuleAbstraction`): who can refine what."""
 
     def groups(self) -> list[tuple[list[Property], str]]:
         """The properties by the model they are checked in, and its text: the cell with no monitor (the
@@ -84,14 +86,17 @@ class Verification:
     """Property name -> its witness replayed in the twin (:func:`cellsim.verify.witness.replay`), when asked for."""
     replayed: bool = False
     """Whether the witnesses were replayed on the twin (a witness nobody tried leaves its property undecided)."""
+    refinements: list = field(default_factory=list)
+    """The refinements switched on, in order (:class:`cellsim.verify.refine.Refinement`)."""
 
     def endings(self) -> list:
         """Each property's final verdict (:mod:`cellsim.verify.endings`): holds, violated (a witness the twin
-        confirms) or undecided (with what blocks a verdict); None for a numeric query."""
+        confirms) or undecided (with what blocks a verdict and what was refined); None for a numeric query."""
         from cellsim.verify.endings import ending_of
 
-        return [ending_of(r, self.replays.get(r.prop.name), replayed=self.replayed, symbolic=self.stats.symbolic)
-                for r in self.results]
+        tried = [r.key for r in self.refinements]
+        return [ending_of(r, self.replays.get(r.prop.name), replayed=self.replayed, symbolic=self.stats.symbolic,
+                          refinements=tried) for r in self.results]
 
     @property
     def exit_code(self) -> int:
@@ -131,7 +136,7 @@ def twin_mode_assumptions(configs: dict) -> list[str]:
     return said
 
 
-def abstract_model(sf, cell=None, *, timed: bool = False) -> AbstractModel:
+def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset = frozenset()) -> AbstractModel:
     """The abstract model of the scenario's cell (its diagram built once, without recording)."""
     from cellsim.diagrams.cell import build_cell
     from cellsim.validation.check import cell_safety_case
@@ -145,7 +150,7 @@ def abstract_model(sf, cell=None, *, timed: bool = False) -> AbstractModel:
     configs = {name: cfg for section in registry.SECTIONS for name, cfg in getattr(scenario, section).items()}
     supervisors = [cell.modules[n].period for n, c in configs.items() if registry.kind_of(c).supervises and n in cell.modules]
     period = min(supervisors) if supervisors else min(getattr(s, "period", 1.0) for s in cell.modules.values())
-    abstract = AbstractCell(cell, period, timed)
+    abstract = AbstractCell(cell, period, timed, refinements)
     for assumption in twin_mode_assumptions(configs):
         abstract.assume(assumption)
     parts = []
@@ -188,7 +193,7 @@ def abstract_model(sf, cell=None, *, timed: bool = False) -> AbstractModel:
               f"One step is one period of {period:g} s. Assumptions:\n" + "\n".join(f"- {a}" for a in abstract.assumptions))
     text = abstract.program(header).text()
     times["model"] = time.perf_counter() - mark
-    return AbstractModel(abstract, text, properties, skipped, labels, times, header)
+    return AbstractModel(abstract, text, properties, skipped, labels, times, header, parts)
 
 
 def _vocabulary(sf, cell):
@@ -214,11 +219,13 @@ def _safe(name: str) -> str:
     return "".join(c if c.isalnum() or c == "_" else "_" for c in name)
 
 
-def verify(sf, *, export: Path | None = None, timed: bool = False, on_stage=None) -> Verification:
-    """Build and check the abstract model; ``export``: also write it there (and its .props beside it)."""
+def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: frozenset = frozenset(),
+           on_stage=None) -> Verification:
+    """Build and check the abstract model; ``export``: also write it there (and its .props beside it);
+    ``refinements``: the modules' refinements to switch on (:class:`cellsim.verify.model.AbstractCell`)."""
     say = on_stage or (lambda text: None)
     say("building the abstract model")
-    model = abstract_model(sf, timed=timed)
+    model = abstract_model(sf, timed=timed, refinements=refinements)
     if not model.properties:
         raise VerifyError("nothing to verify: no safety controller's hazards and no validation condition of a "
                           "checkable shape" + "".join(f"; not checked: {s.name}: {s.reason}" for s in model.skipped))

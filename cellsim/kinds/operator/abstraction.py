@@ -49,11 +49,29 @@ class PersonAbstraction(ModuleAbstraction):
         for w in cfg.waypoints.values():
             if w.press is not None:
                 buttons[f"press_{w.press.replace('.', '_')}"] = tuple(w.position)
+        paced = f"{self.name}:pace" in cell.refinements
         cell.add_person(PersonRole(self.name, poses, start, self._stand, own, GRID, buttons, travel=self.travel,
-                                   walk=self.walk))
-        cell.assume(f"{self.name} may walk anywhere on the floor at any pace, reach towards "
+                                   walk=self.walk, max_speed=self.max_speed if paced else None))
+        pace = f"no faster than {self.max_speed:.3g} m/s (its walking speed and jitter)" if paced else "at any pace"
+        cell.assume(f"{self.name} may walk anywhere on the floor {pace}, reach towards "
                     f"{'the points its waypoints reach for' if any(w.reach for w in cfg.waypoints.values()) else 'nothing'} "
                     "and press its buttons where its waypoints press them; its arm is either down or fully reached out")
+
+    @property
+    def max_speed(self) -> float:
+        """m/s: the fastest this person walks in the twin (its walking speed at the top of its jitter)."""
+        return self.cfg.walking_speed * (1.0 + self.cfg.speed_jitter)
+
+    def refinement(self, cell: AbstractCell, witness: list[dict]) -> tuple[str, str] | None:
+        """A witness in which this person crosses a place faster than it walks: model its pace."""
+        from cellsim.verify.floor import pace_violation
+
+        key = f"{self.name}:pace"
+        if key in cell.refinements or cell.places is None:
+            return None
+        person = next((p for p in cell.places.people if p.role.module == self.name), None)
+        why = None if person is None else pace_violation(person, witness, cell.period, self.max_speed)
+        return None if why is None else (key, why)
 
     def build(self, cell: AbstractCell) -> None:
         """Its place and buttons are the floor's (``cellsim.verify.floor``)."""

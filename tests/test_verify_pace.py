@@ -1,0 +1,59 @@
+"""A person's pace in the abstract cell (issue 36): how many periods crossing a place takes, by hand, and the
+witness check that finds a crossing faster than that (cellsim.verify.floor)."""
+
+from __future__ import annotations
+
+import pytest
+
+from cellsim.verify.floor import ENTERED_AT_START, PersonPlaces, Place, crossing_periods, pace_violation
+from cellsim.verify.model import PersonRole, Pose
+
+PERIOD, SPEED = 0.02, 1.0  # s, m/s: 0.02 m per period
+
+
+def _corridor() -> PersonPlaces:
+    """A corridor along x, a pose every 0.1 m: place 0 from 0 to 0.2 m, place 1 from 0.3 to 0.7 m, place 2 from
+    0.8 to 1.0 m; the person starts at x = 0."""
+    poses = [Pose(round(0.1 * i, 6), 0.0, 0.0) for i in range(11)]
+    role = PersonRole("p", poses, poses[0], lambda *a: None, step=0.1)
+    places = [Place(0, (0,), poses[0:3]), Place(1, (1,), poses[3:8]), Place(2, (2,), poses[8:11])]
+    return PersonPlaces(role, places, {0: {1}, 1: {0, 2}, 2: {1}}, 0, "p_place", [])
+
+
+def test_a_crossing_takes_the_periods_its_least_walk_takes_by_hand():
+    need = crossing_periods(_corridor(), PERIOD, SPEED)
+    # place 1 from place 0 to place 2: enters at 0.3 m, leaves at 0.7 m, less a grid step at either end: 0.2 m
+    assert need[(0, 1, 2)] == 10 and need[(2, 1, 0)] == 10
+    # place 0 from the start (x = 0) to place 1 (left at 0.2 m), less a step: 0.1 m
+    assert need[(ENTERED_AT_START, 0, 1)] == 5
+    # stepping back where one came from costs nothing (the person may stand on the border)
+    assert (0, 1, 0) not in need and (1, 2, 1) not in need
+    # twice as fast: half the periods
+    assert crossing_periods(_corridor(), PERIOD, 2 * SPEED)[(0, 1, 2)] == 5
+
+
+def test_a_witness_crossing_a_place_too_fast_is_found_with_its_variable_period_and_reason():
+    person = _corridor()
+
+    def witness(at_start: int, in_the_middle: int) -> list[dict]:
+        return [{"p_place": 0}] * at_start + [{"p_place": 1}] * in_the_middle + [{"p_place": 2}] * 3
+
+    assert pace_violation(person, witness(5, 10), PERIOD, SPEED) is None  # exactly as fast as it can
+    why = pace_violation(person, witness(5, 9), PERIOD, SPEED)
+    assert why == ("p_place crosses place 1 (from place 0 to place 2) in 9 period(s) at 0.1-0.28 s; at 1 m/s that "
+                   "takes at least 10 (0.2 s)")
+    why = pace_violation(person, witness(4, 10), PERIOD, SPEED)
+    assert why.startswith("p_place crosses place 0 (from its start to place 1) in 4 period(s)")
+    assert pace_violation(person, [{"other": 1}], PERIOD, SPEED) is None  # a witness without this person
+
+
+@pytest.mark.parametrize("speed", [0.5, 1.0, 1.32, 3.0])
+def test_a_witness_at_exactly_the_bound_passes_and_one_period_less_fails(speed):
+    person = _corridor()
+    need = crossing_periods(person, PERIOD, speed)
+    first, middle = need.get((ENTERED_AT_START, 0, 1), 1), need.get((0, 1, 2), 1)
+    walk = [{"p_place": 0}] * first + [{"p_place": 1}] * middle + [{"p_place": 2}]
+    assert pace_violation(person, walk, PERIOD, speed) is None
+    if middle > 1:
+        hurried = [{"p_place": 0}] * first + [{"p_place": 1}] * (middle - 1) + [{"p_place": 2}]
+        assert pace_violation(person, hurried, PERIOD, speed) is not None
