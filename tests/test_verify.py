@@ -292,3 +292,16 @@ def test_the_paced_model_has_no_witness_faster_than_the_person_walks():
     assert witnesses
     for witness in witnesses:
         assert pace_violation(person, witness, cell.period, 1.32) is None
+
+
+@pytest.mark.slow
+def test_a_violation_the_twin_confirmed_stays_confirmed_while_the_rest_is_refined(tmp_path):
+    """Two operators: some witnesses are confirmed at once, others refuted; refining for the refuted ones must not
+    take the confirmed violations back (exit 1, the confirmed runs kept)."""
+    out = tmp_path / "witnesses"
+    done = _verify(str(ROOT / "scenarios" / "two_operators.yaml"), "--json", "--out", str(out), "--refine", "1")
+    assert done.returncode == 1, done.stderr
+    result = json.loads(done.stdout)
+    confirmed = [p for p in result["properties"] if p["twin"] and p["twin"]["confirmed"]]
+    assert confirmed and all(p["ending"] == "violated" for p in confirmed)
+    assert all(Path(p["twin"]["runs"][-1]).is_dir() for p in confirmed)

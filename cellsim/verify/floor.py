@@ -46,6 +46,10 @@ class PersonPlaces:
     def at(self, place: int) -> Place:
         return self.places[place]
 
+    def pace_violation(self, witness: list[dict], period: float, speed: float) -> str | None:
+        """:func:`pace_violation` of this person (what a person's abstraction asks, without importing the floor)."""
+        return pace_violation(self, witness, period, speed)
+
 
 @dataclass
 class Places:

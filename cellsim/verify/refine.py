@@ -3,7 +3,8 @@
 Check the abstract model; replay each witness on the twin. Where the twin refutes one, ask each module's
 abstraction where the witness does what the module cannot (:meth:`cellsim.verify.model.ModuleAbstraction.
 refinement`: which variable, at which period, why); switch that refinement on, say so, and check again. A plug-in
-kind takes part by answering that question for its own module. The loop ends when no witness is refuted, when no
+kind takes part by answering that question for its own module. A witness the twin confirms in any round is a
+violation for good (its property keeps that round's result). The loop ends when no witness is refuted, when no
 module finds where a refuted witness departs from the cell, or after ``budget`` refinements; a property whose
 witness is still refuted then ends undecided, naming what was refined (:mod:`cellsim.verify.endings`).
 """
@@ -40,13 +41,20 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
 
     say = on_stage or (lambda text: None)
     done: list[Refinement] = []
+    confirmed: dict = {}  # property -> (its checked result, its replay) from the round whose witness the twin confirmed
     while True:
         result = verify(sf, export=export, timed=timed, refinements=frozenset(r.key for r in done), on_stage=on_stage)
         result.replayed, result.refinements = True, list(done)
+        # a violation the twin confirmed stays confirmed: refining elsewhere cannot take it back
+        result.results = [confirmed[r.prop.name][0] if r.prop.name in confirmed else r for r in result.results]
         where = out if not done else out / f"refined-{len(done)}"
         for checked in result.results:
-            if checked.witness is not None:
+            if checked.prop.name in confirmed:
+                result.replays[checked.prop.name] = confirmed[checked.prop.name][1]
+            elif checked.witness is not None:
                 result.replays[checked.prop.name] = replay(result.model, checked, where, on_stage=on_stage)
+                if result.replays[checked.prop.name].confirmed:
+                    confirmed[checked.prop.name] = (checked, result.replays[checked.prop.name])
         refuted = [r for r in result.results if r.prop.name in result.replays
                    and not result.replays[r.prop.name].confirmed]
         if not refuted or len(done) >= budget:

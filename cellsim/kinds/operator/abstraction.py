@@ -64,13 +64,11 @@ class PersonAbstraction(ModuleAbstraction):
 
     def refinement(self, cell: AbstractCell, witness: list[dict]) -> tuple[str, str] | None:
         """A witness in which this person crosses a place faster than it walks: model its pace."""
-        from cellsim.verify.floor import pace_violation
-
         key = f"{self.name}:pace"
         if key in cell.refinements or cell.places is None:
             return None
         person = next((p for p in cell.places.people if p.role.module == self.name), None)
-        why = None if person is None else pace_violation(person, witness, cell.period, self.max_speed)
+        why = None if person is None else person.pace_violation(witness, cell.period, self.max_speed)
         return None if why is None else (key, why)
 
     def build(self, cell: AbstractCell) -> None:
