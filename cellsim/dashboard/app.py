@@ -21,6 +21,7 @@ from textual import work
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical, VerticalScroll
+from textual.css.query import NoMatches
 from textual.screen import ModalScreen
 from textual.widget import Widget
 from textual.widgets import Footer, OptionList, RichLog, Static
@@ -181,12 +182,17 @@ class Dashboard(App):
         self._logged = 0
         self._shown: dict[str, object] = {}
 
+    def _view(self, selector: str, kind):
+        """A widget of the dashboard's own screen (the first on the stack, whatever choice is shown over it);
+        IndexError once the app has taken its screens down, NoMatches before they are mounted."""
+        return self.screen_stack[0].query_one(selector, kind)
+
     def _show(self, panel: str, rows, draw, width: int | None = None) -> None:
         """Redraw a panel only when what it shows (or the ``width`` it is drawn for) changed:
         a title, a header and a line per row."""
         if self._shown.get(panel) != (width, rows):
             self._shown[panel] = (width, rows)
-            self.query_one(f"#{panel}", Panel).show(draw(rows), len(rows) + 2)
+            self._view(f"#{panel}", Panel).show(draw(rows), len(rows) + 2)
 
     def compose(self) -> ComposeResult:
         yield Panel(id="header")
@@ -207,11 +213,14 @@ class Dashboard(App):
 
     def refresh_views(self) -> None:
         try:
+            header, log = self._view("#header", Panel), self._view("#events", RichLog)
+        except (NoMatches, IndexError):  # the views are not mounted yet, or being taken down: nothing to draw on
+            return
+        try:
             self.feed.drain()
         except Exception as e:  # noqa: BLE001 - the network or a message: shown, never fatal
-            self.query_one("#events", RichLog).write(f"feed error: {e}")
+            log.write(f"feed error: {e}")
         model = self.feed.model
-        header = self.query_one("#header", Panel)
         if model is None:
             cell = getattr(self.feed, "cell", None)
             header.show(Text(f"cellsim dashboard: no twin running{' of ' + cell if cell else ''}; waiting for one ...",
@@ -223,7 +232,6 @@ class Dashboard(App):
         lag_text = f"  lag {lag * 1000:.1f} ms" if isinstance(lag, (int, float)) else ""
         header.show(Text(f"t = {model.sim_time:7.2f} s  |  {model.name}  |  {state}{lag_text}",
                          style="bold red" if model.twin == "gone" else "bold"), 1)
-        log = self.query_one("#events", RichLog)
         for view in (self._cell, self._hazards, self._entities, self._conditions, self._robot_and_links):
             try:
                 view(model)
@@ -252,7 +260,7 @@ class Dashboard(App):
     def _conditions(self, model) -> None:
         rows = [(name, (verdict, STYLE.get(level, "")), (description, "dim"))
                 for name, verdict, level, description in model.conditions()]
-        room = self.query_one("#conditions", Panel).size.width
+        room = self._view("#conditions", Panel).size.width
         self._show("conditions", rows, lambda rows: _grid("safety conditions (so far)", ("condition", "verdict", "meaning"), rows, room),
                    width=room)
 
