@@ -30,7 +30,7 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
 from cellsim.config.layout import Fixture, Layout, Region
 from cellsim.config.typed_yaml import ConfigError
@@ -513,7 +513,7 @@ def verify_cell(scenario: ScenarioFile | str | os.PathLike, *, export: str | os.
     each property's value, whether it holds in the abstraction, and a witness path where it does not;
     ``result.endings()`` each property's final verdict (holds; violated: a witness the twin confirms; undecided,
     with why) and ``result.exit_code`` the CLI's; ``result.model.cell.assumptions`` the abstraction's assumptions.
-    ``export``: also write the PRISM model and properties (a folder). ``replay_in``: replay each witness in the
+    ``export``: also write the PRISM model to that file (and its properties beside it, with ``.props``). ``replay_in``: replay each witness in the
     twin, writing its runs in that folder (``result.replays[name]``), and where the twin refutes one, refine the
     abstraction where the witness departs from the cell and check again, at most ``refine`` times (default
     3; ``result.refinements`` lists them). ``progress(stage)`` as each stage starts. Raises VerifyError for a
@@ -524,6 +524,9 @@ def verify_cell(scenario: ScenarioFile | str | os.PathLike, *, export: str | os.
     sf, export = _checked(scenario), None if export is None else Path(export)
     if replay_in is None:
         return verify(sf, export=export, timed=timed, on_stage=progress)
+    if sf.built_in_code:
+        raise ConfigError(sf.source, None, "", "a witness is replayed as a scenario over the verified one's file: "
+                          "save it first (cellsim.save_scenario) and give that file")
     return verify_with_twin(sf, Path(replay_in), budget=DEFAULT_BUDGET if refine is None else refine, timed=timed,
                             export=export, on_stage=progress)
 
@@ -531,5 +534,3 @@ def verify_cell(scenario: ScenarioFile | str | os.PathLike, *, export: str | os.
 def __dir__() -> list[str]:
     return sorted(__all__)
 
-
-_ANY: Any = None  # keeps typing's Any imported for the annotations above

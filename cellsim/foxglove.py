@@ -64,6 +64,8 @@ def _message(kind: str, value):
     import foxglove.messages as m
 
     if kind == SCENE_UPDATE:
+        if value.get("deletions"):
+            raise ValueError("scene deletions are not written: every entity is sent whole, with no lifetime")
         return m.SceneUpdate(deletions=[], entities=[_message("entity", e) for e in value["entities"]])
     if kind == FRAME_TRANSFORMS:
         return m.FrameTransforms(transforms=[m.FrameTransform(

@@ -188,13 +188,11 @@ def test_a_hand_written_controller_replaces_the_risk_model_engine_and_check_judg
 
 def test_a_scripts_system_added_as_a_module_is_recorded(tmp_path):
     class Ticks(cellsim.CellSystem):
-        """Counts its own updates: a channel of the script's own."""
+        """Counts its own updates on a channel of the script's own, ``ticks.count``."""
 
-        def __init__(self):
+        def __init__(self, number_type):
             super().__init__("ticks", 0.5)
-            from_channel = self.declare_state("n", [0.0])
-            self._n = from_channel
-            self.DeclareStateOutputPort("count", from_channel)
+            self._n = self.declare_channel("count", number_type, 0.0, description="updates so far")
 
         def update(self, context, xd):
             xd.get_mutable_vector(self._n).SetAtIndex(0, context.get_discrete_state(self._n).GetAtIndex(0) + 1)
@@ -202,14 +200,19 @@ def test_a_scripts_system_added_as_a_module_is_recorded(tmp_path):
     added = {}
 
     def extend(cell):
-        added["ticks"] = cell.add("ticks", Ticks())
+        number = cell.channels()["ground_truth.separation"][0].type  # a number channel's type, in metres
+        added["ticks"] = cell.add("ticks", Ticks(number))
         with pytest.raises(KeyError, match="no channel 'nowhere.x'"):
             cell.channel("nowhere.x")
         with pytest.raises(KeyError, match="module 'robot' has no input 'throttle'; inputs: "):
             cell.module_input("robot.throttle")
+        with pytest.raises(ValueError, match="carries 6 numbers"):
+            cell.code_of("robot.joint_positions", 0.0)
 
     run = cellsim.simulate(cellsim.load_scenario(WELDING), tmp_path / "ticks", duration=2.0, extend=extend)
-    assert "ticks" in added and run.summary.status == "completed"
+    assert "ticks.count" in run.channels()  # recorded like any module's channel
+    counts = run.series("ticks.count")["ticks.count"]
+    assert list(counts.values) == [1.0, 2.0, 3.0, 4.0] and list(counts.times) == [0.0, 0.5, 1.0, 1.5]  # its updates in 2 s
 
 
 def test_a_run_drawn_in_meshcat_from_a_script_draws_the_cell_and_records_the_same_run(tmp_path):
@@ -308,6 +311,8 @@ def test_a_campaign_of_a_scenario_built_in_code_asks_for_its_file(tmp_path):
     sf = cellsim.scenario_in_code(welding_cell(), base_dir=SCENARIOS)
     with pytest.raises(cellsim.ConfigError, match="save it first"):
         cellsim.run_campaign(sf, tmp_path / "c", runs=1)
+    with pytest.raises(cellsim.ConfigError, match="save it first"):
+        cellsim.verify_cell(sf, replay_in=tmp_path / "w")
     (tmp_path / "saved").mkdir()
     saved = cellsim.save_scenario(sf, tmp_path / "saved" / "welding_cell.yaml")
     again = cellsim.load_scenario(saved)

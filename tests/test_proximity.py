@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from pydrake.geometry import Box, Capsule, Convex, Cylinder, Sphere
+from pydrake.geometry import Box, Capsule, Convex, Cylinder, Ellipsoid, Sphere
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, CoulombFriction
 from pydrake.multibody.tree import SpatialInertia
@@ -52,7 +52,8 @@ def _brute(query, a, b):
 @pytest.mark.parametrize("seed", range(12))
 def test_the_nearest_pair_is_the_nearest_of_all_pairs(tmp_path, seed):
     a = [Cylinder(0.05, 0.4), Box(0.1, 0.2, 0.3), Capsule(0.04, 0.3), Sphere(0.1)]
-    b = [Capsule(0.06, 0.35), Box(0.2, 0.1, 0.05), Sphere(0.08), Cylinder(0.1, 0.1), Capsule(0.05, 0.2), Box(0.3, 0.3, 0.02)]
+    b = [Capsule(0.06, 0.35), Box(0.2, 0.1, 0.05), Sphere(0.08), Cylinder(0.1, 0.1), Ellipsoid(0.05, 0.2, 0.1),
+         Box(0.3, 0.3, 0.02)]
     query, ida, idb = _scene(tmp_path, a, b, seed)
     nearest = NearestPair(query.inspector(), ida, idb)
     found, truth = nearest(query), _brute(query, ida, idb)

@@ -305,3 +305,9 @@ def test_a_violation_the_twin_confirmed_stays_confirmed_while_the_rest_is_refine
     confirmed = [p for p in result["properties"] if p["twin"] and p["twin"]["confirmed"]]
     assert confirmed and all(p["ending"] == "violated" for p in confirmed)
     assert all(Path(p["twin"]["runs"][-1]).is_dir() for p in confirmed)
+
+
+def test_refining_without_replays_is_refused_before_anything_is_done(tmp_path):
+    done = _verify(str(WELDING_CELL), "--no-replay", "--refine", "2", "--out", str(tmp_path / "w"))
+    assert done.returncode == 2 and "--refine" in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "w").exists()

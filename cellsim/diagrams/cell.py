@@ -239,11 +239,15 @@ class CellBuild:
         """The number channel ``<module>.<signal>`` carries for ``value``: an enum's word as its code
         (``code_of("range_detector.range", "close")``), a bool as 0 or 1, a number as itself. What a script's system
         compares a channel's port with, or writes to an input of that type (``robot.safety_mode_request`` takes the
-        codes of ``robot.safety_mode``). KeyError for an unknown channel, ValueError for a value it cannot carry."""
+        codes of ``robot.safety_mode``). KeyError for an unknown channel, ValueError for a value it cannot carry or
+        a channel of several numbers (a vector)."""
         found = self.channels()
         if channel not in found:
             raise KeyError(f"no channel '{channel}'; channels: {', '.join(found)}")
-        return float(found[channel][0].type.encode(value)[0])
+        ctype = found[channel][0].type
+        if ctype.size != 1:
+            raise ValueError(f"'{channel}' carries {ctype.size} numbers, not one: compare its elements yourself")
+        return float(ctype.encode(value)[0])
 
     def module_input(self, name: str):
         """The input port ``<module>.<input>`` (e.g. ``robot.safety_mode_request``): what a script's system drives.

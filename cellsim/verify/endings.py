@@ -6,8 +6,9 @@
   (its assumptions say which);
 * **violated**: Storm found a witness and the twin, running it, violates the property too: a path the cell takes;
 * **undecided**: Storm found a witness the twin does not confirm (refuted: the abstraction is too coarse there, and
-  refinement ran out of budget), or one nobody tried on the twin (not replayed, or no witness at all from decision
-  diagrams). Never reported as a violation: the reason says what blocks a verdict.
+  refinement ran out of budget or no module found where the witness departs from the cell), or one nobody tried on
+  the twin (not replayed, or no witness at all from decision diagrams). Never reported as a violation: the reason
+  says what blocks a verdict.
 
 The exit code follows the endings (:func:`exit_code`): 0 every property holds, 1 one is violated, 3 none is
 violated but one is undecided; 2 stays bad input.

@@ -144,9 +144,11 @@ def crossing_periods(person: PersonPlaces, period: float, speed: float) -> dict[
     and leaving it to the third, at ``speed`` (m/s) at most (every triple with a bound above zero).
 
     The person enters at a pose of the place touching the one it came from (its start pose, in its starting place)
-    and leaves from a pose touching the next: it has walked at least the distance between those poses less a grid
-    step at either end (it changes place somewhere between two touching poses). A step in the model is one
-    period, so a crossing of d metres takes at least ceil(d / (speed * period)) periods, the last one included."""
+    and leaves from a pose touching the next: it has walked at least the distance d between those poses less a grid
+    step at either end (it changes place somewhere between two touching poses). The model samples it once a period:
+    seen in the place at samples e .. l - 1 and in the next at l, it may have crossed in just under l - e + 1
+    periods (entering right after sample e - 1), so it is seen there for at least ceil(d / (speed * period)) - 1
+    samples; from its start pose (there at sample 0) for at least ceil(d / (speed * period))."""
     step = person.role.step
     cell_of = {}
     for place in person.places:
@@ -165,15 +167,17 @@ def crossing_periods(person: PersonPlaces, period: float, speed: float) -> dict[
     need = {}
     for place in person.places:
         exits = {b: border(place, b) for b in person.neighbours[place.index]}
-        entries = {a: border(place, a) for a in person.neighbours[place.index]}
+        entries = dict(exits)  # a neighbour's border is where one enters from it as well as where one leaves to it
         if place.index == person.start:
             entries[ENTERED_AT_START] = [(person.role.start.x, person.role.start.y)]
         for a, ins in entries.items():
             for b, outs in exits.items():
                 if a == b or not ins or not outs:
                     continue
-                distance = min(math.dist(p, q) for p in ins for q in outs) - (2 * step if a != ENTERED_AT_START else step)
-                periods = math.ceil(distance / (speed * period) - 1e-9) if distance > 0 else 0
+                from_start = a == ENTERED_AT_START
+                distance = min(math.dist(p, q) for p in ins for q in outs) - (step if from_start else 2 * step)
+                crossing = math.ceil(distance / (speed * period) - 1e-9) if distance > 0 else 0
+                periods = crossing if from_start else crossing - 1
                 if periods > 1:  # one period is what any step takes
                     need[(a, place.index, b)] = periods
     return need

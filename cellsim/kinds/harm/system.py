@@ -84,8 +84,6 @@ class HarmMonitor(CellSystem):
         self.reach = MAX_CLOSING_SPEED * cfg.far_period
         """m: a pair farther apart than this at one look cannot touch before the next (``far_period`` later)."""
         self._near = self.declare_state("near", [0.0])  # 1 while the last look found a pair within reach
-        # two events: the far look every far_period, and the plant-step update (update) that measures only while near
-        self.DeclarePeriodicDiscreteUpdateEvent(self.far_every * step, 0.0, self._far_look)
         self.limits = limits
         self.robots = list(robots)
         self.people = list(people)
@@ -212,18 +210,16 @@ class HarmMonitor(CellSystem):
 
     # -- measuring ------------------------------------------------------------------------------
     def update(self, context, xd):
-        """At every plant step: measure while the last look found a pair within reach, else nothing (the far look
-        every ``far_period``, :meth:`_far_look`, decides). One state read on the common path, as this runs at the
-        plant's rate."""
-        if context.get_discrete_state(self._near).GetAtIndex(0) == 0.0:
-            return UNCHANGED
+        """At every plant step (one event, so that the far look falls on a plant step exactly): measure while the
+        last look found a pair within reach; else only every ``far_period`` (:meth:`_far_look`)."""
+        near = context.get_discrete_state(self._near).GetAtIndex(0) != 0.0
         far_look = round(context.get_time() / self.period) % self.far_every == 0
-        return self._measure(context, xd, far_look, near=True)
+        if near:
+            return self._measure(context, xd, far_look, near=True)
+        return self._far_look(context, xd) if far_look else UNCHANGED
 
     def _far_look(self, context, xd):
         """Every ``far_period`` while nothing was within reach: is anything within the cut-off now?"""
-        if context.get_discrete_state(self._near).GetAtIndex(0) != 0.0:
-            return UNCHANGED  # near: the plant-step update measures at this instant
         if self._far(context):
             previous = [context.get_discrete_state(g).GetAtIndex(0) for g in self._outputs]
             if previous == self._clear:

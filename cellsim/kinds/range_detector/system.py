@@ -77,10 +77,11 @@ class RangeDetector(GeometrySensor):
 
     def measure(self, context) -> float:
         """The distance (m) the sensor reads: the true one plus its noise."""
-        nearest = self.true_distance(context)
-        if self._noise is not None:
-            nearest += self._noise[int(round(context.get_time() / self.period))]
-        return nearest
+        return self._noisy(context, self.true_distance(context))
+
+    def _noisy(self, context, distance: float) -> float:
+        """``distance`` (m) as the sensor reads it at ``context``'s tick: plus its noise there."""
+        return distance if self._noise is None else distance + self._noise[int(round(context.get_time() / self.period))]
 
     def true_distance(self, context) -> float:
         """The distance (m) from the sensor's point to the nearest target, up to ``reach``, with no noise. The
@@ -100,9 +101,7 @@ class RangeDetector(GeometrySensor):
         view = self.consult_physical(context, xd)
         if view.mode is TwinMode.MODEL:
             true_distance = self.true_distance(context)
-            distance = true_distance
-            if self._noise is not None:
-                distance += self._noise[int(round(context.get_time() / self.period))]
+            distance = self._noisy(context, true_distance)
             reading = self.classify(distance)
         elif view.sample is None:
             true_distance, distance, reading = None, 0.0, Range.CLOSE
