@@ -20,8 +20,8 @@ def add_parser(subparsers) -> None:
         "abstraction is too coarse there). Exits 0 when every property holds, 1 when one is violated (a witness the "
         "twin confirms), 3 when none is but one is undecided (refuted, not replayed, or no witness), 2 on bad input. "
         "docs/verify.md says what a result means.",
-        epilog="Exit codes: 0 every property holds, 1 one is violated (the twin confirms its witness), 3 none is "
-        "violated but one is undecided, 2 usage or input error, 130 interrupted (Ctrl-C or SIGTERM).",
+        epilog="Exit codes: 0 every property holds, 1 one is violated (its witness confirmed on the twin), 3 none "
+        "is violated but one is undecided, 2 usage or input error, 130 interrupted (Ctrl-C or SIGTERM).",
     )
     p.add_argument("scenario", type=Path, help="scenario YAML")
     p.add_argument("--out", type=Path, help="folder for witnesses and their runs (default: runs/<scenario>-verify)")
