@@ -271,7 +271,7 @@ def test_a_witness_the_twin_refutes_is_refined_where_it_departs_from_the_cell(tm
         if p["twin"]:
             assert p["ending"] == ("violated" if p["twin"]["confirmed"] else "undecided")
             if not p["twin"]["confirmed"]:
-                assert p["reason"].endswith("refined: operator:pace")
+                assert p["reason"].endswith("refinement: operator:pace")
             assert all("refined-1" in s for s in p["twin"]["scenarios"])  # the refined model's witnesses replayed
     endings = {p["ending"] for p in result["properties"]}
     assert done.returncode == (1 if "violated" in endings else 3 if "undecided" in endings else 0)
@@ -311,3 +311,22 @@ def test_refining_without_replays_is_refused_before_anything_is_done(tmp_path):
     done = _verify(str(WELDING_CELL), "--no-replay", "--refine", "2", "--out", str(tmp_path / "w"))
     assert done.returncode == 2 and "--refine" in done.stderr and len(done.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "w").exists()
+
+
+@pytest.mark.slow
+def test_a_refinement_whose_model_could_be_too_large_is_not_tried_and_says_so(tmp_path, monkeypatch):
+    """The assembly bench's pace-refined model could reach over a hundred million states: a refinement over the
+    state budget is not tried, and the property stays undecided saying so (the welding cell's, here, with the
+    budget made small)."""
+    import cellsim.verify.refine as refine
+    from cellsim.api import verify_cell
+
+    monkeypatch.setattr(refine, "STATE_BUDGET", 1_000)
+    stages = []
+    result = verify_cell(WELDING_CELL, replay_in=tmp_path / "w", refine=2, progress=stages.append)
+    assert result.refinements == [] and result.not_refined.startswith("operator:pace not tried: the refined model "
+                                                                       "could reach about")
+    assert any("not tried" in s for s in stages)
+    undecided = [f for f in result.endings() if f.ending is not None and f.ending.value == "undecided"]
+    assert undecided and all("refinement: operator:pace not tried" in f.reason for f in undecided)
+    assert result.exit_code == 3

@@ -45,7 +45,7 @@ def test_each_ending_and_its_reason(checked, replay, replayed, symbolic, ending,
 def test_refinements_tried_are_named_in_an_undecided_reason():
     final = ending_of(Checked(False, [{}]), Replay(False), replayed=True, symbolic=False,
                       refinements=["timed: moves, dwells and cycles take their durations"])
-    assert final.ending is Ending.UNDECIDED and final.reason.endswith("refined: timed: moves, dwells and cycles take "
+    assert final.ending is Ending.UNDECIDED and final.reason.endswith("refinement: timed: moves, dwells and cycles take "
                                                                         "their durations")
 
 

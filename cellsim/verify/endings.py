@@ -51,7 +51,7 @@ def ending_of(checked, replay, *, replayed: bool, symbolic: bool, refinements: l
         return Final(name, None, "a value, not a verdict")
     if checked.holds:
         return Final(name, Ending.HOLDS, "proved in the abstraction")
-    tried = f"; refined: {', '.join(refinements)}" if refinements else ""
+    tried = f"; refinement: {', '.join(refinements)}" if refinements else ""
     if checked.witness is None:
         why = ("no witness: the model was checked as decision diagrams, which give none" if symbolic
                else "no witness")

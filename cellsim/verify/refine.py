@@ -16,6 +16,9 @@ from pathlib import Path
 
 DEFAULT_BUDGET = 3
 """Refinements ``cellsim verify`` tries by default (``--refine N``)."""
+STATE_BUDGET = 5_000_000
+"""A refinement whose model could reach more states than this (the largest model checked so far, times the growth
+of its variables' ranges) is not tried: its property stays undecided, and says so, rather than exhaust the memory."""
 
 
 @dataclass(frozen=True)
@@ -63,8 +66,24 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
         if found is None:
             say("no module's abstraction finds where the refuted witnesses depart from the cell: nothing to refine")
             return result
+        could = _could_reach(sf, result, timed, [*(r.key for r in done), found.key])
+        if could > STATE_BUDGET:
+            result.not_refined = (f"{found.key} not tried: the refined model could reach about {could:.2g} states "
+                                  f"(over {STATE_BUDGET:,})")
+            say(f"refinement {found.step}: {result.not_refined}")
+            return result
         say(f"refinement {found.step}: {found}")
         done.append(found)
+
+
+def _could_reach(sf, result, timed: bool, keys: list[str]) -> float:
+    """States the model with refinements ``keys`` could reach: the largest model checked so far, times how much the
+    refinement widens its variables' ranges (the product of their numbers of values)."""
+    from cellsim.verify.run import abstract_model
+
+    refined = abstract_model(sf, timed=timed, refinements=frozenset(keys))
+    largest = (result.largest or result.stats).states
+    return largest * refined.bound() / max(result.model.bound(), 1.0)
 
 
 def _refinement(model, refuted, step: int) -> Refinement | None:

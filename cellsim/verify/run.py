@@ -88,13 +88,15 @@ class Verification:
     """Whether the witnesses were replayed on the twin (a witness nobody tried leaves its property undecided)."""
     refinements: list = field(default_factory=list)
     """The refinements switched on, in order (:class:`cellsim.verify.refine.Refinement`)."""
+    not_refined: str = ""
+    """Why the refinement that was next was not tried (the model it makes could be too large), if it was not."""
 
     def endings(self) -> list:
         """Each property's final verdict (:mod:`cellsim.verify.endings`): holds, violated (a witness the twin
         confirms) or undecided (with what blocks a verdict and what was refined); None for a numeric query."""
         from cellsim.verify.endings import ending_of
 
-        tried = [r.key for r in self.refinements]
+        tried = [r.key for r in self.refinements] + ([self.not_refined] if self.not_refined else [])
         return [ending_of(r, self.replays.get(r.prop.name), replayed=self.replayed, symbolic=self.stats.symbolic,
                           refinements=tried) for r in self.results]
 
