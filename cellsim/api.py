@@ -52,8 +52,8 @@ __all__ = [
     "OutputExistsError", "Region", "Run", "Scenario", "ScenarioFile", "Validation", "Verdict", "VerifyError",
     "build", "check", "check_campaign", "check_duration", "check_seed", "compile_conditions",
     "default_conditions", "export_trace", "falsify", "formula_and_description", "is_campaign", "kind_config",
-    "load_scenario", "module", "open_meshcat", "robustness", "run_campaign", "runs_needed", "save_scenario",
-    "scenario_in_code", "scenario_yaml", "simulate", "verify_cell",
+    "load_scenario", "module", "open_meshcat", "robustness", "run_campaign", "runs_folder", "runs_needed",
+    "save_scenario", "scenario_in_code", "scenario_yaml", "simulate", "verify_cell",
 ]
 
 Extend = Callable[["CellBuild"], None]
@@ -386,6 +386,13 @@ def formula_and_description(entry) -> tuple[str, str]:
     from cellsim.config.validation import description_of, formula_of
 
     return formula_of(entry), description_of(entry)
+
+
+def runs_folder(campaign: str | os.PathLike) -> Path:
+    """The folder holding a campaign's (or a search's) runs, one folder each."""
+    from cellsim.campaign.runner import RUNS
+
+    return Path(campaign) / RUNS
 
 
 def is_campaign(path: str | os.PathLike) -> bool:

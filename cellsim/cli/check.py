@@ -103,7 +103,8 @@ def check_campaign(args) -> int:
 
     for flag, given in (("--export-trace", args.export_trace), ("--robustness", args.robustness)):
         if given:
-            raise InputError(f"{args.run} is a campaign folder: {flag} takes one run (check one of its runs)")
+            raise InputError(f"{args.run} is a campaign folder: {flag} takes one run (check one of "
+                             f"{api.runs_folder(args.run)})")
     bar = None
 
     def report(done: int, total: int) -> None:  # a progress bar on standard error, for a large campaign
