@@ -10,7 +10,8 @@ names the modules of any circle or upward arrow it finds.
 The layers, lowest first (docs/architecture.md draws them):
 
 0. foundation: the condition language, the typed YAML, channels and their codec,
-   the link rule, the black box file, what a module kind is; nothing of the cell;
+   the link rule, the black box file, what a module kind is, the wire protocols of
+   other makers' devices (``cellsim.ur``: RTDE); nothing of the cell;
 1. model: the scenario, the registry, the systems' base classes, the recorder, and
    the APIs a kind builds on (its abstraction's, its cues');
 2. kinds: ``cellsim.kinds.*``, and a plug-in's;
@@ -39,7 +40,7 @@ PACKAGES = ("cellsim",)
 LAYERS = {
     0: ("cellsim.version", "cellsim.hazards", "cellsim.numbers", "cellsim.vocabulary", "cellsim.atomic", "cellsim.config", "cellsim.floorplan",
         "cellsim.kinematics", "cellsim.logic", "cellsim.link", "cellsim.channels", "cellsim.codec", "cellsim.blackbox",
-        "cellsim.kind", "cellsim.live.keys", "cellsim.live.pki"),
+        "cellsim.kind", "cellsim.live.keys", "cellsim.live.pki", "cellsim.ur"),
     1: ("cellsim.systems", "cellsim.registry", "cellsim.scenario", "cellsim.entity", "cellsim.cell_io",
         "cellsim.physical", "cellsim.recorder", "cellsim.verify.model", "cellsim.verify.prism",
         "cellsim.verify.expressions", "cellsim.verify.risk", "cellsim.visual.cues", "cellsim.body", "cellsim.proximity"),

@@ -82,9 +82,57 @@ class CommandMapping:
     ``Freshness`` and ``Mac`` signals, said by the daemon at start; none otherwise."""
 
 
+Register = Annotated[int, Range(0, 47)]
+"""An RTDE integer register's number (0-23 the lower range, 24-47 the upper)."""
+
+
+@dataclass
+class UrRegisters:
+    """The integer registers the integrator's UR program and the twin share (``cellsim.ur.program``): each
+    holds a value's code, its position in the field's list (``cellsim modules robot``)."""
+
+    safety_mode_request: Register = 18
+    """input_int_register: the safety mode the twin requests (the program must act on it: docs/ur.md)."""
+    activity_request: Register = 19
+    """input_int_register: the activity the twin requests."""
+    target_pose: Register = 20
+    """input_int_register: the named pose to move to (its index), -1 to hold."""
+    heartbeat: Register = 21
+    """input_int_register: counts up with every command the daemon sends; the program stops the arm when it
+    stalls for longer than the robot's ``command_watchdog`` (the daemon itself lost)."""
+    safety_mode: Register = 18
+    """output_int_register: the safety mode the program runs the arm in."""
+    activity: Register = 19
+    """output_int_register: the program's activity."""
+    reached_pose: Register = 20
+    """output_int_register: the named pose the arm stands at (its code: 0 moving, then the poses in order)."""
+
+    def __post_init__(self):
+        inputs = (self.safety_mode_request, self.activity_request, self.target_pose, self.heartbeat)
+        if len(set(inputs)) != len(inputs):
+            raise FieldError("safety_mode_request", "the input registers must differ from one another")
+        outputs = (self.safety_mode, self.activity, self.reached_pose)
+        if len(set(outputs)) != len(outputs):
+            raise FieldError("safety_mode", "the output registers must differ from one another")
+
+
+@dataclass
+class RtdeSettings:
+    """A Universal Robots controller over RTDE (``cellsim.ur``): where it is and the program's registers."""
+
+    host: str = "127.0.0.1"
+    """The controller's address (``--rtde HOST:PORT`` overrides)."""
+    port: Annotated[int, Range(1, 65535)] = 30004
+    """Its RTDE port (30004 on a real controller)."""
+    registers: UrRegisters = field(default_factory=UrRegisters)
+    reconnect_after: Seconds = 1.0
+    """How long (s) the daemon waits before dialling a lost or refusing controller again."""
+
+
 @dataclass
 class RobotLinkConfig:
-    """A robot controller streaming its joint state over Zenoh (``cellsim/bridges/robot.py`` says the format)."""
+    """A robot controller: a Universal Robots controller over RTDE (``rtde``), or one streaming its joint
+    state over Zenoh (``cellsim/bridges/robot.py`` says the format)."""
 
     joints: list[str]
     """The joint names, in the order of the robot entity's q0..q5 (as sensor_msgs/JointState names them)."""
@@ -105,6 +153,8 @@ class RobotLinkConfig:
     (null: not published)."""
     ros_namespace: str = ""
     """The namespace zenoh-bridge-ros2dds runs with (its key is <namespace>/<topic>)."""
+    rtde: RtdeSettings | None = None
+    """A UR controller over RTDE, at ``cycle_time`` (0.002: its 500 Hz); null: the Zenoh state stream."""
 
     def __post_init__(self):
         if len(self.joints) != 6 or len(set(self.joints)) != 6:
@@ -171,6 +221,8 @@ class LoadedBridge:
     """Entity -> the codec of its command fields."""
     safe: dict
     """Entity -> its kind's safe command, as command fields (what its device is told when the twin is lost)."""
+    programs: dict = field(default_factory=dict)
+    """Robot entity with an RTDE controller -> its ``cellsim.ur.program.UrProgram``."""
     frames: dict = field(default_factory=dict)
     """DBC message name -> its ``SignalMap`` (``cellsim.bridges.signals``): the fields of a device's sample frame
     or of a command frame, the one conversion the daemon and the emulated devices share."""
@@ -320,6 +372,13 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
                         f"{', '.join(samples[name].names)})")
         commands[name] = _commands(protocol)
         safe[name] = dict(protocol.safe)
+    programs = {}
+    for name, robot in cfg.robots.items():
+        if robot.rtde is not None:
+            caps = getattr(sf.scenario.entities[name], "speed_limits", None)
+            if caps is None:
+                raise error(f"robots.{name}.rtde", f"'{name}' has no speed_limits: the speed slider follows them")
+            programs[name] = _program(robot, caps, samples[name], commands[name])
     frames = {}
     for name, device in cfg.devices.items():
         frames[device.message] = SignalMap.of_device(messages[device.message], device.fields,
@@ -328,7 +387,18 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
         for mapping in mappings:
             frames[mapping.message] = SignalMap.of_command(messages[mapping.message], mapping.fields, safe[name],
                                                            dict(zip(commands[name].names, commands[name].types)))
-    return LoadedBridge(cfg, database, path, sf.scenario.name, samples, commands, safe, frames)
+    return LoadedBridge(cfg, database, path, sf.scenario.name, samples, commands, safe, programs, frames)
+
+
+def _program(robot: RobotLinkConfig, caps, samples: FieldCodec, commands: FieldCodec):
+    """The UR program's registers with the robot entity's fields, and the speed slider's fraction in each
+    safety mode: the mode's tool speed cap over the normal cap (srmst and stopped: 0)."""
+    from cellsim.ur.program import STOP_MODES, UrProgram
+
+    fractions = {mode: (0.0 if mode in STOP_MODES else min(1.0, getattr(caps, mode) / caps.normal))
+                 for mode in ("normal", "hguid", "ssmon", "pflim", *STOP_MODES)}
+    return UrProgram(robot.rtde.registers, dict(zip(samples.names, samples.types)),
+                     dict(zip(commands.names, commands.types)), fractions)
 
 
 def _protocols(sf) -> dict:

@@ -45,6 +45,7 @@ from cellsim.bridges.config import LoadedBridge
 from cellsim.bridges.diagnostics import DeviceDiagnostics
 from cellsim.bridges.e2e import DeviceChecker, protect
 from cellsim.bridges.robot import RobotLink
+from cellsim.bridges.ur import UrLink
 from cellsim.bridges.secoc import Authenticator, is_authenticated, message_key
 from cellsim.link import REFUSALS, Fault, Judgement, LinkTrust
 from cellsim import codec
@@ -94,6 +95,8 @@ class Bridge:
     """Seconds from a frame's arrival to its sample published."""
     command_latencies: deque = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
     """Seconds from a changed command's arrival to its frames sent."""
+    robot_latencies: deque = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
+    """Seconds from an RTDE controller's package arriving to its sample published."""
 
     def __post_init__(self):
         loaded, cfg, database = self.loaded, self.loaded.config, self.loaded.database
@@ -112,8 +115,12 @@ class Bridge:
                                                    self.session.declare_publisher(keys.diagnostics(cell, entity)))
             self.devices[message.frame_id] = device
         for entity, link_cfg in cfg.robots.items():
-            link = RobotLink(cell, entity, link_cfg, self.session, safe=loaded.safe[entity],
-                             recover_after=cfg.recover_after)
+            if link_cfg.rtde is not None:  # a UR controller, dialled over RTDE
+                link = UrLink(cell, entity, link_cfg, self.session, safe=loaded.safe[entity],
+                              recover_after=cfg.recover_after, program=loaded.programs[entity], inbox=self.inbox)
+            else:
+                link = RobotLink(cell, entity, link_cfg, self.session, safe=loaded.safe[entity],
+                                 recover_after=cfg.recover_after)
             link.diagnostics = DeviceDiagnostics(entity, "robot controller", link.checker, 1.0 / link_cfg.cycle_time,
                                                  self.session.declare_publisher(keys.diagnostics(cell, entity)))
             self.robots[entity] = link
@@ -146,12 +153,15 @@ class Bridge:
                 keys.command(cell, entity), lambda s, e=entity: put(("command", e, s.payload.to_bytes(), time.perf_counter()))))
             self._subscribers.append(self.session.declare_subscriber(
                 keys.channel(cell, entity, "twin_mode"), lambda s, e=entity: put(("mode", e, s.payload.to_bytes(), 0.0))))
-        for entity in cfg.robots:
+        for entity in [e for e, r in cfg.robots.items() if r.rtde is None]:
             self._subscribers.append(self.session.declare_subscriber(
                 keys.controller_state(cell, entity), lambda s, e=entity: put(("robot", e, s.payload.to_bytes(), 0.0))))
         if cfg.commands or cfg.robots:
             self._subscribers.append(self.session.liveliness().declare_subscriber(
                 keys.alive(cell, "twin"), lambda s: put(("alive", None, str(s.kind).endswith("PUT"), 0.0)), history=True))
+        for link in self.robots.values():
+            if isinstance(link, UrLink):
+                link.start()
 
     def _authenticator(self, message) -> Authenticator | None:
         """The signer or verifier of an authenticated message's frames (None: the message is not)."""
@@ -241,6 +251,8 @@ class Bridge:
             return
         if kind == "robot":
             self.handle_robot(entity, payload)
+            if arrived:
+                self.robot_latencies.append(time.perf_counter() - arrived)
             return
         if kind == "alive":
             self._twin_alive = payload
@@ -306,9 +318,14 @@ class Bridge:
             "received": {d.entity: d.diagnostics.received for d in [*self.devices.values(), *self.robots.values()]},
             "frame_latency_ms": _percentiles(self.frame_latencies),
             "command_latency_ms": _percentiles(self.command_latencies),
+            "robot_latency_ms": _percentiles(self.robot_latencies),
+            "controllers_connected": {e: r.connected for e, r in self.robots.items() if isinstance(r, UrLink)},
         }
 
     def close(self) -> None:
+        for link in self.robots.values():
+            if isinstance(link, UrLink):
+                link.close()
         for handle in [*self._subscribers, self._token]:
             try:
                 handle.undeclare()

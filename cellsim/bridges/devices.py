@@ -9,7 +9,12 @@ Given the bridge daemon's configuration, the emulator plays
   command frames takes them from the bus and checks them as the real device
   would (a bad, forged or stale frame: the entity kind's *safe command*);
 * each robot's controller over Zenoh: its state stream (``cellsim.bridges.robot``) at
-  the controller's rate, and its requests from the controller's request key.
+  the controller's rate, and its requests from the controller's request key;
+* each robot whose configuration names ``rtde`` as a UR controller: an RTDE server
+  (``cellsim.ur.controller``) on the configured host and port (``--rtde PORT``
+  overrides), its state at the controller's rate, the program's input registers as
+  the arm's commands (under the twin's command) and the speed slider as its
+  ``speed_scaling`` (always, as a real controller's slider is).
 
 Everything else stays on its physical key. Faults on the bus
 (``--fault welder=crc@3-5``): ``drop`` (frames not sent), ``crc`` (a corrupted
@@ -119,12 +124,87 @@ class RobotStateEncoder:
         return json.dumps(state, separators=(",", ":")).encode()
 
 
+class RtdeOutlet:
+    """A robot's samples as an emulated UR controller's RTDE state packages, with the RTDE faults."""
+
+    def __init__(self, controller):
+        self.controller = controller
+        self._last: tuple[float, list[float]] | None = None
+
+    @property
+    def faults(self):
+        from cellsim.ur.controller import RTDE_FAULTS
+
+        return RTDE_FAULTS
+
+    def send(self, fields: dict, fault: str | None, sim_time: float) -> int:
+        position = [float(fields[f"q{i}"]) for i in range(6)]
+        velocity = [0.0] * 6
+        if self._last is not None and sim_time > self._last[0]:
+            dt = sim_time - self._last[0]
+            velocity = [(q - q0) / dt for q, q0 in zip(position, self._last[1])]
+        self._last = (sim_time, position)
+        c = self.controller
+        return c.server.publish(c.program.state(fields, velocity, sim_time, c.slider), fault)
+
+
+class EmulatedController:
+    """One emulated UR controller: its RTDE server, the program's registers, the slider and the arm's commands.
+
+    The program (as docs/ur.md asks of a real one) takes a command only when the heartbeat register
+    moved: a daemon that stops counting is a lost supervisor, and the arm's command source then fails
+    safe after the robot's ``stale_after``.
+    """
+
+    def __init__(self, host: str, port: int, program):
+        from cellsim.ur.controller import RtdeServer
+
+        self.program = program
+        self.slider = 1.0
+        self.inputs: dict = {}
+        self.scaling = None
+        """The robot's speed_scaling source (a ``HeldValue``), once the diagram has one."""
+        self.source = None
+        """The arm's command source (a ``ZenohCommandSource``), under the twin's command."""
+        self._seq = 0
+        self._heartbeat = None
+        self._lock = threading.Lock()
+        self.server = RtdeServer(host, port, on_inputs=self._on_inputs)
+
+    def _on_inputs(self, values: dict) -> None:  # on the client's thread
+        heartbeat = rtde_register(self.program.registers.heartbeat)
+        with self._lock:
+            self.inputs.update(values)
+            if values.get("speed_slider_mask", 0) & 1:
+                self.slider = min(1.0, max(0.0, float(values["speed_slider_fraction"])))
+                if self.scaling is not None:
+                    self.scaling.set(self.slider)
+            if self.source is None or heartbeat not in values or values[heartbeat] == self._heartbeat:
+                return
+            self._heartbeat = values[heartbeat]
+            fields, _ = self.program.command(self.inputs)
+            self._seq += 1
+            payload = codec.encode_fields(time.time(), self._seq, fields)
+        self.source.deliver(payload)
+
+
+def rtde_register(number: int) -> str:
+    from cellsim.ur import rtde
+
+    return rtde.int_register("input", number)
+
+
 class EmulatedDevices:
     """The emulated cell's CAN devices and robot controllers, as the bridge configuration describes them."""
 
-    def __init__(self, loaded: LoadedBridge, bus, session, can_key: bytes | None = None):
+    def __init__(self, loaded: LoadedBridge, bus, session, can_key: bytes | None = None, rtde_port: int | None = None):
         self.loaded, self.bus, self.session, self.can_key = loaded, bus, session, can_key
         self.config = loaded.config
+        self.controllers: dict[str, EmulatedController] = {}
+        for name, robot in self.config.robots.items():
+            if robot.rtde is not None:
+                port = robot.rtde.port if rtde_port is None else rtde_port
+                self.controllers[name] = EmulatedController(robot.rtde.host, port, loaded.programs[name])
         if loaded.authenticated() and can_key is None:
             raise ValueError(f"{', '.join(loaded.authenticated())} are authenticated: the devices need the CAN key")
         self._feeds: dict[int, tuple] = {}  # frame id -> (entity, mapping, checker)
@@ -140,10 +220,29 @@ class EmulatedDevices:
         return {**{e: 1.0 / d.cycle_time for e, d in cfg.devices.items()}, **{e: 1.0 / r.cycle_time for e, r in cfg.robots.items()}}
 
     def fault_kinds(self, entity: str) -> tuple[str, ...] | None:
+        if entity in self.controllers:
+            from cellsim.ur.controller import RTDE_FAULTS
+
+            return RTDE_FAULTS
         return BUS_FAULTS if entity in self.config.devices else None
+
+    def add_systems(self, builder, entity, time_step: float) -> None:
+        """What an entity's device adds to the emulated diagram: a UR controller's speed slider, into the
+        robot's ``speed_scaling``."""
+        controller = self.controllers.get(entity.module)
+        if controller is None:
+            return
+        from cellsim.live.systems import HeldValue
+
+        scaling = builder.AddSystem(HeldValue(f"{entity.module}.speed_slider", controller.slider,
+                                              self.config.robots[entity.module].cycle_time, time_step))
+        builder.Connect(scaling.get_output_port(0), entity.GetInputPort("speed_scaling"))
+        controller.scaling = scaling
 
     def outlet(self, name: str, entity):
         cfg = self.config
+        if name in self.controllers:
+            return RtdeOutlet(self.controllers[name])
         if name in cfg.devices:
             device = cfg.devices[name]
             message = self.loaded.database.get_message_by_name(device.message)
@@ -155,6 +254,9 @@ class EmulatedDevices:
     def feed_commands(self, entity, source) -> bool:
         """Feed ``source`` (a ZenohCommandSource) from the entity's device protocol, if it has one."""
         cfg, name = self.config, entity.module
+        if name in self.controllers:
+            self.controllers[name].source = source
+            return True
         if name in cfg.robots:
             self._subscribers.append(self.session.declare_subscriber(
                 keys.controller_request(self.loaded.cell, name), lambda sample: source.deliver(sample.payload.to_bytes())))
@@ -204,6 +306,8 @@ class EmulatedDevices:
         state["source"].deliver(payload)
 
     def close(self) -> None:
+        for controller in self.controllers.values():
+            controller.server.close()
         if self._notifier is not None:
             self._notifier.stop()
         for subscriber in self._subscribers:

@@ -12,6 +12,7 @@ from cellsim.cli.common import (
     _can_bus_spec,
     _open_can_bus,
     _open_session,
+    _rtde_robot,
     _terminate_as_interrupt,
 )
 
@@ -29,8 +30,20 @@ def add_parser(subparsers) -> None:
     bridge.add_argument("bridge_config", type=Path, metavar="CONFIG", help="bridge configuration YAML file")
     bridge.add_argument("--can", metavar="INTERFACE:CHANNEL",
                         help="the CAN bus, e.g. socketcan:can0 (default: the configuration's)")
+    bridge.add_argument("--rtde", metavar="[HOST:]PORT", type=_rtde_address,
+                        help="where the robot's UR controller serves RTDE (default: the configuration's rtde.host and "
+                        "rtde.port); for a configuration with one robot over RTDE")
     _add_network_args(bridge)
     bridge.set_defaults(handler=run)
+
+
+def _rtde_address(text: str) -> tuple[str | None, int]:
+    import argparse
+
+    host, sep, port = text.rpartition(":")
+    if not port.isdigit() or not 1 <= int(port) <= 65535 or (sep and not host):
+        raise argparse.ArgumentTypeError(f"expected [HOST:]PORT, e.g. 127.0.0.1:30004, got {text!r}")
+    return (host or None), int(port)
 
 
 def run(args) -> int:
@@ -42,6 +55,10 @@ def run(args) -> int:
 
     loaded = load_bridge(args.bridge_config)
     can_key = _can_key(args, loaded)
+    if args.rtde is not None:
+        settings = loaded.config.robots[_rtde_robot(loaded)].rtde
+        settings.host = args.rtde[0] or settings.host
+        settings.port = args.rtde[1]
     default = (loaded.config.can.interface, loaded.config.can.channel)
     interface, channel = _can_bus_spec(args.can, "--can") if args.can else default
     zenoh_settings = loaded.config.zenoh  # the command line's network options win over the configuration's
@@ -59,7 +76,9 @@ def run(args) -> int:
             bridge = Bridge(loaded, session, bus=bus, can_key=can_key)
             stop = threading.Event()
             logging.basicConfig(level=logging.INFO, format="cellsim bridge: %(message)s", stream=sys.stderr)
-            print(f"cellsim bridge: {loaded.cell} on {interface}:{channel}", file=sys.stderr)
+            controllers = "".join(f", {name} over RTDE at {robot.rtde.host}:{robot.rtde.port}"
+                                  for name, robot in loaded.config.robots.items() if robot.rtde is not None)
+            print(f"cellsim bridge: {loaded.cell} on {interface}:{channel}{controllers}", file=sys.stderr)
             with _terminate_as_interrupt():
                 try:
                     run_bridge(bridge, bus, stop)

@@ -218,6 +218,24 @@ def _open_can_bus(text: str | None, default: tuple[str, str] | None = None, opti
         raise InputError(f"cannot open CAN bus {interface}:{channel}: {' '.join(str(e).split())[:200]}") from None
 
 
+def _port(text: str) -> int:
+    """A TCP port argument (1-65535)."""
+    import argparse
+
+    if not text.isdigit() or not 1 <= int(text) <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is a number from 1 to 65535, got {text!r}")
+    return int(text)
+
+
+def _rtde_robot(loaded, option: str = "--rtde") -> str:
+    """The one robot of a bridge configuration with an RTDE controller (what ``--rtde PORT`` applies to)."""
+    robots = [name for name, robot in loaded.config.robots.items() if robot.rtde is not None]
+    if len(robots) != 1:
+        raise InputError(f"{option}: {loaded.source} names {len(robots)} robots over RTDE "
+                         f"({', '.join(robots) or 'none'}); {option} PORT needs exactly one")
+    return robots[0]
+
+
 def add_scheduler_argument(parser) -> None:
     """``--scheduler``: run on a Dask cluster instead of local worker processes."""
     parser.add_argument(

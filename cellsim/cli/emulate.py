@@ -18,6 +18,8 @@ from cellsim.cli.common import (
     _can_key,
     _live_run,
     _open_can_bus,
+    _port,
+    _rtde_robot,
 )
 
 
@@ -43,9 +45,15 @@ def add_parser(subparsers) -> None:
         "remote:ws://127.0.0.1:54701/), its robot controllers stream their state, all for the bridge daemon",
     )
     emu.add_argument(
+        "--rtde", type=_port, metavar="PORT",
+        help="speak the real protocols, the robot as a UR controller: its RTDE server on this port of the "
+        "configuration's host (127.0.0.1 by default; a real controller's is 30004), for the bridge daemon or any "
+        "RTDE client (docs/ur.md); the CAN devices on --can or the configuration's bus",
+    )
+    emu.add_argument(
         "--bridge", type=Path, metavar="FILE",
-        help="with --can: the bridge configuration naming the devices and their DBC "
-        "(default: bridges/<scenario file name> beside the scenario's folder)",
+        help="with --can or --rtde: the bridge configuration naming the devices, their DBC and the robot's "
+        "controller (default: bridges/<scenario file name> beside the scenario's folder)",
     )
     emu.add_argument(
         "--commanded-by-twin", action="store_true",
@@ -65,14 +73,16 @@ def run(args) -> int:
     from cellsim.live.faults import FaultError, check_entities, check_faults, parse_fault, parse_rate
 
     loaded = bridge = can_key = None
-    if args.can:
+    if args.can or args.rtde:
+        option = "--can" if args.can else "--rtde"
         bridge = args.bridge or args.scenario.resolve().parent.parent / "bridges" / args.scenario.name
         if not bridge.is_file():
-            raise InputError(f"--can needs the cell's bridge configuration (its devices and DBC): no {bridge}; "
-                             "name it with --bridge FILE")
-        _can_bus_spec(args.can, "--can")
+            raise InputError(f"{option} needs the cell's bridge configuration (its devices, DBC and controllers): "
+                             f"no {bridge}; name it with --bridge FILE")
+        if args.can:
+            _can_bus_spec(args.can, "--can")
     elif args.bridge:
-        raise InputError("--bridge is for --can: name the CAN bus the devices speak on")
+        raise InputError("--bridge is for --can or --rtde: name the CAN bus or the RTDE port the devices speak on")
     try:
         faults = [parse_fault(text) for text in args.fault]
         rates = dict(parse_rate(text) for text in args.rate)
@@ -87,6 +97,8 @@ def run(args) -> int:
 
             loaded = load_bridge(bridge, sf)
             can_key = _can_key(args, loaded)
+            if args.rtde:
+                _rtde_robot(loaded)
         try:
             check_entities(faults, rates, entities)
             check_faults(faults, entities, set(loaded.config.devices) if loaded is not None else None)
@@ -98,11 +110,21 @@ def run(args) -> int:
         if loaded is not None:
             from cellsim.bridges.devices import EmulatedDevices
 
-            bus = _open_can_bus(args.can)
-            devices = EmulatedDevices(loaded, bus, session, can_key)
+            cfg = loaded.config
+            if cfg.devices or cfg.commands:
+                bus = _open_can_bus(args.can, (cfg.can.interface, cfg.can.channel))
+            try:
+                devices = EmulatedDevices(loaded, bus, session, can_key, rtde_port=args.rtde)
+            except OSError as e:
+                if bus is not None:
+                    bus.shutdown()
+                raise InputError(f"--rtde: cannot serve RTDE: {e}") from None
         try:
             if not args.quiet:
-                on = f" on {args.can}" if bus is not None else ""
+                on = f" on {args.can}" if args.can else ""
+                for name, controller in (devices.controllers.items() if devices is not None else ()):
+                    host, port = controller.server.address
+                    on += f", {name} as a UR controller on RTDE {host}:{port}"
                 print(f"cellsim emulate: playing the physical {sf.scenario.name}{on}, recording to {out}", file=sys.stderr)
             io = Emulated(session, args.commanded_by_twin, rates, devices, FaultSchedule(list(faults)))
             summary = simulate(sf, out, io=io, seed=args.seed, duration=duration)

@@ -497,6 +497,8 @@ def _emulated(builder: DiagramBuilder, cell: CellBuild, io: Emulated):
         period = max(step, round(period / step) * step)
         outlets[entity_name] = builder.AddSystem(SampleOutlet(entity, outlet, period, io.faults, step))
         builder.Connect(entity.physical_state_port, outlets[entity_name].state_port)
+        if devices is not None:
+            devices.add_systems(builder, entity, step)
     network.figures["samples_published"] = lambda: sum(o.sent for o in outlets.values())
     network.figures["faults"] = io.faults.to_json
     network.figures["commanded_by_twin"] = lambda: io.commanded_by_twin

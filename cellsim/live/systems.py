@@ -18,6 +18,8 @@ and the same run loop as any other: ``Simulator.AdvanceTo`` paced to the wall.
 * :class:`CommandPublisher`: an entity's commands, in twin mode only.
 * :class:`SampleOutlet`: an emulated entity's physical state, through its outlet
   (its physical key, or its CAN device), with the faults injected.
+* :class:`HeldValue`: the latest number a network thread set (an emulated controller's speed
+  slider), taken in at each period.
 * :class:`TwinModeControl`: twin-mode requests (a Zenoh query), applied through each
   entity's ``twin_mode_request`` input.
 * :class:`LiveStatus`: the process's status every second and its pacing lag.
@@ -270,6 +272,29 @@ class ZenohCommandSource(_LinkSource):
         if trust.failed or failed is not None:
             values[:] = self.safe  # the supervisor is gone, or its commands are bad: fail safe
         xd.get_mutable_vector(self._values).SetFromVector(values)
+
+
+class HeldValue(LeafSystem):
+    """The latest number a network thread :meth:`set`, taken into the context every ``period``.
+
+    Ports:
+      value (output): the number as last taken in (``initial`` until one is set).
+    """
+
+    def __init__(self, name: str, initial: float, period: float, time_step: float):
+        super().__init__()
+        self.set_name(name)
+        self._latest = float(initial)
+        self._value = self.DeclareDiscreteState(np.array([float(initial)]))
+        self.DeclareStateOutputPort("value", self._value)
+        self.DeclarePeriodicDiscreteUpdateEvent(period, time_step, self._take)
+
+    def set(self, value: float) -> None:
+        """Called on a network thread: the value from the next period on (a float's store is atomic)."""
+        self._latest = float(value)
+
+    def _take(self, context, xd) -> None:
+        xd.get_mutable_vector(0).SetAtIndex(0, self._latest)
 
 
 class ChannelPublisher(LeafSystem):

@@ -42,6 +42,8 @@ class RobotKind(ModuleKind):
         ("safety_mode_request", "enum", "the safety mode a safety controller requests (it takes the most restrictive)"),
         ("activity", "enum", "the activity its process carries out (ract follows it)"),
         ("speed_limit", "number, m/s", "the tool speed an ssm module allows now; followed in ssmon, below its cap"),
+        ("speed_scaling", "number, 0..1", "its controller's speed slider (a UR's): scales every motion; 1 unless "
+         "an emulated controller drives it"),
     )
     files = {"model": "robot model"}
     glance = (

@@ -104,6 +104,8 @@ class Robot(EntitySystem):
       activity (input): code of the robot activity the process controller is carrying out.
       speed_limit (input, m/s): the tool speed allowed now in ssmon (speed and separation
         monitoring, ``cellsim.kinds.ssm``), below the mode's fixed cap; none: the cap alone.
+      speed_scaling (input, 0..1): the controller's speed slider (a UR's): every motion's planned speed
+        times it, 0 stops it; 1 unless an emulated controller drives it (``cellsim.ur``).
       measured_state (input): the plant's joint state [q (rad), v (rad/s)].
       physical_sample (input): [t, link, q (6, rad), safety_mode code, activity code, reached_pose code].
       desired_state (output): [q (rad), v (rad/s)] for the joint controller.
@@ -159,6 +161,7 @@ class Robot(EntitySystem):
         self.activity_type = value_set(f"{module}_activity", [*cfg.activities, "unknown"])
         self.activity_port = self.declare_input("activity", ctype=enum_type(self.activity_type), default=0.0)
         self.speed_limit_port = self.declare_input("speed_limit", ctype=number_type("m/s"), default=math.inf)
+        self.speed_scaling_port = self.declare_input("speed_scaling", ctype=number_type("1"), default=1.0)
         self.measured_state_port = self.declare_input("measured_state", 2 * n)
         self._desired = self.declare_state("desired_state", np.concatenate([q0, np.zeros(n)]))
         self.desired_state_port = self.DeclareStateOutputPort("desired_state", self._desired)
@@ -246,7 +249,8 @@ class Robot(EntitySystem):
                 motion, desired = None, None
                 reached = segment + 1.0 if segment != HOLD else 0.0
             else:
-                motion, desired, reached = self._advance(motion, mode, target, self.speed_limit_port.Eval(context)[0])
+                motion, desired, reached = self._advance(motion, mode, target, self.speed_limit_port.Eval(context)[0],
+                                                         self.speed_scaling_port.Eval(context)[0])
         elif view.sample is not None:
             q = view.sample[:6]
             motion = self._rest_at(q)
@@ -302,11 +306,13 @@ class Robot(EntitySystem):
         tool_per_s = 1.05 * float(np.linalg.norm(np.diff(points, axis=0), axis=1).max()) * _SEGMENT_SAMPLES
         return np.concatenate([[target, 0.0, 0.0, max(tool_per_s, 1e-9), joint_rate], start, goal])
 
-    def _advance(self, motion: np.ndarray, mode: SafetyMode, target: float, speed_limit: float = math.inf):
+    def _advance(self, motion: np.ndarray, mode: SafetyMode, target: float, speed_limit: float = math.inf,
+                 scaling: float = 1.0):
         """One period of the joint-space motion: (motion state, desired state, reached-pose code).
 
         In ssmon the tool's cap is also ``speed_limit`` (m/s), planned ``TRACKING_ALLOWANCE`` below it
-        as a mode's cap is (at most halved); a limit with no value (NaN) is 0.
+        as a mode's cap is (at most halved); a limit with no value (NaN) is 0. The controller's speed
+        slider ``scaling`` (0..1; no value: 0) scales the planned speed.
 
         Motion state: [segment target, s, ds/dt, tool metres per unit s, joint-limited
         max ds/dt, start (6), goal (6)].
@@ -328,7 +334,8 @@ class Robot(EntitySystem):
                 if mode is SafetyMode.SPEED_SEPARATION and not speed_limit >= self.speed_caps[mode]:
                     limit = speed_limit if speed_limit > 0.0 else 0.0  # no value (NaN) stops it: fail safe
                     planned = max(limit - TRACKING_ALLOWANCE, 0.5 * limit)
-                cap = min(joint_rate, planned / tool_per_s, math.sqrt(2.0 * accel * (1.0 - s)))
+                scale = min(scaling, 1.0) if scaling > 0.0 else 0.0
+                cap = min(scale * min(joint_rate, planned / tool_per_s), math.sqrt(2.0 * accel * (1.0 - s)))
             rate = min(cap, rate + accel * dt) if rate < cap else max(cap, rate - accel * dt)
             s = min(1.0, s + rate * dt)
             if s >= 1.0:

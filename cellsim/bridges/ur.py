@@ -1,0 +1,237 @@
+"""A Universal Robots controller beside the twin, over RTDE: its state in, the twin's commands out.
+
+The daemon dials the controller (``robots.<robot>.rtde``: host, port 30004) as an
+RTDE client (``cellsim.ur.rtde``): protocol version 2, an output recipe of the
+variables the program's registers need (``cellsim.ur.program``) at the robot's
+``cycle_time`` (500 Hz on an e-Series), an input recipe of the speed slider and
+the program's input registers. A reader thread hands every data package to the
+daemon's inbox as it arrives; the daemon's thread judges it, as it judges any
+physical twin's data (``RtdeStateChecker``, the link rule of ``cellsim.link``):
+
+* a package that does not decode as the recipe is *corrupt*;
+* the controller's ``timestamp`` (s since it started) counts its cycles: a cycle
+  not after the last one is refused (a frozen or replayed stream then goes
+  stale), a jump of more than 5 cycles is *counter*;
+* joints beyond the configured limit or speed, or a register holding a code
+  outside its field's list, are *range*; no good package within the watchdog is
+  *timeout*.
+
+A good state becomes the robot's physical sample (and a ROS 2 JointState, as for
+any robot link); any fault publishes a link failure at once. A lost connection
+is dialled again every ``reconnect_after`` seconds; until then the watchdog has
+failed the link.
+
+Commands go out only while the robot is in twin mode (as for any robot link): the
+twin's latest command or, the twin lost, the kind's safe command (stopped: speed
+slider 0, the stop requested, hold), with a heartbeat register counting up. RTDE
+carries no authentication: a real controller's RTDE port must be reachable from
+the cell's own network only (docs/ur.md).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import socket
+import struct
+import threading
+import time
+import zlib
+from dataclasses import dataclass, field
+
+from cellsim.bridges.robot import ROBOT_FAULTS, RobotLink
+from cellsim.link import Fault, Judgement, LinkTrust
+from cellsim.ur import rtde
+from cellsim.ur.program import OutOfRange, UrProgram
+
+log = logging.getLogger("cellsim.bridge")
+SETUP_TIMEOUT = 2.0
+"""How long (s) the daemon waits for the controller's reply to each setup package."""
+
+
+@dataclass
+class RtdeStateChecker(LinkTrust):
+    """The checks of one controller's data packages (see the module docstring), then the link rule."""
+
+    recipe: rtde.Recipe | None = None
+    program: UrProgram | None = None
+    cycle_time: float = 0.002
+    joint_limit: float = 2 * math.pi
+    max_joint_speed: float = 2 * math.pi
+    max_gap: int = 5
+    faults: tuple = ROBOT_FAULTS
+
+    def check(self, payload: bytes, now: float) -> Judgement:
+        """Judge one data package's payload (recipe id first) received at ``now`` (the daemon's clock)."""
+        try:
+            values = self.recipe.unpack(payload)
+            timestamp = values["timestamp"]
+            if not math.isfinite(timestamp) or not all(math.isfinite(x) for x in (*values["actual_q"], *values["actual_qd"])):
+                raise rtde.RtdeError("a value that is not a number")
+        except (rtde.RtdeError, struct.error, AttributeError):
+            return self.fail(Fault.CORRUPT, now)
+        return self.receive(now, round(timestamp / self.cycle_time), zlib.crc32(payload), values=values,
+                            in_range=self._in_range)
+
+    def _in_range(self, values: dict) -> Fault | None:
+        if (not all(abs(q) <= self.joint_limit for q in values["actual_q"])
+                or not all(abs(v) <= self.max_joint_speed for v in values["actual_qd"])):
+            return Fault.RANGE
+        try:
+            fields = self.program.sample(values)
+        except OutOfRange:
+            return Fault.RANGE
+        values.update(t=time.time(), position=list(values["actual_q"]), velocity=list(values["actual_qd"]), **fields)
+        return None
+
+
+@dataclass
+class UrLink(RobotLink):
+    """The daemon's side of one UR controller over RTDE (states in, commands out)."""
+
+    program: UrProgram = None
+    inbox: object = None
+    """Where data packages go as they arrive: the daemon's inbox (items ``("robot", entity, payload, t)``)."""
+    connected: bool = False
+    connections: int = 0
+    _sock: socket.socket | None = None
+    _input: rtde.Recipe | None = None
+    _heartbeat: int = 0
+    _send_lock: threading.Lock = field(default_factory=threading.Lock)
+    _stop: threading.Event = field(default_factory=threading.Event)
+
+    def __post_init__(self):
+        super().__post_init__()
+        self.settings = self.config.rtde
+        self.checker = RtdeStateChecker(timeout=self.config.watchdog, recover_after=self.recover_after,
+                                        joint_limit=self.config.joint_limit,
+                                        max_joint_speed=self.config.max_joint_speed,
+                                        program=self.program, cycle_time=self.config.cycle_time)
+        self._thread = threading.Thread(target=self._run, name=f"rtde-{self.entity}", daemon=True)
+
+    def start(self) -> None:
+        """Dial the controller and keep dialling while it is lost (a thread of its own)."""
+        self._thread.start()
+
+    # -- the connection ----------------------------------------------------------------
+    def _run(self) -> None:
+        said = None  # the last reason the controller could not be reached: said once, until it changes
+        while not self._stop.is_set():
+            try:
+                sock, reader = self._connect()
+            except (OSError, rtde.RtdeError) as e:
+                if str(e) != said:
+                    said = str(e)
+                    log.warning("%s: RTDE controller at %s:%s: %s (dialling again every %g s)", self.entity,
+                                self.settings.host, self.settings.port, e, self.settings.reconnect_after)
+                self._stop.wait(self.settings.reconnect_after)
+                continue
+            said = None
+            try:
+                self._receive(sock, reader)
+            except (OSError, rtde.RtdeError) as e:
+                if not self._stop.is_set():
+                    log.warning("%s: RTDE connection lost: %s", self.entity, e)
+            finally:
+                with self._send_lock:
+                    self.connected, self._sock = False, None
+                sock.close()
+            self._stop.wait(self.settings.reconnect_after)
+
+    def _connect(self) -> tuple[socket.socket, rtde.PackageReader]:
+        settings, program = self.settings, self.program
+        sock = socket.create_connection((settings.host, settings.port), timeout=SETUP_TIMEOUT)
+        try:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            reader = rtde.PackageReader()
+            accepted = self._ask(sock, reader, rtde.REQUEST_PROTOCOL_VERSION, struct.pack(">H", rtde.PROTOCOL_VERSION))
+            if not accepted or accepted[0] != 1:
+                raise rtde.RtdeError("the controller refused RTDE protocol version 2")
+            outputs = program.outputs()
+            reply = self._ask(sock, reader, rtde.SETUP_OUTPUTS,
+                              struct.pack(">d", 1.0 / self.config.cycle_time) + rtde.names_payload(outputs))
+            output = self._recipe(reply, outputs, "output")
+            inputs = program.inputs()
+            self._input = self._recipe(self._ask(sock, reader, rtde.SETUP_INPUTS, rtde.names_payload(inputs)),
+                                       inputs, "input")
+            started = self._ask(sock, reader, rtde.START)
+            if not started or started[0] != 1:
+                raise rtde.RtdeError("the controller refused to start streaming")
+        except BaseException:
+            sock.close()
+            raise
+        sock.settimeout(None)
+        self.checker.recipe = output
+        with self._send_lock:
+            self._sock, self.connected = sock, True
+        self.connections += 1
+        log.info("%s: RTDE controller at %s:%s streaming", self.entity, settings.host, settings.port)
+        return sock, reader
+
+    @staticmethod
+    def _recipe(reply: bytes, names: list[str], direction: str) -> rtde.Recipe:
+        types = rtde.names_of(reply[1:]) if reply else []
+        missing = [n for n, t in zip(names, types) if t in (rtde.NOT_FOUND, rtde.IN_USE)]
+        if not reply or reply[0] == 0 or len(types) != len(names) or missing:
+            said = ", ".join(f"{n} {t}" for n, t in zip(names, types) if t in (rtde.NOT_FOUND, rtde.IN_USE))
+            raise rtde.RtdeError(f"the controller refused the {direction} recipe ({said or 'no reason given'})")
+        return rtde.Recipe(reply[0], tuple(names), tuple(types))
+
+    @staticmethod
+    def _ask(sock: socket.socket, reader: rtde.PackageReader, kind: int, payload: bytes = b"") -> bytes:
+        """Send a setup package and return its reply's payload (text messages on the way are logged)."""
+        sock.sendall(rtde.package(kind, payload))
+        deadline = time.monotonic() + SETUP_TIMEOUT
+        while True:
+            sock.settimeout(max(0.01, deadline - time.monotonic()))
+            data = sock.recv(65536)
+            if not data:
+                raise rtde.RtdeError("the controller closed the connection during setup")
+            for got, body in reader.feed(data):
+                if got == kind:
+                    return body
+                if got == rtde.TEXT_MESSAGE:
+                    log.warning("RTDE controller says: %r", body)
+
+    def _receive(self, sock: socket.socket, reader: rtde.PackageReader) -> None:
+        put, entity = self.inbox.put, self.entity
+        while not self._stop.is_set():
+            data = sock.recv(65536)
+            if not data:
+                raise rtde.RtdeError("the controller closed the connection")
+            arrived = time.perf_counter()
+            for kind, payload in reader.feed(data):
+                if kind == rtde.DATA_PACKAGE:
+                    put(("robot", entity, payload, arrived))
+                elif kind == rtde.TEXT_MESSAGE:
+                    log.warning("%s: the RTDE controller says: %r", entity, payload)
+
+    # -- commands ------------------------------------------------------------------------
+    def send(self, fields: dict | None, now: float) -> None:
+        """Write the twin's command ``fields`` (None: the twin is lost, the kind's safe command) into the
+        controller's inputs; nothing while it is not connected."""
+        self.requests_sent += 1
+        if fields is None:
+            self.safe_requests_sent += 1
+            fields = self.safe
+        self._heartbeat += 1
+        values = self.program.input_values({**self.safe, **fields}, self._heartbeat)
+        with self._send_lock:
+            if self._sock is None:
+                return
+            try:
+                self._sock.sendall(self._input.pack(values))
+            except OSError as e:
+                log.warning("%s: RTDE send failed: %s", self.entity, e)
+
+    def close(self) -> None:
+        self._stop.set()
+        with self._send_lock:
+            sock = self._sock
+        if sock is not None:
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+        if self._thread.is_alive():
+            self._thread.join(timeout=5.0)

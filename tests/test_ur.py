@@ -1,0 +1,356 @@
+"""A UR controller over RTDE: the wire, the program's registers, and the daemon's link to a controller."""
+
+from __future__ import annotations
+
+import json
+import queue
+import struct
+import threading
+import time
+
+import pytest
+
+from cellsim.bridges.config import load_bridge
+from cellsim.bridges.daemon import Bridge
+from cellsim.config.typed_yaml import ConfigError
+from cellsim.ur import rtde
+from cellsim.ur.controller import RtdeServer
+from cellsim.ur.program import OutOfRange
+from cellsim.vocabulary import TwinMode
+
+from live_processes import free_port
+from test_bridge import e2e_only_text, sessions  # noqa: F401 - the fixture
+
+MODES = ("normal", "hguid", "ssmon", "pflim", "srmst", "stopped")
+
+
+def ur_config(tmp_path, port: int, extra: str = "") -> str:
+    """The E2E-only welding bridge with its robot over RTDE on loopback ``port``."""
+    path = tmp_path / "bridge_ur.yaml"
+    path.write_text(e2e_only_text() + f"    rtde:\n      port: {port}\n      reconnect_after: 0.2\n{extra}")
+    return str(path)
+
+
+# -- the wire ---------------------------------------------------------------------------------
+def test_a_recipe_packs_and_unpacks_every_field_type_big_endian():
+    types = ("BOOL", "UINT8", "UINT32", "INT32", "UINT64", "DOUBLE", "VECTOR3D", "VECTOR6D", "VECTOR6INT32", "VECTOR6UINT32")
+    names = tuple(f"v{i}" for i in range(len(types)))
+    values = {"v0": True, "v1": 200, "v2": 2**32 - 1, "v3": -5, "v4": 2**63, "v5": 0.3, "v6": (1.0, -2.0, 3.5),
+              "v7": (0.1, 0.2, 0.3, 0.4, 0.5, 0.6), "v8": (-1, 2, -3, 4, -5, 6), "v9": (1, 2, 3, 4, 5, 6)}
+    recipe = rtde.Recipe(3, names, types)
+    data = recipe.pack(values)
+    size, kind = struct.unpack(">HB", data[:3])
+    assert size == len(data) and kind == ord("U") and data[3] == 3
+    assert data[4:6] == b"\x01\xc8" and data[6:10] == b"\xff\xff\xff\xff"  # big-endian, as the controller's
+    assert recipe.unpack(data[3:]) == {**values, "v6": (1.0, -2.0, 3.5)}
+    with pytest.raises(rtde.RtdeError, match="recipe 4, expected 3"):
+        recipe.unpack(bytes([4]) + data[4:])
+    with pytest.raises(rtde.RtdeError, match="bytes of values"):
+        recipe.unpack(data[3:-1])
+
+
+def test_packages_are_cut_out_of_a_stream_however_it_arrives_and_a_header_shorter_than_itself_is_refused():
+    stream = rtde.package(ord("V"), b"\x00\x02") + rtde.package(ord("S")) + rtde.text_message("hello", "x", 3)
+    reader = rtde.PackageReader()
+    got = [p for i in range(len(stream)) for p in reader.feed(stream[i:i + 1])]  # a byte at a time
+    assert [k for k, _ in got] == [ord("V"), ord("S"), ord("M")]
+    assert got[0][1] == b"\x00\x02" and got[2][1] == b"\x05hello\x01x\x03"
+    with pytest.raises(rtde.RtdeError, match="less than the header"):
+        rtde.PackageReader().feed(b"\x00\x02U")
+
+
+def test_the_controllers_variables_and_registers_have_their_types_and_others_are_not_found():
+    assert rtde.output_type("actual_q") == "VECTOR6D" and rtde.output_type("safety_status_bits") == "UINT32"
+    assert rtde.output_type("output_int_register_47") == "INT32" and rtde.output_type("input_double_register_3") == "DOUBLE"
+    assert rtde.output_type("output_int_register_48") == rtde.NOT_FOUND
+    assert rtde.input_type("output_int_register_2") == rtde.NOT_FOUND  # a client writes inputs only
+    assert rtde.input_type("speed_slider_fraction") == "DOUBLE" and rtde.input_type("input_bit_register_127") == "BOOL"
+    assert rtde.names_of(b"timestamp,actual_q,") == ["timestamp", "actual_q"]  # ur-rtde ends its lists with a comma
+
+
+# -- the program's registers ------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def program(tmp_path_factory):
+    return load_bridge(ur_config(tmp_path_factory.mktemp("ur"), 30004)).programs["robot"]
+
+
+def state(program, **changes) -> dict:
+    r = program.registers
+    values = {"timestamp": 1.0, "actual_q": (0.1, -1.0, 1.2, -1.5, -1.6, 0.0), "actual_qd": (0.0,) * 6,
+              "robot_mode": rtde.ROBOT_RUNNING, "safety_mode": rtde.SAFETY_NORMAL, "runtime_state": 2,
+              "safety_status_bits": 1, "speed_scaling": 1.0, "target_speed_fraction": 1.0,
+              f"output_int_register_{r.safety_mode}": 2, f"output_int_register_{r.activity}": 2,
+              f"output_int_register_{r.reached_pose}": 0}
+    values.update(changes)
+    return values
+
+
+def test_the_programs_reported_mode_counts_only_while_the_controller_itself_is_not_stopped(program):
+    r = program.registers
+    assert program.sample(state(program)) == {
+        "q0": 0.1, "q1": -1.0, "q2": 1.2, "q3": -1.5, "q4": -1.6, "q5": 0.0,
+        "safety_mode": "ssmon", "activity": "welding", "reached_pose": "moving"}
+    for code in (3, 4, 5, 6, 7, 8, 9, 12, 13):  # any of the controller's safety stops: stopped, whatever the program says
+        assert program.sample(state(program, safety_mode=code))["safety_mode"] == "stopped"
+    assert program.sample(state(program, robot_mode=5))["safety_mode"] == "stopped"  # powered, brakes on: not running
+    assert program.sample(state(program, safety_mode=rtde.SAFETY_REDUCED))["safety_mode"] == "ssmon"
+    for register, code in ((r.safety_mode, 7), (r.activity, -1), (r.reached_pose, 99)):
+        with pytest.raises(OutOfRange):
+            program.sample(state(program, **{f"output_int_register_{register}": code}))
+
+
+def test_a_command_goes_out_as_the_slider_at_its_modes_cap_and_codes_the_program_reads_back(program):
+    r = program.registers
+    values = program.input_values({"safety_mode_request": "ssmon", "activity": "welding", "target_pose": 2.0}, 7)
+    assert values == {"speed_slider_mask": 1, "speed_slider_fraction": 0.5, f"input_int_register_{r.safety_mode_request}": 2,
+                      f"input_int_register_{r.activity_request}": 2, f"input_int_register_{r.target_pose}": 2,
+                      f"input_int_register_{r.heartbeat}": 7}
+    caps = {"normal": 1.0, "hguid": 0.25, "ssmon": 0.5, "pflim": 0.25, "srmst": 0.0, "stopped": 0.0}  # welding_cell.yaml's
+    for mode in MODES:
+        for activity in ("idle", "exchWrkp", "welding", "off"):
+            for target in (-1.0, 0.0, 3.0):
+                command = {"safety_mode_request": mode, "activity": activity, "target_pose": target}
+                values = program.input_values(command, 1)
+                assert values["speed_slider_fraction"] == caps[mode]
+                assert program.command(values) == (command, caps[mode])
+    # the kind's safe command: slider 0, stop, hold
+    safe = program.input_values({"safety_mode_request": "stopped", "activity": "idle", "target_pose": -1.0}, 8)
+    assert safe["speed_slider_fraction"] == 0.0 and safe[f"input_int_register_{r.safety_mode_request}"] == 5
+    # a code the program cannot read is the stop
+    assert program.command({f"input_int_register_{r.safety_mode_request}": 42})[0]["safety_mode_request"] == "stopped"
+
+
+@pytest.mark.parametrize("extra, key", [
+    ("      registers: {safety_mode_request: 18, activity_request: 18}\n", "robots.robot.rtde.registers.safety_mode_request"),
+    ("      registers: {heartbeat: 48}\n", "robots.robot.rtde.registers.heartbeat"),
+    ("      port: 0\n", "robots.robot.rtde.port"),
+])
+def test_a_bad_rtde_setting_is_one_error_naming_its_key(tmp_path, extra, key):
+    path = tmp_path / "bridge.yaml"
+    path.write_text(e2e_only_text() + "    rtde:\n" + extra)
+    with pytest.raises(ConfigError) as error:
+        load_bridge(path)
+    assert error.value.key == key, str(error.value)
+
+
+# -- the daemon's link to a controller ----------------------------------------------------------
+class Controller:
+    """An emulated controller (the server the emulator runs) on a free loopback port, fed by the test."""
+
+    def __init__(self, program):
+        self.program = program
+        self.inputs: queue.Queue = queue.Queue()
+        self.server = RtdeServer("127.0.0.1", 0, on_inputs=self.inputs.put)
+        self.port = self.server.address[1]
+        self.t = 0.0
+
+    def publish(self, fault=None, **fields) -> None:
+        self.t += 0.002
+        sample = {**{f"q{i}": 0.1 * i for i in range(6)}, "safety_mode": "normal", "activity": "welding",
+                  "reached_pose": "home", **fields}
+        self.server.publish(self.program.state(sample, [0.0] * 6, self.t, 1.0), fault)
+
+    def inputs_until(self, condition, timeout: float = 5.0) -> dict:
+        deadline = time.monotonic() + timeout
+        while True:
+            values = self.inputs.get(timeout=max(0.01, deadline - time.monotonic()))
+            if condition(values):
+                return values
+
+
+class Twin:
+    """What the twin's side hears on the daemon's keys, and how it commands."""
+
+    def __init__(self, session):
+        self.samples: queue.Queue = queue.Queue()
+        self.session = session
+        self.subscriber = session.declare_subscriber(
+            "cellsim/welding_cell/physical/robot", lambda s: self.samples.put(json.loads(s.payload.to_bytes())))
+
+    def next_sample(self, condition=lambda m: True, timeout: float = 5.0) -> dict:
+        deadline = time.monotonic() + timeout
+        while True:
+            message = self.samples.get(timeout=max(0.01, deadline - time.monotonic()))
+            if condition(message):
+                return message
+
+
+def run_daemon(bridge: Bridge):
+    """The daemon's loop on a thread (as ``cellsim bridge`` runs it); returns its stop event."""
+    from cellsim.bridges.daemon import run_bridge
+
+    stop = threading.Event()
+    thread = threading.Thread(target=run_bridge, args=(bridge, None, stop), daemon=True)
+    thread.start()
+    return stop, thread
+
+
+def test_a_controllers_states_become_the_robots_samples_and_faults_fail_it_at_once(sessions, tmp_path, program):  # noqa: F811
+    hub, twin_session = sessions
+    controller = Controller(program)
+    bridge = Bridge(load_bridge(ur_config(tmp_path, controller.port)), hub)
+    twin = Twin(twin_session)
+    stop, thread = run_daemon(bridge)
+    link = bridge.robots["robot"]
+    try:
+        deadline = time.monotonic() + 10
+        while not (link.connected and controller.server.clients):
+            assert time.monotonic() < deadline, "the daemon did not dial the controller"
+            threading.Event().wait(0.01)
+        for _ in range(5):
+            controller.publish(safety_mode="ssmon")
+        sample = twin.next_sample(lambda m: "fields" in m)
+        assert sample["fields"]["safety_mode"] == "ssmon" and sample["fields"]["q3"] == pytest.approx(0.3)
+        assert sample["fields"]["activity"] == "welding" and sample["fields"]["reached_pose"] == "home"
+        # the controller in a protective stop: stopped, whatever the program reports
+        controller.server.publish({**program.state({**{f"q{i}": 0.0 for i in range(6)}, "safety_mode": "normal",
+                                                      "activity": "idle", "reached_pose": "home"}, [0.0] * 6,
+                                                   controller.t + 0.002, 1.0), "safety_mode": 3})
+        controller.t += 0.002
+        assert twin.next_sample(lambda m: "fields" in m and m["fields"]["activity"] == "idle")["fields"]["safety_mode"] == "stopped"
+        # a package one byte short: corrupt, at once
+        controller.publish(fault="corrupt")
+        assert twin.next_sample(lambda m: "failed" in m)["failed"] == "corrupt"
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+        bridge.close()
+        controller.server.close()
+        twin.subscriber.undeclare()
+
+
+def test_a_frozen_or_lost_controller_goes_stale_and_is_dialled_again(sessions, tmp_path, program):  # noqa: F811
+    hub, twin_session = sessions
+    controller = Controller(program)
+    bridge = Bridge(load_bridge(ur_config(tmp_path, controller.port)), hub)
+    twin = Twin(twin_session)
+    stop, thread = run_daemon(bridge)
+    link = bridge.robots["robot"]
+    try:
+        deadline = time.monotonic() + 10
+        while not (link.connected and controller.server.clients):
+            assert time.monotonic() < deadline
+            threading.Event().wait(0.01)
+        for _ in range(5):
+            controller.publish()
+        twin.next_sample(lambda m: "fields" in m)
+        for _ in range(5):
+            controller.publish(fault="freeze")  # the same package again: its timestamp repeats, refused
+        assert twin.next_sample(lambda m: "failed" in m)["failed"] == "timeout"  # then the watchdog
+        assert link.checker.counts["repeated"] == 5
+        # a register holding a code outside its list: range
+        controller.publish(reached_pose="home")
+        controller.server.publish({**program.state({**{f"q{i}": 0.0 for i in range(6)}, "safety_mode": "normal",
+                                                      "activity": "idle", "reached_pose": "home"}, [0.0] * 6,
+                                                   controller.t + 0.002, 1.0),
+                                   f"output_int_register_{program.registers.safety_mode}": 17})
+        controller.t += 0.002
+        assert twin.next_sample(lambda m: m.get("failed") == "range")
+        # the controller goes away and comes back on the same port: dialled again
+        port = controller.port
+        controller.server.close()
+        wait = time.monotonic() + 10
+        while link.connected:
+            assert time.monotonic() < wait
+            threading.Event().wait(0.01)
+        controller.server = RtdeServer("127.0.0.1", port, on_inputs=controller.inputs.put)
+        while not (link.connected and link.connections == 2):
+            assert time.monotonic() < wait, "the daemon did not dial the controller again"
+            threading.Event().wait(0.01)
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+        bridge.close()
+        controller.server.close()
+        twin.subscriber.undeclare()
+
+
+def test_in_twin_mode_the_controller_gets_the_slider_and_registers_and_slider_0_when_the_twin_is_lost(sessions, tmp_path, program):  # noqa: F811
+    hub, twin_session = sessions
+    controller = Controller(program)
+    bridge = Bridge(load_bridge(ur_config(tmp_path, controller.port)), hub)
+    stop, thread = run_daemon(bridge)
+    r = program.registers
+    mode = twin_session.declare_publisher("cellsim/welding_cell/twin/robot/twin_mode")
+    command = twin_session.declare_publisher("cellsim/welding_cell/command/robot")
+    token = twin_session.liveliness().declare_token("cellsim/welding_cell/alive/twin")
+    try:
+        mode.put(json.dumps({"t": time.time(), "sim_time": 0.0, "value": "shadow"}))
+        deadline = time.monotonic() + 10
+        while bridge.twin_mode("robot") is not TwinMode.SHADOW or not bridge.robots["robot"].connected:
+            assert time.monotonic() < deadline
+            threading.Event().wait(0.01)
+        assert controller.inputs.empty()  # shadow: the controller answers to its own program
+        mode.put(json.dumps({"t": time.time(), "sim_time": 0.1, "value": "twin"}))
+        fields = {"safety_mode_request": "ssmon", "activity": "welding", "target_pose": 2.0}
+        seq = 0
+        heartbeats = []
+        deadline = time.monotonic() + 10
+        while True:  # the twin publishes its command on change and every COMMAND_HEARTBEAT
+            seq += 1
+            command.put(json.dumps({"t": time.time(), "seq": seq, "fields": fields}))
+            try:
+                values = controller.inputs_until(lambda v: v["speed_slider_fraction"] == 0.5, timeout=0.1)
+                break
+            except queue.Empty:
+                assert time.monotonic() < deadline
+        assert values[f"input_int_register_{r.safety_mode_request}"] == 2  # ssmon's code
+        assert values[f"input_int_register_{r.target_pose}"] == 2
+        heartbeats.append(values[f"input_int_register_{r.heartbeat}"])
+        heartbeats.append(controller.inputs_until(lambda v: True)[f"input_int_register_{r.heartbeat}"])
+        assert heartbeats[1] > heartbeats[0]  # it counts up with every command sent
+        token.undeclare()
+        token = None
+        lost = time.monotonic()
+        values = controller.inputs_until(lambda v: v["speed_slider_fraction"] == 0.0)
+        assert time.monotonic() - lost < 1.0
+        assert values[f"input_int_register_{r.safety_mode_request}"] == 5 and values[f"input_int_register_{r.target_pose}"] == -1
+    finally:
+        if token is not None:
+            token.undeclare()
+        stop.set()
+        thread.join(timeout=5)
+        bridge.close()
+        controller.server.close()
+
+
+def test_the_emulated_controller_refuses_what_rtde_has_no_place_for():
+    import socket
+
+    inputs: list = []
+    server = RtdeServer("127.0.0.1", 0, on_inputs=inputs.append)
+    try:
+        with socket.create_connection(server.address, timeout=5) as sock:
+            reader = rtde.PackageReader()
+
+            def ask(kind: int, payload: bytes = b"") -> bytes:
+                sock.sendall(rtde.package(kind, payload))
+                while True:
+                    for got, body in reader.feed(sock.recv(4096)):
+                        if got == kind:
+                            return body
+
+            assert ask(rtde.REQUEST_PROTOCOL_VERSION, b"\x00\x02") == b"\x01"
+            assert struct.unpack(">IIII", ask(rtde.GET_URCONTROL_VERSION))[0] == 5
+            reply = ask(rtde.SETUP_OUTPUTS, struct.pack(">d", 500.0) + b"timestamp,no_such_thing")
+            assert reply[0] == 0 and rtde.names_of(reply[1:]) == ["DOUBLE", "NOT_FOUND"]
+            reply = ask(rtde.SETUP_INPUTS, b"speed_slider_mask,speed_slider_fraction")
+            assert reply[0] == 1 and rtde.names_of(reply[1:]) == ["UINT32", "DOUBLE"]
+            with socket.create_connection(server.address, timeout=5) as other:  # another client: in use
+                other.sendall(rtde.package(rtde.SETUP_INPUTS, b"speed_slider_fraction"))
+                answer = rtde.PackageReader()
+                got = []
+                while not got:
+                    got = answer.feed(other.recv(4096))
+                assert got[0][1][0] == 0 and rtde.names_of(got[0][1][1:]) == ["IN_USE"]
+            sock.sendall(rtde.package(rtde.DATA_PACKAGE, b"\x09" + bytes(12)))  # a recipe never set up
+            said = b""
+            while True:
+                data = sock.recv(4096)
+                if not data:
+                    break
+                said += data
+            assert b"not set up" in said  # told why, then disconnected
+    finally:
+        server.close()
+    assert inputs == []
