@@ -108,7 +108,7 @@ def test_a_command_goes_out_as_the_slider_at_its_modes_cap_and_codes_the_program
     caps = {"normal": 1.0, "hguid": 0.25, "ssmon": 0.5, "pflim": 0.25, "srmst": 0.0, "stopped": 0.0}  # welding_cell.yaml's
     for mode in MODES:
         for activity in ("idle", "exchWrkp", "welding", "off"):
-            for target in (-1.0, 0.0, 3.0):
+            for target in (-1.0, 0.0, 2.0):
                 command = {"safety_mode_request": mode, "activity": activity, "target_pose": target}
                 values = program.input_values(command, 1)
                 assert values["speed_slider_fraction"] == caps[mode]
@@ -354,3 +354,20 @@ def test_the_emulated_controller_refuses_what_rtde_has_no_place_for():
     finally:
         server.close()
     assert inputs == []
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["emulate", "scenarios/welding_cell.yaml", "--rtde", "70000"], "a port is a number from 1 to 65535"),
+    (["emulate", "scenarios/welding_cell.yaml", "--rtde", "30004"], "names 0 robots over RTDE"),
+    (["bridge", "bridges/welding_cell.yaml", "--rtde", "30004"], "names 0 robots over RTDE"),
+    (["bridge", "bridges/welding_cell_ur.yaml", "--rtde", "host:"], "expected [HOST:]PORT"),
+])
+def test_bad_rtde_arguments_are_one_line_exit_2(args, expected):
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    proc = subprocess.run([sys.executable, "-m", "cellsim", *args], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert proc.returncode == 2, proc.stderr
+    assert expected in proc.stderr.strip().splitlines()[-1], proc.stderr  # one line says it (after argparse's usage)

@@ -1,7 +1,8 @@
 """The robot over Zenoh: its controller's state in, the twin's requests out.
 
-The robot controller's side (an RTDE adapter beside a UR controller on a real
-cell; ``cellsim emulate --can`` here) publishes its state on
+A robot controller's side (an adapter of its own on a real cell; ``cellsim
+emulate --can`` here; a UR controller is dialled over RTDE instead,
+``cellsim.bridges.ur``) publishes its state on
 ``cellsim/<cell>/controller/<robot>/state`` at its own rate (500 Hz for a UR
 e-Series), one JSON object per state::
 

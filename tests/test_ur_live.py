@@ -1,0 +1,131 @@
+"""The emulated UR controller read and commanded by ur-rtde, and the twin beside it through the daemon.
+
+ur-rtde's clients dial port 30004 and nothing else (the port is fixed in the
+library), so these tests serve RTDE on 127.0.0.1:30004 and run one at a time.
+Every process is started and stopped by the test, by its PID.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+from conftest import ONE_AT_A_TIME
+
+from cellsim.blackbox import BlackBox
+
+from live_processes import (ROOT, assert_supervised, can_server, free_port, observer, processes, sim_time_reached,
+                            wait_alive, wait_listening)
+
+pytestmark = [pytest.mark.slow, ONE_AT_A_TIME]
+WELDING_CELL = str(ROOT / "scenarios" / "welding_cell.yaml")
+UR_BRIDGE = str(ROOT / "bridges" / "welding_cell_ur.yaml")
+RTDE_PORT = 30004
+TWIN_SUPERVISES = ["--set", "robot.twin.mode=twin", "--set", "welder.twin.mode=twin",
+                   *[arg for e in ("light_barrier", "range_detector", "operator") for arg in ("--set", f"{e}.twin.mode=shadow")]]
+
+
+def until(predicate, timeout: float, what: str):
+    """Poll ``predicate`` (a getter of ur-rtde's) every 10 ms until it is truthy, with a deadline."""
+    deadline = time.monotonic() + timeout
+    tick = threading.Event()
+    while True:
+        value = predicate()
+        if value:
+            return value
+        assert time.monotonic() < deadline, f"{what} within {timeout} s"
+        tick.wait(0.01)
+
+
+def start_twin(start, tmp_path, port: int, args=()):
+    endpoint = f"tls/127.0.0.1:{port}"
+    twin = start(["live", WELDING_CELL, "--out", str(tmp_path / "twin"), "--listen", endpoint, "--quiet", *args],
+                 tmp_path / "twin.log")
+    with observer(port) as session:
+        wait_alive(session, "cellsim/welding_cell/alive/twin")
+    return twin, endpoint
+
+
+def test_ur_rtde_reads_the_emulated_controller_and_its_speed_slider_slows_the_emulated_arm(tmp_path):
+    import rtde_io
+    import rtde_receive
+
+    with processes() as start:
+        twin, endpoint = start_twin(start, tmp_path, free_port())
+        emulator = start(["emulate", WELDING_CELL, "--bridge", UR_BRIDGE, "--rtde", str(RTDE_PORT), "--duration", "10",
+                          "--out", str(tmp_path / "emulator"), "--connect", endpoint, "--quiet"], tmp_path / "emulator.log")
+        wait_listening(emulator, RTDE_PORT, 60, "the emulated UR controller")
+        receive = rtde_receive.RTDEReceiveInterface("127.0.0.1")
+        until(lambda: receive.getTimestamp() > 2.0, 20, "the controller streams")
+        read = [(receive.getTimestamp(), list(receive.getActualQ()), receive.getSafetyMode(), receive.getRobotMode())
+                for _ in range(5)]
+        io = rtde_io.RTDEIOInterface("127.0.0.1")
+        assert io.setSpeedSlider(0.2)
+        until(lambda: receive.getSpeedScaling() == pytest.approx(0.2), 5, "the slider reaches the controller")
+        slowed_at = receive.getTimestamp()
+        until(lambda: receive.getTimestamp() > slowed_at + 2.0, 10, "two more seconds")
+        io.disconnect()
+        receive.disconnect()
+        assert emulator.wait(timeout=60) == 0, emulator.output()
+        twin.stop()
+    with BlackBox(tmp_path / "emulator" / "blackbox.sqlite") as emu:
+        joints, speed = emu.series("robot.joint_positions"), emu.series("robot.tool_speed")
+        for t, q, safety_mode, robot_mode in read:
+            # the joints ur-rtde read are the emulated arm's at the controller's timestamp (its simulated time)
+            assert max(abs(a - b) for a, b in zip(q, joints.value_at(t))) < 0.03
+            assert safety_mode == 1 and robot_mode == 7  # NORMAL, RUNNING: the welding cell's arm before anyone comes
+        before = [v for t, v in zip(speed.times, speed.values) if t < slowed_at]
+        after = [v for t, v in zip(speed.times, speed.values) if slowed_at + 0.6 < t]  # braked within braking_time
+        assert max(before) > 0.5  # at full speed, normal's cap 1 m/s
+        assert after and max(after) <= 0.2 * 1.0 + 0.02  # the slider's fifth of it
+
+
+def test_the_twin_commands_the_emulated_ur_controller_through_the_daemon_and_losing_it_zeroes_the_slider(tmp_path):
+    """The bridge issue's supervision test, the robot's controller a UR's over RTDE: the shipped
+    bridges/welding_cell_ur.yaml, the CAN devices on a python-can-remote bus."""
+    import rtde_receive
+
+    port = free_port()
+    reached, on_status = sim_time_reached(30.0)
+    with processes() as start:
+        bus = can_server(start, tmp_path / "can.log")
+        twin, endpoint = start_twin(start, tmp_path, port, TWIN_SUPERVISES)
+        bridge = start(["bridge", UR_BRIDGE, "--can", f"remote:{bus}", "--connect", endpoint], tmp_path / "bridge.log")
+        with observer(port) as session:
+            wait_alive(session, "cellsim/welding_cell/alive/bridge")
+            status = session.declare_subscriber("cellsim/welding_cell/status/twin", on_status)
+            emulator = start(["emulate", WELDING_CELL, "--bridge", UR_BRIDGE, "--can", f"remote:{bus}", "--duration", "40",
+                              "--commanded-by-twin", "--out", str(tmp_path / "emulator"), "--connect", endpoint, "--quiet"],
+                             tmp_path / "emulator.log")
+            wait_listening(emulator, RTDE_PORT, 60, "the emulated UR controller")
+            receive = rtde_receive.RTDEReceiveInterface("127.0.0.1")
+            assert reached.wait(90), twin.output()
+            status.undeclare()
+        # the twin supervising: the slider at the requested mode's cap, the program told its mode
+        assert receive.getTargetSpeedFraction() > 0.0
+        twin.stop()  # the twin lost (its liveliness token goes with it)
+        lost = time.monotonic()
+        until(lambda: receive.getTargetSpeedFraction() == 0.0, 5, "the slider at 0")
+        assert time.monotonic() - lost <= 0.5 + 0.02 + 0.1  # the command watchdog and a command cycle
+        # the emulated program took the stop: the arm reports it in its safety-mode register (stopped's code 5)
+        until(lambda: receive.getOutputIntRegister(18) == 5, 5, "the arm stopped")
+        receive.disconnect()
+        assert emulator.wait(timeout=60) == 0, emulator.output()
+        bridge.stop()
+        assert "robot: RTDE controller at 127.0.0.1:30004 streaming" in bridge.output()
+    with BlackBox(tmp_path / "twin" / "blackbox.sqlite") as twin_box, \
+            BlackBox(tmp_path / "emulator" / "blackbox.sqlite") as emu:
+        # the twin's ssmon request reaches the emulated arm through the daemon and the RTDE registers
+        assert_supervised(twin_box, emu, within=0.35)
+        link = twin_box.series("robot.physical_link")
+        ok_from = next(t for t, v in zip(link.times, link.values) if v == "ok")
+        assert all(v == "ok" for t, v in zip(link.times, link.values) if ok_from <= t < 29.0)  # the link held
+    proc = subprocess.run([sys.executable, "-m", "cellsim", "check", str(tmp_path / "twin"), "--json"],
+                          capture_output=True, text=True, timeout=120, cwd=ROOT)
+    verdicts = json.loads(proc.stdout)
+    assert proc.returncode == 0 and verdicts["holds"] and verdicts["complete"], verdicts["violations"]
