@@ -33,7 +33,14 @@ def test_init_makes_a_ca_and_one_certificate_per_role_that_openssl_verifies(tmp_
     done = cellsim("keys", "init", str(folder), "--host", "cell-twin.local", "--host", "10.1.2.3", "--days", "30")
     assert done.returncode == 0, done.stderr
     assert sorted(p.name for p in folder.iterdir()) == sorted(
-        ["ca.pem", "ca.key", "can.key", *[f"{r}.pem" for r in ROLES], *[f"{r}.key" for r in ROLES]])
+        ["ca.pem", "ca.key", "can.key", *[f"{r}.pem" for r in ROLES], *[f"{r}.key" for r in ROLES],
+         *[f"opcua-{side}.{ext}" for side in ("bridge", "plc") for ext in ("pem", "key")]])
+    for side, usage in (("bridge", "TLS Web Client Authentication"), ("plc", "TLS Web Server Authentication")):
+        # OPC UA's application certificates: RSA (Basic256Sha256), naming the application's URI, their key theirs
+        text = openssl("x509", "-in", str(folder / f"opcua-{side}.pem"), "-noout", "-text")
+        assert "rsaEncryption" in text and f"URI:urn:cellsim:{side}" in text and usage in text
+        assert openssl("pkey", "-in", str(folder / f"opcua-{side}.key"), "-pubout") == openssl(
+            "x509", "-in", str(folder / f"opcua-{side}.pem"), "-noout", "-pubkey")
     for key in folder.glob("*.key"):
         assert stat.S_IMODE(key.stat().st_mode) == 0o600, key  # private keys readable by their owner only
     assert "CA:TRUE" in openssl("x509", "-in", str(folder / "ca.pem"), "-noout", "-text")

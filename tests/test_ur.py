@@ -360,7 +360,7 @@ def test_the_emulated_controller_refuses_what_rtde_has_no_place_for():
     (["emulate", "scenarios/welding_cell.yaml", "--rtde", "70000"], "a port is a number from 1 to 65535"),
     (["emulate", "scenarios/welding_cell.yaml", "--rtde", "30004"], "names 0 robots over RTDE"),
     (["bridge", "bridges/welding_cell.yaml", "--rtde", "30004"], "names 0 robots over RTDE"),
-    (["bridge", "bridges/welding_cell_ur.yaml", "--rtde", "host:"], "expected [HOST:]PORT"),
+    (["bridge", "bridges/welding_cell_ur_plc.yaml", "--rtde", "host:"], "expected [HOST:]PORT"),
 ])
 def test_bad_rtde_arguments_are_one_line_exit_2(args, expected):
     import subprocess

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from cellsim.bridges.signals import NONE, SignalMap
 from cellsim.config.typed_yaml import ConfigError, FieldError, Range, load_file
@@ -175,6 +175,58 @@ class RobotLinkConfig:
 
 
 @dataclass
+class PlcEntity:
+    """One entity whose physical twin is wired to the PLC: the OPC UA nodes of its sample and commands."""
+
+    fields: dict[str, str]
+    """Entity sample field -> the node id holding it (``ns=2;s=Welder.SafetyMode``): an enumeration as its
+    value's code (Int32, its position in the field's list), a flag as a Boolean, a number as a Double."""
+    commands: dict[str, str] = field(default_factory=dict)
+    """Entity command field -> the node id the daemon writes it to (in twin mode), coded the same way."""
+
+
+@dataclass
+class PlcSettings:
+    """A PLC over OPC UA (``cellsim.bridges.plc``): the cell's machines and safety signals as it holds them."""
+
+    endpoint: str
+    """The PLC's OPC UA server (``opc.tcp://HOST:PORT``; ``cellsim bridge --opcua`` overrides)."""
+    heartbeat: str
+    """The node id of a counter the PLC's program increments every scan: while it stalls for ``watchdog``
+    every entity of the PLC is failed (its data is stale)."""
+    command_heartbeat: str
+    """The node id the daemon counts up in with every command it writes: the PLC's program puts every
+    commanded device in its safe state when it stalls (the daemon lost)."""
+    entities: dict[str, PlcEntity]
+    """Entity name -> its nodes."""
+    security: Literal["sign_encrypt", "none"] = "sign_encrypt"
+    """Basic256Sha256, signed and encrypted, with the cell's OPC UA certificates (docs/opcua.md); ``none`` only
+    with ``insecure_because``."""
+    insecure_because: str | None = None
+    """Why this PLC is read without security (said by the daemon at every start); required with ``none``."""
+    publishing_interval: Seconds = 0.02
+    """The subscription's publishing interval (s): how often changed values come."""
+    watchdog: Seconds = 0.2
+    """With the heartbeat still for this long (s), or the PLC unreachable, every entity of it is failed."""
+    command_cycle_time: Seconds = 0.04
+    """How often the command nodes are written in twin mode (s)."""
+    command_watchdog: Seconds = 0.5
+    """The twin's commands older than this (s) count as lost: the kind's safe command is written."""
+    reconnect_after: Seconds = 1.0
+    """How long (s) the daemon waits before dialling a lost PLC again."""
+
+    def __post_init__(self):
+        if not self.endpoint.startswith("opc.tcp://"):
+            raise FieldError("endpoint", f"'{self.endpoint}' is not an opc.tcp://HOST:PORT endpoint")
+        if self.security == "none" and not (self.insecure_because or "").strip():
+            raise FieldError("security", "a PLC read without security must say why: insecure_because: REASON")
+        if self.security != "none" and self.insecure_because is not None:
+            raise FieldError("insecure_because", "the PLC is read with security: insecure_because does not apply")
+        if self.watchdog <= self.publishing_interval:
+            raise FieldError("watchdog", "the watchdog must be longer than the publishing interval")
+
+
+@dataclass
 class BridgeConfig:
     """The bridge daemon of one cell."""
 
@@ -188,7 +240,9 @@ class BridgeConfig:
     commands: dict[str, list[CommandMapping]] = field(default_factory=dict)
     """Entity name -> the frames carrying the twin's commands to its device (sent in twin mode only)."""
     robots: dict[str, RobotLinkConfig] = field(default_factory=dict)
-    """Robot entity name -> its controller's link over Zenoh."""
+    """Robot entity name -> its controller's link (RTDE or Zenoh)."""
+    plc: PlcSettings | None = None
+    """A PLC over OPC UA holding some entities' physical twins (docs/opcua.md)."""
     can: CanSettings = field(default_factory=CanSettings)
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
     recover_after: Annotated[int, Range(1, 1000)] = 3
@@ -200,6 +254,10 @@ class BridgeConfig:
     ticks of this length (``cellsim/bridges/secoc.py``); at most any authenticated message's cycle time."""
 
     def __post_init__(self):
+        for entity in (self.plc.entities if self.plc is not None else {}):
+            if entity in self.devices or entity in self.commands or entity in self.robots:
+                raise FieldError(f"plc.entities.{entity}", f"'{entity}' is also a CAN device or robot link: it has one "
+                                 "physical twin")
         for entity in self.robots:
             if entity in self.devices:
                 raise FieldError("robots", f"'{entity}' is both a CAN device and a robot link: it has one physical twin")
@@ -372,6 +430,8 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
                         f"{', '.join(samples[name].names)})")
         commands[name] = _commands(protocol)
         safe[name] = dict(protocol.safe)
+    if cfg.plc is not None:
+        _check_plc(cfg.plc, protocol_of, error, samples, commands, safe)
     programs = {}
     for name, robot in cfg.robots.items():
         if robot.rtde is not None:
@@ -388,6 +448,43 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
             frames[mapping.message] = SignalMap.of_command(messages[mapping.message], mapping.fields, safe[name],
                                                            dict(zip(commands[name].names, commands[name].types)))
     return LoadedBridge(cfg, database, path, sf.scenario.name, samples, commands, safe, programs, frames)
+
+
+def _check_plc(plc: PlcSettings, protocol_of, error, samples: dict, commands: dict, safe: dict) -> None:
+    """The PLC's entities are the scenario's, each sample field mapped once, commands its kind's; every node id
+    is one OPC UA parses, and no node carries two things."""
+    from asyncua import ua
+
+    nodes: dict[str, str] = {}
+
+    def node(key: str, text: str) -> None:
+        try:
+            ua.NodeId.from_string(text)
+        except Exception:  # noqa: BLE001 - asyncua raises several kinds for a malformed id
+            raise error(key, f"'{text}' is not an OPC UA node id (e.g. ns=2;s=Welder.SafetyMode)") from None
+        if text in nodes:
+            raise error(key, f"node {text} is already {nodes[text]}: a node carries one thing")
+        nodes[text] = key
+
+    node("plc.heartbeat", plc.heartbeat)
+    node("plc.command_heartbeat", plc.command_heartbeat)
+    for name, entity in plc.entities.items():
+        key = f"plc.entities.{name}"
+        protocol = protocol_of(key, name)
+        samples[name] = _samples(protocol)
+        if set(entity.fields) != set(samples[name].names):
+            raise error(f"{key}.fields", f"map each physical-sample field of {name} exactly once: "
+                        f"{', '.join(samples[name].names)}")
+        for field_name, text in entity.fields.items():
+            node(f"{key}.fields.{field_name}", text)
+        if entity.commands:
+            commands[name] = _commands(protocol)
+            safe[name] = dict(protocol.safe)
+        for field_name, text in entity.commands.items():
+            if field_name not in commands[name].names:
+                raise error(f"{key}.commands.{field_name}", f"'{field_name}' is not a command field of {name} "
+                            f"({', '.join(commands[name].names)})")
+            node(f"{key}.commands.{field_name}", text)
 
 
 def _program(robot: RobotLinkConfig, caps, samples: FieldCodec, commands: FieldCodec):

@@ -86,6 +86,10 @@ class Bridge:
     """The cell's CAN key (``cellsim.live.pki.can_key``): needed when a message is authenticated."""
     wall_clock: object = time.time
     """The wall clock authenticated frames' freshness values count (s since the Unix epoch)."""
+    plc_certificates: tuple | None = None
+    """(the bridge's OPC UA certificate, its key, the PLC's certificate) files: needed for a PLC with security."""
+    plc: object = None
+    """The ``cellsim.bridges.plc.PlcLink`` of the configuration's PLC, if it names one."""
     devices: dict = field(default_factory=dict)
     robots: dict = field(default_factory=dict)
     unknown_frames: int = 0
@@ -97,6 +101,8 @@ class Bridge:
     """Seconds from a changed command's arrival to its frames sent."""
     robot_latencies: deque = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
     """Seconds from an RTDE controller's package arriving to its sample published."""
+    plc_latencies: deque = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
+    """Seconds from a PLC notification arriving to its sample published."""
 
     def __post_init__(self):
         loaded, cfg, database = self.loaded, self.loaded.config, self.loaded.database
@@ -124,6 +130,13 @@ class Bridge:
             link.diagnostics = DeviceDiagnostics(entity, "robot controller", link.checker, 1.0 / link_cfg.cycle_time,
                                                  self.session.declare_publisher(keys.diagnostics(cell, entity)))
             self.robots[entity] = link
+        if cfg.plc is not None:
+            from cellsim.bridges.plc import PlcLink
+
+            if cfg.plc.security != "none" and self.plc_certificates is None:
+                raise ValueError("the PLC is read with security: the daemon needs the cell's OPC UA certificates")
+            self.plc = PlcLink(cell, cfg.plc, self.session, loaded.samples, loaded.commands, loaded.safe, self.inbox,
+                               cfg.recover_after, self.plc_certificates)
         self._frames = {  # each command frame's message, signal map and signer, looked up once
             mapping.message: (message, loaded.signals(mapping), self._authenticator(message))
             for mappings in cfg.commands.values() for mapping in mappings
@@ -135,10 +148,12 @@ class Bridge:
         # of the entity's frames' watchdogs); the newest good one's fields.
         self._commands: dict[str, dict] = {}
         self._command_links: dict[str, LinkTrust] = {}
-        for entity in [*cfg.commands, *cfg.robots]:
+        for entity in self.commanded():
             watchdogs = [m.watchdog for m in cfg.commands.get(entity, [])]
             if entity in cfg.robots:
                 watchdogs.append(cfg.robots[entity].command_watchdog)
+            if self.plc is not None and entity in self.plc.commands:
+                watchdogs.append(cfg.plc.command_watchdog)
             self._command_links[entity] = LinkTrust(timeout=min(watchdogs), recover_after=1, max_gap=1_000_000,
                                                     faults=tuple(Fault))
         self._modes: dict[str, TwinMode] = {}  # entity -> its twin mode, as the twin publishes it
@@ -148,7 +163,7 @@ class Bridge:
         self.refused_messages = 0
         self._subscribers = []
         put = self.inbox.put
-        for entity in [*cfg.commands, *cfg.robots]:
+        for entity in self.commanded():
             self._subscribers.append(self.session.declare_subscriber(
                 keys.command(cell, entity), lambda s, e=entity: put(("command", e, s.payload.to_bytes(), time.perf_counter()))))
             self._subscribers.append(self.session.declare_subscriber(
@@ -156,12 +171,19 @@ class Bridge:
         for entity in [e for e, r in cfg.robots.items() if r.rtde is None]:
             self._subscribers.append(self.session.declare_subscriber(
                 keys.controller_state(cell, entity), lambda s, e=entity: put(("robot", e, s.payload.to_bytes(), 0.0))))
-        if cfg.commands or cfg.robots:
+        if self.commanded():
             self._subscribers.append(self.session.liveliness().declare_subscriber(
                 keys.alive(cell, "twin"), lambda s: put(("alive", None, str(s.kind).endswith("PUT"), 0.0)), history=True))
         for link in self.robots.values():
             if isinstance(link, UrLink):
                 link.start()
+        if self.plc is not None:
+            self.plc.start()
+
+    def commanded(self) -> list[str]:
+        """The entities the twin may command: CAN command frames, robots, a PLC's entities with command nodes."""
+        cfg = self.loaded.config
+        return [*cfg.commands, *cfg.robots, *(self.plc.commands if self.plc is not None else ())]
 
     def _authenticator(self, message) -> Authenticator | None:
         """The signer or verifier of an authenticated message's frames (None: the message is not)."""
@@ -200,6 +222,8 @@ class Bridge:
                 self._publish_failure(device, judgement.fault)
         for link in self.robots.values():
             link.check_watchdog(now)
+        if self.plc is not None:
+            self.plc.check_watchdog(now)
 
     # -- out -------------------------------------------------------------------------
     def send_commands(self, now: float | None = None, due_only: bool = False, only: str | None = None) -> None:
@@ -212,7 +236,7 @@ class Bridge:
 
     def _send_commands(self, now: float, due_only: bool = False, only: str | None = None) -> None:
         cfg = self.loaded.config
-        for entity in [*cfg.commands, *cfg.robots]:
+        for entity in self.commanded():
             if (only is not None and entity != only) or self._modes.get(entity) is not TwinMode.TWIN:
                 continue  # not in twin mode (or never heard of): the device answers to its own controls
             link = self._command_links[entity]
@@ -222,12 +246,16 @@ class Bridge:
             targets = [(m.message, m.cycle_time, m) for m in cfg.commands.get(entity, [])]
             if entity in cfg.robots:
                 targets.append(("request", cfg.robots[entity].command_cycle_time, None))
+            if self.plc is not None and entity in self.plc.commands:
+                targets.append(("plc", cfg.plc.command_cycle_time, None))
             for name, cycle, mapping in targets:
                 key = (entity, name)
                 if due_only and now < self._due.get(key, now):
                     continue
                 self._due[key] = max(self._due.get(key, now) + cycle, now)
-                if mapping is None:
+                if name == "plc":
+                    self.plc.send(entity, None if lost else fields)
+                elif mapping is None:
                     self.robots[entity].send(None if lost else fields, now)
                 else:
                     signals = self._frames[mapping.message][1]
@@ -248,6 +276,10 @@ class Bridge:
         if kind == "frame":
             self.handle(payload.arbitration_id, bytes(payload.data))
             self.frame_latencies.append(time.perf_counter() - arrived)
+            return
+        if kind == "plc":
+            self.plc.take(*payload, self.clock())
+            self.plc_latencies.append(time.perf_counter() - arrived)
             return
         if kind == "robot":
             self.handle_robot(entity, payload)
@@ -305,6 +337,8 @@ class Bridge:
             device.diagnostics.publish(now, period)
         for link in self.robots.values():
             link.publish_diagnostics(now, period)
+        if self.plc is not None:
+            self.plc.publish_diagnostics(now, period)
         if now - getattr(self, "_status_at", float("-inf")) >= period:
             self._status_at = now
             self._status.put(json.dumps(self.status(now), separators=(",", ":")))
@@ -315,10 +349,14 @@ class Bridge:
             "t": time.time(), "unknown_frames": self.unknown_frames, "frames_sent": self.frames_sent,
             "safe_frames_sent": self.safe_frames_sent, "twin_alive": self._twin_alive,
             "refused_messages": self.refused_messages,
-            "received": {d.entity: d.diagnostics.received for d in [*self.devices.values(), *self.robots.values()]},
+            "received": {d.entity: d.diagnostics.received
+                         for d in [*self.devices.values(), *self.robots.values(),
+                                   *(self.plc.entities.values() if self.plc is not None else ())]},
             "frame_latency_ms": _percentiles(self.frame_latencies),
             "command_latency_ms": _percentiles(self.command_latencies),
             "robot_latency_ms": _percentiles(self.robot_latencies),
+            "plc_latency_ms": _percentiles(self.plc_latencies),
+            "plc_connected": None if self.plc is None else self.plc.connected,
             "controllers_connected": {e: r.connected for e, r in self.robots.items() if isinstance(r, UrLink)},
         }
 
@@ -326,6 +364,8 @@ class Bridge:
         for link in self.robots.values():
             if isinstance(link, UrLink):
                 link.close()
+        if self.plc is not None:
+            self.plc.close()
         for handle in [*self._subscribers, self._token]:
             try:
                 handle.undeclare()
@@ -385,6 +425,8 @@ def run_bridge(bridge: Bridge, bus, stop, on_cycle=None) -> None:
     cycles = [m.cycle_time for mappings in cfg.commands.values() for m in mappings]
     cycles += [d.cycle_time for d in cfg.devices.values()]
     cycles += [min(r.command_cycle_time, r.watchdog / 2) for r in cfg.robots.values()]
+    if cfg.plc is not None:
+        cycles.append(min(cfg.plc.command_cycle_time, cfg.plc.watchdog / 2))
     period = min(cycles) if cycles else 0.02
 
     def on_frame(frame) -> None:  # python-can's thread: queue it, nothing more

@@ -14,7 +14,10 @@ Given the bridge daemon's configuration, the emulator plays
   (``cellsim.ur.controller``) on the configured host and port (``--rtde PORT``
   overrides), its state at the controller's rate, the program's input registers as
   the arm's commands (under the twin's command) and the speed slider as its
-  ``speed_scaling`` (always, as a real controller's slider is).
+  ``speed_scaling`` (always, as a real controller's slider is);
+* the configuration's PLC (``plc``): an OPC UA server (``cellsim.bridges.plc_server``) on
+  its endpoint (``--opcua PORT`` overrides the port), the PLC's entities' samples in its
+  nodes, their command nodes as their commands (under the twin's command).
 
 Everything else stays on its physical key. Faults on the bus
 (``--fault welder=crc@3-5``): ``drop`` (frames not sent), ``crc`` (a corrupted
@@ -194,17 +197,41 @@ def rtde_register(number: int) -> str:
     return rtde.int_register("input", number)
 
 
+def protocols_of(config) -> dict[str, tuple[str, tuple[str, ...]]]:
+    """The entities of a bridge configuration speaking a protocol other than CAN -> (what they are, their
+    faults): a UR controller's RTDE, a PLC's OPC UA."""
+    from cellsim.bridges.plc_server import PLC_FAULTS
+    from cellsim.ur.controller import RTDE_FAULTS
+
+    found = {e: ("a UR controller over RTDE", RTDE_FAULTS) for e, r in config.robots.items() if r.rtde is not None}
+    found.update({e: ("wired to the PLC (OPC UA)", PLC_FAULTS) for e in (config.plc.entities if config.plc else ())})
+    return found
+
+
 class EmulatedDevices:
     """The emulated cell's CAN devices and robot controllers, as the bridge configuration describes them."""
 
-    def __init__(self, loaded: LoadedBridge, bus, session, can_key: bytes | None = None, rtde_port: int | None = None):
+    def __init__(self, loaded: LoadedBridge, bus, session, can_key: bytes | None = None, rtde_port: int | None = None,
+                 opcua_endpoint: str | None = None, plc_certificates: tuple | None = None):
+        """``opcua_endpoint``: where the PLC is served (default: the configuration's); ``plc_certificates``: (the
+        PLC's OPC UA certificate, its key, the bridge's certificate), for a PLC with security."""
         self.loaded, self.bus, self.session, self.can_key = loaded, bus, session, can_key
         self.config = loaded.config
         self.controllers: dict[str, EmulatedController] = {}
-        for name, robot in self.config.robots.items():
-            if robot.rtde is not None:
-                port = robot.rtde.port if rtde_port is None else rtde_port
-                self.controllers[name] = EmulatedController(robot.rtde.host, port, loaded.programs[name])
+        self.plc = None
+        try:
+            for name, robot in self.config.robots.items():
+                if robot.rtde is not None:
+                    port = robot.rtde.port if rtde_port is None else rtde_port
+                    self.controllers[name] = EmulatedController(robot.rtde.host, port, loaded.programs[name])
+            if self.config.plc is not None:
+                from cellsim.bridges.plc_server import EmulatedPlc
+
+                self.plc = EmulatedPlc(self.config.plc, loaded.samples, loaded.commands, loaded.safe, opcua_endpoint,
+                                       plc_certificates)
+        except BaseException:
+            self.close()
+            raise
         if loaded.authenticated() and can_key is None:
             raise ValueError(f"{', '.join(loaded.authenticated())} are authenticated: the devices need the CAN key")
         self._feeds: dict[int, tuple] = {}  # frame id -> (entity, mapping, checker)
@@ -215,11 +242,19 @@ class EmulatedDevices:
         self.command_frames = 0
 
     def rates(self) -> dict[str, float]:
-        """Each device's sending rate (Hz): its cycle time."""
+        """Each device's sending rate (Hz): its cycle time (a PLC's entities: its scan)."""
+        from cellsim.bridges.plc_server import SCAN
+
         cfg = self.config
-        return {**{e: 1.0 / d.cycle_time for e, d in cfg.devices.items()}, **{e: 1.0 / r.cycle_time for e, r in cfg.robots.items()}}
+        plc = {e: 1.0 / SCAN for e in cfg.plc.entities} if cfg.plc is not None else {}
+        return {**{e: 1.0 / d.cycle_time for e, d in cfg.devices.items()}, **{e: 1.0 / r.cycle_time for e, r in cfg.robots.items()},
+                **plc}
 
     def fault_kinds(self, entity: str) -> tuple[str, ...] | None:
+        if self.plc is not None and entity in self.config.plc.entities:
+            from cellsim.bridges.plc_server import PLC_FAULTS
+
+            return PLC_FAULTS
         if entity in self.controllers:
             from cellsim.ur.controller import RTDE_FAULTS
 
@@ -243,6 +278,8 @@ class EmulatedDevices:
         cfg = self.config
         if name in self.controllers:
             return RtdeOutlet(self.controllers[name])
+        if self.plc is not None and name in cfg.plc.entities:
+            return self.plc.outlet(name)
         if name in cfg.devices:
             device = cfg.devices[name]
             message = self.loaded.database.get_message_by_name(device.message)
@@ -256,6 +293,9 @@ class EmulatedDevices:
         cfg, name = self.config, entity.module
         if name in self.controllers:
             self.controllers[name].source = source
+            return True
+        if self.plc is not None and name in self.plc.command_types:
+            self.plc.sources[name] = source
             return True
         if name in cfg.robots:
             self._subscribers.append(self.session.declare_subscriber(
@@ -308,9 +348,11 @@ class EmulatedDevices:
     def close(self) -> None:
         for controller in self.controllers.values():
             controller.server.close()
-        if self._notifier is not None:
+        if self.plc is not None:
+            self.plc.close()
+        if getattr(self, "_notifier", None) is not None:  # (closing a half-made one too)
             self._notifier.stop()
-        for subscriber in self._subscribers:
+        for subscriber in getattr(self, "_subscribers", []):
             try:
                 subscriber.undeclare()
             except Exception:  # noqa: BLE001 - closing anyway

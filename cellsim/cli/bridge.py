@@ -7,11 +7,13 @@ from pathlib import Path
 
 from cellsim.cli.common import (
     EXIT_OK,
+    InputError,
     _add_network_args,
     _can_key,
     _can_bus_spec,
     _open_can_bus,
     _open_session,
+    _plc_certificates,
     _rtde_robot,
     _terminate_as_interrupt,
 )
@@ -33,6 +35,8 @@ def add_parser(subparsers) -> None:
     bridge.add_argument("--rtde", metavar="[HOST:]PORT", type=_rtde_address,
                         help="where the robot's UR controller serves RTDE (default: the configuration's rtde.host and "
                         "rtde.port); for a configuration with one robot over RTDE")
+    bridge.add_argument("--opcua", metavar="opc.tcp://HOST:PORT",
+                        help="where the PLC serves OPC UA (default: the configuration's plc.endpoint)")
     _add_network_args(bridge)
     bridge.set_defaults(handler=run)
 
@@ -59,6 +63,13 @@ def run(args) -> int:
         settings = loaded.config.robots[_rtde_robot(loaded)].rtde
         settings.host = args.rtde[0] or settings.host
         settings.port = args.rtde[1]
+    if args.opcua is not None:
+        if loaded.config.plc is None:
+            raise InputError(f"--opcua: {args.bridge_config} names no PLC")
+        if not args.opcua.startswith("opc.tcp://"):
+            raise InputError(f"--opcua {args.opcua!r}: expected opc.tcp://HOST:PORT")
+        loaded.config.plc.endpoint = args.opcua
+    plc_certificates = _plc_certificates(args, loaded, "bridge")
     default = (loaded.config.can.interface, loaded.config.can.channel)
     interface, channel = _can_bus_spec(args.can, "--can") if args.can else default
     zenoh_settings = loaded.config.zenoh  # the command line's network options win over the configuration's
@@ -70,14 +81,19 @@ def run(args) -> int:
     for line in loaded.e2e_only():  # an explicit choice of the configuration, said at every start
         print(f"cellsim bridge: warning: not authenticated, E2E only (forgeable by anyone on the bus): {line}",
               file=sys.stderr)
+    if loaded.config.plc is not None and loaded.config.plc.security == "none":
+        print(f"cellsim bridge: warning: the PLC is read WITHOUT security (anyone on its network can read and forge "
+              f"its values): {loaded.config.plc.insecure_because}", file=sys.stderr)
     try:
         session = _open_session(args, "bridge", listen_by_default=False)
         try:
-            bridge = Bridge(loaded, session, bus=bus, can_key=can_key)
+            bridge = Bridge(loaded, session, bus=bus, can_key=can_key, plc_certificates=plc_certificates)
             stop = threading.Event()
             logging.basicConfig(level=logging.INFO, format="cellsim bridge: %(message)s", stream=sys.stderr)
             controllers = "".join(f", {name} over RTDE at {robot.rtde.host}:{robot.rtde.port}"
                                   for name, robot in loaded.config.robots.items() if robot.rtde is not None)
+            if loaded.config.plc is not None:
+                controllers += f", a PLC at {loaded.config.plc.endpoint} ({', '.join(loaded.config.plc.entities)})"
             print(f"cellsim bridge: {loaded.cell} on {interface}:{channel}{controllers}", file=sys.stderr)
             with _terminate_as_interrupt():
                 try:

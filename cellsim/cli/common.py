@@ -236,6 +236,33 @@ def _rtde_robot(loaded, option: str = "--rtde") -> str:
     return robots[0]
 
 
+def _with_port(endpoint: str, port: int) -> str:
+    """An opc.tcp:// endpoint with its port replaced."""
+    head, _, _ = endpoint.rpartition(":")
+    return f"{head}:{port}" if head.count(":") >= 1 and not head.endswith("/") else f"{endpoint}:{port}"
+
+
+def _plc_certificates(args, loaded, side: str) -> tuple | None:
+    """The OPC UA certificate files ``side`` (``bridge`` or ``plc``) needs for the configuration's PLC: its own
+    certificate and key, and the other side's certificate it trusts; None without a PLC or security."""
+    from cellsim.live.pki import opcua_files
+    from cellsim.live import pki
+
+    plc = loaded.config.plc
+    if plc is None or plc.security == "none":
+        return None
+    folder = args.keys if args.keys is not None else pki.default_keys_dir()
+    try:
+        if args.keys is None and pki.ensure_keys(folder):
+            print(f"cellsim: created the cell's keys in {folder} (docs/security.md)", file=sys.stderr)
+        other = "plc" if side == "bridge" else "bridge"
+        certificate, key = opcua_files(folder, side)
+        peer, _ = opcua_files(folder, other)
+    except OSError as e:
+        raise InputError(f"the PLC's OPC UA certificates in {folder}: {e}") from None
+    return certificate, key, peer
+
+
 def add_scheduler_argument(parser) -> None:
     """``--scheduler``: run on a Dask cluster instead of local worker processes."""
     parser.add_argument(

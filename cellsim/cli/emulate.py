@@ -18,8 +18,10 @@ from cellsim.cli.common import (
     _can_key,
     _live_run,
     _open_can_bus,
+    _plc_certificates,
     _port,
     _rtde_robot,
+    _with_port,
 )
 
 
@@ -51,8 +53,13 @@ def add_parser(subparsers) -> None:
         "RTDE client (docs/ur.md); the CAN devices on --can or the configuration's bus",
     )
     emu.add_argument(
+        "--opcua", type=_port, metavar="PORT",
+        help="speak the real protocols, the configuration's PLC as an OPC UA server on this port of its endpoint's "
+        "host (docs/opcua.md)",
+    )
+    emu.add_argument(
         "--bridge", type=Path, metavar="FILE",
-        help="with --can or --rtde: the bridge configuration naming the devices, their DBC and the robot's "
+        help="with --can, --rtde or --opcua: the bridge configuration naming the devices, their DBC and the robot's "
         "controller (default: bridges/<scenario file name> beside the scenario's folder)",
     )
     emu.add_argument(
@@ -73,8 +80,8 @@ def run(args) -> int:
     from cellsim.live.faults import FaultError, check_entities, check_faults, parse_fault, parse_rate
 
     loaded = bridge = can_key = None
-    if args.can or args.rtde:
-        option = "--can" if args.can else "--rtde"
+    if args.can or args.rtde or args.opcua:
+        option = "--can" if args.can else "--rtde" if args.rtde else "--opcua"
         bridge = args.bridge or args.scenario.resolve().parent.parent / "bridges" / args.scenario.name
         if not bridge.is_file():
             raise InputError(f"{option} needs the cell's bridge configuration (its devices, DBC and controllers): "
@@ -82,7 +89,8 @@ def run(args) -> int:
         if args.can:
             _can_bus_spec(args.can, "--can")
     elif args.bridge:
-        raise InputError("--bridge is for --can or --rtde: name the CAN bus or the RTDE port the devices speak on")
+        raise InputError("--bridge is for --can, --rtde or --opcua: name the CAN bus, RTDE or OPC UA port the devices "
+                         "speak on")
     try:
         faults = [parse_fault(text) for text in args.fault]
         rates = dict(parse_rate(text) for text in args.rate)
@@ -94,14 +102,18 @@ def run(args) -> int:
         entities = sf.scenario.entities
         if bridge is not None:  # loaded with this scenario: its devices must be this cell's entities
             from cellsim.bridges.config import load_bridge
+            from cellsim.bridges.devices import protocols_of
 
             loaded = load_bridge(bridge, sf)
             can_key = _can_key(args, loaded)
             if args.rtde:
                 _rtde_robot(loaded)
+            if args.opcua and loaded.config.plc is None:
+                raise InputError(f"--opcua: {bridge} names no PLC")
         try:
             check_entities(faults, rates, entities)
-            check_faults(faults, entities, set(loaded.config.devices) if loaded is not None else None)
+            check_faults(faults, entities, set(loaded.config.devices) if loaded is not None else None,
+                         protocols_of(loaded.config) if loaded is not None else None)
         except FaultError as e:
             raise InputError(str(e)) from None
 
@@ -113,18 +125,24 @@ def run(args) -> int:
             cfg = loaded.config
             if cfg.devices or cfg.commands:
                 bus = _open_can_bus(args.can, (cfg.can.interface, cfg.can.channel))
+            plc = loaded.config.plc
+            endpoint = _with_port(plc.endpoint, args.opcua) if plc is not None and args.opcua else None
             try:
-                devices = EmulatedDevices(loaded, bus, session, can_key, rtde_port=args.rtde)
+                certificates = _plc_certificates(args, loaded, "plc")
+                devices = EmulatedDevices(loaded, bus, session, can_key, rtde_port=args.rtde, opcua_endpoint=endpoint,
+                                          plc_certificates=certificates)
             except OSError as e:
                 if bus is not None:
                     bus.shutdown()
-                raise InputError(f"--rtde: cannot serve RTDE: {e}") from None
+                raise InputError(f"cannot serve the devices' protocols: {e}") from None
         try:
             if not args.quiet:
                 on = f" on {args.can}" if args.can else ""
                 for name, controller in (devices.controllers.items() if devices is not None else ()):
                     host, port = controller.server.address
                     on += f", {name} as a UR controller on RTDE {host}:{port}"
+                if devices is not None and devices.plc is not None:
+                    on += f", its PLC on {devices.plc.endpoint}"
                 print(f"cellsim emulate: playing the physical {sf.scenario.name}{on}, recording to {out}", file=sys.stderr)
             io = Emulated(session, args.commanded_by_twin, rates, devices, FaultSchedule(list(faults)))
             summary = simulate(sf, out, io=io, seed=args.seed, duration=duration)
@@ -134,3 +152,4 @@ def run(args) -> int:
         return EXIT_FINDING if summary.mishap else EXIT_OK
 
     return _live_run(args, "emulator", False, emulator, check)
+

@@ -75,21 +75,25 @@ def check_entities(faults: Iterable[Fault], rates: Iterable[str], entities: Coll
         raise FaultError(f"--fault/--rate: no entity named {unknown[0]!r} (entities: {', '.join(entities)})")
 
 
-def check_faults(faults: Iterable[Fault], entities: Collection[str], can_devices: Collection[str] | None) -> None:
+def check_faults(faults: Iterable[Fault], entities: Collection[str], can_devices: Collection[str] | None,
+                 protocols: dict[str, tuple[str, tuple[str, ...]]] | None = None) -> None:
     """Every fault applies to its entity: a FaultError for the first that does not.
 
     ``entities``: the scenario's entity names; ``can_devices``: the entities that are CAN devices
-    (``--can``: the bridge configuration's devices), or None without a bus. A CAN device has the
-    bus faults only, any other entity the Zenoh faults only; without a bus no entity has a bus fault.
+    (``--can``: the bridge configuration's devices), or None without a bus; ``protocols``: other
+    entities speaking a device protocol -> (what they are, their faults): a UR controller's RTDE, a
+    PLC's OPC UA. A CAN device has the bus faults only, such an entity its protocol's, any other entity
+    the Zenoh faults only; without a bus no entity has a bus fault.
     """
     faults = list(faults)
     check_entities(faults, (), entities)
-    if can_devices is not None:
+    protocols = protocols or {}
+    if can_devices is not None or protocols:
         for f in faults:
-            kinds = BUS_FAULTS if f.entity in can_devices else ZENOH_FAULTS
+            what, kinds = protocols.get(f.entity) or (
+                ("a CAN device", BUS_FAULTS) if can_devices and f.entity in can_devices else ("on Zenoh", ZENOH_FAULTS))
             if f.kind not in kinds:
-                raise FaultError(f"--fault {f.entity}={f.kind}: {f.entity} is "
-                                 f"{'a CAN device' if kinds is BUS_FAULTS else 'on Zenoh'}; its faults: {', '.join(kinds)}")
+                raise FaultError(f"--fault {f.entity}={f.kind}: {f.entity} is {what}; its faults: {', '.join(kinds)}")
     elif any(f.kind not in ZENOH_FAULTS for f in faults):
         bad = next(f for f in faults if f.kind not in ZENOH_FAULTS)
         raise FaultError(f"--fault {bad.entity}={bad.kind}: a bus fault needs --can; on Zenoh: {', '.join(ZENOH_FAULTS)}")

@@ -8,6 +8,8 @@
     DIR/<role>.key        its private key (mode 0600)
     DIR/can.key           the cell's CAN key (128 bits, hex; mode 0600): authenticated CAN frames'
                           keys are derived from it (``cellsim/bridges/secoc.py``)
+    DIR/opcua-bridge.*    the bridge's and the PLC's OPC UA application certificates and keys (RSA,
+    DIR/opcua-plc.*       as OPC UA's Basic256Sha256 needs; ``cellsim/bridges/opcua.py``)
 
 A process needs ``ca.pem`` and its own role's pair, nothing else: copy only those
 to the machine that runs it (and ``can.key`` to the bridge daemon's, where its
@@ -41,6 +43,8 @@ SERVER_ROLE = "twin"
 DEFAULT_HOSTS = ("localhost", "127.0.0.1", "::1")
 DEFAULT_DAYS = 365
 CAN_KEY = "can.key"
+OPCUA_URI = {"bridge": "urn:cellsim:bridge", "plc": "urn:cellsim:plc"}
+"""The OPC UA application URI of each side of a PLC's link, named in its certificate."""
 ENVIRONMENT = "CELLSIM_KEYS"
 """Environment variable naming the keys folder when ``--keys`` is not given."""
 
@@ -142,6 +146,8 @@ def init_keys(folder: Path, hosts: tuple[str, ...] = (), days: int = DEFAULT_DAY
             _write(staging / f"{role}.pem", _pem_certificate(cert), private=False)
             _write(staging / f"{role}.key", _pem_key(key), private=True)
         _write(staging / CAN_KEY, os.urandom(16).hex().encode() + b"\n", private=True)
+        for name in OPCUA_URI:  # OPC UA's RSA application certificates (a PLC's link)
+            make_opcua_pair(staging, name)
         os.chmod(staging, 0o700)
         if folder.exists():
             folder.rmdir()  # empty (checked above); a concurrent init that got there first makes this fail
@@ -285,3 +291,43 @@ def _write(path: Path, data: bytes, private: bool) -> None:
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600 if private else 0o644)
     with os.fdopen(fd, "wb") as f:
         f.write(data)
+
+
+# -- OPC UA (a PLC's link: cellsim.bridges.opcua) -----------------------------------------------
+def opcua_files(folder: Path, name: str) -> tuple[Path, Path]:
+    """(certificate, private key) of ``name`` (``bridge`` or ``plc``) in the keys ``folder``, made (RSA 2048,
+    self-signed, naming its application URI) if the folder has none yet."""
+    import fcntl
+
+    certificate, key = folder / f"opcua-{name}.pem", folder / f"opcua-{name}.key"
+    if certificate.is_file() and key.is_file():
+        return certificate, key
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / ".opcua.lock", "w") as lock:  # two processes starting at once make one pair, not two
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (certificate.is_file() and key.is_file()):
+            make_opcua_pair(folder, name)  # (the key first, the certificate last: a pair is there once both are)
+    return certificate, key
+
+
+def make_opcua_pair(folder: Path, name: str) -> None:
+    """Write ``opcua-<name>.pem`` and ``.key`` in ``folder`` (each file appears whole)."""
+    from asyncua.crypto.cert_gen import (dump_private_key_as_pem, generate_private_key,
+                                         generate_self_signed_app_certificate)
+    from cryptography import x509
+    from cryptography.hazmat.primitives import serialization
+    from cryptography.x509.oid import ExtendedKeyUsageOID
+
+    private = generate_private_key()
+    usage = ExtendedKeyUsageOID.SERVER_AUTH if name == "plc" else ExtendedKeyUsageOID.CLIENT_AUTH
+    cert = generate_self_signed_app_certificate(
+        private, f"cellsim {name}", {}, [x509.UniformResourceIdentifier(OPCUA_URI[name]), x509.DNSName("localhost")],
+        [usage], days=3650)
+    certificate, key = folder / f"opcua-{name}.pem", folder / f"opcua-{name}.key"
+    for path, data, mode in ((key, dump_private_key_as_pem(private), 0o600),
+                             (certificate, cert.public_bytes(serialization.Encoding.PEM), 0o644)):
+        handle, staging = tempfile.mkstemp(prefix=f".{path.name}-", dir=folder)
+        with os.fdopen(handle, "wb") as f:
+            f.write(data)
+        os.chmod(staging, mode)
+        os.replace(staging, path)

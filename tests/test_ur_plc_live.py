@@ -1,4 +1,5 @@
-"""The emulated UR controller read and commanded by ur-rtde, and the twin beside it through the daemon.
+"""The emulated UR controller read and commanded by ur-rtde, and the twin beside it and the emulated PLC
+through the daemon.
 
 ur-rtde's clients dial port 30004 and nothing else (the port is fixed in the
 library), so these tests serve RTDE on 127.0.0.1:30004 and run one at a time.
@@ -24,7 +25,7 @@ from live_processes import (ROOT, assert_supervised, can_server, free_port, obse
 
 pytestmark = [pytest.mark.slow, ONE_AT_A_TIME]
 WELDING_CELL = str(ROOT / "scenarios" / "welding_cell.yaml")
-UR_BRIDGE = str(ROOT / "bridges" / "welding_cell_ur.yaml")
+UR_BRIDGE = str(ROOT / "bridges" / "welding_cell_ur_plc.yaml")
 RTDE_PORT = 30004
 TWIN_SUPERVISES = ["--set", "robot.twin.mode=twin", "--set", "welder.twin.mode=twin",
                    *[arg for e in ("light_barrier", "range_detector", "operator") for arg in ("--set", f"{e}.twin.mode=shadow")]]
@@ -85,46 +86,79 @@ def test_ur_rtde_reads_the_emulated_controller_and_its_speed_slider_slows_the_em
         assert after and max(after) <= 0.2 * 1.0 + 0.02  # the slider's fifth of it
 
 
-def test_the_twin_commands_the_emulated_ur_controller_through_the_daemon_and_losing_it_zeroes_the_slider(tmp_path):
-    """The bridge issue's supervision test, the robot's controller a UR's over RTDE: the shipped
-    bridges/welding_cell_ur.yaml, the CAN devices on a python-can-remote bus."""
+def plc_command(port: int, node: str) -> int:
+    """A command node of the emulated PLC, read as the bridge (its OPC UA certificate, signed and encrypted)."""
+    import asyncio
+    import os
+    from pathlib import Path
+
+    from asyncua import Client
+    from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+    from asyncua.crypto.uacrypto import CertProperties
+
+    keys = Path(os.environ["CELLSIM_KEYS"])
+
+    async def read() -> int:
+        client = Client(f"opc.tcp://127.0.0.1:{port}", timeout=5)
+        client.application_uri = "urn:cellsim:bridge"
+        await client.set_security(SecurityPolicyBasic256Sha256, CertProperties(str(keys / "opcua-bridge.pem"), "pem"),
+                                  CertProperties(str(keys / "opcua-bridge.key"), "pem"),
+                                  server_certificate=CertProperties(str(keys / "opcua-plc.pem"), "pem"))
+        async with client:
+            return await client.get_node(node).read_value()
+
+    return asyncio.run(read())
+
+
+def test_the_twin_commands_the_emulated_ur_controller_and_plc_through_the_daemon_and_losing_it_makes_them_safe(tmp_path):
+    """The bridge issue's supervision test beside a UR cell with a PLC: the shipped
+    bridges/welding_cell_ur_plc.yaml, the robot's controller over RTDE, the light curtain and the welder on
+    the PLC over OPC UA (signed and encrypted), the scanner on a python-can-remote bus."""
     import rtde_receive
 
-    port = free_port()
+    port, opcua = free_port(), free_port()
     reached, on_status = sim_time_reached(30.0)
     with processes() as start:
         bus = can_server(start, tmp_path / "can.log")
         twin, endpoint = start_twin(start, tmp_path, port, TWIN_SUPERVISES)
-        bridge = start(["bridge", UR_BRIDGE, "--can", f"remote:{bus}", "--connect", endpoint], tmp_path / "bridge.log")
+        bridge = start(["bridge", UR_BRIDGE, "--can", f"remote:{bus}", "--opcua", f"opc.tcp://127.0.0.1:{opcua}",
+                        "--connect", endpoint], tmp_path / "bridge.log")
         with observer(port) as session:
             wait_alive(session, "cellsim/welding_cell/alive/bridge")
             status = session.declare_subscriber("cellsim/welding_cell/status/twin", on_status)
             emulator = start(["emulate", WELDING_CELL, "--bridge", UR_BRIDGE, "--can", f"remote:{bus}", "--duration", "40",
+                              "--opcua", str(opcua),
                               "--commanded-by-twin", "--out", str(tmp_path / "emulator"), "--connect", endpoint, "--quiet"],
                              tmp_path / "emulator.log")
             wait_listening(emulator, RTDE_PORT, 60, "the emulated UR controller")
             receive = rtde_receive.RTDEReceiveInterface("127.0.0.1")
             assert reached.wait(90), twin.output()
             status.undeclare()
-        # the twin supervising: the slider at the requested mode's cap, the program told its mode
+        # the twin supervising: the slider at the requested mode's cap, the welder's request not a stop
         assert receive.getTargetSpeedFraction() > 0.0
+        assert plc_command(opcua, "ns=2;s=Welder.SafetyModeRequest") != 5
         twin.stop()  # the twin lost (its liveliness token goes with it)
         lost = time.monotonic()
         until(lambda: receive.getTargetSpeedFraction() == 0.0, 5, "the slider at 0")
         assert time.monotonic() - lost <= 0.5 + 0.02 + 0.1  # the command watchdog and a command cycle
+        until(lambda: plc_command(opcua, "ns=2;s=Welder.SafetyModeRequest") == 5, 5, "the welder's stop in the PLC")
+        assert time.monotonic() - lost <= 0.5 + 0.04 + 0.3  # the watchdog, a command cycle, a read of the node
+        assert plc_command(opcua, "ns=2;s=Welder.ActivityRequest") == 2  # off: the welder kind's safe command
         # the emulated program took the stop: the arm reports it in its safety-mode register (stopped's code 5)
         until(lambda: receive.getOutputIntRegister(18) == 5, 5, "the arm stopped")
         receive.disconnect()
         assert emulator.wait(timeout=60) == 0, emulator.output()
         bridge.stop()
         assert "robot: RTDE controller at 127.0.0.1:30004 streaming" in bridge.output()
+        assert f"PLC at opc.tcp://127.0.0.1:{opcua}: subscribed to 4 nodes every 0.02 s (signed and encrypted)" in bridge.output()
     with BlackBox(tmp_path / "twin" / "blackbox.sqlite") as twin_box, \
             BlackBox(tmp_path / "emulator" / "blackbox.sqlite") as emu:
         # the twin's ssmon request reaches the emulated arm through the daemon and the RTDE registers
         assert_supervised(twin_box, emu, within=0.35)
-        link = twin_box.series("robot.physical_link")
-        ok_from = next(t for t, v in zip(link.times, link.values) if v == "ok")
-        assert all(v == "ok" for t, v in zip(link.times, link.values) if ok_from <= t < 29.0)  # the link held
+        for entity in ("robot", "welder", "light_barrier", "range_detector"):  # RTDE, OPC UA, CAN: every link held
+            link = twin_box.series(f"{entity}.physical_link")
+            ok_from = next(t for t, v in zip(link.times, link.values) if v == "ok")
+            assert ok_from < 12.0 and all(v == "ok" for t, v in zip(link.times, link.values) if ok_from <= t < 29.0), entity
     proc = subprocess.run([sys.executable, "-m", "cellsim", "check", str(tmp_path / "twin"), "--json"],
                           capture_output=True, text=True, timeout=120, cwd=ROOT)
     verdicts = json.loads(proc.stdout)

@@ -1,0 +1,284 @@
+"""A PLC over OPC UA beside the twin: the entities wired to it in, the twin's commands to them out.
+
+The daemon is an OPC UA client of the PLC (``plc.endpoint``), with Sign & Encrypt
+(Basic256Sha256) and the cell's OPC UA certificates by default
+(``cellsim.bridges.opcua``). It subscribes to the PLC's heartbeat and to every
+node of the configured entities' samples at the ``publishing_interval``; an
+asyncio loop on a thread of its own only hands each notification to the daemon's
+inbox, and the daemon's thread judges it (``PlcLink.take``), by the link rule
+(``cellsim.link``) per entity:
+
+* a node whose value comes with a bad status code (the PLC's own verdict on its
+  input: a wire break, a module fault): the entity is *corrupt*;
+* a value the field cannot take (a code outside its list, a non-finite number):
+  *range*;
+* the PLC's heartbeat, a counter its program increments every scan, must move: a
+  repeat is refused, and with no movement for ``watchdog`` (a stopped PLC, a lost
+  connection, a frozen subscription) every entity of the PLC is *stale* (timeout).
+
+Every movement of the heartbeat counts as a good message for each entity whose
+nodes are all good (its sample is published, so the twin's entity stays fresh at
+the publishing interval), and a changed value is published at once. A lost
+connection is dialled again every ``reconnect_after`` seconds.
+
+In twin mode the entity's command nodes are written every ``command_cycle_time``
+and at once when the twin's command changes, with the daemon's own heartbeat
+node counting up; when the twin is lost, the kind's safe command is written.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+
+from cellsim import codec
+from cellsim.bridges.opcua import (APPLICATION_URI, NodeValueError, from_node, pinned, quiet_asyncua, to_node,
+                                   variant_type)
+from cellsim.link import Fault, LinkTrust
+from cellsim.live import keys
+
+log = logging.getLogger("cellsim.bridge")
+PLC_FAULTS = (Fault.CORRUPT, Fault.REPEATED, Fault.RANGE, Fault.TIMEOUT)
+HEARTBEAT = "heartbeat"
+"""The inbox's name for the PLC's heartbeat node."""
+
+
+@dataclass
+class PlcEntityLink:
+    """One entity wired to the PLC: its nodes' latest values, their statuses and its link's trust."""
+
+    entity: str
+    types: dict
+    """Sample field -> its ChannelType."""
+    trust: LinkTrust
+    publisher: object
+    values: dict = field(default_factory=dict)
+    bad: set = field(default_factory=set)
+    """Fields whose node's latest value came with a bad status code."""
+    seq: int = 0
+    published: int = 0
+    failures_published: int = 0
+    diagnostics: object = None
+    received: int = 0
+
+
+class PlcLink:
+    """The daemon's side of one PLC (notifications in, command nodes out)."""
+
+    def __init__(self, cell: str, settings, session, samples: dict, commands: dict, safe: dict, inbox,
+                 recover_after: int = 3, certificates: tuple | None = None):
+        """``samples``/``commands``: entity -> its FieldCodec; ``certificates``: (the bridge's certificate, its key,
+        the PLC's certificate) files, needed unless ``settings.security`` is none."""
+        from cellsim.bridges.diagnostics import DeviceDiagnostics
+
+        self.settings, self.inbox, self.safe = settings, inbox, safe
+        quiet_asyncua()
+        self.certificates = certificates
+        self.commands = {e: commands[e] for e, m in settings.entities.items() if m.commands}
+        self.entities: dict[str, PlcEntityLink] = {}
+        self._node_field: dict[str, tuple[str, str]] = {}  # node id text -> (entity, field)
+        for entity, mapping in settings.entities.items():
+            codec_ = samples[entity]
+            link = PlcEntityLink(entity, dict(zip(codec_.names, codec_.types)),
+                                 LinkTrust(timeout=settings.watchdog, recover_after=recover_after, max_gap=1 << 62,
+                                           faults=PLC_FAULTS),
+                                 session.declare_publisher(keys.physical(cell, entity)))
+            link.diagnostics = DeviceDiagnostics(entity, "PLC", link.trust, 1.0 / settings.publishing_interval,
+                                                 session.declare_publisher(keys.diagnostics(cell, entity)))
+            self.entities[entity] = link
+            for name, node in mapping.fields.items():
+                self._node_field[_canonical(node)] = (entity, name)
+        self.heartbeat = LinkTrust(timeout=settings.watchdog, recover_after=1, max_gap=1 << 62, faults=PLC_FAULTS)
+        self.connected = False
+        self.connections = 0
+        self.writes = 0
+        self.safe_writes = 0
+        self._heartbeat_out = 0
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._client = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="opcua-plc", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    # -- in (the daemon's thread) ----------------------------------------------------------
+    def take(self, node: str, value, good: bool, now: float) -> None:
+        """One notification: the PLC's heartbeat, or a node of an entity's sample, with its status."""
+        if node == HEARTBEAT:
+            if self.heartbeat.sequence(int(value) if isinstance(value, int) else -1, now) is not None:
+                return  # a repeat: the PLC's scan did not move
+            self.heartbeat.good(now)
+            for link in self.entities.values():
+                link.received += 1
+                link.diagnostics.frame()
+                self._judge(link, now)
+            return
+        entity, name = self._node_field[node]
+        link = self.entities[entity]
+        link.received += 1
+        link.diagnostics.frame()
+        if not good:
+            link.bad.add(name)
+            self._fail(link, Fault.CORRUPT, now)
+            return
+        link.bad.discard(name)
+        try:
+            decoded = from_node(link.types[name], value)
+        except NodeValueError as e:
+            log.warning("%s.%s from the PLC: %s", entity, name, e)
+            link.values.pop(name, None)
+            self._fail(link, Fault.RANGE, now)
+            return
+        changed = link.values.get(name) != decoded
+        link.values[name] = decoded
+        if changed and self._alive(now):
+            self._judge(link, now)
+
+    def _alive(self, now: float) -> bool:
+        return self.heartbeat.last_good is not None and now - self.heartbeat.last_good <= self.settings.watchdog
+
+    def _judge(self, link: PlcEntityLink, now: float) -> None:
+        if link.bad or len(link.values) != len(link.types):
+            return  # a bad or missing node: failed already, or not yet heard
+        link.seq += 1
+        judgement = link.trust.receive(now, link.seq)
+        if judgement.good:
+            link.published += 1
+            link.publisher.put(codec.encode_fields(time.time(), link.seq, dict(link.values)))
+
+    def _fail(self, link: PlcEntityLink, fault: Fault, now: float | None) -> None:
+        link.trust.fail(fault, now)
+        link.seq += 1
+        link.failures_published += 1
+        link.publisher.put(codec.encode_failure(time.time(), link.seq, fault))
+
+    def check_watchdog(self, now: float) -> None:
+        for link in self.entities.values():
+            judgement = link.trust.watchdog(now)
+            if judgement is not None:
+                link.seq += 1
+                link.failures_published += 1
+                link.publisher.put(codec.encode_failure(time.time(), link.seq, judgement.fault))
+
+    def publish_diagnostics(self, now: float, every: float) -> None:
+        for link in self.entities.values():
+            link.diagnostics.publish(now, every)
+
+    # -- out -------------------------------------------------------------------------------
+    def send(self, entity: str, fields: dict | None) -> None:
+        """Write the twin's command ``fields`` (None: the twin is lost, the kind's safe command) to the entity's
+        command nodes, with the daemon's heartbeat; nothing while the PLC is not connected."""
+        self.writes += 1
+        if fields is None:
+            self.safe_writes += 1
+            fields = self.safe[entity]
+        fields = {**self.safe[entity], **fields}
+        self._heartbeat_out = (self._heartbeat_out + 1) % 2**31
+        types = dict(zip(self.commands[entity].names, self.commands[entity].types))
+        values = [(node, to_node(types[name], fields.get(name)), variant_type(types[name]))
+                  for name, node in self.settings.entities[entity].commands.items()]
+        values.append((self.settings.command_heartbeat, self._heartbeat_out, None))
+        loop = self._loop
+        if loop is not None and self.connected:
+            asyncio.run_coroutine_threadsafe(self._write(values), loop)
+
+    async def _write(self, values: list) -> None:
+        from asyncua import ua
+
+        client = self._client
+        if client is None:
+            return
+        try:
+            nodes = [client.get_node(node) for node, _, _ in values]
+            variants = [ua.DataValue(ua.Variant(v, kind or ua.VariantType.Int32)) for _, v, kind in values]
+            await client.write_values(nodes, variants)
+        except Exception as e:  # noqa: BLE001 - a refused or lost write: said; the PLC's own watchdog acts
+            log.warning("PLC write failed: %s", e)
+
+    # -- the connection (its own thread and asyncio loop) ---------------------------------------------
+    def _run(self) -> None:
+        asyncio.run(self._serve())
+
+    async def _serve(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        said = None
+        while not self._stop.is_set():
+            try:
+                await self._session()
+                said = None
+            except Exception as e:  # noqa: BLE001 - any failure of the session: dial again
+                if str(e) != said:
+                    said = str(e)
+                    log.warning("PLC at %s: %s: %s (dialling again every %g s)", self.settings.endpoint,
+                                type(e).__name__, e, self.settings.reconnect_after)
+            finally:
+                self.connected, self._client = False, None
+            await asyncio.get_running_loop().run_in_executor(None, self._stop.wait, self.settings.reconnect_after)
+
+    async def _session(self) -> None:
+        from asyncua import Client, ua
+
+        settings = self.settings
+        client = Client(settings.endpoint, timeout=2.0)
+        client.application_uri = APPLICATION_URI["bridge"]
+        if settings.security != "none":
+            from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+            from asyncua.crypto.uacrypto import CertProperties
+
+            from cellsim.bridges.opcua import load_certificate
+
+            certificate, key, server = self.certificates
+            await client.set_security(SecurityPolicyBasic256Sha256, CertProperties(str(certificate), "pem"),
+                                      CertProperties(str(key), "pem"), server_certificate=CertProperties(str(server), "pem"),
+                                      mode=ua.MessageSecurityMode.SignAndEncrypt)
+            client.certificate_validator = pinned(load_certificate(server))
+        put = self.inbox.put
+        heartbeat = _canonical(settings.heartbeat)
+
+        class Handler:
+            def datachange_notification(self, node, value, data) -> None:  # on the loop: hand over, nothing more
+                status = data.monitored_item.Value.StatusCode
+                good = status is None or status.is_good()
+                name = node.nodeid.to_string()
+                put(("plc", None, (HEARTBEAT if name == heartbeat else name, value, good), time.perf_counter()))
+
+            def status_change_notification(self, status) -> None:
+                log.warning("PLC subscription: %s", status)
+
+        async with client:
+            params = ua.CreateSubscriptionParameters(
+                RequestedPublishingInterval=settings.publishing_interval * 1000.0,
+                RequestedLifetimeCount=max(30, int(3 * settings.watchdog / settings.publishing_interval) * 3),
+                RequestedMaxKeepAliveCount=max(1, int(settings.watchdog / settings.publishing_interval / 2)),
+                MaxNotificationsPerPublish=0, PublishingEnabled=True, Priority=0)
+            subscription = await client.create_subscription(params, Handler())
+            watched = [heartbeat, *self._node_field]
+            handles = await subscription.subscribe_data_change([client.get_node(n) for n in watched], queuesize=1,
+                                                               sampling_interval=0)
+            for name, handle in zip(watched, handles):
+                if not isinstance(handle, int):
+                    raise RuntimeError(f"the PLC refused to monitor {name}: {handle}")
+            self._client, self.connected = client, True
+            self.connections += 1
+            log.info("PLC at %s: subscribed to %d nodes every %g s (%s)", settings.endpoint, len(watched),
+                     settings.publishing_interval, "signed and encrypted" if settings.security != "none" else "NO SECURITY")
+            state = client.get_node(ua.ObjectIds.Server_ServerStatus_State)
+            while not self._stop.is_set():  # a read every half watchdog: a lost PLC raises, and is dialled again
+                await asyncio.sleep(settings.watchdog / 2)
+                await asyncio.wait_for(state.read_value(), timeout=max(1.0, settings.watchdog))
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=10.0)
+
+
+def _canonical(node: str) -> str:
+    """A node id as OPC UA prints it (how notifications name their node)."""
+    from asyncua import ua
+
+    return ua.NodeId.from_string(node).to_string()

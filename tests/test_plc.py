@@ -1,0 +1,262 @@
+"""A PLC over OPC UA: the node coding, the configuration, and the daemon's link to the emulated PLC."""
+
+from __future__ import annotations
+
+import json
+import math
+import queue
+import threading
+import time
+
+import pytest
+
+from cellsim.bridges.config import load_bridge
+from cellsim.bridges.daemon import Bridge
+from cellsim.bridges.opcua import NodeValueError, from_node, to_node
+from cellsim.live.pki import opcua_files
+from cellsim.bridges.plc_server import EmulatedPlc
+from cellsim.channels import BOOL, enum_type, number_type
+from cellsim.config.typed_yaml import ConfigError
+from cellsim.vocabulary import SafetyMode, TwinMode
+
+from live_processes import free_port
+from test_bridge import e2e_only_text, sessions  # noqa: F401 - the fixture
+from test_ur import run_daemon
+
+PLC = """plc:
+  endpoint: opc.tcp://127.0.0.1:{port}
+  security: {security}
+  heartbeat: ns=2;s=PLC.Heartbeat
+  command_heartbeat: ns=2;s=Bridge.Heartbeat
+  entities:
+    light_barrier:
+      fields: {{broken: ns=2;s=LightCurtain.Broken}}
+    welder:
+      fields: {{safety_mode: ns=2;s=Welder.SafetyMode, activity: ns=2;s=Welder.Activity}}
+      commands: {{safety_mode_request: ns=2;s=Welder.SafetyModeRequest, activity_request: ns=2;s=Welder.ActivityRequest,
+                 command: ns=2;s=Welder.Weld}}
+"""
+
+
+def plc_config(tmp_path, port: int, security: str = "sign_encrypt", extra: str = "") -> str:
+    """The E2E-only welding bridge with the light curtain and the welder wired to a PLC on loopback ``port``."""
+    text = e2e_only_text()
+    head, _, rest = text.partition("devices:\n")
+    devices, _, tail = rest.partition("\ncommands:\n")
+    kept = "devices:\n" + devices.split("  light_barrier:")[0] + "  range_detector:" + devices.split("  range_detector:")[1].split("  welder:")[0]
+    robots = tail[tail.index("robots:"):] if "robots:" in tail else ""
+    between = tail[:tail.index("robots:")] if robots else tail
+    freshness = between[between.index("freshness_tick"):] if "freshness_tick" in between else ""
+    path = tmp_path / "bridge_plc.yaml"
+    path.write_text(head + kept + "\n" + freshness + robots + PLC.format(port=port, security=security) + extra)
+    return str(path)
+
+
+# -- the coding ------------------------------------------------------------------------------
+def test_a_field_sits_in_its_node_as_its_code_a_boolean_or_a_double_and_a_value_it_cannot_take_is_refused():
+    modes = enum_type(SafetyMode)
+    assert to_node(modes, "stopped") == 5 and from_node(modes, 5) == "stopped"
+    assert to_node(modes, None) == -1 and from_node(modes, -1, nullable=True) is None
+    assert to_node(BOOL, True) is True and from_node(BOOL, False) is False
+    number = number_type("m")
+    assert to_node(number, 1.5) == 1.5 and math.isnan(to_node(number, None)) and from_node(number, math.nan, nullable=True) is None
+    for ctype, value in ((modes, 7), (modes, -1), (modes, 2.0), (modes, True), (BOOL, 1), (number, math.inf),
+                         (number, math.nan), (number, "1")):
+        with pytest.raises(NodeValueError):
+            from_node(ctype, value)
+
+
+@pytest.mark.parametrize("change, key", [
+    (("security: sign_encrypt", "security: none"), "plc.security"),
+    (("heartbeat: ns=2;s=PLC.Heartbeat", "heartbeat: ns=2;q=oops"), "plc.heartbeat"),
+    (("command_heartbeat: ns=2;s=Bridge.Heartbeat", "command_heartbeat: ns=2;s=PLC.Heartbeat"), "plc.command_heartbeat"),
+    (("fields: {broken: ns=2;s=LightCurtain.Broken}", "fields: {}"), "plc.entities.light_barrier.fields"),
+    (("command: ns=2;s=Welder.Weld", "weld: ns=2;s=Welder.Weld"), "plc.entities.welder.commands.weld"),
+    (("endpoint: opc.tcp://127.0.0.1:4840", "endpoint: http://127.0.0.1:4840"), "plc.endpoint"),
+    (("  heartbeat: ns=2;s=PLC.Heartbeat", "  watchdog: 0.01\n  heartbeat: ns=2;s=PLC.Heartbeat"), "plc.watchdog"),
+])
+def test_a_bad_plc_setting_is_one_error_naming_its_key(tmp_path, change, key):
+    path = tmp_path / "bridge.yaml"
+    text = open(plc_config(tmp_path, 4840)).read()
+    assert change[0] in text
+    path.write_text(text.replace(change[0], change[1]))
+    with pytest.raises(ConfigError) as error:
+        load_bridge(path)
+    assert error.value.key == key, str(error.value)
+
+
+def test_an_entity_wired_to_the_plc_and_on_the_bus_is_refused(tmp_path):
+    text = e2e_only_text() + PLC.format(port=4840, security="sign_encrypt")
+    path = tmp_path / "bridge.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match="one physical twin"):
+        load_bridge(path)
+
+
+# -- the daemon and the emulated PLC ----------------------------------------------------------
+@pytest.fixture
+def certificates(tmp_path):
+    folder = tmp_path / "keys"
+    bridge, plc = opcua_files(folder, "bridge"), opcua_files(folder, "plc")
+    return (*bridge, plc[0]), (*plc, bridge[0])
+
+
+class Source:
+    """Stands for the emulated entity's command source: what the PLC's program took."""
+
+    def __init__(self):
+        self.commands: queue.Queue = queue.Queue()
+
+    def deliver(self, payload: bytes) -> None:
+        self.commands.put(json.loads(payload)["fields"])
+
+
+def start(tmp_path, hub, certificates, security="sign_encrypt"):
+    port = free_port()
+    loaded = load_bridge(plc_config(tmp_path, port, security))
+    plc = EmulatedPlc(loaded.config.plc, loaded.samples, loaded.commands, loaded.safe,
+                      certificates=certificates[1] if security != "none" else None)
+    bridge = Bridge(loaded, hub, plc_certificates=certificates[0] if security != "none" else None)
+    return plc, bridge
+
+
+def samples_of(session, entity: str) -> queue.Queue:
+    got: queue.Queue = queue.Queue()
+    session.declare_subscriber(f"cellsim/welding_cell/physical/{entity}", lambda s: got.put(json.loads(s.payload.to_bytes())))
+    return got
+
+
+def next_message(messages: queue.Queue, condition, timeout: float = 10.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while True:
+        message = messages.get(timeout=max(0.01, deadline - time.monotonic()))
+        if condition(message):
+            return message
+
+
+def test_the_plcs_nodes_become_samples_and_a_bad_status_or_a_frozen_scan_fails_them(sessions, tmp_path, certificates):  # noqa: F811
+    hub, twin = sessions
+    curtain, welder = samples_of(twin, "light_barrier"), samples_of(twin, "welder")
+    plc, bridge = start(tmp_path, hub, certificates)
+    stop, thread = run_daemon(bridge)
+    try:
+        plc.publish("light_barrier", {"broken": True}, None)
+        plc.publish("welder", {"safety_mode": "ssmon", "activity": "welding"}, None)
+        assert next_message(curtain, lambda m: "fields" in m)["fields"] == {"broken": True}
+        assert next_message(welder, lambda m: "fields" in m)["fields"] == {"safety_mode": "ssmon", "activity": "welding"}
+        assert bridge.plc.connected and bridge.plc.connections == 1
+        plc.publish("light_barrier", {"broken": False}, None)
+        assert next_message(curtain, lambda m: m.get("fields") == {"broken": False})
+        # the curtain's input fails in the PLC: its nodes carry a bad status, the curtain is corrupt at once
+        plc.publish("light_barrier", {"broken": False}, "bad_status")
+        assert next_message(curtain, lambda m: "failed" in m)["failed"] == "corrupt"
+        plc.publish("light_barrier", {"broken": False}, None)
+        next_message(curtain, lambda m: "fields" in m)  # and trusted again once good
+        # the PLC's scan freezes: its heartbeat stands still, every entity of it goes stale within the watchdog
+        plc.publish("welder", {"safety_mode": "ssmon", "activity": "welding"}, "freeze")
+        frozen = time.monotonic()
+        assert next_message(welder, lambda m: "failed" in m)["failed"] == "timeout"
+        assert next_message(curtain, lambda m: "failed" in m)["failed"] == "timeout"
+        assert time.monotonic() - frozen < 0.2 + 0.2  # the watchdog, and the daemon's cycle and a publish
+    finally:
+        stop.set()
+        thread.join(timeout=10)
+        bridge.close()
+        plc.close()
+
+
+def test_in_twin_mode_the_welders_command_nodes_carry_the_twins_command_and_its_safe_one_when_lost(sessions, tmp_path, certificates):  # noqa: F811
+    hub, twin = sessions
+    plc, bridge = start(tmp_path, hub, certificates)
+    source = Source()
+    plc.sources["welder"] = source
+    stop, thread = run_daemon(bridge)
+    mode = twin.declare_publisher("cellsim/welding_cell/twin/welder/twin_mode")
+    command = twin.declare_publisher("cellsim/welding_cell/command/welder")
+    token = twin.liveliness().declare_token("cellsim/welding_cell/alive/twin")
+    try:
+        deadline = time.monotonic() + 10
+        while not bridge.plc.connected:
+            assert time.monotonic() < deadline
+            threading.Event().wait(0.01)
+        mode.put(json.dumps({"t": time.time(), "sim_time": 0.0, "value": "twin"}))
+        while bridge.twin_mode("welder") is not TwinMode.TWIN:
+            assert time.monotonic() < deadline
+            threading.Event().wait(0.01)
+        fields = {"safety_mode_request": "normal", "activity_request": "welding", "command": 1.0}
+        seq = 0
+        while True:
+            seq += 1
+            command.put(json.dumps({"t": time.time(), "seq": seq, "fields": fields}))
+            try:
+                next_message(source.commands, lambda c: c == fields, timeout=0.1)
+                break
+            except queue.Empty:
+                assert time.monotonic() < deadline, "the PLC never took the twin's command"
+        token.undeclare()
+        token = None
+        lost = time.monotonic()
+        # the welder kind's safe command: stopped, off, no weld
+        next_message(source.commands, lambda c: c == {"safety_mode_request": "stopped", "activity_request": "off",
+                                                       "command": 0.0})
+        assert time.monotonic() - lost < 1.0
+        assert bridge.plc.safe_writes > 0
+    finally:
+        if token is not None:
+            token.undeclare()
+        stop.set()
+        thread.join(timeout=10)
+        bridge.close()
+        plc.close()
+
+
+def test_a_client_with_another_certificate_is_refused_and_the_daemon_refuses_another_plc(tmp_path, certificates):
+    import asyncio
+
+    from asyncua import Client
+    from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+    from asyncua.crypto.uacrypto import CertProperties
+
+    port = free_port()
+    loaded = load_bridge(plc_config(tmp_path, port))
+    plc = EmulatedPlc(loaded.config.plc, loaded.samples, loaded.commands, loaded.safe, certificates=certificates[1])
+    stranger = opcua_files(tmp_path / "other", "bridge")
+    impostor = opcua_files(tmp_path / "other", "plc")[0]
+
+    async def connect(certificate, key, server) -> str:
+        client = Client(f"opc.tcp://127.0.0.1:{port}", timeout=5)
+        client.application_uri = "urn:cellsim:bridge"
+        await client.set_security(SecurityPolicyBasic256Sha256, CertProperties(str(certificate), "pem"),
+                                  CertProperties(str(key), "pem"), server_certificate=CertProperties(str(server), "pem"))
+        try:
+            async with client:
+                return str(await client.get_node("ns=2;s=PLC.Heartbeat").read_value())
+        except Exception as e:  # noqa: BLE001 - what the refusal raises
+            return f"refused: {type(e).__name__}"
+
+    try:
+        own_certificate, own_key, plc_certificate = certificates[0]
+        assert asyncio.run(connect(own_certificate, own_key, plc_certificate)).isdigit()  # the bridge's own: it reads
+        assert asyncio.run(connect(*stranger, plc_certificate)).startswith("refused")  # anyone else's: refused
+    finally:
+        plc.close()
+    # the daemon, given the certificate of another PLC than the one serving: it never connects
+    from cellsim.bridges.plc import PlcLink
+
+    plc = EmulatedPlc(loaded.config.plc, loaded.samples, loaded.commands, loaded.safe, certificates=certificates[1])
+    inbox: queue.Queue = queue.Queue()
+
+    class Session:
+        def declare_publisher(self, key):
+            return type("P", (), {"put": lambda self, payload: None})()
+
+    link = PlcLink("welding_cell", loaded.config.plc, Session(), loaded.samples, loaded.commands, loaded.safe, inbox,
+                   certificates=(own_certificate, own_key, impostor))
+    link.start()
+    try:
+        with pytest.raises(queue.Empty):
+            inbox.get(timeout=2.0)  # nothing from a PLC it does not trust
+        assert not link.connected
+    finally:
+        link.close()
+        plc.close()
