@@ -736,3 +736,12 @@ def test_a_twin_mode_that_is_not_one_is_refused_and_the_mode_stays_as_it_was(ses
         assert bridge.twin_mode("robot") is None  # never heard: no command goes out for it
     finally:
         bridge.close()
+
+
+def test_a_configuration_on_a_base_elsewhere_finds_the_bases_scenario_and_dbc_beside_the_base(tmp_path):
+    """Paths are relative to the file that wrote them: a cell's own file in another folder, on the shipped base."""
+    own = tmp_path / "site" / "bridge.yaml"
+    own.parent.mkdir()
+    own.write_text(f"base: {SHIPPED}\nrecover_after: 5\n")
+    loaded = load_bridge(own)
+    assert loaded.cell == "welding_cell" and loaded.config.recover_after == 5 and loaded.database.messages

@@ -325,12 +325,12 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
         return ConfigError(*loaded.where(key), key, problem)
 
     if sf is None:
-        scenario = path.parent / cfg.scenario
+        scenario = relative_to_its_file(loaded, "scenario", cfg.scenario)
         if not scenario.is_file():
             raise error("scenario", f"file not found: {cfg.scenario}")
         sf = load_scenario(scenario)
     protocols = _protocols(sf)
-    dbc = path.parent / cfg.dbc
+    dbc = relative_to_its_file(loaded, "dbc", cfg.dbc)
     if not dbc.is_file():
         raise error("dbc", f"file not found: {cfg.dbc}")
     try:
@@ -448,6 +448,11 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
             frames[mapping.message] = SignalMap.of_command(messages[mapping.message], mapping.fields, safe[name],
                                                            dict(zip(commands[name].names, commands[name].types)))
     return LoadedBridge(cfg, database, path, sf.scenario.name, samples, commands, safe, programs, frames)
+
+
+def relative_to_its_file(loaded, key: str, value: str) -> Path:
+    """A path a key names, relative to the file that wrote the key (a base's key: the base's folder)."""
+    return Path(loaded.where(key)[0]).parent / value
 
 
 def _check_plc(plc: PlcSettings, protocol_of, error, samples: dict, commands: dict, safe: dict) -> None:
