@@ -260,3 +260,29 @@ def test_a_client_with_another_certificate_is_refused_and_the_daemon_refuses_ano
     finally:
         link.close()
         plc.close()
+
+
+def test_a_restarted_plc_is_heard_at_once_and_a_bad_heartbeat_fails_every_entity(tmp_path):
+    """The heartbeat: any change is a scan (a PLC restarting counts from 0 again, a counter wraps), a repeat is not;
+    a heartbeat the PLC itself marks bad, or that is no integer, fails every entity of the PLC."""
+    from cellsim.bridges.plc import HEARTBEAT, PlcLink
+
+    loaded = load_bridge(plc_config(tmp_path, 4840, "none", "  insecure_because: a unit test\n"))
+    published = []
+
+    class Session:
+        def declare_publisher(self, key):
+            return type("P", (), {"put": lambda self, payload: published.append((key, json.loads(payload)))})()
+
+    link = PlcLink("welding_cell", loaded.config.plc, Session(), loaded.samples, loaded.commands, loaded.safe, queue.Queue())
+    nodes = {name: node for name, node in loaded.config.plc.entities["light_barrier"].fields.items()}
+    link.take(nodes["broken"].replace(" ", ""), False, True, 0.0)
+    samples = lambda: [m for k, m in published if k.endswith("physical/light_barrier") and "fields" in m]  # noqa: E731
+    for t, beat in enumerate((500, 501, 502, 0, 1), start=1):  # 502 -> 0: the PLC restarted
+        link.take(HEARTBEAT, beat, True, 0.01 * t)
+    assert len(samples()) == 5  # every scan heard, the restart's included
+    link.take(HEARTBEAT, 1, True, 0.06)  # a repeat: the scan did not move
+    assert len(samples()) == 5 and link.heartbeat.counts["repeated"] == 1
+    link.take(HEARTBEAT, 2, False, 0.07)  # the PLC marks its own heartbeat bad
+    failures = [m["failed"] for k, m in published if "failed" in m]
+    assert failures.count("corrupt") == 2  # the curtain and the welder

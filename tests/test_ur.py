@@ -93,6 +93,8 @@ def test_the_programs_reported_mode_counts_only_while_the_controller_itself_is_n
     for code in (3, 4, 5, 6, 7, 8, 9, 12, 13):  # any of the controller's safety stops: stopped, whatever the program says
         assert program.sample(state(program, safety_mode=code))["safety_mode"] == "stopped"
     assert program.sample(state(program, robot_mode=5))["safety_mode"] == "stopped"  # powered, brakes on: not running
+    for runtime in (0, 1, 3, 4, 5):  # the program stopped or paused: its registers are stale, nothing obeys the twin
+        assert program.sample(state(program, runtime_state=runtime))["safety_mode"] == "stopped"
     assert program.sample(state(program, safety_mode=rtde.SAFETY_REDUCED))["safety_mode"] == "ssmon"
     for register, code in ((r.safety_mode, 7), (r.activity, -1), (r.reached_pose, 99)):
         with pytest.raises(OutOfRange):
@@ -118,6 +120,11 @@ def test_a_command_goes_out_as_the_slider_at_its_modes_cap_and_codes_the_program
     assert safe["speed_slider_fraction"] == 0.0 and safe[f"input_int_register_{r.safety_mode_request}"] == 5
     # a code the program cannot read is the stop
     assert program.command({f"input_int_register_{r.safety_mode_request}": 42})[0]["safety_mode_request"] == "stopped"
+    # the twin not commanding (model, shadow): no request, the slider left alone, the heartbeat still counting
+    released = program.input_values(None, 9)
+    assert released["speed_slider_mask"] == 0 and released[f"input_int_register_{r.heartbeat}"] == 9
+    assert {released[f"input_int_register_{n}"] for n in (r.safety_mode_request, r.activity_request, r.target_pose)} == {-1}
+    assert program.command(released)[0] is None
 
 
 @pytest.mark.parametrize("extra, key", [
@@ -280,7 +287,12 @@ def test_in_twin_mode_the_controller_gets_the_slider_and_registers_and_slider_0_
         while bridge.twin_mode("robot") is not TwinMode.SHADOW or not bridge.robots["robot"].connected:
             assert time.monotonic() < deadline
             threading.Event().wait(0.01)
-        assert controller.inputs.empty()  # shadow: the controller answers to its own program
+        # shadow: the program runs on its own (no request, the slider untouched), told the daemon is there
+        first = controller.inputs_until(lambda v: True)
+        second = controller.inputs_until(lambda v: True)
+        for values in (first, second):
+            assert values["speed_slider_mask"] == 0 and values[f"input_int_register_{r.safety_mode_request}"] == -1
+        assert second[f"input_int_register_{r.heartbeat}"] > first[f"input_int_register_{r.heartbeat}"]
         mode.put(json.dumps({"t": time.time(), "sim_time": 0.1, "value": "twin"}))
         fields = {"safety_mode_request": "ssmon", "activity": "welding", "target_pose": 2.0}
         seq = 0
@@ -371,3 +383,52 @@ def test_bad_rtde_arguments_are_one_line_exit_2(args, expected):
     proc = subprocess.run([sys.executable, "-m", "cellsim", *args], capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert proc.returncode == 2, proc.stderr
     assert expected in proc.stderr.strip().splitlines()[-1], proc.stderr  # one line says it (after argparse's usage)
+
+
+def test_a_controller_gone_silent_without_closing_is_dialled_again(sessions, tmp_path, program):  # noqa: F811
+    """A controller powered off or cut off sends no FIN: the daemon's read times out, it closes and dials again."""
+    hub, _ = sessions
+    controller = Controller(program)
+    bridge = Bridge(load_bridge(ur_config(tmp_path, controller.port)), hub)
+    stop, thread = run_daemon(bridge)
+    link = bridge.robots["robot"]
+    try:
+        deadline = time.monotonic() + 10
+        while not (link.connected and controller.server.clients):
+            assert time.monotonic() < deadline
+            threading.Event().wait(0.01)
+        controller.publish()  # then nothing more, the connection left open
+        while link.connections < 2:  # RECEIVE_TIMEOUT (1 s), then reconnect_after (0.2 s)
+            assert time.monotonic() < deadline, "the silent controller was not dialled again"
+            threading.Event().wait(0.01)
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+        bridge.close()
+        controller.server.close()
+
+
+def test_the_emulated_program_takes_a_command_only_when_the_heartbeat_moved_and_none_when_released(program):
+    from cellsim.bridges.devices import EmulatedController
+
+    class Source:
+        def __init__(self):
+            self.got = []
+
+        def deliver(self, payload):
+            self.got.append(json.loads(payload)["fields"])
+
+    emulated = EmulatedController("127.0.0.1", 0, program, 500.0)
+    try:
+        emulated.source = source = Source()
+        command = {"safety_mode_request": "pflim", "activity": "idle", "target_pose": 0.0}
+        emulated._on_inputs(program.input_values(command, 1))
+        emulated._on_inputs(program.input_values(command, 1))  # the same heartbeat: the daemon stalled, not taken
+        emulated._on_inputs(program.input_values(None, 2))  # released: no command at all
+        emulated._on_inputs(program.input_values(command, 3))
+        assert source.got == [command, command]
+        assert emulated.slider == 0.25  # pflim's cap over normal's
+        emulated._on_inputs({"speed_slider_mask": 1})  # a slider without its fraction: ignored, nothing raised
+        assert emulated.slider == 0.25
+    finally:
+        emulated.server.close()

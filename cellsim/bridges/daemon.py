@@ -19,7 +19,11 @@ mapping's watchdog (judged on the daemon's own clock, ``cellsim.link``), or the
 twin's liveliness token is gone, it gets the entity kind's *safe command*:
 losing the supervisor makes the cell safer. In model
 or shadow mode nothing is sent: the device answers to its own controls. A
-robot gets requests on its controller's request key the same way.
+robot gets requests on its controller's request key the same way. A UR program
+and a PLC are told instead, at the command cycle, that the twin does not command
+the entity (``release``: no request, their heartbeat still counting), so that
+their own watch on the daemon's heartbeat tells a lost daemon from a twin that
+only watches.
 
 **Diagnostics** per device (``cellsim.bridges.diagnostics``) and the daemon's own
 status (frames, added latency) go out on ``cellsim/<cell>/diagnostics/...``.
@@ -237,26 +241,33 @@ class Bridge:
     def _send_commands(self, now: float, due_only: bool = False, only: str | None = None) -> None:
         cfg = self.loaded.config
         for entity in self.commanded():
-            if (only is not None and entity != only) or self._modes.get(entity) is not TwinMode.TWIN:
+            if only is not None and entity != only:
+                continue
+            twin = self._modes.get(entity) is TwinMode.TWIN
+            robot = self.robots.get(entity)
+            plc = self.plc is not None and entity in self.plc.commands
+            if not twin and not (isinstance(robot, UrLink) or plc):
                 continue  # not in twin mode (or never heard of): the device answers to its own controls
             link = self._command_links[entity]
             link.watchdog(now)
             lost = not self._twin_alive or link.failed
             fields = self._commands.get(entity, {})
-            targets = [(m.message, m.cycle_time, m) for m in cfg.commands.get(entity, [])]
-            if entity in cfg.robots:
+            targets = [(m.message, m.cycle_time, m) for m in cfg.commands.get(entity, [])] if twin else []
+            if robot is not None:
                 targets.append(("request", cfg.robots[entity].command_cycle_time, None))
-            if self.plc is not None and entity in self.plc.commands:
+            if plc:
                 targets.append(("plc", cfg.plc.command_cycle_time, None))
             for name, cycle, mapping in targets:
                 key = (entity, name)
                 if due_only and now < self._due.get(key, now):
                     continue
                 self._due[key] = max(self._due.get(key, now) + cycle, now)
-                if name == "plc":
+                if not twin:  # a UR program or a PLC told the twin does not command it, the heartbeat counting
+                    robot.release(now) if name == "request" else self.plc.release(entity)
+                elif name == "plc":
                     self.plc.send(entity, None if lost else fields)
                 elif mapping is None:
-                    self.robots[entity].send(None if lost else fields, now)
+                    robot.send(None if lost else fields, now)
                 else:
                     signals = self._frames[mapping.message][1]
                     self._send(mapping, signals.safe_signals() if lost else signals.signals(fields), safe=lost)

@@ -32,6 +32,7 @@ dropped when it ends). A robot controller has the Zenoh faults of
 from __future__ import annotations
 
 import json
+import math
 import threading
 import time
 from collections import deque
@@ -159,7 +160,8 @@ class EmulatedController:
     safe after the robot's ``stale_after``.
     """
 
-    def __init__(self, host: str, port: int, program):
+    def __init__(self, host: str, port: int, program, rate: float):
+        """``rate``: how often the arm's state is published (Hz): the robot's cycle time."""
         from cellsim.ur.controller import RtdeServer
 
         self.program = program
@@ -172,20 +174,23 @@ class EmulatedController:
         self._seq = 0
         self._heartbeat = None
         self._lock = threading.Lock()
-        self.server = RtdeServer(host, port, on_inputs=self._on_inputs)
+        self.server = RtdeServer(host, port, on_inputs=self._on_inputs, rate=rate)
 
     def _on_inputs(self, values: dict) -> None:  # on the client's thread
         heartbeat = rtde_register(self.program.registers.heartbeat)
         with self._lock:
             self.inputs.update(values)
-            if values.get("speed_slider_mask", 0) & 1:
-                self.slider = min(1.0, max(0.0, float(values["speed_slider_fraction"])))
+            if values.get("speed_slider_mask", 0) & 1 and "speed_slider_fraction" in values:
+                fraction = float(values["speed_slider_fraction"])
+                self.slider = min(1.0, max(0.0, fraction)) if math.isfinite(fraction) else 0.0
                 if self.scaling is not None:
                     self.scaling.set(self.slider)
             if self.source is None or heartbeat not in values or values[heartbeat] == self._heartbeat:
                 return
             self._heartbeat = values[heartbeat]
             fields, _ = self.program.command(self.inputs)
+            if fields is None:
+                return  # the twin does not command the arm: no command (its source goes stale, and fails safe)
             self._seq += 1
             payload = codec.encode_fields(time.time(), self._seq, fields)
         self.source.deliver(payload)
@@ -223,7 +228,8 @@ class EmulatedDevices:
             for name, robot in self.config.robots.items():
                 if robot.rtde is not None:
                     port = robot.rtde.port if rtde_port is None else rtde_port
-                    self.controllers[name] = EmulatedController(robot.rtde.host, port, loaded.programs[name])
+                    self.controllers[name] = EmulatedController(robot.rtde.host, port, loaded.programs[name],
+                                                                1.0 / robot.cycle_time)
             if self.config.plc is not None:
                 from cellsim.bridges.plc_server import EmulatedPlc
 

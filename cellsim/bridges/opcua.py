@@ -15,7 +15,8 @@ bridge (the client, ``opcua-bridge.pem``/``.key``) and the PLC
 (``opcua-plc.pem``/``.key``: the emulated PLC's; for a real PLC, replace
 ``opcua-plc.pem`` with the certificate the PLC exports and put ``opcua-bridge.pem``
 in the PLC's trust list). Each side trusts exactly the other's certificate: the
-daemon refuses a server presenting another, the emulated PLC a client with another.
+daemon refuses a server presenting another; the emulated PLC (asyncua's server) a session
+created with another.
 A pair missing from an older keys folder is made on first use
 (``cellsim.live.pki.opcua_files``).
 """

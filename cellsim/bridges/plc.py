@@ -12,9 +12,11 @@ inbox, and the daemon's thread judges it (``PlcLink.take``), by the link rule
   input: a wire break, a module fault): the entity is *corrupt*;
 * a value the field cannot take (a code outside its list, a non-finite number):
   *range*;
-* the PLC's heartbeat, a counter its program increments every scan, must move: a
-  repeat is refused, and with no movement for ``watchdog`` (a stopped PLC, a lost
-  connection, a frozen subscription) every entity of the PLC is *stale* (timeout).
+* the PLC's heartbeat, a counter its program increments every scan, must move
+  (any change counts, so a restarted PLC or a counter that wraps is heard at once):
+  a repeat is refused, and with no movement for ``watchdog`` (a stopped PLC, a lost
+  connection, a frozen subscription) every entity of the PLC is *stale* (timeout);
+  a heartbeat with a bad status code, or not an integer, fails every entity.
 
 Every movement of the heartbeat counts as a good message for each entity whose
 nodes are all good (its sample is published, so the twin's entity stays fresh at
@@ -92,6 +94,7 @@ class PlcLink:
             for name, node in mapping.fields.items():
                 self._node_field[_canonical(node)] = (entity, name)
         self.heartbeat = LinkTrust(timeout=settings.watchdog, recover_after=1, max_gap=1 << 62, faults=PLC_FAULTS)
+        self._last_heartbeat = None
         self.connected = False
         self.connections = 0
         self.writes = 0
@@ -109,8 +112,14 @@ class PlcLink:
     def take(self, node: str, value, good: bool, now: float) -> None:
         """One notification: the PLC's heartbeat, or a node of an entity's sample, with its status."""
         if node == HEARTBEAT:
-            if self.heartbeat.sequence(int(value) if isinstance(value, int) else -1, now) is not None:
-                return  # a repeat: the PLC's scan did not move
+            if not good or isinstance(value, bool) or not isinstance(value, int):
+                for link in self.entities.values():  # the PLC's own scan counter is bad: nothing of it is trusted
+                    self._fail(link, Fault.CORRUPT if not good else Fault.RANGE, now)
+                return
+            if value == self._last_heartbeat:
+                self.heartbeat.fail(Fault.REPEATED)  # counted: the PLC's scan did not move
+                return
+            self._last_heartbeat = value  # any change is a scan: a restarted PLC or a counter that wraps included
             self.heartbeat.good(now)
             for link in self.entities.values():
                 link.received += 1
@@ -176,10 +185,23 @@ class PlcLink:
         if fields is None:
             self.safe_writes += 1
             fields = self.safe[entity]
-        fields = {**self.safe[entity], **fields}
+        self._command(entity, {**self.safe[entity], **fields})
+
+    def release(self, entity: str) -> None:
+        """The twin does not command the entity (model or shadow mode): its command nodes hold no value (-1,
+        NaN; a flag false), the heartbeat counting (the PLC program runs the device on its own)."""
+        self._command(entity, None)
+
+    def _command(self, entity: str, fields: dict | None) -> None:
         self._heartbeat_out = (self._heartbeat_out + 1) % 2**31
         types = dict(zip(self.commands[entity].names, self.commands[entity].types))
-        values = [(node, to_node(types[name], fields.get(name)), variant_type(types[name]))
+
+        def value(name: str):
+            if fields is None:  # released: no value (a flag has none: false)
+                return False if types[name].kind == "bool" else to_node(types[name], None)
+            return to_node(types[name], fields.get(name))
+
+        values = [(node, value(name), variant_type(types[name]))
                   for name, node in self.settings.entities[entity].commands.items()]
         values.append((self.settings.command_heartbeat, self._heartbeat_out, None))
         loop = self._loop

@@ -7,8 +7,12 @@ each entity of the PLC writes its sample's fields to its nodes at the PLC's scan
 scans, and under the twin's command (``--commanded-by-twin``) the command nodes a
 client writes become the entity's commands, taken only when the client's command
 heartbeat moved (the PLC's program's own watchdog: a lost daemon's commands stop,
-and the entity's command source fails safe after its ``stale_after``). A command
-node holding a value its field cannot take reads as the kind's safe value.
+and the entity's command source fails safe after its ``stale_after``). An entity
+whose command nodes hold no value is not commanded by the twin (released); a
+command node holding a value its field cannot take reads as the kind's safe value.
+
+The certificate check is asyncua's: it validates the client certificate a session
+presents when it is created (``CreateSession``), against the bridge's.
 
 Security as the daemon's: Basic256Sha256 Sign & Encrypt with the PLC's OPC UA
 certificate, accepting only the bridge's (``security: none``: no security).
@@ -167,13 +171,16 @@ class EmulatedPlc:
             source = self.sources.get(entity)
             if source is None:
                 continue
-            fields = {}
+            fields, released = {}, True
             for name, text in self.settings.entities[entity].commands.items():
                 written = self._commands.get(ua.NodeId.from_string(text).to_string())
                 try:
                     fields[name] = from_node(types[name], written, nullable=True)
                 except NodeValueError:
                     fields[name] = self.safe[entity][name]  # a value the device cannot take: its safe one
+                released = released and (fields[name] is None or types[name].kind == "bool")
+            if released:
+                continue  # no value in any command node: the twin does not command it (its source goes stale)
             self._seq += 1
             self.commands_taken += 1
             source.deliver(codec.encode_fields(time.time(), self._seq, {**self.safe[entity], **fields}))

@@ -128,7 +128,9 @@ class RobotLink:
             self._encoder = JointStateEncoder(cfg.joints)
             self._joint_state = self.session.declare_publisher(cfg.ros_key, encoding=zenoh.Encoding.APPLICATION_CDR)
 
-    def handle(self, payload: bytes, now: float | None = None) -> Judgement:
+    def handle(self, payload: bytes, now: float | None = None, wall: float | None = None) -> Judgement:
+        """Judge one state that arrived at ``now`` (the daemon's clock) and ``wall`` (UNIX s), and publish what it
+        means for the twin."""
         import time
 
         now = time.monotonic() if now is None else now
@@ -136,7 +138,7 @@ class RobotLink:
             self.received += 1
             if self.diagnostics is not None:
                 self.diagnostics.frame()
-            judgement = self.checker.check(payload, now)
+            judgement = self.checker.check(payload, now, wall)
             if judgement.good:
                 state = judgement.values
                 fields = {f"q{i}": q for i, q in enumerate(state["position"])}

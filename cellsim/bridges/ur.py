@@ -47,6 +47,9 @@ from cellsim.ur.program import OutOfRange, UrProgram
 log = logging.getLogger("cellsim.bridge")
 SETUP_TIMEOUT = 2.0
 """How long (s) the daemon waits for the controller's reply to each setup package."""
+RECEIVE_TIMEOUT = 1.0
+"""A streaming controller silent for this long (s) is taken as lost and dialled again (the watchdog has failed
+the link long before)."""
 
 
 @dataclass
@@ -61,17 +64,19 @@ class RtdeStateChecker(LinkTrust):
     max_gap: int = 5
     faults: tuple = ROBOT_FAULTS
 
-    def check(self, payload: bytes, now: float) -> Judgement:
-        """Judge one data package's payload (recipe id first) received at ``now`` (the daemon's clock)."""
+    def check(self, payload: bytes, now: float, wall: float | None = None) -> Judgement:
+        """Judge one data package's payload (recipe id first) that arrived at ``now`` (the daemon's clock) and
+        ``wall`` (UNIX s: the sample's time stamp)."""
         try:
             values = self.recipe.unpack(payload)
             timestamp = values["timestamp"]
-            if not math.isfinite(timestamp) or not all(math.isfinite(x) for x in (*values["actual_q"], *values["actual_qd"])):
+            if not all(math.isfinite(x) for x in (timestamp, *values["actual_q"], *values["actual_qd"])):
                 raise rtde.RtdeError("a value that is not a number")
-        except (rtde.RtdeError, struct.error, AttributeError):
+            cycle = round(timestamp / self.cycle_time)
+        except (rtde.RtdeError, struct.error, AttributeError, OverflowError, ValueError):
             return self.fail(Fault.CORRUPT, now)
-        return self.receive(now, round(timestamp / self.cycle_time), zlib.crc32(payload), values=values,
-                            in_range=self._in_range)
+        self._wall = time.time() if wall is None else wall
+        return self.receive(now, cycle, zlib.crc32(payload), values=values, in_range=self._in_range)
 
     def _in_range(self, values: dict) -> Fault | None:
         if (not all(abs(q) <= self.joint_limit for q in values["actual_q"])
@@ -81,7 +86,7 @@ class RtdeStateChecker(LinkTrust):
             fields = self.program.sample(values)
         except OutOfRange:
             return Fault.RANGE
-        values.update(t=time.time(), position=list(values["actual_q"]), velocity=list(values["actual_qd"]), **fields)
+        values.update(t=self._wall, position=list(values["actual_q"]), velocity=list(values["actual_qd"]), **fields)
         return None
 
 
@@ -112,6 +117,12 @@ class UrLink(RobotLink):
     def start(self) -> None:
         """Dial the controller and keep dialling while it is lost (a thread of its own)."""
         self._thread.start()
+
+    def handle(self, arrival: tuple, now: float | None = None) -> Judgement:
+        """Judge one package as it arrived: ``(payload, wall clock, daemon clock)`` at its arrival, so that a
+        package taken late is judged (and stamped) by when it came, not by when it was taken."""
+        payload, wall, arrived = arrival
+        return super().handle(payload, arrived, wall)
 
     # -- the connection ----------------------------------------------------------------
     def _run(self) -> None:
@@ -160,7 +171,7 @@ class UrLink(RobotLink):
         except BaseException:
             sock.close()
             raise
-        sock.settimeout(None)
+        sock.settimeout(RECEIVE_TIMEOUT)  # a controller silent this long (powered off, cut off) is dialled again
         self.checker.recipe = output
         with self._send_lock:
             self._sock, self.connected = sock, True
@@ -183,6 +194,8 @@ class UrLink(RobotLink):
         sock.sendall(rtde.package(kind, payload))
         deadline = time.monotonic() + SETUP_TIMEOUT
         while True:
+            if time.monotonic() >= deadline:
+                raise rtde.RtdeError(f"no reply to setup package {chr(kind)!r} within {SETUP_TIMEOUT:g} s")
             sock.settimeout(max(0.01, deadline - time.monotonic()))
             data = sock.recv(65536)
             if not data:
@@ -199,10 +212,10 @@ class UrLink(RobotLink):
             data = sock.recv(65536)
             if not data:
                 raise rtde.RtdeError("the controller closed the connection")
-            arrived = time.perf_counter()
+            arrived, mono, wall = time.perf_counter(), time.monotonic(), time.time()
             for kind, payload in reader.feed(data):
                 if kind == rtde.DATA_PACKAGE:
-                    put(("robot", entity, payload, arrived))
+                    put(("robot", entity, (payload, wall, mono), arrived))
                 elif kind == rtde.TEXT_MESSAGE:
                     log.warning("%s: the RTDE controller says: %r", entity, payload)
 
@@ -214,15 +227,36 @@ class UrLink(RobotLink):
         if fields is None:
             self.safe_requests_sent += 1
             fields = self.safe
+        self._write({**self.safe, **fields})
+
+    def release(self, now: float) -> None:
+        """The twin does not command the robot (model or shadow mode): every request register -1, the slider
+        left alone, the heartbeat counting (the program runs on its own, and knows the daemon is there)."""
+        self._write(None)
+
+    def _write(self, command: dict | None) -> None:
         self._heartbeat += 1
-        values = self.program.input_values({**self.safe, **fields}, self._heartbeat)
+        values = self.program.input_values(command, self._heartbeat)
+        data = self._input.pack(values) if self._input is not None else b""
         with self._send_lock:
-            if self._sock is None:
+            sock = self._sock
+            if sock is None:
                 return
-            try:
-                self._sock.sendall(self._input.pack(values))
+            try:  # never blocks the daemon's thread: a controller that does not take its inputs is dropped
+                sent = sock.send(data, socket.MSG_DONTWAIT)
+            except (BlockingIOError, InterruptedError):
+                sent = 0
             except OSError as e:
                 log.warning("%s: RTDE send failed: %s", self.entity, e)
+                sent = -1
+            if sent != len(data):
+                if sent >= 0:
+                    log.warning("%s: the RTDE controller does not take its inputs: dialling it again", self.entity)
+                self._sock = None
+                try:
+                    sock.shutdown(socket.SHUT_RDWR)  # the reader thread sees it, closes and dials again
+                except OSError:
+                    pass
 
     def close(self) -> None:
         self._stop.set()

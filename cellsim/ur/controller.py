@@ -56,13 +56,22 @@ class _Client:
         with self.lock:
             self.sock.sendall(data)
 
+    def stream(self, data: bytes) -> None:
+        """A state package, never blocking the emulated cell: a client that does not read its packages is dropped
+        (OSError), as a controller drops one whose buffer is full."""
+        with self.lock:
+            if self.sock.send(data, socket.MSG_DONTWAIT) != len(data):
+                raise OSError("the client does not read its packages")
+
 
 class RtdeServer:
     """An RTDE server on ``host:port``: :meth:`publish` streams a state to every started client,
     ``on_inputs(values)`` gets every input data package's values (on the client's thread)."""
 
-    def __init__(self, host: str, port: int, on_inputs=None, version=VERSION):
+    def __init__(self, host: str, port: int, on_inputs=None, version=VERSION, rate: float = FREQUENCY):
+        """``rate``: how often :meth:`publish` is called (Hz): a client asking for less gets every n-th state."""
         self.on_inputs = on_inputs or (lambda values: None)
+        self.rate = rate
         self.version = version
         self._listener = socket.create_server((host, port), reuse_port=False)
         self.address = self._listener.getsockname()[:2]
@@ -92,7 +101,7 @@ class RtdeServer:
                 continue
             data = self._package(client, values, fault)
             try:
-                client.send(data)
+                client.stream(data)
             except OSError:
                 self._drop(client)
                 continue
@@ -134,7 +143,7 @@ class RtdeServer:
                     break
                 for kind, payload in reader.feed(data):
                     self._answer(client, kind, payload)
-        except (OSError, rtde.RtdeError) as e:
+        except Exception as e:  # noqa: BLE001 - whatever a client sends: it is told why, and dropped
             if not self._closed.is_set():
                 log.info("RTDE client dropped: %s", e)
                 try:
@@ -164,7 +173,7 @@ class RtdeServer:
                 client.send(rtde.package(kind, bytes([0]) + rtde.names_payload(types)))
                 return
             client.output = rtde.Recipe(1, tuple(names), tuple(types))
-            client.every = max(1, round(FREQUENCY / frequency))
+            client.every = max(1, round(self.rate / frequency))
             client.send(rtde.package(kind, bytes([1]) + rtde.names_payload(types)))
         elif kind == rtde.SETUP_INPUTS:
             names = rtde.names_of(payload)
@@ -172,7 +181,7 @@ class RtdeServer:
                 types = [rtde.input_type(n) for n in names]
                 types = [rtde.IN_USE if t != rtde.NOT_FOUND and self._writers.get(n, client) is not client else t
                          for n, t in zip(names, types)]
-                refused = not names or rtde.NOT_FOUND in types or rtde.IN_USE in types
+                refused = not names or rtde.NOT_FOUND in types or rtde.IN_USE in types or len(client.inputs) >= 254
                 recipe_id = 0 if refused else len(client.inputs) + 1
                 if not refused:
                     client.inputs[recipe_id] = rtde.Recipe(recipe_id, tuple(names), tuple(types))

@@ -12,8 +12,10 @@ the named poses in order; a target pose is the named pose's index, -1 to hold).
 
 **State, controller to twin** (:meth:`UrProgram.sample`): ``q0..q5`` are
 ``actual_q`` (rad). The safety mode is *stopped* whenever the controller is in
-any safety stop (``safety_mode`` not NORMAL or REDUCED) or the arm is not
-running (``robot_mode`` not RUNNING): what the controller says of itself wins.
+any safety stop (``safety_mode`` not NORMAL or REDUCED), the arm is not running
+(``robot_mode`` not RUNNING) or the program is not (``runtime_state`` not
+PLAYING: its registers are stale, and nothing acts on the twin's requests): what
+the controller says of itself wins.
 Otherwise it is the mode the program reports. A code outside a field's list is a
 range fault, as is a joint beyond its limit.
 
@@ -22,7 +24,10 @@ safety mode's code, activity and target pose in their registers, and the speed
 slider (``speed_slider_mask`` 1, ``speed_slider_fraction``) at the requested
 mode's tool speed cap over the normal cap (0 in srmst and stopped), and a
 heartbeat register counting the commands sent: the program stops the arm when it
-stalls (the daemon lost, not only the twin). The speed
+stalls (the daemon lost, not only the twin). While the twin does not command the
+robot (model or shadow mode) the daemon writes -1 in every request register and
+leaves the slider alone (its mask 0), the heartbeat still counting: the program
+runs on its own. The speed
 slider scales every motion of the program; it is not a safety function: the
 program must also act on the requested mode (a protective stop, a safety-rated
 reduced mode), which docs/ur.md asks the integrator to check.
@@ -81,7 +86,8 @@ class UrProgram:
         holds a code outside its field's list."""
         r = self.registers
         fields = {f"q{i}": float(q) for i, q in enumerate(values["actual_q"])}
-        running = values["safety_mode"] in RUNNING_SAFETY and values["robot_mode"] == rtde.ROBOT_RUNNING
+        running = (values["safety_mode"] in RUNNING_SAFETY and values["robot_mode"] == rtde.ROBOT_RUNNING
+                   and values["runtime_state"] == rtde.RUNTIME_PLAYING)
         reported = self._value("safety_mode", values[rtde.int_register("output", r.safety_mode)])
         fields["safety_mode"] = reported if running else SafetyMode.STOPPED.value
         fields["activity"] = self._value("activity", values[rtde.int_register("output", r.activity)])
@@ -96,10 +102,15 @@ class UrProgram:
             raise OutOfRange(f"{name} code {code} is not one of {', '.join(ctype.domain())}") from None
 
     # -- twin -> controller --------------------------------------------------------------
-    def input_values(self, command: dict, heartbeat: int) -> dict:
-        """The input variables' values for a command of the twin (the entity's command fields), the
+    def input_values(self, command: dict | None, heartbeat: int) -> dict:
+        """The input variables' values for a command of the twin (the entity's command fields; None: the twin
+        does not command the robot, every request register -1 and the slider left as the program has it), the
         ``heartbeat`` count with it (wrapping within int32)."""
         r = self.registers
+        if command is None:
+            return {"speed_slider_mask": 0, "speed_slider_fraction": 1.0,
+                    **{rtde.int_register("input", n): -1 for n in (r.safety_mode_request, r.activity_request, r.target_pose)},
+                    rtde.int_register("input", r.heartbeat): heartbeat % 2**31}
         mode = command["safety_mode_request"]
         target = command.get("target_pose")
         target = -1 if target is None or not math.isfinite(target) or target < 0 else int(target)
@@ -119,11 +130,14 @@ class UrProgram:
         return int(ctype.encode(value)[0])
 
     # -- the emulated controller's side -------------------------------------------------
-    def command(self, inputs: dict) -> tuple[dict, float]:
+    def command(self, inputs: dict) -> tuple[dict | None, float]:
         """What the twin asked, as the program reads it from the controller's inputs: (the entity's command
-        fields, the speed slider's fraction). A code outside its list reads as the kind's stop (the
-        request as stopped, no activity, hold)."""
+        fields, or None when the safety-mode request is -1: the twin does not command it; the speed slider's
+        fraction). Any other code outside its list reads as the kind's stop (the request as stopped, no
+        activity, hold)."""
         r = self.registers
+        if inputs.get(rtde.int_register("input", r.safety_mode_request), -1) == -1:
+            return None, float(np.clip(inputs.get("speed_slider_fraction", 1.0), 0.0, 1.0))
 
         def value(name: str, code: int):
             try:
