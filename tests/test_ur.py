@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import queue
 import struct
@@ -182,6 +183,14 @@ class Twin:
                 return message
 
 
+def connected(link, controller, timeout: float = 10.0) -> None:
+    """Wait until the daemon's link has dialled the controller and the controller has it as a client."""
+    deadline = time.monotonic() + timeout
+    while not (link.connected and controller.server.clients):
+        assert time.monotonic() < deadline, "the daemon did not dial the controller"
+        threading.Event().wait(0.01)
+
+
 def run_daemon(bridge: Bridge):
     """The daemon's loop on a thread (as ``cellsim bridge`` runs it); returns its stop event."""
     from cellsim.bridges.daemon import run_bridge
@@ -192,7 +201,10 @@ def run_daemon(bridge: Bridge):
     return stop, thread
 
 
-def test_a_controllers_states_become_the_robots_samples_and_faults_fail_it_at_once(sessions, tmp_path, program):  # noqa: F811
+@contextlib.contextmanager
+def daemon_beside_controller(sessions, tmp_path, program):
+    """The daemon's loop running beside an emulated controller on a free loopback port, connected; yields
+    (controller, bridge, the robot's link, what the twin hears); everything stopped after."""
     hub, twin_session = sessions
     controller = Controller(program)
     bridge = Bridge(load_bridge(ur_config(tmp_path, controller.port)), hub)
@@ -200,10 +212,18 @@ def test_a_controllers_states_become_the_robots_samples_and_faults_fail_it_at_on
     stop, thread = run_daemon(bridge)
     link = bridge.robots["robot"]
     try:
-        deadline = time.monotonic() + 10
-        while not (link.connected and controller.server.clients):
-            assert time.monotonic() < deadline, "the daemon did not dial the controller"
-            threading.Event().wait(0.01)
+        connected(link, controller)
+        yield controller, bridge, link, twin
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+        bridge.close()
+        controller.server.close()
+        twin.subscriber.undeclare()
+
+
+def test_a_controllers_states_become_the_robots_samples_and_faults_fail_it_at_once(sessions, tmp_path, program):  # noqa: F811
+    with daemon_beside_controller(sessions, tmp_path, program) as (controller, bridge, link, twin):
         for _ in range(5):
             controller.publish(safety_mode="ssmon")
         sample = twin.next_sample(lambda m: "fields" in m)
@@ -218,26 +238,10 @@ def test_a_controllers_states_become_the_robots_samples_and_faults_fail_it_at_on
         # a package one byte short: corrupt, at once
         controller.publish(fault="corrupt")
         assert twin.next_sample(lambda m: "failed" in m)["failed"] == "corrupt"
-    finally:
-        stop.set()
-        thread.join(timeout=5)
-        bridge.close()
-        controller.server.close()
-        twin.subscriber.undeclare()
 
 
 def test_a_frozen_or_lost_controller_goes_stale_and_is_dialled_again(sessions, tmp_path, program):  # noqa: F811
-    hub, twin_session = sessions
-    controller = Controller(program)
-    bridge = Bridge(load_bridge(ur_config(tmp_path, controller.port)), hub)
-    twin = Twin(twin_session)
-    stop, thread = run_daemon(bridge)
-    link = bridge.robots["robot"]
-    try:
-        deadline = time.monotonic() + 10
-        while not (link.connected and controller.server.clients):
-            assert time.monotonic() < deadline
-            threading.Event().wait(0.01)
+    with daemon_beside_controller(sessions, tmp_path, program) as (controller, bridge, link, twin):
         for _ in range(5):
             controller.publish()
         twin.next_sample(lambda m: "fields" in m)
@@ -264,12 +268,6 @@ def test_a_frozen_or_lost_controller_goes_stale_and_is_dialled_again(sessions, t
         while not (link.connected and link.connections == 2):
             assert time.monotonic() < wait, "the daemon did not dial the controller again"
             threading.Event().wait(0.01)
-    finally:
-        stop.set()
-        thread.join(timeout=5)
-        bridge.close()
-        controller.server.close()
-        twin.subscriber.undeclare()
 
 
 def test_in_twin_mode_the_controller_gets_the_slider_and_registers_and_slider_0_when_the_twin_is_lost(sessions, tmp_path, program):  # noqa: F811
@@ -387,25 +385,12 @@ def test_bad_rtde_arguments_are_one_line_exit_2(args, expected):
 
 def test_a_controller_gone_silent_without_closing_is_dialled_again(sessions, tmp_path, program):  # noqa: F811
     """A controller powered off or cut off sends no FIN: the daemon's read times out, it closes and dials again."""
-    hub, _ = sessions
-    controller = Controller(program)
-    bridge = Bridge(load_bridge(ur_config(tmp_path, controller.port)), hub)
-    stop, thread = run_daemon(bridge)
-    link = bridge.robots["robot"]
-    try:
+    with daemon_beside_controller(sessions, tmp_path, program) as (controller, bridge, link, twin):
         deadline = time.monotonic() + 10
-        while not (link.connected and controller.server.clients):
-            assert time.monotonic() < deadline
-            threading.Event().wait(0.01)
         controller.publish()  # then nothing more, the connection left open
         while link.connections < 2:  # RECEIVE_TIMEOUT (1 s), then reconnect_after (0.2 s)
             assert time.monotonic() < deadline, "the silent controller was not dialled again"
             threading.Event().wait(0.01)
-    finally:
-        stop.set()
-        thread.join(timeout=5)
-        bridge.close()
-        controller.server.close()
 
 
 def test_the_emulated_program_takes_a_command_only_when_the_heartbeat_moved_and_none_when_released(program):

@@ -109,20 +109,32 @@ class CanOutlet:
         return can.Message(arbitration_id=self.message.frame_id, data=data, is_extended_id=False)
 
 
-class RobotStateEncoder:
-    """A robot entity's sample as its controller's state message (velocities by difference over
-    simulated time: the wall-clock times of two states of a run catching up may be microseconds apart)."""
+class JointMotion:
+    """A robot's joints from its samples, and their velocities by difference over simulated time (the wall-clock
+    times of two states of a run catching up may be microseconds apart)."""
 
     def __init__(self):
         self._last: tuple[float, list[float]] | None = None
 
-    def __call__(self, t: float, seq: int, fields: dict, sim_time: float) -> bytes:
+    def __call__(self, fields: dict, sim_time: float) -> tuple[list[float], list[float]]:
+        """(positions in rad, velocities in rad/s) of the sample ``fields`` at ``sim_time`` (s)."""
         position = [float(fields[f"q{i}"]) for i in range(6)]
         velocity = [0.0] * 6
         if self._last is not None and sim_time > self._last[0]:
             dt = sim_time - self._last[0]
             velocity = [(q - q0) / dt for q, q0 in zip(position, self._last[1])]
         self._last = (sim_time, position)
+        return position, velocity
+
+
+class RobotStateEncoder:
+    """A robot entity's sample as its controller's state message (``cellsim.bridges.robot``)."""
+
+    def __init__(self):
+        self._motion = JointMotion()
+
+    def __call__(self, t: float, seq: int, fields: dict, sim_time: float) -> bytes:
+        position, velocity = self._motion(fields, sim_time)
         state = {"t": t, "seq": seq, "position": position, "velocity": velocity,
                  "safety_mode": fields["safety_mode"], "activity": fields["activity"], "reached_pose": fields["reached_pose"]}
         return json.dumps(state, separators=(",", ":")).encode()
@@ -133,7 +145,7 @@ class RtdeOutlet:
 
     def __init__(self, controller):
         self.controller = controller
-        self._last: tuple[float, list[float]] | None = None
+        self._motion = JointMotion()
 
     @property
     def faults(self):
@@ -142,12 +154,7 @@ class RtdeOutlet:
         return RTDE_FAULTS
 
     def send(self, fields: dict, fault: str | None, sim_time: float) -> int:
-        position = [float(fields[f"q{i}"]) for i in range(6)]
-        velocity = [0.0] * 6
-        if self._last is not None and sim_time > self._last[0]:
-            dt = sim_time - self._last[0]
-            velocity = [(q - q0) / dt for q, q0 in zip(position, self._last[1])]
-        self._last = (sim_time, position)
+        _, velocity = self._motion(fields, sim_time)
         c = self.controller
         return c.server.publish(c.program.state(fields, velocity, sim_time, c.slider), fault)
 
