@@ -10,8 +10,11 @@ Every entity is an ``EntitySystem``. Besides its digital behaviour it has
 * input ``twin_mode_request``: ``[serial, TwinMode code]``; the entity switches
   mode at its next update after the serial changes (the live twin's mode control).
 * output ``physical_command``: ``[active (0/1), *command_fields]``, the commands
-  addressed to this entity; ``active`` is 1 only in ``twin`` mode, so a
-  network bridge forwards them to the physical twin only then.
+  addressed to this entity, as its supervisors drive its inputs of those names
+  now (direct feedthrough: a command goes out the step its supervisor decides
+  it, not after this entity's next update, whose period would only add delay);
+  ``active`` is 1 only in ``twin`` mode, so a network bridge forwards them to the
+  physical twin only then.
 * output ``physical_state``: what this entity's physical twin would report now
   (its sample fields as port codes): the emulator publishes it.
 * channels ``<entity>.twin_mode`` and ``<entity>.physical_link``.
@@ -32,7 +35,6 @@ is a message on ``twin_mode``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -87,8 +89,9 @@ class EntitySystem(CellSystem):
         self.mode_request_input = self.declare_input("twin_mode_request", 2)
         self.takes_mode_requests = False
         """Set by the builder when something drives ``twin_mode_request`` (a live twin)."""
-        self._command_group = self.declare_state("physical_command", np.zeros(1 + len(command_fields)))
-        self.physical_command_port = self.DeclareStateOutputPort("physical_command", self._command_group)
+        self._command_ports = None  # its inputs of the command fields' names, looked up once the kind declared them
+        self.physical_command_port = self.DeclareVectorOutputPort("physical_command", 1 + len(command_fields),
+                                                                  self._calc_command)
         self.physical_state_port = self.DeclareVectorOutputPort(
             "physical_state", len(sample_fields), lambda context, out: out.SetFromVector(self.physical_state(context))
         )
@@ -134,8 +137,6 @@ class EntitySystem(CellSystem):
         mode = TwinMode(mode)
         own = self.GetMyMutableContextFromRoot(root_context)
         own.get_mutable_discrete_state(self._mode_group).SetAtIndex(0, float(mode.code))
-        if mode is not TwinMode.TWIN:  # commands go out in twin mode only
-            own.get_mutable_discrete_state(self._command_group).SetZero()
 
     def twin_mode(self, root_context) -> TwinMode:
         return _MODES[int(read_scalar(self.GetMyContextFromRoot(root_context), self._mode_group))]
@@ -162,8 +163,6 @@ class EntitySystem(CellSystem):
             xd.get_mutable_vector(self._next_change_group).SetFromVector([nxt, seen])
         if mode.code != mode_code:
             write_scalar(xd, self._mode_group, mode.code)
-            if mode is not TwinMode.TWIN:  # commands go out in twin mode only
-                xd.get_mutable_vector(self._command_group).SetZero()
         if mode is TwinMode.MODEL:
             link, sample = PhysicalLink.UNUSED, None
         else:
@@ -189,15 +188,15 @@ class EntitySystem(CellSystem):
         """Entity-specific check of a finite sample (enum codes in range...)."""
         return True
 
-    def write_command(self, xd, mode: TwinMode, values: Callable[[], tuple]) -> None:
-        """Publish the commands addressed to this entity (``values()``) in twin mode.
-
-        Outside twin mode the command output is all zeros (inactive): leaving twin
-        mode, by schedule, request or ``set_twin_mode``, clears it.
-        """
-        if mode is TwinMode.TWIN:
-            xd.get_mutable_vector(self._command_group).SetFromVector(np.array([1.0, *values()], float))
-
+    def _calc_command(self, context, out) -> None:
+        """``physical_command``: in twin mode [1, the inputs of the command fields' names]; else all zeros
+        (leaving twin mode, by schedule, request or ``set_twin_mode``, silences it at once)."""
+        if read_scalar(context, self._mode_group) != TwinMode.TWIN.code:
+            out.SetZero()
+            return
+        if self._command_ports is None:
+            self._command_ports = [self.GetInputPort(name) for name in self.command_fields]
+        out.SetFromVector(np.array([1.0, *(port.Eval(context)[0] for port in self._command_ports)], float))
 
 TWIN_CHANNELS = (
     ("twin_mode", "enum", "model / shadow / twin"),

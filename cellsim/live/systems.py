@@ -328,15 +328,19 @@ class ChannelPublisher(LeafSystem):
 
 
 class CommandPublisher(LeafSystem):
-    """An entity's commands on its command key: in twin mode only, on change and every COMMAND_HEARTBEAT.
+    """An entity's commands on its command key: in twin mode only, the plant step they change and every
+    COMMAND_HEARTBEAT (a period of its own would only add delay to the twin's reaction).
 
     Ports:
       physical_command (input): the entity's ``physical_command`` ([active, *command codes]).
     """
 
-    def __init__(self, entity, publisher, time_step: float, period: float = TICK):
+    def __init__(self, entity, publisher, time_step: float, period: float | None = None):
+        """``period``: how often a change is looked for (s; default every plant step, one step after it, when the
+        updates that decided it are in the state)."""
         super().__init__()
         self.set_name(f"{entity.module}.command_publisher")
+        period = time_step if period is None else period
         self.codec = FieldCodec.commands_of(entity)
         self.publisher = publisher
         self.command_port = self.DeclareVectorInputPort("physical_command", 1 + len(entity.command_fields))

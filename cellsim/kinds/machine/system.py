@@ -97,7 +97,6 @@ class Machine(EntitySystem):
         mode_request = self.mode_request_port.Eval(context)[0]
         activity_request = self.activity_request_port.Eval(context)[0]
         command = self.command_port.Eval(context)[0]
-        self.write_command(xd, view.mode, lambda: (mode_request, activity_request, command))
         published = [read_scalar(context, g) for g in self._outputs]
         cycle = context.get_discrete_state(self._cycle).get_value().tolist()
         left, last_command = cycle

@@ -389,10 +389,6 @@ class Operator(EntitySystem):
             vector, waypoint = current, None
         else:
             vector, waypoint = view.sample.tolist(), None
-        self.write_command(
-            xd, view.mode,
-            lambda: (self.notification_port.Eval(context)[0], *(port.Eval(context)[0] for port in self.alert_ports)),
-        )
         if waypoint is not None and waypoint + 1 != read_scalar(context, self._waypoint):
             write_scalar(xd, self._waypoint, waypoint + 1)
         if self.buttons:

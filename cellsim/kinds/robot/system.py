@@ -238,7 +238,6 @@ class Robot(EntitySystem):
         mode = _MODES[int(self.mode_request_port.Eval(context)[0])]
         target = self.target_port.Eval(context)[0]
         activity = self.activity_port.Eval(context)[0]
-        self.write_command(xd, view.mode, lambda: (mode.code, activity, target))
         state = context.get_discrete_state(self._state).get_value()
         published, motion = state[:4].tolist(), state[4:]
 
