@@ -179,7 +179,18 @@ def test_in_twin_mode_the_welders_command_nodes_carry_the_twins_command_and_its_
         while not bridge.plc.connected:
             assert time.monotonic() < deadline
             threading.Event().wait(0.01)
-        mode.put(json.dumps({"t": time.time(), "sim_time": 0.0, "value": "twin"}))
+        # shadow: the welder's command nodes hold no value (released), the daemon's heartbeat counting
+        mode.put(json.dumps({"t": time.time(), "sim_time": 0.0, "value": "shadow"}))
+        request = "ns=2;s=Welder.SafetyModeRequest"
+        while plc._commands.get(request) != -1 or not isinstance(plc._command_heartbeat, int):
+            assert time.monotonic() < deadline, "the daemon never released the welder's command nodes"
+            threading.Event().wait(0.01)
+        beat = plc._command_heartbeat
+        while plc._command_heartbeat == beat:
+            assert time.monotonic() < deadline, "the daemon's heartbeat stopped in shadow mode"
+            threading.Event().wait(0.01)
+        assert source.commands.empty()  # released: the PLC's program runs the welder on its own
+        mode.put(json.dumps({"t": time.time(), "sim_time": 0.1, "value": "twin"}))
         while bridge.twin_mode("welder") is not TwinMode.TWIN:
             assert time.monotonic() < deadline
             threading.Event().wait(0.01)

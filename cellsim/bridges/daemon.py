@@ -262,8 +262,10 @@ class Bridge:
                 if due_only and now < self._due.get(key, now):
                     continue
                 self._due[key] = max(self._due.get(key, now) + cycle, now)
-                if not twin:  # a UR program or a PLC told the twin does not command it, the heartbeat counting
-                    robot.release(now) if name == "request" else self.plc.release(entity)
+                if not twin and name == "request":  # told the twin does not command it, the heartbeat counting
+                    robot.release(now)
+                elif not twin:
+                    self.plc.release(entity)
                 elif name == "plc":
                     self.plc.send(entity, None if lost else fields)
                 elif mapping is None:
