@@ -120,3 +120,22 @@ def test_each_kind_of_refusal_is_logged_the_first_time_it_comes_then_counted(cap
     assert source.rejected == 5
     assert len(refusals) == 3, refusals
     assert "more than the" in refusals[0] and "nested too deeply" in refusals[1] and "(future)" in refusals[2]
+
+
+def test_an_entitys_commands_are_looked_at_as_often_as_its_supervisors_or_its_twin_mode_can_change_them():
+    """The command publisher looks one step after each update that could change a command: the common divisor of
+    the entity's period and its supervisors' (the harm service's plant-rate updates drive no command)."""
+    from cellsim.api import build, load_scenario
+    from cellsim.diagrams.cell import _decided_every
+
+    seen = {}
+
+    def extend(cell):
+        for name, entity in cell.entities.items():
+            seen[name] = _decided_every(cell.builder, entity, cell.scenario.time_step)
+
+    from conftest import ROOT
+
+    build(load_scenario(ROOT / "scenarios" / "welding_cell.yaml"), extend=extend)
+    # the robot and the welder: the safety controller's 20 ms (with the process controller's 40 ms)
+    assert seen == {"robot": 0.02, "welder": 0.02, "operator": 0.02, "light_barrier": 0.04, "range_detector": 0.04}

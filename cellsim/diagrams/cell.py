@@ -455,8 +455,8 @@ def _live(builder: DiagramBuilder, cell: CellBuild, io: Live):
     for spec, port in channels:
         builder.Connect(port, publisher.GetInputPort(spec.name))
     for entity_name, entity in cell.entities.items():
-        commands = builder.AddSystem(
-            CommandPublisher(entity, session.declare_publisher(keys.command(name, entity_name)), step))
+        commands = builder.AddSystem(CommandPublisher(
+            entity, session.declare_publisher(keys.command(name, entity_name)), step, _decided_every(builder, entity, step)))
         builder.Connect(entity.physical_command_port, commands.command_port)
     control = builder.AddSystem(TwinModeControl(cell.entities))
     for entity_name, entity in cell.entities.items():
@@ -471,6 +471,18 @@ def _live(builder: DiagramBuilder, cell: CellBuild, io: Live):
     if io.foxglove is not None:  # the same twin on Foxglove's WebSocket (cellsim.foxglove.FoxgloveFeed)
         io.foxglove.add_to(builder, cell, step)
     return network
+
+
+def _decided_every(builder: DiagramBuilder, entity, step: float) -> float:
+    """How often an entity's commands may change (s): the common divisor, in plant steps, of its own update period
+    (its twin mode) and those of the systems driving its command inputs (its supervisors)."""
+    import math
+
+    commanded = {entity.GetInputPort(n).get_index() for n in entity.command_fields if entity.HasInputPort(n)}
+    drivers = [system for (sink, index), (system, _) in builder.connection_map().items()
+               if sink is entity and index in commanded]
+    periods = [entity.period, *(getattr(d, "period", step) for d in drivers)]
+    return step * math.gcd(*(max(1, round(p / step)) for p in periods))
 
 
 def _emulated(builder: DiagramBuilder, cell: CellBuild, io: Emulated):

@@ -328,16 +328,16 @@ class ChannelPublisher(LeafSystem):
 
 
 class CommandPublisher(LeafSystem):
-    """An entity's commands on its command key: in twin mode only, the plant step they change and every
-    COMMAND_HEARTBEAT (a period of its own would only add delay to the twin's reaction).
+    """An entity's commands on its command key: in twin mode only, one plant step after the update that changed
+    them, and every COMMAND_HEARTBEAT (a period of its own would only add delay to the twin's reaction).
 
     Ports:
       physical_command (input): the entity's ``physical_command`` ([active, *command codes]).
     """
 
     def __init__(self, entity, publisher, time_step: float, period: float | None = None):
-        """``period``: how often a change is looked for (s; default every plant step, one step after it, when the
-        updates that decided it are in the state)."""
+        """``period``: how often a change is looked for (s): the period at which the cell's modules may update
+        (default: every plant step); each look comes one step after those updates, when they are in the state."""
         super().__init__()
         self.set_name(f"{entity.module}.command_publisher")
         period = time_step if period is None else period

@@ -7,8 +7,8 @@ with the Zenoh systems of ``cellsim.live.systems`` in the diagram:
   ``ZenohSampleSource`` (whatever its twin mode now: the mode may change while the
   twin runs), judged by the one link-trust rule (``cellsim.link``);
 * every channel that changed is published every ``TICK`` (and every channel every
-  ``HEARTBEAT``); the commands of each entity in twin mode the plant step they
-  change (in shadow and model mode nothing is sent);
+  ``HEARTBEAT``); the commands of each entity in twin mode one plant step after
+  the update that changes them (in shadow and model mode nothing is sent);
 * twin-mode requests (a Zenoh query on the control key) are answered at once,
   accepted or refused with the reason, and applied at the entity's next update,
   recording who asked;
