@@ -19,6 +19,12 @@ Every entity is an ``EntitySystem``. Besides its digital behaviour it has
   (its sample fields as port codes): the emulator publishes it.
 * channels ``<entity>.twin_mode`` and ``<entity>.physical_link``.
 
+In a live twin an entity whose update period is longer than a plant step also
+*takes each sample on arrival* (:meth:`EntitySystem.take_samples_on_arrival`): in
+shadow and twin mode it updates at the first plant step after a new sample (or a
+change of its link) reaches its input, not only at its own period, which would
+only add up to a period of delay between the physical sensor and its supervisor.
+
 In ``model`` mode the digital behaviour drives the outputs. In ``shadow`` and
 ``twin`` mode they follow the physical sample; when the link is not ok (stale,
 corrupt, recovering) or the sample is malformed, the entity *fails safe* (each
@@ -40,7 +46,7 @@ import numpy as np
 
 from cellsim.channels import NO_VALUE, enum_type
 from cellsim.config.twin import TwinSettings
-from cellsim.systems import CellSystem, read_scalar, write_scalar
+from cellsim.systems import UNCHANGED, CellSystem, read_scalar, write_scalar
 from cellsim.vocabulary import PhysicalLink, TwinMode
 
 _MODES = tuple(TwinMode)
@@ -97,6 +103,11 @@ class EntitySystem(CellSystem):
         )
 
     # -- what the kind declares ------------------------------------------------------
+    takes_samples_on_arrival: bool = True
+    """Whether the live twin may update this entity when a sample arrives (:meth:`take_samples_on_arrival`); a
+    kind whose outputs in shadow mode mean something over its own period (a person's motion, which the harm
+    service reads as motion over one update period) says False."""
+
     def safe_command(self) -> dict[str, float]:
         """The command codes this entity's physical twin gets when its supervisor is lost.
 
@@ -130,6 +141,41 @@ class EntitySystem(CellSystem):
         """The channel (and element of its vector) a black box records sample field ``field`` on:
         by default the channel of that name (a black box replayed as the physical twin)."""
         return f"{self.module}.{field}", 0
+
+    # -- the live twin ----------------------------------------------------------
+    def take_samples_on_arrival(self, time_step: float) -> bool:
+        """Also update at the first plant step after a new physical sample arrives, in shadow and twin mode.
+
+        Called by the live twin's builder before the recorder is built. The entity's channels can then change
+        at any plant step, so each is declared with the plant's step as its period (the recorder looks at them
+        that often: the black box keeps every value the supervisor could act on). Returns whether it was set:
+        not for a kind that says it must not (``takes_samples_on_arrival``), nor for an entity updated at
+        every plant step already.
+        """
+        from dataclasses import replace
+
+        if not self.takes_samples_on_arrival or self.period <= time_step * (1 + 1e-9):
+            return False
+        self._taken_group = self.declare_state("taken_sample", [-np.inf, np.nan])
+        self._on_own_period = max(1, round(self.period / time_step))
+        self._step = time_step
+        self.DeclarePeriodicDiscreteUpdateEvent(time_step, 0.0, self._on_arrival)
+        self.channels = [(replace(spec, period=time_step), port) for spec, port in self.channels]
+        return True
+
+    def _on_arrival(self, context, xd):
+        """A step's look at the physical sample: the kind's update when one arrived (or the link changed)
+        since the last look, in shadow and twin mode; at the entity's own period its update does it."""
+        if read_scalar(context, self._mode_group) == TwinMode.MODEL.code:
+            return UNCHANGED
+        raw = self.physical_sample_port.Eval(context)
+        taken = context.get_discrete_state(self._taken_group).get_value()
+        if raw[0] == taken[0] and raw[1] == taken[1]:
+            return UNCHANGED
+        xd.get_mutable_vector(self._taken_group).SetFromVector(raw[:2])
+        if round(context.get_time() / self._step) % self._on_own_period != 0:  # else its periodic update runs now
+            self.update(context, xd)
+        return None  # the sample taken is written, whatever the update did
 
     # -- scripts --------------------------------------------------------------
     def set_twin_mode(self, root_context, mode: TwinMode | str) -> None:

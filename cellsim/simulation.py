@@ -244,7 +244,7 @@ def _record(cell, simulator, out_dir: Path, seed: int, duration: float, on_progr
         )
         try:
             simulator.Initialize()
-            cell.start()  # may wait for a browser, or for the physical cell
+            cell.start(context)  # may wait for a browser, or for the physical cell
             simulator.ResetStatistics()  # real-time pacing counts from now
             started = time.perf_counter()
             # a paced run advances in short steps, so that Ctrl-C or SIGTERM lands between two of them,

@@ -139,3 +139,44 @@ def test_an_entitys_commands_are_looked_at_as_often_as_its_supervisors_or_its_tw
     build(load_scenario(ROOT / "scenarios" / "welding_cell.yaml"), extend=extend)
     # the robot and the welder: the safety controller's 20 ms (with the process controller's 40 ms)
     assert seen == {"robot": 0.02, "welder": 0.02, "operator": 0.02, "light_barrier": 0.04, "range_detector": 0.04}
+
+
+def test_a_live_twins_sensor_takes_a_sample_the_step_after_it_arrives_not_at_its_own_period():
+    """The light barrier updates every 40 ms; in a live twin, in shadow mode, a sample that arrives is its reading
+    two plant steps later (drained, then taken), so the safety controller's next 20 ms update acts on it. The
+    black box looks at its channels at every plant step, so it keeps the reading from when it changed."""
+    import zenoh
+    from conftest import ROOT
+    from live_processes import free_port
+
+    from cellsim.api import load_scenario
+    from cellsim.cell_io import Live
+    from cellsim.diagrams.cell import build_cell
+    from cellsim.live.session import session_config
+    from cellsim.simulation import make_simulator
+
+    sf = load_scenario(ROOT / "scenarios" / "welding_cell.yaml", ["light_barrier.twin.mode=shadow",
+                                                                  "light_barrier.twin.recover_after=1"])
+    session = zenoh.open(session_config(role="twin", insecure=True, listen=[f"tcp/127.0.0.1:{free_port()}"],
+                                        listen_by_default=True))
+    cell = build_cell(sf, seed=0, duration=5.0, io=Live(session=session, wait_physical=5.0), record=False)
+    try:
+        source = next(s for s in cell.network.primed if s.get_name() == "light_barrier.physical_source")
+        broken = cell.diagram.GetOutputPort("light_barrier.broken")
+        assert cell.channels["light_barrier.broken"][0].period == sf.scenario.time_step  # recorded at every step
+        assert cell.channels["robot.safety_mode"][0].period == 0.02  # the robot keeps its period
+        simulator = make_simulator(cell)
+        context = simulator.get_mutable_context()
+        simulator.Initialize()
+        source.deliver(encode_fields(time.time(), 1, {"broken": False}))
+        cell.network.heard("light_barrier")
+        cell.start(context)  # the clock starts; the source takes the sample that came before it
+        simulator.AdvanceTo(0.002)
+        assert broken.Eval(context)[0] == 0.0  # read from the start: no start-up spent failing safe
+        simulator.AdvanceTo(0.101)
+        source.deliver(encode_fields(time.time(), 2, {"broken": True}))  # between two of the barrier's updates
+        simulator.AdvanceTo(0.1051)
+        assert broken.Eval(context)[0] == 1.0  # drained at 0.102, taken at 0.104; its own update is at 0.12
+    finally:
+        cell.close()
+        session.close()

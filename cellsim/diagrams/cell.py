@@ -95,14 +95,15 @@ class CellDiagram:
         """A live or emulated cell runs until it is stopped: its record then ends there, complete."""
         return paced(self.io)
 
-    def start(self) -> None:
-        """Before simulated time runs (the simulator initialised): wait for what must be there."""
+    def start(self, root_context) -> None:
+        """Before simulated time runs (the simulator initialised, ``root_context`` its context): wait for what
+        must be there."""
         if self.meshcat_wait is not None and self.meshcat_visualizer is not None:
             from cellsim.visual.live import wait_for_browser
 
             wait_for_browser(self.meshcat, *self.meshcat_wait)
         if self.network is not None:
-            self.network.start()
+            self.network.start(root_context)
 
     def metadata(self) -> dict:
         """What the black box records of the run's I/O (the network's figures), at each drain."""
@@ -308,8 +309,11 @@ def build_cell(
     plant.Finalize()
 
     hooks_run = False
+    on_arrival: set[str] = set()  # the live twin's entities that take each sample on arrival
     for kind, _, name, cfg in sorted(modules, key=lambda m: m[0].stage):  # stable: scenario order within a stage
         if kind.stage >= AFTER_ENTITIES and not hooks_run:
+            if isinstance(io, Live):  # before the recorder: their channels' periods change
+                on_arrival = _take_samples_on_arrival(cell)
             cell._run_hooks()
             hooks_run = True
         if kind.stage >= EXTEND_STAGE and extend is not None:
@@ -334,7 +338,7 @@ def build_cell(
         case Replayed():
             fixed_inputs += _replay(builder, cell, io)
         case Live():
-            network = _live(builder, cell, io)
+            network = _live(builder, cell, io, on_arrival)
         case Emulated():
             fixed_inputs += _no_physical_samples(cell.entities.values())
             network = _emulated(builder, cell, io)
@@ -417,9 +421,10 @@ def _replay(builder: DiagramBuilder, cell: CellBuild, io: Replayed) -> list[tupl
     return fixed
 
 
-def _live(builder: DiagramBuilder, cell: CellBuild, io: Live):
-    """The twin on Zenoh: a sample source per entity, every channel and command published, twin modes
-    switched on request, the status every second, the describe queryable and the liveliness token."""
+def _live(builder: DiagramBuilder, cell: CellBuild, io: Live, on_arrival: set[str]):
+    """The twin on Zenoh: a sample source per entity (drained at every plant step for the entities in
+    ``on_arrival``), every channel and command published, twin modes switched on request, the status every
+    second, the describe queryable and the liveliness token."""
     from cellsim import codec
     from cellsim.live import keys
     from cellsim.live.network import NetworkIO
@@ -433,14 +438,14 @@ def _live(builder: DiagramBuilder, cell: CellBuild, io: Live):
     sources = {}
     for entity_name, entity in cell.entities.items():
         key = keys.physical(name, entity_name)
-        sources[entity_name] = builder.AddSystem(ZenohSampleSource(entity, clock, cell.scenario.time_step, key))
+        sources[entity_name] = builder.AddSystem(ZenohSampleSource(entity, clock, step, key, entity_name in on_arrival))
         builder.Connect(sources[entity_name].get_output_port(), entity.physical_sample_port)
     status = builder.AddSystem(LiveStatus(clock, step, session.declare_publisher(keys.status(name, io.process)),
                                           {n: s.get_output_port() for n, s in sources.items()}, io.process))
     for entity_name, source in sources.items():
         builder.Connect(source.get_output_port(), status.GetInputPort(entity_name))
     awaited = [n for n, e in cell.entities.items() if e.twin.mode is not TwinMode.MODEL]
-    network = NetworkIO(io.process, clock, status, io.wait_physical, awaited)
+    network = NetworkIO(io.process, clock, status, io.wait_physical, awaited, primed=list(sources.values()))
     network.figures["rejected_samples"] = lambda: {n: s.rejected for n, s in sources.items()}
     for entity_name, source in sources.items():
         def on_sample(sample, source=source, entity_name=entity_name):  # the network thread: hand it over, count it
@@ -471,6 +476,20 @@ def _live(builder: DiagramBuilder, cell: CellBuild, io: Live):
     if io.foxglove is not None:  # the same twin on Foxglove's WebSocket (cellsim.foxglove.FoxgloveFeed)
         io.foxglove.add_to(builder, cell, step)
     return network
+
+
+def _take_samples_on_arrival(cell: CellBuild) -> set[str]:
+    """The live twin's entities that take each sample on arrival: those updated less often than the cell's
+    fastest deciding module (a behaviour: its controllers and monitors), whose own period would only delay
+    what they pass on. An entity updated as often (the robot, read by a controller of its period) keeps its
+    period: its samples may come at every plant step, and it would run its kinematics at each."""
+    periods = [getattr(cfg, "period", None) for cfg in cell.scenario.behaviours.values()]
+    periods = [p for p in periods if isinstance(p, (int, float)) and p > 0]
+    if not periods:
+        return set()
+    fastest, step = min(periods), cell.scenario.time_step
+    return {name for name, entity in cell.entities.items()
+            if entity.period > fastest * (1 + 1e-9) and entity.take_samples_on_arrival(step)}
 
 
 def _decided_every(builder: DiagramBuilder, entity, step: float) -> float:

@@ -29,6 +29,8 @@ class NetworkIO:
     """Zenoh subscribers, publishers, queryables, tokens: undeclared by ``close``."""
     closers: list = field(default_factory=list)
     """Anything else to close (the emulated CAN devices)."""
+    primed: list = field(default_factory=list)
+    """Sources (``prime(root_context)``) that take what arrived before the clock started, as their state at t = 0."""
 
     def __post_init__(self):
         self._heard = {name: 0 for name in self.awaited}
@@ -43,14 +45,19 @@ class NetworkIO:
             if all(self._heard.values()):
                 self._all_heard.set()
 
-    def start(self) -> None:
+    def start(self, root_context=None) -> None:
         """Start the clock once every awaited entity has been heard (or ``wait_physical`` passed), so a
-        twin started before the cell does not record a start-up spent failing safe as evidence."""
+        twin started before the cell does not record a start-up spent failing safe as evidence; then the
+        sources take what arrived into ``root_context`` (its state at t = 0): the entities' first updates read
+        their physical twins, not the sources' initial stale state."""
         if not self._all_heard.wait(self.wait_physical):
             silent = [n for n, count in self._heard.items() if not count]
             print(f"cellsim live: no physical samples from {', '.join(silent)} within {self.wait_physical:g} s; "
                   "starting anyway, failing safe", file=sys.stderr)
         self.clock.start()
+        if root_context is not None:
+            for source in self.primed:
+                source.prime(root_context)
 
     def metadata(self) -> dict:
         return {"process": self.process, "wall_at_zero": self.clock.wall_at_zero,

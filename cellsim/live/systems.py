@@ -37,6 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
+from cellsim.systems import UNCHANGED
+
 from cellsim.channels import NO_VALUE
 from cellsim.link import Fault, LinkTrust
 from cellsim import codec
@@ -96,6 +98,10 @@ class Inbox:
         """A Zenoh subscriber's callback."""
         self.deliver(sample.payload.to_bytes())
 
+    def empty(self) -> bool:
+        """Whether nothing is waiting (a look, without taking anything)."""
+        return self._queue.empty()
+
     def __iter__(self):
         """Every message waiting, oldest first, without blocking."""
         while True:
@@ -127,7 +133,8 @@ _FAILURES = (PhysicalLink.STALE, PhysicalLink.CORRUPT)
 
 class _LinkSource(LeafSystem):
     """What a network source of the diagram is: an inbox drained one plant step before each of its
-    entity's updates (so the entity reads what arrived up to then), every message decoded by the one
+    entity's updates (so the entity reads what arrived up to then), or at every plant step for an entity
+    that takes its samples on arrival, every message decoded by the one
     codec and judged by the one link rule, whose state the context keeps.
 
     A subclass declares its own state and output, and says what a good message does (``take``) and
@@ -135,7 +142,9 @@ class _LinkSource(LeafSystem):
     """
 
     def __init__(self, name: str, entity, field_codec: FieldCodec, clock: LiveClock, time_step: float, key: str,
-                 recover_after: int):
+                 recover_after: int, every_step: bool = False):
+        """``every_step``: drain at every plant step (for an entity that takes its samples on arrival), not one
+        step before each of its updates."""
         super().__init__()
         self.set_name(name)
         self.codec, self.clock = field_codec, clock
@@ -143,7 +152,12 @@ class _LinkSource(LeafSystem):
         self.refused = _Refusals(key or entity.module)
         self.trust = LinkTrust(timeout=entity.twin.stale_after, recover_after=recover_after, max_gap=1_000_000)
         self._trust = self.DeclareDiscreteState(self.trust.state())
-        self.DeclarePeriodicDiscreteUpdateEvent(entity.period, entity.period - time_step, self._drain)
+        self._watch_every = max(1, round(entity.period / time_step))  # its watchdog: one step before each update
+        self._step = time_step
+        if every_step:
+            self.DeclarePeriodicDiscreteUpdateEvent(time_step, 0.0, self._drain_arrived)
+        else:
+            self.DeclarePeriodicDiscreteUpdateEvent(entity.period, entity.period - time_step, self._drain)
 
     @property
     def rejected(self) -> int:
@@ -151,6 +165,19 @@ class _LinkSource(LeafSystem):
 
     def deliver(self, payload: bytes) -> None:
         self.inbox.deliver(payload)
+
+    def prime(self, root_context) -> None:
+        """Take what arrived before the clock started into ``root_context``, as this source's state at t = 0."""
+        context = self.GetMyMutableContextFromRoot(root_context)
+        self._drain(context, context.get_mutable_discrete_state())
+
+    def _drain_arrived(self, context, xd):
+        """A plant step's drain: what arrived since the last, judged; with nothing arrived, only one step before
+        each of the entity's updates (for its watchdog), as a source drained at its entity's period."""
+        if self.inbox.empty() and (round(context.get_time() / self._step) + 1) % self._watch_every != 0:
+            return UNCHANGED
+        self._drain(context, xd)
+        return None
 
     def _drain(self, context, xd) -> None:
         trust = self.trust.restore(context.get_discrete_state(self._trust).get_value())
@@ -207,9 +234,9 @@ class ZenohSampleSource(_LinkSource):
         sample), link (PhysicalLink code), *fields (port codes of the newest good sample)].
     """
 
-    def __init__(self, entity, clock: LiveClock, time_step: float, key: str = ""):
+    def __init__(self, entity, clock: LiveClock, time_step: float, key: str = "", every_step: bool = False):
         super().__init__(f"{entity.module}.physical_source", entity, FieldCodec.samples_of(entity), clock, time_step,
-                         key, entity.twin.recover_after)
+                         key, entity.twin.recover_after, every_step)
         initial = np.zeros(2 + len(self.codec.names))
         initial[0], initial[1] = -np.inf, float(PhysicalLink.STALE.code)
         self._sample = self.DeclareDiscreteState(initial)

@@ -209,6 +209,7 @@ class Operator(EntitySystem):
     """
 
     POSE_FIELDS = ("x", "y", "yaw", "reach_fraction", "reach_x", "reach_y", "reach_z")
+    takes_samples_on_arrival = False  # the harm service reads pose minus previous_pose as motion over one period
 
     def __init__(self, module: str, cfg: OperatorConfig, layout: Layout, seed: int, salt: int = 0):
         super().__init__(module, cfg.period, cfg.twin, self.POSE_FIELDS, ("notification", *cfg.alerts))
