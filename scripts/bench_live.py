@@ -15,6 +15,9 @@ at 25 Hz, toggling broken every 0.5 s. Prints:
   of the twin's commanded safety mode to a more restrictive one, from the sensor change just before it (a
   curtain toggle, or the emulated scanner's reading) to the emulated robot
   taking that mode, on the two processes' clocks (one machine);
+* the twin's own measure of its reaction (``cellsim.live.reaction``): from a changed
+  sample's stamp at its source to the commands decided on it going out, per sensor,
+  beside the reaction the scenario assumes;
 * CPU of the twin and of the emulator, in % of one core.
 
 Targets (issue "The twin goes live"): lag p99 <= 5 ms; sample -> twin <= one
@@ -165,7 +168,7 @@ def measure(seconds: float, keys: Path | None) -> dict:
         print("sample -> twin (ms):", [round(float(x) * 1e3, 1) for x in latencies])
         print("sensor -> command (ms):", [round(float(x) * 1e3, 1) for x in reactions])
     lag = live["pacing_lag_s"]
-    return {"tmp": tmp, "lag": lag, "latencies": percentiles(latencies, 50, 99), "n_latencies": len(latencies),
+    return {"tmp": tmp, "lag": lag, "own": live.get("reaction_s", {}), "latencies": percentiles(latencies, 50, 99), "n_latencies": len(latencies),
             "reactions": percentiles(reactions, 50, 99), "n_reactions": len(reactions),
             "twin_cpu": 100.0 * (cpu1[0] - cpu0[0]) / (cpu1[2] - cpu0[2]),
             "emu_cpu": 100.0 * (cpu1[1] - cpu0[1]) / (cpu1[2] - cpu0[2])}
@@ -204,6 +207,12 @@ def main() -> None:
               f"({r['n_latencies']} curtain toggles; target p99 <= {CURTAIN_PERIOD * 1e3 + 2:.0f} ms)")
         print(f"[{security}] sensor -> command    p50 {r50 * 1e3:6.2f} ms  p99 {r99 * 1e3:6.2f} ms   "
               f"({r['n_reactions']} safety-mode commands, from the sensor change to the emulated robot's mode)")
+        for entity in ("light_barrier", "range_detector"):
+            own = r["own"].get(entity)
+            if own and own["count"]:
+                print(f"[{security}] twin's own reaction  p50 {own['p50'] * 1e3:6.2f} ms  p99 {own['p99'] * 1e3:6.2f} ms   "
+                      f"({entity}: {own['count']} changed samples -> command out, {own['exceeded']} over the "
+                      f"{own['assumed'] * 1e3:g} ms assumed)")
         print(f"[{security}] CPU                  twin {r['twin_cpu']:5.1f} %  emulator {r['emu_cpu']:5.1f} % of one core"
               "   (target twin <= 50 %)")
 

@@ -133,6 +133,8 @@ def test_the_dashboard_follows_the_live_twin_sees_a_link_go_stale_and_switches_a
             emulator = start(["emulate", WELDING_CELL, "--out", str(tmp_path / "emulator"), "--connect", endpoint, "--quiet"],
                              tmp_path / "emulator.log")
             screen.wait_for(lambda s: _entity(s, "robot")[1:3] == ["shadow", "OK"], 90, "the robot's link OK")
+            # the moving robot's samples change: the twin measures its reaction to them, shown in the header
+            screen.wait_for(lambda s: re.search(r"reaction \d+ ms", s), 10, "the twin's reaction time")
             with observer(port) as session:
                 mode = ChannelWatch(session, "cellsim/welding_cell/twin/light_barrier/twin_mode")
                 wait_alive(session, "cellsim/welding_cell/alive/twin")
@@ -257,6 +259,25 @@ def test_the_bridge_daemons_diagnostics_set_an_entitys_link_level_and_are_logged
     model.apply_diagnostics("light_barrier", {"level": "ERROR", "message": "failed: crc 1", "counts": {"crc": 1}})
     assert row()["level"] == "ERROR" and row()["diagnostics"] == "ERROR"  # the worse of the twin's and the daemon's
     assert model.events[-1].text == "light_barrier: link OK -> ERROR (failed: crc 1)"
+
+
+def test_a_twin_slower_than_its_scenario_assumes_is_shown_in_the_header_and_logged_once(welding_run):
+    from cellsim.dashboard.model import CellModel
+
+    with BlackBox(welding_run / "blackbox.sqlite") as bb:
+        model = CellModel.from_blackbox(bb)
+    reaction = {"slowest": {"light_barrier": 0.031, "robot": 0.024}, "assumed": {"light_barrier": 0.06}, "slower": []}
+    model.apply_status({"sim_time": 3.0, "lag": 0.001, "reaction": reaction})
+    assert model.reaction_text() == ("  reaction 31 ms", False)
+    logged = model.event_count
+    for t in (4.0, 5.0):  # said once, however many statuses repeat it
+        model.apply_status({"sim_time": t, "reaction": {**reaction, "slowest": {"light_barrier": 0.21},
+                                                         "slower": ["light_barrier"]}})
+    assert model.reaction_text() == ("  reaction 210 ms (slower than assumed: light_barrier)", True)
+    assert model.event_count == logged + 1 and model.events[-1].level == "ERROR"
+    assert model.events[-1].text.startswith("light_barrier: the twin reacts to its samples slower than the 60 ms")
+    model.apply_status({"sim_time": 6.0, "reaction": {"slower": "everyone"}})  # malformed: nothing more said
+    assert model.event_count == logged + 1
 
 
 def test_each_kind_says_what_the_dashboard_shows_of_it_and_a_kind_not_installed_shows_nothing():

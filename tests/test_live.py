@@ -88,6 +88,10 @@ def test_the_live_twins_run_is_checked_as_any_run(shadow_run):
         live = twin.metadata()["live"]
         pacing = live["pacing_lag_s"]  # its figures, whatever the host's load (the target is bench_live's to measure)
         assert live["process"] == "twin" and pacing["p50"] <= pacing["p99"] <= pacing["max"] < 12.0
+        # the twin's own reaction to its shadowed entities' changed samples, measured, beside what is assumed
+        reaction = live["reaction_s"]
+        assert reaction["robot"]["count"] > 0 and reaction["light_barrier"]["count"] > 0
+        assert reaction["light_barrier"]["assumed"] == 0.06 and 0.0 < reaction["light_barrier"]["p50"] <= reaction["light_barrier"]["max"]
         links = twin.series("robot.physical_link").values
         # not trusted at the start (no emulator yet, or fewer than recover_after of its samples), then its samples
         assert links[0] in ("stale", "recovering") and "ok" in links

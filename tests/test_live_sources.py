@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 from pydrake.systems.analysis import Simulator
 
 from cellsim.channels import BOOL
@@ -141,10 +143,10 @@ def test_an_entitys_commands_are_looked_at_as_often_as_its_supervisors_or_its_tw
     assert seen == {"robot": 0.02, "welder": 0.02, "operator": 0.02, "light_barrier": 0.04, "range_detector": 0.04}
 
 
-def test_a_live_twins_sensor_takes_a_sample_the_step_after_it_arrives_not_at_its_own_period():
-    """The light barrier updates every 40 ms; in a live twin, in shadow mode, a sample that arrives is its reading
-    two plant steps later (drained, then taken), so the safety controller's next 20 ms update acts on it. The
-    black box looks at its channels at every plant step, so it keeps the reading from when it changed."""
+@contextlib.contextmanager
+def _live_twin(*overrides: str):
+    """The welding cell's live twin built in this process on an insecure loopback session, its simulator
+    initialised; samples are handed to its sources directly (``source.deliver``)."""
     import zenoh
     from conftest import ROOT
     from live_processes import free_port
@@ -155,19 +157,29 @@ def test_a_live_twins_sensor_takes_a_sample_the_step_after_it_arrives_not_at_its
     from cellsim.live.session import session_config
     from cellsim.simulation import make_simulator
 
-    sf = load_scenario(ROOT / "scenarios" / "welding_cell.yaml", ["light_barrier.twin.mode=shadow",
-                                                                  "light_barrier.twin.recover_after=1"])
+    sf = load_scenario(ROOT / "scenarios" / "welding_cell.yaml", list(overrides))
     session = zenoh.open(session_config(role="twin", insecure=True, listen=[f"tcp/127.0.0.1:{free_port()}"],
                                         listen_by_default=True))
     cell = build_cell(sf, seed=0, duration=5.0, io=Live(session=session, wait_physical=5.0), record=False)
     try:
-        source = next(s for s in cell.network.primed if s.get_name() == "light_barrier.physical_source")
-        broken = cell.diagram.GetOutputPort("light_barrier.broken")
-        assert cell.channels["light_barrier.broken"][0].period == sf.scenario.time_step  # recorded at every step
-        assert cell.channels["robot.safety_mode"][0].period == 0.02  # the robot keeps its period
         simulator = make_simulator(cell)
-        context = simulator.get_mutable_context()
         simulator.Initialize()
+        sources = {s.get_name().partition(".")[0]: s for s in cell.network.primed}
+        yield cell, simulator, sources
+    finally:
+        cell.close()
+        session.close()
+
+
+def test_a_live_twins_sensor_takes_a_sample_the_step_after_it_arrives_not_at_its_own_period():
+    """The light barrier updates every 40 ms; in a live twin, in shadow mode, a sample that arrives is its reading
+    two plant steps later (drained, then taken), so the safety controller's next 20 ms update acts on it. The
+    black box looks at its channels at every plant step, so it keeps the reading from when it changed."""
+    with _live_twin("light_barrier.twin.mode=shadow", "light_barrier.twin.recover_after=1") as (cell, simulator, sources):
+        source, context = sources["light_barrier"], simulator.get_mutable_context()
+        broken = cell.diagram.GetOutputPort("light_barrier.broken")
+        assert cell.channels["light_barrier.broken"][0].period == 0.002  # recorded at every plant step
+        assert cell.channels["robot.safety_mode"][0].period == 0.02  # the robot keeps its period
         source.deliver(encode_fields(time.time(), 1, {"broken": False}))
         cell.network.heard("light_barrier")
         cell.start(context)  # the clock starts; the source takes the sample that came before it
@@ -177,6 +189,37 @@ def test_a_live_twins_sensor_takes_a_sample_the_step_after_it_arrives_not_at_its
         source.deliver(encode_fields(time.time(), 2, {"broken": True}))  # between two of the barrier's updates
         simulator.AdvanceTo(0.1051)
         assert broken.Eval(context)[0] == 1.0  # drained at 0.102, taken at 0.104; its own update is at 0.12
-    finally:
-        cell.close()
-        session.close()
+
+
+def test_the_twin_measures_its_reaction_to_a_sample_and_reports_one_slower_than_the_scenario_assumes(capsys):
+    """From a changed sample's stamp at its source to the commands decided on it going out: measured for each
+    change of an entity in shadow or twin mode; one slower than assumed (here: stamped 150 ms before it came,
+    against the light barrier's 40 ms + the safety controller's 20 ms) is counted, said once on stderr, and in
+    the status and the black box's figures. Samples that only repeat, and entities in model mode, measure nothing."""
+    with _live_twin("light_barrier.twin.mode=shadow", "light_barrier.twin.recover_after=1",
+                    "welder.twin.recover_after=1") as (cell, simulator, sources):
+        source, context = sources["light_barrier"], simulator.get_mutable_context()
+        watch = cell.diagram.GetSubsystemByName("reaction_watch")
+        assert watch.assumed["light_barrier"].seconds == pytest.approx(0.06)
+        source.deliver(encode_fields(time.time(), 1, {"broken": False}))
+        cell.network.heard("light_barrier")
+        cell.start(context)
+        simulator.AdvanceTo(0.101)
+        source.deliver(encode_fields(time.time(), 2, {"broken": False}))  # no change: nothing to react to
+        for seq, mode in enumerate(("normal", "stopped"), 1):  # the welder changes, but is in model mode
+            sources["welder"].deliver(encode_fields(time.time(), seq, {"safety_mode": mode, "activity": "off"}))
+        simulator.AdvanceTo(0.2)
+        assert watch.counts["light_barrier"] == 0 and cell.diagram.GetOutputPort("welder.physical_link").Eval(
+            context)[0] == PhysicalLink.UNUSED.code
+        sent = time.time()
+        source.deliver(encode_fields(sent, 3, {"broken": True}))
+        simulator.AdvanceTo(0.3)
+        figures = watch.figures()["light_barrier"]
+        assert figures["count"] == 1 and figures["exceeded"] == 0 and 0.0 < figures["max"] <= time.time() - sent
+        source.deliver(encode_fields(time.time() - 0.15, 4, {"broken": False}))  # 150 ms on its way
+        simulator.AdvanceTo(0.4)
+        figures = cell.network.metadata()["reaction_s"]["light_barrier"]
+        assert figures["count"] == 2 and figures["exceeded"] == 1 and figures["max"] > 0.15
+        assert watch.status()["slower"] == ["light_barrier"]
+        assert "light_barrier: sample -> command" in capsys.readouterr().err
+        assert watch.counts["welder"] == 0  # in model mode its samples decide nothing: no reaction to measure

@@ -230,8 +230,9 @@ class Dashboard(App):
                  "replay": f"replay of {self.feed.source}", "ended": f"replay of {self.feed.source} (ended)"}[model.twin]
         lag = (model.status or {}).get("lag")
         lag_text = f"  lag {lag * 1000:.1f} ms" if isinstance(lag, (int, float)) else ""
-        header.show(Text(f"t = {model.sim_time:7.2f} s  |  {model.name}  |  {state}{lag_text}",
-                         style="bold red" if model.twin == "gone" else "bold"), 1)
+        reaction_text, slower = model.reaction_text()
+        header.show(Text(f"t = {model.sim_time:7.2f} s  |  {model.name}  |  {state}{lag_text}{reaction_text}",
+                         style="bold red" if model.twin == "gone" or slower else "bold"), 1)
         for view in (self._cell, self._hazards, self._entities, self._conditions, self._robot_and_links):
             try:
                 view(model)

@@ -80,6 +80,8 @@ class CellModel:
         self.sim_time = 0.0
         self.physical: dict[str, dict] = {}
         self.status: dict | None = None
+        self.slower: set[str] = set()
+        """Entities the twin said it reacts to slower than its scenario assumes."""
         self.diagnostics: dict[str, dict] = {}
         self.twin = "waiting"
         """waiting (no twin yet), running, gone (its liveliness token went), replay, ended."""
@@ -147,8 +149,33 @@ class CellModel:
         if isinstance(status, dict) and isinstance(status.get("sim_time"), (int, float)):
             self.status = status
             self.sim_time = max(self.sim_time, float(status["sim_time"]))
+            self._note_reaction(status.get("reaction"))
         else:
             self.dropped += 1
+
+    def _note_reaction(self, reaction) -> None:
+        """Log each entity the first time the twin says it reacts to its samples slower than assumed."""
+        if not isinstance(reaction, dict) or not isinstance(reaction.get("slower"), list):
+            return
+        assumed = reaction.get("assumed") if isinstance(reaction.get("assumed"), dict) else {}
+        for entity in reaction["slower"]:
+            if isinstance(entity, str) and entity not in self.slower:
+                self.slower.add(entity)
+                limit = assumed.get(entity)
+                said = f" {limit * 1000:g} ms" if isinstance(limit, (int, float)) else ""
+                self.log(f"{entity}: the twin reacts to its samples slower than the{said} the scenario assumes: "
+                         "its evidence is optimistic for this cell", "ERROR")
+
+    def reaction_text(self) -> tuple[str, bool]:
+        """The twin's slowest reaction (sample -> command) in its last status, and whether any entity's
+        reactions were ever slower than assumed: for the header."""
+        reaction = (self.status or {}).get("reaction")
+        slowest = reaction.get("slowest") if isinstance(reaction, dict) else None
+        values = [v for v in slowest.values() if isinstance(v, (int, float))] if isinstance(slowest, dict) else []
+        text = f"  reaction {max(values) * 1000:.0f} ms" if values else ""
+        if self.slower:
+            text += f" (slower than assumed: {', '.join(sorted(self.slower))})"
+        return text, bool(self.slower)
 
     def apply_diagnostics(self, device: str, status: dict) -> None:
         if not isinstance(status, dict) or status.get("level", "OK") not in LEVELS and device != "bridge":

@@ -430,6 +430,7 @@ def _live(builder: DiagramBuilder, cell: CellBuild, io: Live, on_arrival: set[st
     from cellsim.live.network import NetworkIO
     from cellsim.live.systems import (ChannelPublisher, CommandPublisher, LiveClock, LiveStatus, TwinModeControl,
                                       ZenohSampleSource)
+    from cellsim.live.reaction import ReactionWatch, assumed_reactions, deciding_period
     from cellsim.live.twin import describe
     from cellsim.vocabulary import TwinMode
 
@@ -440,12 +441,20 @@ def _live(builder: DiagramBuilder, cell: CellBuild, io: Live, on_arrival: set[st
         key = keys.physical(name, entity_name)
         sources[entity_name] = builder.AddSystem(ZenohSampleSource(entity, clock, step, key, entity_name in on_arrival))
         builder.Connect(sources[entity_name].get_output_port(), entity.physical_sample_port)
+    watch = None
+    if (every := deciding_period(cell.scenario)) is not None:  # the twin's own reaction, against its evidence's
+        watch = builder.AddSystem(ReactionWatch(sources, assumed_reactions(cell.scenario, cell.entities), every, step,
+                                                io.process))
+        for entity_name in watch.sources:
+            builder.Connect(cell.channel(f"{entity_name}.twin_mode"), watch.GetInputPort(entity_name))
     status = builder.AddSystem(LiveStatus(clock, step, session.declare_publisher(keys.status(name, io.process)),
-                                          {n: s.get_output_port() for n, s in sources.items()}, io.process))
+                                          {n: s.get_output_port() for n, s in sources.items()}, io.process, watch))
     for entity_name, source in sources.items():
         builder.Connect(source.get_output_port(), status.GetInputPort(entity_name))
     awaited = [n for n, e in cell.entities.items() if e.twin.mode is not TwinMode.MODEL]
     network = NetworkIO(io.process, clock, status, io.wait_physical, awaited, primed=list(sources.values()))
+    if watch is not None:
+        network.figures["reaction_s"] = watch.figures
     network.figures["rejected_samples"] = lambda: {n: s.rejected for n, s in sources.items()}
     for entity_name, source in sources.items():
         def on_sample(sample, source=source, entity_name=entity_name):  # the network thread: hand it over, count it
@@ -483,11 +492,11 @@ def _take_samples_on_arrival(cell: CellBuild) -> set[str]:
     fastest deciding module (a behaviour: its controllers and monitors), whose own period would only delay
     what they pass on. An entity updated as often (the robot, read by a controller of its period) keeps its
     period: its samples may come at every plant step, and it would run its kinematics at each."""
-    periods = [getattr(cfg, "period", None) for cfg in cell.scenario.behaviours.values()]
-    periods = [p for p in periods if isinstance(p, (int, float)) and p > 0]
-    if not periods:
+    from cellsim.live.reaction import deciding_period
+
+    fastest, step = deciding_period(cell.scenario), cell.scenario.time_step
+    if fastest is None:
         return set()
-    fastest, step = min(periods), cell.scenario.time_step
     return {name for name, entity in cell.entities.items()
             if entity.period > fastest * (1 + 1e-9) and entity.take_samples_on_arrival(step)}
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import logging
 import queue
+from collections import deque
 import zlib
 import sys
 import time
@@ -167,9 +168,11 @@ class _LinkSource(LeafSystem):
         self.inbox.deliver(payload)
 
     def prime(self, root_context) -> None:
-        """Take what arrived before the clock started into ``root_context``, as this source's state at t = 0."""
+        """Take what arrived before the clock started into ``root_context``, as this source's state at t = 0
+        (no reaction is measured to it: nothing ran before)."""
         context = self.GetMyMutableContextFromRoot(root_context)
         self._drain(context, context.get_mutable_discrete_state())
+        self.decided_by(float("inf"))
 
     def _drain_arrived(self, context, xd):
         """A plant step's drain: what arrived since the last, judged; with nothing arrived, only one step before
@@ -204,6 +207,10 @@ class _LinkSource(LeafSystem):
         trust.watchdog(context.get_time())
         self.settle(trust, state, xd, trust.link if trust.link in _FAILURES else failed)
         xd.get_mutable_vector(self._trust).SetFromVector(trust.state())
+        self.drained(context.get_time())
+
+    def drained(self, t: float) -> None:
+        """After a drain at simulated time ``t`` (the entity takes what it wrote at the next step)."""
 
     def begin(self, context) -> np.ndarray:  # pragma: no cover - abstract
         """A copy of the state the drain writes."""
@@ -237,6 +244,9 @@ class ZenohSampleSource(_LinkSource):
     def __init__(self, entity, clock: LiveClock, time_step: float, key: str = "", every_step: bool = False):
         super().__init__(f"{entity.module}.physical_source", entity, FieldCodec.samples_of(entity), clock, time_step,
                          key, entity.twin.recover_after, every_step)
+        self.time_step = time_step
+        self._changed: float | None = None  # the source stamp of the first changed sample of the drain under way
+        self._taken: deque = deque(maxlen=10_000)  # (simulated time the entity takes it, source stamp)
         initial = np.zeros(2 + len(self.codec.names))
         initial[0], initial[1] = -np.inf, float(PhysicalLink.STALE.code)
         self._sample = self.DeclareDiscreteState(initial)
@@ -249,7 +259,22 @@ class ZenohSampleSource(_LinkSource):
         return message.failure  # the bridge's checks refused its device's data: the link fails by that fault
 
     def take(self, message, arrival: float, judgement, sample: np.ndarray) -> None:
+        if judgement.trusted and self._changed is None and not np.array_equal(sample[2:], message.codes):
+            self._changed = message.t  # the oldest change of this drain, stamped at its source
         sample[0], sample[2:] = arrival, message.codes
+
+    def drained(self, t: float) -> None:
+        if self._changed is not None:
+            self._taken.append((t + self.time_step, self._changed))
+            self._changed = None
+
+    def decided_by(self, t: float) -> list[float]:
+        """The source stamps (wall clock, s) of the changes the entity took before simulated time ``t`` (a
+        controller's update then acts on them), each given once."""
+        given = []
+        while self._taken and self._taken[0][0] < t - 1e-9:
+            given.append(self._taken.popleft()[1])
+        return given
 
     def settle(self, trust: LinkTrust, sample: np.ndarray, xd, failed) -> None:
         sample[1] = float((failed or trust.link).code)
@@ -467,7 +492,8 @@ class TwinModeControl(LeafSystem):
 
 
 class LiveStatus(LeafSystem):
-    """A live process's pacing: its lag every TICK and, with ``publisher``, its status every second.
+    """A live process's pacing: its lag every TICK and, with ``publisher``, its status every second (with the
+    twin's reaction, the slowest since the last status and the entities slower than assumed).
 
     Ports:
       <entity> (input), per entity with a sample source: its ``physical_sample`` (for the age of
@@ -475,10 +501,11 @@ class LiveStatus(LeafSystem):
     """
 
     def __init__(self, clock: LiveClock, time_step: float, publisher=None, sources: dict | None = None,
-                 process: str = "twin"):
+                 process: str = "twin", reaction=None):
+        """``reaction``: the twin's ``ReactionWatch`` (``cellsim.live.reaction``), whose figures the status carries."""
         super().__init__()
         self.set_name(f"{process}_status")
-        self.clock, self.publisher, self.process = clock, publisher, process
+        self.clock, self.publisher, self.process, self.reaction = clock, publisher, process, reaction
         self.lags: list[float] = []
         self.warned = False
         self._samples = {name: self.DeclareVectorInputPort(name, port.size()) for name, port in (sources or {}).items()}
@@ -506,7 +533,10 @@ class LiveStatus(LeafSystem):
             stamp = port.Eval(context)[0]
             ages[name] = None if not np.isfinite(stamp) else round(t - stamp, 4)
         lag = self.lags[-1] if self.lags else 0.0
-        self.publisher.put(codec.dumps({"t": time.time(), "sim_time": round(t, 3), "lag": round(lag, 5), "sample_age": ages}))
+        status = {"t": time.time(), "sim_time": round(t, 3), "lag": round(lag, 5), "sample_age": ages}
+        if self.reaction is not None:
+            status["reaction"] = self.reaction.status()
+        self.publisher.put(codec.dumps(status))
 
     def figures(self) -> dict:
         lags = np.array(self.lags) if self.lags else np.zeros(1)
