@@ -12,12 +12,13 @@ at 25 Hz, toggling broken every 0.5 s. Prints:
   jittered times): p50, p99; the update is the twin's black-box time of the
   change on its clock (wall clock at simulated time 0 plus simulated time);
 * sensor change -> safety command applied by the emulated robot: for each change
-  of the twin's commanded safety mode to a more restrictive one, from the sensor change just before it (a
-  curtain toggle, or the emulated scanner's reading) to the emulated robot
-  taking that mode, on the two processes' clocks (one machine);
+  of the twin's commanded safety mode to a more restrictive one, from the sensor change
+  that raised its hazard (the curtain's toggle for HRW, the emulated scanner's reading
+  for HS) to the emulated robot taking that mode, on the two processes' clocks (one
+  machine); the risk model takes two controller updates (detect, then mitigate);
 * the twin's own measure of its reaction (``cellsim.live.reaction``): from a changed
-  sample's stamp at its source to the commands decided on it going out, per sensor,
-  beside the reaction the scenario assumes;
+  sample's stamp at its source to the end of the first controller update that reads it,
+  per sensor, beside the reaction the scenario assumes;
 * CPU of the twin and of the emulator, in % of one core.
 
 Targets (issue "The twin goes live"): lag p99 <= 5 ms; sample -> twin <= one
@@ -138,6 +139,7 @@ def measure(seconds: float, keys: Path | None) -> dict:
         live = bb.metadata()["live"]
         broken = bb.series("light_barrier.broken")
         commanded = bb.series("safety_controller.safmod")
+        hazards = {h: bb.series(f"safety_controller.{h}") for h in ("HRW", "HS", "HC")}
     with BlackBox(tmp / "emulator" / "blackbox.sqlite") as emu:
         emu_wall0 = emu.metadata()["live"]["wall_at_zero"]
         ranges, modes = emu.series("range_detector.range"), emu.series("robot.safety_mode")
@@ -151,16 +153,24 @@ def measure(seconds: float, keys: Path | None) -> dict:
         later = [t for t, v in zip(broken.times, broken.values) if v == value and wall0 + t >= t_sample - 0.001]
         if later and wall0 + later[0] - t_sample < 1.0:
             latencies.append(wall0 + later[0] - t_sample)
-    # sensor change -> safety command applied by the emulated robot: each change of the twin's
-    # commanded safety mode, from the sensor change just before it (a curtain toggle, or the
-    # emulated scanner's) to the emulated robot taking that mode
-    sensor_walls = sorted([t for t, _ in toggles] + [emu_wall0 + t for t in ranges.times[1:]])
-    reactions = []
+    # sensor change -> safety command applied by the emulated robot: each change of the twin's commanded
+    # safety mode to a more restrictive one, from the sensor change that raised its hazard (the curtain's
+    # toggle to broken for HRW, the emulated scanner's reading for HS: the hazard the command's update
+    # or the one before it activated) to the emulated robot taking that mode. Commands raised otherwise
+    # (HC: the welder starting beside a person) answer no sensor change and are left out, counted.
+    causes = {"HRW": [t for t, broken_now in toggles if broken_now], "HS": [emu_wall0 + t for t in ranges.times[1:]]}
+    reactions, other = [], 0
     order = [m.value for m in SafetyMode]
     for t_cmd, mode, previous in zip(commanded.times[1:], commanded.values[1:], commanded.values):
         if order.index(mode) <= order.index(previous):
             continue  # a command that relaxes the mode answers no sensor change
-        before = [w for w in sensor_walls if wall0 + t_cmd - 0.5 <= w <= wall0 + t_cmd]
+        raised = [(t, h) for h, series in hazards.items() for t, v in zip(series.times, series.values)
+                  if v == "act" and t_cmd - 0.05 <= t <= t_cmd]
+        if not raised or max(raised)[1] not in causes:
+            other += 1
+            continue
+        t_act, hazard = max(raised)
+        before = [w for w in causes[hazard] if w <= wall0 + t_act + 0.001]
         applied = [emu_wall0 + t for t, v in zip(modes.times, modes.values) if v == mode and emu_wall0 + t >= wall0 + t_cmd - 0.001]
         if before and applied and applied[0] - before[-1] < 1.0:
             reactions.append(applied[0] - before[-1])
@@ -169,7 +179,7 @@ def measure(seconds: float, keys: Path | None) -> dict:
         print("sensor -> command (ms):", [round(float(x) * 1e3, 1) for x in reactions])
     lag = live["pacing_lag_s"]
     return {"tmp": tmp, "lag": lag, "own": live.get("reaction_s", {}), "latencies": percentiles(latencies, 50, 99), "n_latencies": len(latencies),
-            "reactions": percentiles(reactions, 50, 99), "n_reactions": len(reactions),
+            "reactions": percentiles(reactions, 50, 99), "n_reactions": len(reactions), "n_other": other,
             "twin_cpu": 100.0 * (cpu1[0] - cpu0[0]) / (cpu1[2] - cpu0[2]),
             "emu_cpu": 100.0 * (cpu1[1] - cpu0[1]) / (cpu1[2] - cpu0[2])}
 
@@ -206,12 +216,13 @@ def main() -> None:
         print(f"[{security}] sample -> twin       p50 {p50 * 1e3:6.2f} ms  p99 {p99 * 1e3:6.2f} ms   "
               f"({r['n_latencies']} curtain toggles; target p99 <= {CURTAIN_PERIOD * 1e3 + 2:.0f} ms)")
         print(f"[{security}] sensor -> command    p50 {r50 * 1e3:6.2f} ms  p99 {r99 * 1e3:6.2f} ms   "
-              f"({r['n_reactions']} safety-mode commands, from the sensor change to the emulated robot's mode)")
+              f"({r['n_reactions']} safety-mode commands, from the sensor change that raised the hazard to the "
+              f"emulated robot's mode; {r['n_other']} raised otherwise)")
         for entity in ("light_barrier", "range_detector"):
             own = r["own"].get(entity)
             if own and own["count"]:
                 print(f"[{security}] twin's own reaction  p50 {own['p50'] * 1e3:6.2f} ms  p99 {own['p99'] * 1e3:6.2f} ms   "
-                      f"({entity}: {own['count']} changed samples -> command out, {own['exceeded']} over the "
+                      f"({entity}: {own['count']} changed samples -> decision, {own['exceeded']} over the "
                       f"{own['assumed'] * 1e3:g} ms assumed)")
         print(f"[{security}] CPU                  twin {r['twin_cpu']:5.1f} %  emulator {r['emu_cpu']:5.1f} % of one core"
               "   (target twin <= 50 %)")

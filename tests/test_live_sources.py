@@ -221,5 +221,5 @@ def test_the_twin_measures_its_reaction_to_a_sample_and_reports_one_slower_than_
         figures = cell.network.metadata()["reaction_s"]["light_barrier"]
         assert figures["count"] == 2 and figures["exceeded"] == 1 and figures["max"] > 0.15
         assert watch.status()["slower"] == ["light_barrier"]
-        assert "light_barrier: sample -> command" in capsys.readouterr().err
+        assert "light_barrier: sample -> decision" in capsys.readouterr().err
         assert watch.counts["welder"] == 0  # in model mode its samples decide nothing: no reaction to measure

@@ -10,9 +10,10 @@ measures itself and says so.
 
 **What is measured**, for each physical sample that changed its entity's fields (the oldest change
 in each drain of its source): from the sample's stamp at its source (the sender's wall clock when it
-was taken) to the moment the twin's commands decided on it go out, that is the first look of the
-command publishers (one plant step after a controller's update) whose update came strictly after the
-entity took the sample in. Only entities in shadow or twin mode are measured (in model mode their
+was taken) to the end of the first update of the fastest controller that reads it, when the commands
+that update decides go out (the command publishers look one plant step after it). A controller whose
+own logic takes more updates to act (the risk model: detect, then mitigate) takes them in simulation
+too: they are part of the evidence, not of the twin's delay. Only entities in shadow or twin mode are measured (in model mode their
 samples drive nothing). Not seen by the twin: the physical sensor's response before its sample was
 stamped, and the bus and robot controller after the command left (``scripts/bench_bridge.py``
 measures the bridge's part). Stamps and the twin's clock are compared as wall clocks: on two machines
@@ -113,7 +114,7 @@ class ReactionWatch(LeafSystem):
         if reaction > assumed.seconds:
             self.exceeded[name] += 1
             if self.exceeded[name] == 1:
-                print(f"cellsim {self.process}: {name}: sample -> command {reaction * 1000:.0f} ms at t = {t:.1f} s, "
+                print(f"cellsim {self.process}: {name}: sample -> decision {reaction * 1000:.0f} ms at t = {t:.1f} s, "
                       f"slower than the {assumed.seconds * 1000:g} ms the scenario assumes ({assumed.why}): its "
                       "evidence is optimistic for this cell", file=sys.stderr)
 
