@@ -95,9 +95,10 @@ class CellDiagram:
         """A live or emulated cell runs until it is stopped: its record then ends there, complete."""
         return paced(self.io)
 
-    def start(self, root_context) -> None:
-        """Before simulated time runs (the simulator initialised, ``root_context`` its context): wait for what
-        must be there."""
+    def start(self, root_context=None) -> None:
+        """Before simulated time runs (the simulator initialised): wait for what must be there; with the
+        simulator's ``root_context``, a live twin's sources take what arrived while it waited as their state at
+        t = 0 (without it, its entities start failing safe until their sources' first drain)."""
         if self.meshcat_wait is not None and self.meshcat_visualizer is not None:
             from cellsim.visual.live import wait_for_browser
 
