@@ -241,8 +241,15 @@ class EntitySystem(CellSystem):
             out.SetZero()
             return
         if self._command_ports is None:
-            self._command_ports = [self.GetInputPort(name) for name in self.command_fields]
-        out.SetFromVector(np.array([1.0, *(port.Eval(context)[0] for port in self._command_ports)], float))
+            self._command_ports = [(name, self.GetInputPort(name)) for name in self.command_fields]
+        out.SetFromVector(np.array([1.0, *(self.command_value(name, port.Eval(context)[0])
+                                          for name, port in self._command_ports)], float))
+
+    def command_value(self, name: str, value: float) -> float:
+        """The code sent to the physical twin for command field ``name`` when its input reads ``value``: by
+        default the input itself; a kind whose input's default every protocol cannot carry (an unlimited speed)
+        says what it sends instead."""
+        return value
 
 TWIN_CHANNELS = (
     ("twin_mode", "enum", "model / shadow / twin"),

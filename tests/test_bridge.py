@@ -495,7 +495,7 @@ def test_robot_requests_go_to_the_controller_in_twin_mode_and_a_stop_when_the_tw
     mode = twin.declare_publisher("cellsim/welding_cell/twin/robot/twin_mode")
     command = twin.declare_publisher("cellsim/welding_cell/command/robot")
     token = twin.liveliness().declare_token("cellsim/welding_cell/alive/twin")
-    fields = {"safety_mode_request": "ssmon", "activity": "welding", "target_pose": 2.0}  # a pose's index
+    fields = {"safety_mode_request": "ssmon", "activity": "welding", "target_pose": 2.0, "speed_limit": 0.3}  # a pose's index
 
     def take_until(condition) -> None:
         deadline = time.monotonic() + 10
@@ -520,8 +520,9 @@ def test_robot_requests_go_to_the_controller_in_twin_mode_and_a_stop_when_the_tw
         token = None
         take_until(lambda: not bridge._twin_alive)
         bridge.send_commands()
-        # the robot kind's safe command: stop, idle, hold where it is
-        assert requests.get(timeout=5)["fields"] == {"safety_mode_request": "stopped", "activity": "idle", "target_pose": -1.0}
+        # the robot kind's safe command: stop, idle, hold where it is, no speed allowed
+        assert requests.get(timeout=5)["fields"] == {"safety_mode_request": "stopped", "activity": "idle", "target_pose": -1.0,
+                                                     "speed_limit": 0.0}
     finally:
         if token is not None:
             token.undeclare()

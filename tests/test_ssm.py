@@ -207,3 +207,33 @@ def test_in_ssmon_a_speed_limit_with_no_value_stops_the_arm():
         for _ in range(10):
             state, _, _ = robot._advance(state, mode, state[0], limit)
         assert (state[1] > 0.0) == moves, (mode, limit)
+
+
+def test_a_robot_in_twin_mode_sends_its_physical_twin_the_ssm_limit_in_force_and_the_cap_without_one():
+    """The SSM monitor's speed_limit is a command of the robot: what the physical controller is told (a UR's speed
+    slider), at most the ssmon cap; a cell with no ssm sends the cap (an unlimited speed is no number a message
+    carries), and a lost supervisor's safe command allows no speed."""
+    from cellsim.api import build, load_scenario
+    from cellsim.simulation import make_simulator
+    from conftest import ROOT
+
+    cell = build(load_scenario(ROOT / "scenarios" / "machine_tending.yaml",
+                               ["robot.twin.mode=twin", "robot.speed_limits.ssmon=1.0"]))  # the monitor goes below it
+    robot = cell.entity("robot")
+    at = list(robot.command_fields).index("speed_limit") + 1
+    simulator = make_simulator(cell)
+    context = simulator.get_mutable_context()
+    limit, command = cell.diagram.GetOutputPort("ssm.speed_limit"), cell.diagram.GetOutputPort("robot.physical_command")
+    seen = set()
+    for t in np.arange(0.5, 12.0, 0.5):
+        simulator.AdvanceTo(t)
+        sent = command.Eval(context)
+        assert sent[0] == 1.0 and sent[at] == pytest.approx(min(limit.Eval(context)[0], 1.0)), t
+        seen.add(round(sent[at], 3))
+    assert 1.0 in seen and min(seen) < 0.7  # it follows the monitor as the person comes near and goes
+    assert robot.safe_command()["speed_limit"] == 0.0
+    welding = build(load_scenario(ROOT / "scenarios" / "welding_cell.yaml", ["robot.twin.mode=twin"]))
+    context = welding.diagram.CreateDefaultContext()
+    welding.set_initial_state(context)
+    sent = welding.diagram.GetOutputPort("robot.physical_command").Eval(context)
+    assert sent[at] == 0.5  # no ssm module: its input reads unlimited, the ssmon cap goes out

@@ -104,7 +104,8 @@ def test_the_programs_reported_mode_counts_only_while_the_controller_itself_is_n
 
 def test_a_command_goes_out_as_the_slider_at_its_modes_cap_and_codes_the_program_reads_back(program):
     r = program.registers
-    values = program.input_values({"safety_mode_request": "ssmon", "activity": "welding", "target_pose": 2.0}, 7)
+    values = program.input_values({"safety_mode_request": "ssmon", "activity": "welding", "target_pose": 2.0,
+                                   "speed_limit": 0.5}, 7)
     assert values == {"speed_slider_mask": 1, "speed_slider_fraction": 0.5, f"input_int_register_{r.safety_mode_request}": 2,
                       f"input_int_register_{r.activity_request}": 2, f"input_int_register_{r.target_pose}": 2,
                       f"input_int_register_{r.heartbeat}": 7}
@@ -112,12 +113,20 @@ def test_a_command_goes_out_as_the_slider_at_its_modes_cap_and_codes_the_program
     for mode in MODES:
         for activity in ("idle", "exchWrkp", "welding", "off"):
             for target in (-1.0, 0.0, 2.0):
-                command = {"safety_mode_request": mode, "activity": activity, "target_pose": target}
+                # the SSM's limit as the robot sends it: the ssmon cap when no ssm module drives it
+                command = {"safety_mode_request": mode, "activity": activity, "target_pose": target, "speed_limit": 0.5}
                 values = program.input_values(command, 1)
                 assert values["speed_slider_fraction"] == caps[mode]
                 assert program.command(values) == (command, caps[mode])
+    # in ssmon the slider follows the SSM monitor's limit below the cap; a limit with no value is a stop
+    for limit, fraction in ((0.2, 0.2), (0.0, 0.0), (0.9, 0.5), (None, 0.0), (float("nan"), 0.0)):
+        command = {"safety_mode_request": "ssmon", "activity": "welding", "target_pose": 2.0, "speed_limit": limit}
+        assert program.input_values(command, 1)["speed_slider_fraction"] == fraction, limit
+    # outside ssmon the SSM's limit is not in force (as in the robot kind): the mode's cap
+    assert program.input_values({"safety_mode_request": "pflim", "speed_limit": 0.0}, 1)["speed_slider_fraction"] == 0.25
     # the kind's safe command: slider 0, stop, hold
-    safe = program.input_values({"safety_mode_request": "stopped", "activity": "idle", "target_pose": -1.0}, 8)
+    safe = program.input_values({"safety_mode_request": "stopped", "activity": "idle", "target_pose": -1.0,
+                                 "speed_limit": 0.0}, 8)
     assert safe["speed_slider_fraction"] == 0.0 and safe[f"input_int_register_{r.safety_mode_request}"] == 5
     # a code the program cannot read is the stop
     assert program.command({f"input_int_register_{r.safety_mode_request}": 42})[0]["safety_mode_request"] == "stopped"
@@ -292,7 +301,7 @@ def test_in_twin_mode_the_controller_gets_the_slider_and_registers_and_slider_0_
             assert values["speed_slider_mask"] == 0 and values[f"input_int_register_{r.safety_mode_request}"] == -1
         assert second[f"input_int_register_{r.heartbeat}"] > first[f"input_int_register_{r.heartbeat}"]
         mode.put(json.dumps({"t": time.time(), "sim_time": 0.1, "value": "twin"}))
-        fields = {"safety_mode_request": "ssmon", "activity": "welding", "target_pose": 2.0}
+        fields = {"safety_mode_request": "ssmon", "activity": "welding", "target_pose": 2.0, "speed_limit": 0.5}
         seq = 0
         heartbeats = []
         deadline = time.monotonic() + 10
@@ -406,7 +415,7 @@ def test_the_emulated_program_takes_a_command_only_when_the_heartbeat_moved_and_
     emulated = EmulatedController("127.0.0.1", 0, program, 500.0)
     try:
         emulated.source = source = Source()
-        command = {"safety_mode_request": "pflim", "activity": "idle", "target_pose": 0.0}
+        command = {"safety_mode_request": "pflim", "activity": "idle", "target_pose": 0.0, "speed_limit": 0.5}
         emulated._on_inputs(program.input_values(command, 1))
         emulated._on_inputs(program.input_values(command, 1))  # the same heartbeat: the daemon stalled, not taken
         emulated._on_inputs(program.input_values(None, 2))  # released: no command at all

@@ -500,7 +500,7 @@ def _program(robot: RobotLinkConfig, caps, samples: FieldCodec, commands: FieldC
     fractions = {mode: (0.0 if mode in STOP_MODES else min(1.0, getattr(caps, mode) / caps.normal))
                  for mode in ("normal", "hguid", "ssmon", "pflim", *STOP_MODES)}
     return UrProgram(robot.rtde.registers, dict(zip(samples.names, samples.types)),
-                     dict(zip(commands.names, commands.types)), fractions)
+                     dict(zip(commands.names, commands.types)), fractions, caps.normal)
 
 
 def _protocols(sf) -> dict:

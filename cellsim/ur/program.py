@@ -22,7 +22,8 @@ range fault, as is a joint beyond its limit.
 **Commands, twin to controller** (:meth:`UrProgram.inputs`): the requested
 safety mode's code, activity and target pose in their registers, and the speed
 slider (``speed_slider_mask`` 1, ``speed_slider_fraction``) at the requested
-mode's tool speed cap over the normal cap (0 in srmst and stopped), and a
+mode's tool speed cap over the normal cap (0 in srmst and stopped; in ssmon at
+most the SSM monitor's ``speed_limit`` over the normal cap, 0 without one), and a
 heartbeat register counting the commands sent: the program stops the arm when it
 stalls (the daemon lost, not only the twin). While the twin does not command the
 robot (model or shadow mode) the daemon writes -1 in every request register and
@@ -64,6 +65,8 @@ class UrProgram:
     """The robot entity's command fields -> their ChannelType."""
     speed_fractions: dict
     """Safety mode value -> the speed slider's fraction in it (its tool cap over the normal cap)."""
+    normal_cap: float = 1.0
+    """The tool's speed cap in normal mode (m/s): the speed the slider's 1 stands for."""
 
     # -- the variables ----------------------------------------------------------------
     def outputs(self) -> list[str]:
@@ -116,12 +119,21 @@ class UrProgram:
         target = -1 if target is None or not math.isfinite(target) or target < 0 else int(target)
         return {
             "speed_slider_mask": 1,
-            "speed_slider_fraction": self.speed_fractions.get(mode, 0.0),
+            "speed_slider_fraction": self.slider(mode, command.get("speed_limit")),
             rtde.int_register("input", r.safety_mode_request): self._code("safety_mode_request", mode),
             rtde.int_register("input", r.activity_request): self._code("activity", command.get("activity")),
             rtde.int_register("input", r.target_pose): target,
             rtde.int_register("input", r.heartbeat): heartbeat % 2**31,
         }
+
+    def slider(self, mode: str, speed_limit) -> float:
+        """The speed slider's fraction for a requested ``mode``: its cap over the normal cap; in ssmon, at most
+        the SSM monitor's ``speed_limit`` (m/s) over the normal cap, and 0 when it has no value (a stop)."""
+        fraction = self.speed_fractions.get(mode, 0.0)
+        if mode == SafetyMode.SPEED_SEPARATION.value:
+            valid = isinstance(speed_limit, (int, float)) and math.isfinite(speed_limit) and speed_limit >= 0.0
+            fraction = min(fraction, speed_limit / self.normal_cap) if valid else 0.0
+        return fraction
 
     def _code(self, name: str, value) -> int:
         ctype = self.command_types[name]
@@ -149,7 +161,9 @@ class UrProgram:
         target = int(inputs.get(rtde.int_register("input", r.target_pose), -1))
         fields = {"safety_mode_request": mode or SafetyMode.STOPPED.value,
                   "activity": value("activity", inputs.get(rtde.int_register("input", r.activity_request), -1)),
-                  "target_pose": float(target) if target >= 0 else -1.0}
+                  "target_pose": float(target) if target >= 0 else -1.0,
+                  # the SSM's limit came as the slider, which scales the arm: no tighter cap than ssmon's here
+                  "speed_limit": self.speed_fractions.get(SafetyMode.SPEED_SEPARATION.value, 0.0) * self.normal_cap}
         return fields, float(np.clip(inputs.get("speed_slider_fraction", 1.0), 0.0, 1.0))
 
     def state(self, fields: dict, velocity, t: float, slider: float) -> dict:

@@ -28,7 +28,7 @@ class RobotKind(ModuleKind):
     config = RobotConfig
     summary = "A six-axis collaborative arm (URDF) moving between named poses (joint angles or tool targets), with ISO 10218 safety modes."
     sample_fields = tuple(f"q{i}" for i in range(6)) + ("safety_mode", "activity", "reached_pose")
-    command_fields = ("safety_mode_request", "activity", "target_pose")
+    command_fields = ("safety_mode_request", "activity", "target_pose", "speed_limit")
     channels = (
         ("safety_mode", "enum", "current safety mode (safmod); unknown when shadowing with no valid sample"),
         ("activity", "enum", "one of its activities, or unknown (ract)"),
@@ -41,7 +41,8 @@ class RobotKind(ModuleKind):
     inputs = (
         ("safety_mode_request", "enum", "the safety mode a safety controller requests (it takes the most restrictive)"),
         ("activity", "enum", "the activity its process carries out (ract follows it)"),
-        ("speed_limit", "number, m/s", "the tool speed an ssm module allows now; followed in ssmon, below its cap"),
+        ("speed_limit", "number, m/s", "the tool speed an ssm module allows now; followed in ssmon, below its cap "
+         "(sent to the physical twin as that cap when no ssm drives it)"),
         ("speed_scaling", "number, 0..1", "its controller's speed slider (a UR's): scales every motion; 1 unless "
          "an emulated controller drives it"),
     )
@@ -64,9 +65,11 @@ class RobotKind(ModuleKind):
         return Protocol(
             (*((f"q{i}", number) for i in range(6)), ("safety_mode", modes), ("activity", activities),
              ("reached_pose", poses)),
-            (("safety_mode_request", modes), ("activity", activities), ("target_pose", number)),
-            # its supervisor lost: stopped, its first activity, holding where it is
-            {"safety_mode_request": SafetyMode.STOPPED.value, "activity": cfg.activities[0], "target_pose": HOLD},
+            (("safety_mode_request", modes), ("activity", activities), ("target_pose", number),
+             ("speed_limit", number_type("m/s"))),
+            # its supervisor lost: stopped, its first activity, holding where it is, no speed allowed
+            {"safety_mode_request": SafetyMode.STOPPED.value, "activity": cfg.activities[0], "target_pose": HOLD,
+             "speed_limit": 0.0},
         )
 
     def prepare(self, cell, name, cfg):

@@ -130,7 +130,7 @@ class Robot(EntitySystem):
             cfg.period,
             cfg.twin,
             tuple(f"q{i}" for i in range(n)) + ("safety_mode", "activity", "reached_pose"),
-            ("safety_mode_request", "activity", "target_pose"),
+            ("safety_mode_request", "activity", "target_pose", "speed_limit"),
         )
         self.cfg = cfg
         self.kinematics = ArmKinematics(model_path, cfg)
@@ -224,6 +224,18 @@ class Robot(EntitySystem):
             if x0 <= x <= x1 and y0 <= y <= y1 and z0 <= z <= z1:
                 return location
         return self.elsewhere
+
+    def safe_command(self) -> dict[str, float]:
+        """Its supervisor lost: stopped, its first activity, holding where it is, no speed allowed."""
+        return {**super().safe_command(), "speed_limit": 0.0}
+
+    def command_value(self, name: str, value: float) -> float:
+        """``speed_limit`` goes out as the tool speed allowed in ssmon: its input, at most the mode's cap (with
+        no ssm module, the cap itself: an unlimited speed is no number a message carries); no value stays no
+        value, which the robot takes as a stop."""
+        if name == "speed_limit" and not math.isnan(value):
+            return min(value, self.speed_caps[SafetyMode.SPEED_SEPARATION])
+        return value
 
     def sample_is_valid(self, sample) -> bool:
         return (
