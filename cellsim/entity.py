@@ -19,11 +19,12 @@ Every entity is an ``EntitySystem``. Besides its digital behaviour it has
   (its sample fields as port codes): the emulator publishes it.
 * channels ``<entity>.twin_mode`` and ``<entity>.physical_link``.
 
-In a live twin an entity whose update period is longer than a plant step also
+In a live twin an entity updated less often than the cell's fastest controller
 *takes each sample on arrival* (:meth:`EntitySystem.take_samples_on_arrival`): in
-shadow and twin mode it updates at the first plant step after a new sample (or a
-change of its link) reaches its input, not only at its own period, which would
-only add up to a period of delay between the physical sensor and its supervisor.
+shadow and twin mode it also updates at each of that controller's periods when a
+new sample (or a change of its link) has come, not only at its own period, which
+would only add up to that period of delay between the physical sensor and its
+supervisor.
 
 In ``model`` mode the digital behaviour drives the outputs. In ``shadow`` and
 ``twin`` mode they follow the physical sample; when the link is not ok (stale,
@@ -143,29 +144,33 @@ class EntitySystem(CellSystem):
         return f"{self.module}.{field}", 0
 
     # -- the live twin ----------------------------------------------------------
-    def take_samples_on_arrival(self, time_step: float) -> bool:
-        """Also update at the first plant step after a new physical sample arrives, in shadow and twin mode.
+    def take_samples_on_arrival(self, every: float, time_step: float) -> bool:
+        """Also update every ``every`` seconds (the period of the cell's fastest controller) in shadow and twin
+        mode, when a new physical sample (or a change of its link) came since the last look.
 
-        Called by the live twin's builder before the recorder is built. The entity's channels can then change
-        at any plant step, so each is declared with the plant's step as its period (the recorder looks at them
-        that often: the black box keeps every value the supervisor could act on). Returns whether it was set:
-        not for a kind that says it must not (``takes_samples_on_arrival``), nor for an entity updated at
-        every plant step already.
+        Called by the live twin's builder, before the recorder is built. The looks fall on the same grid as
+        every module's updates (offset 0), so the controller sees each reading one of its periods after it is
+        taken, as it sees every other module's: the record holds no reading it could not act on, and no
+        conjunction of two readings shorter than its period that it could not see. The entity's channels can
+        then change at multiples of the common divisor of its period and ``every``, which becomes their
+        period (the recorder looks at them that often). Returns whether it was set: not for a kind that says it
+        must not (``takes_samples_on_arrival``), nor for an entity updated that often already.
         """
+        import math
         from dataclasses import replace
 
-        if not self.takes_samples_on_arrival or self.period <= time_step * (1 + 1e-9):
+        if not self.takes_samples_on_arrival or self.period <= every * (1 + 1e-9):
             return False
         self._taken_group = self.declare_state("taken_sample", [-np.inf, np.nan])
-        self._on_own_period = max(1, round(self.period / time_step))
-        self._step = time_step
-        self.DeclarePeriodicDiscreteUpdateEvent(time_step, 0.0, self._on_arrival)
-        self.channels = [(replace(spec, period=time_step), port) for spec, port in self.channels]
+        self._own_period, self._every = self.period, every
+        self.DeclarePeriodicDiscreteUpdateEvent(every, 0.0, self._on_arrival)
+        steps = math.gcd(max(1, round(self.period / time_step)), max(1, round(every / time_step)))
+        self.channels = [(replace(spec, period=steps * time_step), port) for spec, port in self.channels]
         return True
 
     def _on_arrival(self, context, xd):
-        """A step's look at the physical sample: the kind's update when one arrived (or the link changed)
-        since the last look, in shadow and twin mode; at the entity's own period its update does it."""
+        """A look at the physical sample: the kind's update when one arrived (or the link changed) since the last
+        look, in shadow and twin mode; at the entity's own period its update does it."""
         if read_scalar(context, self._mode_group) == TwinMode.MODEL.code:
             return UNCHANGED
         raw = self.physical_sample_port.Eval(context)
@@ -173,7 +178,8 @@ class EntitySystem(CellSystem):
         if raw[0] == taken[0] and raw[1] == taken[1]:
             return UNCHANGED
         xd.get_mutable_vector(self._taken_group).SetFromVector(raw[:2])
-        if round(context.get_time() / self._step) % self._on_own_period != 0:  # else its periodic update runs now
+        t = context.get_time()
+        if abs(t / self._own_period - round(t / self._own_period)) > 1e-6:  # else its periodic update runs now
             self.update(context, xd)
         return None  # the sample taken is written, whatever the update did
 

@@ -171,24 +171,27 @@ def _live_twin(*overrides: str):
         session.close()
 
 
-def test_a_live_twins_sensor_takes_a_sample_the_step_after_it_arrives_not_at_its_own_period():
+def test_a_live_twins_sensor_takes_a_sample_at_the_controllers_next_period_not_at_its_own():
     """The light barrier updates every 40 ms; in a live twin, in shadow mode, a sample that arrives is its reading
-    two plant steps later (drained, then taken), so the safety controller's next 20 ms update acts on it. The
-    black box looks at its channels at every plant step, so it keeps the reading from when it changed."""
+    at the next multiple of the safety controller's 20 ms (drained one step before), in phase with every module
+    (the controller sees it, as any reading, one of its periods later). The black box looks at its channels
+    every 20 ms, so it keeps the reading from when it changed."""
     with _live_twin("light_barrier.twin.mode=shadow", "light_barrier.twin.recover_after=1") as (cell, simulator, sources):
         source, context = sources["light_barrier"], simulator.get_mutable_context()
         broken = cell.diagram.GetOutputPort("light_barrier.broken")
-        assert cell.channels["light_barrier.broken"][0].period == 0.002  # recorded at every plant step
+        assert cell.channels["light_barrier.broken"][0].period == 0.02  # recorded at the controller's rate
         assert cell.channels["robot.safety_mode"][0].period == 0.02  # the robot keeps its period
         source.deliver(encode_fields(time.time(), 1, {"broken": False}))
         cell.network.heard("light_barrier")
         cell.start(context)  # the clock starts; the source takes the sample that came before it
         simulator.AdvanceTo(0.002)
         assert broken.Eval(context)[0] == 0.0  # read from the start: no start-up spent failing safe
-        simulator.AdvanceTo(0.101)
+        simulator.AdvanceTo(0.121)
         source.deliver(encode_fields(time.time(), 2, {"broken": True}))  # between two of the barrier's updates
-        simulator.AdvanceTo(0.1051)
-        assert broken.Eval(context)[0] == 1.0  # drained at 0.102, taken at 0.104; its own update is at 0.12
+        simulator.AdvanceTo(0.1391)
+        assert broken.Eval(context)[0] == 0.0  # drained at 0.138, not yet taken: every module changes on one grid
+        simulator.AdvanceTo(0.1401)
+        assert broken.Eval(context)[0] == 1.0  # taken at 0.14; its own update is at 0.16
 
 
 def test_the_twin_measures_its_reaction_to_a_sample_and_reports_one_slower_than_the_scenario_assumes(capsys):

@@ -310,7 +310,7 @@ def build_cell(
     plant.Finalize()
 
     hooks_run = False
-    on_arrival: set[str] = set()  # the live twin's entities that take each sample on arrival
+    on_arrival: dict[str, float] = {}  # the live twin's entities that take each sample on arrival -> how often
     for kind, _, name, cfg in sorted(modules, key=lambda m: m[0].stage):  # stable: scenario order within a stage
         if kind.stage >= AFTER_ENTITIES and not hooks_run:
             if isinstance(io, Live):  # before the recorder: their channels' periods change
@@ -422,8 +422,8 @@ def _replay(builder: DiagramBuilder, cell: CellBuild, io: Replayed) -> list[tupl
     return fixed
 
 
-def _live(builder: DiagramBuilder, cell: CellBuild, io: Live, on_arrival: set[str]):
-    """The twin on Zenoh: a sample source per entity (drained at every plant step for the entities in
+def _live(builder: DiagramBuilder, cell: CellBuild, io: Live, on_arrival: dict[str, float]):
+    """The twin on Zenoh: a sample source per entity (drained before each of the looks of the entities in
     ``on_arrival``), every channel and command published, twin modes switched on request, the status every
     second, the describe queryable and the liveliness token."""
     from cellsim import codec
@@ -440,7 +440,7 @@ def _live(builder: DiagramBuilder, cell: CellBuild, io: Live, on_arrival: set[st
     sources = {}
     for entity_name, entity in cell.entities.items():
         key = keys.physical(name, entity_name)
-        sources[entity_name] = builder.AddSystem(ZenohSampleSource(entity, clock, step, key, entity_name in on_arrival))
+        sources[entity_name] = builder.AddSystem(ZenohSampleSource(entity, clock, step, key, on_arrival.get(entity_name)))
         builder.Connect(sources[entity_name].get_output_port(), entity.physical_sample_port)
     watch = None
     if (every := deciding_period(cell.scenario)) is not None:  # the twin's own reaction, against its evidence's
@@ -488,18 +488,17 @@ def _live(builder: DiagramBuilder, cell: CellBuild, io: Live, on_arrival: set[st
     return network
 
 
-def _take_samples_on_arrival(cell: CellBuild) -> set[str]:
-    """The live twin's entities that take each sample on arrival: those updated less often than the cell's
-    fastest deciding module (a behaviour: its controllers and monitors), whose own period would only delay
-    what they pass on. An entity updated as often (the robot, read by a controller of its period) keeps its
-    period: its samples may come at every plant step, and it would run its kinematics at each."""
+def _take_samples_on_arrival(cell: CellBuild) -> dict[str, float]:
+    """The live twin's entities that take each sample on arrival, each with how often it looks (s): those
+    updated less often than the cell's fastest deciding module (a behaviour: its controllers and monitors) look
+    at that module's period, whose own period would only delay what they pass on. An entity updated as
+    often (the robot, read by a controller of its period) keeps its period."""
     from cellsim.live.reaction import deciding_period
 
     fastest, step = deciding_period(cell.scenario), cell.scenario.time_step
     if fastest is None:
-        return set()
-    return {name for name, entity in cell.entities.items()
-            if entity.period > fastest * (1 + 1e-9) and entity.take_samples_on_arrival(step)}
+        return {}
+    return {name: fastest for name, entity in cell.entities.items() if entity.take_samples_on_arrival(fastest, step)}
 
 
 def _decided_every(builder: DiagramBuilder, entity, step: float) -> float:

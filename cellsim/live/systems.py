@@ -38,8 +38,6 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from cellsim.systems import UNCHANGED
-
 from cellsim.channels import NO_VALUE
 from cellsim.link import Fault, LinkTrust
 from cellsim import codec
@@ -99,10 +97,6 @@ class Inbox:
         """A Zenoh subscriber's callback."""
         self.deliver(sample.payload.to_bytes())
 
-    def empty(self) -> bool:
-        """Whether nothing is waiting (a look, without taking anything)."""
-        return self._queue.empty()
-
     def __iter__(self):
         """Every message waiting, oldest first, without blocking."""
         while True:
@@ -134,8 +128,7 @@ _FAILURES = (PhysicalLink.STALE, PhysicalLink.CORRUPT)
 
 class _LinkSource(LeafSystem):
     """What a network source of the diagram is: an inbox drained one plant step before each of its
-    entity's updates (so the entity reads what arrived up to then), or at every plant step for an entity
-    that takes its samples on arrival, every message decoded by the one
+    entity's updates (so the entity reads what arrived up to then), every message decoded by the one
     codec and judged by the one link rule, whose state the context keeps.
 
     A subclass declares its own state and output, and says what a good message does (``take``) and
@@ -143,9 +136,9 @@ class _LinkSource(LeafSystem):
     """
 
     def __init__(self, name: str, entity, field_codec: FieldCodec, clock: LiveClock, time_step: float, key: str,
-                 recover_after: int, every_step: bool = False):
-        """``every_step``: drain at every plant step (for an entity that takes its samples on arrival), not one
-        step before each of its updates."""
+                 recover_after: int, every: float | None = None):
+        """``every``: drain one plant step before each multiple of ``every`` seconds (for an entity that takes its
+        samples on arrival at that period), not before each of its own updates."""
         super().__init__()
         self.set_name(name)
         self.codec, self.clock = field_codec, clock
@@ -153,12 +146,8 @@ class _LinkSource(LeafSystem):
         self.refused = _Refusals(key or entity.module)
         self.trust = LinkTrust(timeout=entity.twin.stale_after, recover_after=recover_after, max_gap=1_000_000)
         self._trust = self.DeclareDiscreteState(self.trust.state())
-        self._watch_every = max(1, round(entity.period / time_step))  # its watchdog: one step before each update
-        self._step = time_step
-        if every_step:
-            self.DeclarePeriodicDiscreteUpdateEvent(time_step, 0.0, self._drain_arrived)
-        else:
-            self.DeclarePeriodicDiscreteUpdateEvent(entity.period, entity.period - time_step, self._drain)
+        period = entity.period if every is None else every
+        self.DeclarePeriodicDiscreteUpdateEvent(period, period - time_step, self._drain)
 
     @property
     def rejected(self) -> int:
@@ -173,14 +162,6 @@ class _LinkSource(LeafSystem):
         context = self.GetMyMutableContextFromRoot(root_context)
         self._drain(context, context.get_mutable_discrete_state())
         self.decided_by(float("inf"))
-
-    def _drain_arrived(self, context, xd):
-        """A plant step's drain: what arrived since the last, judged; with nothing arrived, only one step before
-        each of the entity's updates (for its watchdog), as a source drained at its entity's period."""
-        if self.inbox.empty() and (round(context.get_time() / self._step) + 1) % self._watch_every != 0:
-            return UNCHANGED
-        self._drain(context, xd)
-        return None
 
     def _drain(self, context, xd) -> None:
         trust = self.trust.restore(context.get_discrete_state(self._trust).get_value())
@@ -241,9 +222,9 @@ class ZenohSampleSource(_LinkSource):
         sample), link (PhysicalLink code), *fields (port codes of the newest good sample)].
     """
 
-    def __init__(self, entity, clock: LiveClock, time_step: float, key: str = "", every_step: bool = False):
+    def __init__(self, entity, clock: LiveClock, time_step: float, key: str = "", every: float | None = None):
         super().__init__(f"{entity.module}.physical_source", entity, FieldCodec.samples_of(entity), clock, time_step,
-                         key, entity.twin.recover_after, every_step)
+                         key, entity.twin.recover_after, every)
         self.time_step = time_step
         self._changed: float | None = None  # the source stamp of the first changed sample of the drain under way
         self._taken: deque = deque(maxlen=10_000)  # (simulated time the entity takes it, source stamp)
