@@ -6,6 +6,7 @@ decoder nobody here wrote (mcap-protobuf-support, Google's protobuf)."""
 from __future__ import annotations
 
 import json
+import time
 import sqlite3
 import subprocess
 import sys
@@ -164,7 +165,9 @@ def test_the_live_twin_is_served_on_foxglove_websocket(tmp_path):
             subscribe(list(wanted))
             got: dict = {}
             late = 0
+            deadline = time.monotonic() + 60  # frames keep coming: a subscription never answered must still end
             while len(got) < len(wanted) or late < 2_000_000_000:
+                assert time.monotonic() < deadline, (sorted(got), late, twin.output())
                 frame = ws.recv(timeout=30)
                 if isinstance(frame, bytes) and frame[0] == 1:  # messageData: op, subscription, log time, payload
                     subscription, log_time = struct.unpack_from("<IQ", frame, 1)
@@ -178,7 +181,10 @@ def test_the_live_twin_is_served_on_foxglove_websocket(tmp_path):
             # (the curtain: nobody at the table) still gets its value, from the heartbeat
             wanted[4] = "/light_barrier/broken"
             subscribe([4])
+            deadline = time.monotonic() + 30
             while "/light_barrier/broken" not in got:
+                assert time.monotonic() < deadline, ("no /light_barrier/broken", channels["/light_barrier/broken"],
+                                                     twin.output())
                 frame = ws.recv(timeout=30)
                 if isinstance(frame, bytes) and frame[0] == 1 and struct.unpack_from("<I", frame, 1)[0] == 4:
                     got["/light_barrier/broken"] = json.loads(frame[13:])
