@@ -426,3 +426,33 @@ def test_the_emulated_program_takes_a_command_only_when_the_heartbeat_moved_and_
         assert emulated.slider == 0.25
     finally:
         emulated.server.close()
+
+
+@pytest.mark.parametrize("flag", ["--rtde", "--opcua"])
+def test_emulate_on_a_port_already_taken_is_one_line_naming_it_exit_2_and_writes_nothing(tmp_path, flag, cell_keys):
+    import socket
+    import subprocess
+    import sys
+
+    import zenoh
+
+    from cellsim.live.session import session_config
+    from conftest import ROOT
+
+    port = free_port()
+    twin = zenoh.open(session_config(role="twin", insecure=True, listen=[f"tcp/127.0.0.1:{port}"], listen_by_default=True))
+    try:
+        with socket.socket() as taken:
+            taken.bind(("127.0.0.1", 0))
+            taken.listen()
+            busy = taken.getsockname()[1]
+            proc = subprocess.run([sys.executable, "-m", "cellsim", "emulate", "scenarios/welding_cell.yaml", flag, str(busy),
+                                   "--bridge", "bridges/welding_cell_ur_plc.yaml", "--keys", str(cell_keys),
+                                   "--insecure", "--connect", f"tcp/127.0.0.1:{port}", "--out", str(tmp_path / "emulator"),
+                                   "--duration", "1"], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    finally:
+        twin.close()
+    assert proc.returncode == 2, proc.stderr
+    said = proc.stderr.strip().splitlines()[-1]
+    assert said.startswith("cellsim: error: cannot serve the devices' protocols") and str(busy) in said, proc.stderr
+    assert not (tmp_path / "emulator").exists()  # refused before anything is recorded
