@@ -79,17 +79,18 @@ def percentiles(values, *ps) -> list[float]:
     return [float(np.percentile(values, p)) for p in ps] if len(values) else [float("nan")] * len(ps)
 
 
-def measure(seconds: float, keys: Path | None) -> dict:
+def measure(seconds: float, keys: Path | None, overrides: list[str] = ()) -> dict:
     """One measured run; ``keys``: every session with mutual TLS and the twin's access control,
-    None: plain TCP (--insecure)."""
+    None: plain TCP (--insecure); ``overrides``: ``--set`` values for the twin and the emulator alike."""
     port = free_port()
     endpoint = f"{'tls' if keys else 'tcp'}/127.0.0.1:{port}"
     security = ["--keys", str(keys)] if keys else ["--insecure"]
     tmp = Path(tempfile.mkdtemp(prefix="bench_live-"))
+    sets = [arg for value in overrides for arg in ("--set", value)]
     cellsim = [sys.executable, "-m", "cellsim"]
     logs = [open(tmp / "twin.log", "w"), open(tmp / "emulator.log", "w")]
     twin = subprocess.Popen([*cellsim, "live", str(SCENARIO), "--out", str(tmp / "twin"), "--listen", endpoint, "--quiet",
-                             "--wait-physical", "30", *TWIN_MODES, *security], stdout=logs[0], stderr=subprocess.STDOUT, cwd=ROOT)
+                             "--wait-physical", "30", *TWIN_MODES, *sets, *security], stdout=logs[0], stderr=subprocess.STDOUT, cwd=ROOT)
     emulator = None
     toggles: list[tuple[float, bool]] = []  # (sample time, broken) of each toggle's first sample
     try:
@@ -103,7 +104,7 @@ def measure(seconds: float, keys: Path | None) -> dict:
             emulator = subprocess.Popen(
                 [*cellsim, "emulate", str(SCENARIO), "--out", str(tmp / "emulator"), "--connect", endpoint, "--quiet",
                  "--commanded-by-twin", "--rate", "robot=500", "--fault", "light_barrier=silence",
-                 "--duration", str(seconds + 40), *security], stdout=logs[1], stderr=subprocess.STDOUT, cwd=ROOT)
+                 "--duration", str(seconds + 40), *sets, *security], stdout=logs[1], stderr=subprocess.STDOUT, cwd=ROOT)
             # the curtain is a device too: its samples start with the emulator's
             stop = threading.Event()
 
@@ -220,13 +221,15 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=60.0, help="seconds of real time measured (default 60)")
     parser.add_argument("--security", nargs="+", choices=("tls", "plain"), default=["tls", "plain"],
                         help="mutual TLS, plain TCP, or both one after the other (default: both)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a scenario value for the twin and the emulator alike (e.g. safety_controller.period=0.01)")
     args = parser.parse_args()
     from cellsim.live.pki import init_keys
 
     keys = Path(tempfile.mkdtemp(prefix="bench_live-keys-")) / "keys"
     init_keys(keys)
     for security in args.security:
-        r = measure(args.seconds, keys if security == "tls" else None)
+        r = measure(args.seconds, keys if security == "tls" else None, args.set)
         lag, (p50, p99), (r50, r99) = r["lag"], r["latencies"], r["reactions"]
         print(f"[{security}] measured             {args.seconds:.0f} s of real time, robot state at 500 Hz  ({r['tmp']})")
         print(f"[{security}] twin pacing lag      p50 {lag['p50'] * 1e3:6.2f} ms  p99 {lag['p99'] * 1e3:6.2f} ms  "
