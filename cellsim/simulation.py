@@ -336,7 +336,10 @@ def summarise(out_dir: Path, seed: int, status: str, sim_time: float, wall_time:
 
 
 def findings_of(sf: ScenarioFile, blackbox: BlackBox) -> list[Finding]:
-    """What each module's kind finds in a run's black box, in the scenario's order."""
+    """What each module's kind finds in a run's black box, in the scenario's order; then, of a live twin's run,
+    the entities it reacted to slower than the scenario assumes."""
+    from cellsim.live.reaction import reaction_findings
+
     sc = sf.scenario
     return [finding for section in registry.SECTIONS for name, cfg in getattr(sc, section).items()
-            for finding in registry.kind_of(cfg).findings(name, cfg, blackbox)]
+            for finding in registry.kind_of(cfg).findings(name, cfg, blackbox)] + reaction_findings(blackbox.metadata())

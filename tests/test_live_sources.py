@@ -226,3 +226,14 @@ def test_the_twin_measures_its_reaction_to_a_sample_and_reports_one_slower_than_
         assert watch.status()["slower"] == ["light_barrier"]
         assert "light_barrier: sample -> decision" in capsys.readouterr().err
         assert watch.counts["welder"] == 0  # in model mode its samples decide nothing: no reaction to measure
+        # the run's summary names it as a finding, from the black box's metadata
+        from types import SimpleNamespace
+
+        from cellsim.cli.simulate import findings_lines
+        from cellsim.live.reaction import reaction_findings
+
+        found = reaction_findings({"live": cell.network.metadata()})
+        assert [(f.subject, f.what) for f in found] == [("light_barrier", "slow reaction")]
+        assert 0.3 <= found[0].start <= 0.4 and found[0].data["exceeded"] == 1
+        (label, text), = findings_lines(SimpleNamespace(findings=found, waived={}))
+        assert label == "slow reaction" and "1 of 2 changed samples decided on slower than the 60 ms" in text

@@ -91,6 +91,7 @@ class ReactionWatch(LeafSystem):
         self.reactions = {name: deque(maxlen=KEPT) for name in self.sources}
         self.counts = {name: 0 for name in self.sources}
         self.exceeded = {name: 0 for name in self.sources}
+        self.first_exceeded: dict[str, float] = {}  # entity -> simulated time of its first reaction slower than assumed
         self.recent: list[tuple[str, float]] = []  # since the last status
         self._modes = {name: self.DeclareVectorInputPort(name, 1) for name in self.sources}
         self.DeclarePeriodicPublishEvent(every, time_step, self._look)
@@ -114,6 +115,7 @@ class ReactionWatch(LeafSystem):
         if reaction > assumed.seconds:
             self.exceeded[name] += 1
             if self.exceeded[name] == 1:
+                self.first_exceeded[name] = round(t, 4)
                 print(f"cellsim {self.process}: {name}: sample -> decision {reaction * 1000:.0f} ms at t = {t:.1f} s, "
                       f"slower than the {assumed.seconds * 1000:g} ms the scenario assumes ({assumed.why}): its "
                       "evidence is optimistic for this cell", file=sys.stderr)
@@ -122,8 +124,8 @@ class ReactionWatch(LeafSystem):
         """Per entity: reactions counted, p50, p99 and max (s) of the newest, how many exceeded the assumed
         reaction, and that reaction: for the black box's metadata."""
         return {name: {"count": self.counts[name], **_spread(self.reactions[name]),
-                       "exceeded": self.exceeded[name], "assumed": self.assumed[name].seconds,
-                       "assumed_why": self.assumed[name].why}
+                       "exceeded": self.exceeded[name], "first_exceeded_at": self.first_exceeded.get(name),
+                       "assumed": self.assumed[name].seconds, "assumed_why": self.assumed[name].why}
                 for name in self.sources}
 
     def status(self) -> dict:
@@ -143,3 +145,23 @@ def _spread(values) -> dict:
         return {"p50": None, "p99": None, "max": None}
     array = np.fromiter(values, float)
     return {"p50": float(np.percentile(array, 50)), "p99": float(np.percentile(array, 99)), "max": float(array.max())}
+
+
+def reaction_findings(metadata: dict) -> list:
+    """A live run's findings from its black box's metadata: each entity whose samples the twin decided on slower
+    than its scenario assumes (``Finding`` ``slow reaction``, from its first such reaction to the end)."""
+    from cellsim.kind import Finding
+
+    figures = (metadata.get("live") or {}).get("reaction_s") if isinstance(metadata, dict) else None
+    found = []
+    for name, f in (figures or {}).items():
+        if not isinstance(f, dict) or not f.get("exceeded"):
+            continue
+        slowest = f"{f['max'] * 1000:.0f} ms" if isinstance(f.get("max"), (int, float)) else "?"
+        text = (f"{name}: {f['exceeded']} of {f.get('count', '?')} changed samples decided on slower than the "
+                f"{f.get('assumed', 0) * 1000:g} ms the scenario assumes ({f.get('assumed_why', '')}), the slowest "
+                f"{slowest}: the evidence gathered offline is optimistic for this cell")
+        start = f.get("first_exceeded_at")
+        found.append(Finding(name, "slow reaction", float(start) if isinstance(start, (int, float)) else 0.0, None,
+                             text, {k: f.get(k) for k in ("count", "exceeded", "p50", "p99", "max", "assumed")}))
+    return found
