@@ -162,7 +162,7 @@ class EntitySystem(CellSystem):
         if not self.takes_samples_on_arrival or self.period <= every * (1 + 1e-9):
             return False
         self._taken_group = self.declare_state("taken_sample", [-np.inf, np.nan])
-        self._own_period, self._every = self.period, every
+        self._own_period = self.period
         self.DeclarePeriodicDiscreteUpdateEvent(every, 0.0, self._on_arrival)
         steps = math.gcd(max(1, round(self.period / time_step)), max(1, round(every / time_step)))
         self.channels = [(replace(spec, period=steps * time_step), port) for spec, port in self.channels]

@@ -167,7 +167,7 @@ class CellModel:
                          "its evidence is optimistic for this cell", "ERROR")
 
     def reaction_text(self) -> tuple[str, bool]:
-        """The twin's slowest reaction (sample -> command) in its last status, and whether any entity's
+        """The twin's slowest reaction (sample -> decision) in its last status, and whether any entity's
         reactions were ever slower than assumed: for the header."""
         reaction = (self.status or {}).get("reaction")
         slowest = reaction.get("slowest") if isinstance(reaction, dict) else None

@@ -10,8 +10,9 @@ measures itself and says so.
 
 **What is measured**, for each physical sample that changed its entity's fields (the oldest change
 in each drain of its source): from the sample's stamp at its source (the sender's wall clock when it
-was taken) to the end of the first update of the fastest controller that reads it, when the commands
-that update decides go out (the command publishers look one plant step after it). A controller whose
+was taken) to the end of the first update of the cell's fastest controller after the entity took it in,
+when the commands that update decides go out (the command publishers look one plant step after it). A
+slower module that also reads the entity (a process controller) decides later; that is not counted. A controller whose
 own logic takes more updates to act (the risk model: detect, then mitigate) takes them in simulation
 too: they are part of the evidence, not of the twin's delay. Only entities in shadow or twin mode are measured (in model mode their
 samples drive nothing). Not seen by the twin: the physical sensor's response before its sample was
