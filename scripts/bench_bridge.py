@@ -204,14 +204,7 @@ def run_load(load: float, seconds: float, tmp: Path, key_dir: Path | None, confi
             players = [threading.Thread(target=play_devices, args=(bus, loaded, load, stop, sent, can_key)),
                        threading.Thread(target=play_robot, args=(hub, cell, stop, sent)),
                        threading.Thread(target=play_twin, args=(hub, cell, stop))]
-            for player in players:
-                player.start()
-            cpu0, t0 = cpu_seconds(daemon.pid), time.monotonic()
-            stop.wait(seconds)
-            cpu = (cpu_seconds(daemon.pid) - cpu0) / (time.monotonic() - t0)
-            stop.set()
-            for player in players:
-                player.join()
+            cpu = play_for(players, stop, seconds, daemon.pid)
             # the daemon's status once it has taken in every frame sent (or two status periods on)
             devices = list(loaded.config.devices)
             deadline, pause = time.monotonic() + 2.5, threading.Event()
@@ -230,6 +223,20 @@ def run_load(load: float, seconds: float, tmp: Path, key_dir: Path | None, confi
     return {"load": load, "cpu": cpu, "frames": can_sent, "lost": max(0, can_sent - can_received),
             "robot_states": sent["robot"], "robot_received": status["received"]["robot"],
             "frame_ms": status["frame_latency_ms"], "command_ms": status["command_latency_ms"]}
+
+
+def play_for(players: list[threading.Thread], stop: threading.Event, seconds: float, pid: int) -> float:
+    """Run ``players`` for ``seconds``, then stop and join them; the daemon's (``pid``) CPU over that time, as a
+    fraction of one core."""
+    for player in players:
+        player.start()
+    cpu0, t0 = cpu_seconds(pid), time.monotonic()
+    stop.wait(seconds)
+    cpu = (cpu_seconds(pid) - cpu0) / (time.monotonic() - t0)
+    stop.set()
+    for player in players:
+        player.join()
+    return cpu
 
 
 def play_controller(server, program, load: float, stop: threading.Event, sent: dict) -> None:
@@ -315,14 +322,7 @@ def run_ur_plc(load: float, seconds: float, tmp: Path, key_dir: Path) -> dict:
                        threading.Thread(target=play_plc, args=(plc, load, stop, written)),
                        threading.Thread(target=play_twin, args=(hub, cell, stop))]
             received0 = statuses[-1]["received"].get("robot", 0)
-            for player in players:
-                player.start()
-            cpu0, t0 = cpu_seconds(daemon.pid), time.monotonic()
-            stop.wait(seconds)
-            cpu = (cpu_seconds(daemon.pid) - cpu0) / (time.monotonic() - t0)
-            stop.set()
-            for player in players:
-                player.join()
+            cpu = play_for(players, stop, seconds, daemon.pid)
             deadline = time.monotonic() + 2.5
             while time.monotonic() < deadline:
                 if statuses[-1]["received"].get("robot", 0) - received0 >= sent["robot"]:
