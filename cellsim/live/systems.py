@@ -156,13 +156,6 @@ class _LinkSource(LeafSystem):
     def deliver(self, payload: bytes) -> None:
         self.inbox.deliver(payload)
 
-    def prime(self, root_context) -> None:
-        """Take what arrived before the clock started into ``root_context``, as this source's state at t = 0
-        (no reaction is measured to it: nothing ran before)."""
-        context = self.GetMyMutableContextFromRoot(root_context)
-        self._drain(context, context.get_mutable_discrete_state())
-        self.decided_by(float("inf"))
-
     def _drain(self, context, xd) -> None:
         trust = self.trust.restore(context.get_discrete_state(self._trust).get_value())
         state = self.begin(context)
@@ -243,6 +236,13 @@ class ZenohSampleSource(_LinkSource):
         if judgement.trusted and self._changed is None and not np.array_equal(sample[2:], message.codes):
             self._changed = message.t  # the oldest change of this drain, stamped at its source
         sample[0], sample[2:] = arrival, message.codes
+
+    def prime(self, root_context) -> None:
+        """Take what arrived before the clock started into ``root_context``, as this source's state at t = 0
+        (no reaction is measured to it: nothing ran before)."""
+        context = self.GetMyMutableContextFromRoot(root_context)
+        self._drain(context, context.get_mutable_discrete_state())
+        self.decided_by(float("inf"))
 
     def drained(self, t: float) -> None:
         if self._changed is not None:
