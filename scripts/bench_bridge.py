@@ -207,12 +207,7 @@ def run_load(load: float, seconds: float, tmp: Path, key_dir: Path | None, confi
             cpu = play_for(players, stop, seconds, daemon.pid)
             # the daemon's status once it has taken in every frame sent (or two status periods on)
             devices = list(loaded.config.devices)
-            deadline, pause = time.monotonic() + 2.5, threading.Event()
-            while time.monotonic() < deadline:
-                if statuses and all(statuses[-1]["received"].get(e, 0) >= sent[e] for e in [*devices, "robot"]):
-                    break
-                pause.wait(0.1)
-            status = statuses[-1]
+            status = settled(statuses, lambda s: all(s["received"].get(e, 0) >= sent[e] for e in [*devices, "robot"]))
             token.undeclare()
             daemon.stop()
         finally:
@@ -237,6 +232,15 @@ def play_for(players: list[threading.Thread], stop: threading.Event, seconds: fl
     for player in players:
         player.join()
     return cpu
+
+
+def settled(statuses: list[dict], done) -> dict:
+    """The daemon's newest status once ``done(status)`` holds (every frame sent taken in), or after two status
+    periods (2.5 s) whatever it says."""
+    deadline, pause = time.monotonic() + 2.5, threading.Event()
+    while time.monotonic() < deadline and not (statuses and done(statuses[-1])):
+        pause.wait(0.1)
+    return statuses[-1]
 
 
 def play_controller(server, program, load: float, stop: threading.Event, sent: dict) -> None:
@@ -323,12 +327,7 @@ def run_ur_plc(load: float, seconds: float, tmp: Path, key_dir: Path) -> dict:
                        threading.Thread(target=play_twin, args=(hub, cell, stop))]
             received0 = statuses[-1]["received"].get("robot", 0)
             cpu = play_for(players, stop, seconds, daemon.pid)
-            deadline = time.monotonic() + 2.5
-            while time.monotonic() < deadline:
-                if statuses[-1]["received"].get("robot", 0) - received0 >= sent["robot"]:
-                    break
-                pause.wait(0.1)
-            status = statuses[-1]
+            status = settled(statuses, lambda s: s["received"].get("robot", 0) - received0 >= sent["robot"])
             token.undeclare()
             daemon.stop()
         finally:
