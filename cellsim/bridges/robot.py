@@ -50,15 +50,28 @@ _MODES = {m.value for m in SafetyMode}
 
 
 @dataclass
-class RobotStateChecker(LinkTrust):
-    """The checks of one robot controller's state stream (see the module docstring), then the link rule."""
+class JointStateChecker(LinkTrust):
+    """The link rule of a robot controller's state stream, with the range every arm's joints must keep."""
 
-    joints: int = 6
     joint_limit: float = 2 * math.pi
+    """Each joint's position at most this far from zero (rad)."""
     max_joint_speed: float = 2 * math.pi
+    """Each joint's speed at most this (rad/s)."""
     max_gap: int = 5
     """How far ahead ``seq`` may jump (states lost on the way) before it counts as a counter fault."""
     faults: tuple = ROBOT_FAULTS
+
+    def joints_in_range(self, position, velocity) -> bool:
+        """Whether every joint is within its limit and its speed."""
+        return (all(abs(q) <= self.joint_limit for q in position)
+                and all(abs(v) <= self.max_joint_speed for v in velocity))
+
+
+@dataclass
+class RobotStateChecker(JointStateChecker):
+    """The checks of one robot controller's state stream (see the module docstring), then the link rule."""
+
+    joints: int = 6
 
     def check(self, payload: bytes, now: float, wall: float | None = None) -> Judgement:
         """Judge one state received at ``now`` (the daemon's clock) and ``wall`` (UNIX s, for the stamp)."""
@@ -82,9 +95,7 @@ class RobotStateChecker(LinkTrust):
         """RANGE for a state with other than six joints, a joint beyond its limit or speed, an unknown mode."""
         position, velocity = state["position"], state["velocity"]
         if (len(position) != self.joints or len(velocity) != self.joints
-                or not all(abs(q) <= self.joint_limit for q in position)
-                or not all(abs(v) <= self.max_joint_speed for v in velocity)
-                or state["safety_mode"] not in _MODES):
+                or not self.joints_in_range(position, velocity) or state["safety_mode"] not in _MODES):
             return Fault.RANGE
         return None
 

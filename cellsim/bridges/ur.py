@@ -39,8 +39,8 @@ import time
 import zlib
 from dataclasses import dataclass, field
 
-from cellsim.bridges.robot import ROBOT_FAULTS, RobotLink
-from cellsim.link import Fault, Judgement, LinkTrust
+from cellsim.bridges.robot import JointStateChecker, RobotLink
+from cellsim.link import Fault, Judgement
 from cellsim.ur import rtde
 from cellsim.ur.program import OutOfRange, UrProgram
 
@@ -53,16 +53,12 @@ the link long before)."""
 
 
 @dataclass
-class RtdeStateChecker(LinkTrust):
+class RtdeStateChecker(JointStateChecker):
     """The checks of one controller's data packages (see the module docstring), then the link rule."""
 
     recipe: rtde.Recipe | None = None
     program: UrProgram | None = None
     cycle_time: float = 0.002
-    joint_limit: float = 2 * math.pi
-    max_joint_speed: float = 2 * math.pi
-    max_gap: int = 5
-    faults: tuple = ROBOT_FAULTS
 
     def check(self, payload: bytes, now: float, wall: float | None = None) -> Judgement:
         """Judge one data package's payload (recipe id first) that arrived at ``now`` (the daemon's clock) and
@@ -79,8 +75,7 @@ class RtdeStateChecker(LinkTrust):
         return self.receive(now, cycle, zlib.crc32(payload), values=values, in_range=self._in_range)
 
     def _in_range(self, values: dict) -> Fault | None:
-        if (not all(abs(q) <= self.joint_limit for q in values["actual_q"])
-                or not all(abs(v) <= self.max_joint_speed for v in values["actual_qd"])):
+        if not self.joints_in_range(values["actual_q"], values["actual_qd"]):
             return Fault.RANGE
         try:
             fields = self.program.sample(values)
