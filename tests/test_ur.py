@@ -446,7 +446,9 @@ def test_emulate_on_a_port_already_taken_is_one_line_naming_it_exit_2_and_writes
             taken.bind(("127.0.0.1", 0))
             taken.listen()
             busy = taken.getsockname()[1]
+            other = "--opcua" if flag == "--rtde" else "--rtde"  # on a free port, not the configuration's (30004)
             proc = subprocess.run([sys.executable, "-m", "cellsim", "emulate", "scenarios/welding_cell.yaml", flag, str(busy),
+                                   other, str(free_port()),
                                    "--bridge", "bridges/welding_cell_ur_plc.yaml", "--keys", str(cell_keys),
                                    "--insecure", "--connect", f"tcp/127.0.0.1:{port}", "--out", str(tmp_path / "emulator"),
                                    "--duration", "1"], capture_output=True, text=True, timeout=120, cwd=ROOT)
