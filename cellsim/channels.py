@@ -103,6 +103,9 @@ class ChannelSpec:
     less often: a check judges the values the readers of the channel acted on).
     ``record`` says when the recorder writes a message: ``on_change`` (when it
     differs from the last written) or ``every_sample`` (at every update).
+    ``offset`` (s, less than ``period``): the updates fall at ``offset + k * period``
+    (a live twin's deciding modules update one plant step after the grid, see
+    :meth:`cellsim.systems.CellSystem.decide_after`).
     """
 
     module: str
@@ -111,6 +114,7 @@ class ChannelSpec:
     period: float
     record: RecordPolicy = "on_change"
     description: str = ""
+    offset: float = 0.0
 
     @property
     def sample_period(self) -> float:

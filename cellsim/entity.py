@@ -149,9 +149,9 @@ class EntitySystem(CellSystem):
         mode, when a new physical sample (or a change of its link) came since the last look.
 
         Called by the live twin's builder, before the recorder is built. The looks fall on the same grid as
-        every module's updates (offset 0), so the controller sees each reading one of its periods after it is
-        taken, as it sees every other module's: the record holds no reading it could not act on, and no
-        conjunction of two readings shorter than its period that it could not see. The entity's channels can
+        every entity's updates (offset 0), so every reading changes at the same instants; the controllers decide
+        one plant step later (``CellSystem.decide_after``) on the readings of their period: the record holds no
+        reading they could not act on, and no conjunction of two readings they could not see. The entity's channels can
         then change at multiples of the common divisor of its period and ``every``, which becomes their
         period (the recorder looks at them that often). Returns whether it was set: not for a kind that says it
         must not (``takes_samples_on_arrival``), nor for an entity updated that often already.

@@ -13,11 +13,14 @@ time, and at the end) turns the new samples into messages:
 
 Drake dispatches a periodic publish at time t *before* the discrete updates at
 t, so a sample taken at t holds what the publisher's update at t - period
-produced. Messages are stamped with that time: the simulated time at which the
+produced (at t - period + offset, for a publisher updated at an offset within
+its period). Messages are stamped with that time: the simulated time at which the
 value was published. The sample taken at t = 0 holds the initial state, which
 the publishers' updates at t = 0 replace at once: the next sample (or, for a
 run that ends before it, the final drain's) is stamped 0 too, so the initial one
-is dropped (it held for no time) and each channel has one message at t = 0.
+is dropped (it held for no time) and each channel has one message at t = 0. A
+publisher updated at an offset keeps its initial state until then: that one is
+written, at 0.
 
 A run that stops between two samples of a channel (a live run stopped, a run
 interrupted) would lose what its publisher's last update wrote: the final drain
@@ -71,13 +74,13 @@ class Recorder:
             sink = builder.AddNamedSystem(f"{name}.log{suffix}", VectorLogSink(sum(sizes), every * self.base))
             builder.Connect(mux.get_output_port(0), sink.get_input_port())
             offsets = np.cumsum([0] + sizes)
-            groups: dict[str, list[int]] = {}
+            groups: dict[tuple, list[int]] = {}
             for k, i in enumerate(members):
-                groups.setdefault(self.specs[i].record, []).append(k)
+                groups.setdefault((self.specs[i].record, self.specs[i].offset), []).append(k)
             self._logs.append((sink, [
                 _Group(every, record, [(order.index(members[k]), self.specs[members[k]], offsets[k], offsets[k + 1])
-                                       for k in ks])
-                for record, ks in groups.items()]))
+                                       for k in ks], offset)
+                for (record, offset), ks in groups.items()]))
 
     def attach(self, writer: BlackBoxWriter) -> None:
         """Write to ``writer`` from now on (a diagram is built before its output exists)."""
@@ -136,8 +139,9 @@ _AFTER_EVERY_SAMPLE = 2**62
 class _Group:
     """Channels sampled every ``every`` base periods and recorded alike, decoded as one block."""
 
-    def __init__(self, every: int, record: str, channels: list[tuple[int, ChannelSpec, int, int]]):
+    def __init__(self, every: int, record: str, channels: list[tuple[int, ChannelSpec, int, int]], offset: float = 0.0):
         self.every = every
+        self.offset = offset  # the publishers update at this offset within their period (s)
         self.on_change = record == "on_change"
         self.last_tick = -1  # the newest sample decoded (none yet)
         self.channels = channels  # (rank, spec, first row, end row) in the logged vector
@@ -155,7 +159,7 @@ class _Group:
         if len(due) == 0:
             return
         self.last_tick = int(ticks[due[-1]])
-        if ticks[due[0]] == 0:  # the initial state: the sample at tick ``every`` (or the final one), stamped 0 too, replaces it
+        if ticks[due[0]] == 0 and not self.offset:  # the initial state: the sample at tick ``every`` (or the final one), stamped 0 too, replaces it
             due = due[1:]
         if len(due):
             self._decode(due, times, data, out, ticks)
@@ -183,7 +187,7 @@ class _Group:
         for c, j in zip(channel_of.tolist(), sample_of.tolist()):
             rank, spec, _, _ = self.channels[c]
             k = int(due[j])
-            t = times[k] - spec.period
+            t = times[k] - spec.period + self.offset
             t = round(float(t), 9) if t > 0 else 0.0
             values = block[self.local[c], j]
             cache = self.payloads[c]

@@ -41,6 +41,7 @@ class CellSystem(LeafSystem):
         self.input_types: dict[str, ChannelType] = {}
         self.input_defaults: dict[str, float] = {}
         self._groups: dict[str, int] = {}
+        self.offset = 0.0
         self.DeclarePeriodicDiscreteUpdateEvent(self.period, 0.0, self._on_update)
 
     # -- declarations -------------------------------------------------------
@@ -60,7 +61,7 @@ class CellSystem(LeafSystem):
         """
         group = self.declare_state(signal, ctype.encode(initial))
         port = self.DeclareStateOutputPort(signal, group)
-        spec = ChannelSpec(self.module, signal, ctype, self.period, record, description)
+        spec = ChannelSpec(self.module, signal, ctype, self.period, record, description, self.offset)
         self.channels.append((spec, port))
         return group
 
@@ -90,8 +91,30 @@ class CellSystem(LeafSystem):
         """The discrete-state group of a channel or internal state declared under ``name``."""
         return self._groups[name]
 
+    def decide_after(self, offset: float) -> None:
+        """Update at ``offset`` (s, less than the period) after each multiple of the period, not at it.
+
+        For a live twin's deciding modules (its behaviours): the entities take the physical samples at the
+        multiples, and a module updated then would read them only at its next update (Drake's updates at one
+        time read the state before any of them), one period that only adds delay. One plant step later, it
+        decides on the samples of its own period. Called by the builder before the recorder is built: the
+        module's channels say their offset, and the record stamps each value at the update that wrote it.
+        """
+        from dataclasses import replace
+
+        if not 0.0 < offset < self.period:
+            raise ValueError(f"{self.module}: an update offset must lie within the period, got {offset}")
+        self.offset = float(offset)
+        self.DeclarePeriodicDiscreteUpdateEvent(self.period, self.offset, self._on_offset_update)
+        self.channels = [(replace(spec, offset=self.offset), port) for spec, port in self.channels]
+
     # -- update -------------------------------------------------------------
     def _on_update(self, context, xd):
+        if self.offset:  # the updates are at the offset (``decide_after``)
+            return UNCHANGED
+        return self.update(context, xd)
+
+    def _on_offset_update(self, context, xd):
         return self.update(context, xd)
 
     def update(self, context, xd) -> None:  # pragma: no cover - abstract

@@ -173,8 +173,8 @@ def _live_twin(*overrides: str):
 
 def test_a_live_twins_sensor_takes_a_sample_at_the_controllers_next_period_not_at_its_own():
     """The light barrier updates every 40 ms; in a live twin, in shadow mode, a sample that arrives is its reading
-    at the next multiple of the safety controller's 20 ms (drained one step before), in phase with every module
-    (the controller sees it, as any reading, one of its periods later). The black box looks at its channels
+    at the next multiple of the safety controller's 20 ms (drained one step before), in phase with every entity
+    (the controller decides on it one step later). The black box looks at its channels
     every 20 ms, so it keeps the reading from when it changed."""
     with _live_twin("light_barrier.twin.mode=shadow", "light_barrier.twin.recover_after=1") as (cell, simulator, sources):
         source, context = sources["light_barrier"], simulator.get_mutable_context()
@@ -192,6 +192,74 @@ def test_a_live_twins_sensor_takes_a_sample_at_the_controllers_next_period_not_a
         assert broken.Eval(context)[0] == 0.0  # drained at 0.138, not yet taken: every module changes on one grid
         simulator.AdvanceTo(0.1401)
         assert broken.Eval(context)[0] == 1.0  # taken at 0.14; its own update is at 0.16
+
+
+def test_a_live_twins_controller_decides_on_the_samples_of_its_period_one_step_after_they_are_taken():
+    """In a live twin the behaviours update one plant step after each multiple of their period, when the entities
+    have taken what arrived: the safety controller detects the person the scanner reports at 0.142 s, not a period
+    later, and commands the mitigation at its next update; each of its values is a channel whose updates are at
+    that offset (the black box stamps them so)."""
+    with _live_twin("range_detector.twin.mode=shadow", "range_detector.twin.recover_after=1") as (
+            cell, simulator, sources):
+        source, context = sources["range_detector"], simulator.get_mutable_context()
+        controller = cell.modules["safety_controller"]
+        assert controller.offset == 0.002 and cell.channels["safety_controller.HS"][0].offset == 0.002
+        assert cell.modules["robot"].offset == 0.0  # entities keep the grid
+        hazard = cell.diagram.GetOutputPort("safety_controller.HS")
+        commanded = cell.diagram.GetOutputPort("safety_controller.safmod")
+        phases, modes = controller.risk_model.phases.values, controller.risk_model.controlled["safmod"].values
+        source.deliver(encode_fields(time.time(), 1, {"range": "far", "distance": 5.0}))
+        cell.network.heard("range_detector")
+        cell.start(context)
+        simulator.AdvanceTo(0.121)
+        assert phases[int(hazard.Eval(context)[0])] == "inact"
+        source.deliver(encode_fields(time.time(), 2, {"range": "near", "distance": 1.5}))
+        simulator.AdvanceTo(0.1415)
+        assert phases[int(hazard.Eval(context)[0])] == "inact"  # taken at 0.14; the controller looks at 0.142
+        simulator.AdvanceTo(0.1425)
+        assert phases[int(hazard.Eval(context)[0])] == "act"
+        assert modes[int(commanded.Eval(context)[0])] == "normal"
+        simulator.AdvanceTo(0.1625)
+        assert phases[int(hazard.Eval(context)[0])] == "mit"
+        assert modes[int(commanded.Eval(context)[0])] == "ssmon"
+
+
+def test_the_record_stamps_a_value_at_the_offset_update_that_wrote_it(tmp_path):
+    """A module updated at an offset within its period (a live twin's controller): each change is recorded at
+    the time of its update, and its initial value from 0 until the first update."""
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+
+    import sqlite3
+
+    from cellsim.blackbox import BlackBoxWriter
+    from cellsim.channels import number_type
+    from cellsim.recorder import Recorder
+    from cellsim.systems import CellSystem
+
+    class Counter(CellSystem):
+        def __init__(self):
+            super().__init__("counter", 0.02)
+            self.n = self.declare_channel("n", number_type(None), 0.0)
+            self.decide_after(0.002)
+
+        def update(self, context, xd):
+            xd.get_mutable_vector(self.n).SetAtIndex(0, context.get_discrete_state(self.n).GetAtIndex(0) + 1)
+
+    builder = DiagramBuilder()
+    counter = builder.AddSystem(Counter())
+    recorder = Recorder(builder, "bb", counter.channels)
+    simulator = Simulator(builder.Build())
+    path = tmp_path / "bb.sqlite"
+    writer = BlackBoxWriter(path)
+    recorder.attach(writer)
+    simulator.AdvanceTo(0.05)
+    recorder.drain(simulator.get_context(), final=True)
+    writer.close("complete")
+    with contextlib.closing(sqlite3.connect(path)) as db:  # read back without cellsim
+        rows = db.execute("SELECT t, payload FROM messages WHERE channel = 'counter.n' ORDER BY rowid").fetchall()
+    assert [t for t, _ in rows] == pytest.approx([0.0, 0.002, 0.022, 0.042])
+    assert [json.loads(p)["value"] for _, p in rows] == [0, 1, 2, 3]
 
 
 def test_the_twin_measures_its_reaction_to_a_sample_and_reports_one_slower_than_the_scenario_assumes(capsys):

@@ -173,6 +173,9 @@ class CellBuild:
     measured_pairs: list[tuple[list, list]] = field(default_factory=list)
     """(geometries, geometries) whose pairs a broadphase query returns (:meth:`measure_between`)."""
     recorder: Recorder | None = None
+    decision_offset: float = 0.0
+    """A live twin: the offset (s) within their periods at which its deciding modules update (one plant step,
+    after the entities take the samples), or 0."""
     prepared: dict[str, object] = field(default_factory=dict)
     """What a kind's ``prepare`` left for its ``build``, by module name."""
     _hooks: list[Callable[[], None]] = field(default_factory=list)
@@ -311,7 +314,7 @@ def build_cell(
 
     hooks_run = False
     on_arrival: dict[str, float] = {}  # the live twin's entities that take each sample on arrival -> how often
-    for kind, _, name, cfg in sorted(modules, key=lambda m: m[0].stage):  # stable: scenario order within a stage
+    for kind, section, name, cfg in sorted(modules, key=lambda m: m[0].stage):  # stable: scenario order within a stage
         if kind.stage >= AFTER_ENTITIES and not hooks_run:
             if isinstance(io, Live):  # before the recorder: their channels' periods change
                 on_arrival = _take_samples_on_arrival(cell)
@@ -322,6 +325,8 @@ def build_cell(
             extend(cell)
             extend = None
         kind.build(cell, name, cfg)
+        if isinstance(io, Live) and section == "behaviours":  # before the recorder: their channels' offsets change
+            _decide_after_takes(cell, name)
     cell._run_hooks()
     if extend is not None:  # a scenario with no recorder
         extend(cell)
@@ -436,6 +441,7 @@ def _live(builder: DiagramBuilder, cell: CellBuild, io: Live, on_arrival: dict[s
     from cellsim.vocabulary import TwinMode
 
     session, name, step = io.session, cell.scenario.name, cell.scenario.time_step
+    look = cell.decision_offset + step  # the publishers look one step after the decisions, when they are in the state
     clock = LiveClock()
     sources = {}
     for entity_name, entity in cell.entities.items():
@@ -445,7 +451,7 @@ def _live(builder: DiagramBuilder, cell: CellBuild, io: Live, on_arrival: dict[s
     watch = None
     if (every := deciding_period(cell.scenario)) is not None:  # the twin's own reaction, against its evidence's
         watch = builder.AddSystem(ReactionWatch(sources, assumed_reactions(cell.scenario, cell.entities), every, step,
-                                                io.process))
+                                                io.process, look))
         for entity_name in watch.sources:
             builder.Connect(cell.channel(f"{entity_name}.twin_mode"), watch.GetInputPort(entity_name))
     status = builder.AddSystem(LiveStatus(clock, step, session.declare_publisher(keys.status(name, io.process)),
@@ -466,12 +472,13 @@ def _live(builder: DiagramBuilder, cell: CellBuild, io: Live, on_arrival: dict[s
 
     channels = list(cell.channels().values())
     publisher = builder.AddSystem(ChannelPublisher(
-        channels, lambda spec: session.declare_publisher(keys.channel(name, spec.module, spec.signal)), step))
+        channels, lambda spec: session.declare_publisher(keys.channel(name, spec.module, spec.signal)), look))
     for spec, port in channels:
         builder.Connect(port, publisher.GetInputPort(spec.name))
     for entity_name, entity in cell.entities.items():
         commands = builder.AddSystem(CommandPublisher(
-            entity, session.declare_publisher(keys.command(name, entity_name)), step, _decided_every(builder, entity, step)))
+            entity, session.declare_publisher(keys.command(name, entity_name)), step, _decided_every(builder, entity, step),
+            look))
         builder.Connect(entity.physical_command_port, commands.command_port)
     control = builder.AddSystem(TwinModeControl(cell.entities))
     for entity_name, entity in cell.entities.items():
@@ -499,6 +506,19 @@ def _take_samples_on_arrival(cell: CellBuild) -> dict[str, float]:
     if fastest is None:
         return {}
     return {name: fastest for name, entity in cell.entities.items() if entity.take_samples_on_arrival(fastest, step)}
+
+
+def _decide_after_takes(cell: CellBuild, name: str) -> None:
+    """In a live twin, a deciding module (a behaviour) updates one plant step after each multiple of its period,
+    when the entities have taken the samples that arrived (``EntitySystem.take_samples_on_arrival``), not at it:
+    at the multiple it would read them one of its periods later, a period that only adds delay. The command and
+    channel publishers look one step after that (``CellBuild.decision_offset``)."""
+    from cellsim.systems import CellSystem
+
+    system, step = cell.modules.get(name), cell.scenario.time_step
+    if isinstance(system, CellSystem) and system.period > step * (1 + 1e-9):
+        system.decide_after(step)
+        cell.decision_offset = step
 
 
 def _decided_every(builder: DiagramBuilder, entity, step: float) -> float:

@@ -82,9 +82,10 @@ class ReactionWatch(LeafSystem):
     """
 
     def __init__(self, sources: dict, assumed: dict[str, Assumed], every: float, time_step: float,
-                 process: str = "twin"):
+                 process: str = "twin", look: float | None = None):
         """``sources``: entity name -> its ``ZenohSampleSource``; ``every``: the fastest deciding module's
-        period (s): its updates are the decisions, each looked at one plant step later."""
+        period (s): its updates are the decisions, each looked at one plant step later; ``look``: when within
+        that period the command publishers look (s; default one step)."""
         super().__init__()
         self.set_name("reaction_watch")
         self.sources = {name: s for name, s in sources.items() if name in assumed}
@@ -95,7 +96,7 @@ class ReactionWatch(LeafSystem):
         self.first_exceeded: dict[str, float] = {}  # entity -> simulated time of its first reaction slower than assumed
         self.recent: list[tuple[str, float]] = []  # since the last status
         self._modes = {name: self.DeclareVectorInputPort(name, 1) for name in self.sources}
-        self.DeclarePeriodicPublishEvent(every, time_step, self._look)
+        self.DeclarePeriodicPublishEvent(every, time_step if look is None else look, self._look)
 
     def _look(self, context) -> None:
         decided = context.get_time() - self.step  # the updates whose commands go out now

@@ -337,16 +337,16 @@ class ChannelPublisher(LeafSystem):
       <module.signal> (input), per channel: the channel's port vector.
     """
 
-    def __init__(self, channels: list, publisher_of, time_step: float):
+    def __init__(self, channels: list, publisher_of, look: float):
         """``channels``: (ChannelSpec, output port) pairs; ``publisher_of(spec)``: its Zenoh publisher;
-        ``time_step``: the plant's step (each publish follows its TICK by one step, after the updates)."""
+        ``look``: how long after each TICK it looks (s): after the updates then (the deciding modules' too)."""
         super().__init__()
         self.set_name("channel_publisher")
         self._channels = []
         for spec, port in channels:
             self._channels.append((spec, self.DeclareVectorInputPort(spec.name, port.size()), publisher_of(spec)))
         self._last: dict[str, tuple] = {}
-        self.DeclarePeriodicPublishEvent(TICK, time_step, self._publish)
+        self.DeclarePeriodicPublishEvent(TICK, look, self._publish)
 
     def _publish(self, context) -> None:
         t = context.get_time()
@@ -368,9 +368,10 @@ class CommandPublisher(LeafSystem):
       physical_command (input): the entity's ``physical_command`` ([active, *command codes]).
     """
 
-    def __init__(self, entity, publisher, time_step: float, period: float | None = None):
+    def __init__(self, entity, publisher, time_step: float, period: float | None = None, look: float | None = None):
         """``period``: how often a change is looked for (s): the period at which the cell's modules may update
-        (default: every plant step); each look comes one step after those updates, when they are in the state."""
+        (default: every plant step); ``look``: when within it (s; default one step): after those updates (the
+        deciding modules' too, which may come one step after the others), when they are in the state."""
         super().__init__()
         self.set_name(f"{entity.module}.command_publisher")
         period = time_step if period is None else period
@@ -379,7 +380,7 @@ class CommandPublisher(LeafSystem):
         self.command_port = self.DeclareVectorInputPort("physical_command", 1 + len(entity.command_fields))
         self._last: tuple | None = None
         self._seq = 0
-        self.DeclarePeriodicPublishEvent(period, time_step, self._publish)
+        self.DeclarePeriodicPublishEvent(period, time_step if look is None else look, self._publish)
 
     def _publish(self, context) -> None:
         vector = self.command_port.Eval(context)
