@@ -117,6 +117,8 @@ def _print(result, replays, export) -> None:
             verdict = "(value)"
         else:
             verdict = "[green]holds[/]" if r.holds else "[red]violated[/]"
+            if r.prop.within is not None:
+                verdict = f"[green]within {r.prop.within:g} s[/]" if r.holds else f"[yellow]not within {r.prop.within:g} s[/]"
         value = f"{r.value:.6g}" if isinstance(r.value, float) else str(r.value)
         twin = ""
         if r.holds is False and r.witness is None:

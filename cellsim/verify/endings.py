@@ -49,8 +49,15 @@ def ending_of(checked, replay, *, replayed: bool, symbolic: bool, refinements: l
     name = checked.prop.name
     if checked.holds is None:
         return Final(name, None, "a value, not a verdict")
+    within = getattr(checked.prop, "within", None)
     if checked.holds:
-        return Final(name, Ending.HOLDS, "proved in the abstraction")
+        return Final(name, Ending.HOLDS, "proved in the abstraction" if within is None else
+                     f"proved in the abstraction: the response comes within {within:g} s, whatever the rest does")
+    if within is not None:
+        return Final(name, Ending.UNDECIDED, f"a liveness condition, checked as its response within {within:g} s: "
+                     "that fails, so the response may take longer or wait forever on what the abstraction leaves "
+                     "free (a person who stays, a dwell that never ends); the abstraction assumes nothing of when "
+                     "they end, so no verdict (no witness is run on the twin)")
     tried = f"; refinement: {', '.join(refinements)}" if refinements else ""
     if checked.witness is None:
         why = ("no witness: the model was checked as decision diagrams, which give none" if symbolic

@@ -120,6 +120,9 @@ class Property:
     sustained: str = ""
     """PRISM expression of the bad states where the violation lasted its whole window (a bounded response):
     the witness sought first, as it holds whatever the order of events within a period."""
+    within: float | None = None
+    """A liveness condition ``G(a -> F b)``, checked as the stronger ``G(a -> F[0, within] b)`` (s): holding proves
+    the condition; failing says only that ``b`` may take longer (the ending is then undecided, with no witness run)."""
 
 
 @dataclass(frozen=True)

@@ -11,8 +11,15 @@ A condition whose shape the abstract model can carry becomes a safety property:
   lasts the whole window, is the *sustained* violation: its witness does not hang
   on the order of events within a period or two, so it is the one replayed first.
 
-Any other shape (a liveness property such as ``F G``, an unbounded ``F``) is
-listed as not checked, with the reason: the abstract model has no end of run.
+A liveness condition ``G(a -> F b)`` is checked as the stronger bounded response
+``G(a -> F[0, w] b)`` with ``w`` RESPONSE_PERIODS periods: when it holds, ``b`` follows
+``a`` that soon whatever the people and the robot's pace do, so the condition holds.
+When it fails, ``b`` may only take longer, or wait on something the abstraction
+leaves free forever (a person who never leaves, a dwell that never ends): the
+condition is undecided, saying so, and no witness is run on the twin.
+
+Any other shape (``F G``, a timed ``F`` outside ``G``) is listed as not checked, with
+the reason: the abstract model has no end of run.
 A condition reading a signal no abstraction defines (the ground truth's
 separation) is listed as not checked too.
 
@@ -34,6 +41,11 @@ from cellsim.verify.model import AbstractCell, Property
 from cellsim.verify.prism import Command, Module, Var
 
 
+RESPONSE_PERIODS = 5
+"""Periods within which a liveness condition's response is sought (``G(a -> F b)`` as ``G(a -> F[0, w] b)``):
+what a controller does on its own, a phase it enters unconditionally, takes a period or two."""
+
+
 @dataclass
 class Skipped:
     name: str
@@ -46,7 +58,7 @@ class Candidate:
 
     name: str
     description: str
-    shape: str  # "invariant" or "bounded response"
+    shape: str  # "invariant", "bounded response" or "response" (G(a -> F b), checked within RESPONSE_PERIODS)
     parts: tuple  # (p,) or (a, b, c, w)
     variables: dict[str, str]  # trace variable -> channel
 
@@ -104,12 +116,14 @@ class ConditionProperties:
             except VerifyError as e:
                 self.skipped.append(Skipped(c.name, str(e)))
                 continue
-            cell.properties.append(Property(c.name, c.description, bad=bad, condition=c.name, sustained=sustained))
+            within = RESPONSE_PERIODS * cell.period if c.shape == "response" else None
+            cell.properties.append(Property(c.name, c.description, bad=bad, condition=c.name, sustained=sustained,
+                                            within=within))
 
     def _monitor(self, c: Candidate, encodings, names) -> tuple[str, str]:
         a, b, cc, w = c.parts
         pa, pb, pc = (to_prism(f, encodings, names) for f in (a, b, cc))
-        n = math.floor(w / self.cell.period + 1e-9)
+        n = RESPONSE_PERIODS if c.shape == "response" else math.floor(w / self.cell.period + 1e-9)
         ident = "mon_" + re.sub(r"\W", "_", c.name)
         age = f"{ident}_age"
         pending = f"({age} > 0 | {pa})"
@@ -159,7 +173,8 @@ class ConditionProperties:
 
 
 def _shape(formula):
-    """("invariant", (p,)) or ("bounded response", (a, b, c, w)), else why not (a string)."""
+    """("invariant", (p,)), ("bounded response", (a, b, c, w)) or ("response", (a, true, b, inf)), else why not
+    (a string)."""
     if not isinstance(formula, Always) or formula.lo != 0.0 or formula.hi != math.inf:
         return "not of the form G(...): a liveness or timed property the abstract model, which has no end of run, cannot judge"
     body = formula.arg
@@ -170,8 +185,8 @@ def _shape(formula):
                 return "bounded response", (body.lhs, rhs.lhs, rhs.rhs, rhs.hi)
             if isinstance(rhs, Eventually) and rhs.lo == 0.0 and math.isfinite(rhs.hi) and _timeless(rhs.arg):
                 return "bounded response", (body.lhs, Const(True), rhs.arg, rhs.hi)
-            if isinstance(rhs, Eventually) and not math.isfinite(rhs.hi):
-                return "G(a -> F b) with no bound on F: a liveness property, which runs of any length could satisfy"
+            if isinstance(rhs, Eventually) and rhs.lo == 0.0 and not math.isfinite(rhs.hi) and _timeless(rhs.arg):
+                return "response", (body.lhs, Const(True), rhs.arg, math.inf)
         return "its shape is neither G(p) nor G(a -> (b U[0, w] c)) nor G(a -> F[0, w] c)"
     return "invariant", (body,)
 

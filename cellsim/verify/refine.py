@@ -45,8 +45,16 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
     say = on_stage or (lambda text: None)
     done: list[Refinement] = []
     confirmed: dict = {}  # property -> (its checked result, its replay) from the round whose witness the twin confirmed
+    once: dict = {}  # liveness conditions' stronger responses (no witness run, nothing to refine): checked in round 1
     while True:
-        result = verify(sf, export=export, timed=timed, refinements=frozenset(r.key for r in done), on_stage=on_stage)
+        result = verify(sf, export=export, timed=timed, refinements=frozenset(r.key for r in done), on_stage=on_stage,
+                        leave_out=frozenset(once))
+        if not once:
+            once = {r.prop.name: r for r in result.results if r.prop.within is not None}
+        else:
+            result.results = sorted([*result.results, *once.values()], key=lambda r: order[r.prop.name])
+            result.model.properties = [r.prop for r in result.results]
+        order = {r.prop.name: i for i, r in enumerate(result.results)}
         result.replayed, result.refinements = True, list(done)
         # a violation the twin confirmed stays confirmed: refining elsewhere cannot take it back
         result.results = [confirmed[r.prop.name][0] if r.prop.name in confirmed else r for r in result.results]
@@ -54,7 +62,7 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
         for checked in result.results:
             if checked.prop.name in confirmed:
                 result.replays[checked.prop.name] = confirmed[checked.prop.name][1]
-            elif checked.witness is not None:
+            elif checked.witness is not None and checked.prop.within is None:  # (a stronger response's: no verdict)
                 result.replays[checked.prop.name] = replay(result.model, checked, where, on_stage=on_stage)
                 if result.replays[checked.prop.name].confirmed:
                     confirmed[checked.prop.name] = (checked, result.replays[checked.prop.name])
@@ -82,7 +90,7 @@ def _could_reach(sf, result, timed: bool, keys: list[str]) -> float:
     from cellsim.verify.run import abstract_model
 
     refined = abstract_model(sf, timed=timed, refinements=frozenset(keys))
-    largest = (result.largest or result.stats).states
+    largest = (result.refinable or result.largest or result.stats).states
     return largest * refined.bound() / max(result.model.bound(), 1.0)
 
 

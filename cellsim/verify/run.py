@@ -82,6 +82,9 @@ class Verification:
     times: dict[str, float]
     largest: ModelStats | None = None
     """The largest of the models built (the cell with one monitor)."""
+    refinable: ModelStats | None = None
+    """The largest of the models built for properties a refinement can change (not a liveness condition's
+    stronger response, which is checked once: its witness is never run)."""
     replays: dict = field(default_factory=dict)
     """Property name -> its witness replayed in the twin (:func:`cellsim.verify.witness.replay`), when asked for."""
     replayed: bool = False
@@ -222,19 +225,26 @@ def _safe(name: str) -> str:
 
 
 def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: frozenset = frozenset(),
-           on_stage=None) -> Verification:
+           on_stage=None, leave_out: frozenset = frozenset()) -> Verification:
     """Build and check the abstract model; ``export``: also write it there (and its .props beside it);
-    ``refinements``: the modules' refinements to switch on (:class:`cellsim.verify.model.AbstractCell`)."""
+    ``refinements``: the modules' refinements to switch on (:class:`cellsim.verify.model.AbstractCell`);
+    ``leave_out``: properties not to check (a refinement round's: those checked once for good)."""
     say = on_stage or (lambda text: None)
     say("building the abstract model")
     model = abstract_model(sf, timed=timed, refinements=refinements)
+    for name in leave_out & {p.name for p in model.properties}:  # its monitor and labels go with it
+        model.cell.monitors.pop(name, None)
+        label = model.labels.pop(name, None)
+        for key in (label, sustained_label(label)) if label else ():
+            model.cell.labels.pop(key, None)
+    model.properties = [p for p in model.properties if p.name not in leave_out]
     if not model.properties:
         raise VerifyError("nothing to verify: no safety controller's hazards and no validation condition of a "
                           "checkable shape" + "".join(f"; not checked: {s.name}: {s.reason}" for s in model.skipped))
     times = dict(model.times)
     if export is not None:
         write_export(model, export)
-    results, stats, largest = {}, None, None
+    results, stats, largest, refinable = {}, None, None, None
     times["storm_parse"] = times["storm_build"] = times["storm_check"] = 0.0
     still = tuple(person.variable for person in model.cell.places.people)
 
@@ -273,9 +283,11 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
                     stats = group_stats
                 if largest is None or group_stats.states > largest.states:
                     largest = group_stats
+                if any(p.within is None for p in props) and (refinable is None or group_stats.states > refinable.states):
+                    refinable = group_stats
                 checked(program, built, props)
     ordered = [results[p.name] for p in model.properties]
-    return Verification(model, stats, ordered, times, largest)
+    return Verification(model, stats, ordered, times, largest, refinable=refinable)
 
 
 def write_export(model: AbstractModel, path: Path) -> tuple[Path, Path]:
