@@ -47,14 +47,14 @@ def test_every_mishap_of_the_welding_cell_is_unreachable_in_the_abstract_model(w
     assert set(mishaps) == {"HRW:mishap", "HS:mishap", "HC:mishap"}
     assert all(p["value"] == 0.0 and p["holds"] for p in mishaps.values())
     # the validation file's invariants are checked too, and so are its liveness conditions G(a -> F b), as their
-    # response within five periods: the mitigation follows detection at the next update, whatever the person does;
+    # response within two periods: the mitigation follows detection at the next update, whatever the person does;
     # the release waits on the person leaving, which the abstraction leaves free: undecided, and why, never violated
     names = {p["name"] for p in result["properties"]}
     assert {"HRW:not_mis", "HS:detected"} <= names
     by_name = {p["name"]: p for p in result["properties"]}
     for hazard in ("HRW", "HS", "HC"):
         mitigated, handled = by_name[f"{hazard}:mitigated"], by_name[f"{hazard}:handled"]
-        assert mitigated["ending"] == "holds" and "within 0.1 s" in mitigated["reason"]
+        assert mitigated["ending"] == "holds" and "within 0.04 s" in mitigated["reason"]
         assert handled["ending"] == "undecided" and "liveness" in handled["reason"] and handled["twin"] is None
     skipped = {s["name"]: s["reason"] for s in result["not_checked"]}
     assert "HRW:mitigated" not in skipped and "no end of run" in skipped["Final:Tbl"]
@@ -68,8 +68,11 @@ def test_the_exit_code_follows_the_final_verdicts(welding):
     in_model = [p for p in result["properties"] if p["holds"] is False]
     assert result["holds"] == (not in_model)
     for p in in_model:
+        if "liveness" in p["reason"]:  # a liveness condition's stronger response: no witness to run
+            assert p["ending"] == "undecided" and p["witness_periods"] is None
+            continue
         assert p["witness_periods"] >= 1
-        assert p["ending"] == "undecided" and ("not replayed" in p["reason"] or "liveness" in p["reason"])
+        assert p["ending"] == "undecided" and "not replayed" in p["reason"]
     assert all(p["ending"] == "holds" for p in result["properties"] if p["holds"])
     assert code == result["exit_code"] == (3 if in_model else 0)
 

@@ -41,9 +41,10 @@ from cellsim.verify.model import AbstractCell, Property
 from cellsim.verify.prism import Command, Module, Var
 
 
-RESPONSE_PERIODS = 5
+RESPONSE_PERIODS = 2
 """Periods within which a liveness condition's response is sought (``G(a -> F b)`` as ``G(a -> F[0, w] b)``):
-what a controller does on its own, a phase it enters unconditionally, takes a period or two."""
+what a controller does on its own, a phase it enters unconditionally, takes a period (one more of slack; each
+more makes the model larger)."""
 
 
 @dataclass

@@ -45,8 +45,12 @@ class AbstractModel:
             theirs = {k for p in self.properties if p.name in cell.monitors for k in self._labels_of(p)}
             labels = {k: v for k, v in cell.labels.items() if k not in theirs}
             groups.append((plain, cell.program(self.header, [], labels).text()))
+        responses = [p for p in self.properties if p.name in cell.monitors and p.within is not None]
+        if responses:  # short windows, each pending a few periods: one model for them all costs less than one each
+            labels = {k: cell.labels[k] for p in responses for k in self._labels_of(p)}
+            groups.append((responses, cell.program(self.header, [p.name for p in responses], labels).text()))
         for prop in self.properties:
-            if prop.name in cell.monitors:
+            if prop.name in cell.monitors and prop.within is None:
                 labels = {k: cell.labels[k] for k in self._labels_of(prop)}
                 groups.append(([prop], cell.program(self.header, [prop.name], labels).text()))
         return groups

@@ -137,7 +137,7 @@ def check(program, model, prop: Property, bad_label: str | None, still: tuple[st
         value = float(value)
         holds = value <= 0.0
         witness = None
-        if not holds and not model.is_symbolic_model:
+        if not holds and not model.is_symbolic_model and prop.within is None:  # (a stronger response's: no run)
             sustained = f"{bad_label}_sustained" if prop.sustained else None
             if sustained:
                 witness = shortest_path(program, model, sustained, required=False, still=still)
