@@ -54,10 +54,16 @@ def ending_of(checked, replay, *, replayed: bool, symbolic: bool, refinements: l
         return Final(name, Ending.HOLDS, "proved in the abstraction" if within is None else
                      f"proved in the abstraction: the response comes within {within:g} s, whatever the rest does")
     if within is not None:
-        return Final(name, Ending.UNDECIDED, f"a liveness condition, checked as its response within {within:g} s: "
-                     "that fails, so the response may take longer or wait forever on what the abstraction leaves "
-                     "free (a person who stays, a dwell that never ends); the abstraction assumes nothing of when "
-                     "they end, so no verdict (no witness is run on the twin)")
+        slower = f"the response may take longer than {within:g} s (a person who stays, a dwell that goes on)"
+        fair = getattr(checked, "fair", None)
+        if fair:
+            return Final(name, Ending.HOLDS, f"proved in the abstraction under fairness: {slower}, but it can always "
+                         "still come, so it comes on every path where what can be done again and again is done")
+        if fair is None:
+            return Final(name, Ending.UNDECIDED, f"{slower}, and whether it can always still come was not judged "
+                         "(decision diagrams give no state graph)")
+        return Final(name, Ending.UNDECIDED, f"{slower}, and the abstraction reaches a state from which it can never "
+                     "come: no witness of that is built or run on the twin yet")
     tried = f"; refinement: {', '.join(refinements)}" if refinements else ""
     if checked.witness is None:
         why = ("no witness: the model was checked as decision diagrams, which give none" if symbolic

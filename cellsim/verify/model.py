@@ -122,7 +122,10 @@ class Property:
     the witness sought first, as it holds whatever the order of events within a period."""
     within: float | None = None
     """A liveness condition ``G(a -> F b)``, checked as the stronger ``G(a -> F[0, within] b)`` (s): holding proves
-    the condition; failing says only that ``b`` may take longer (the ending is then undecided, with no witness run)."""
+    the condition; failing says only that ``b`` may take longer (then judged under fairness, ``response``)."""
+    response: tuple[str, str] | None = None
+    """A liveness condition's ``a`` and ``b`` (PRISM expressions): whether ``b`` can still come from every state
+    reachable from ``a`` without it (:func:`cellsim.verify.storm.always_answerable`)."""
 
 
 @dataclass(frozen=True)

@@ -117,9 +117,12 @@ class ConditionProperties:
             except VerifyError as e:
                 self.skipped.append(Skipped(c.name, str(e)))
                 continue
-            within = RESPONSE_PERIODS * cell.period if c.shape == "response" else None
+            within = response = None
+            if c.shape == "response":
+                within = RESPONSE_PERIODS * cell.period
+                response = tuple(to_prism(c.parts[i], encodings, names) for i in (0, 2))
             cell.properties.append(Property(c.name, c.description, bad=bad, condition=c.name, sustained=sustained,
-                                            within=within))
+                                            within=within, response=response))
 
     def _monitor(self, c: Candidate, encodings, names) -> tuple[str, str]:
         a, b, cc, w = c.parts
@@ -176,6 +179,9 @@ class ConditionProperties:
 def _shape(formula):
     """("invariant", (p,)), ("bounded response", (a, b, c, w)) or ("response", (a, true, b, inf)), else why not
     (a string)."""
+    if isinstance(formula, Eventually) and isinstance(formula.arg, Always) and _timeless(formula.arg.arg):
+        return ("F G(p) asks how a run ends; the abstract model has no end of run (any state could be the last, "
+                "a person may stand anywhere then), so only the twin's runs judge it")
     if not isinstance(formula, Always) or formula.lo != 0.0 or formula.hi != math.inf:
         return "not of the form G(...): a liveness or timed property the abstract model, which has no end of run, cannot judge"
     body = formula.arg

@@ -62,8 +62,7 @@ class AbstractModel:
         return math.prod(2 if v.boolean else v.high - v.low + 1 for v in variables)
 
     def _labels_of(self, prop: Property) -> list[str]:
-        label = self.labels[prop.name]
-        return [label, sustained_label(label)] if prop.sustained else [label]
+        return labels_of(prop, self.labels[prop.name])
 
 
 SIZE_ANYWAY = 1e17
@@ -71,6 +70,12 @@ SIZE_ANYWAY = 1e17
 its transitions (``EXPLICIT_LIMIT``) before it is built state by state; a smaller one (the welding
 cell's allow 10^15, its reachable states are 1,839) is built state by state at once, sparing the
 decision diagrams' start-up (about 3 s)."""
+
+
+def labels_of(prop: Property, label: str) -> list[str]:
+    """The labels a property's check reads: its bad states', its sustained violation's, its response's a and b."""
+    return [label, *([sustained_label(label)] if prop.sustained else []),
+            *([f"{label}_a", f"{label}_b"] if prop.response else [])]
 
 
 def sustained_label(label: str) -> str:
@@ -198,6 +203,8 @@ def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset
             abstract.labels[f"bad{i}"] = prop.bad
             if prop.sustained:
                 abstract.labels[sustained_label(f"bad{i}")] = prop.sustained
+            if prop.response:
+                abstract.labels[f"bad{i}_a"], abstract.labels[f"bad{i}_b"] = prop.response
     header = (f"Abstract model of the cell '{scenario.name}', written by cellsim verify.\n"
               f"One step is one period of {period:g} s. Assumptions:\n" + "\n".join(f"- {a}" for a in abstract.assumptions))
     text = abstract.program(header).text()
@@ -236,10 +243,10 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
     say = on_stage or (lambda text: None)
     say("building the abstract model")
     model = abstract_model(sf, timed=timed, refinements=refinements)
-    for name in leave_out & {p.name for p in model.properties}:  # its monitor and labels go with it
-        model.cell.monitors.pop(name, None)
-        label = model.labels.pop(name, None)
-        for key in (label, sustained_label(label)) if label else ():
+    for prop in [p for p in model.properties if p.name in leave_out]:  # its monitor and labels go with it
+        model.cell.monitors.pop(prop.name, None)
+        label = model.labels.pop(prop.name, None)
+        for key in labels_of(prop, label) if label else ():
             model.cell.labels.pop(key, None)
     model.properties = [p for p in model.properties if p.name not in leave_out]
     if not model.properties:
@@ -291,7 +298,14 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
                     refinable = group_stats
                 checked(program, built, props)
     ordered = [results[p.name] for p in model.properties]
+    if any(r.fair for r in ordered):
+        model.cell.assume(FAIRNESS)
     return Verification(model, stats, ordered, times, largest, refinable=refinable)
+
+
+FAIRNESS = ("a liveness condition whose response may take longer than its window is judged under fairness: "
+            "whatever the abstraction lets the people, the robots' pace and the processes do again and again, they "
+            "eventually do (a person free to leave does leave, a dwell that can end ends)")
 
 
 def write_export(model: AbstractModel, path: Path) -> tuple[Path, Path]:

@@ -33,6 +33,9 @@ class Checked:
     """A safety property: value == 0; a boolean PCTL query: its value; a numeric one: None."""
     witness: list[dict] | None = None
     """The valuations of the states along a shortest path to a bad state (a violated safety property)."""
+    fair: bool | None = None
+    """A liveness condition whose stronger response failed: whether it holds under fairness
+    (:func:`always_answerable`); None when not asked (or not answerable: decision diagrams)."""
 
 
 @dataclass
@@ -137,15 +140,33 @@ def check(program, model, prop: Property, bad_label: str | None, still: tuple[st
         value = float(value)
         holds = value <= 0.0
         witness = None
-        if not holds and not model.is_symbolic_model and prop.within is None:  # (a stronger response's: no run)
+        fair = None
+        if not holds and not model.is_symbolic_model and prop.response:
+            fair = always_answerable(program, model, f"{bad_label}_a", f"{bad_label}_b")
+        elif not holds and not model.is_symbolic_model:
             sustained = f"{bad_label}_sustained" if prop.sustained else None
             if sustained:
                 witness = shortest_path(program, model, sustained, required=False, still=still)
             witness = witness or shortest_path(program, model, bad_label, still=still)
-        return Checked(prop, value, seconds, holds, witness)
+        return Checked(prop, value, time.perf_counter() - start, holds, witness, fair)
     if isinstance(value, bool):
         return Checked(prop, value, seconds, value)
     return Checked(prop, float(value), seconds, None)
+
+
+def always_answerable(program, model, a_label: str, b_label: str) -> bool:
+    """Whether a ``b`` state can still be reached from every state reachable from an ``a`` state without passing one
+    (that ``a`` state included). Then ``G(a -> F b)`` holds on every path that is fair: along which whatever step is
+    possible again and again is eventually taken. (Such a path that never met ``b`` again would, in the end, only
+    visit states closed under their steps, one of which leads on to ``b``.)
+
+    Asked of Storm as ``Pmax=? [ !b U (Pmax<=0 [ F b ]) ]``: the states from which a path without ``b`` reaches one
+    from which ``b`` can never come; none of them may be an ``a`` state."""
+    stormpy = _quiet()
+    (formula,) = stormpy.parse_properties(f'Pmax=? [ !"{b_label}" U (Pmax<=0 [ F "{b_label}" ]) ]', program)
+    values = stormpy.model_checking(model, formula).get_value_vector()
+    a, b = model.labeling.get_states(a_label), model.labeling.get_states(b_label)
+    return not any(values[s] > 0 for s in range(model.nr_states) if a.get(s) and not b.get(s))
 
 
 def shortest_path(program, model, label: str, required: bool = True, still: tuple[str, ...] = ()) -> list[dict] | None:
