@@ -75,3 +75,16 @@ def test_a_witness_at_exactly_the_bound_passes_and_one_period_less_fails(speed):
     if middle > 1:
         hurried = [{"p_place": 0}] * first + [{"p_place": 1}] * (middle - 1) + [{"p_place": 2}]
         assert pace_violation(person, hurried, PERIOD, speed) is not None
+
+
+def test_without_the_grid_slack_a_crossing_the_bound_allows_is_found():
+    """``exact``: the crossing measured between the grid's points, without the two steps a place's border may lie
+    from them. Where it asks more than the bound, only a finer grid can tell whether the walk is possible: a walk
+    at the bound (5 periods from the start, 9 across place 1) is found crossing place 0 in fewer periods than the
+    0.2 m from the start to its border point take (10), and place 1 needs 19 (0.4 m between its border points)."""
+    person = _corridor()
+    assert crossing_periods(person, PERIOD, SPEED, exact=True)[(0, 1, 2)] == 19
+    walk = [{"p_place": 0}] * 5 + [{"p_place": 1}] * 9 + [{"p_place": 2}] * 3
+    assert pace_violation(person, walk, PERIOD, SPEED) is None
+    why = pace_violation(person, walk, PERIOD, SPEED, exact=True)
+    assert why is not None and why.startswith("p_place crosses place 0 (from its start to place 1) in 5 period(s)")

@@ -46,9 +46,9 @@ class PersonPlaces:
     def at(self, place: int) -> Place:
         return self.places[place]
 
-    def pace_violation(self, witness: list[dict], period: float, speed: float) -> str | None:
+    def pace_violation(self, witness: list[dict], period: float, speed: float, exact: bool = False) -> str | None:
         """:func:`pace_violation` of this person (what a person's abstraction asks, without importing the floor)."""
-        return pace_violation(self, witness, period, speed)
+        return pace_violation(self, witness, period, speed, exact)
 
 
 @dataclass
@@ -139,7 +139,7 @@ ENTERED_AT_START = -1
 """The place a person 'came from' in its starting place (it stands at its start pose)."""
 
 
-def crossing_periods(person: PersonPlaces, period: float, speed: float) -> dict[tuple[int, int, int], int]:
+def crossing_periods(person: PersonPlaces, period: float, speed: float, exact: bool = False) -> dict[tuple[int, int, int], int]:
     """(came from, place, going to) -> the least number of periods spent in the place, entering it from the first
     and leaving it to the third, at ``speed`` (m/s) at most (every triple with a bound above zero).
 
@@ -148,7 +148,10 @@ def crossing_periods(person: PersonPlaces, period: float, speed: float) -> dict[
     step at either end (it changes place somewhere between two touching poses). The model samples it once a period:
     seen in the place at samples e .. l - 1 and in the next at l, it may have crossed in just under l - e + 1
     periods (entering right after sample e - 1), so it is seen there for at least ceil(d / (speed * period)) - 1
-    samples; from its start pose (there at sample 0) for at least ceil(d / (speed * period))."""
+    samples; from its start pose (there at sample 0) for at least ceil(d / (speed * period)).
+
+    ``exact``: without the grid steps' slack, as if each place's border lay on its touching poses: no bound (it may
+    claim more than a walk takes), but where it says more than the bound does, a finer grid would tell."""
     step = person.role.step
     cell_of = {}
     for place in person.places:
@@ -175,7 +178,8 @@ def crossing_periods(person: PersonPlaces, period: float, speed: float) -> dict[
                 if a == b or not ins or not outs:
                     continue
                 from_start = a == ENTERED_AT_START
-                distance = min(math.dist(p, q) for p in ins for q in outs) - (step if from_start else 2 * step)
+                slack = 0.0 if exact else (step if from_start else 2 * step)
+                distance = min(math.dist(p, q) for p in ins for q in outs) - slack
                 crossing = math.ceil(distance / (speed * period) - 1e-9) if distance > 0 else 0
                 periods = crossing if from_start else crossing - 1
                 if periods > 1:  # one period is what any step takes
@@ -183,10 +187,11 @@ def crossing_periods(person: PersonPlaces, period: float, speed: float) -> dict[
     return need
 
 
-def pace_violation(person: PersonPlaces, witness: list[dict], period: float, speed: float) -> str | None:
+def pace_violation(person: PersonPlaces, witness: list[dict], period: float, speed: float,
+                   exact: bool = False) -> str | None:
     """Where a witness has ``person`` cross a place faster than ``speed`` allows (the first such crossing), said as
-    which variable, at which period, and why; None if it never does."""
-    need = crossing_periods(person, period, speed)
+    which variable, at which period, and why; None if it never does (``exact``: see :func:`crossing_periods`)."""
+    need = crossing_periods(person, period, speed, exact)
     var = person.variable
     came, entered, here = ENTERED_AT_START, 0, None
     for k, state in enumerate(witness):

@@ -20,7 +20,7 @@ from cellsim.floorplan import point_in_polygon
 from cellsim.verify.model import ModuleAbstraction, AbstractCell, PersonRole, Pose
 
 GRID = 0.1
-"""The floor grid's step (m)."""
+"""The floor grid's step (m); refined (``<person>:fine``), half that."""
 HEADINGS = (0.0, math.pi / 2, math.pi, 3 * math.pi / 2)
 MARGIN = 0.6
 """How far (m) round the cell's fixtures, zones and walk the floor is sampled."""
@@ -33,11 +33,12 @@ class PersonAbstraction(ModuleAbstraction):
 
     def declare(self, cell: AbstractCell) -> None:
         cfg, layout = self.cfg, self.layout
+        self.step = GRID / 2 if f"{self.name}:fine" in cell.refinements else GRID
         found = obstacles(cfg, layout) if cfg.avoid_fixtures else []
         self.outlines = tuple(outline for _, outline in found)
         points = self._grid()
         poses = [Pose(x, y, yaw) for x, y in points for yaw in HEADINGS]
-        arm = cfg.arm_length + cfg.body_radius + GRID
+        arm = cfg.arm_length + cfg.body_radius + self.step
         for target in dict.fromkeys(tuple(w.reach) for w in cfg.waypoints.values() if w.reach is not None):
             for x, y in points:
                 if math.hypot(target[0] - x, target[1] - y) <= arm:
@@ -50,7 +51,7 @@ class PersonAbstraction(ModuleAbstraction):
             if w.press is not None:
                 buttons[f"press_{w.press.replace('.', '_')}"] = tuple(w.position)
         paced = f"{self.name}:pace" in cell.refinements
-        cell.add_person(PersonRole(self.name, poses, start, self._stand, own, GRID, buttons, travel=self.travel,
+        cell.add_person(PersonRole(self.name, poses, start, self._stand, own, self.step, buttons, travel=self.travel,
                                    walk=self.walk, max_speed=self.max_speed if paced else None))
         pace = f"no faster than {self.max_speed:.3g} m/s (its walking speed and jitter)" if paced else "at any pace"
         cell.assume(f"{self.name} may walk anywhere on the floor {pace}, reach towards "
@@ -63,13 +64,23 @@ class PersonAbstraction(ModuleAbstraction):
         return self.cfg.walking_speed * (1.0 + self.cfg.speed_jitter)
 
     def refinement(self, cell: AbstractCell, witness: list[dict]) -> tuple[str, str] | None:
-        """A witness in which this person crosses a place faster than it walks: model its pace."""
-        key = f"{self.name}:pace"
-        if key in cell.refinements or cell.places is None:
+        """A witness in which this person crosses a place faster than it walks: model its pace; with its pace
+        modelled, one that crosses a place only as fast as the grid's slack allows (a place's border lies somewhere
+        between two grid points, so a crossing may be up to two steps shorter than the points say): halve the grid."""
+        person = None if cell.places is None else next(
+            (p for p in cell.places.people if p.role.module == self.name), None)
+        if person is None:
             return None
-        person = next((p for p in cell.places.people if p.role.module == self.name), None)
-        why = None if person is None else person.pace_violation(witness, cell.period, self.max_speed)
-        return None if why is None else (key, why)
+        key = f"{self.name}:pace"
+        if key not in cell.refinements:
+            why = person.pace_violation(witness, cell.period, self.max_speed)
+            return None if why is None else (key, why)
+        key = f"{self.name}:fine"
+        if key not in cell.refinements:
+            why = person.pace_violation(witness, cell.period, self.max_speed, exact=True)
+            return None if why is None else (key, f"{why} measured between the grid's points; their {GRID:g} m "
+                                                  f"slack allows it: a {GRID / 2:g} m grid tells")
+        return None
 
     def build(self, cell: AbstractCell) -> None:
         """Its place and buttons are the floor's (``cellsim.verify.floor``)."""
@@ -88,12 +99,13 @@ class PersonAbstraction(ModuleAbstraction):
         for zone in (*layout.operator_zones.values(), *layout.operator_flags.values()):
             xs += [zone.min[0], zone.max[0]]
             ys += [zone.min[1], zone.max[1]]
-        x0, x1 = math.floor((min(xs) - MARGIN) / GRID), math.ceil((max(xs) + MARGIN) / GRID)
-        y0, y1 = math.floor((min(ys) - MARGIN) / GRID), math.ceil((max(ys) + MARGIN) / GRID)
+        step = self.step
+        x0, x1 = math.floor((min(xs) - MARGIN) / step), math.ceil((max(xs) + MARGIN) / step)
+        y0, y1 = math.floor((min(ys) - MARGIN) / step), math.ceil((max(ys) + MARGIN) / step)
         return [
-            (round(i * GRID, 6), round(j * GRID, 6))
+            (round(i * step, 6), round(j * step, 6))
             for i in range(x0, x1 + 1) for j in range(y0, y1 + 1)
-            if not any(point_in_polygon((i * GRID, j * GRID), outline) for outline in self.outlines)
+            if not any(point_in_polygon((i * step, j * step), outline) for outline in self.outlines)
         ]
 
     def _stand(self, context, pose: Pose | None) -> None:
@@ -121,7 +133,7 @@ class PersonAbstraction(ModuleAbstraction):
         point is inside a fixture."""
         if pose.reach is not None:
             return None
-        point = (pose.x - GRID * math.cos(pose.yaw), pose.y - GRID * math.sin(pose.yaw))
+        point = (pose.x - self.step * math.cos(pose.yaw), pose.y - self.step * math.sin(pose.yaw))
         return None if any(point_in_polygon(point, outline) for outline in self.outlines) else point
 
     def _walked(self, a: tuple[float, float], b: tuple[float, float]) -> float:
@@ -135,7 +147,7 @@ class PersonAbstraction(ModuleAbstraction):
         """Seconds the person takes from pose a to pose b at its walking speed, round the fixtures:
         withdrawing the arm at a, walking (through b's approach point), reaching out at b."""
         approach = self._approach(b)
-        length = (self._walked((a.x, a.y), approach) + GRID) if approach else self._walked((a.x, a.y), (b.x, b.y))
+        length = (self._walked((a.x, a.y), approach) + self.step) if approach else self._walked((a.x, a.y), (b.x, b.y))
         arm = REACH_TIME * ((a.reach is not None) + (b.reach is not None))
         return length / self.cfg.walking_speed + arm
 
