@@ -283,6 +283,8 @@ def test_witnesses_the_twin_refutes_are_refined_until_every_welding_property_hol
     assert fine["why"].startswith("operator_place crosses place") and "a 0.05 m grid tells" in fine["why"]
     assert any("no faster than 1.32 m/s" in a for a in result["assumptions"])  # the refined model says so
     assert any("grid (operator: 0.05 m" in a for a in result["assumptions"])
+    # the liveness conditions, checked in the first round only, keep their assumption in the last round's list
+    assert any(a.startswith("a liveness condition whose response may take longer") for a in result["assumptions"])
     # each round's witnesses were run on the twin, and refuted (else the property would have ended violated)
     assert list(out.glob("HRW_detected*.yaml")) and list((out / "refined-1").glob("HRW_detected*.yaml"))
     endings = {p["name"]: p["ending"] for p in result["properties"]}

@@ -48,13 +48,8 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
     once: dict = {}  # liveness conditions' stronger responses (no witness run, nothing to refine): checked in round 1
     while True:
         result = verify(sf, export=export, timed=timed, refinements=frozenset(r.key for r in done), on_stage=on_stage,
-                        leave_out=frozenset(once))
-        if not once:
-            once = {r.prop.name: r for r in result.results if r.prop.within is not None}
-        else:
-            result.results = sorted([*result.results, *once.values()], key=lambda r: order[r.prop.name])
-            result.model.properties = [r.prop for r in result.results]
-        order = {r.prop.name: i for i, r in enumerate(result.results)}
+                        checked_before=once)
+        once = once or {r.prop.name: r for r in result.results if r.prop.within is not None}
         result.replayed, result.refinements = True, list(done)
         # a violation the twin confirmed stays confirmed: refining elsewhere cannot take it back
         result.results = [confirmed[r.prop.name][0] if r.prop.name in confirmed else r for r in result.results]

@@ -236,10 +236,12 @@ def _safe(name: str) -> str:
 
 
 def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: frozenset = frozenset(),
-           on_stage=None, leave_out: frozenset = frozenset()) -> Verification:
+           on_stage=None, checked_before: dict | None = None) -> Verification:
     """Build and check the abstract model; ``export``: also write it there (and its .props beside it);
     ``refinements``: the modules' refinements to switch on (:class:`cellsim.verify.model.AbstractCell`);
-    ``leave_out``: properties not to check (a refinement round's: those checked once for good)."""
+    ``checked_before``: property name -> its result from an earlier round, taken as it is (a refinement round's
+    liveness conditions, checked once for good): not checked again, but in the results, in their place."""
+    leave_out = frozenset(checked_before or ())
     say = on_stage or (lambda text: None)
     say("building the abstract model")
     model = abstract_model(sf, timed=timed, refinements=refinements)
@@ -248,6 +250,7 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
         label = model.labels.pop(prop.name, None)
         for key in labels_of(prop, label) if label else ():
             model.cell.labels.pop(key, None)
+    every = list(model.properties)
     model.properties = [p for p in model.properties if p.name not in leave_out]
     if not model.properties:
         raise VerifyError("nothing to verify: no safety controller's hazards and no validation condition of a "
@@ -297,6 +300,8 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
                 if any(p.within is None for p in props) and (refinable is None or group_stats.states > refinable.states):
                     refinable = group_stats
                 checked(program, built, props)
+    results.update(checked_before or {})
+    model.properties = [p for p in every if p.name in results]
     ordered = [results[p.name] for p in model.properties]
     if any(r.fair for r in ordered):
         model.cell.assume(FAIRNESS)
