@@ -14,9 +14,9 @@ A condition whose shape the abstract model can carry becomes a safety property:
 A liveness condition ``G(a -> F b)`` is checked as the stronger bounded response
 ``G(a -> F[0, w] b)`` with ``w`` RESPONSE_PERIODS periods: when it holds, ``b`` follows
 ``a`` that soon whatever the people and the robot's pace do, so the condition holds.
-When it fails, ``b`` may only take longer, or wait on something the abstraction
-leaves free forever (a person who never leaves, a dwell that never ends): the
-condition is undecided, saying so, and no witness is run on the twin.
+When it fails, ``b`` may take longer, or wait on something the abstraction leaves
+free forever (a person who never leaves): it is then judged under fairness
+(:func:`cellsim.verify.storm.always_answerable`), and no witness is run on the twin.
 
 Any other shape (``F G``, a timed ``F`` outside ``G``) is listed as not checked, with
 the reason: the abstract model has no end of run.

@@ -121,7 +121,8 @@ class Verification:
 
     @property
     def holds(self) -> bool:
-        return all(r.holds is not False for r in self.results)
+        """Whether every property holds in the abstraction (a liveness condition under fairness too)."""
+        return all(r.holds is not False or r.fair for r in self.results)
 
 
 def twin_mode_assumptions(configs: dict) -> list[str]:
