@@ -428,6 +428,24 @@ def test_the_emulated_program_takes_a_command_only_when_the_heartbeat_moved_and_
         emulated.server.close()
 
 
+def test_the_emulated_controller_takes_clients_only_once_its_arm_has_a_state(program):
+    """ur-rtde's receiver gives up for good after 2.5 s without a package: an emulator still building its cell
+    refuses connections (its port already bound) until the arm's first state, then streams every cycle."""
+    import socket
+
+    from cellsim.bridges.devices import EmulatedController
+
+    emulated = EmulatedController("127.0.0.1", 0, program, 500.0)
+    try:
+        with pytest.raises(ConnectionRefusedError):
+            socket.create_connection(emulated.server.address, timeout=5).close()
+        sample = {**{f"q{i}": 0.0 for i in range(6)}, "safety_mode": "normal", "activity": "welding", "reached_pose": "home"}
+        emulated.server.publish(program.state(sample, [0.0] * 6, 0.002, 1.0))
+        socket.create_connection(emulated.server.address, timeout=5).close()
+    finally:
+        emulated.server.close()
+
+
 @pytest.mark.parametrize("flag", ["--rtde", "--opcua"])
 def test_emulate_on_a_port_already_taken_is_one_line_naming_it_exit_2_and_writes_nothing(tmp_path, flag, cell_keys):
     import socket

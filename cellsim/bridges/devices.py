@@ -181,7 +181,7 @@ class EmulatedController:
         self._seq = 0
         self._heartbeat = None
         self._lock = threading.Lock()
-        self.server = RtdeServer(host, port, on_inputs=self._on_inputs, rate=rate)
+        self.server = RtdeServer(host, port, on_inputs=self._on_inputs, rate=rate, listen_from_first_state=True)
 
     def _on_inputs(self, values: dict) -> None:  # on the client's thread
         heartbeat = rtde_register(self.program.registers.heartbeat)

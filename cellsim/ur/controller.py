@@ -13,7 +13,8 @@ streamed after ``S`` at the frequency it asked, at most the controller's 500 Hz)
 and input recipes (a variable another client already writes is ``IN_USE``; an
 unknown one ``NOT_FOUND``). A client that sends what the protocol has no place for
 is told so in a text message and disconnected. The server listens on loopback
-unless configured otherwise.
+unless configured otherwise, from the emulated arm's first state on: as on a real
+controller, a client that started gets a package every cycle from then on.
 
 Faults, as the arm's outlet (``--fault robot=KIND``): ``silence`` (no packages),
 ``freeze`` (the last package again: its timestamp repeats), ``corrupt`` (a data
@@ -68,12 +69,24 @@ class RtdeServer:
     """An RTDE server on ``host:port``: :meth:`publish` streams a state to every started client,
     ``on_inputs(values)`` gets every input data package's values (on the client's thread)."""
 
-    def __init__(self, host: str, port: int, on_inputs=None, version=VERSION, rate: float = FREQUENCY):
-        """``rate``: how often :meth:`publish` is called (Hz): a client asking for less gets every n-th state."""
+    def __init__(self, host: str, port: int, on_inputs=None, version=VERSION, rate: float = FREQUENCY,
+                 listen_from_first_state: bool = False):
+        """``rate``: how often :meth:`publish` is called (Hz): a client asking for less gets every n-th state.
+
+        The port is bound here (a port already taken fails now). ``listen_from_first_state``: accept clients
+        only from the first :meth:`publish` on, as a controller whose arm is up: a started client then gets a
+        package every cycle from its start. (ur-rtde's receiver gives up for good after 2.5 s without one,
+        so an emulator still building its cell must not take it yet.)"""
         self.on_inputs = on_inputs or (lambda values: None)
         self.rate = rate
         self.version = version
-        self._listener = socket.create_server((host, port), reuse_port=False)
+        self._listener = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
+        try:
+            self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            self._listener.bind((host, port))
+        except OSError as e:
+            self._listener.close()
+            raise OSError(e.errno, f"RTDE on {host}:{port}: {e.strerror}") from None
         self.address = self._listener.getsockname()[:2]
         self._clients: list[_Client] = []
         self._writers: dict[str, _Client] = {}  # input variable -> the client whose recipe writes it
@@ -82,6 +95,12 @@ class RtdeServer:
         self._last_values: dict = {}
         self.packages_sent = 0
         self.inputs_received = 0
+        self._thread: threading.Thread | None = None
+        if not listen_from_first_state:
+            self._listen()
+
+    def _listen(self) -> None:
+        self._listener.listen()
         self._thread = threading.Thread(target=self._accept, name="rtde-accept", daemon=True)
         self._thread.start()
 
@@ -90,6 +109,8 @@ class RtdeServer:
         """Send the state ``values`` (output variables; any other a client asks for reads 0) to every
         started client, as ``fault`` makes of it; the number of packages sent."""
         self._last_values = values
+        if self._thread is None:
+            self._listen()
         if fault == "silence":
             return 0
         sent = 0
@@ -226,7 +247,8 @@ class RtdeServer:
         except OSError:
             pass
         self._listener.close()
-        self._thread.join(timeout=5.0)
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
         with self._lock:
             clients = list(self._clients)
         for client in clients:
