@@ -324,14 +324,40 @@ SCENE_PERIOD = 0.1
 class FoxgloveFeed:
     """A Foxglove WebSocket server (``foxglove-sdk``, loopback by default) fed by a system of the diagram
     (``FoxgloveFeedSystem``): every channel on ``/module/signal`` when it changes and every second,
-    ``/tf`` and the whole ``/scene`` every 0.1 s of the twin's time."""
+    ``/tf`` and the whole ``/scene`` every 0.1 s of the twin's time.
+
+    The port is taken at once (one in use fails here, before anything runs); clients are served from when
+    the diagram's system has declared every channel (:meth:`add_to`), so a client sees them all in its first
+    advertisement. (foxglove-sdk sends a channel added later to each connected client before it records the
+    channel as that client's: a client quick to subscribe, while the thread adding it waits for a core, is
+    told "unknown channel". The first advertisement is recorded before the client's messages are read.)"""
 
     def __init__(self, host: str, port: int, name: str):
+        import socket
+
+        self.host, self.name = host, name
+        self.context = None
+        self.server = None
+        family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+        self._reserved = socket.socket(family, kind, proto)
+        try:
+            self._reserved.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server's own bind
+            self._reserved.bind(address)
+        except OSError:
+            self._reserved.close()
+            raise
+        self.port = self._reserved.getsockname()[1]
         import foxglove
 
         self.context = foxglove.Context()
-        self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context)
-        self.port = self.server.port
+
+    def serve(self) -> None:
+        """Start serving on the port taken (once every channel is declared)."""
+        import foxglove
+
+        if self.server is None:
+            self._reserved.close()
+            self.server = foxglove.start_server(name=self.name, host=self.host, port=self.port, context=self.context)
 
     def channel(self, topic: str, schema_name: str, schema: dict):
         """A channel of the feed on ``topic`` whose messages follow ``schema`` (JSON Schema) under ``schema_name``."""
@@ -350,11 +376,16 @@ class FoxgloveFeed:
 
     def close(self) -> None:
         """Stop serving: the WebSocket server closes and its port is freed."""
-        self.server.stop()
+        if self.server is not None:
+            self.server.stop()
+        self._reserved.close()
 
     def add_to(self, builder, cell, time_step: float):
-        """Add the system feeding this server to the diagram being built (``cellsim.diagrams.cell`` calls it)."""
-        return add_foxglove_feed(builder, cell, self, time_step)
+        """Add the system feeding this server to the diagram being built (``cellsim.diagrams.cell`` calls it),
+        then serve: every channel is declared."""
+        system = add_foxglove_feed(builder, cell, self, time_step)
+        self.serve()
+        return system
 
 
 class FoxgloveFeedSystem(LeafSystem):
