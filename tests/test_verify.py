@@ -184,6 +184,29 @@ def test_a_model_too_large_to_build_state_by_state_is_checked_as_decision_diagra
     assert any(r.witness for r in explicit.results if r.holds is False)
 
 
+def test_a_model_of_many_states_is_checked_on_decision_diagrams_and_a_witness_read_from_them_made_sparse(monkeypatch):
+    """Above ``STATE_BY_STATE`` reachable states the whole cell is checked on its decision diagrams, and only a
+    violated property is checked again on that model made sparse, its states' valuations read back from labels:
+    the welding cell forced down that path gets the explicit engine's values, fairness verdicts, and witnesses as
+    short, starting from the same state."""
+    import cellsim.verify.run as run
+
+    sf = load_scenario(WELDING_CELL)
+    explicit = run.verify(sf)
+    monkeypatch.setattr(run, "STATE_BY_STATE", 0)
+    sparse = run.verify(sf)
+    assert sparse.stats.made_sparse and not sparse.stats.symbolic and not explicit.stats.made_sparse
+    assert {r.prop.name: (r.value, r.fair) for r in sparse.results} == {r.prop.name: (r.value, r.fair) for r in explicit.results}
+    witnessed = [(e, s) for e, s in zip(explicit.results, sparse.results) if e.witness]
+    assert witnessed
+    for e, s in witnessed:
+        assert s.witness and len(s.witness) == len(e.witness), e.prop.name
+        start, kept = s.witness[0], e.witness[0]
+        assert set(kept) <= set(start)  # every variable of the property's own model, and the other monitors'
+        assert {k: start[k] for k in kept} == kept  # the initial state, read back bit by bit
+        assert all(isinstance(v, (bool, int)) for v in start.values())
+
+
 def test_a_witness_of_a_cell_verified_with_set_overrides_keeps_them(tmp_path):
     """The witness scenario is the cell that was verified: its --set values are written into it
     (the walk's own keys win: an override of the replaced waypoints has nothing to apply to)."""

@@ -75,7 +75,7 @@ def _json(result, replays) -> dict:
                         for r in result.refinements],
         "states": stats.states, "transitions": stats.transitions, "choices": stats.choices,
         "largest_states": (result.largest or stats).states,
-        "engine": "symbolic" if stats.symbolic else "explicit",
+        "engine": "symbolic" if stats.symbolic else "symbolic, then sparse" if stats.made_sparse else "explicit",
         "seconds": {k: round(v, 4) for k, v in result.times.items()},
         "period": result.model.cell.period,
         "assumptions": result.model.cell.assumptions,
@@ -142,6 +142,8 @@ def _print(result, replays, export) -> None:
     times = result.times
     largest = result.largest or stats
     shape = ("checked as decision diagrams (every monitor in one model)" if stats.symbolic
+             else "checked as decision diagrams (every monitor in one model), a violated property's witness read "
+                  "from them made sparse" if stats.made_sparse
              else f"with a monitor, at most {largest.states:,} states")
     console.print(f"  the cell: {stats.states:,} states, {stats.transitions:,} transitions; {shape}; "
                   f"period {model.cell.period:g} s; floor {times.get('floor', 0):.2f} s, Storm build "

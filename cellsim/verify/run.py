@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from cellsim import registry
@@ -18,7 +18,8 @@ from cellsim.verify.expressions import VerifyError
 from cellsim.verify.floor import build_floor, cut_floor
 from cellsim.verify.model import AbstractCell, Property
 from cellsim.verify.properties import ConditionProperties, Skipped
-from cellsim.verify.storm import EXPLICIT_LIMIT, Checked, ModelStats, build, build_symbolic, check
+from cellsim.verify.storm import (EXPLICIT_LIMIT, Checked, ModelStats, build, build_symbolic, check, to_sparse,
+                                  valuation_labels)
 
 
 @dataclass
@@ -66,10 +67,23 @@ class AbstractModel:
 
 
 SIZE_ANYWAY = 1e17
-"""A model whose variables allow more states than this is first built as decision diagrams, to count
-its transitions (``EXPLICIT_LIMIT``) before it is built state by state; a smaller one (the welding
-cell's allow 10^15, its reachable states are 1,839) is built state by state at once, sparing the
-decision diagrams' start-up (about 3 s)."""
+"""The decision diagrams' tables are sized by what the model's variables allow: up to this many states, 512 MB
+(:func:`dd_memory`)."""
+STATE_BY_STATE = 200_000
+"""Reachable states up to which each group of properties is built again state by state (each with only its own
+monitor: the welding cell's groups build in a second); a larger model is checked on its decision diagrams, and made
+sparse only when a property is violated (its witness). Storm's state-by-state builder evaluates every command's
+guard in every state: the assembly bench's 1.25 million states took it 100 s, its decision diagrams 2 s."""
+
+
+def dd_memory(bound: float) -> int:
+    """MB for the decision diagrams' tables (:func:`cellsim.verify.storm.build_symbolic`). Sylvan takes its tables
+    at start (the cap costs start-up: 0.5 s at 256 MB, 1.8 s at 2048) and stops the process when they are full, so
+    the cap follows what the model's variables allow: 512 MB up to ``SIZE_ANYWAY`` states (the shipped cells of that
+    size take under 450 MB), else ``DD_MEMORY``."""
+    from cellsim.verify.storm import DD_MEMORY
+
+    return 512 if bound <= SIZE_ANYWAY else DD_MEMORY
 
 
 def labels_of(prop: Property, label: str) -> list[str]:
@@ -263,11 +277,11 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
     times["storm_parse"] = times["storm_build"] = times["storm_check"] = 0.0
     still = tuple(person.variable for person in model.cell.places.people)
 
-    def checked(program, built, props):
+    def checked(program, built, props, valuations=None):
         mark = time.perf_counter()
         for prop in props:
             say(f"Storm: checking {prop.name}")
-            results[prop.name] = check(program, built, prop, model.labels.get(prop.name), still)
+            results[prop.name] = check(program, built, prop, model.labels.get(prop.name), still, valuations)
         times["storm_check"] += time.perf_counter() - mark
 
     def count(group_stats):
@@ -275,19 +289,33 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
         times["storm_build"] += group_stats.build_seconds
 
     with tempfile.TemporaryDirectory(prefix="cellsim-verify-") as scratch:
-        whole_stats = None
-        if model.bound() > SIZE_ANYWAY:
-            whole = Path(scratch) / "model.prism"
-            whole.write_text(model.text)
-            say("Storm: sizing the state space (decision diagrams)")
-            program, symbolic, whole_stats = build_symbolic(whole)
-            count(whole_stats)
-        if whole_stats is not None and whole_stats.transitions > EXPLICIT_LIMIT:
+        # the whole cell, every monitor in it, as decision diagrams: its size decides how it is checked
+        whole = Path(scratch) / "model.prism"
+        program_now = model.cell.program(model.header)  # (without the monitors of the properties left out)
+        whole.write_text(program_now.text() + valuation_labels(program_now.variables()))
+        say("Storm: building the state space as decision diagrams")
+        program, symbolic, whole_stats = build_symbolic(whole, dd_memory(model.bound()))
+        count(whole_stats)
+        if whole_stats.transitions > EXPLICIT_LIMIT:
             say(f"Storm: {whole_stats.states:,} states, {whole_stats.transitions:,} transitions: "
                 "checked as decision diagrams, without witnesses")
             checked(program, symbolic, model.properties)
             stats = largest = whole_stats
+        elif whole_stats.states > STATE_BY_STATE:
+            # every property checked on the decision diagrams; only a violated one needs the states one by one (its
+            # witness, or whether its response can always still come), from the same model made sparse
+            say(f"Storm: {whole_stats.states:,} states, {whole_stats.transitions:,} transitions, as decision diagrams")
+            checked(program, symbolic, model.properties)
+            again = [p for p in model.properties if p.bad and results[p.name].holds is False]
+            if again:
+                say(f"Storm: the state space made sparse, for {', '.join(p.name for p in again)}")
+                mark = time.perf_counter()
+                sparse, valuations = to_sparse(symbolic, program_now.variables())
+                times["storm_build"] += time.perf_counter() - mark
+                checked(program, sparse, again, valuations)
+            stats = largest = refinable = replace(whole_stats, symbolic=False, made_sparse=True)
         else:
+            del symbolic
             for i, (props, text) in enumerate(model.groups()):
                 path = Path(scratch) / f"model{i}.prism"
                 path.write_text(text)
