@@ -109,7 +109,7 @@ class RtdeServer:
         """Send the state ``values`` (output variables; any other a client asks for reads 0) to every
         started client, as ``fault`` makes of it; the number of packages sent."""
         self._last_values = values
-        if self._thread is None:
+        if self._thread is None and not self._closed.is_set():
             self._listen()
         if fault == "silence":
             return 0
