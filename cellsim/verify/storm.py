@@ -137,26 +137,24 @@ def valuation_labels(variables: dict) -> str:
     as decision diagrams and made sparse keeps its labels but not its states' valuations."""
     lines = []
     for var in variables.values():
-        if var.boolean:
-            lines.append(f'label "{VALUE_BIT.format(name=var.name, bit=0)}" = {var.name};')
-            continue
-        for bit in range(max(1, (var.high - var.low).bit_length())):
-            lines.append(f'label "{VALUE_BIT.format(name=var.name, bit=bit)}" = '
-                         f"mod({var.name} - ({var.low}), {2 ** (bit + 1)}) >= {2 ** bit};")
+        for bit in range(_bits(var)):
+            carries = var.name if var.boolean else f"mod({var.name} - ({var.low}), {2 ** (bit + 1)}) >= {2 ** bit}"
+            lines.append(f'label "{VALUE_BIT.format(name=var.name, bit=bit)}" = {carries};')
     return "\n".join(lines) + "\n"
+
+
+def _bits(var) -> int:
+    """How many bits carry a variable's value (a boolean: one)."""
+    return 1 if var.boolean else max(1, (var.high - var.low).bit_length())
 
 
 class LabelledValuations:
     """The states' valuations of a sparse model made from decision diagrams, read from :func:`valuation_labels`."""
 
     def __init__(self, model, variables: dict):
-        self._bits = {name: [model.labeling.get_states(VALUE_BIT.format(name=name, bit=bit))
-                             for bit in range(1 if var.boolean else max(1, (var.high - var.low).bit_length()))]
+        self._bits = {name: [model.labeling.get_states(VALUE_BIT.format(name=name, bit=bit)) for bit in range(_bits(var))]
                       for name, var in variables.items()}
         self._variables = variables
-
-    def names(self) -> list[str]:
-        return list(self._variables)
 
     def of(self, state: int) -> dict:
         values = {}
