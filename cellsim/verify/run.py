@@ -17,6 +17,7 @@ from cellsim import registry
 from cellsim.verify.expressions import VerifyError
 from cellsim.verify.floor import build_floor, cut_floor
 from cellsim.verify.model import AbstractCell, Property
+from cellsim.verify.prism import Program
 from cellsim.verify.properties import ConditionProperties, Skipped
 from cellsim.verify.storm import (EXPLICIT_LIMIT, Checked, ModelStats, build, build_symbolic, check, to_sparse,
                                   valuation_labels)
@@ -35,8 +36,8 @@ class AbstractModel:
     parts: list = field(default_factory=list)
     """Each module's abstraction (:class:`cellsim.verify.model.ModuleAbstraction`): who can refine what."""
 
-    def groups(self) -> list[tuple[list[Property], str]]:
-        """The properties by the model they are checked in, and its text: the cell with no monitor (the
+    def groups(self) -> list[tuple[list[Property], Program]]:
+        """The properties by the model they are checked in, and its program: the cell with no monitor (the
         mishaps, the invariants, the user's), then the cell with each monitor alone. A monitor only its
         property reads is left out of the others' models: the same behaviours, far fewer states."""
         cell = self.cell
@@ -45,15 +46,15 @@ class AbstractModel:
         if plain:
             theirs = {k for p in self.properties if p.name in cell.monitors for k in self._labels_of(p)}
             labels = {k: v for k, v in cell.labels.items() if k not in theirs}
-            groups.append((plain, cell.program(self.header, [], labels).text()))
+            groups.append((plain, cell.program(self.header, [], labels)))
         responses = [p for p in self.properties if p.name in cell.monitors and p.within is not None]
         if responses:  # short windows, each pending a few periods: one model for them all costs less than one each
             labels = {k: cell.labels[k] for p in responses for k in self._labels_of(p)}
-            groups.append((responses, cell.program(self.header, [p.name for p in responses], labels).text()))
+            groups.append((responses, cell.program(self.header, [p.name for p in responses], labels)))
         for prop in self.properties:
             if prop.name in cell.monitors and prop.within is None:
                 labels = {k: cell.labels[k] for k in self._labels_of(prop)}
-                groups.append(([prop], cell.program(self.header, [prop.name], labels).text()))
+                groups.append(([prop], cell.program(self.header, [prop.name], labels)))
         return groups
 
     def bound(self) -> float:
@@ -70,9 +71,10 @@ SIZE_ANYWAY = 1e17
 """The decision diagrams' tables are sized by what the model's variables allow: up to this many states, 512 MB
 (:func:`dd_memory`)."""
 STATE_BY_STATE = 200_000
-"""Reachable states up to which each group of properties is built again state by state (each with only its own
-monitor: the welding cell's groups build in a second); a larger model is checked on its decision diagrams, and made
-sparse only when a property is violated (its witness). Storm's state-by-state builder evaluates every command's
+"""Reachable states (of the whole cell, every monitor in it) up to which each group of properties is built again
+state by state (each with only its own monitor: the welding cell's groups build in a second); a larger model is
+checked on its decision diagrams, and a violated property's group built again as decision diagrams and made sparse
+(its witness). Storm's state-by-state builder evaluates every command's
 guard in every state: the assembly bench's 1.25 million states took it 100 s, its decision diagrams 2 s."""
 
 
@@ -292,7 +294,7 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
         # the whole cell, every monitor in it, as decision diagrams: its size decides how it is checked
         whole = Path(scratch) / "model.prism"
         program_now = model.cell.program(model.header)  # (without the monitors of the properties left out)
-        whole.write_text(program_now.text() + valuation_labels(program_now.variables()))
+        whole.write_text(program_now.text())
         say("Storm: building the state space as decision diagrams")
         program, symbolic, whole_stats = build_symbolic(whole, dd_memory(model.bound()))
         count(whole_stats)
@@ -302,23 +304,34 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
             checked(program, symbolic, model.properties)
             stats = largest = whole_stats
         elif whole_stats.states > STATE_BY_STATE:
-            # every property checked on the decision diagrams; only a violated one needs the states one by one (its
-            # witness, or whether its response can always still come), from the same model made sparse
+            # every property checked on the decision diagrams; a group with a violated one (its witness, or whether
+            # its response can always still come) is built again, with only its own monitor, as decision diagrams
+            # made sparse
             say(f"Storm: {whole_stats.states:,} states, {whole_stats.transitions:,} transitions, as decision diagrams")
             checked(program, symbolic, model.properties)
-            again = [p for p in model.properties if p.bad and results[p.name].holds is False]
-            if again:
-                say(f"Storm: the state space made sparse, for {', '.join(p.name for p in again)}")
+            del symbolic
+            stats = largest = replace(whole_stats, symbolic=False, made_sparse=True)
+            for i, (props, group) in enumerate(model.groups()):
+                again = [p for p in props if p.bad and results[p.name].holds is False]
+                if not again:
+                    continue
+                path = Path(scratch) / f"model{i}.prism"
+                path.write_text(group.text() + valuation_labels(group.variables()))
+                say(f"Storm: the state space for {', '.join(p.name for p in again)}, made sparse")
+                program, symbolic, group_stats = build_symbolic(path, dd_memory(model.bound()))
+                count(group_stats)
                 mark = time.perf_counter()
-                sparse, valuations = to_sparse(symbolic, program_now.variables())
+                sparse, valuations = to_sparse(symbolic, group.variables())
                 times["storm_build"] += time.perf_counter() - mark
+                del symbolic
+                if any(p.within is None for p in props) and (refinable is None or group_stats.states > refinable.states):
+                    refinable = group_stats
                 checked(program, sparse, again, valuations)
-            stats = largest = refinable = replace(whole_stats, symbolic=False, made_sparse=True)
         else:
             del symbolic
-            for i, (props, text) in enumerate(model.groups()):
+            for i, (props, group) in enumerate(model.groups()):
                 path = Path(scratch) / f"model{i}.prism"
-                path.write_text(text)
+                path.write_text(group.text())
                 say(f"Storm: building the state space for {', '.join(p.name for p in props)}")
                 program, built, group_stats = build(path)
                 count(group_stats)

@@ -49,8 +49,8 @@ class ModelStats:
     symbolic: bool = False
     """Checked on decision diagrams alone (too many transitions for a sparse form): no witnesses."""
     made_sparse: bool = False
-    """Checked on decision diagrams, every monitor in one model, and a violated property again on that model made
-    sparse (:func:`to_sparse`), for its witness."""
+    """Checked on decision diagrams, every monitor in one model, and a violated property again on its group's model
+    as decision diagrams made sparse (:func:`to_sparse`), for its witness."""
 
 
 def _quiet():
