@@ -142,8 +142,8 @@ def _print(result, replays, export) -> None:
     times = result.times
     largest = result.largest or stats
     shape = ("checked as decision diagrams (every monitor in one model)" if stats.symbolic
-             else "checked as decision diagrams (every monitor in one model), a violated property's witness read "
-                  "from them made sparse" if stats.made_sparse
+             else "checked as decision diagrams (every monitor in one model), a violated property's witness from "
+                  "its own model made sparse" if stats.made_sparse
              else f"with a monitor, at most {largest.states:,} states")
     console.print(f"  the cell: {stats.states:,} states, {stats.transitions:,} transitions; {shape}; "
                   f"period {model.cell.period:g} s; floor {times.get('floor', 0):.2f} s, Storm build "
