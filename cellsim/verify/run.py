@@ -68,8 +68,12 @@ class AbstractModel:
 
 
 SIZE_ANYWAY = 1e17
-"""The decision diagrams' tables are sized by what the model's variables allow: up to this many states, 512 MB
-(:func:`dd_memory`)."""
+"""The decision diagrams' tables are sized by what the model's variables allow: up to this many states,
+``SMALL_DD_MEMORY`` (:func:`dd_memory`)."""
+SMALL_DD_MEMORY = 128
+"""MB for the decision diagrams of a model whose variables allow at most ``SIZE_ANYWAY`` states. The shipped cells
+of that size need at most 32 MB (the assembly bench's 1.25 million states; it fills 16 MB), so this is four times
+that; a larger cap costs start-up (0.5 s more at 512 MB: the welding cell's whole build 1.1 s against 0.6 s)."""
 STATE_BY_STATE = 200_000
 """Reachable states (of the whole cell, every monitor in it) up to which each group of properties is built again
 state by state (each with only its own monitor: the welding cell's groups build in a second); a larger model is
@@ -81,11 +85,11 @@ guard in every state: the assembly bench's 1.25 million states took it 100 s, it
 def dd_memory(bound: float) -> int:
     """MB for the decision diagrams' tables (:func:`cellsim.verify.storm.build_symbolic`). Sylvan takes its tables
     at start (the cap costs start-up: 0.5 s at 256 MB, 1.8 s at 2048) and stops the process when they are full, so
-    the cap follows what the model's variables allow: 512 MB up to ``SIZE_ANYWAY`` states (the shipped cells of that
-    size take under 450 MB), else ``DD_MEMORY``."""
+    the cap follows what the model's variables allow: ``SMALL_DD_MEMORY`` up to ``SIZE_ANYWAY`` states, else
+    ``DD_MEMORY``."""
     from cellsim.verify.storm import DD_MEMORY
 
-    return 512 if bound <= SIZE_ANYWAY else DD_MEMORY
+    return SMALL_DD_MEMORY if bound <= SIZE_ANYWAY else DD_MEMORY
 
 
 def labels_of(prop: Property, label: str) -> list[str]:
