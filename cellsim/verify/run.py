@@ -16,11 +16,12 @@ from pathlib import Path
 from cellsim import registry
 from cellsim.verify.expressions import VerifyError
 from cellsim.verify.floor import build_floor, cut_floor
+from cellsim.verify.isolated import StormStopped, in_own_process
 from cellsim.verify.model import AbstractCell, Property
 from cellsim.verify.prism import Program
 from cellsim.verify.properties import ConditionProperties, Skipped
-from cellsim.verify.storm import (EXPLICIT_LIMIT, Checked, ModelStats, build, build_symbolic, check, to_sparse,
-                                  valuation_labels)
+from cellsim.verify.storm import (DD_MEMORY, EXPLICIT_LIMIT, Checked, ModelStats, build, build_symbolic, check,
+                                  to_sparse, valuation_labels)
 
 
 @dataclass
@@ -87,8 +88,6 @@ def dd_memory(bound: float) -> int:
     at start (the cap costs start-up: 0.5 s at 256 MB, 1.8 s at 2048) and stops the process when they are full, so
     the cap follows what the model's variables allow: ``SMALL_DD_MEMORY`` up to ``SIZE_ANYWAY`` states, else
     ``DD_MEMORY``."""
-    from cellsim.verify.storm import DD_MEMORY
-
     return SMALL_DD_MEMORY if bound <= SIZE_ANYWAY else DD_MEMORY
 
 
@@ -279,8 +278,34 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
     times = dict(model.times)
     if export is not None:
         write_export(model, export)
+    memory = dd_memory(model.bound())
+    try:
+        storm = in_own_process(lambda tell: _storm(model, memory, tell), say)
+    except StormStopped as stopped:
+        if memory >= DD_MEMORY:
+            raise VerifyError(_stopped(stopped, memory)) from None
+        say(f"Storm stopped ({stopped.how}): its decision diagrams may have outgrown {memory} MB; "
+            f"building again with {DD_MEMORY} MB")
+        try:
+            storm = in_own_process(lambda tell: _storm(model, DD_MEMORY, tell), say)
+        except StormStopped as again:
+            raise VerifyError(_stopped(again, DD_MEMORY)) from None
+    results, storm_times, stats, largest, refinable = storm
+    times.update(storm_times)
+    results.update(checked_before or {})
+    model.properties = [p for p in every if p.name in results]
+    ordered = [results[p.name] for p in model.properties]
+    if any(r.fair for r in ordered):
+        model.cell.assume(FAIRNESS)
+    return Verification(model, stats, ordered, times, largest, refinable=refinable)
+
+
+def _storm(model: AbstractModel, memory: int, say):
+    """Build and check ``model`` with Storm (Sylvan's tables capped at ``memory`` MB); returns (property name ->
+    Checked, the Storm stages' seconds, the stats of the model the size was judged on, of the largest model built,
+    of the largest one with a liveness condition). Run in a process of its own (:func:`verify`)."""
     results, stats, largest, refinable = {}, None, None, None
-    times["storm_parse"] = times["storm_build"] = times["storm_check"] = 0.0
+    times = {"storm_parse": 0.0, "storm_build": 0.0, "storm_check": 0.0}
     still = tuple(person.variable for person in model.cell.places.people)
 
     def checked(program, built, props, valuations=None):
@@ -300,7 +325,7 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
         program_now = model.cell.program(model.header)  # (without the monitors of the properties left out)
         whole.write_text(program_now.text())
         say("Storm: building the state space as decision diagrams")
-        program, symbolic, whole_stats = build_symbolic(whole, dd_memory(model.bound()))
+        program, symbolic, whole_stats = build_symbolic(whole, memory)
         count(whole_stats)
         if whole_stats.transitions > EXPLICIT_LIMIT:
             say(f"Storm: {whole_stats.states:,} states, {whole_stats.transitions:,} transitions: "
@@ -322,7 +347,7 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
                 path = Path(scratch) / f"model{i}.prism"
                 path.write_text(group.text() + valuation_labels(group.variables()))
                 say(f"Storm: the state space for {', '.join(p.name for p in again)}, made sparse")
-                program, symbolic, group_stats = build_symbolic(path, dd_memory(model.bound()))
+                program, symbolic, group_stats = build_symbolic(path, memory)
                 count(group_stats)
                 mark = time.perf_counter()
                 sparse, valuations = to_sparse(symbolic, group.variables())
@@ -346,12 +371,13 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
                 if any(p.within is None for p in props) and (refinable is None or group_stats.states > refinable.states):
                     refinable = group_stats
                 checked(program, built, props)
-    results.update(checked_before or {})
-    model.properties = [p for p in every if p.name in results]
-    ordered = [results[p.name] for p in model.properties]
-    if any(r.fair for r in ordered):
-        model.cell.assume(FAIRNESS)
-    return Verification(model, stats, ordered, times, largest, refinable=refinable)
+    return results, times, stats, largest, refinable
+
+
+def _stopped(stopped: StormStopped, memory: int) -> str:
+    return (f"Storm stopped ({stopped.how}) while building or checking the abstract model: its decision diagrams "
+            f"outgrew their {memory} MB, or Storm failed (what it printed is above); --export writes the model, to "
+            "try it in Storm or PRISM")
 
 
 FAIRNESS = ("a liveness condition whose response may take longer than its window is judged under fairness: "
