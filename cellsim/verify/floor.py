@@ -63,7 +63,7 @@ def cut_floor(cell: AbstractCell) -> Places:
     cell.cell.set_initial_state(context)
     for person in cell.people:
         person.stand(context, None)
-    sensed = {f"{s.module}.{port}": signal for s in cell.sensors for port, signal in s.signals.items()}
+    sensed = {f"{s.module}.{port}": (s, signal) for s in cell.sensors for port, signal in s.signals.items()}
     people, measured = [], 0
     for person in cell.people:
         own = {f"{person.module}.{port}": fn for port, fn in person.own.items()}
@@ -72,9 +72,19 @@ def cut_floor(cell: AbstractCell) -> Places:
         readings = []
         for pose in poses:
             person.stand(context, pose)
-            readings.append(tuple(
-                _code(cell, s, own[s](pose) if s in own else sensed[s].measure(context)) for s in signals
-            ))
+            scans = {}  # a sensor's one measurement of this pose (SensorRole.measure), taken once
+
+            def value(s: str):
+                if s in own:
+                    return own[s](pose)
+                role, signal = sensed[s]
+                if role.measure is None:
+                    return signal.measure(context)
+                if role.module not in scans:
+                    scans[role.module] = role.measure(context)
+                return signal.measure(scans[role.module])
+
+            readings.append(tuple(_code(cell, s, value(s)) for s in signals))
         person.stand(context, None)
         measured += len(poses)
         people.append(_places(cell, person, poses, readings, signals))

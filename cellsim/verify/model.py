@@ -83,7 +83,8 @@ class PersonRole:
 
 @dataclass
 class SensedSignal:
-    """A signal a sensor measures of the people: ``measure(root_context)`` with them as posed."""
+    """A signal a sensor measures of the people: ``measure(root_context)`` with them as posed (or, where the
+    sensor's role has its own ``measure``, ``measure(that measurement)``)."""
 
     measure: Callable[[object], object]
     combine: Callable[[list], object]
@@ -95,6 +96,10 @@ class SensedSignal:
 class SensorRole:
     module: str
     signals: dict[str, SensedSignal]
+    measure: Callable[[object], object] | None = None
+    """The sensor's one measurement of the people as posed (``measure(root_context)``), when several of its signals
+    come from it: the floor then measures once per pose and each signal's ``measure`` takes that measurement (an area
+    scanner's field and distance from one scan)."""
 
 
 @dataclass

@@ -16,10 +16,10 @@ class AreaScannerAbstraction(ModuleAbstraction):
         sensor, of = self.system, context_of(self.system)
         values = [self.cfg.clear, *self.cfg.fields]  # the field channel's codes: clear, then innermost first
         innermost = [*self.cfg.fields, self.cfg.clear]
-        cell.add_sensor(SensorRole(self.name, {
-            "field": SensedSignal(lambda root: values[sensor.measure(of(root))[0]], nearest(innermost)),
-            "distance": SensedSignal(lambda root: sensor.measure(of(root))[1], min),
-        }))
+        cell.add_sensor(SensorRole(self.name, {  # both from one scan: (field code, distance)
+            "field": SensedSignal(lambda scan: values[scan[0]], nearest(innermost)),
+            "distance": SensedSignal(lambda scan: scan[1], min),
+        }, measure=lambda root: sensor.measure(of(root))))
 
     def build(self, cell: AbstractCell) -> None:
         """Its readings are the floor's."""

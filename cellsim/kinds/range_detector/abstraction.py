@@ -16,10 +16,10 @@ class RangeDetectorAbstraction(ModuleAbstraction):
     def declare(self, cell: AbstractCell) -> None:
         sensor, of = self.system, context_of(self.system)
         order = [Range.CLOSE.value, Range.NEAR.value, Range.FAR.value]
-        cell.add_sensor(SensorRole(self.name, {
-            "range": SensedSignal(lambda root: sensor.classify(sensor.measure(of(root))).value, nearest(order)),
-            "distance": SensedSignal(lambda root: sensor.measure(of(root)), min),
-        }))
+        cell.add_sensor(SensorRole(self.name, {  # both from one measured distance (m)
+            "range": SensedSignal(lambda distance: sensor.classify(distance).value, nearest(order)),
+            "distance": SensedSignal(lambda distance: distance, min),
+        }, measure=lambda root: sensor.measure(of(root))))
         if self.cfg.noise_std > 0:
             cell.assume(f"{self.name}'s measurement noise ({self.cfg.noise_std:g} m) is not modelled")
 
