@@ -1,7 +1,9 @@
 """Benchmark: `cellsim verify` on every shipped cell, model built and checked, with its figures per stage.
 
-Each cell runs in a process of its own (its peak memory is that process's, read by
-the parent when it ends): the abstract model's size, how Storm built it, the
+Each cell runs in a process of its own (its peak memory is the larger of that
+process's and its Storm child's, read when it ends: ``verify`` runs Storm in a
+forked process, which shares the parent's pages until it writes them): the
+abstract model's size, how Storm built it, the
 seconds of each stage (building the cell's diagram, declaring and cutting the
 floor into places, writing the model, Storm's parse, build and check) and the
 median of ``--runs`` runs. Witnesses are not replayed on the twin (``cellsim
@@ -89,7 +91,7 @@ def main() -> None:
         seconds, mb = TARGETS.get(path.stem, (None, None))
         target = "".join([f"; target <= {seconds:g} s" if seconds else "", f", <= {mb:g} MB" if mb else ""])
         print(f"  model build and check: median {f['median']:.2f} s (min {f['min']:.2f}, max {f['max']:.2f}, "
-              f"{f['runs']} runs); peak memory {f['peak_mb']:.0f} MB{target}")
+              f"{f['runs']} runs); peak memory {f['peak_mb']:.0f} MB (largest process){target}")
         if f["violated"]:
             print(f"  violated in the model: {', '.join(f['violated'])}")
 
