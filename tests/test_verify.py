@@ -167,8 +167,9 @@ def test_two_operators_break_the_single_operator_assumption_and_the_twin_confirm
 
 
 def test_a_model_too_large_to_build_state_by_state_is_checked_as_decision_diagrams_with_the_same_values(monkeypatch):
-    """Above the size limits the model is checked by Storm's dd engine, every monitor in one model:
-    the welding cell forced down that path gets the values the explicit engine gives, and no witness."""
+    """Above the size limits the model is checked by Storm's dd engine alone, every monitor in one model:
+    the welding cell forced down that path gets the values it gets with its witnesses' groups built state by state
+    (where the violated values come from), and no witness."""
     import cellsim.verify.run as run
 
     sf = load_scenario(WELDING_CELL)

@@ -75,7 +75,7 @@ def _json(result, replays) -> dict:
                         for r in result.refinements],
         "states": stats.states, "transitions": stats.transitions, "choices": stats.choices,
         "largest_states": (result.largest or stats).states,
-        "engine": "symbolic" if stats.symbolic else "symbolic, then sparse" if stats.made_sparse else "explicit",
+        "engine": "symbolic" if stats.symbolic else "symbolic, then sparse" if stats.made_sparse else "symbolic, then explicit",
         "seconds": {k: round(v, 4) for k, v in result.times.items()},
         "period": result.model.cell.period,
         "assumptions": result.model.cell.assumptions,
@@ -140,11 +140,9 @@ def _print(result, replays, export) -> None:
     for s in model.skipped:
         console.print(f"  not checked: {escape(s.name)}: {escape(s.reason)}")
     times = result.times
-    largest = result.largest or stats
     shape = ("checked as decision diagrams (every monitor in one model)" if stats.symbolic
              else "checked as decision diagrams (every monitor in one model), a violated property's witness from "
-                  "its own model made sparse" if stats.made_sparse
-             else f"with a monitor, at most {largest.states:,} states")
+                  f"its own model {'made sparse' if stats.made_sparse else 'built state by state'}")
     console.print(f"  the cell: {stats.states:,} states, {stats.transitions:,} transitions; {shape}; "
                   f"period {model.cell.period:g} s; floor {times.get('floor', 0):.2f} s, Storm build "
                   f"{times.get('storm_build', 0):.2f} s, check {times.get('storm_check', 0):.2f} s")
