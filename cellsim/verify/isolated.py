@@ -1,4 +1,5 @@
-"""Storm in a process of its own, so that Storm stopping cannot stop ``verify``.
+"""Work in processes of their own: Storm, so that Storm stopping cannot stop ``verify``; the twin's replays of
+a witness, side by side on the machine's cores.
 
 Sylvan, the decision-diagram library Storm builds with, takes its tables at start
 and, when a model outgrows them, prints "BDD Unique table full" and ends the whole
@@ -6,12 +7,16 @@ process with exit status 1: the status ``cellsim verify`` gives a confirmed safe
 finding. So the model is built and checked in a forked child: the parent hears
 each stage as the child reaches it (the caller's ``say``), gets the result back
 (pickled through a pipe), and learns from the child's exit when it stopped without
-one (:class:`StormStopped`), which the caller can answer (build again with larger
+one (:class:`ProcessStopped`), which the caller can answer (build again with larger
 tables) or report. A fork shares the parent's loaded libraries and the abstract
 model as it is, so it costs milliseconds; the child's memory, Sylvan's tables
 included, goes back to the system when it ends.
 
 Where ``os.fork`` does not exist the work runs in this process, as before.
+
+:func:`side_by_side` runs several pieces of work at once, each in a child of its
+own (a witness's later starts on the twin: each a whole simulation), and gives
+their results in order.
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ import pickle
 import signal
 
 
-class StormStopped(Exception):
+class ProcessStopped(Exception):
     """The child ended without a result: its exit status or the signal that ended it."""
 
     def __init__(self, how: str):
@@ -31,10 +36,41 @@ class StormStopped(Exception):
 
 def in_own_process(work, say=None):
     """``work(say)`` in a forked child; returns what it returns, raises what it raises (pickled), and raises
-    :class:`StormStopped` when the child ends without either. ``say(text)``: each stage, in this process."""
+    :class:`ProcessStopped` when the child ends without either. ``say(text)``: each stage, in this process."""
     say = say or (lambda text: None)
     if not hasattr(os, "fork"):
         return work(say)
+    return _collect(_start(work), say)
+
+
+def side_by_side(works: list, at_once: int | None = None) -> list:
+    """Each ``work(say)`` of ``works`` in a forked child of its own, at most ``at_once`` at a time (default: the
+    cores this process may use); their results in order (the first error raised, once every child has ended)."""
+    if not hasattr(os, "fork") or len(works) < 2:
+        return [work(lambda text: None) for work in works]
+    at_once = at_once or cores()
+    results = []
+    for first in range(0, len(works), at_once):
+        started = [_start(work) for work in works[first:first + at_once]]
+        for i, child in enumerate(started):
+            try:
+                results.append(_collect(child, None))
+            except BaseException:
+                for pid, readable in started[i + 1:]:  # the batch's others go too: nothing is left running
+                    os.kill(pid, signal.SIGKILL)
+                    os.waitpid(pid, 0)
+                    os.close(readable)
+                raise
+    return results
+
+
+def cores() -> int:
+    """The cores this process may run on."""
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
+
+
+def _start(work) -> tuple[int, int]:
+    """Fork a child running ``work``: (its pid, the pipe its stages and result come through)."""
     readable, writable = os.pipe()
     pid = os.fork()
     if pid == 0:  # the child: report, then leave without running the parent's exit handlers
@@ -59,6 +95,13 @@ def in_own_process(work, say=None):
         finally:
             os._exit(status)
     os.close(writable)
+    return pid, readable
+
+
+def _collect(child: tuple[int, int], say) -> object:
+    """The child's stages (to ``say``) and its result, once it has ended."""
+    pid, readable = child
+    say = say or (lambda text: None)
     outcome = None
     try:
         with os.fdopen(readable, "rb") as pipe:
@@ -79,7 +122,7 @@ def in_own_process(work, say=None):
     if outcome is None:
         how = (f"signal {signal.Signals(os.WTERMSIG(status)).name}" if os.WIFSIGNALED(status)
                else f"exit status {os.WEXITSTATUS(status)}")
-        raise StormStopped(how)
+        raise ProcessStopped(how)
     kind, value = outcome
     if kind == "error":
         raise value

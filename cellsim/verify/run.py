@@ -16,7 +16,7 @@ from pathlib import Path
 from cellsim import registry
 from cellsim.verify.expressions import VerifyError
 from cellsim.verify.floor import build_floor, cut_floor
-from cellsim.verify.isolated import StormStopped, in_own_process
+from cellsim.verify.isolated import ProcessStopped, in_own_process
 from cellsim.verify.model import AbstractCell, Property
 from cellsim.verify.prism import Program
 from cellsim.verify.properties import ConditionProperties, Skipped
@@ -283,14 +283,14 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
     memory = dd_memory(model.bound())
     try:
         storm = in_own_process(lambda tell: _storm(model, memory, tell), say)
-    except StormStopped as stopped:
+    except ProcessStopped as stopped:
         if memory >= DD_MEMORY:
             raise VerifyError(_stopped(stopped, memory)) from None
         say(f"Storm stopped ({stopped.how}): its decision diagrams may have outgrown {memory} MB; "
             f"building again with {DD_MEMORY} MB")
         try:
             storm = in_own_process(lambda tell: _storm(model, DD_MEMORY, tell), say)
-        except StormStopped as again:
+        except ProcessStopped as again:
             raise VerifyError(_stopped(again, DD_MEMORY)) from None
     results, storm_times, stats, largest, refinable = storm
     times.update(storm_times)
@@ -370,7 +370,7 @@ def _storm(model: AbstractModel, memory: int, say):
     return results, times, stats, largest, refinable
 
 
-def _stopped(stopped: StormStopped, memory: int) -> str:
+def _stopped(stopped: ProcessStopped, memory: int) -> str:
     return (f"Storm stopped ({stopped.how}) while building or checking the abstract model: its decision diagrams "
             f"outgrew their {memory} MB, or Storm failed (what it printed is above); --export writes the model, to "
             "try it in Storm or PRISM")

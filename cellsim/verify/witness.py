@@ -188,29 +188,49 @@ def _merge_missing(document: dict, extra: dict) -> None:
             _merge_missing(mine, value)
 
 
-def replay(model, checked: Checked, out: Path, on_stage=None) -> Replay:
-    """Write, simulate and check the witness (then later starts of it) until the twin shows the violation."""
-    from cellsim.scenario import load_scenario
-    from cellsim.validation.check import simulate_and_check
-    from cellsim.validation.verdict import Verdict
+def replay(model, checked: Checked, out: Path, on_stage=None, at_once: int | None = None) -> Replay:
+    """Write, simulate and check the witness (then later starts of it) until the twin shows the violation: the
+    starts in ``SHIFTS`` order, ``at_once`` of them side by side (default: one per core), the first in that order
+    that shows it confirming the witness (a later one run beside it is not counted; its run stays in its
+    folder)."""
+    from cellsim.verify.isolated import cores, side_by_side
 
     say = on_stage or (lambda text: None)
     outcome = Replay(False)
-    for shift in SHIFTS:
-        scenario = write_scenario(model, checked, out, shift)
-        outcome.scenarios.append(scenario)
-        say(f"twin: simulating {scenario.name}")
-        sf = load_scenario(scenario)
-        run = out / "runs" / scenario.stem
-        done = simulate_and_check(sf, run, seed=sf.scenario.seed, overwrite=True)
-        outcome.runs.append(run)
-        checked_run = done.checked
-        violated = [n for n, v in checked_run.result.verdicts.items() if v.status is Verdict.VIOLATED] if checked_run else []
-        outcome.violated = violated
-        if _shows(checked, done.summary, violated):
-            outcome.confirmed, outcome.shift = True, shift
-            return outcome
+    at_once = at_once or cores()
+    for first in range(0, len(SHIFTS), at_once):
+        batch = []
+        for shift in SHIFTS[first:first + at_once]:
+            scenario = write_scenario(model, checked, out, shift)
+            say(f"twin: simulating {scenario.name}")
+            batch.append((shift, scenario, out / "runs" / scenario.stem))
+        seen = side_by_side([_twin_run(checked, scenario, run) for _, scenario, run in batch], at_once)
+        for (shift, scenario, run), (violated, shows) in zip(batch, seen):
+            outcome.scenarios.append(scenario)
+            outcome.runs.append(run)
+            outcome.violated = violated
+            if shows:
+                outcome.confirmed, outcome.shift = True, shift
+                return outcome
     return outcome
+
+
+def _twin_run(checked: Checked, scenario: Path, run: Path):
+    """The twin's run of one witness scenario, as work for :func:`cellsim.verify.isolated.side_by_side`: (the
+    conditions it violated, whether it shows the property's violation)."""
+
+    def work(say):
+        from cellsim.scenario import load_scenario
+        from cellsim.validation.check import simulate_and_check
+        from cellsim.validation.verdict import Verdict
+
+        sf = load_scenario(scenario)
+        done = simulate_and_check(sf, run, seed=sf.scenario.seed, overwrite=True)
+        result = done.checked.result if done.checked else None
+        violated = [n for n, v in result.verdicts.items() if v.status is Verdict.VIOLATED] if result else []
+        return violated, _shows(checked, done.summary, violated)
+
+    return work
 
 
 def _shows(checked: Checked, summary, violated: list[str]) -> bool:
