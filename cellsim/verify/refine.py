@@ -44,11 +44,12 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
 
     say = on_stage or (lambda text: None)
     done: list[Refinement] = []
+    built = None  # the next round's abstract model, built to judge its size
     confirmed: dict = {}  # property -> (its checked result, its replay) from the round whose witness the twin confirmed
     once: dict = {}  # liveness conditions' stronger responses (no witness run, nothing to refine): checked in round 1
     while True:
         result = verify(sf, export=export, timed=timed, refinements=frozenset(r.key for r in done), on_stage=on_stage,
-                        checked_before=once)
+                        checked_before=once, model=built)
         once = once or {r.prop.name: r for r in result.results if r.prop.within is not None}
         result.replayed, result.refinements = True, list(done)
         # a violation the twin confirmed stays confirmed: refining elsewhere cannot take it back
@@ -69,7 +70,7 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
         if found is None:
             say("no module's abstraction finds where the refuted witnesses depart from the cell: nothing to refine")
             return result
-        could = _could_reach(sf, result, timed, [*(r.key for r in done), found.key])
+        could, built = _could_reach(sf, result, timed, [*(r.key for r in done), found.key])
         if could > STATE_BUDGET:
             result.not_refined = (f"{found.key} not tried: the refined model could reach about {could:.2g} states "
                                   f"(over {STATE_BUDGET:,})")
@@ -79,14 +80,14 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
         done.append(found)
 
 
-def _could_reach(sf, result, timed: bool, keys: list[str]) -> float:
-    """States the model with refinements ``keys`` could reach: the largest model checked so far, times how much the
-    refinement widens its variables' ranges (the product of their numbers of values)."""
+def _could_reach(sf, result, timed: bool, keys: list[str]):
+    """(States the model with refinements ``keys`` could reach: the largest model checked so far, times how much the
+    refinement widens its variables' ranges (the product of their numbers of values); that model, to check next)."""
     from cellsim.verify.run import abstract_model
 
     refined = abstract_model(sf, timed=timed, refinements=frozenset(keys))
     largest = (result.refinable or result.largest or result.stats).states
-    return largest * refined.bound() / max(result.model.bound(), 1.0)
+    return largest * refined.bound() / max(result.model.bound(), 1.0), refined
 
 
 def _refinement(model, refuted, step: int) -> Refinement | None:

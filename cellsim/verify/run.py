@@ -258,15 +258,18 @@ def _safe(name: str) -> str:
 
 
 def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: frozenset = frozenset(),
-           on_stage=None, checked_before: dict | None = None) -> Verification:
+           on_stage=None, checked_before: dict | None = None, model: AbstractModel | None = None) -> Verification:
     """Build and check the abstract model; ``export``: also write it there (and its .props beside it);
     ``refinements``: the modules' refinements to switch on (:class:`cellsim.verify.model.AbstractCell`);
     ``checked_before``: property name -> its result from an earlier round, taken as it is (a refinement round's
-    liveness conditions, checked once for good): not checked again, but in the results, in their place."""
+    liveness conditions, checked once for good): not checked again, but in the results, in their place;
+    ``model``: the abstract model of ``sf`` with these refinements, already built (a refinement's, built to judge its
+    size: :func:`cellsim.verify.refine.verify_with_twin`), which this call then owns."""
     leave_out = frozenset(checked_before or ())
     say = on_stage or (lambda text: None)
     say("building the abstract model")
-    model = abstract_model(sf, timed=timed, refinements=refinements)
+    if model is None or model.cell.refinements != frozenset(refinements) or model.cell.timed != timed:
+        model = abstract_model(sf, timed=timed, refinements=refinements)
     for prop in [p for p in model.properties if p.name in leave_out]:  # its monitor and labels go with it
         model.cell.monitors.pop(prop.name, None)
         label = model.labels.pop(prop.name, None)
