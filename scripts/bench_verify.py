@@ -49,7 +49,7 @@ def measure(scenario: str, runs: int, timed: bool) -> dict:
         totals.append(time.perf_counter() - began)
     stats, largest = last.stats, last.largest or last.stats
     engine = ("decision diagrams" if stats.symbolic else "decision diagrams, made sparse for witnesses"
-              if getattr(stats, "made_sparse", False) else "state by state")  # (getattr: a tree before it, measured)
+              if getattr(stats, "made_sparse", False) else "state by state for witnesses")  # (getattr: older trees)
     return {"states": stats.states, "transitions": stats.transitions, "largest_states": largest.states,
             "largest_transitions": largest.transitions, "engine": engine,
             "places": {p.role.module: len(p.places) for p in last.model.cell.places.people},
