@@ -72,3 +72,27 @@ def test_an_error_in_one_of_a_batch_is_raised_and_leaves_no_child_running():
 def _children() -> set[str]:
     with open(f"/proc/{os.getpid()}/task/{os.getpid()}/children") as f:
         return set(f.read().split())
+
+
+def test_the_floor_measured_in_parts_side_by_side_is_the_floor_measured_in_one_process(monkeypatch):
+    """The welding cell's poses measured in two forked processes and in this one alone give the same places, so the
+    same model, byte for byte."""
+    import cellsim.verify.floor as floor
+    import cellsim.verify.isolated as isolated
+    from cellsim.scenario import load_scenario
+    from cellsim.verify.run import abstract_model
+
+    from conftest import WELDING_CELL
+
+    sf = load_scenario(WELDING_CELL)
+    monkeypatch.setattr(floor, "SIDE_BY_SIDE_FROM", 10**9)
+    alone = abstract_model(sf)
+    monkeypatch.setattr(floor, "SIDE_BY_SIDE_FROM", 1)
+    monkeypatch.setattr(isolated, "cores", lambda: 2)
+    forks = []
+    start = isolated._start
+    monkeypatch.setattr(isolated, "_start", lambda work: forks.append(1) or start(work))
+    parts = abstract_model(sf)
+    assert len(forks) == 2  # the one person's poses, in two parts
+    assert parts.cell.places.poses_measured == alone.cell.places.poses_measured > 1000
+    assert parts.cell.program(parts.header).text() == alone.cell.program(alone.header).text()
