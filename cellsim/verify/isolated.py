@@ -13,10 +13,10 @@ model as it is, so it costs milliseconds; the child's memory, Sylvan's tables
 included, goes back to the system when it ends.
 
 Where ``os.fork`` does not exist the work runs in this process, as before. A fork
-copies only the calling thread: the work done in a child (Storm, a simulation)
-prints nothing through Python and takes no lock another thread of the caller (a
-notebook's, a server's) could hold, and Sylvan is started in children only, never
-in the process that forks.
+copies only the calling thread, so a lock another thread of the caller held at that
+moment (a notebook's, a server's: Python's logging, which Drake's messages go
+through) stays held in the child; ``cellsim verify`` has no other threads, and Sylvan
+is started in children only, never in the process that forks.
 
 :func:`side_by_side` runs several pieces of work at once, each in a child of its
 own (a witness's later starts on the twin: each a whole simulation), and gives
