@@ -42,7 +42,7 @@ LAYERS = {
         "cellsim.kinematics", "cellsim.logic", "cellsim.link", "cellsim.channels", "cellsim.codec", "cellsim.blackbox",
         "cellsim.kind", "cellsim.live.keys", "cellsim.live.pki", "cellsim.ur"),
     1: ("cellsim.systems", "cellsim.registry", "cellsim.scenario", "cellsim.entity", "cellsim.cell_io",
-        "cellsim.physical", "cellsim.recorder", "cellsim.verify.model", "cellsim.verify.prism",
+        "cellsim.physical", "cellsim.recorder", "cellsim.verify.model", "cellsim.verify.prism", "cellsim.verify.order",
         "cellsim.verify.expressions", "cellsim.verify.risk", "cellsim.visual.cues", "cellsim.body", "cellsim.proximity"),
     2: ("cellsim.kinds",),
     3: ("cellsim.diagrams", "cellsim.simulation", "cellsim.provenance", "cellsim.live", "cellsim.visual.live",

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Protocol
 
 from cellsim.verify.expressions import Encoding, Thresholds, VerifyError
+from cellsim.verify.order import ordered
 from cellsim.verify.prism import Enum, Module, Program
 
 CODE = Enum(())
@@ -282,7 +283,8 @@ class AbstractCell:
             signal = missing[0]
             raise VerifyError(f"{self.reads[signal]} reads '{signal}', which no module's abstraction defines")
         chosen = [self.monitors[m] for m in (self.monitors if monitors is None else monitors)]
-        return Program(list(self.modules) + chosen, dict(self.formulas), dict(self.labels if labels is None else labels), header)
+        modules = ordered([*self.modules, *chosen], self.formulas)  # the order that keeps decision diagrams small
+        return Program(modules, dict(self.formulas), dict(self.labels if labels is None else labels), header)
 
 
 def translate(expr: str, source: Encoding, target: Encoding) -> str:

@@ -15,7 +15,8 @@ host), the forward reads predicted the build time of every order tried: the orde
 the kinds declared their modules in 276 bits and 49 to 71 s; hazards and monitors
 first 1,198 bits and over 5 minutes; this rule's 126 bits and 11 s.
 
-The order changes nothing but speed: the modules are the same, and so are the
+``AbstractCell.program`` writes every program (the whole cell's, each group's) in
+this order. The order changes nothing but speed: the modules are the same, and so are the
 states, the values and the witnesses' lengths (``tests/test_verify.py``).
 """
 

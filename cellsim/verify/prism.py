@@ -99,13 +99,10 @@ class Program:
         return {v.name: v for m in self.modules for v in m.variables}
 
     def text(self) -> str:
-        """The program in PRISM, its modules in the order that keeps its decision diagrams small
-        (:func:`cellsim.verify.order.ordered`)."""
-        from cellsim.verify.order import ordered
-
+        """The program in PRISM, its modules in the order given (which is its decision diagrams' variable order)."""
         parts = [f"// {line}" for line in self.header.splitlines()] + ["mdp", ""]
         parts += [f"formula {name} = {expr};" for name, expr in self.formulas.items()]
-        parts += [""] + [m.text() + "\n" for m in ordered(self.modules, self.formulas)]
+        parts += [""] + [m.text() + "\n" for m in self.modules]
         parts += [f'label "{name}" = {expr};' for name, expr in self.labels.items()]
         parts += ["", f'rewards "{PERIODS}"', "  true : 1;", "endrewards"]
         return "\n".join(parts) + "\n"
