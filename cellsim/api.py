@@ -520,10 +520,10 @@ def verify_cell(scenario: ScenarioFile | str | os.PathLike, *, export: str | os.
     each property's value, whether it holds in the abstraction, and a witness path where it does not;
     ``result.endings()`` each property's final verdict (holds; violated: a witness the twin confirms; undecided,
     with why) and ``result.exit_code`` the CLI's; ``result.model.cell.assumptions`` the abstraction's assumptions.
-    ``export``: also write the PRISM model to that file (and its properties beside it, with ``.props``). ``replay_in``: replay each witness in the
-    twin, writing its runs in that folder (``result.replays[name]``), and where the twin refutes one, refine the
-    abstraction where the witness departs from the cell and check again, at most ``refine`` times (default
-    3; ``result.refinements`` lists them). ``progress(stage)`` as each stage starts. Raises VerifyError for a
+    ``export``: also write the PRISM model to that file (and its properties beside it, with ``.props``). ``replay_in``: refine the abstraction where a
+    witness does what a module cannot and check again, at most ``refine`` times (default 3;
+    ``result.refinements`` lists them), and replay every other witness in the twin, writing its runs in that folder
+    (``result.replays[name]``). ``progress(stage)`` as each stage starts. Raises VerifyError for a
     scenario the abstraction cannot take."""
     from cellsim.verify.refine import DEFAULT_BUDGET, verify_with_twin
     from cellsim.verify.run import verify

@@ -31,9 +31,9 @@ def add_parser(subparsers) -> None:
                    help="bound the cell's durations (moves, dwells, cycles) below: closer witnesses, far more states")
     p.add_argument("--no-replay", dest="replay", action="store_false", help="do not replay witnesses on the twin")
     p.add_argument("--refine", type=int, default=None, metavar="N",
-                   help="where the twin refutes a witness, refine the abstraction where the witness departs from the cell "
-                        "(a person crossing a place faster than it walks...) and check again, at most N times "
-                        "(default 3; 0: never)")
+                   help="where a module's abstraction finds a witness doing what the module cannot (a person crossing "
+                        "a place faster than it walks...), refine the abstraction there and check again instead of "
+                        "running that witness on the twin, at most N times (default 3; 0: never)")
     p.add_argument("--json", action="store_true", help="print the results as JSON on standard output")
     _add_set(p)
     p.set_defaults(handler=run)
@@ -47,7 +47,8 @@ def run(args) -> int:
     if args.refine is not None and not 0 <= args.refine <= 20:
         raise InputError(f"--refine {args.refine}: expected 0 to 20 refinements")
     if args.refine and not args.replay:
-        raise InputError("--refine refines where the twin refutes a witness: it needs the replays --no-replay turns off")
+        raise InputError("--refine ends with the last round's witnesses run on the twin: it needs the replays "
+                         "--no-replay turns off")
     sf = _load(args)
     say = (lambda text: None) if args.json else (lambda text: print(f"  {text}", file=sys.stderr))
     out = args.out or Path("runs") / f"{sf.scenario.name}-verify"

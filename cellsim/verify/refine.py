@@ -1,12 +1,15 @@
 """Counterexample-guided refinement: verify until the twin agrees, or the budget is spent.
 
-Check the abstract model; replay each witness on the twin. Where the twin refutes one, ask each module's
-abstraction where the witness does what the module cannot (:meth:`cellsim.verify.model.ModuleAbstraction.
-refinement`: which variable, at which period, why); switch that refinement on, say so, and check again. A plug-in
-kind takes part by answering that question for its own module. A witness the twin confirms in any round is a
-violation for good (its property keeps that round's result). The loop ends when no witness is refuted, when no
-module finds where a refuted witness departs from the cell, or after ``budget`` refinements; a property whose
-witness is still refuted then ends undecided, naming what was refined (:mod:`cellsim.verify.endings`).
+Check the abstract model. For each violated property's witness, ask each module's abstraction where the witness
+does what the module cannot (:meth:`cellsim.verify.model.ModuleAbstraction.refinement`: which variable, at which
+period, why). A witness some module faults is not run on the twin: the first refinement offered is switched on, said,
+and the model checked again (the refined model is as sound as the coarser one, so a violation the cell can show
+survives it, with a witness of its own). The witnesses no module faults are replayed on the twin: one the twin
+confirms is a violation for good (its property keeps that round's result); one it refutes leaves its property
+undecided. A plug-in kind takes part by answering that question for its own module. The loop ends when no module
+faults a witness, after ``budget`` refinements, or when the next refinement's model could be too large; the
+witnesses of that last round are then all replayed, and a property whose witness the twin refutes ends undecided,
+naming what was refined (:mod:`cellsim.verify.endings`).
 """
 
 from __future__ import annotations
@@ -36,9 +39,9 @@ class Refinement:
 
 def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool = False, export: Path | None = None,
                      on_stage=None):
-    """:func:`cellsim.verify.run.verify`, each witness replayed on the twin under ``out`` (a refinement's replays
-    under ``out/refined-<n>``), refined as the module docstring says; the result's ``refinements`` lists what was
-    switched on, in order."""
+    """:func:`cellsim.verify.run.verify`, refined as the module docstring says and each witness no refinement takes
+    up replayed on the twin under ``out`` (a refinement's round under ``out/refined-<n>``); the result's
+    ``refinements`` lists what was switched on, in order."""
     from cellsim.verify.run import verify
     from cellsim.verify.witness import replay
 
@@ -54,27 +57,33 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
         result.replayed, result.refinements = True, list(done)
         # a violation the twin confirmed stays confirmed: refining elsewhere cannot take it back
         result.results = [confirmed[r.prop.name][0] if r.prop.name in confirmed else r for r in result.results]
+        # (a stronger response's witness has no verdict of its own: not replayed, nothing to refine)
+        open_ = [r for r in result.results if r.prop.name not in confirmed and r.witness is not None
+                 and r.prop.within is None]
+        found = _refinement(result.model, open_, len(done) + 1) if len(done) < budget else None
+        if found is not None:
+            could, built = _could_reach(sf, result, timed, [*(r.key for r in done), found.key])
+            if could > STATE_BUDGET:
+                result.not_refined = (f"{found.key} not tried: the refined model could reach about {could:.2g} "
+                                      f"states (over {STATE_BUDGET:,})")
+                say(f"refinement {found.step}: {result.not_refined}")
+                found = None
+        # the witnesses the refinement takes up are not run: the refined model checks their properties again
+        faulted = set() if found is None else {r.prop.name for r in open_ if _faults(result.model, r.witness)}
+        to_run = {r.prop.name for r in open_} - faulted
         where = out if not done else out / f"refined-{len(done)}"
         for checked in result.results:
             if checked.prop.name in confirmed:
                 result.replays[checked.prop.name] = confirmed[checked.prop.name][1]
-            elif checked.witness is not None and checked.prop.within is None:  # (a stronger response's: no verdict)
+            elif checked.prop.name in to_run:
                 result.replays[checked.prop.name] = replay(result.model, checked, where, on_stage=on_stage)
                 if result.replays[checked.prop.name].confirmed:
                     confirmed[checked.prop.name] = (checked, result.replays[checked.prop.name])
-        refuted = [r for r in result.results if r.prop.name in result.replays
-                   and not result.replays[r.prop.name].confirmed]
-        if not refuted or len(done) >= budget:
-            return result
-        found = _refinement(result.model, refuted, len(done) + 1)
         if found is None:
-            say("no module's abstraction finds where the refuted witnesses depart from the cell: nothing to refine")
-            return result
-        could, built = _could_reach(sf, result, timed, [*(r.key for r in done), found.key])
-        if could > STATE_BUDGET:
-            result.not_refined = (f"{found.key} not tried: the refined model could reach about {could:.2g} states "
-                                  f"(over {STATE_BUDGET:,})")
-            say(f"refinement {found.step}: {result.not_refined}")
+            refuted = any(not result.replays[name].confirmed for name in to_run)
+            if refuted and len(done) < budget and not result.not_refined:
+                say("no module's abstraction finds where the refuted witnesses depart from the cell: "
+                    "nothing to refine")
             return result
         say(f"refinement {found.step}: {found}")
         done.append(found)
@@ -90,12 +99,25 @@ def _could_reach(sf, result, timed: bool, keys: list[str]):
     return largest * refined.bound() / max(result.model.bound(), 1.0), refined
 
 
-def _refinement(model, refuted, step: int) -> Refinement | None:
-    """The first refinement a module offers for the first refuted witness that shows one."""
-    for checked in refuted:
-        for part in model.parts:
-            ask = getattr(part, "refinement", None)  # an observer (Observer) has nothing to refine
-            offered = None if ask is None else ask(model.cell, checked.witness)
-            if offered is not None:
-                return Refinement(step, offered[0], checked.prop.name, offered[1])
+def _refinement(model, witnessed, step: int) -> Refinement | None:
+    """The first refinement a module offers for the first of the ``witnessed`` properties' witnesses that shows one."""
+    for checked in witnessed:
+        offered = _offer(model, checked.witness)
+        if offered is not None:
+            return Refinement(step, offered[0], checked.prop.name, offered[1])
+    return None
+
+
+def _faults(model, witness) -> bool:
+    """Whether some module's abstraction finds the witness doing what the module cannot."""
+    return _offer(model, witness) is not None
+
+
+def _offer(model, witness) -> tuple[str, str] | None:
+    """The first module's refinement for ``witness``: (key, why), or None."""
+    for part in model.parts:
+        ask = getattr(part, "refinement", None)  # an observer (Observer) has nothing to refine
+        offered = None if ask is None else ask(model.cell, witness)
+        if offered is not None:
+            return offered
     return None

@@ -1,0 +1,132 @@
+"""The refinement loop's rule (issue 36), on a scripted verifier: a witness some module's abstraction faults is
+refined, not run on the twin; the others are run in the same round; a violation the twin confirmed stays; the last
+round (budget spent, nothing to refine, or a refinement too large) runs every witness it has."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cellsim.verify.refine as refine
+import cellsim.verify.run as run
+import cellsim.verify.witness as witness
+from cellsim.verify.endings import Ending
+
+
+@dataclass(frozen=True)
+class Prop:
+    name: str
+    within: float | None = None
+
+
+@dataclass
+class Checked:
+    prop: Prop
+    holds: bool | None
+    witness: list | None = None
+    fair: bool | None = None
+
+
+@dataclass
+class Replay:
+    confirmed: bool
+    runs: list = field(default_factory=lambda: [Path("runs/w")])
+
+
+class Pace:
+    """A module's abstraction that faults a witness marked ``fast``."""
+
+    def refinement(self, cell, path):
+        return ("operator:pace", "crosses a place too fast") if path and path[0].get("fast") else None
+
+
+@dataclass
+class Model:
+    parts: list = field(default_factory=lambda: [object(), Pace()])
+    cell: object = None
+
+    def bound(self) -> float:
+        return 10.0
+
+
+@dataclass
+class Stats:
+    states: int = 100
+    symbolic: bool = False
+
+
+def scripted(monkeypatch, rounds: dict, confirms: set[tuple[int, str]], could: float = 10.0):
+    """``rounds``: the refinements switched on (frozenset) -> {property: its witness ("fast", "slow") or None (holds)};
+    ``confirms``: (round, property) pairs whose replay the twin confirms. Returns the log of replays."""
+    replays: list[tuple[int, str]] = []
+    current = {"round": 0}
+
+    def fake_verify(sf, *, refinements, **kwargs):
+        current["round"] = len(refinements)
+        results = [Checked(Prop(name), w is None, None if w is None else [{w: True}])
+                   for name, w in rounds[frozenset(refinements)].items()]
+        return run.Verification(Model(), Stats(), results, {})
+
+    def fake_replay(model, checked, where, on_stage=None):
+        replays.append((current["round"], checked.prop.name))
+        return Replay((current["round"], checked.prop.name) in confirms)
+
+    monkeypatch.setattr(run, "verify", fake_verify)
+    monkeypatch.setattr(witness, "replay", fake_replay)
+    monkeypatch.setattr(refine, "_could_reach", lambda sf, result, timed, keys: (could, None))
+    return replays
+
+
+PACE = frozenset({"operator:pace"})
+
+
+def test_a_faulted_witness_is_refined_unrun_and_the_others_are_run_in_the_same_round(monkeypatch, tmp_path):
+    replays = scripted(monkeypatch, {
+        frozenset(): {"A": "fast", "B": "slow", "C": "slow", "D": None},
+        PACE: {"A": "slow", "B": "slow", "C": "slow", "D": None},
+    }, confirms={(0, "B"), (1, "A")})
+    said = []
+    result = refine.verify_with_twin(None, tmp_path, budget=3, on_stage=said.append)
+    # round 0: A's witness is refined, not run; B and C run (B confirmed); round 1: A and C run, B kept
+    assert replays == [(0, "B"), (0, "C"), (1, "A"), (1, "C")]
+    assert [(r.step, r.key, r.prop) for r in result.refinements] == [(1, "operator:pace", "A")]
+    assert "refinement 1: operator:pace (the witness of A: crosses a place too fast)" in said
+    endings = {f.name: f.ending for f in result.endings()}
+    assert endings == {"A": Ending.VIOLATED, "B": Ending.VIOLATED, "C": Ending.UNDECIDED, "D": Ending.HOLDS}
+    assert result.exit_code == 1
+    assert any("nothing to refine" in s for s in said)  # C's refuted witness: no module faults it
+
+
+def test_with_the_budget_spent_a_faulted_witness_is_run_on_the_twin(monkeypatch, tmp_path):
+    replays = scripted(monkeypatch, {frozenset(): {"A": "fast"}, PACE: {"A": "fast"}}, confirms=set())
+    result = refine.verify_with_twin(None, tmp_path, budget=1)
+    assert replays == [(1, "A")] and len(result.refinements) == 1
+    (final,) = result.endings()
+    assert final.ending is Ending.UNDECIDED and "refinement: operator:pace" in final.reason
+    assert refine.verify_with_twin(None, tmp_path, budget=0).refinements == [] and replays[-1] == (0, "A")
+
+
+def test_a_refinement_too_large_to_try_leaves_every_witness_run(monkeypatch, tmp_path):
+    replays = scripted(monkeypatch, {frozenset(): {"A": "fast", "B": "slow"}}, confirms=set(),
+                       could=refine.STATE_BUDGET * 2.0)
+    said = []
+    result = refine.verify_with_twin(None, tmp_path, budget=3, on_stage=said.append)
+    assert replays == [(0, "A"), (0, "B")] and result.refinements == []
+    assert result.not_refined.startswith("operator:pace not tried")
+    assert not any("nothing to refine" in s for s in said)
+    assert {f.ending for f in result.endings()} == {Ending.UNDECIDED}
+
+
+def test_a_stronger_response_witness_is_neither_run_nor_refined(monkeypatch, tmp_path):
+    """A liveness condition's stronger response (``within``) has no verdict of its own: its witness is not run,
+    and a module's fault in it refines nothing."""
+    replays = []
+
+    def fake_verify(sf, *, refinements, **kwargs):
+        return run.Verification(Model(), Stats(), [Checked(Prop("HS:handled", 2.0), False, [{"fast": True}], True)],
+                                {})
+
+    monkeypatch.setattr(run, "verify", fake_verify)
+    monkeypatch.setattr(witness, "replay", lambda *a, **k: replays.append(a))
+    result = refine.verify_with_twin(None, tmp_path, budget=3)
+    assert replays == [] and result.refinements == []
