@@ -11,7 +11,12 @@ verify`` does that, end to end). The targets (issue 36), model build and check:
 the welding cell at most 2 s, the palletising cell at most 10 s, the assembly
 bench at most 20 s and 1 GB.
 
-    .venv/bin/python scripts/bench_verify.py [SCENARIO ...] [--runs N] [--timed]
+``--end-to-end`` also times ``cellsim verify`` itself on each cell, as a whole
+process (start-up, refinement and the twin's replays included), and prints its
+ratio to the model figure measured just before (target: at most 3x), with the
+endings and the refinements it took.
+
+    .venv/bin/python scripts/bench_verify.py [SCENARIO ...] [--runs N] [--timed] [--end-to-end]
 """
 
 from __future__ import annotations
@@ -68,11 +73,36 @@ def in_child(scenario: Path, runs: int, timed: bool) -> dict:
     return {**json.loads(out), "peak_mb": usage.ru_maxrss / 1024}
 
 
+def end_to_end(scenario: Path, timed: bool) -> dict:
+    """``cellsim verify`` on ``scenario`` as a whole process, witnesses replayed and refined: its wall seconds,
+    exit code, endings and refinements."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="bench-verify-") as out:
+        args = [sys.executable, "-m", "cellsim", "verify", str(scenario), "--json", "--out", out,
+                *(["--timed"] if timed else [])]
+        began = time.perf_counter()
+        done = subprocess.run(args, capture_output=True, text=True, cwd=ROOT)
+        seconds = time.perf_counter() - began
+    try:
+        result = json.loads(done.stdout)
+    except json.JSONDecodeError:
+        return {"error": f"exit {done.returncode}: {done.stderr.strip().splitlines()[-1:]}"}
+    endings: dict[str, int] = {}
+    for prop in result["properties"]:
+        if prop.get("ending"):
+            endings[prop["ending"]] = endings.get(prop["ending"], 0) + 1
+    return {"seconds": seconds, "exit": done.returncode, "endings": endings,
+            "refinements": [r["refinement"] for r in result.get("refinements", [])]}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("scenarios", nargs="*", help="scenario files (default: every shipped cell)")
     parser.add_argument("--runs", type=int, default=1, help="runs per cell (the median is quoted; default 1)")
     parser.add_argument("--timed", action="store_true", help="bound the cell's durations below (more states)")
+    parser.add_argument("--end-to-end", action="store_true",
+                        help="also time `cellsim verify` itself (replays and refinement included) against the model")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
@@ -94,6 +124,14 @@ def main() -> None:
               f"{f['runs']} runs); peak memory {f['peak_mb']:.0f} MB (largest process){target}")
         if f["violated"]:
             print(f"  violated in the model: {', '.join(f['violated'])}")
+        if args.end_to_end:
+            e = end_to_end(path, args.timed)
+            if "error" in e:
+                print(f"  end to end: failed ({e['error']})")
+                continue
+            print(f"  end to end: {e['seconds']:.2f} s, {e['seconds'] / f['median']:.1f}x the model (target <= 3x); "
+                  f"exit {e['exit']}; " + ", ".join(f"{n} {ending}" for ending, n in sorted(e["endings"].items()))
+                  + (f"; refined: {', '.join(e['refinements'])}" if e["refinements"] else ""))
 
 
 if __name__ == "__main__":
