@@ -25,6 +25,7 @@ class Checked:
     holds: bool | None
     witness: list | None = None
     fair: bool | None = None
+    deferred: bool = False
 
 
 @dataclass
@@ -57,15 +58,28 @@ class Stats:
 
 def scripted(monkeypatch, rounds: dict, confirms: set[tuple[int, str]], could: float = 10.0):
     """``rounds``: the refinements switched on (frozenset) -> {property: its witness ("fast", "slow") or None (holds)};
-    ``confirms``: (round, property) pairs whose replay the twin confirms. Returns the log of replays."""
+    ``confirms``: (round, property) pairs whose replay the twin confirms. Returns the log of replays and of the
+    verifier's calls (round, the properties whose witnesses it built)."""
     replays: list[tuple[int, str]] = []
     current = {"round": 0}
 
-    def fake_verify(sf, *, refinements, **kwargs):
+    def fake_verify(sf, *, refinements, enough=None, checked_before=None, **kwargs):
+        """As :func:`cellsim.verify.run.verify`: witnesses built in order until ``enough`` says one settles it."""
         current["round"] = len(refinements)
-        results = [Checked(Prop(name), w is None, None if w is None else [{w: True}])
-                   for name, w in rounds[frozenset(refinements)].items()]
-        return run.Verification(Model(), Stats(), results, {})
+        model, results, settled, built = Model(), [], False, []
+        for name, w in rounds[frozenset(refinements)].items():
+            if checked_before and name in checked_before:
+                results.append(checked_before[name])
+            elif w is None:
+                results.append(Checked(Prop(name), True))
+            elif settled:
+                results.append(Checked(Prop(name), False, deferred=True))
+            else:
+                results.append(Checked(Prop(name), False, [{w: True}]))
+                built.append(name)
+                settled = enough is not None and enough(model, results[-1])
+        replays.append(("verify", len(refinements), tuple(built)))
+        return run.Verification(model, Stats(), results, {})
 
     def fake_replay(model, checked, where, on_stage=None):
         replays.append((current["round"], checked.prop.name))
@@ -84,11 +98,12 @@ def test_a_faulted_witness_is_refined_unrun_and_the_others_are_run_in_the_same_r
     replays = scripted(monkeypatch, {
         frozenset(): {"A": "fast", "B": "slow", "C": "slow", "D": None},
         PACE: {"A": "slow", "B": "slow", "C": "slow", "D": None},
-    }, confirms={(0, "B"), (1, "A")})
+    }, confirms={(1, "B"), (1, "A")})
     said = []
     result = refine.verify_with_twin(None, tmp_path, budget=3, on_stage=said.append)
-    # round 0: A's witness is refined, not run; B and C run (B confirmed); round 1: A and C run, B kept
-    assert replays == [(0, "B"), (0, "C"), (1, "A"), (1, "C")]
+    # round 0: A's witness is refined, not run, and B's and C's wait for the refined model; round 1 builds them
+    # all, no module faults one, and all three are run
+    assert replays == [("verify", 0, ("A",)), ("verify", 1, ("A", "B", "C")), (1, "A"), (1, "B"), (1, "C")]
     assert [(r.step, r.key, r.prop) for r in result.refinements] == [(1, "operator:pace", "A")]
     assert "refinement 1: operator:pace (the witness of A: crosses a place too fast)" in said
     endings = {f.name: f.ending for f in result.endings()}
@@ -100,10 +115,11 @@ def test_a_faulted_witness_is_refined_unrun_and_the_others_are_run_in_the_same_r
 def test_with_the_budget_spent_a_faulted_witness_is_run_on_the_twin(monkeypatch, tmp_path):
     replays = scripted(monkeypatch, {frozenset(): {"A": "fast"}, PACE: {"A": "fast"}}, confirms=set())
     result = refine.verify_with_twin(None, tmp_path, budget=1)
-    assert replays == [(1, "A")] and len(result.refinements) == 1
+    assert [r for r in replays if r[0] != "verify"] == [(1, "A")] and len(result.refinements) == 1
     (final,) = result.endings()
     assert final.ending is Ending.UNDECIDED and "refinement: operator:pace" in final.reason
-    assert refine.verify_with_twin(None, tmp_path, budget=0).refinements == [] and replays[-1] == (0, "A")
+    assert refine.verify_with_twin(None, tmp_path, budget=0).refinements == [] and replays[-2:] == [
+        ("verify", 0, ("A",)), (0, "A")]
 
 
 def test_a_refinement_too_large_to_try_leaves_every_witness_run(monkeypatch, tmp_path):
@@ -111,7 +127,9 @@ def test_a_refinement_too_large_to_try_leaves_every_witness_run(monkeypatch, tmp
                        could=refine.STATE_BUDGET * 2.0)
     said = []
     result = refine.verify_with_twin(None, tmp_path, budget=3, on_stage=said.append)
-    assert replays == [(0, "A"), (0, "B")] and result.refinements == []
+    # B's witness, left for a refined model that will not come, is built after all; then both are run
+    assert replays == [("verify", 0, ("A",)), ("verify", 0, ("B",)), (0, "A"), (0, "B")]
+    assert result.refinements == [] and not any(r.deferred for r in result.results)
     assert result.not_refined.startswith("operator:pace not tried")
     assert not any("nothing to refine" in s for s in said)
     assert {f.ending for f in result.endings()} == {Ending.UNDECIDED}
@@ -130,3 +148,15 @@ def test_a_stronger_response_witness_is_neither_run_nor_refined(monkeypatch, tmp
     monkeypatch.setattr(witness, "replay", lambda *a, **k: replays.append(a))
     result = refine.verify_with_twin(None, tmp_path, budget=3)
     assert replays == [] and result.refinements == []
+
+
+def test_a_witness_run_before_the_refinement_that_the_twin_confirmed_stays_violated(monkeypatch, tmp_path):
+    replays = scripted(monkeypatch, {
+        frozenset(): {"A": "slow", "B": "fast", "C": "slow"},
+        PACE: {"A": "slow", "B": "slow", "C": None},
+    }, confirms={(0, "A")})
+    result = refine.verify_with_twin(None, tmp_path, budget=3)
+    # A's witness, built before B's settled the round, is run there and confirmed; C's waited and then holds
+    assert replays == [("verify", 0, ("A", "B")), (0, "A"), ("verify", 1, ("A", "B")), (1, "B")]
+    endings = {f.name: f.ending for f in result.endings()}
+    assert endings == {"A": Ending.VIOLATED, "B": Ending.UNDECIDED, "C": Ending.HOLDS}

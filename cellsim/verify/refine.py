@@ -51,15 +51,14 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
     confirmed: dict = {}  # property -> (its checked result, its replay) from the round whose witness the twin confirmed
     once: dict = {}  # liveness conditions' stronger responses (no witness run, nothing to refine): checked in round 1
     while True:
-        result = verify(sf, export=export, timed=timed, refinements=frozenset(r.key for r in done), on_stage=on_stage,
-                        checked_before=once, model=built)
+        keys = frozenset(r.key for r in done)
+        # a witness a module faults settles the round: the others wait for the refined model (while one may come)
+        enough = None if len(done) >= budget else (
+            lambda model, checked: checked.prop.name not in confirmed and _faults(model, checked.witness))
+        result = verify(sf, export=export, timed=timed, refinements=keys, on_stage=on_stage, checked_before=once,
+                        model=built, enough=enough)
         once = once or {r.prop.name: r for r in result.results if r.prop.within is not None}
-        result.replayed, result.refinements = True, list(done)
-        # a violation the twin confirmed stays confirmed: refining elsewhere cannot take it back
-        result.results = [confirmed[r.prop.name][0] if r.prop.name in confirmed else r for r in result.results]
-        # (a stronger response's witness has no verdict of its own: not replayed, nothing to refine)
-        open_ = [r for r in result.results if r.prop.name not in confirmed and r.witness is not None
-                 and r.prop.within is None]
+        open_ = _witnessed(result, done, confirmed)
         found = _refinement(result.model, open_, len(done) + 1) if len(done) < budget else None
         if found is not None:
             could, built = _could_reach(sf, result, timed, [*(r.key for r in done), found.key])
@@ -68,6 +67,12 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
                                       f"states (over {STATE_BUDGET:,})")
                 say(f"refinement {found.step}: {result.not_refined}")
                 found = None
+        if found is None and any(r.deferred for r in result.results):  # the last round after all: build them
+            not_refined = result.not_refined
+            result = verify(sf, export=export, timed=timed, refinements=keys, on_stage=on_stage,
+                            checked_before={r.prop.name: r for r in result.results if not r.deferred})
+            result.not_refined = not_refined
+            open_ = _witnessed(result, done, confirmed)
         # the witnesses the refinement takes up are not run: the refined model checks their properties again
         faulted = set() if found is None else {r.prop.name for r in open_ if _faults(result.model, r.witness)}
         to_run = {r.prop.name for r in open_} - faulted
@@ -87,6 +92,16 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
             return result
         say(f"refinement {found.step}: {found}")
         done.append(found)
+
+
+def _witnessed(result, done: list, confirmed: dict) -> list:
+    """Mark ``result`` as a round of refinement (after ``done``), put back the results whose witnesses the twin
+    confirmed (refining elsewhere cannot take them back), and return the violated properties with a witness to refine
+    or run (a stronger response's has no verdict of its own: neither)."""
+    result.replayed, result.refinements = True, list(done)
+    result.results = [confirmed[r.prop.name][0] if r.prop.name in confirmed else r for r in result.results]
+    return [r for r in result.results if r.prop.name not in confirmed and r.witness is not None
+            and r.prop.within is None]
 
 
 def _could_reach(sf, result, timed: bool, keys: list[str]):

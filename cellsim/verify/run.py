@@ -258,13 +258,17 @@ def _safe(name: str) -> str:
 
 
 def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: frozenset = frozenset(),
-           on_stage=None, checked_before: dict | None = None, model: AbstractModel | None = None) -> Verification:
+           on_stage=None, checked_before: dict | None = None, model: AbstractModel | None = None,
+           enough=None) -> Verification:
     """Build and check the abstract model; ``export``: also write it there (and its .props beside it);
     ``refinements``: the modules' refinements to switch on (:class:`cellsim.verify.model.AbstractCell`);
     ``checked_before``: property name -> its result from an earlier round, taken as it is (a refinement round's
     liveness conditions, checked once for good): not checked again, but in the results, in their place;
     ``model``: the abstract model of ``sf`` with these refinements, already built (a refinement's, built to judge its
-    size: :func:`cellsim.verify.refine.verify_with_twin`), which this call then owns."""
+    size: :func:`cellsim.verify.refine.verify_with_twin`), which this call then owns;
+    ``enough(model, checked)``: whether a witness just built settles the round (a module's refinement takes it up):
+    once one does, the properties whose witnesses are still to be built (not a liveness condition's, whose answer
+    under fairness is kept for good) are left violated without one, ``deferred``."""
     leave_out = frozenset(checked_before or ())
     say = on_stage or (lambda text: None)
     say("building the abstract model")
@@ -285,14 +289,14 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
         write_export(model, export)
     memory = dd_memory(model.bound())
     try:
-        storm = in_own_process(lambda tell: _storm(model, memory, tell), say)
+        storm = in_own_process(lambda tell: _storm(model, memory, tell, enough), say)
     except ProcessStopped as stopped:
         if memory >= DD_MEMORY:
             raise VerifyError(_stopped(stopped, memory)) from None
         say(f"Storm stopped ({stopped.how}): its decision diagrams may have outgrown {memory} MB; "
             f"building again with {DD_MEMORY} MB")
         try:
-            storm = in_own_process(lambda tell: _storm(model, DD_MEMORY, tell), say)
+            storm = in_own_process(lambda tell: _storm(model, DD_MEMORY, tell, enough), say)
         except ProcessStopped as again:
             raise VerifyError(_stopped(again, DD_MEMORY)) from None
     results, storm_times, stats, largest, refinable = storm
@@ -305,11 +309,13 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
     return Verification(model, stats, ordered, times, largest, refinable=refinable)
 
 
-def _storm(model: AbstractModel, memory: int, say):
+def _storm(model: AbstractModel, memory: int, say, enough=None):
     """Build and check ``model`` with Storm (Sylvan's tables capped at ``memory`` MB); returns (property name ->
     Checked, the Storm stages' seconds, the stats of the model the size was judged on, of the largest model built,
-    of the largest one with a liveness condition). Run in a process of its own (:func:`verify`)."""
+    of the largest one with a liveness condition). ``enough``: as :func:`verify` says. Run in a process of its own
+    (:func:`verify`)."""
     results, stats, largest, refinable = {}, None, None, None
+    settled = False  # a witness was taken up (``enough``): the other witnesses wait for the refined model
     times = {"storm_parse": 0.0, "storm_build": 0.0, "storm_check": 0.0}
     still = tuple(person.variable for person in model.cell.places.people)
 
@@ -350,6 +356,10 @@ def _storm(model: AbstractModel, memory: int, say):
                 again = [p for p in props if p.bad and results[p.name].holds is False]
                 if not again:
                     continue
+                if settled and all(p.within is None for p in again):
+                    for prop in again:
+                        results[prop.name] = replace(results[prop.name], deferred=True)
+                    continue
                 path = Path(scratch) / f"model{i}.prism"
                 if by_state:
                     path.write_text(group.text())
@@ -369,6 +379,9 @@ def _storm(model: AbstractModel, memory: int, say):
                 if any(p.within is None for p in props) and (refinable is None or group_stats.states > refinable.states):
                     refinable = group_stats
                 checked(program, built, again, valuations)
+                settled = settled or enough is not None and any(
+                    p.within is None and results[p.name].witness is not None and enough(model, results[p.name])
+                    for p in again)
             largest = stats  # the whole cell, every monitor in it: no group is larger
     return results, times, stats, largest, refinable
 

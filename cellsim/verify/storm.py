@@ -36,6 +36,9 @@ class Checked:
     fair: bool | None = None
     """A liveness condition whose stronger response failed: whether it holds under fairness
     (:func:`always_answerable`); None when not asked (or not answerable: decision diagrams)."""
+    deferred: bool = False
+    """Violated, its witness not built: a refinement took up another property's witness in the same round, and the
+    refined model checks this one again (``verify(..., enough=...)``); never in a round's final result."""
 
 
 @dataclass
