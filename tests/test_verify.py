@@ -402,3 +402,22 @@ def test_storm_stopping_even_with_the_larger_tables_is_one_clear_error_not_an_ex
     monkeypatch.setattr(run, "DD_MEMORY", 1)
     with pytest.raises(run.VerifyError, match=r"Storm stopped \(exit status 1\) .* outgrew their 1 MB"):
         run.verify(load_scenario(WELDING_CELL))
+
+
+def test_once_a_witness_is_taken_up_the_other_witnesses_wait_for_the_refined_model():
+    """``verify(..., enough=...)``: the first witness ``enough`` accepts settles the round; the other violated
+    properties are left without a witness, ``deferred``, with the values the decision diagrams gave; a liveness
+    condition's model is built all the same (its answer under fairness is kept for good)."""
+    import cellsim.verify.run as run
+
+    sf = load_scenario(WELDING_CELL)
+    whole = {r.prop.name: r for r in run.verify(sf).results}
+    lazy = run.verify(sf, enough=lambda model, checked: True)  # (asked in Storm's process: nothing to record here)
+    by_name = {r.prop.name: r for r in lazy.results}
+    witnessed = [n for n, r in whole.items() if r.witness is not None and r.prop.within is None]
+    assert len(witnessed) == 2  # HRW:detected's settles it; HS:detected's waits
+    first, second = witnessed
+    assert by_name[first].witness == whole[first].witness and not by_name[first].deferred
+    assert by_name[second].deferred and by_name[second].witness is None and by_name[second].holds is False
+    assert all(by_name[n].fair == whole[n].fair for n in whole if whole[n].prop.within is not None)
+    assert {n: r.value for n, r in by_name.items()} == {n: r.value for n, r in whole.items()}
