@@ -110,10 +110,7 @@ def _could_reach(sf, result, timed: bool, keys: list[str]):
     from cellsim.verify.run import abstract_model
 
     refined = abstract_model(sf, timed=timed, refinements=frozenset(keys))
-    # (a property whose witness was deferred had its model built by nobody: the whole cell's bounds it)
-    deferred = any(r.deferred for r in result.results)
-    largest = ((result.largest or result.stats) if deferred else
-               (result.refinable or result.largest or result.stats)).states
+    largest = (result.refinable or result.largest or result.stats).states
     return largest * refined.bound() / max(result.model.bound(), 1.0), refined
 
 
