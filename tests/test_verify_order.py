@@ -50,7 +50,7 @@ def test_the_welding_cell_in_either_order_has_the_same_states_transitions_and_va
     in the rule's has the same reachable states, transitions and every mishap's value."""
     model = abstract_model(load_scenario(WELDING_CELL))
     program = model.cell.program(model.header)  # the rule's order
-    kinds = [*model.cell.modules, *model.cell.monitors.values()]  # the order the kinds declared their modules in
+    kinds = [model.cell.clock(), *model.cell.modules, *model.cell.monitors.values()]  # as the kinds declared them
     assert [m.name for m in program.modules] != [m.name for m in kinds]
     assert [m.name for m in program.modules] == [m.name for m in ordered(kinds, program.formulas)]
     declared = tmp_path / "declared.prism"

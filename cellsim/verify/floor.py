@@ -8,7 +8,12 @@ SceneGraph queries. Poses that read the same and touch (same point, or grid
 neighbours) form one *place*; two places are neighbours when poses of theirs
 are. In the abstract model a person is at one place and, each period, stays or
 steps to a neighbouring place; what the sensors read of several people is each
-sensor's combination (nearest, any) of what it reads of each alone.
+sensor's combination (nearest, any) of what it reads of each alone. A sensor's
+readings are state of its own (``<sensor>_reading``), taken at the sensor's own
+period from the places before the step, as the twin's sensor takes them: whoever
+reads them reads them a step later at the earliest. A reading only the sensor
+itself reads (``AbstractCell.internal``: beams behind a restart interlock) stays
+a formula of the places: the sensor's own module takes it at its period.
 
 A grid only samples the floor: a feature thinner than its step may fall between
 its points (an assumption stated with every result).
@@ -21,7 +26,7 @@ import math
 from dataclasses import dataclass
 
 from cellsim.verify.expressions import Thresholds, VerifyError
-from cellsim.verify.model import AbstractCell, PersonRole, Pose, lookup, set_of
+from cellsim.verify.model import AbstractCell, PersonRole, Pose, lookup, prism_name, set_of
 from cellsim.verify.prism import Command, Enum, Module, Var
 
 
@@ -42,6 +47,8 @@ class PersonPlaces:
     variable: str
     signals: list[str]
     """The read signals a place's reading gives, in order."""
+    every: int = 1
+    """Steps between the person's updates (its own period over the step): it changes place only at those."""
 
     def at(self, place: int) -> Place:
         return self.places[place]
@@ -165,7 +172,8 @@ def _places(cell, person: PersonRole, poses: list[Pose], readings: list[tuple], 
         if a != b:
             neighbours[a].add(b)
             neighbours[b].add(a)
-    return PersonPlaces(person, places, neighbours, place_of[0], f"{person.module}_place", signals)
+    return PersonPlaces(person, places, neighbours, place_of[0], f"{person.module}_place", signals,
+                        cell.every(person.module))
 
 
 ENTERED_AT_START = -1
@@ -222,9 +230,11 @@ def crossing_periods(person: PersonPlaces, period: float, speed: float, exact: b
 
 def pace_violation(person: PersonPlaces, witness: list[dict], period: float, speed: float,
                    exact: bool = False) -> str | None:
-    """Where a witness has ``person`` cross a place faster than ``speed`` allows (the first such crossing), said as
-    which variable, at which period, and why; None if it never does (``exact``: see :func:`crossing_periods`)."""
-    need = crossing_periods(person, period, speed, exact)
+    """Where a witness (a state a step of ``period`` s) has ``person`` cross a place faster than ``speed`` allows
+    (the first such crossing), said as which variable, at which period, and why; None if it never does (``exact``:
+    see :func:`crossing_periods`). The person is sampled at its own period (``person.every`` steps)."""
+    every = person.every
+    need = crossing_periods(person, period * every, speed, exact)
     var = person.variable
     came, entered, here = ENTERED_AT_START, 0, None
     for k, state in enumerate(witness):
@@ -235,11 +245,12 @@ def pace_violation(person: PersonPlaces, witness: list[dict], period: float, spe
             here = place
             continue
         if place != here:
-            least = need.get((came, here, place), 1)
-            if k - entered < least:
+            least, took = need.get((came, here, place), 1), -(-(k - entered) // every)  # (its own periods)
+            if took < least:
+                own = "" if every == 1 else f" of its {period * every:g} s"
                 return (f"{var} crosses place {here} (from {'its start' if came == ENTERED_AT_START else f'place {came}'} "
-                        f"to place {place}) in {k - entered} period(s) at {entered * period:g}-{k * period:g} s; at "
-                        f"{speed:.3g} m/s that takes at least {least} ({least * period:g} s)")
+                        f"to place {place}) in {took} period(s){own} at {entered * period:g}-{k * period:g} s; at "
+                        f"{speed:.3g} m/s that takes at least {least} ({least * period * every:g} s)")
             came, entered, here = here, k, place
     return None
 
@@ -282,7 +293,8 @@ def build_floor(cell: AbstractCell, places: Places) -> None:
                         commands.append(Command(guard, (("1", update),)))
         how = (f"each period it stays or steps to a neighbour, crossing a place no faster than {role.max_speed:.3g} m/s"
                if role.max_speed else "each period it stays or steps to a neighbour")
-        cell.add(Module(f"{role.module}_floor", variables, commands, comment=f"{role.module}: one of {n} places of the floor; {how}"))
+        cell.add(Module(f"{role.module}_floor", variables, commands, comment=f"{role.module}: one of {n} places of the floor; {how}"),
+                 owner=role.module)  # (it moves at its own period, as the twin's person does)
         for k, signal in enumerate(person.signals):
             table = {place.index: place.reading[k] for place in person.places}
             encoding = cell.encoding(signal)
@@ -292,8 +304,15 @@ def build_floor(cell: AbstractCell, places: Places) -> None:
                 per_signal.setdefault(signal, []).append(cell.define(name, expr, encoding))
             else:
                 cell.define(signal, expr, encoding)
+    readings: dict[str, list[tuple[str, str]]] = {}  # sensor -> (its signal, what it reads of the places now)
     for signal, parts in per_signal.items():
-        _combine(cell, signal, parts, sensed[signal])
+        expr = _combine(cell, signal, parts, sensed[signal])
+        if signal in cell.internal:
+            cell.define(signal, expr, cell.encoding(signal))
+        else:
+            readings.setdefault(signal.split(".", 1)[0], []).append((signal, expr))
+    for sensor, signals in readings.items():
+        _sampled(cell, sensor, signals)
     cell.assume(f"the floor is sampled on a grid ({', '.join(f'{p.role.module}: {p.role.step:g} m, {len(p.places)} places' for p in places.people)}); "
                 "a feature thinner than a step may fall between its points")
 
@@ -304,7 +323,7 @@ def _paced(cell: AbstractCell, person: PersonPlaces, variables: list):
     speed = person.role.max_speed
     if not speed:
         return lambda here, there: [("", {})]
-    need = crossing_periods(person, cell.period, speed)
+    need = crossing_periods(person, cell.period * person.every, speed)  # in its own periods
     var, came, dwell = person.variable, f"{person.variable}_from", f"{person.variable}_dwell"
     most = max(need.values(), default=1)
     variables += [Var(came, ENTERED_AT_START, len(person.places) - 1, ENTERED_AT_START), Var(dwell, 0, most, 0)]
@@ -323,18 +342,16 @@ def _paced(cell: AbstractCell, person: PersonPlaces, variables: list):
     return paced
 
 
-def _combine(cell: AbstractCell, signal: str, parts: list[str], sensed) -> None:
-    """What a sensor reads of all the people: its combination of what it reads of each alone."""
+def _combine(cell: AbstractCell, signal: str, parts: list[str], sensed) -> str:
+    """What a sensor reads of all the people: its combination of what it reads of each alone (an expression)."""
     encoding = cell.encoding(signal)
     if len(parts) == 1:
-        cell.define(signal, parts[0], encoding)
-        return
+        return parts[0]
     if encoding is bool:
         combined = sensed.combine([False, True])
         if combined is not True:
             raise VerifyError(f"{signal}: only 'any of them' combines booleans")
-        cell.define(signal, "(" + " | ".join(parts) + ")", bool)
-        return
+        return "(" + " | ".join(parts) + ")"
     codes = range(encoding.regions) if isinstance(encoding, Thresholds) else range(len(encoding.values))
     cases = []
     for combo in itertools.product(codes, repeat=len(parts)):
@@ -344,7 +361,44 @@ def _combine(cell: AbstractCell, signal: str, parts: list[str], sensed) -> None:
     for combo, code in reversed(cases):
         guard = " & ".join(f"{p}={c}" for p, c in zip(parts, combo))
         out = f"({guard} ? {code} : {out})"
-    cell.define(signal, out, encoding)
+    return out
+
+
+def _sampled(cell: AbstractCell, sensor: str, signals: list[tuple[str, str]]) -> None:
+    """The sensor's readings as state (``<signal>_read``), each taken from ``expr`` at the sensor's own period, from
+    the reading the twin's sensor starts with."""
+    variables, update = [], {}
+    start = _initial_readings(cell, sensor)
+    for signal, expr in signals:
+        encoding, var = cell.encoding(signal), prism_name(signal) + "_read"
+        if encoding is bool:
+            variables.append(Var(var, boolean=True, init=bool(start[signal])))
+        else:
+            values = encoding.regions if isinstance(encoding, Thresholds) else len(encoding.values)
+            variables.append(Var(var, 0, values - 1, start[signal], enum=encoding if isinstance(encoding, Enum) else None))
+        update[var] = expr
+    every = cell.every(sensor)
+    cell.add(Module(f"{sensor}_reading", variables, [Command("true", (("1", update),))],
+                    comment=f"{sensor}: what it reads of the people, taken every {every} step(s) (its own period)"),
+             every=every, owner=sensor)
+    for (signal, _), var in zip(signals, variables):
+        cell.define(signal, var.name, cell.encoding(signal))
+
+
+def _initial_readings(cell: AbstractCell, sensor: str) -> dict[str, int]:
+    """Each of the sensor's channels' codes as the twin's sensor starts (before its first reading, at t = 0)."""
+    built = cell.cell
+    context = built.diagram.CreateDefaultContext()
+    built.set_initial_state(context)
+    system = built.modules[sensor]
+    mine = system.GetMyContextFromRoot(context)
+    codes = {}
+    for spec, _ in system.channels:
+        signal = f"{sensor}.{spec.signal}"
+        value = spec.type.decode(mine.get_discrete_state(system.group(spec.signal)).get_value())
+        if value is not None and signal in cell.types:
+            codes[signal] = _code(cell, signal, value)
+    return codes
 
 
 def _value(encoding, code: int):

@@ -19,19 +19,28 @@ a number's region between the thresholds it is compared with. An input port
 reads whatever the cell's Diagram connects to it (Drake's own connection map,
 not a second reading of the scenario), else its declared default.
 
-The time step is one period of the safety controller: every module updates once
-per step, all reading the state before the step, as the Diagram's discrete
-updates do.
+The time step is one period of the safety controller (the fastest supervisor).
+Every module updates at its own period, on that grid, as in the twin (every
+module's updates fall on multiples of its period from t = 0): a module of twice
+the step updates every other step, and a clock (``tick``, counting the steps
+modulo the periods' least common multiple) says when. All read the state before
+the step, as the Diagram's discrete updates do. A sensor's readings are state,
+taken at its own period from where the people are, so whoever reads them reads
+them a step later at the earliest, as the twin's controller does.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, replace
 from typing import Callable, Protocol
 
 from cellsim.verify.expressions import Encoding, Thresholds, VerifyError
 from cellsim.verify.order import ordered
-from cellsim.verify.prism import Enum, Module, Program
+from cellsim.verify.prism import Command, Enum, Module, Program, Var
+
+TICK = "tick"
+"""The clock's variable: the step's number modulo the least common multiple of the modules' periods (in steps)."""
 
 CODE = Enum(())
 """The encoding of a port that is not a channel: its integer code, as the systems exchange it."""
@@ -200,6 +209,12 @@ class AbstractCell:
         """Property name -> the monitor module only that property reads (checked in a model of its own)."""
         self.places = None
         """After ``declare``: the floor's places (``cellsim.verify.floor.Places``)."""
+        self.building: str | None = None
+        """The module whose abstraction is building (round 2): the PRISM modules it adds update at its period."""
+        self.phases: set[int] = set()
+        """The periods (in steps) of the modules that update less often than every step."""
+        self.slower: dict[str, int] = {}
+        """The cell's modules whose PRISM modules update less often than every step -> every how many steps."""
         self.types = {name: spec.type for name, (spec, _) in cell.channels.items()}
         self.connections: dict[tuple[str, str], str] = {}
         for (sys_in, i), (sys_out, o) in cell.diagram.connection_map().items():
@@ -273,8 +288,31 @@ class AbstractCell:
             raise VerifyError(f"input '{module}.{port}' is driven by nothing and has no default")
         return str(int(default))
 
-    def add(self, module: Module) -> None:
+    def every(self, module: str) -> int:
+        """Steps between a module's updates: its period over the step, rounded up (a period that is no multiple of
+        the step is modelled as the next one that is: its readings no fresher than the twin's)."""
+        period = getattr(self.cell.modules.get(module), "period", None)
+        return 1 if period is None else max(1, math.ceil(period / self.period - 1e-9))
+
+    def add(self, module: Module, every: int | None = None, owner: str | None = None) -> None:
+        """Add a PRISM module of ``owner``'s (default: the module whose abstraction is building), updated every
+        ``every`` steps (default: at the owner's period; no owner: every step)."""
+        owner = owner or self.building
+        if every is None:
+            every = self.every(owner) if owner else 1
+        if every > 1:
+            self.phases.add(every)
+            self.slower[owner or module.name] = every
+            module = on_its_phase(module, every)
         self.modules.append(module)
+
+    def clock(self) -> Module | None:
+        """The clock the modules' phases read (None: every module updates every step)."""
+        if not self.phases:
+            return None
+        steps = math.lcm(*self.phases)
+        return Module("clock", [Var(TICK, 0, steps - 1, 0)], [Command("true", (("1", {TICK: f"mod({TICK}+1, {steps})"}),))],
+                      comment=f"the step's number modulo {steps}: a module of k steps updates where it is a multiple of k")
 
     def program(self, header: str = "", monitors: list[str] | None = None, labels: dict[str, str] | None = None) -> Program:
         """The cell's modules, with the monitors named (default: all), and the labels given (default: all)."""
@@ -283,8 +321,19 @@ class AbstractCell:
             signal = missing[0]
             raise VerifyError(f"{self.reads[signal]} reads '{signal}', which no module's abstraction defines")
         chosen = [self.monitors[m] for m in (self.monitors if monitors is None else monitors)]
-        modules = ordered([*self.modules, *chosen], self.formulas)  # the order that keeps decision diagrams small
+        clock = self.clock()
+        modules = ordered([*([clock] if clock else []), *self.modules, *chosen], self.formulas)  # the order that keeps decision diagrams small
         return Program(modules, dict(self.formulas), dict(self.labels if labels is None else labels), header)
+
+
+def on_its_phase(module: Module, every: int) -> Module:
+    """``module`` updated only at the steps that are multiples of ``every``: each command where the clock says so,
+    and at the other steps a command that keeps its state."""
+    now = f"mod({TICK}, {every})=0"
+    commands = [replace(c, guard=now if c.guard.strip() == "true" else f"({c.guard}) & {now}") for c in module.commands]
+    commands.append(Command(f"mod({TICK}, {every})!=0", (("1", {}),)))
+    comment = module.comment + ("\n" if module.comment else "") + f"updates every {every} steps (its own period)"
+    return Module(module.name, module.variables, commands, comment)
 
 
 def translate(expr: str, source: Encoding, target: Encoding) -> str:

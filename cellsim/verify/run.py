@@ -209,8 +209,11 @@ def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset
     build_floor(abstract, abstract.places)
     times["floor"] = time.perf_counter() - mark
     mark = time.perf_counter()
-    for part in parts:
+    for name, part in zip(configs, parts):
+        abstract.building = name  # (its PRISM modules update at its period)
         part.build(abstract)
+    abstract.building = None
+    abstract.assume(_time_assumption(abstract))
     skipped: list[Skipped] = []
     properties = list(abstract.properties)
     if conditions is not None:
@@ -232,6 +235,18 @@ def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset
     text = abstract.program(header).text()
     times["model"] = time.perf_counter() - mark
     return AbstractModel(abstract, text, properties, skipped, labels, times, header, parts)
+
+
+def _time_assumption(abstract: AbstractCell) -> str:
+    """What the model's time is: its step, which modules update less often, the sensors' readings."""
+    slower: dict[int, list[str]] = {}
+    for name, every in abstract.slower.items():
+        slower.setdefault(every, []).append(name)
+    when = "; ".join(f"{', '.join(names)} every {k} steps" for k, names in sorted(slower.items()))
+    return (f"one step is {abstract.period:g} s (the fastest supervisor's period); each module updates at its own "
+            f"period on that grid, from t = 0 as in the twin ({when or 'every module every step'}; a period that is "
+            "no multiple of the step is taken as the next that is), reading the state before the step; a sensor's "
+            "readings are taken at its period and read a step later at the earliest")
 
 
 def _vocabulary(sf, cell):

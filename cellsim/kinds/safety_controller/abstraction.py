@@ -67,6 +67,4 @@ class ControllerAbstraction(ModuleAbstraction):
                 cell.define(f"{c}.{var}", f"({cmd} = {list(controlled.domain).index(True)})", bool)
             else:
                 cell.define(f"{c}.{var}", translate(cmd, domain, encoding), encoding)
-        cell.assume(f"{c} runs every {cell.period:g} s and every module updates once per period: the sensors' and "
-                    "entities' own periods and one period of transport are not modelled")
 

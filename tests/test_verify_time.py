@@ -1,0 +1,94 @@
+"""Time as the cell has it (issue 36): in the abstract model every module updates at its own period on the
+controller's grid, and a sensor's readings are state taken at its period, so a person's move reaches the controller
+as late as it does in the twin. Checked with stormpy on the exported model, against the twin's own record."""
+
+from __future__ import annotations
+
+import pytest
+import stormpy
+
+from cellsim.scenario import load_scenario
+from cellsim.verify.run import abstract_model, write_export
+from cellsim.verify.storm import _initial_value, _valuation_of
+
+from conftest import WELDING_CELL
+
+
+LOOKS = {  # labels of the places and readings the tests look at (PRISM formulas of the model)
+    "in_beams": "light_barrier__broken__of_operator",
+    "beams_read": "light_barrier__broken_read",
+    "close": "range_detector__range__of_operator={close}",
+    "close_read": "range_detector__range_read={close}",
+}
+
+
+@pytest.fixture(scope="module")
+def welding(tmp_path_factory):
+    """The welding cell's abstract model, exported with the tests' labels and built state by state by stormpy with
+    its states' valuations."""
+    model = abstract_model(load_scenario(WELDING_CELL))
+    path, _ = write_export(model, tmp_path_factory.mktemp("time") / "welding.prism")
+    close = model.cell.encoding("range_detector.range").code("close")
+    path.write_text(path.read_text() + "".join(f'label "{k}" = {v.format(close=close)};\n' for k, v in LOOKS.items()))
+    program = stormpy.parse_prism_program(str(path))
+    options = stormpy.BuilderOptions(build_full=True)
+    options.set_build_state_valuations(True)
+    return model, program, stormpy.build_model(program, options=options)
+
+
+def _soonest(program, built, label: str) -> float:
+    """The fewest steps (the model's "periods" reward) to a state labelled ``label``."""
+    formula = stormpy.parse_properties(f'R{{"periods"}}min=? [ F "{label}" ]', program)[0]
+    return _initial_value(stormpy, built, formula)
+
+
+def test_a_sensor_of_twice_the_step_reads_the_person_a_sensor_period_after_it_moved(welding):
+    """The operator and the light curtain update every 0.04 s, the controller every 0.02 s (one step): the person
+    enters the beams at an update (the state after step 2j), the curtain takes that at its next update two steps
+    later, and the controller reads it the step after. Before, the curtain's reading was the person's place itself:
+    the same step."""
+    model, program, built = welding
+    cell = model.cell
+    assert cell.every("light_barrier") == cell.every("operator") == 2 and cell.every("safety_controller") == 1
+    in_beams = _soonest(program, built, "in_beams")  # the person is where it breaks them
+    read = _soonest(program, built, "beams_read")  # the curtain's reading says so
+    assert in_beams % 2 == 1  # the person moves at even steps: its new place is in the state after one
+    assert read - in_beams == 2
+    # the range detector's reading lags the same way behind the place that makes it read "close"
+    assert _soonest(program, built, "close_read") - _soonest(program, built, "close") == 2
+
+
+def test_a_module_of_twice_the_step_keeps_its_state_at_the_odd_steps(welding):
+    """Every transition from an odd step leaves the 0.04 s modules' variables (the welder, the process, the person,
+    the sensors' readings) as they were, and the 0.02 s robot and controller still move there."""
+    model, program, built = welding
+    slower = {v.name for m in model.cell.modules if m.name in ("welder", "process_controller", "operator_floor",
+                                                               "light_barrier_reading", "range_detector_reading")
+              for v in m.variables}
+    faster = {v.name for m in model.cell.modules if m.name.startswith(("robot_", "hazard_")) for v in m.variables}
+    assert slower and faster
+    of = _valuation_of(built, None)  # (as verify reads a witness's states)
+    valuation = [of(s) for s in range(built.nr_states)]
+    moved_fast, checked = False, 0
+    for state in built.states:
+        if valuation[state.id]["tick"] != 1:
+            continue
+        for action in state.actions:
+            for entry in action.transitions:
+                after = valuation[entry.column]
+                assert all(after[v] == valuation[state.id][v] for v in slower), (valuation[state.id], after)
+                moved_fast |= any(after[v] != valuation[state.id][v] for v in faster)
+                checked += 1
+    assert checked > 1000 and moved_fast
+
+
+def test_the_readings_start_where_the_twins_sensors_start_and_the_time_is_stated(welding):
+    model, program, built = welding
+    variables = {v.name: v for m in model.cell.modules for v in m.variables}
+    assert variables["light_barrier__broken_read"].init is False  # clear until its first reading
+    far = model.cell.encoding("range_detector.range").code("far")
+    assert variables["range_detector__range_read"].init == far
+    (said,) = [a for a in model.cell.assumptions if a.startswith("one step is 0.02 s")]
+    assert "every 2 steps" in said and "read a step later" in said
+    slower = said[said.index("as in the twin (") + 16:said.index(" every 2 steps")].split(", ")
+    assert sorted(slower) == ["light_barrier", "operator", "process_controller", "range_detector", "welder"]
