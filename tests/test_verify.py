@@ -144,16 +144,25 @@ def test_a_state_where_a_module_cannot_step_is_refused_not_quietly_looped(tmp_pa
     assert build(path)[2].states == 3
 
 
+@pytest.mark.slow
 def test_two_operators_break_the_single_operator_assumption_and_the_twin_confirms_the_witness(tmp_path):
     """verify finds a missed detection in the two-operator cell, writes it as a walk of both people,
-    and the twin confirms it: `cellsim check`, run on its own on that run, reports the violation."""
+    and the twin confirms it: `cellsim check`, run on its own on that run, reports the violation. The operator's
+    pace, which a witness asks for, could take the model past the state budget: it is not tried, the witnesses it
+    would have taken up are built and run after all, and the confirmed violations end violated, their runs kept
+    (end to end, with the default refinement budget)."""
     out = tmp_path / "witnesses"
-    done = _verify(str(ROOT / "scenarios" / "two_operators.yaml"), "--json", "--out", str(out), "--refine", "0")
+    done = _verify(str(ROOT / "scenarios" / "two_operators.yaml"), "--json", "--out", str(out))
     assert done.returncode == 1, done.stderr
     result = json.loads(done.stdout)
     assert all(p["holds"] for p in result["properties"] if p["name"].endswith(":mishap"))
-    confirmed = [p for p in result["properties"] if p["twin"] and p["twin"]["confirmed"]]
-    assert confirmed, [(p["name"], p["twin"]) for p in result["properties"] if p["twin"]]
+    assert result["refinements"] == []
+    replayed = [p for p in result["properties"] if p["twin"]]
+    assert {p["name"] for p in replayed} == {"HRW:detected", "HS:detected", "HC:detected"}  # none left deferred
+    assert any("operator:pace not tried" in p["reason"] for p in replayed if p["ending"] == "undecided")
+    confirmed = [p for p in replayed if p["twin"]["confirmed"]]
+    assert confirmed, [(p["name"], p["twin"]) for p in replayed]
+    assert all(p["ending"] == "violated" for p in confirmed)
     for p in confirmed:
         assert p["name"].endswith(":detected") and p["name"] in p["twin"]["violated"]
         scenario = Path(p["twin"]["scenarios"][-1])
@@ -335,19 +344,6 @@ def test_the_paced_model_has_no_witness_faster_than_the_person_walks():
     assert witnesses
     for witness in witnesses:
         assert pace_violation(person, witness, cell.period, 1.32) is None
-
-
-@pytest.mark.slow
-def test_a_violation_the_twin_confirmed_stays_confirmed_while_the_rest_is_refined(tmp_path):
-    """Two operators: some witnesses are confirmed at once, others refuted; refining for the refuted ones must not
-    take the confirmed violations back (exit 1, the confirmed runs kept)."""
-    out = tmp_path / "witnesses"
-    done = _verify(str(ROOT / "scenarios" / "two_operators.yaml"), "--json", "--out", str(out), "--refine", "1")
-    assert done.returncode == 1, done.stderr
-    result = json.loads(done.stdout)
-    confirmed = [p for p in result["properties"] if p["twin"] and p["twin"]["confirmed"]]
-    assert confirmed and all(p["ending"] == "violated" for p in confirmed)
-    assert all(Path(p["twin"]["runs"][-1]).is_dir() for p in confirmed)
 
 
 def test_refining_without_replays_is_refused_before_anything_is_done(tmp_path):
