@@ -136,6 +136,24 @@ def triangulate(polygon) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     return triangles
 
 
+def points_in_polygon(points, polygon):
+    """:func:`point_in_polygon` of many points at once (an (n, 2) array): a boolean array, the same rule and the
+    same arithmetic, so a point on an edge gets the same answer either way."""
+    import numpy as np
+
+    q = np.asarray(points, float).reshape(-1, 2)
+    inside = np.zeros(len(q), bool)
+    for i in range(len(polygon)):
+        a, b = polygon[i], polygon[(i + 1) % len(polygon)]
+        crosses = (a[1] > q[:, 1]) != (b[1] > q[:, 1])
+        if not crosses.any():
+            continue
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = a[0] + (q[:, 1] - a[1]) * (b[0] - a[0]) / (b[1] - a[1])
+        inside ^= crosses & (q[:, 0] < x)
+    return inside
+
+
 def point_in_polygon(q, polygon) -> bool:
     inside, p, n = False, polygon, len(polygon)
     for i in range(n):

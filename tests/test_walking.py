@@ -7,7 +7,7 @@ import pytest
 
 from cellsim.config.typed_yaml import ConfigError
 from cellsim.kinds.operator.system import CLEARANCE, obstacles, plan_walk, pose_at
-from cellsim.floorplan import point_in_polygon, shortest_path, signed_area, triangulate
+from cellsim.floorplan import point_in_polygon, points_in_polygon, shortest_path, signed_area, triangulate
 from cellsim.scenario import load_scenario
 
 from conftest import WELDING_CELL, welding_cell
@@ -88,3 +88,20 @@ def test_a_waypoint_walled_in_is_a_load_error_naming_it(tmp_path):
     with pytest.raises(ConfigError) as e:
         load_scenario(_with_waypoint(tmp_path, "[-2.0, 4.0]", walls))
     assert e.value.key == "entities.operator.waypoints.bench.position" and "no way round the fixtures" in str(e.value)
+
+
+def test_many_points_at_once_get_the_answer_each_gets_alone():
+    """The abstract floor's grid is tested against the fixtures in one go (``points_in_polygon``): every point,
+    on a 0.05 m grid that puts many exactly on an edge or a corner, and random ones, gets what ``point_in_polygon``
+    says of it alone."""
+    rng = np.random.default_rng(7)
+    polygons = [[(0.0, 0.0), (1.0, 0.0), (1.0, 0.5), (0.0, 0.5)],  # a fixture's box
+                [(-0.3, -0.2), (0.4, 0.35), (0.1, 0.9), (-0.5, 0.6)],  # a turned, non-convex one
+                [(0.2, 0.2), (0.2, 0.2), (0.6, 0.2), (0.6, 0.6)]]  # a repeated corner, a horizontal edge
+    grid = [(i * 0.05, j * 0.05) for i in range(-20, 30) for j in range(-20, 30)]
+    points = grid + [tuple(p) for p in rng.uniform(-1.0, 1.5, (500, 2))]
+    for polygon in polygons:
+        together = points_in_polygon(points, polygon)
+        alone = [point_in_polygon(q, polygon) for q in points]
+        assert together.tolist() == alone
+        assert 0 < sum(alone) < len(points)

@@ -131,10 +131,12 @@ def _code(cell: AbstractCell, signal: str, value) -> int:
 
 
 def _places(cell, person: PersonRole, poses: list[Pose], readings: list[tuple], signals: list[str]) -> PersonPlaces:
+    """The places: poses that read the same and touch (the same grid point, or neighbouring ones) joined. Poses at
+    one point that read the same are one group (several headings and reaches): groups, not poses, are compared."""
     step = person.step
-    cells: dict[tuple[int, int], list[int]] = {}
+    cells: dict[tuple[int, int], dict[tuple, list[int]]] = {}  # grid point -> reading -> its poses there
     for i, pose in enumerate(poses):
-        cells.setdefault((round(pose.x / step), round(pose.y / step)), []).append(i)
+        cells.setdefault((round(pose.x / step), round(pose.y / step)), {}).setdefault(readings[i], []).append(i)
     parent = list(range(len(poses)))
 
     def find(i):
@@ -143,19 +145,23 @@ def _places(cell, person: PersonRole, poses: list[Pose], readings: list[tuple], 
             i = parent[i]
         return i
 
-    touching = []
-    for (cx, cy), members in cells.items():
+    for groups in cells.values():
+        for members in groups.values():
+            for i in members[1:]:
+                parent[find(i)] = find(members[0])
+    touching = []  # (group, group) at touching points: the same point (different readings) or grid neighbours
+    for (cx, cy), groups in cells.items():
+        here = list(groups.items())
+        touching += [(a[1][0], b[1][0]) for k, a in enumerate(here) for b in here[k + 1:]]
         for dx, dy in itertools.product((-1, 0, 1), repeat=2):
             other = cells.get((cx + dx, cy + dy))
-            if other is None or (dx, dy) < (0, 0):
+            if other is None or (dx, dy) <= (0, 0):
                 continue
-            for i in members:
-                for j in other:
-                    if i < j or (dx, dy) != (0, 0):
-                        touching.append((i, j))
-    for i, j in touching:
-        if readings[i] == readings[j]:
-            parent[find(i)] = find(j)
+            for reading, members in groups.items():
+                same = other.get(reading)
+                if same is not None:
+                    parent[find(members[0])] = find(same[0])
+            touching += [(a[0], b[0]) for a in groups.values() for b in other.values()]
     roots = {}
     for i in range(len(poses)):
         roots.setdefault(find(i), []).append(i)
