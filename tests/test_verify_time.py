@@ -92,3 +92,44 @@ def test_the_readings_start_where_the_twins_sensors_start_and_the_time_is_stated
     assert "every 2 steps" in said and "read a step later" in said
     slower = said[said.index("as in the twin (") + 16:said.index(" every 2 steps")].split(", ")
     assert sorted(slower) == ["light_barrier", "operator", "process_controller", "range_detector", "welder"]
+
+
+def test_the_robot_publishes_the_activity_asked_of_it_a_step_later(welding):
+    """The controller reads the robot's activity (`ract`): the twin's robot publishes what the process asked at its
+    own update, so the model keeps it as the robot's state, starting where the twin's robot starts."""
+    model, program, built = welding
+    cell = model.cell
+    (module,) = [m for m in cell.modules if m.name == "robot_activity"]
+    (var,) = module.variables
+    assert cell.formulas["robot__activity"] == var.name
+    assert var.init == cell.initial_code("robot.activity")
+    (command,) = [c for c in module.commands if "tick" not in c.guard]  # (the robot updates every step here)
+    assert command.updates[0][1] == {var.name: cell.input("robot", "activity")}  # what the process asks
+
+
+def test_a_person_who_could_walk_past_a_grid_point_in_its_period_is_taken_at_every_step():
+    """The floor steps only to neighbouring places: a person is taken at its own period (0.04 s, two steps) only
+    where it cannot walk past a grid point in that time. At 1.32 m/s that is 0.053 m: on the 0.1 m grid every other
+    step, on the 0.05 m grid every step."""
+    from cellsim.verify.floor import _person_every
+    from cellsim.verify.model import PersonRole
+
+    cell = abstract_model(load_scenario(WELDING_CELL)).cell
+    role = lambda step, speed: PersonRole("operator", [], None, None, step=step, top_speed=speed)  # noqa: E731
+    assert _person_every(cell, role(0.1, 1.32)) == 2
+    assert _person_every(cell, role(0.05, 1.32)) == 1
+    assert _person_every(cell, role(0.05, 1.25)) == 2  # exactly a grid step in a period: still a neighbour
+    assert _person_every(cell, role(0.1, None)) == 1  # a speed nobody knows: every step
+
+
+def test_a_module_whose_period_is_no_multiple_of_the_step_is_refused_in_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "cellsim", "verify", str(WELDING_CELL), "--no-replay",
+                           "--set", "range_detector.period=0.03", "--out", str(tmp_path / "w")],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2, done.stderr
+    assert "Traceback" not in done.stderr
+    line = done.stderr.strip().splitlines()[-1]
+    assert "range_detector updates every 0.03 s, which is no whole multiple of the model's step (0.02 s" in line

@@ -179,7 +179,17 @@ def _places(cell, person: PersonRole, poses: list[Pose], readings: list[tuple], 
             neighbours[a].add(b)
             neighbours[b].add(a)
     return PersonPlaces(person, places, neighbours, place_of[0], f"{person.module}_place", signals,
-                        cell.every(person.module))
+                        _person_every(cell, person))
+
+
+def _person_every(cell: AbstractCell, person: PersonRole) -> int:
+    """Steps between the model's takes of a person's place: its own period's, unless it could walk past a grid
+    point in that time (two samples would then not be grid neighbours, and the floor steps only to neighbouring
+    places): then at every step (more behaviours than the twin's, never fewer)."""
+    every = cell.every(person.module)
+    if person.top_speed is None or person.top_speed * every * cell.period > person.step:
+        return 1
+    return every
 
 
 ENTERED_AT_START = -1
@@ -300,7 +310,7 @@ def build_floor(cell: AbstractCell, places: Places) -> None:
         how = (f"each period it stays or steps to a neighbour, crossing a place no faster than {role.max_speed:.3g} m/s"
                if role.max_speed else "each period it stays or steps to a neighbour")
         cell.add(Module(f"{role.module}_floor", variables, commands, comment=f"{role.module}: one of {n} places of the floor; {how}"),
-                 owner=role.module)  # (it moves at its own period, as the twin's person does)
+                 every=person.every, owner=role.module)  # (at its own period where the grid allows it)
         for k, signal in enumerate(person.signals):
             table = {place.index: place.reading[k] for place in person.places}
             encoding = cell.encoding(signal)
@@ -374,14 +384,14 @@ def _sampled(cell: AbstractCell, sensor: str, signals: list[tuple[str, str]]) ->
     """The sensor's readings as state (``<signal>_read``), each taken from ``expr`` at the sensor's own period, from
     the reading the twin's sensor starts with."""
     variables, update = [], {}
-    start = _initial_readings(cell, sensor)
     for signal, expr in signals:
         encoding, var = cell.encoding(signal), prism_name(signal) + "_read"
         if encoding is bool:
-            variables.append(Var(var, boolean=True, init=bool(start[signal])))
+            variables.append(Var(var, boolean=True, init=bool(cell.initial_code(signal))))
         else:
             values = encoding.regions if isinstance(encoding, Thresholds) else len(encoding.values)
-            variables.append(Var(var, 0, values - 1, start[signal], enum=encoding if isinstance(encoding, Enum) else None))
+            variables.append(Var(var, 0, values - 1, cell.initial_code(signal),
+                                 enum=encoding if isinstance(encoding, Enum) else None))
         update[var] = expr
     every = cell.every(sensor)
     cell.add(Module(f"{sensor}_reading", variables, [Command("true", (("1", update),))],
@@ -389,22 +399,6 @@ def _sampled(cell: AbstractCell, sensor: str, signals: list[tuple[str, str]]) ->
              every=every, owner=sensor)
     for (signal, _), var in zip(signals, variables):
         cell.define(signal, var.name, cell.encoding(signal))
-
-
-def _initial_readings(cell: AbstractCell, sensor: str) -> dict[str, int]:
-    """Each of the sensor's channels' codes as the twin's sensor starts (before its first reading, at t = 0)."""
-    built = cell.cell
-    context = built.diagram.CreateDefaultContext()
-    built.set_initial_state(context)
-    system = built.modules[sensor]
-    mine = system.GetMyContextFromRoot(context)
-    codes = {}
-    for spec, _ in system.channels:
-        signal = f"{sensor}.{spec.signal}"
-        value = spec.type.decode(mine.get_discrete_state(system.group(spec.signal)).get_value())
-        if value is not None and signal in cell.types:
-            codes[signal] = _code(cell, signal, value)
-    return codes
 
 
 def _value(encoding, code: int):

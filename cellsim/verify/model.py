@@ -89,6 +89,9 @@ class PersonRole:
     max_speed: float | None = None
     """m/s: the fastest the person walks, where its pace is modelled (a place then takes the periods its crossing
     takes at that speed); None: any pace (a place may be crossed in one period)."""
+    top_speed: float | None = None
+    """m/s: the fastest the person walks in the twin, pace modelled or not: the model takes its place at its own
+    period only where it cannot walk past a grid point in one (else at every step); None: at every step."""
 
 
 @dataclass
@@ -289,10 +292,35 @@ class AbstractCell:
         return str(int(default))
 
     def every(self, module: str) -> int:
-        """Steps between a module's updates: its period over the step, rounded up (a period that is no multiple of
-        the step is modelled as the next one that is: its readings no fresher than the twin's)."""
+        """Steps between a module's updates: its period over the step. A period that is no whole multiple of the step
+        is refused: the model could not take the module's updates when the twin does."""
         period = getattr(self.cell.modules.get(module), "period", None)
-        return 1 if period is None else max(1, math.ceil(period / self.period - 1e-9))
+        if period is None:
+            return 1
+        steps = round(period / self.period)
+        if steps < 1 or abs(steps * self.period - period) > 1e-9 * max(1.0, period):
+            raise VerifyError(f"{module} updates every {period:g} s, which is no whole multiple of the model's step "
+                              f"({self.period:g} s, the fastest supervisor's period): the abstract model cannot take "
+                              "its updates when the twin does; give it a period that is")
+        return steps
+
+    def initial_code(self, signal: str) -> int:
+        """The code of the value the twin's module publishes on channel ``signal`` before its first update."""
+        module, port = signal.split(".", 1)
+        built = self.cell
+        context = built.diagram.CreateDefaultContext()
+        built.set_initial_state(context)
+        system = built.modules[module]
+        value = self.types[signal].decode(system.GetMyContextFromRoot(context).get_discrete_state(
+            system.group(port)).get_value())
+        if value is None:
+            raise VerifyError(f"{signal} starts with no value: the abstract model has no code for its first reading")
+        encoding = self.encoding(signal)
+        if isinstance(encoding, Thresholds):
+            return encoding.region_of(float(value))
+        if encoding is bool:
+            return int(bool(value))
+        return encoding.code(value.value if hasattr(value, "value") else value)
 
     def add(self, module: Module, every: int | None = None, owner: str | None = None) -> None:
         """Add a PRISM module of ``owner``'s (default: the module whose abstraction is building), updated every

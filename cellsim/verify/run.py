@@ -244,9 +244,9 @@ def _time_assumption(abstract: AbstractCell) -> str:
         slower.setdefault(every, []).append(name)
     when = "; ".join(f"{', '.join(names)} every {k} steps" for k, names in sorted(slower.items()))
     return (f"one step is {abstract.period:g} s (the fastest supervisor's period); each module updates at its own "
-            f"period on that grid, from t = 0 as in the twin ({when or 'every module every step'}; a period that is "
-            "no multiple of the step is taken as the next that is), reading the state before the step; a sensor's "
-            "readings are taken at its period and read a step later at the earliest")
+            f"period on that grid, from t = 0 as in the twin ({when or 'every module every step'}), reading the "
+            "state before the step; a sensor's readings are taken at its period and read a step later at the "
+            "earliest; a person who could walk past a grid point in one of its periods is taken at every step")
 
 
 def _vocabulary(sf, cell):

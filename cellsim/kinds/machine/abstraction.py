@@ -40,7 +40,8 @@ class MachineAbstraction(ModuleAbstraction):
         updates = {mode: new_mode, last: command}
         choices = [updates]
         if cfg.cycle_time > 0:
-            n = max(1, math.ceil(cfg.cycle_time / cell.period - 1e-9)) if cell.timed else 1
+            own = cell.period * cell.every(m)  # (its counter advances at its own updates)
+            n = max(1, math.ceil(cfg.cycle_time / own - 1e-9)) if cell.timed else 1
             left = f"{m}_left"
             variables.append(Var(left, 0, n, 0))
             started = f"({command} & !{last} & {left} = 0 ? {n} : {left})"

@@ -53,7 +53,8 @@ class PersonAbstraction(ModuleAbstraction):
                 buttons[f"press_{w.press.replace('.', '_')}"] = tuple(w.position)
         paced = f"{self.name}:pace" in cell.refinements
         cell.add_person(PersonRole(self.name, poses, start, self._stand, own, self.step, buttons, travel=self.travel,
-                                   walk=self.walk, max_speed=self.max_speed if paced else None))
+                                   walk=self.walk, max_speed=self.max_speed if paced else None,
+                                   top_speed=self.max_speed))
         pace = f"no faster than {self.max_speed:.3g} m/s (its walking speed and jitter)" if paced else "at any pace"
         cell.assume(f"{self.name} may walk anywhere on the floor {pace}, reach towards "
                     f"{'the points its waypoints reach for' if any(w.reach for w in cfg.waypoints.values()) else 'nothing'} "

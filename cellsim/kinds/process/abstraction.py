@@ -36,7 +36,7 @@ class ProcessAbstraction(ModuleAbstraction):
 
     def build(self, cell: AbstractCell) -> None:
         p, system, cfg = self.name, self.system, self.cfg
-        period = cell.period
+        period = cell.period * cell.every(p)  # (its own: its counters advance at its updates)
         steps = system.steps
         n = len(steps)
         step, progress, last = f"{p}_step", f"{p}_progress", f"{p}_request"

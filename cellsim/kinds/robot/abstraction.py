@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cellsim.verify.model import ModuleAbstraction, AbstractCell, lookup, set_of
-from cellsim.verify.prism import Command, Module, Var
+from cellsim.verify.prism import Command, Enum, Module, Var
 from cellsim.vocabulary import SafetyMode
 
 SAMPLES = 200
@@ -72,7 +72,7 @@ class RobotAbstraction(ModuleAbstraction):
 
     def build(self, cell: AbstractCell) -> None:
         r, robot, cfg = self.name, self.system, self.cfg
-        period = cell.period
+        period = cell.period * cell.every(r)  # (its own: its counters advance at its updates)
         poses = len(robot.poses)
         moves = self._moves(period, cell.timed)
         pairs = list(moves)
@@ -135,9 +135,24 @@ class RobotAbstraction(ModuleAbstraction):
 
         # its safety mode, and the speed cap over the last braking time
         self._safety(cell, period)
-        cell.define(f"{r}.activity", cell.input(r, "activity"))
+        self._activity(cell)
         cell.assume(f"{r}'s tool is located on the commanded path (tracking error neglected); its moves take "
                     + ("at least their time at full speed without acceleration" if cell.timed else "any time from one period on"))
+
+    def _activity(self, cell: AbstractCell) -> None:
+        """The activity it publishes: the one its input asked for at its last update (as the twin's robot takes it
+        then), kept as its own state where someone reads it; else the input itself (nobody sees the difference)."""
+        r, request = self.name, cell.input(self.name, "activity")
+        signal = f"{r}.activity"
+        if signal not in cell.reads:
+            cell.define(signal, request)
+            return
+        encoding, var = cell.encoding(signal), f"{r}_activity"
+        high = len(encoding.values) - 1 if isinstance(encoding, Enum) else max(encoding.regions - 1, 1)
+        cell.add(Module(f"{r}_activity", [Var(var, -1, high, cell.initial_code(signal))],
+                        [Command("true", (("1", {var: request}),))],
+                        comment=f"robot {r}: the activity asked of it at its last update (-1: none it knows)"))
+        cell.define(signal, var)
 
     def _initial_mode(self, cell: AbstractCell) -> int:
         """The safety mode it first publishes: its update at t = 0 takes the request it reads then."""

@@ -45,7 +45,8 @@ class ControllerAbstraction(ModuleAbstraction):
             else:
                 target = bool if variable.type == "bool" else Enum(tuple(variable.values))
             cell.formulas[name] = translate(source, cell.encoding(channel), target)
-        modules = risk_modules(rm, cell.period, prefix=prefix, monitored=monitored, encodings=encodings)
+        own = cell.period * cell.every(c)  # (its after: counters advance at its own updates)
+        modules = risk_modules(rm, own, prefix=prefix, monitored=monitored, encodings=encodings)
         for module in modules.modules:
             cell.add(module)
         cell.formulas.update(modules.formulas)
