@@ -115,19 +115,10 @@ def _measuring(cell: AbstractCell, context, person: PersonRole, poses: list[Pose
                     scans[role.module] = role.measure(context)
                 return signal.measure(scans[role.module])
 
-            readings.append(tuple(_code(cell, s, value(s)) for s in signals))
+            readings.append(tuple(cell.code_of(s, value(s)) for s in signals))
         return readings
 
     return work
-
-
-def _code(cell: AbstractCell, signal: str, value) -> int:
-    encoding = cell.encoding(signal)
-    if isinstance(encoding, Thresholds):
-        return encoding.region_of(float(value))
-    if encoding is bool:
-        return int(bool(value))
-    return encoding.code(value.value if hasattr(value, "value") else value)
 
 
 def _places(cell, person: PersonRole, poses: list[Pose], readings: list[tuple], signals: list[str]) -> PersonPlaces:

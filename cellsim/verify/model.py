@@ -315,6 +315,10 @@ class AbstractCell:
             system.group(port)).get_value())
         if value is None:
             raise VerifyError(f"{signal} starts with no value: the abstract model has no code for its first reading")
+        return self.code_of(signal, value)
+
+    def code_of(self, signal: str, value) -> int:
+        """The code of ``value`` (in the channel's words; a number in its unit) in ``signal``'s encoding."""
         encoding = self.encoding(signal)
         if isinstance(encoding, Thresholds):
             return encoding.region_of(float(value))
