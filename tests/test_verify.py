@@ -147,19 +147,16 @@ def test_a_state_where_a_module_cannot_step_is_refused_not_quietly_looped(tmp_pa
 @pytest.mark.slow
 def test_two_operators_break_the_single_operator_assumption_and_the_twin_confirms_the_witness(tmp_path):
     """verify finds a missed detection in the two-operator cell, writes it as a walk of both people,
-    and the twin confirms it: `cellsim check`, run on its own on that run, reports the violation. The operator's
-    pace, which a witness asks for, could take the model past the state budget: it is not tried, the witnesses it
-    would have taken up are built and run after all, and the confirmed violations end violated, their runs kept
-    (end to end, with the default refinement budget)."""
+    and the twin confirms it: `cellsim check`, run on its own on that run, reports the violation; the confirmed
+    violations end violated, their runs kept. (Without refinement: the operator's pace, which a witness asks for,
+    is over the state budget here, a path the welding cell's test takes with the budget made small.)"""
     out = tmp_path / "witnesses"
-    done = _verify(str(ROOT / "scenarios" / "two_operators.yaml"), "--json", "--out", str(out))
+    done = _verify(str(ROOT / "scenarios" / "two_operators.yaml"), "--json", "--out", str(out), "--refine", "0")
     assert done.returncode == 1, done.stderr
     result = json.loads(done.stdout)
     assert all(p["holds"] for p in result["properties"] if p["name"].endswith(":mishap"))
-    assert result["refinements"] == []
     replayed = [p for p in result["properties"] if p["twin"]]
-    assert {p["name"] for p in replayed} == {"HRW:detected", "HS:detected", "HC:detected"}  # none left deferred
-    assert any("operator:pace not tried" in p["reason"] for p in replayed if p["ending"] == "undecided")
+    assert {p["name"] for p in replayed} == {"HRW:detected", "HS:detected", "HC:detected"}
     confirmed = [p for p in replayed if p["twin"]["confirmed"]]
     assert confirmed, [(p["name"], p["twin"]) for p in replayed]
     assert all(p["ending"] == "violated" for p in confirmed)
