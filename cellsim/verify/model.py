@@ -188,7 +188,7 @@ class AbstractCell:
         self.timed = timed
         self.refinements = frozenset(refinements)
         """The refinements switched on (``<module>:<what>``, e.g. ``operator:pace``): what each module's abstraction
-        models more finely because a twin-refuted witness showed where it was too coarse
+        models more finely because a witness showed where it was too coarse
         (:meth:`ModuleAbstraction.refinement`)."""
         """Whether the cell's own durations (moves, dwells, cycles) are bounded below in the model;
         without, each may take any number of periods from one on (more behaviours, far fewer states)."""
@@ -439,7 +439,8 @@ class ModuleAbstraction:
         pass
 
     def refinement(self, cell: AbstractCell, witness: list[dict]) -> tuple[str, str] | None:
-        """Where a witness the twin refuted does what this module cannot: ``(refinement, why)``, the refinement
+        """Where a witness does what this module cannot (asked before the witness is run on the twin: a witness some
+        module faults is refined, not run): ``(refinement, why)``, the refinement
         (``<module>:<what>``) that models it more finely and which variable at which period shows it, or None
         (nothing of this module's). ``witness``: the model's variables at each period."""
         return None
