@@ -45,6 +45,7 @@ class Pace:
 class Model:
     parts: list = field(default_factory=lambda: [object(), Pace()])
     cell: object = None
+    round: int = 0
 
     def bound(self) -> float:
         return 10.0
@@ -58,7 +59,8 @@ class Stats:
 
 def scripted(monkeypatch, rounds: dict, confirms: set[tuple[int, str]], could: float = 10.0):
     """``rounds``: the refinements switched on (frozenset) -> {property: its witness ("fast", "slow") or None (holds)};
-    ``confirms``: (round, property) pairs whose replay the twin confirms. Returns the log of replays and of the
+    ``confirms``: (round, property) pairs whose replay the twin confirms (the round the witness is of); a witness
+    ``"none"``: violated without one. Returns the log of replays and of the
     verifier's calls (round, the properties whose witnesses it built)."""
     replays: list[tuple[int, str]] = []
     current = {"round": 0}
@@ -66,12 +68,14 @@ def scripted(monkeypatch, rounds: dict, confirms: set[tuple[int, str]], could: f
     def fake_verify(sf, *, refinements, enough=None, checked_before=None, **kwargs):
         """As :func:`cellsim.verify.run.verify`: witnesses built in order until ``enough`` says one settles it."""
         current["round"] = len(refinements)
-        model, results, settled, built = Model(), [], False, []
+        model, results, settled, built = Model(round=len(refinements)), [], False, []
         for name, w in rounds[frozenset(refinements)].items():
             if checked_before and name in checked_before:
                 results.append(checked_before[name])
             elif w is None:
                 results.append(Checked(Prop(name), True))
+            elif w == "none":  # violated, and no witness (decision diagrams only)
+                results.append(Checked(Prop(name), False))
             elif settled:
                 results.append(Checked(Prop(name), False, deferred=True))
             else:
@@ -82,8 +86,11 @@ def scripted(monkeypatch, rounds: dict, confirms: set[tuple[int, str]], could: f
         return run.Verification(model, Stats(), results, {})
 
     def fake_replay(model, checked, where, on_stage=None):
-        replays.append((current["round"], checked.prop.name))
-        return Replay((current["round"], checked.prop.name) in confirms)
+        """Logs (the round running, the property) and, for a witness of an earlier round (a skipped one run at the
+        end), which round's model it came from as a third item."""
+        entry = (current["round"], checked.prop.name) + (() if model.round == current["round"] else (model.round,))
+        replays.append(entry)
+        return Replay(entry[:2] in confirms if len(entry) == 2 else (model.round, checked.prop.name) in confirms)
 
     monkeypatch.setattr(run, "verify", fake_verify)
     monkeypatch.setattr(witness, "replay", fake_replay)
@@ -103,7 +110,9 @@ def test_a_faulted_witness_is_refined_unrun_and_the_others_are_run_in_the_same_r
     result = refine.verify_with_twin(None, tmp_path, budget=3, on_stage=said.append)
     # round 0: A's witness is refined, not run, and B's and C's wait for the refined model; round 1 builds them
     # all, no module faults one, and all three are run
-    assert replays == [("verify", 0, ("A",)), ("verify", 1, ("A", "B", "C")), (1, "A"), (1, "B"), (1, "C")]
+    assert replays[:5] == [("verify", 0, ("A",)), ("verify", 1, ("A", "B", "C")), (1, "A"), (1, "B"), (1, "C")]
+    # C's refuted: its round-0 witness, which waited for the refinement, is built and run at the end (refuted too)
+    assert replays[5:] == [("verify", 0, ("C",)), (0, "C")]
     assert [(r.step, r.key, r.prop) for r in result.refinements] == [(1, "operator:pace", "A")]
     assert "refinement 1: operator:pace (the witness of A: crosses a place too fast)" in said
     endings = {f.name: f.ending for f in result.endings()}
@@ -115,7 +124,8 @@ def test_a_faulted_witness_is_refined_unrun_and_the_others_are_run_in_the_same_r
 def test_with_the_budget_spent_a_faulted_witness_is_run_on_the_twin(monkeypatch, tmp_path):
     replays = scripted(monkeypatch, {frozenset(): {"A": "fast"}, PACE: {"A": "fast"}}, confirms=set())
     result = refine.verify_with_twin(None, tmp_path, budget=1)
-    assert [r for r in replays if r[0] != "verify"] == [(1, "A")] and len(result.refinements) == 1
+    # the last round's witness, refuted; then the one refined in round 0 (never run), refuted too
+    assert [r for r in replays if r[0] != "verify"] == [(1, "A"), (1, "A", 0)] and len(result.refinements) == 1
     (final,) = result.endings()
     assert final.ending is Ending.UNDECIDED and "refinement: operator:pace" in final.reason
     assert refine.verify_with_twin(None, tmp_path, budget=0).refinements == [] and replays[-2:] == [
@@ -157,6 +167,32 @@ def test_a_witness_run_before_the_refinement_that_the_twin_confirmed_stays_viola
     }, confirms={(0, "A")})
     result = refine.verify_with_twin(None, tmp_path, budget=3)
     # A's witness, built before B's settled the round, is run there and confirmed; C's waited and then holds
-    assert replays == [("verify", 0, ("A", "B")), (0, "A"), ("verify", 1, ("A", "B")), (1, "B")]
+    assert replays == [("verify", 0, ("A", "B")), (0, "A"), ("verify", 1, ("A", "B")), (1, "B"), (1, "B", 0)]
     endings = {f.name: f.ending for f in result.endings()}
     assert endings == {"A": Ending.VIOLATED, "B": Ending.UNDECIDED, "C": Ending.HOLDS}
+
+
+def test_a_refined_round_without_a_witness_runs_the_witness_it_refined_and_the_twin_may_confirm_it(monkeypatch, tmp_path):
+    """The refined model gives no witness (decision diagrams only, too large for a sparse form): the coarser witness
+    that was refined rather than run is run after all, and the twin confirms it: violated, not undecided."""
+    replays = scripted(monkeypatch, {
+        frozenset(): {"A": "fast", "B": None},
+        PACE: {"A": "none", "B": None},  # (violated, no witness)
+    }, confirms={(0, "A")})
+    result = refine.verify_with_twin(None, tmp_path, budget=3)
+    assert [r for r in replays if r[0] != "verify"] == [(1, "A", 0)]
+    endings = {f.name: f.ending for f in result.endings()}
+    assert endings == {"A": Ending.VIOLATED, "B": Ending.HOLDS}
+    assert result.exit_code == 1
+
+
+def test_a_witness_that_waited_for_a_refinement_that_gave_none_is_built_and_run_at_the_end(monkeypatch, tmp_path):
+    """Round 0 refines for A's witness, so B's waits (deferred, never built); the refined round gives neither a
+    witness: both coarser witnesses are then run, B's built first in round 0's model, and the twin confirms both."""
+    replays = scripted(monkeypatch, {
+        frozenset(): {"A": "fast", "B": "slow"},
+        PACE: {"A": "none", "B": "none"},
+    }, confirms={(0, "A"), (0, "B")})
+    result = refine.verify_with_twin(None, tmp_path, budget=3)
+    assert replays == [("verify", 0, ("A",)), ("verify", 1, ()), (1, "A", 0), ("verify", 0, ("B",)), (0, "B")]
+    assert {f.name: f.ending for f in result.endings()} == {"A": Ending.VIOLATED, "B": Ending.VIOLATED}

@@ -49,6 +49,8 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
     done: list[Refinement] = []
     built = None  # the next round's abstract model, built to judge its size
     confirmed: dict = {}  # property -> (its checked result, its replay) from the round whose witness the twin confirmed
+    skipped: dict = {}  # property -> [(its checked result, that round's model, its folder)]: witnesses refined, not run
+    waited: dict = {}  # property -> (that round's refinements, its folder): a witness deferred, never built
     once: dict = {}  # liveness conditions' stronger responses (no witness run, nothing to refine): checked in round 1
     while True:
         keys = frozenset(r.key for r in done)
@@ -85,13 +87,59 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
                 if result.replays[checked.prop.name].confirmed:
                     confirmed[checked.prop.name] = (checked, result.replays[checked.prop.name])
         if found is None:
+            def rebuild(keys, names):  # the deferred properties' witnesses, in the model of the round they waited in
+                others = {r.prop.name: r for r in result.results if r.prop.name not in names}
+                return verify(sf, timed=timed, refinements=keys, on_stage=on_stage, checked_before=others)
+
+            _run_skipped(result, skipped, waited, confirmed, rebuild, on_stage)
             refuted = any(not result.replays[name].confirmed for name in to_run)
             if refuted and len(done) < budget and not result.not_refined:
                 say("no module's abstraction finds where the refuted witnesses depart from the cell: "
                     "nothing to refine")
             return result
+        for checked in open_:
+            if checked.prop.name in faulted:
+                skipped.setdefault(checked.prop.name, []).append((checked, result.model, where))
+        for checked in result.results:
+            if checked.deferred and checked.prop.name not in skipped:
+                waited.setdefault(checked.prop.name, (keys, where))
         say(f"refinement {found.step}: {found}")
         done.append(found)
+
+
+def _run_skipped(result, skipped: dict, waited: dict, confirmed: dict, rebuild, on_stage) -> None:
+    """A property the last round leaves violated but not confirmed (no witness: a model too large for one; or one the
+    twin refutes) whose coarser witnesses were refined rather than run: run those now, in the order found, until the
+    twin confirms one; one whose witness waited for a refinement and was never built (``waited``) has it built
+    now (``rebuild(refinements, names)``: that round's model) and run. Refining them was a bet that the refined model
+    decides the property; where it does not, the witness the old rule would have run still may."""
+    from cellsim.verify.witness import replay
+
+    def unsettled(checked) -> bool:
+        name = checked.prop.name
+        return (name not in confirmed and checked.holds is False and checked.prop.within is None
+                and not (name in result.replays and result.replays[name].confirmed))
+
+    def confirm(i, earlier, model, where) -> bool:
+        ran = replay(model, earlier, where, on_stage=on_stage)
+        if ran.confirmed:
+            confirmed[earlier.prop.name] = (earlier, ran)
+            result.results[i], result.replays[earlier.prop.name] = earlier, ran
+        return ran.confirmed
+
+    index = {r.prop.name: i for i, r in enumerate(result.results)}
+    for name, runs in skipped.items():
+        if name in index and unsettled(result.results[index[name]]):
+            any(confirm(index[name], earlier, model, where) for earlier, model, where in runs)
+    by_round: dict = {}
+    for name, (keys, where) in waited.items():
+        if name in index and unsettled(result.results[index[name]]):
+            by_round.setdefault((keys, where), []).append(name)
+    for (keys, where), names in by_round.items():
+        built = rebuild(keys, set(names))
+        for earlier in built.results:
+            if earlier.prop.name in names and earlier.witness is not None:
+                confirm(index[earlier.prop.name], earlier, built.model, where)
 
 
 def _witnessed(result, done: list, confirmed: dict) -> list:
@@ -106,12 +154,37 @@ def _witnessed(result, done: list, confirmed: dict) -> list:
 
 def _could_reach(sf, result, timed: bool, keys: list[str]):
     """(States the model with refinements ``keys`` could reach: the largest model checked so far, times how much the
-    refinement widens its variables' ranges (the product of their numbers of values); that model, to check next)."""
+    refinement widens its variables' ranges (the product of their numbers of values), a quick upper bound; where that
+    is over the budget, the states the refined cell really reaches (:func:`_reached`); that model, to check next)."""
     from cellsim.verify.run import abstract_model
 
     refined = abstract_model(sf, timed=timed, refinements=frozenset(keys))
     largest = (result.refinable or result.largest or result.stats).states
-    return largest * refined.bound() / max(result.model.bound(), 1.0), refined
+    could = largest * refined.bound() / max(result.model.bound(), 1.0)
+    return (could if could <= STATE_BUDGET else _reached(refined)), refined
+
+
+def _reached(refined) -> float:
+    """The states the refined cell (no monitor) reaches, built as decision diagrams in a process of its own: seconds,
+    where the quick bound can be a hundredfold too high (the assembly bench's pace: 337,208 states against an
+    estimated 130 million); infinite when Storm stops (its tables full)."""
+    import math
+    import tempfile
+
+    from cellsim.verify.isolated import ProcessStopped, in_own_process
+    from cellsim.verify.run import dd_memory
+    from cellsim.verify.storm import build_symbolic
+
+    def work(say):
+        with tempfile.TemporaryDirectory(prefix="cellsim-refined-") as scratch:
+            path = Path(scratch) / "refined.prism"
+            path.write_text(refined.cell.program(refined.header, [], {}).text())
+            return build_symbolic(path, dd_memory(refined.bound()))[2].states
+
+    try:
+        return float(in_own_process(work))
+    except ProcessStopped:
+        return math.inf
 
 
 def _refinement(model, witnessed, step: int) -> Refinement | None:
