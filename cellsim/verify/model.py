@@ -214,8 +214,6 @@ class AbstractCell:
         """After ``declare``: the floor's places (``cellsim.verify.floor.Places``)."""
         self.building: str | None = None
         """The module whose abstraction is building (round 2): the PRISM modules it adds update at its period."""
-        self.phases: set[int] = set()
-        """The periods (in steps) of the modules that update less often than every step."""
         self.slower: dict[str, int] = {}
         """The cell's modules whose PRISM modules update less often than every step -> every how many steps."""
         self.types = {name: spec.type for name, (spec, _) in cell.channels.items()}
@@ -333,16 +331,15 @@ class AbstractCell:
         if every is None:
             every = self.every(owner) if owner else 1
         if every > 1:
-            self.phases.add(every)
             self.slower[owner or module.name] = every
             module = on_its_phase(module, every)
         self.modules.append(module)
 
     def clock(self) -> Module | None:
         """The clock the modules' phases read (None: every module updates every step)."""
-        if not self.phases:
+        if not self.slower:
             return None
-        steps = math.lcm(*self.phases)
+        steps = math.lcm(*self.slower.values())
         return Module("clock", [Var(TICK, 0, steps - 1, 0)], [Command("true", (("1", {TICK: f"mod({TICK}+1, {steps})"}),))],
                       comment=f"the step's number modulo {steps}: a module of k steps updates where it is a multiple of k")
 
