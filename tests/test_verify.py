@@ -58,7 +58,11 @@ def test_every_mishap_of_the_welding_cell_is_unreachable_in_the_abstract_model(w
         assert handled["ending"] == "holds" and "under fairness" in handled["reason"] and handled["twin"] is None
     assert any(a.startswith("a liveness condition whose response may take longer") for a in result["assumptions"])
     skipped = {s["name"]: s["reason"] for s in result["not_checked"]}
-    assert "HRW:mitigated" not in skipped and "asks how a run ends" in skipped["Final:Tbl"]
+    assert "HRW:mitigated" not in skipped
+    # the Final conditions are judged where the operator's script leaves it (out of the cell): they hold, said so
+    assert by_name["Final:Tbl"]["ending"] == by_name["Final:Cell"]["ending"] == "holds"
+    assert any(a.startswith("a Final condition") and "last stop (-3.2, -2.2)" in a for a in result["assumptions"])
+    assert set(skipped) == {"NoHarm", "NoClamping"}  # the harm service's signals: no abstraction models them yet
     assert result["states"] > 0 and result["assumptions"]
 
 

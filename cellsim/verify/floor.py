@@ -49,6 +49,8 @@ class PersonPlaces:
     """The read signals a place's reading gives, in order."""
     every: int = 1
     """Steps between the person's updates (its own period over the step): it changes place only at those."""
+    end: int | None = None
+    """The place where its script leaves it at the run's end (``PersonRole.end``); None: not known."""
 
     def at(self, place: int) -> Place:
         return self.places[place]
@@ -82,7 +84,7 @@ def cut_floor(cell: AbstractCell) -> Places:
     for person in cell.people:
         own = {f"{person.module}.{port}": fn for port, fn in person.own.items()}
         signals = [s for s in own if s in cell.reads] + [s for s in sensed if s in cell.reads]
-        poses = list(dict.fromkeys([person.start, *person.poses]))
+        poses = list(dict.fromkeys([person.start, *([person.end] if person.end else []), *person.poses]))
         parts = cores() if len(poses) >= SIDE_BY_SIDE_FROM else 1
         size = -(-len(poses) // parts)
         works = [_measuring(cell, context, person, poses[i:i + size], signals, own, sensed)
@@ -169,8 +171,9 @@ def _places(cell, person: PersonRole, poses: list[Pose], readings: list[tuple], 
         if a != b:
             neighbours[a].add(b)
             neighbours[b].add(a)
+    end = None if person.end is None else place_of[poses.index(person.end)]
     return PersonPlaces(person, places, neighbours, place_of[0], f"{person.module}_place", signals,
-                        _person_every(cell, person))
+                        _person_every(cell, person), end)
 
 
 def _person_every(cell: AbstractCell, person: PersonRole) -> int:

@@ -92,6 +92,11 @@ class PersonRole:
     top_speed: float | None = None
     """m/s: the fastest the person walks in the twin, pace modelled or not: the model takes its place at its own
     period only where it cannot walk past a grid point in one (else at every step); None: at every step."""
+    end: Pose | None = None
+    """Where its script leaves it at the end of the run (its last stop, arm down), when the script is over by then
+    at its slowest pace: a ``Final`` condition (``F G p``) is judged where every person stands there."""
+    ends: str = ""
+    """Where and by when it gets to ``end`` (words for the assumption), or why there is no ``end``."""
 
 
 @dataclass

@@ -18,8 +18,18 @@ When it fails, ``b`` may take longer, or wait on something the abstraction leave
 free forever (a person who never leaves): it is then judged under fairness
 (:func:`cellsim.verify.storm.always_answerable`), and no witness is run on the twin.
 
-Any other shape (``F G``, a timed ``F`` outside ``G``) is listed as not checked, with
-the reason: the abstract model has no end of run.
+A ``Final`` condition ``F G(p)`` (how a run ends; on a finite trace, ``p`` at its
+last sample) is judged where a run can end: in every state where each person
+stands where its script leaves it (``PersonRole.end``), ``p`` must hold. The
+model has no clock to the horizon, so any such state counts as a run's last (more
+endings than the twin's, never fewer); that the people do end there is the stated
+assumption, which the twin's runs check. A person whose script may not be over by
+the run's end may stand anywhere then. A condition that reads only the people's
+own signals (their zone, their flags) is decided at their last stops, without
+cutting the floor by what it reads.
+
+Any other shape (a timed ``F`` outside ``G``) is listed as not checked, with the
+reason: the abstract model has no end of run.
 A condition reading a signal no abstraction defines (the ground truth's
 separation) is listed as not checked too.
 
@@ -59,7 +69,7 @@ class Candidate:
 
     name: str
     description: str
-    shape: str  # "invariant", "bounded response" or "response" (G(a -> F b), checked within RESPONSE_PERIODS)
+    shape: str  # "invariant", "final" (F G p), "bounded response" or "response" (G(a -> F b), within RESPONSE_PERIODS)
     parts: tuple  # (p,) or (a, b, c, w)
     variables: dict[str, str]  # trace variable -> channel
 
@@ -73,11 +83,12 @@ class ConditionProperties:
         self.candidates: list[Candidate] = []
         self.skipped: list[Skipped] = []
         self.user: list[tuple[str, str, str]] = []  # (name, pctl text, description)
+        self._final_assumed = False
 
     def channel(self, variable: str) -> str:
         return self.aliases.get(variable, variable)
 
-    def declare(self) -> None:
+    def declare(self, vocabulary) -> None:
         from cellsim.config.validation import description_of
 
         for name, formula in self.case.conditions.items():
@@ -88,11 +99,31 @@ class ConditionProperties:
                 continue
             kind, parts = shape
             variables = {v: self.channel(v) for v in variables_of(formula)}
+            if kind == "final":
+                ended = self._at_the_end(parts[0], variables, vocabulary)
+                if ended is not None:
+                    self.candidates.append(Candidate(name, description or str(name), kind, (Const(ended),), {}))
+                    continue
             self.candidates.append(Candidate(name, description or str(name), kind, parts, variables))
             self._reads(formula, variables, f"condition {name}")
         for name, entry in getattr(self.validation, "verify", {}).items():
             self.user.append((name, entry if isinstance(entry, str) else entry.formula,
                               "" if isinstance(entry, str) else entry.description))
+
+    def _at_the_end(self, p, variables: dict[str, str], vocabulary) -> bool | None:
+        """``p``'s value where the people's scripts leave them, when it reads only the people's own signals (their
+        zone, their flags: functions of where each stands) and each of those people has a known end; else None.
+        Decided here, such a ``Final`` condition does not cut the floor by what it reads."""
+        from cellsim.logic.predicates import compile_predicate
+
+        own = {f"{r.module}.{port}": (r, fn) for r in self.cell.people for port, fn in r.own.items()}
+        if not variables or any(ch not in own or own[ch][0].end is None for ch in variables.values()):
+            return None
+        values = {v: own[ch][1](own[ch][0].end) for v, ch in variables.items()}
+        try:
+            return bool(compile_predicate(p, vocabulary)(values))
+        except (FormulaError, KeyError):
+            return None
 
     def _reads(self, formula, variables: dict[str, str], by: str) -> None:
         for channel in variables.values():
@@ -112,6 +143,8 @@ class ConditionProperties:
             try:
                 if c.shape == "invariant":
                     bad, sustained = f"!({to_prism(c.parts[0], encodings, names)})", ""
+                elif c.shape == "final":
+                    bad, sustained = self._final(c, encodings, names), ""
                 else:
                     bad, sustained = self._monitor(c, encodings, names)
             except VerifyError as e:
@@ -123,6 +156,22 @@ class ConditionProperties:
                 response = tuple(to_prism(c.parts[i], encodings, names) for i in (0, 2))
             cell.properties.append(Property(c.name, c.description, bad=bad, condition=c.name, sustained=sustained,
                                             within=within, response=response))
+
+    def _final(self, c: Candidate, encodings, names) -> str:
+        """``F G p`` (how a run ends): its bad states are those where every person stands where its script leaves it
+        at the run's end (``PersonPlaces.end``) and ``p`` fails. Any such state may be the run's last one: the twin's
+        run ends there when the person's walk is over. A person whose script may not be over by then may stand
+        anywhere (more endings, never fewer)."""
+        people = self.cell.places.people if self.cell.places is not None else []
+        if not self._final_assumed:
+            self._final_assumed = True
+            where = "; ".join(f"{p.role.ends}{'' if p.end is not None else ', so it may stand anywhere then'}"
+                              for p in people) or "no person walks in the cell"
+            self.cell.assume("a Final condition (F G p) is judged in every state where each person stands where its "
+                             f"script leaves it ({where}); any such state may be a run's last, whatever the rest "
+                             "of the cell is doing then")
+        at_end = [f"{p.variable} = {p.end}" for p in people if p.end is not None]
+        return f"{' & '.join(at_end) + ' & ' if at_end else ''}!({to_prism(c.parts[0], encodings, names)})"
 
     def _monitor(self, c: Candidate, encodings, names) -> tuple[str, str]:
         a, b, cc, w = c.parts
@@ -179,9 +228,9 @@ class ConditionProperties:
 def _shape(formula):
     """("invariant", (p,)), ("bounded response", (a, b, c, w)) or ("response", (a, true, b, inf)), else why not
     (a string)."""
-    if isinstance(formula, Eventually) and isinstance(formula.arg, Always) and _timeless(formula.arg.arg):
-        return ("F G(p) asks how a run ends; the abstract model has no end of run (any state could be the last, "
-                "a person may stand anywhere then), so only the twin's runs judge it")
+    if (isinstance(formula, Eventually) and isinstance(formula.arg, Always) and _timeless(formula.arg.arg)
+            and formula.lo == 0.0 and formula.hi == math.inf and formula.arg.lo == 0.0 and formula.arg.hi == math.inf):
+        return "final", (formula.arg.arg,)
     if not isinstance(formula, Always) or formula.lo != 0.0 or formula.hi != math.inf:
         return "not of the form G(...): a liveness or timed property the abstract model, which has no end of run, cannot judge"
     body = formula.arg

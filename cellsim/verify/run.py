@@ -201,8 +201,9 @@ def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset
     for part in parts:
         part.declare(abstract)
     if conditions is not None:
-        conditions.declare()
-        conditions.declare_user(*_vocabulary(sf, cell))
+        vocabulary, macros = _vocabulary(sf, cell)
+        conditions.declare(vocabulary)
+        conditions.declare_user(vocabulary, macros)
     times["declare"] = time.perf_counter() - start - times["cell"]
     mark = time.perf_counter()
     abstract.places = cut_floor(abstract)

@@ -12,11 +12,12 @@ this kind's own config: waypoints with waits and reaches.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 
-from cellsim.kinds.operator.system import REACH_TIME, obstacles, route
+from cellsim.kinds.operator.system import REACH_TIME, obstacles, plan_walk, route
 from cellsim.floorplan import point_in_polygon, points_in_polygon
 from cellsim.verify.model import ModuleAbstraction, AbstractCell, PersonRole, Pose
 
@@ -52,9 +53,10 @@ class PersonAbstraction(ModuleAbstraction):
             if w.press is not None:
                 buttons[f"press_{w.press.replace('.', '_')}"] = tuple(w.position)
         paced = f"{self.name}:pace" in cell.refinements
+        end, ends = self._end(start, cell.sf.scenario.duration)
         cell.add_person(PersonRole(self.name, poses, start, self._stand, own, self.step, buttons, travel=self.travel,
                                    walk=self.walk, max_speed=self.max_speed if paced else None,
-                                   top_speed=self.max_speed))
+                                   top_speed=self.max_speed, end=end, ends=ends))
         pace = f"no faster than {self.max_speed:.3g} m/s (its walking speed and jitter)" if paced else "at any pace"
         cell.assume(f"{self.name} may walk anywhere on the floor {pace}, reach towards "
                     f"{'the points its waypoints reach for' if any(w.reach for w in cfg.waypoints.values()) else 'nothing'} "
@@ -64,6 +66,24 @@ class PersonAbstraction(ModuleAbstraction):
     def max_speed(self) -> float:
         """m/s: the fastest this person walks in the twin (its walking speed at the top of its jitter)."""
         return self.cfg.walking_speed * (1.0 + self.cfg.speed_jitter)
+
+    def _end(self, start: Pose, duration: float) -> tuple[Pose | None, str]:
+        """Where the script leaves this person at the end of a run of ``duration`` s (its last stop, arm down, facing
+        the way it walked there), when it is over by then even at the slowest pace its jitter allows; and in words."""
+        cfg = self.cfg
+        if not cfg.waypoints:
+            return start, f"{self.name} stands at its start {tuple(cfg.start)} throughout"
+        legs = plan_walk(dataclasses.replace(cfg, speed_jitter=0.0), 0, layout=self.layout)
+        slowest = 1.0 - cfg.speed_jitter
+        over = cfg.start_delay + sum((leg.arrive - leg.depart) / slowest + (leg.leave - leg.arrive) for leg in legs)
+        last = legs[-1]
+        if over > duration:
+            return None, (f"{self.name}'s script may not be over by the run's end ({over:.3g} s at its slowest pace, "
+                          f"the run {duration:g} s): where it then stands depends on its pace")
+        yaw = next((leg.heading for leg in reversed(legs) if leg.heading is not None), start.yaw)
+        where = tuple(round(float(v), 3) for v in last.end)
+        return (Pose(float(last.end[0]), float(last.end[1]), yaw),
+                f"{self.name} ends at its last stop {where}, its script over by {over:.3g} s at its slowest pace")
 
     def refinement(self, cell: AbstractCell, witness: list[dict]) -> tuple[str, str] | None:
         """A witness in which this person crosses a place faster than it walks: model its pace; with its pace

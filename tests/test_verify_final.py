@@ -1,0 +1,89 @@
+"""``Final`` conditions (``F G p``: how a run ends) judged by ``verify`` where a run can end (issue 36, item 4): in every
+state where each person stands where its script leaves it. A condition on where the people end is decided at their
+last stops; one on the cell is a property of the model; a person whose script may not be over by the run's end may
+stand anywhere then, and the twin confirms the run that ends so."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import stormpy
+
+from cellsim.scenario import load_scenario
+from cellsim.verify.run import abstract_model
+from cellsim.verify.storm import _valuation_of
+
+from conftest import ROOT
+from test_verify import _verify
+
+CONDITIONS = {
+    "Final:Out": "F G(oloc == away)",  # where the operator ends: decided at its last stop
+    "Final:Resting": "F G(arm_mode == normal)",  # the arm's mode as the run ends: a property of the model
+}
+
+
+def _final_cell(folder, duration: float | None = None):
+    """The machine-tending cell with the two Final conditions (its operator's script is over by about 21 s)."""
+    path = folder / "final.yaml"
+    lines = [f"base: {ROOT / 'scenarios' / 'machine_tending.yaml'}", "name: machine_tending_final"]
+    if duration is not None:
+        lines.append(f"duration: {duration}")
+    lines += ["validation:", "  variables:", "    oloc: operator.location", "  conditions:"]
+    lines += [f'    "{name}": {formula}' for name, formula in CONDITIONS.items()]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_a_final_condition_is_judged_where_the_people_s_scripts_leave_them(tmp_path):
+    scenario = _final_cell(tmp_path)
+    export = tmp_path / "final.prism"
+    done = _verify(str(scenario), "--json", "--no-replay", "--refine", "0", "--export", str(export),
+                   "--out", str(tmp_path / "out"))
+    result = json.loads(done.stdout)
+    by_name = {p["name"]: p for p in result["properties"]}
+    assert not {s["name"] for s in result["not_checked"]} & set(CONDITIONS)
+    # the operator ends away: holds; the arm may not be back to normal the moment the operator gets there
+    assert by_name["Final:Out"]["ending"] == "holds"
+    assert by_name["Final:Resting"]["holds"] is False and by_name["Final:Resting"]["ending"] == "undecided"
+    assumption = next(a for a in result["assumptions"] if a.startswith("a Final condition"))
+    assert "operator ends at its last stop (-3.5, 2.0)" in assumption
+
+    # stormpy on the exported model, on its own: the same values; the bad states of Final:Resting are all where
+    # the operator stands at its last stop's place, and some such state has the arm in another mode
+    program = stormpy.parse_prism_program(str(export))
+    options = stormpy.BuilderOptions(build_full=True)
+    options.set_build_state_valuations(True)
+    model = stormpy.build_model(program, options=options)
+    lines = dict(re.fullmatch(r'"([^"]+)": (.*);', line).groups()
+                 for line in export.with_suffix(".props").read_text().splitlines() if line and not line.startswith("//"))
+    for name in CONDITIONS:
+        (formula,) = stormpy.parse_properties(lines[re.sub(r"\W", "_", name)], program)
+        value = stormpy.model_checking(model, formula).get_value(model.initial_states[0])
+        assert value == by_name[name]["value"], name
+
+    sf = load_scenario(scenario)
+    abstract = abstract_model(sf)
+    (person,) = abstract.cell.places.people
+    end = abstract.cell.places.people[0].at(person.end)
+    assert any(abs(p.x + 3.5) < 1e-9 and abs(p.y - 2.0) < 1e-9 for p in end.poses)
+    bad = model.labeling.get_states(abstract.labels["Final:Resting"])
+    valuation = _valuation_of(model, None)
+    places = {valuation(s)[person.variable] for s in range(model.nr_states) if bad.get(s)}
+    assert places == {person.end}
+    # deciding Final:Out at the last stop did not cut the floor by the operator's zone
+    plain = abstract_model(load_scenario(ROOT / "scenarios" / "machine_tending.yaml"))
+    assert len(person.places) == len(plain.cell.places.people[0].places)
+
+
+def test_a_run_that_may_end_before_the_script_is_over_ends_anywhere_and_the_twin_shows_it(tmp_path):
+    """8 s runs: the operator is still at the bench when the run ends. Both conditions are violated in the model, and
+    the twin's run of each witness ends so."""
+    done = _verify(str(_final_cell(tmp_path, duration=8.0)), "--json", "--refine", "0", "--out", str(tmp_path / "out"))
+    assert done.returncode == 1, done.stderr
+    result = json.loads(done.stdout)
+    by_name = {p["name"]: p for p in result["properties"]}
+    for name in CONDITIONS:
+        assert by_name[name]["ending"] == "violated" and by_name[name]["twin"]["confirmed"], name
+    assumption = next(a for a in result["assumptions"] if a.startswith("a Final condition"))
+    assert "may not be over by the run's end" in assumption and "may stand anywhere then" in assumption
