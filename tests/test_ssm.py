@@ -237,3 +237,40 @@ def test_a_robot_in_twin_mode_sends_its_physical_twin_the_ssm_limit_in_force_and
     welding.set_initial_state(context)
     sent = welding.diagram.GetOutputPort("robot.physical_command").Eval(context)
     assert sent[at] == 0.5  # no ssm module: its input reads unlimited, the ssmon cap goes out
+
+
+# A person clearing the jam steps back into the approach field and in again (as in the witness with which
+# `cellsim verify` found the fault and the twin confirmed it): the field is never clear, so JAM stays active.
+IN_OUT_AND_IN = """\
+base: {base}
+duration: 9.0
+entities:
+  operator:
+    start: [1.6, -1.2]
+    start_delay: 1.0
+    speed_jitter: 0.0
+    waypoints: !replace
+      jam: {{position: [0.8, 0.0], wait: 1.0}}
+      approach: {{position: [0.8, -0.9], wait: 0.5}}
+      jam_again: {{position: [0.8, 0.0], wait: 2.0}}
+configuration_points: !replace {{}}
+campaign: !replace {{}}
+"""
+
+
+@pytest.mark.parametrize("waits_on", ["its controller", "its own condition"])
+def test_each_arm_yields_for_as_long_as_its_controller_demands_it(tmp_path, waits_on):
+    """Each arm's process waits, yielding, until the safety controller releases it. With the first version's own
+    weaker condition (field not jam) the assembler went back to waiting while JAM was still active, and a person
+    stepping in again found it so: JamYields violated."""
+    path = tmp_path / "in_out_and_in.yaml"
+    path.write_text(IN_OUT_AND_IN.format(base=ASSEMBLY_BENCH))
+    steps = load_scenario(ASSEMBLY_BENCH).scenario.behaviours["assembling"].steps
+    wait_free = next(i for i, step in enumerate(steps) if step.name == "wait_free")
+    assert steps[wait_free].wait_until == "safety_controller.assembler_task != yielding"
+    overrides = [] if waits_on == "its controller" else [
+        f"behaviours.assembling.steps.{wait_free}.wait_until=scanner.field != jam"]
+    done = simulate_and_check(load_scenario(path, overrides), tmp_path / "run", seed=0)
+    verdicts = {name: v.status.name for name, v in done.checked.result.verdicts.items()}
+    assert done.summary.hazards["safety_controller.JAM"].raised == 1  # one stint, the field never clear between
+    assert verdicts["JamYields"] == ("HOLDS" if waits_on == "its controller" else "VIOLATED")

@@ -260,6 +260,20 @@ def test_the_palletising_cell_verifies_with_every_mishap_unreachable(tmp_path):
     assert not list(tmp_path.glob("*.yaml"))  # nothing to replay, nothing written
 
 
+def test_the_assembly_bench_verifies_with_both_arms_yielding_to_a_jam(tmp_path):
+    """Its processes wait, yielding, until the controller releases them: JamYields holds even in the any-pace
+    abstraction (no refinement, no witness), where the first version's own wait condition had a confirmed
+    violation (tests/test_ssm.py replays that walk)."""
+    done = _verify(str(ROOT / "scenarios" / "assembly_bench.yaml"), "--json", "--out", str(tmp_path))
+    assert done.returncode == 0, done.stdout + done.stderr
+    result = json.loads(done.stdout)
+    by_name = {p["name"]: p for p in result["properties"]}
+    assert by_name["JamYields"]["ending"] == "holds" and by_name["JamYields"]["value"] == 0
+    assert {"JAM:mishap", "BENCH:mishap", "AlwaysMonitored"} <= set(by_name)
+    assert all(p["ending"] == "holds" for p in result["properties"]) and result["refinements"] == []
+    assert not list(tmp_path.glob("*.yaml"))  # no witness written
+
+
 def test_a_robot_starts_in_the_mode_its_controller_commands_from_the_first_period(tmp_path):
     """A controller whose default is ssmon: the robot's update at t = 0 takes it, so the run never shows
     another mode, and neither does the abstract model (it started every robot in normal: a one-period
