@@ -44,7 +44,7 @@ import math
 import re
 from dataclasses import dataclass
 
-from cellsim.logic.syntax import (Always, Const, Eventually, FormulaError, Implies, Until, is_temporal, numeric_comparisons,
+from cellsim.logic.syntax import (Always, And, Const, Eventually, FormulaError, Implies, Until, is_temporal, numeric_comparisons,
                                   parse, variables_of)
 from cellsim.verify.expressions import VerifyError, to_prism
 from cellsim.verify.model import AbstractCell, Property
@@ -231,6 +231,8 @@ def _shape(formula):
     if (isinstance(formula, Eventually) and isinstance(formula.arg, Always) and _timeless(formula.arg.arg)
             and formula.lo == 0.0 and formula.hi == math.inf and formula.arg.lo == 0.0 and formula.arg.hi == math.inf):
         return "final", (formula.arg.arg,)
+    if isinstance(formula, And) and all(_invariant(arg) for arg in formula.args):
+        return "invariant", (And(tuple(arg.arg for arg in formula.args)),)  # G(a) and G(b) is G(a and b)
     if not isinstance(formula, Always) or formula.lo != 0.0 or formula.hi != math.inf:
         return "not of the form G(...): a liveness or timed property the abstract model, which has no end of run, cannot judge"
     body = formula.arg
@@ -245,6 +247,11 @@ def _shape(formula):
                 return "response", (body.lhs, Const(True), rhs.arg, math.inf)
         return "its shape is neither G(p) nor G(a -> (b U[0, w] c)) nor G(a -> F[0, w] c)"
     return "invariant", (body,)
+
+
+def _invariant(formula) -> bool:
+    """``G(p)`` with ``p`` without time."""
+    return isinstance(formula, Always) and formula.lo == 0.0 and formula.hi == math.inf and _timeless(formula.arg)
 
 
 def _timeless(formula) -> bool:
