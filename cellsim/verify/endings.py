@@ -59,9 +59,6 @@ def ending_of(checked, replay, *, replayed: bool, symbolic: bool, refinements: l
         if fair:
             return Final(name, Ending.HOLDS, f"proved in the abstraction under fairness: {slower}, but it can always "
                          "still come, so it comes on every path where what can be done again and again is done")
-        if fair is None:
-            return Final(name, Ending.UNDECIDED, f"{slower}, and whether it can always still come was not judged "
-                         "(decision diagrams give no state graph)")
         return Final(name, Ending.UNDECIDED, f"{slower}, and the abstraction reaches a state from which it can never "
                      "come: no witness of that is built or run on the twin yet")
     tried = f"; refinement: {', '.join(refinements)}" if refinements else ""

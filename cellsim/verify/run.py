@@ -369,7 +369,8 @@ def _storm(model: AbstractModel, memory: int, say, enough=None):
             del symbolic
             stats = replace(whole_stats, symbolic=False, made_sparse=not by_state)
             for i, (props, group) in enumerate(model.groups()):
-                again = [p for p in props if p.bad and results[p.name].holds is False]
+                # (a liveness condition's answer under fairness came from the decision diagrams: nothing to build)
+                again = [p for p in props if p.bad and results[p.name].holds is False and results[p.name].fair is None]
                 if not again:
                     continue
                 if settled and all(p.within is None for p in again):

@@ -183,7 +183,7 @@ def _initial_value(stormpy, model, formula):
     result = stormpy.model_checking(model, formula, only_initial_states=True)
     if model.is_symbolic_model:
         result.filter(stormpy.create_filter_initial_states(model))
-        return result.get_max()
+        return result.exists_true() if hasattr(result, "exists_true") else result.get_max()
     initial = model.initial_states[0]
     return result.get_value(initial) if hasattr(result, "get_value") else bool(result.get_truth_values_vector()[initial])
 
@@ -207,7 +207,7 @@ def check(program, model, prop: Property, bad_label: str | None, still: tuple[st
         holds = value <= 0.0
         witness = None
         fair = None
-        if not holds and not model.is_symbolic_model and prop.response:
+        if not holds and prop.response:
             fair = always_answerable(program, model, f"{bad_label}_a", f"{bad_label}_b")
         elif not holds and not model.is_symbolic_model:
             sustained = f"{bad_label}_sustained" if prop.sustained else None
@@ -227,8 +227,13 @@ def always_answerable(program, model, a_label: str, b_label: str) -> bool:
     visit states closed under their steps, one of which leads on to ``b``.)
 
     Asked of Storm as ``Pmax=? [ !b U (Pmax<=0 [ F b ]) ]``: the states from which a path without ``b`` reaches one
-    from which ``b`` can never come; none of them may be an ``a`` state."""
+    from which ``b`` can never come; none of them may be an ``a`` state. On decision diagrams, as one qualitative
+    question of the initial state: can it reach such an ``a`` state (no model need be made sparse for it)."""
     stormpy = _quiet()
+    if model.is_symbolic_model:
+        text = (f'Pmax>0 [ F ("{a_label}" & !"{b_label}" & Pmax>0 [ !"{b_label}" U (Pmax<=0 [ F "{b_label}" ]) ]) ]')
+        (formula,) = stormpy.parse_properties(text, program)
+        return not _initial_value(stormpy, model, formula)
     (formula,) = stormpy.parse_properties(f'Pmax=? [ !"{b_label}" U (Pmax<=0 [ F "{b_label}" ]) ]', program)
     values = stormpy.model_checking(model, formula).get_value_vector()
     a, b = model.labeling.get_states(a_label), model.labeling.get_states(b_label)
