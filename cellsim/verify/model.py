@@ -146,6 +146,9 @@ class Property:
     within: float | None = None
     """A liveness condition ``G(a -> F b)``, checked as the stronger ``G(a -> F[0, within] b)`` (s): holding proves
     the condition; failing says only that ``b`` may take longer (then judged under fairness, ``response``)."""
+    final: bool = False
+    """A ``Final`` condition (``F G p``): its bad states are where each person stands at its script's end, so a witness
+    walk ends at that very stop (``PersonRole.end``)."""
     response: tuple[str, str] | None = None
     """A liveness condition's ``a`` and ``b`` (PRISM expressions): whether ``b`` can still come from every state
     reachable from ``a`` without it (:func:`cellsim.verify.storm.always_answerable`)."""

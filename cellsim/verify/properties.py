@@ -155,7 +155,7 @@ class ConditionProperties:
                 within = RESPONSE_PERIODS * cell.period
                 response = tuple(to_prism(c.parts[i], encodings, names) for i in (0, 2))
             cell.properties.append(Property(c.name, c.description, bad=bad, condition=c.name, sustained=sustained,
-                                            within=within, response=response))
+                                            within=within, response=response, final=c.shape == "final"))
 
     def _final(self, c: Candidate, encodings, names) -> str:
         """``F G p`` (how a run ends): its bad states are those where every person stands where its script leaves it

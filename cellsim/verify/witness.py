@@ -84,6 +84,8 @@ def walks(model, checked: Checked, shift: float) -> tuple[dict, float]:
                 here = runs[-1][3] if runs else person.role.start
                 pose = person.role.start if not runs and place == person.start else _stand_in(person, place, here)
                 runs.append([place, step, step, pose])
+        if checked.prop.final and person.end is not None and runs[-1][0] == person.end:
+            runs[-1][3] = person.role.end  # a run that ends as the person's script does: at its very last stop
         people.append((person, runs))
     clock = [shift]
     for step in range(1, len(path)):

@@ -20,6 +20,7 @@ import numpy as np
 from cellsim.kinds.operator.system import REACH_TIME, obstacles, plan_walk, route
 from cellsim.floorplan import point_in_polygon, points_in_polygon
 from cellsim.verify.model import ModuleAbstraction, AbstractCell, PersonRole, Pose
+from cellsim.vocabulary import TwinMode
 
 GRID = 0.1
 """The floor grid's step (m); refined (``<person>:fine``), half that."""
@@ -32,6 +33,7 @@ class PersonAbstraction(ModuleAbstraction):
     def __init__(self, cell: AbstractCell, name: str, cfg):
         super().__init__(cell, name, cfg)
         self.layout = cell.sf.scenario.layout
+        self.sf = cell.sf
 
     def declare(self, cell: AbstractCell) -> None:
         cfg, layout = self.cfg, self.layout
@@ -71,19 +73,28 @@ class PersonAbstraction(ModuleAbstraction):
         """Where the script leaves this person at the end of a run of ``duration`` s (its last stop, arm down, facing
         the way it walked there), when it is over by then even at the slowest pace its jitter allows; and in words."""
         cfg = self.cfg
+        if any(mode is not TwinMode.MODEL for mode in (cfg.twin.mode, *(c.mode for c in cfg.twin.changes))):
+            return None, f"{self.name} follows its physical twin, which ends where it will"
+        sampled = [name for name, point in self.sf.scenario.configuration_points.items()
+                   if any(path.split(".")[0] == self.name or path.startswith(f"entities.{self.name}.")
+                          for path in point.paths)]
+        nominal = (f" as the scenario writes it (a campaign sampling {', '.join(sampled)} may end it elsewhere or later)"
+                   if sampled else "")
         if not cfg.waypoints:
-            return start, f"{self.name} stands at its start {tuple(cfg.start)} throughout"
+            return start, f"{self.name} stands at its start {tuple(cfg.start)} throughout{nominal}"
         legs = plan_walk(dataclasses.replace(cfg, speed_jitter=0.0), 0, layout=self.layout)
         slowest = 1.0 - cfg.speed_jitter
         over = cfg.start_delay + sum((leg.arrive - leg.depart) / slowest + (leg.leave - leg.arrive) for leg in legs)
-        last = legs[-1]
-        if over > duration:
-            return None, (f"{self.name}'s script may not be over by the run's end ({over:.3g} s at its slowest pace, "
-                          f"the run {duration:g} s): where it then stands depends on its pace")
+        # the run's last record of the person is its last update before the end (none is made at the end itself)
+        last_update = (math.ceil(duration / cfg.period - 1e-9) - 1) * cfg.period
+        if over > last_update + 1e-9:
+            return None, (f"{self.name}'s script may not be over by its last update ({over:.3g} s at its slowest pace, "
+                          f"the last update at {last_update:.3g} s){nominal}")
         yaw = next((leg.heading for leg in reversed(legs) if leg.heading is not None), start.yaw)
-        where = tuple(round(float(v), 3) for v in last.end)
-        return (Pose(float(last.end[0]), float(last.end[1]), yaw),
-                f"{self.name} ends at its last stop {where}, its script over by {over:.3g} s at its slowest pace")
+        where = tuple(round(float(v), 3) for v in legs[-1].end)
+        return (Pose(float(legs[-1].end[0]), float(legs[-1].end[1]), yaw),
+                f"{self.name} ends at its last stop {where}, its script over by {over:.3g} s at its slowest pace"
+                f"{nominal}")
 
     def refinement(self, cell: AbstractCell, witness: list[dict]) -> tuple[str, str] | None:
         """A witness in which this person crosses a place faster than it walks: model its pace; with its pace

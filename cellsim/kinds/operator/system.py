@@ -231,11 +231,15 @@ class Operator(EntitySystem):
         # the cell's own words for where a person is: outside, or one of the layout's zones
         self.locations = value_set(f"{module}_location", layout.operator_locations())
         self._zones = [(self.locations(name).code, zone) for name, zone in layout.operator_zones.items()]
+        # from the start pose: a person who stands still there all run is where it stands, not outside
+        standing = (float(initial.xy[0]), float(initial.xy[1]), 1.0)
         self._location = self.declare_channel(
-            "location", enum_type(self.locations), layout.operator_outside, description="Where the person stands: a zone of the layout, or outside"
+            "location", enum_type(self.locations),
+            next((name for name, zone in layout.operator_zones.items() if zone.contains(standing)), layout.operator_outside),
+            description="Where the person stands: a zone of the layout, or outside"
         )
         self._flags = [
-            (self.declare_channel(name, BOOL, False, description=f"Standing in the layout's {name} volume"), zone)
+            (self.declare_channel(name, BOOL, zone.contains(standing), description=f"Standing in the layout's {name} volume"), zone)
             for name, zone in layout.operator_flags.items()
         ]
         self._waypoint = self.declare_channel("waypoint", enum_type(self.waypoints), "start")
