@@ -29,6 +29,16 @@ def test_a_module_is_written_after_the_modules_it_reads_even_through_a_formula()
     assert forward_reads(order, reads([a, b, c], formulas)) == 0
 
 
+def test_a_module_nobody_reads_is_written_just_after_the_last_module_it_reads():
+    """A monitor reads the hazard and the sensor; nobody reads it. It costs no forward read anywhere after them, and
+    is written right after the later of the two, not at the end, beside the values it follows."""
+    sensor, hazard = _module("sensor", "0"), _module("hazard", "sensor_x")
+    robot, tail = _module("robot", "hazard_x"), _module("tail", "robot_x")
+    monitor = _module("monitor", "hazard_x + sensor_x")
+    order = [m.name for m in ordered([monitor, tail, robot, hazard, sensor], {})]
+    assert order == ["sensor", "hazard", "monitor", "robot", "tail"]
+
+
 def test_a_loop_is_broken_where_the_fewest_bits_flow_backwards_and_the_order_is_deterministic():
     """A controller that reads a wide sensor and commands a narrow actuator that the sensor reads: the loop costs
     least cut at the narrow read. The same program always gives the same order."""

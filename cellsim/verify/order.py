@@ -15,6 +15,13 @@ host), the forward reads predicted the build time of every order tried: the orde
 the kinds declared their modules in 276 bits and 49 to 71 s; hazards and monitors
 first 1,198 bits and over 5 minutes; this rule's 126 bits and 11 s.
 
+A module nobody reads (an observer: a property's monitor) costs nothing in that
+measure wherever it stands after what it reads, so the rule left the monitors at
+the end, far from the modules whose values they follow. Written just after the last
+module each one reads, the palletising cell's 5.3 million states (270 million
+transitions, four monitors) build in 13-20 s instead of 28-38 s (same host, pairs
+of builds); the other cells' builds are unchanged.
+
 ``AbstractCell.program`` writes every program (the whole cell's, each group's) in
 this order. The order changes nothing but speed: the modules are the same, and so are the
 states, the values and the witnesses' lengths (``tests/test_verify.py``).
@@ -69,6 +76,20 @@ def forward_reads(order: list[Module], read: dict[str, set[str]], sizes: dict[st
 
 
 def ordered(modules: list[Module], formulas: dict[str, str]) -> list[Module]:
+    """The modules in the order of fewest forward reads (:func:`by_forward_reads`), then each module nobody reads (an
+    observer: a property's monitor) moved to just after the last module it reads."""
+    order = by_forward_reads(modules, formulas)
+    read = reads(order, formulas)
+    readers = {r for m in order for r in read[m.name]}
+    observers = [m for m in order if m.name not in readers]
+    order = [m for m in order if m.name in readers]
+    for module in observers:
+        last = max((i for i, m in enumerate(order) if m.name in read[module.name]), default=len(order) - 1)
+        order.insert(last + 1, module)
+    return order
+
+
+def by_forward_reads(modules: list[Module], formulas: dict[str, str]) -> list[Module]:
     """The modules in the order of fewest forward reads, found by moving one module at a time to wherever lowers the
     cost most, from the order given, until no move lowers it (deterministic: the same program, the same order)."""
     read, sizes = reads(modules, formulas), {m.name: bits(m) for m in modules}
