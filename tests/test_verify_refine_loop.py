@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 
 import cellsim.verify.refine as refine
 import cellsim.verify.run as run
@@ -32,6 +33,7 @@ class Checked:
 class Replay:
     confirmed: bool
     runs: list = field(default_factory=lambda: [Path("runs/w")])
+    scenarios: list = field(default_factory=lambda: [Path("w.yaml")])
 
 
 class Pace:
@@ -68,7 +70,8 @@ def scripted(monkeypatch, rounds: dict, confirms: set[tuple[int, str]], could: f
     def fake_verify(sf, *, refinements, enough=None, checked_before=None, **kwargs):
         """As :func:`cellsim.verify.run.verify`: witnesses built in order until ``enough`` says one settles it."""
         current["round"] = len(refinements)
-        model, results, settled, built = Model(round=len(refinements)), [], False, []
+        model = Model(cell=SimpleNamespace(refinements=frozenset(refinements)), round=len(refinements))
+        results, settled, built = [], False, []
         for name, w in rounds[frozenset(refinements)].items():
             if checked_before and name in checked_before:
                 results.append(checked_before[name])
@@ -118,6 +121,10 @@ def test_a_faulted_witness_is_refined_unrun_and_the_others_are_run_in_the_same_r
     endings = {f.name: f.ending for f in result.endings()}
     assert endings == {"A": Ending.VIOLATED, "B": Ending.VIOLATED, "C": Ending.UNDECIDED, "D": Ending.HOLDS}
     assert result.exit_code == 1
+    # C's ending names both refutations: its own round's witness, and the coarser one run at the end
+    reason = next(f.reason for f in result.endings() if f.name == "C")
+    assert reason.startswith("the twin refutes the witness in 1 runs")
+    assert "the witness of the model before any refinement was run too, and the twin refutes it in 1 runs" in reason
     assert any("nothing to refine" in s for s in said)  # C's refuted witness: no module faults it
 
 

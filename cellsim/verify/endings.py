@@ -42,10 +42,19 @@ class Final:
     reason: str
 
 
-def ending_of(checked, replay, *, replayed: bool, symbolic: bool, refinements: list[str] = ()) -> Final:
+def ending_of(checked, replay, *, replayed: bool, symbolic: bool, refinements: list[str] = (),
+              earlier: list[str] = ()) -> Final:
     """The ending of one checked property (``checked``: :class:`cellsim.verify.storm.Checked`), given its witness's
     replay on the twin (``replay``: :class:`cellsim.verify.witness.Replay` or None), whether witnesses were replayed
-    at all, whether the model was checked as decision diagrams, and the refinements tried on it."""
+    at all, whether the model was checked as decision diagrams, the refinements tried on it, and what the twin said
+    of the witnesses of coarser rounds run at the end (``earlier``: each in words), which an undecided ending adds."""
+    final = _ending(checked, replay, replayed, symbolic, refinements)
+    if final.ending is Ending.UNDECIDED and earlier:
+        return Final(final.name, final.ending, f"{final.reason}; {'; '.join(earlier)}")
+    return final
+
+
+def _ending(checked, replay, replayed: bool, symbolic: bool, refinements) -> Final:
     name = checked.prop.name
     if checked.holds is None:
         return Final(name, None, "a value, not a verdict")

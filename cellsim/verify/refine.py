@@ -125,6 +125,11 @@ def _run_skipped(result, skipped: dict, waited: dict, confirmed: dict, rebuild, 
         if ran.confirmed:
             confirmed[earlier.prop.name] = (earlier, ran)
             result.results[i], result.replays[earlier.prop.name] = earlier, ran
+        else:
+            keys = sorted(model.cell.refinements)
+            result.earlier.setdefault(earlier.prop.name, []).append(
+                f"the witness of the model {'with ' + ', '.join(keys) if keys else 'before any refinement'} was run "
+                f"too, and the twin refutes it in {len(ran.runs)} runs ({ran.scenarios[0]})")
         return ran.confirmed
 
     index = {r.prop.name: i for i, r in enumerate(result.results)}

@@ -123,6 +123,9 @@ class Verification:
     """The refinements switched on, in order (:class:`cellsim.verify.refine.Refinement`)."""
     not_refined: str = ""
     """Why the refinement that was next was not tried (the model it makes could be too large), if it was not."""
+    earlier: dict = field(default_factory=dict)
+    """Property name -> what the twin said, in words, of the witnesses of coarser rounds run at the end and refuted
+    (:func:`cellsim.verify.refine.verify_with_twin`): part of what blocks its verdict."""
 
     def endings(self) -> list:
         """Each property's final verdict (:mod:`cellsim.verify.endings`): holds, violated (a witness the twin
@@ -131,7 +134,7 @@ class Verification:
 
         tried = [r.key for r in self.refinements] + ([self.not_refined] if self.not_refined else [])
         return [ending_of(r, self.replays.get(r.prop.name), replayed=self.replayed, symbolic=self.stats.symbolic,
-                          refinements=tried) for r in self.results]
+                          refinements=tried, earlier=self.earlier.get(r.prop.name, ())) for r in self.results]
 
     @property
     def exit_code(self) -> int:
