@@ -55,9 +55,10 @@ class PersonPlaces:
     def at(self, place: int) -> Place:
         return self.places[place]
 
-    def pace_violation(self, witness: list[dict], period: float, speed: float, exact: bool = False) -> str | None:
-        """:func:`pace_violation` of this person (what a person's abstraction asks, without importing the floor)."""
-        return pace_violation(self, witness, period, speed, exact)
+    def pace_departure(self, witness: list[dict], period: float, speed: float,
+                       exact: bool = False) -> tuple[str, int] | None:
+        """:func:`pace_departure` of this person (what a person's abstraction asks, without importing the floor)."""
+        return pace_departure(self, witness, period, speed, exact)
 
 
 @dataclass
@@ -243,6 +244,14 @@ def pace_violation(person: PersonPlaces, witness: list[dict], period: float, spe
     """Where a witness (a state a step of ``period`` s) has ``person`` cross a place faster than ``speed`` allows
     (the first such crossing), said as which variable, at which period, and why; None if it never does (``exact``:
     see :func:`crossing_periods`). The person is sampled at its own period (``person.every`` steps)."""
+    found = pace_departure(person, witness, period, speed, exact)
+    return None if found is None else found[0]
+
+
+def pace_departure(person: PersonPlaces, witness: list[dict], period: float, speed: float,
+                   exact: bool = False) -> tuple[str, int] | None:
+    """:func:`pace_violation`'s words, and the witness's step where the person leaves the place too soon (where
+    the witness departs from the cell)."""
     every = person.every
     need = crossing_periods(person, period * every, speed, exact)
     var = person.variable
@@ -260,7 +269,7 @@ def pace_violation(person: PersonPlaces, witness: list[dict], period: float, spe
                 own = "" if every == 1 else f" of its {period * every:g} s"
                 return (f"{var} crosses place {here} (from {'its start' if came == ENTERED_AT_START else f'place {came}'} "
                         f"to place {place}) in {took} period(s){own} at {entered * period:g}-{k * period:g} s; at "
-                        f"{speed:.3g} m/s that takes at least {least} ({least * period * every:g} s)")
+                        f"{speed:.3g} m/s that takes at least {least} ({least * period * every:g} s)", k)
             came, entered, here = here, k, place
     return None
 

@@ -443,9 +443,36 @@ class ModuleAbstraction:
     def build(self, cell: AbstractCell) -> None:
         pass
 
-    def refinement(self, cell: AbstractCell, witness: list[dict]) -> tuple[str, str] | None:
+    def refinement(self, cell: AbstractCell, witness: list[dict]) -> tuple | None:
         """Where a witness does what this module cannot (asked before the witness is run on the twin: a witness some
-        module faults is refined, not run): ``(refinement, why)``, the refinement
-        (``<module>:<what>``) that models it more finely and which variable at which period shows it, or None
-        (nothing of this module's). ``witness``: the model's variables at each period."""
+        module faults is refined, not run): ``(refinement, why, step)``, the refinement (``<module>:<what>``) that
+        models it more finely, which variable at which period shows it, and the witness's step where it departs from
+        the cell, the first state the cell cannot be in (the loop refines where the witness departs first;
+        ``(refinement, why)``: at its end), or None
+        (nothing of this module's). ``witness``: the model's variables at each step."""
         return None
+
+    def timed(self, cell: AbstractCell) -> bool:
+        """Whether this module's own durations (a move, a dwell, a cycle) are bounded below in the model: in every
+        module (``--timed``), or in this one, refined (``<module>:timed``) where a witness was faster than it."""
+        return cell.timed or f"{self.name}:timed" in cell.refinements
+
+
+def runs_of(witness: list[dict], variable: str) -> list[tuple[object, int, int]]:
+    """The witness's runs of one variable's value: (value, first step, last step), in order (none if the witness
+    does not have it)."""
+    runs: list[list] = []
+    for k, state in enumerate(witness):
+        if variable not in state:
+            return []
+        if runs and runs[-1][0] == state[variable]:
+            runs[-1][2] = k
+        else:
+            runs.append([state[variable], k, k])
+    return [tuple(r) for r in runs]
+
+
+def updates_in(first: int, last: int, every: int) -> int:
+    """How many updates a module taken every ``every`` steps (from step 0) makes from the states ``first`` to
+    ``last`` of a witness: the steps k in that range with k a multiple of ``every`` (each takes state k to k + 1)."""
+    return sum(1 for k in range(first, last + 1) if k % every == 0)

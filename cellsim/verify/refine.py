@@ -207,10 +207,13 @@ def _faults(model, witness) -> bool:
 
 
 def _offer(model, witness) -> tuple[str, str] | None:
-    """The first module's refinement for ``witness``: (key, why), or None."""
-    for part in model.parts:
+    """The refinement for ``witness`` of the module it departs from first (the earliest step a module's abstraction
+    names; between equals, the module first in the scenario): (key, why), or None."""
+    offers = []
+    for order, part in enumerate(model.parts):
         ask = getattr(part, "refinement", None)  # an observer (Observer) has nothing to refine
         offered = None if ask is None else ask(model.cell, witness)
         if offered is not None:
-            return offered
-    return None
+            step = offered[2] if len(offered) > 2 else len(witness)
+            offers.append((step, order, offered[0], offered[1]))
+    return min(offers)[2:] if offers else None

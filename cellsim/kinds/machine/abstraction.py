@@ -41,7 +41,7 @@ class MachineAbstraction(ModuleAbstraction):
         choices = [updates]
         if cfg.cycle_time > 0:
             own = cell.period * cell.every(m)  # (its counter advances at its own updates)
-            n = max(1, math.ceil(cfg.cycle_time / own - 1e-9)) if cell.timed else 1
+            n = max(1, math.ceil(cfg.cycle_time / own - 1e-9)) if self.timed(cell) else 1
             left = f"{m}_left"
             variables.append(Var(left, 0, n, 0))
             started = f"({command} & !{last} & {left} = 0 ? {n} : {left})"
@@ -49,7 +49,7 @@ class MachineAbstraction(ModuleAbstraction):
             updates[activity] = (f"({stopped} ? {system.off} : {resting} ? {system.rest} : "
                                  f"{started} > 0 ? {system.working} : {system.rest})")
             cell.define(f"{m}.busy", f"({left} > 0)")
-            if cell.timed:
+            if self.timed(cell):
                 cell.assume(f"{m}'s cycle of {cfg.cycle_time:g} s takes {n} periods")
             else:  # a cycle under way may also go on: any length from one period on
                 going = dict(updates, **{left: f"({stopped} ? 0 : {resting} ? {started} : {started})"})

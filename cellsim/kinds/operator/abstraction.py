@@ -96,7 +96,7 @@ class PersonAbstraction(ModuleAbstraction):
                 f"{self.name} ends at its last stop {where}, its script over by {over:.3g} s at its slowest pace"
                 f"{nominal}")
 
-    def refinement(self, cell: AbstractCell, witness: list[dict]) -> tuple[str, str] | None:
+    def refinement(self, cell: AbstractCell, witness: list[dict]) -> tuple[str, str, int] | None:
         """A witness in which this person crosses a place faster than it walks: model its pace; with its pace
         modelled, one that crosses a place only as fast as the grid's slack allows (a place's border lies somewhere
         between two grid points, so a crossing may be up to two steps shorter than the points say): halve the grid."""
@@ -106,13 +106,13 @@ class PersonAbstraction(ModuleAbstraction):
             return None
         key = f"{self.name}:pace"
         if key not in cell.refinements:
-            why = person.pace_violation(witness, cell.period, self.max_speed)
-            return None if why is None else (key, why)
+            found = person.pace_departure(witness, cell.period, self.max_speed)
+            return None if found is None else (key, *found)
         key = f"{self.name}:fine"
         if key not in cell.refinements:
-            why = person.pace_violation(witness, cell.period, self.max_speed, exact=True)
-            return None if why is None else (key, f"{why} measured between the grid's points; their {GRID:g} m "
-                                                  f"slack allows it: a {GRID / 2:g} m grid tells")
+            found = person.pace_departure(witness, cell.period, self.max_speed, exact=True)
+            return None if found is None else (key, f"{found[0]} measured between the grid's points; their {GRID:g} "
+                                                    f"m slack allows it: a {GRID / 2:g} m grid tells", found[1])
         return None
 
     def build(self, cell: AbstractCell) -> None:

@@ -19,7 +19,7 @@ from cellsim.kinds.process.system import STANDSTILL
 from cellsim.channels import NO_VALUE
 from cellsim.logic.syntax import variables_of
 from cellsim.verify.expressions import thresholds_of, to_prism
-from cellsim.verify.model import ModuleAbstraction, CODE, AbstractCell, lookup, set_of
+from cellsim.verify.model import ModuleAbstraction, CODE, AbstractCell, lookup, runs_of, set_of, updates_in
 from cellsim.verify.prism import Command, Module, Var
 
 
@@ -46,7 +46,8 @@ class ProcessAbstraction(ModuleAbstraction):
         busy = {m: f"({cell.input(p, f'{m}_busy')})" for m in cfg.cycled}
         works = {m: cell.input(p, f"{m}_activity") for m in cfg.operated}
         commands_of = {m: f"{p}_{m}_command" for m in system.machines}
-        durations = [self._periods(s, period, cell.timed) for s in steps]
+        timed = self.timed(cell)
+        durations = [self._periods(s, period, timed) for s in steps]
         most = max([1, *durations])
         restart = system.restart  # request code -> step index
         keys = sorted(restart)
@@ -97,7 +98,7 @@ class ProcessAbstraction(ModuleAbstraction):
                     **{commands_of[m]: (f"(!{held} & {c})" if c != "false" else "false") for m, c in cmds.items()},
                 }
                 commands.append(Command(f"{step}={s} & {guard}", (("1", update),)))
-                if not cell.timed and (st.dwell > 0 or st.operate is not None):  # it may also take longer
+                if not timed and (st.dwell > 0 or st.operate is not None):  # it may also take longer
                     longer = dict(update, **{step: str(index), progress: f"({held} ? {prog0} : {after})"})
                     longer.update({commands_of[m]: f"(!{held} & true)" for m, c in cmds.items() if c != "false"})
                     commands.append(Command(f"{step}={s} & {guard}", (("1", longer),)))
@@ -111,10 +112,33 @@ class ProcessAbstraction(ModuleAbstraction):
         cell.define(f"{p}.step", step)
         for m, var in commands_of.items():
             cell.define(f"{p}.{m}_command", f"({var} ? 1 : 0)", CODE)
-        if cell.timed:
+        if timed:
             cell.assume(f"{p}'s dwells and operations count whole periods of {period:g} s")
         else:
             cell.assume(f"{p}'s dwells and operations may take any time from one period on")
+
+    def refinement(self, cell: AbstractCell, witness: list[dict]) -> tuple[str, str, int] | None:
+        """A witness in which a dwell or an operation ends after fewer of this process's updates than its seconds
+        take (the steps' durations not modelled): count them in periods (``<process>:timed``)."""
+        key, p = f"{self.name}:timed", self.name
+        if self.timed(cell):
+            return None
+        every, steps, restarts = cell.every(p), self.system.steps, self.system.restart
+        period = cell.period * every
+        runs = runs_of(witness, f"{p}_step")
+        for (s, first, last), (then, _, _) in zip(runs, runs[1:]):
+            st = steps[s]
+            request = (witness[last].get(f"{p}_request"), witness[last + 1].get(f"{p}_request"))
+            if (not (st.dwell > 0 or st.operate is not None) or then != (s + 1) % len(steps)
+                    or (request[1] != request[0] and request[1] in restarts)):  # (a restart: not its end)
+                continue
+            need, took = self._periods(st, period), updates_in(first, last, every)
+            if took < need:
+                what = "dwell" if st.dwell > 0 else "operation"
+                return (key, f"{p}_step leaves step '{st.name}' after {took} of its updates of {period:g} s at "
+                             f"{first * cell.period:g}-{(last + 1) * cell.period:g} s; its {what} takes at least "
+                             f"{need} ({need * period:g} s)", last + 1)
+        return None
 
     @staticmethod
     def _periods(step, period: float, timed: bool = True) -> int:

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cellsim.verify.model import ModuleAbstraction, AbstractCell, lookup, set_of
+from cellsim.verify.model import ModuleAbstraction, AbstractCell, lookup, runs_of, set_of, updates_in
 from cellsim.verify.prism import Command, Enum, Module, Var
 from cellsim.vocabulary import SafetyMode
 
@@ -74,7 +74,7 @@ class RobotAbstraction(ModuleAbstraction):
         r, robot, cfg = self.name, self.system, self.cfg
         period = cell.period * cell.every(r)  # (its own: its counters advance at its updates)
         poses = len(robot.poses)
-        moves = self._moves(period, cell.timed)
+        moves = self._moves(period, self.timed(cell))
         pairs = list(moves)
         segment = {pair: poses + i for i, pair in enumerate(pairs)}
         havoc = {b: poses + len(pairs) + b for b in range(poses)}
@@ -137,7 +137,35 @@ class RobotAbstraction(ModuleAbstraction):
         self._safety(cell, period)
         self._activity(cell)
         cell.assume(f"{r}'s tool is located on the commanded path (tracking error neglected); its moves take "
-                    + ("at least their time at full speed without acceleration" if cell.timed else "any time from one period on"))
+                    + ("at least their time at full speed without acceleration" if self.timed(cell)
+                       else "any time from one period on"))
+
+    def refinement(self, cell: AbstractCell, witness: list[dict]) -> tuple[str, str, int] | None:
+        """A witness in which the tool passes through a region of its move in fewer of the robot's updates than it
+        takes at full speed (its moves' durations not modelled): bound them below (``<robot>:timed``)."""
+        r, key = self.name, f"{self.name}:timed"
+        if self.timed(cell):
+            return None
+        every = cell.every(r)
+        moves = self._moves(cell.period * every, True)
+        poses, pairs = len(self.system.poses), list(moves)
+        seg, k = f"{r}_segment", f"{r}_region"
+        if not witness or seg not in witness[0]:
+            return None
+        runs = runs_of([{"at": (state[seg], state[k])} for state in witness], "at")
+        for ((segment, region), first, last), ((then, then_region), _, _) in zip(runs, runs[1:]):
+            if not poses <= segment < poses + len(pairs):
+                continue  # at rest, or on a path not modelled
+            a, b = pairs[segment - poses]
+            least = moves[(a, b)][region][1]
+            onwards = (then == segment and then_region == region + 1) or then == b
+            took = updates_in(first, last, every)
+            if onwards and took < least + 1:
+                names = self.system.pose_names
+                return (key, f"{seg} passes region {region} of its move {names[a]} -> {names[b]} in {took} update(s) "
+                             f"at {first * cell.period:g}-{(last + 1) * cell.period:g} s; at full speed it takes at "
+                             f"least {least + 1}", last + 1)
+        return None
 
     def _activity(self, cell: AbstractCell) -> None:
         """The activity it publishes: the one its input asked for at its last update (as the twin's robot takes it
