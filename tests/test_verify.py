@@ -351,7 +351,7 @@ def test_witnesses_a_module_faults_are_refined_until_every_welding_property_hold
 def test_the_paced_model_has_no_witness_faster_than_the_person_walks():
     """Soundness of the refinement the other way round: every witness of the model with the operator's pace has the
     operator crossing each place in no fewer periods than its walking speed allows."""
-    from cellsim.verify.floor import crossing_periods, pace_violation
+    from cellsim.verify.floor import crossing_periods, pace_departure
     from cellsim.verify.run import verify
 
     result = verify(load_scenario(WELDING_CELL), refinements=frozenset({"operator:pace"}))
@@ -361,7 +361,7 @@ def test_the_paced_model_has_no_witness_faster_than_the_person_walks():
     witnesses = [r.witness for r in result.results if r.witness]
     assert witnesses
     for witness in witnesses:
-        assert pace_violation(person, witness, cell.period, 1.32) is None
+        assert pace_departure(person, witness, cell.period, 1.32) is None
 
 
 def test_refining_without_replays_is_refused_before_anything_is_done(tmp_path):

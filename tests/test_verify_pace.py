@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from cellsim.verify.floor import ENTERED_AT_START, PersonPlaces, Place, crossing_periods, pace_violation
+from cellsim.verify.floor import ENTERED_AT_START, PersonPlaces, Place, crossing_periods, pace_departure
 from cellsim.verify.model import PersonRole, Pose
 
 PERIOD, SPEED = 0.02, 1.0  # s, m/s: 0.02 m per period
@@ -47,7 +47,7 @@ def test_the_bound_is_sound_a_continuous_walk_at_full_speed_meets_it():
             # the place a point belongs to: the nearest pose's (the border is halfway between two poses)
             places = [0 if x < 0.25 else 1 if x < 0.75 else 2 for x in xs if x <= 1.0]
             walk = [{"p_place": p} for p in places]
-            assert pace_violation(person, walk, PERIOD, speed) is None, (speed, phase)
+            assert pace_departure(person, walk, PERIOD, speed) is None, (speed, phase)
 
 
 def test_a_witness_crossing_a_place_too_fast_is_found_with_its_variable_period_and_reason():
@@ -56,13 +56,14 @@ def test_a_witness_crossing_a_place_too_fast_is_found_with_its_variable_period_a
     def witness(at_start: int, in_the_middle: int) -> list[dict]:
         return [{"p_place": 0}] * at_start + [{"p_place": 1}] * in_the_middle + [{"p_place": 2}] * 3
 
-    assert pace_violation(person, witness(5, 9), PERIOD, SPEED) is None  # exactly as fast as it can
-    why = pace_violation(person, witness(5, 8), PERIOD, SPEED)
+    assert pace_departure(person, witness(5, 9), PERIOD, SPEED) is None  # exactly as fast as it can
+    why, step = pace_departure(person, witness(5, 8), PERIOD, SPEED)
     assert why == ("p_place crosses place 1 (from place 0 to place 2) in 8 period(s) at 0.1-0.26 s; at 1 m/s that "
                    "takes at least 9 (0.18 s)")
-    why = pace_violation(person, witness(4, 9), PERIOD, SPEED)
+    assert step == 13  # the first state the person cannot be in: out of place 1 too soon
+    why, _ = pace_departure(person, witness(4, 9), PERIOD, SPEED)
     assert why.startswith("p_place crosses place 0 (from its start to place 1) in 4 period(s)")
-    assert pace_violation(person, [{"other": 1}], PERIOD, SPEED) is None  # a witness without this person
+    assert pace_departure(person, [{"other": 1}], PERIOD, SPEED) is None  # a witness without this person
 
 
 @pytest.mark.parametrize("speed", [0.5, 1.0, 1.32, 3.0])
@@ -71,10 +72,10 @@ def test_a_witness_at_exactly_the_bound_passes_and_one_period_less_fails(speed):
     need = crossing_periods(person, PERIOD, speed)
     first, middle = need.get((ENTERED_AT_START, 0, 1), 1), need.get((0, 1, 2), 1)
     walk = [{"p_place": 0}] * first + [{"p_place": 1}] * middle + [{"p_place": 2}]
-    assert pace_violation(person, walk, PERIOD, speed) is None
+    assert pace_departure(person, walk, PERIOD, speed) is None
     if middle > 1:
         hurried = [{"p_place": 0}] * first + [{"p_place": 1}] * (middle - 1) + [{"p_place": 2}]
-        assert pace_violation(person, hurried, PERIOD, speed) is not None
+        assert pace_departure(person, hurried, PERIOD, speed) is not None
 
 
 def test_without_the_grid_slack_a_crossing_the_bound_allows_is_found():
@@ -85,6 +86,6 @@ def test_without_the_grid_slack_a_crossing_the_bound_allows_is_found():
     person = _corridor()
     assert crossing_periods(person, PERIOD, SPEED, exact=True)[(0, 1, 2)] == 19
     walk = [{"p_place": 0}] * 5 + [{"p_place": 1}] * 9 + [{"p_place": 2}] * 3
-    assert pace_violation(person, walk, PERIOD, SPEED) is None
-    why = pace_violation(person, walk, PERIOD, SPEED, exact=True)
-    assert why is not None and why.startswith("p_place crosses place 0 (from its start to place 1) in 5 period(s)")
+    assert pace_departure(person, walk, PERIOD, SPEED) is None
+    why, _ = pace_departure(person, walk, PERIOD, SPEED, exact=True)
+    assert why.startswith("p_place crosses place 0 (from its start to place 1) in 5 period(s)")

@@ -239,19 +239,12 @@ def crossing_periods(person: PersonPlaces, period: float, speed: float, exact: b
     return need
 
 
-def pace_violation(person: PersonPlaces, witness: list[dict], period: float, speed: float,
-                   exact: bool = False) -> str | None:
-    """Where a witness (a state a step of ``period`` s) has ``person`` cross a place faster than ``speed`` allows
-    (the first such crossing), said as which variable, at which period, and why; None if it never does (``exact``:
-    see :func:`crossing_periods`). The person is sampled at its own period (``person.every`` steps)."""
-    found = pace_departure(person, witness, period, speed, exact)
-    return None if found is None else found[0]
-
-
 def pace_departure(person: PersonPlaces, witness: list[dict], period: float, speed: float,
                    exact: bool = False) -> tuple[str, int] | None:
-    """:func:`pace_violation`'s words, and the witness's step where the person leaves the place too soon (where
-    the witness departs from the cell)."""
+    """Where a witness (a state a step of ``period`` s) has ``person`` cross a place faster than ``speed`` allows
+    (the first such crossing): which variable, at which period, and why, and the witness's step where the person
+    leaves the place too soon (the first state the cell cannot be in); None if it never does (``exact``: see
+    :func:`crossing_periods`). The person is sampled at its own period (``person.every`` steps)."""
     every = person.every
     need = crossing_periods(person, period * every, speed, exact)
     var = person.variable

@@ -226,8 +226,8 @@ class ConditionProperties:
 
 
 def _shape(formula):
-    """("invariant", (p,)), ("bounded response", (a, b, c, w)) or ("response", (a, true, b, inf)), else why not
-    (a string)."""
+    """("invariant", (p,)), ("final", (p,)), ("bounded response", (a, b, c, w)) or ("response", (a, true, b, inf)),
+    else why not (a string)."""
     if (isinstance(formula, Eventually) and isinstance(formula.arg, Always) and _timeless(formula.arg.arg)
             and formula.lo == 0.0 and formula.hi == math.inf and formula.arg.lo == 0.0 and formula.arg.hi == math.inf):
         return "final", (formula.arg.arg,)
