@@ -132,7 +132,10 @@ class ProcessAbstraction(ModuleAbstraction):
             if (not (st.dwell > 0 or st.operate is not None) or then != (s + 1) % len(steps)
                     or (request[1] != request[0] and request[1] in restarts)):  # (a restart: not its end)
                 continue
-            need, took = self._periods(st, period), updates_in(first, last, every)
+            # a restart takes the step's first update in the update that enters it (as the twin's process does)
+            now, before = witness[first].get(f"{p}_request"), witness[first - 1].get(f"{p}_request") if first else None
+            restarted = first > 0 and now != before and now in restarts
+            need, took = self._periods(st, period) - restarted, updates_in(first, last, every)
             if took < need:
                 what = "dwell" if st.dwell > 0 else "operation"
                 return (key, f"{p}_step leaves step '{st.name}' after {took} of its updates of {period:g} s at "

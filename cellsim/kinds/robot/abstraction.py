@@ -47,7 +47,9 @@ class RobotAbstraction(ModuleAbstraction):
         """Reads its mode request and target pose (in ``build``)."""
 
     def _moves(self, period: float, timed: bool) -> dict[tuple[int, int], list[tuple[int, int]]]:
-        """(a, b) -> [(location code, least periods there)] along the move from pose a to pose b."""
+        """(a, b) -> [(location code, least periods there)] along the move from pose a to pose b: timed, the periods
+        the tool surely spends in the region at its fastest (its joint limits and normal cap, no acceleration), less
+        one for the phase of the robot's updates against the crossing; else 0."""
         robot = self.system
         moves = {}
         for a in range(len(robot.poses)):
@@ -66,7 +68,9 @@ class RobotAbstraction(ModuleAbstraction):
                         runs[-1][1] += 1
                     else:
                         runs.append([code, 1])
-                moves[(a, b)] = [(code, max(0, math.floor((count - 1) / SAMPLES / rate / period)) if timed else 0)
+                # a crossing of T s shows in as few as floor(T / period) of the robot's updates (their phase against
+                # it), and the model asks for one more than the least (the update that leaves): one less
+                moves[(a, b)] = [(code, max(0, math.floor((count - 1) / SAMPLES / rate / period) - 1) if timed else 0)
                                  for code, count in runs]
         return moves
 
@@ -150,7 +154,7 @@ class RobotAbstraction(ModuleAbstraction):
         moves = self._moves(cell.period * every, True)
         poses, pairs = len(self.system.poses), list(moves)
         seg, k = f"{r}_segment", f"{r}_region"
-        if not witness or seg not in witness[0]:
+        if any(seg not in state or k not in state for state in witness):
             return None
         runs = runs_of([{"at": (state[seg], state[k])} for state in witness], "at")
         for ((segment, region), first, last), ((then, then_region), _, _) in zip(runs, runs[1:]):
