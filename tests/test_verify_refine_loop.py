@@ -59,11 +59,19 @@ class Stats:
     symbolic: bool = False
 
 
-def scripted(monkeypatch, rounds: dict, confirms: set[tuple[int, str]], could: float = 10.0):
+class Slow:
+    """A second module's abstraction that also faults a witness marked ``fast``, at a later step."""
+
+    def refinement(self, cell, path):
+        return ("robot:timed", "moves too fast", 5) if path and path[0].get("fast") else None
+
+
+def scripted(monkeypatch, rounds: dict, confirms: set[tuple[int, str]], could=10.0, parts=None):
     """``rounds``: the refinements switched on (frozenset) -> {property: its witness ("fast", "slow") or None (holds)};
     ``confirms``: (round, property) pairs whose replay the twin confirms (the round the witness is of); a witness
-    ``"none"``: violated without one. Returns the log of replays and of the
-    verifier's calls (round, the properties whose witnesses it built)."""
+    ``"none"``: violated without one; ``could``: the states a refinement could reach (a number, or a function of the
+    refinements' keys); ``parts``: the modules' abstractions (default: one that refines the pace). Returns the log of
+    replays and of the verifier's calls (round, the properties whose witnesses it built)."""
     replays: list[tuple[int, str]] = []
     current = {"round": 0}
 
@@ -71,6 +79,8 @@ def scripted(monkeypatch, rounds: dict, confirms: set[tuple[int, str]], could: f
         """As :func:`cellsim.verify.run.verify`: witnesses built in order until ``enough`` says one settles it."""
         current["round"] = len(refinements)
         model = Model(cell=SimpleNamespace(refinements=frozenset(refinements)), round=len(refinements))
+        if parts is not None:
+            model.parts = parts
         results, settled, built = [], False, []
         for name, w in rounds[frozenset(refinements)].items():
             if checked_before and name in checked_before:
@@ -97,7 +107,8 @@ def scripted(monkeypatch, rounds: dict, confirms: set[tuple[int, str]], could: f
 
     monkeypatch.setattr(run, "verify", fake_verify)
     monkeypatch.setattr(witness, "replay", fake_replay)
-    monkeypatch.setattr(refine, "_could_reach", lambda sf, result, timed, keys: (could, None))
+    monkeypatch.setattr(refine, "_could_reach",
+                        lambda sf, result, timed, keys: (could(keys) if callable(could) else could, None))
     return replays
 
 
@@ -203,3 +214,18 @@ def test_a_witness_that_waited_for_a_refinement_that_gave_none_is_built_and_run_
     result = refine.verify_with_twin(None, tmp_path, budget=3)
     assert replays == [("verify", 0, ("A",)), ("verify", 1, ()), (1, "A", 0), ("verify", 0, ("B",)), (0, "B")]
     assert {f.name: f.ending for f in result.endings()} == {"A": Ending.VIOLATED, "B": Ending.VIOLATED}
+
+
+def test_a_refinement_too_large_gives_way_to_the_next_one_offered(monkeypatch, tmp_path):
+    """Two modules fault A's witness: the pace (it departs there first) would make too large a model, the robot's
+    timing would not: the loop refines the robot's timing, and says why not the pace."""
+    timed = frozenset({"robot:timed"})
+    replays = scripted(monkeypatch, {frozenset(): {"A": "fast"}, timed: {"A": None}}, confirms=set(),
+                       could=lambda keys: refine.STATE_BUDGET * (2.0 if "operator:pace" in keys else 0.1),
+                       parts=[Pace(), Slow()])
+    said = []
+    result = refine.verify_with_twin(None, tmp_path, budget=3, on_stage=said.append)
+    assert [(r.step, r.key) for r in result.refinements] == [(1, "robot:timed")]
+    assert said[0].startswith("refinement 1: operator:pace not tried: the refined model could reach about")
+    assert [r for r in replays if r[0] != "verify"] == []  # A holds once the robot's moves are timed
+    assert {f.name: f.ending for f in result.endings()} == {"A": Ending.HOLDS}

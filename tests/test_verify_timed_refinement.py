@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from cellsim.scenario import load_scenario
-from cellsim.verify.refine import _offer
+from cellsim.verify.refine import _offers
 from cellsim.verify.run import abstract_model
 
 from conftest import WELDING_CELL
@@ -106,11 +106,11 @@ def test_the_loop_refines_where_the_witness_departs_from_the_cell_first(welding)
         witness[k].update(robot_segment=segment, robot_region=0 if k < 4 else 1)
     for k in range(7, 10):
         witness[k][person.variable] = neighbour
-    key, _ = _offer(welding, witness)
+    (key, _), *_ = _offers(welding, witness)
     assert key == "robot:timed"
     for k in range(2, 10):
         witness[k].update(robot_segment=0, robot_region=0)
-    key, _ = _offer(welding, witness)
+    (key, _), *_ = _offers(welding, witness)
     assert key == "operator:pace"
 
 

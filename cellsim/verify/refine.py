@@ -19,6 +19,9 @@ from pathlib import Path
 
 DEFAULT_BUDGET = 3
 """Refinements ``cellsim verify`` tries by default (``--refine N``)."""
+TRIES = 3
+"""Refinements a round weighs against the state budget, in order (:func:`_refinements`), before it gives up: each
+costs the refined abstract model's build, and maybe its decision diagrams'."""
 STATE_BUDGET = 5_000_000
 """A refinement whose model could reach more states than this (the largest model checked so far, times the growth
 of its variables' ranges) is not tried: its property stays undecided, and says so, rather than exhaust the memory."""
@@ -61,14 +64,20 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
                         model=built, enough=enough)
         once = once or {r.prop.name: r for r in result.results if r.prop.within is not None}
         open_ = _witnessed(result, done, confirmed)
-        found = _refinement(result.model, open_, len(done) + 1) if len(done) < budget else None
+        found = None
+        for tried, candidate in enumerate(_refinements(result.model, open_, len(done) + 1) if len(done) < budget else ()):
+            if tried == TRIES:
+                break
+            could, built = _could_reach(sf, result, timed, [*(r.key for r in done), candidate.key])
+            if could <= STATE_BUDGET:
+                found = candidate
+                break
+            too_large = (f"{candidate.key} not tried: the refined model could reach about {could:.2g} states "
+                         f"(over {STATE_BUDGET:,})")
+            result.not_refined = "; ".join(filter(None, (result.not_refined, too_large)))
+            say(f"refinement {candidate.step}: {too_large}")
         if found is not None:
-            could, built = _could_reach(sf, result, timed, [*(r.key for r in done), found.key])
-            if could > STATE_BUDGET:
-                result.not_refined = (f"{found.key} not tried: the refined model could reach about {could:.2g} "
-                                      f"states (over {STATE_BUDGET:,})")
-                say(f"refinement {found.step}: {result.not_refined}")
-                found = None
+            result.not_refined = ""
         if found is None and any(r.deferred for r in result.results):  # the last round after all: build them
             not_refined = result.not_refined
             result = verify(sf, export=export, timed=timed, refinements=keys, on_stage=on_stage,
@@ -192,23 +201,24 @@ def _reached(refined) -> float:
         return math.inf
 
 
-def _refinement(model, witnessed, step: int) -> Refinement | None:
-    """The first refinement a module offers for the first of the ``witnessed`` properties' witnesses that shows one."""
+def _refinements(model, witnessed, step: int) -> list[Refinement]:
+    """The refinements the modules offer for the ``witnessed`` properties' witnesses, in the order to try them: the
+    first witness's first (:func:`_offers`), then its others, then the next witness's (each refinement once)."""
+    found: dict[str, Refinement] = {}
     for checked in witnessed:
-        offered = _offer(model, checked.witness)
-        if offered is not None:
-            return Refinement(step, offered[0], checked.prop.name, offered[1])
-    return None
+        for key, why in _offers(model, checked.witness):
+            found.setdefault(key, Refinement(step, key, checked.prop.name, why))
+    return list(found.values())
 
 
 def _faults(model, witness) -> bool:
     """Whether some module's abstraction finds the witness doing what the module cannot."""
-    return _offer(model, witness) is not None
+    return bool(_offers(model, witness))
 
 
-def _offer(model, witness) -> tuple[str, str] | None:
-    """The refinement for ``witness`` of the module it departs from first (the earliest step a module's abstraction
-    names; between equals, the module first in the scenario): (key, why), or None."""
+def _offers(model, witness) -> list[tuple[str, str]]:
+    """The modules' refinements for ``witness`` as (key, why), that of the module it departs from first first (the
+    earliest step a module's abstraction names; between equals, the module first in the scenario)."""
     offers = []
     for order, part in enumerate(model.parts):
         ask = getattr(part, "refinement", None)  # an observer (Observer) has nothing to refine
@@ -216,4 +226,4 @@ def _offer(model, witness) -> tuple[str, str] | None:
         if offered is not None:
             step = offered[2] if len(offered) > 2 else len(witness)
             offers.append((step, order, offered[0], offered[1]))
-    return min(offers)[2:] if offers else None
+    return [offer[2:] for offer in sorted(offers)]
