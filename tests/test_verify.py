@@ -435,3 +435,18 @@ def test_once_a_witness_is_taken_up_the_other_witnesses_wait_for_the_refined_mod
     assert by_name[second].deferred and by_name[second].witness is None and by_name[second].holds is False
     assert all(by_name[n].fair == whole[n].fair for n in whole if whole[n].prop.within is not None)
     assert {n: r.value for n, r in by_name.items()} == {n: r.value for n, r in whole.items()}
+
+
+def test_timed_bounds_every_module_s_durations_below_and_says_so(tmp_path):
+    """``--timed``: the robot's moves and the process's dwells take at least their real time, in a model far larger
+    than the untimed one, and each such assumption is printed."""
+    done = _verify(str(WELDING_CELL), "--timed", "--json", "--no-replay", "--refine", "0", "--out", str(tmp_path))
+    assert done.returncode in (0, 3), done.stderr  # (a witness not replayed leaves its property undecided)
+    result = json.loads(done.stdout)
+    assumptions = "\n".join(result["assumptions"])
+    assert "robot's tool is located on the commanded path (tracking error neglected); its moves take at least their " \
+           "time at full speed without acceleration" in assumptions
+    assert "process_controller's dwells and operations count whole periods of 0.04 s" in assumptions
+    untimed = _verify(str(WELDING_CELL), "--json", "--no-replay", "--refine", "0", "--out", str(tmp_path / "u"))
+    assert json.loads(untimed.stdout)["states"] * 5 < result["states"]
+    assert all(p["ending"] in ("holds", "undecided") for p in result["properties"])
