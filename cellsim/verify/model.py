@@ -194,12 +194,13 @@ class AbstractCell:
     def __init__(self, cell, period: float, timed: bool = False, refinements: frozenset = frozenset()):
         self.cell = cell
         self.timed = timed
+        """Whether the cell's own durations (moves, dwells, cycles) are bounded below in every module; without,
+        each may take any number of periods from one on (more behaviours, far fewer states) unless a module's
+        refinement bounds its own (:meth:`ModuleAbstraction.timed`)."""
         self.refinements = frozenset(refinements)
         """The refinements switched on (``<module>:<what>``, e.g. ``operator:pace``): what each module's abstraction
         models more finely because a witness showed where it was too coarse
         (:meth:`ModuleAbstraction.refinement`)."""
-        """Whether the cell's own durations (moves, dwells, cycles) are bounded below in the model;
-        without, each may take any number of periods from one on (more behaviours, far fewer states)."""
         self.sf = cell.sf
         self.period = period
         self.modules: list[Module] = []
