@@ -81,6 +81,44 @@ def test_a_malformed_rate_is_one_line_naming_it_and_the_range(text):
     assert str(caught.value) == f"--rate {text!r}: expected ENTITY=HZ with HZ from 0.1 to 1000"
 
 
+def _mode_lags(sf, out) -> list[float]:
+    """Simulated 15 s of the cell: for each change of the controller's safety-mode request, how long the robot took
+    to be in that mode (s), read from the black box with plain SQL."""
+    import sqlite3
+
+    import cellsim
+
+    cellsim.simulate(sf, out, duration=15.0, check=False)
+    db = sqlite3.connect(out / "blackbox.sqlite")
+    try:
+        rows = db.execute("SELECT t, channel, payload FROM messages WHERE channel IN "
+                          "('safety_controller.safmod', 'robot.safety_mode') AND t > 0 ORDER BY t, rowid").fetchall()
+    finally:
+        db.close()
+    asked = [(t, p) for t, c, p in rows if c == "safety_controller.safmod"]
+    taken = [(t, p) for t, c, p in rows if c == "robot.safety_mode"]
+    assert len(asked) == len(taken) >= 2
+    return [round(t1 - t0, 6) for (t0, p0), (t1, p1) in zip(asked, taken) if p0 == p1]
+
+
+def test_a_device_given_a_faster_rate_is_emulated_at_it_and_takes_a_command_at_its_next_cycle(tmp_path):
+    """``emulate --rate robot=500``: the emulated robot works at its controller's 2 ms cycle as well as publishing at
+    it, so it takes a safety-mode request one plant step after it is made, where the scenario's robot (20 ms) takes it
+    at its next update; a rate slower than an entity's period changes only how often it publishes."""
+    from cellsim.cli.emulate import _devices_at_their_rates
+    from cellsim.scenario import load_scenario
+
+    welding = ROOT / "scenarios" / "welding_cell.yaml"
+    scenario = load_scenario(welding, [])
+    curtain = scenario.scenario.entities["light_barrier"].period
+    assert set(_mode_lags(scenario, tmp_path / "scenario")) == {0.02}
+    emulated = load_scenario(welding, [])
+    _devices_at_their_rates(emulated, {"robot": 500.0, "light_barrier": 1.0})
+    assert emulated.scenario.entities["robot"].period == pytest.approx(0.002)
+    assert emulated.scenario.entities["light_barrier"].period == curtain
+    assert set(_mode_lags(emulated, tmp_path / "emulated")) == {0.002}
+
+
 def test_zenoh_faults_apply_to_every_entity_without_a_bus():
     check_faults([parse_fault(f"{e}={k}") for e in ENTITIES for k in ZENOH_FAULTS], ENTITIES, None)
 

@@ -69,9 +69,26 @@ def add_parser(subparsers) -> None:
     )
     emu.add_argument(
         "--rate", action="append", default=[], metavar="ENTITY=HZ",
-        help="publish an entity's samples this often instead of once per update period, e.g. robot=500 (repeatable)",
+        help="run an entity's device this often: its samples are published at this rate instead of once per update "
+        "period, and a rate faster than its update period runs the emulated device at it too (robot=500: a UR "
+        "controller's 500 Hz cycle, which takes a command at its next 2 ms) (repeatable)",
     )
     emu.set_defaults(handler=run)
+
+
+def _devices_at_their_rates(sf, rates: dict[str, float]) -> None:
+    """An entity given a rate faster than its update period is emulated at that rate (its ``period``, rounded to the
+    plant step): a real device publishing that often also works that often, so a robot emulated at a UR controller's
+    500 Hz takes the twin's command at its next 2 ms cycle, not at the twin's model's 20 ms update. The twin's own
+    model of the entity keeps the scenario's period."""
+    import dataclasses
+
+    step = sf.scenario.time_step
+    for name, hz in rates.items():
+        cfg = sf.scenario.entities[name]
+        period = max(step, round(1.0 / hz / step) * step)
+        if period < (getattr(cfg, "period", None) or 0.0):
+            sf.scenario.entities[name] = dataclasses.replace(cfg, period=period)
 
 
 def run(args) -> int:
@@ -112,6 +129,7 @@ def run(args) -> int:
                 raise InputError(f"--opcua: {bridge} names no PLC")
         try:
             check_entities(faults, rates, entities)
+            _devices_at_their_rates(sf, rates)
             check_faults(faults, entities, set(loaded.config.devices) if loaded is not None else None,
                          protocols_of(loaded.config) if loaded is not None else None)
         except FaultError as e:
