@@ -165,6 +165,56 @@ def test_the_plcs_nodes_become_samples_and_a_bad_status_or_a_frozen_scan_fails_t
         plc.close()
 
 
+def test_every_value_the_plc_takes_between_two_publishes_is_a_sample_in_the_order_the_plc_took_them(sessions, tmp_path, certificates):  # noqa: F811
+    """A publishing interval (here 0.25 s) far longer than the changes: the curtain broken and clear twice, the welder's
+    two nodes changed twice, each held two PLC scans. Every value reaches the twin (the nodes are queued, not only
+    their last value), and in the PLC's order across nodes: the welder's first full state is a sample."""
+    hub, twin = sessions
+    curtain, welder = samples_of(twin, "light_barrier"), samples_of(twin, "welder")
+    port = free_port()
+    loaded = load_bridge(plc_config(tmp_path, port, "sign_encrypt", "  publishing_interval: 0.25\n  watchdog: 1.0\n"))
+    plc = EmulatedPlc(loaded.config.plc, loaded.samples, loaded.commands, loaded.safe, certificates=certificates[1])
+    bridge = Bridge(loaded, hub, plc_certificates=certificates[0])
+    stop, thread = run_daemon(bridge)
+
+    def two_scans() -> None:
+        deadline, start = time.monotonic() + 5.0, plc.scans
+        while plc.scans < start + 2:
+            assert time.monotonic() < deadline, "the emulated PLC stopped scanning"
+            time.sleep(0.0005)
+
+    def changes(messages: queue.Queue, start: dict, count: int) -> list[dict]:
+        """The samples' fields after ``start``, each change once, ``count`` of them (a scan repeats the current one)."""
+        got = [start]
+        while len(got) <= count:
+            message = next_message(messages, lambda m: "fields" in m)
+            if message["fields"] != got[-1]:
+                got.append(message["fields"])
+        return got[1:]
+
+    try:
+        plc.publish("light_barrier", {"broken": False}, None)
+        plc.publish("welder", {"safety_mode": "normal", "activity": "idle"}, None)
+        next_message(curtain, lambda m: m.get("fields") == {"broken": False})
+        next_message(welder, lambda m: m.get("fields") == {"safety_mode": "normal", "activity": "idle"})
+        for broken in (True, False, True, False):
+            plc.publish("light_barrier", {"broken": broken}, None)
+            two_scans()
+        for mode, activity in (("ssmon", "welding"), ("normal", "idle")):
+            plc.publish("welder", {"safety_mode": mode, "activity": activity}, None)
+            two_scans()
+        assert [f["broken"] for f in changes(curtain, {"broken": False}, 4)] == [True, False, True, False]
+        # the PLC writes a scan's nodes one by one: the welder passes through each node's change, in the PLC's order
+        got = changes(welder, {"safety_mode": "normal", "activity": "idle"}, 4)
+        assert [(f["safety_mode"], f["activity"]) for f in got] == [
+            ("ssmon", "idle"), ("ssmon", "welding"), ("normal", "welding"), ("normal", "idle")]
+    finally:
+        stop.set()
+        thread.join(timeout=10)
+        bridge.close()
+        plc.close()
+
+
 def test_in_twin_mode_the_welders_command_nodes_carry_the_twins_command_and_its_safe_one_when_lost(sessions, tmp_path, certificates):  # noqa: F811
     hub, twin = sessions
     plc, bridge = start(tmp_path, hub, certificates)

@@ -18,6 +18,13 @@ inbox, and the daemon's thread judges it (``PlcLink.take``), by the link rule
   connection, a frozen subscription) every entity of the PLC is *stale* (timeout);
   a heartbeat with a bad status code, or not an integer, fails every entity.
 
+Each entity node is monitored with a queue (``QUEUE_SIZE``), so every value the PLC
+takes between two publishes reaches the daemon, not only the last: a light curtain's
+break shorter than the publishing interval is published, broken then clear. The values
+of one publish are handed over in the order of their source timestamps (the server lists
+them node by node), so no sample combines a node's later value with another's earlier.
+The heartbeat keeps only its latest value: it says the PLC scans, once per publish.
+
 Every movement of the heartbeat counts as a good message for each entity whose
 nodes are all good (its sample is published, so the twin's entity stays fresh at
 the publishing interval), and a changed value is published at once. A lost
@@ -46,6 +53,9 @@ log = logging.getLogger("cellsim.bridge")
 PLC_FAULTS = (Fault.CORRUPT, Fault.REPEATED, Fault.RANGE, Fault.TIMEOUT)
 HEARTBEAT = "heartbeat"
 """The inbox's name for the PLC's heartbeat node."""
+QUEUE_SIZE = 64
+"""Values the PLC keeps per entity node between two publishes (the oldest dropped past it): a PLC scanning every
+millisecond with a 20 ms publishing interval takes at most 20 (a server may keep fewer: it revises the size)."""
 
 
 @dataclass
@@ -260,13 +270,29 @@ class PlcLink:
             client.certificate_validator = pinned(load_certificate(server))
         put = self.inbox.put
         heartbeat = _canonical(settings.heartbeat)
+        loop = asyncio.get_running_loop()
+        publish: list[tuple[float, tuple]] = []
+
+        def hand_over() -> None:
+            """One publish's values to the daemon, in their source timestamps' order (the same stamp: as listed)."""
+            publish.sort(key=lambda stamped: stamped[0])
+            for _, item in publish:
+                put(item)
+            publish.clear()
 
         class Handler:
             def datachange_notification(self, node, value, data) -> None:  # on the loop: hand over, nothing more
-                status = data.monitored_item.Value.StatusCode
-                good = status is None or status.is_good()
+                # asyncua calls this in a task per notification, all of one publish created before any runs: a
+                # callback scheduled by the first runs after the last, and hands the publish over in order
+                datum = data.monitored_item.Value
+                good = datum.StatusCode is None or datum.StatusCode.is_good()
                 name = node.nodeid.to_string()
-                put(("plc", None, (HEARTBEAT if name == heartbeat else name, value, good), time.perf_counter()))
+                stamp = datum.SourceTimestamp or datum.ServerTimestamp
+                if not publish:
+                    loop.call_soon(hand_over)
+                at = stamp.timestamp() if stamp is not None else publish[-1][0] if publish else 0.0
+                publish.append((at, ("plc", None, (HEARTBEAT if name == heartbeat else name, value, good),
+                                     time.perf_counter())))
 
             def status_change_notification(self, status) -> None:
                 log.warning("PLC subscription: %s", status)
@@ -279,8 +305,10 @@ class PlcLink:
                 MaxNotificationsPerPublish=0, PublishingEnabled=True, Priority=0)
             subscription = await client.create_subscription(params, Handler())
             watched = [heartbeat, *self._node_field]
-            handles = await subscription.subscribe_data_change([client.get_node(n) for n in watched], queuesize=1,
+            handles = await subscription.subscribe_data_change([client.get_node(heartbeat)], queuesize=1,
                                                                sampling_interval=0)
+            handles += await subscription.subscribe_data_change([client.get_node(n) for n in self._node_field],
+                                                                queuesize=QUEUE_SIZE, sampling_interval=0)
             for name, handle in zip(watched, handles):
                 if not isinstance(handle, int):
                     raise RuntimeError(f"the PLC refused to monitor {name}: {handle}")
