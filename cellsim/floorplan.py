@@ -40,17 +40,24 @@ class Box3:
         return bool(np.all(np.abs(self.to_local(p)) <= self.half + margin))
 
     def blocks(self, p0, p1) -> bool:
-        """Whether the segment p0-p1 passes through the box's inside (slab test in its frame)."""
-        a, b = self.to_local(p0), self.to_local(p1)
-        d = b - a
+        """Whether the segment p0-p1 passes through the box's inside (slab test in its frame).
+
+        In plain floats: a line of sight is tested against every fixture for every point a scanner looks at."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        cx, cy, cz = self.center
+        x0, y0, z0 = p0[0] - cx, p0[1] - cy, p0[2] - cz
+        x1, y1, z1 = p1[0] - cx, p1[1] - cy, p1[2] - cz
+        a = (c * x0 + s * y0, -s * x0 + c * y0, z0)
+        b = (c * x1 + s * y1, -s * x1 + c * y1, z1)
         t0, t1 = 0.0, 1.0
         for axis in range(3):
-            lo, hi = -self.half[axis], self.half[axis]
-            if abs(d[axis]) < _EPS:
-                if not lo < a[axis] < hi:
+            hi = float(self.half[axis])
+            start, d = a[axis], b[axis] - a[axis]
+            if abs(d) < _EPS:
+                if not -hi < start < hi:
                     return False
                 continue
-            u, v = (lo - a[axis]) / d[axis], (hi - a[axis]) / d[axis]
+            u, v = (-hi - start) / d, (hi - start) / d
             t0, t1 = max(t0, min(u, v)), min(t1, max(u, v))
             if t1 - t0 <= _EPS:
                 return False

@@ -161,14 +161,20 @@ class AreaScanner(GeometrySensor):
         return reading, self.nearest_seen(query)
 
     def nearest_seen(self, query) -> float:
-        """Distance (m) from the head to the nearest point of a person the beams reach, at most max_range."""
-        nearest = self.cfg.max_range
+        """Distance (m) from the head to the nearest point of a person the beams reach, at most max_range.
+
+        Every target's distance first, then their lines of sight nearest first: the first one seen is the answer
+        (usually the first looked at), where looking in a fixed order tests most of them."""
+        pairs = []
         for target in self.targets:
             pair = query.ComputeSignedDistancePairClosestPoints(self.head_id, target)
-            distance = pair.distance + HEAD_RADIUS
-            if distance < nearest and self.seen(_witness_on(query, pair, target)):
-                nearest = distance
-        return nearest
+            pairs.append((pair.distance + HEAD_RADIUS, len(pairs), pair, target))
+        for distance, _, pair, target in sorted(pairs, key=lambda found: found[:2]):
+            if distance >= self.cfg.max_range:
+                break
+            if self.seen(_witness_on(query, pair, target)):
+                return distance
+        return self.cfg.max_range
 
     def sample_is_valid(self, sample) -> bool:
         return valid_code(sample[0], self.readings) and np.isfinite(sample[1]) and sample[1] >= 0.0
