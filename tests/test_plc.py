@@ -347,3 +347,36 @@ def test_a_restarted_plc_is_heard_at_once_and_a_bad_heartbeat_fails_every_entity
     link.take(HEARTBEAT, 2, False, 0.07)  # the PLC marks its own heartbeat bad
     failures = [m["failed"] for k, m in published if "failed" in m]
     assert failures.count("corrupt") == 2  # the curtain and the welder
+    # while the scan is bad, the curtain's changes are kept but not trusted: no good sample until the scan moves good
+    before = len(samples())
+    for t, broken in enumerate((True, False, True, False), start=8):
+        link.take(nodes["broken"].replace(" ", ""), broken, True, 0.01 * t)
+    assert len(samples()) == before and link.entities["light_barrier"].trust.link.value == "corrupt"
+    link.take(HEARTBEAT, 3, True, 0.13)  # the scan moves, good: the curtain's current value, trusted again
+    assert samples()[-1]["fields"] == {"broken": False} and len(samples()) == before + 1
+
+
+def test_one_publishs_values_keep_each_nodes_order_and_interleave_by_their_stamps():
+    """The OPC UA client's hand-over: values of one publish, listed node by node, reach the daemon sorted by source
+    timestamp across nodes, while each node's own values keep the server's order whatever their stamps (a clock
+    stepped back, a Bad value stamped by the server only, OPC UA's "no time")."""
+    from datetime import datetime, timedelta, timezone
+    from types import SimpleNamespace
+
+    from cellsim.bridges.plc import PublishInOrder
+
+    t0 = datetime(2026, 11, 28, 12, 0, tzinfo=timezone.utc)
+    at = lambda ms: t0 + timedelta(milliseconds=ms)  # noqa: E731
+    no_time = datetime(1601, 1, 1, tzinfo=timezone.utc)
+    # (node, value, source stamp, server stamp) in the order the server lists them: node by node
+    listed = [("A", 1, at(1), at(1)), ("A", 2, at(5), at(5)), ("A", 3, at(3), at(6)),  # A's clock stepped back
+              ("B", "x", at(2), at(2)), ("B", "y", None, at(4)), ("B", "z", no_time, at(7))]
+    delivered, scheduled = [], []
+    order = PublishInOrder(delivered.append, SimpleNamespace(call_soon=scheduled.append))
+    for node, value, source, server in listed:
+        order.add(node, SimpleNamespace(SourceTimestamp=source, ServerTimestamp=server), (node, value))
+    assert scheduled == [order.hand_over] and delivered == []  # handed over once, after the publish's last
+    scheduled[0]()
+    assert [(node, value) for node, value in delivered] == [
+        ("A", 1), ("B", "x"), ("B", "y"), ("A", 2), ("A", 3), ("B", "z")]
+    assert [v for n, v in delivered if n == "A"] == [1, 2, 3] and [v for n, v in delivered if n == "B"] == ["x", "y", "z"]

@@ -20,10 +20,12 @@ inbox, and the daemon's thread judges it (``PlcLink.take``), by the link rule
 
 Each entity node is monitored with a queue (``QUEUE_SIZE``), so every value the PLC
 takes between two publishes reaches the daemon, not only the last: a light curtain's
-break shorter than the publishing interval is published, broken then clear. The values
-of one publish are handed over in the order of their source timestamps (the server lists
-them node by node), so no sample combines a node's later value with another's earlier.
-The heartbeat keeps only its latest value: it says the PLC scans, once per publish.
+break shorter than the publishing interval is published, broken then clear (the twin's
+entity, taking the newest sample at each of its updates, may still not act on it). The
+values of one publish are handed over in the order the PLC took them
+(:class:`PublishInOrder`). The heartbeat keeps only its latest value: it says the PLC
+scans, once per publish; a bad heartbeat fails every entity, and no value is trusted
+until the heartbeat moves good again.
 
 Every movement of the heartbeat counts as a good message for each entity whose
 nodes are all good (its sample is published, so the twin's entity stays fresh at
@@ -39,6 +41,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import threading
 import time
 from dataclasses import dataclass, field
@@ -46,7 +49,7 @@ from dataclasses import dataclass, field
 from cellsim import codec
 from cellsim.bridges.opcua import (APPLICATION_URI, NodeValueError, from_node, pinned, quiet_asyncua, to_node,
                                    variant_type)
-from cellsim.link import Fault, LinkTrust
+from cellsim.link import Fault, LinkTrust, PhysicalLink
 from cellsim.live import keys
 
 log = logging.getLogger("cellsim.bridge")
@@ -123,8 +126,10 @@ class PlcLink:
         """One notification: the PLC's heartbeat, or a node of an entity's sample, with its status."""
         if node == HEARTBEAT:
             if not good or isinstance(value, bool) or not isinstance(value, int):
+                fault = Fault.CORRUPT if not good else Fault.RANGE
+                self.heartbeat.fail(fault, now)  # no value is judged until the scan is heard good again
                 for link in self.entities.values():  # the PLC's own scan counter is bad: nothing of it is trusted
-                    self._fail(link, Fault.CORRUPT if not good else Fault.RANGE, now)
+                    self._fail(link, fault, now)
                 return
             if value == self._last_heartbeat:
                 self.heartbeat.fail(Fault.REPEATED)  # counted: the PLC's scan did not move
@@ -158,7 +163,10 @@ class PlcLink:
             self._judge(link, now)
 
     def _alive(self, now: float) -> bool:
-        return self.heartbeat.last_good is not None and now - self.heartbeat.last_good <= self.settings.watchdog
+        """The PLC's scan heard moving, good, within the watchdog (and not bad since)."""
+        heartbeat = self.heartbeat
+        return (heartbeat.link is PhysicalLink.OK and heartbeat.last_good is not None
+                and now - heartbeat.last_good <= self.settings.watchdog)
 
     def _judge(self, link: PlcEntityLink, now: float) -> None:
         if link.bad or len(link.values) != len(link.types):
@@ -270,29 +278,15 @@ class PlcLink:
             client.certificate_validator = pinned(load_certificate(server))
         put = self.inbox.put
         heartbeat = _canonical(settings.heartbeat)
-        loop = asyncio.get_running_loop()
-        publish: list[tuple[float, tuple]] = []
-
-        def hand_over() -> None:
-            """One publish's values to the daemon, in their source timestamps' order (the same stamp: as listed)."""
-            publish.sort(key=lambda stamped: stamped[0])
-            for _, item in publish:
-                put(item)
-            publish.clear()
+        order = PublishInOrder(put, asyncio.get_running_loop())
 
         class Handler:
             def datachange_notification(self, node, value, data) -> None:  # on the loop: hand over, nothing more
-                # asyncua calls this in a task per notification, all of one publish created before any runs: a
-                # callback scheduled by the first runs after the last, and hands the publish over in order
                 datum = data.monitored_item.Value
                 good = datum.StatusCode is None or datum.StatusCode.is_good()
                 name = node.nodeid.to_string()
-                stamp = datum.SourceTimestamp or datum.ServerTimestamp
-                if not publish:
-                    loop.call_soon(hand_over)
-                at = stamp.timestamp() if stamp is not None else publish[-1][0] if publish else 0.0
-                publish.append((at, ("plc", None, (HEARTBEAT if name == heartbeat else name, value, good),
-                                     time.perf_counter())))
+                order.add(name, datum, ("plc", None, (HEARTBEAT if name == heartbeat else name, value, good),
+                                        time.perf_counter()))
 
             def status_change_notification(self, status) -> None:
                 log.warning("PLC subscription: %s", status)
@@ -325,6 +319,48 @@ class PlcLink:
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout=10.0)
+
+
+class PublishInOrder:
+    """One publish's notifications, handed to ``put`` in the order the PLC took the values.
+
+    A server lists a publish's values node by node. They are handed over sorted by their source timestamps (else the
+    server's; the same stamp: as listed), so that no sample pairs one node's later value with another's earlier,
+    while each node's own values keep the order the server lists them in, whatever their stamps say (a clock stepped
+    back, a value stamped by the server where the one before was stamped by the PLC): only the interleaving of
+    different nodes follows the stamps.
+
+    asyncua calls its handler in a task per notification, all of one publish created before any of them runs: the
+    hand-over, scheduled on ``loop`` by the first notification, runs after the last."""
+
+    def __init__(self, put, loop):
+        self.put, self.loop = put, loop
+        self.publish: list[tuple[float, object]] = []
+        self.latest: dict[str, float] = {}  # node -> the order key of its last value in this publish
+
+    def add(self, node: str, datum, item) -> None:
+        """A notification of ``node`` whose DataValue is ``datum``: ``item`` goes to ``put`` at the hand-over."""
+        if not self.publish:
+            self.loop.call_soon(self.hand_over)
+        at = _seconds(datum.SourceTimestamp) or _seconds(datum.ServerTimestamp) or (
+            self.publish[-1][0] if self.publish else 0.0)
+        at = max(at, self.latest.get(node, -math.inf))
+        self.latest[node] = at
+        self.publish.append((at, item))
+
+    def hand_over(self) -> None:
+        self.publish.sort(key=lambda stamped: stamped[0])
+        for _, item in self.publish:
+            self.put(item)
+        self.publish.clear()
+        self.latest.clear()
+
+
+def _seconds(stamp) -> float | None:
+    """A DataValue's timestamp as seconds since 1970, or None for none (OPC UA's "no time" decodes as 1601)."""
+    if stamp is None or stamp.year <= 1601:
+        return None
+    return stamp.timestamp()
 
 
 def _canonical(node: str) -> str:

@@ -3,8 +3,8 @@
 ``cellsim emulate --opcua`` (with ``--bridge``) serves the configuration's ``plc``
 nodes on its endpoint (``--opcua PORT`` overrides the port), as the PLC would:
 each entity of the PLC writes its sample's fields to its nodes at the PLC's scan
-(``SCAN``, coded as ``cellsim.bridges.opcua`` says), the heartbeat node counts the
-scans, and under the twin's command (``--commanded-by-twin``) the command nodes a
+(``SCAN``, coded as ``cellsim.bridges.opcua`` says, stamped with the scan's time), the
+heartbeat node counts the scans, and under the twin's command (``--commanded-by-twin``) the command nodes a
 client writes become the entity's commands, taken only when the client's command
 heartbeat moved (the PLC's program's own watchdog: a lost daemon's commands stop,
 and the entity's command source fails safe after its ``stale_after``). An entity
@@ -27,6 +27,7 @@ import asyncio
 import logging
 import threading
 import time
+from datetime import datetime, timezone
 
 from cellsim import codec
 from cellsim.bridges.opcua import (APPLICATION_URI, NodeValueError, from_node, pinned, quiet_asyncua, to_node,
@@ -139,7 +140,9 @@ class EmulatedPlc:
                         pending, faults = dict(self._pending), dict(self._faults)
                     if "freeze" not in faults.values():
                         count += 1
-                        await heartbeat.write_value(ua.Variant(count, ua.VariantType.Int32))
+                        scan = datetime.now(timezone.utc)  # as a PLC stamps its values: once per scan
+                        await heartbeat.write_value(ua.DataValue(ua.Variant(count, ua.VariantType.Int32),
+                                                                 SourceTimestamp=scan))
                         for (entity, name), node in fields.items():
                             if entity not in pending:
                                 continue
@@ -147,7 +150,7 @@ class EmulatedPlc:
                             value = ua.Variant(to_node(ctype, pending[entity].get(name)), variant_type(ctype))
                             status = ua.StatusCode(ua.StatusCodes.BadSensorFailure if faults.get(entity) == "bad_status"
                                                    else ua.StatusCodes.Good)
-                            await node.write_value(ua.DataValue(value, StatusCode=status))
+                            await node.write_value(ua.DataValue(value, StatusCode=status, SourceTimestamp=scan))
                         self.scans += 1
                     await asyncio.sleep(SCAN)
         except BaseException as e:  # noqa: BLE001 - said to the constructor, or logged once running
