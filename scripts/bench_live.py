@@ -238,7 +238,7 @@ def main() -> None:
               f"({r['n_latencies']} curtain toggles; target p99 <= {CURTAIN_PERIOD * 1e3 + 2:.0f} ms)")
         print(f"[{security}] sensor -> command    p50 {r50 * 1e3:6.2f} ms  p99 {r99 * 1e3:6.2f} ms   "
               f"({r['n_reactions']} safety-mode commands, from the sensor change that raised the hazard to the "
-              f"emulated robot's mode, at its controller's 2 ms cycle; {r['n_other']} raised otherwise; target p99 <= 60 ms)")
+              f"emulated robot's mode, at its controller's 2 ms cycles; {r['n_other']} raised otherwise; target p99 <= 60 ms)")
         c50, c99 = r["to_command"]
         print(f"[{security}] sensor -> command out p50 {c50 * 1e3:6.2f} ms  p99 {c99 * 1e3:6.2f} ms   (the same commands, "
               "to the twin's message on the robot's command key: the bridge daemon adds its own (bench_bridge); "

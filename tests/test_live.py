@@ -221,7 +221,8 @@ TWIN_SUPERVISES = ["--set", "robot.twin.mode=twin", "--set", "welder.twin.mode=t
 
 
 def test_the_twins_safety_controller_supervises_the_emulated_cell(tmp_path):
-    """The published twin test: the welding cell's full 30 s, the twin supervising the emulated cell."""
+    """The published twin test: the welding cell's full 30 s, the twin supervising the emulated cell, whose robot is
+    emulated as a UR controller at 500 Hz (``--rate robot=500``: it works, not only publishes, every 2 ms)."""
     port = free_port()
     endpoint = f"tls/127.0.0.1:{port}"
     reached, on_status = sim_time_reached(30.0)
@@ -233,7 +234,8 @@ def test_the_twins_safety_controller_supervises_the_emulated_cell(tmp_path):
             wait_alive(session, "cellsim/welding_cell/alive/twin")
             status = session.declare_subscriber("cellsim/welding_cell/status/twin", on_status)
             emulator = start(["emulate", WELDING_CELL, "--out", str(tmp_path / "emulator"), "--duration", "36",
-                              "--commanded-by-twin", "--connect", endpoint, "--quiet"], tmp_path / "emulator.log")
+                              "--commanded-by-twin", "--rate", "robot=500", "--connect", endpoint, "--quiet"],
+                             tmp_path / "emulator.log")
             assert reached.wait(90), twin.output()
             status.undeclare()
         twin.stop()  # after the scenario's 30 s, while the emulated cell still runs
@@ -242,6 +244,11 @@ def test_the_twins_safety_controller_supervises_the_emulated_cell(tmp_path):
         # the operator walks into the emulated cell; the twin detects HS from the emulated scanner and
         # its ssmon request reaches the emulated robot (twin's update, the command's way, the robot's update)
         assert_supervised(twin, emu, within=0.3)
+        # the emulated robot took its modes at its own 2 ms cycles, off the 20 ms grid of the scenario's robot,
+        # and the run says so in its overrides
+        assert "robot.period=0.002" in emu.metadata()["overrides"]
+        modes = emu.series("robot.safety_mode")
+        assert any(round(t / 0.002) % 10 for t in modes.times[1:]), modes.times
     proc = subprocess.run([sys.executable, "-m", "cellsim", "check", str(tmp_path / "twin"), "--json"],
                           capture_output=True, text=True, timeout=120, cwd=ROOT)
     verdicts = json.loads(proc.stdout)

@@ -71,7 +71,7 @@ def add_parser(subparsers) -> None:
         "--rate", action="append", default=[], metavar="ENTITY=HZ",
         help="run an entity's device this often: its samples are published at this rate instead of once per update "
         "period, and a rate faster than its update period runs the emulated device at it too (robot=500: a UR "
-        "controller's 500 Hz cycle, which takes a command at its next 2 ms) (repeatable)",
+        "controller's 500 Hz cycle, which takes a command within 4 ms) (repeatable)",
     )
     emu.set_defaults(handler=run)
 
@@ -79,8 +79,9 @@ def add_parser(subparsers) -> None:
 def _devices_at_their_rates(sf, rates: dict[str, float]) -> None:
     """An entity given a rate faster than its update period is emulated at that rate (its ``period``, rounded to the
     plant step): a real device publishing that often also works that often, so a robot emulated at a UR controller's
-    500 Hz takes the twin's command at its next 2 ms cycle, not at the twin's model's 20 ms update. The twin's own
-    model of the entity keeps the scenario's period."""
+    500 Hz takes the twin's command within two of its 2 ms cycles (its command source drains as it updates), not at
+    the twin's model's 20 ms update. The twin's own model of the entity keeps the scenario's period. Each such change
+    is added to the scenario's overrides, so the run's provenance and metadata say so."""
     import dataclasses
 
     step = sf.scenario.time_step
@@ -89,6 +90,7 @@ def _devices_at_their_rates(sf, rates: dict[str, float]) -> None:
         period = max(step, round(1.0 / hz / step) * step)
         if period < (getattr(cfg, "period", None) or 0.0):
             sf.scenario.entities[name] = dataclasses.replace(cfg, period=period)
+            sf.overrides.append(f"{name}.period={period:g}")
 
 
 def run(args) -> int:
