@@ -186,6 +186,7 @@ def test_a_model_too_large_to_build_state_by_state_is_checked_as_decision_diagra
     explicit = run.verify(sf)
     monkeypatch.setattr(run, "SIZE_ANYWAY", 0)
     monkeypatch.setattr(run, "EXPLICIT_LIMIT", 0)
+    monkeypatch.setenv("COLUMNS", "200")  # a row to a line
     symbolic = run.verify(sf)
     assert symbolic.stats.symbolic and not explicit.stats.symbolic
     assert symbolic.stats.states >= explicit.largest.states  # every monitor at once
@@ -362,6 +363,33 @@ def test_the_paced_model_has_no_witness_faster_than_the_person_walks():
     assert witnesses
     for witness in witnesses:
         assert pace_departure(person, witness, cell.period, 1.32) is None
+
+
+def test_the_table_says_why_a_response_slower_than_its_window_holds(tmp_path):
+    """The human form: a liveness row reads "not within 0.04 s" in the model beside HOLDS; the lines under the table
+    say why (fairness), and its twin column asks for no witness."""
+    done = _verify(str(WELDING_CELL), "--no-replay", "--refine", "0", "--out", str(tmp_path / "w"))
+    text = " ".join(done.stdout.split())  # the console wraps long lines
+    for hazard in ("HRW", "HS", "HC"):
+        assert f"holds: {hazard}:handled: proved in the abstraction under fairness" in text
+    row = next(line for line in done.stdout.splitlines() if "HRW:handled" in line)
+    assert "not within 0.04 s" in row and "HOLDS" in row and "witness" not in row
+
+
+def test_a_cell_checked_as_decision_diagrams_alone_asks_no_witness_of_a_response_that_holds(tmp_path, monkeypatch,
+                                                                                              capsys):
+    """Checked as decision diagrams alone (a large cell: here the welding cell, its limit made 0), a violated safety
+    property says it has no witness; a response slower than its window that holds under fairness asks for none."""
+    import cellsim.verify.run as run
+    from cellsim.cli import main
+
+    monkeypatch.setattr(run, "EXPLICIT_LIMIT", 0)
+    monkeypatch.setenv("COLUMNS", "200")  # a row to a line
+    code = main(["verify", str(WELDING_CELL), "--no-replay", "--refine", "0", "--out", str(tmp_path / "w")])
+    rows = {line.split()[1]: line for line in capsys.readouterr().out.splitlines() if line.startswith("│ H")}
+    assert "no witness (decision diagrams)" in rows["HRW:detected"] and "UNDECIDED" in rows["HRW:detected"]
+    assert "HOLDS" in rows["HRW:handled"] and "witness" not in rows["HRW:handled"]
+    assert code == 3
 
 
 def test_refining_without_replays_is_refused_before_anything_is_done(tmp_path):

@@ -121,20 +121,25 @@ def _print(result, replays, export) -> None:
             if r.prop.within is not None:
                 verdict = f"[green]within {r.prop.within:g} s[/]" if r.holds else f"[yellow]not within {r.prop.within:g} s[/]"
         value = f"{r.value:.6g}" if isinstance(r.value, float) else str(r.value)
+        ending = endings[r.prop.name].ending
         twin = ""
-        if r.holds is False and r.witness is None:
-            twin = "no witness (decision diagrams)" if stats.symbolic else ""
+        if r.holds is False and r.witness is None and ending is not None and ending.value != "holds":
+            twin = "no witness (decision diagrams)" if stats.symbolic else ""  # (a response that holds under
+            # fairness wants none: its window's violation is no violation of the condition)
         if r.prop.name in replays:
             rp = replays[r.prop.name]
             twin = (f"[red]confirmed[/] ({escape(rp.scenarios[-1].name)})" if rp.confirmed
                     else "[yellow]refuted[/]: the abstraction is too coarse here")
-        ending = endings[r.prop.name].ending
         final = {None: "", "holds": "[green]HOLDS[/]", "violated": "[red]VIOLATED[/]",
                  "undecided": "[yellow]UNDECIDED[/]"}[None if ending is None else ending.value]
         table.add_row(escape(r.prop.name), value, verdict, twin, final)
     console.print(table)
     for r in result.refinements:
         console.print(f"  refinement {r.step}: {escape(str(r))}")
+    for r in result.results:  # a response slower than its window that holds all the same: why
+        f = endings[r.prop.name]
+        if r.holds is False and f.ending is not None and f.ending.value == "holds":
+            console.print(f"  holds: {escape(f.name)}: {escape(f.reason)}")
     for f in endings.values():
         if f.ending is not None and f.ending.value == "undecided":
             console.print(f"  undecided: {escape(f.name)}: {escape(f.reason)}")
