@@ -183,6 +183,36 @@ def test_a_hand_pressed_onto_the_bench_is_clamped(cell):
         assert reading["clamping"] == pytest.approx(fraction, rel=1e-5)
 
 
+@pytest.mark.parametrize("yaw, approach, kind", [
+    # facing the arm, the back against the machine: the chest pushed back is pinned through the body
+    (math.pi, (-0.35, 0.0, 0.0), "quasi_static"),
+    # the machine at the person's side: the chest pushed sideways along it can recoil
+    (math.pi / 2, (0.0, 0.35, 0.0), "transient"),
+])
+def test_a_chest_pushed_against_a_machine_behind_the_body_is_clamped_and_beside_it_is_not(cell, yaw, approach, kind):
+    """Pinning is judged on the whole person: the chest touches nothing but the arm, while the back, the far side of
+    the body along the push, rests against the CNC."""
+    built, context = cell
+    cnc = next(g for g, name in built.modules["harm"].fixtures.items() if name == "cnc")
+    for x in np.arange(0.55, 0.95, 0.002):  # step towards the machine until some region rests against it
+        stand(built, context, x, 0.0, yaw)
+        chest, query = region_geometry(built, context, "chest")
+        gaps = [query.ComputeSignedDistancePairClosestPoints(g, cnc).distance for g in built.modules["operator"].regions]
+        if 0.0 < min(gaps) <= 0.005:
+            break
+    else:
+        raise AssertionError("the person never rests against the machine")
+    assert query.ComputeSignedDistancePairClosestPoints(chest, cnc).distance > built.modules["harm"].cfg.clamp_gap
+    centre = query.GetPoseInWorld(chest).translation()
+    touch(built, context, chest, centre + approach, centre)
+    limit = v_max("chest", transient=kind == "transient")
+    for fraction in (0.9, 1.1):
+        reading, _ = reading_at(built, context, chest, fraction * limit)
+        assert reading["contact_region"] == "chest" and reading["contact_kind"] == kind
+        assert reading["severity"] == pytest.approx(fraction, rel=1e-5)
+        assert reading["clamping"] == (pytest.approx(fraction, rel=1e-5) if kind == "quasi_static" else 0.0)
+
+
 def test_a_head_contact_is_harm_at_any_speed(cell):
     built, context = cell
     stand(built, context, 0.3, -1.0, math.pi / 2)
@@ -240,3 +270,13 @@ def test_the_touched_region_is_drawn_amber_within_its_limit_and_red_above_it(cel
     hands = {g for g, body in harm.bodies.items() if body.region == "hand"}
     assert set(coloured) == hands and len(hands) == 2 and all(rgba == harm.LOOKS["harm"] for rgba in coloured.values())
     assert harm.recolour({}) == {}
+
+
+def test_a_far_period_between_plant_steps_looks_sooner_not_later():
+    """``far_period`` 0.035 s on a 2 ms plant: a look every 17 steps (34 ms), and the reach that switches on the
+    plant-step measuring is what closes in those 34 ms, not in a rounded-up 36."""
+    from cellsim.proximity import MAX_CLOSING_SPEED
+
+    built = build_cell(load_scenario(CELL, ["harm.far_period=0.035"]), seed=0, duration=1.0, record=False)
+    harm = built.modules["harm"]
+    assert harm.far_every == 17 and harm.reach == pytest.approx(MAX_CLOSING_SPEED * 0.034)

@@ -80,9 +80,10 @@ class HarmMonitor(CellSystem):
         robot part's name (``<robot>_<link>``); ``plant``: the cell's MultibodyPlant (its output ports' types)."""
         super().__init__(module, step)
         self.cfg = cfg
-        self.far_every = max(1, int(round(cfg.far_period / step)))
-        self.reach = MAX_CLOSING_SPEED * cfg.far_period
-        """m: a pair farther apart than this at one look cannot touch before the next (``far_period`` later)."""
+        self.far_every = max(1, math.floor(cfg.far_period / step + 1e-9))
+        """Plant steps from one far look to the next: ``far_period`` rounded down to whole steps (never later)."""
+        self.reach = MAX_CLOSING_SPEED * self.far_every * step
+        """m: a pair farther apart than this at one look cannot touch before the next (``far_every`` steps later)."""
         self._near = self.declare_state("near", [0.0])  # 1 while the last look found a pair within reach
         self.limits = limits
         self.robots = list(robots)
@@ -282,7 +283,8 @@ class HarmMonitor(CellSystem):
             p_W = query.GetPoseInWorld(region) @ (pair.p_ACa if on_a else pair.p_BCb)
             push = pair.nhat_BA_W if on_a else -pair.nhat_BA_W  # from the arm (B, or A) into the region
             speed = float((motion.of_part(part, p_W) - motion.of_region(body, p_W)) @ push)
-            kind = QUASI_STATIC if self._pinned(query, region, pair.id_B if on_a else pair.id_A, part, push) else TRANSIENT
+            pinned = self._pinned(query, body.person, p_W, pair.id_B if on_a else pair.id_A, part, push)
+            kind = QUASI_STATIC if pinned else TRANSIENT
             level = severity(self.limits.regions[body.region], part.mass, kind, speed)
             if kind == QUASI_STATIC:
                 clamping = max(clamping, level)
@@ -294,21 +296,28 @@ class HarmMonitor(CellSystem):
             self.kind_type(kind).code, speed, self.region_type(nearest).code, *(separation[r] for r in self.robots),
         ]
 
-    def _pinned(self, query, region, touching, part: Part, push) -> bool:
-        """Whether something the region cannot pass (a fixture, an arm's shape on another body) lies within
-        clamp_gap behind it, along the push. Asked only of a region being touched: it costs nothing otherwise."""
+    def _pinned(self, query, person: int, p_W, touching, part: Part, push) -> bool:
+        """Whether the person touched at ``p_W`` is pinned: something they cannot pass (a fixture, an arm's shape on
+        another body) lies within clamp_gap of their body (any of its regions: a chest pushed against a wall touches
+        it with the back) behind the contact along the push, within clamp_angle_deg of it as seen from the contact.
+        Asked only of a region being touched: it costs nothing otherwise."""
+        regions = [g for g, b in self.bodies.items() if b.person == person]
         for other in self.clamps:
             if other == touching:
                 continue
             behind = self.parts.get(other)
             if behind is not None and behind.robot == part.robot and behind.body == part.body:
                 continue  # the same link, another of its shapes
-            pair = query.ComputeSignedDistancePairClosestPoints(region, other)
-            if pair.distance > self.cfg.clamp_gap:
-                continue
-            away = -pair.nhat_BA_W if pair.id_A == region else pair.nhat_BA_W  # from the region towards it
-            if float(away @ push) >= self.cos_clamp:
-                return True
+            for region in regions:
+                pair = query.ComputeSignedDistancePairClosestPoints(region, other)
+                if pair.distance > self.cfg.clamp_gap:
+                    continue
+                on_a = pair.id_A == other
+                w_W = query.GetPoseInWorld(other) @ (pair.p_ACa if on_a else pair.p_BCb)  # the blocker's point
+                towards = w_W - p_W
+                length = float(np.linalg.norm(towards))
+                if length == 0.0 or float(towards @ push) >= self.cos_clamp * length:
+                    return True
         return False
 
 
