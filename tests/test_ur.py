@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import queue
 import struct
@@ -324,6 +325,60 @@ def test_in_twin_mode_the_controller_gets_the_slider_and_registers_and_slider_0_
         values = controller.inputs_until(lambda v: v["speed_slider_fraction"] == 0.0)
         assert time.monotonic() - lost < 1.0
         assert values[f"input_int_register_{r.safety_mode_request}"] == 5 and values[f"input_int_register_{r.target_pose}"] == -1
+    finally:
+        if token is not None:
+            token.undeclare()
+        stop.set()
+        thread.join(timeout=5)
+        bridge.close()
+        controller.server.close()
+
+
+def _commanding(command, seqs, fields, controller, condition, deadline_s: float = 10.0) -> dict:
+    """Publish the twin's command every 0.1 s, numbered by ``seqs``, until the controller's inputs meet
+    ``condition``; those inputs."""
+    deadline = time.monotonic() + deadline_s
+    while True:
+        command.put(json.dumps({"t": time.time(), "seq": next(seqs), "fields": fields}))
+        try:
+            return controller.inputs_until(condition, timeout=0.1)
+        except queue.Empty:
+            assert time.monotonic() < deadline
+
+
+@pytest.mark.parametrize("lose", ["liveliness", "commands"])
+def test_a_daemon_that_has_not_heard_the_twins_mode_holds_the_safe_command_and_each_loss_alone_stops_the_arm(
+        sessions, tmp_path, program, lose):  # noqa: F811
+    """A daemon (re)started while the twin may command the arm writes the safe command, never a release (-1, the
+    program's own), until the twin is heard: a good command of the twin's (it commands only what it twins) counts as
+    twin mode. Then the twin is lost one way at a time: its liveliness gone while its commands still come, or its
+    commands stopped while it is alive: each alone sets the slider to 0 and asks for a stop."""
+    hub, twin_session = sessions
+    controller = Controller(program)
+    bridge = Bridge(load_bridge(ur_config(tmp_path, controller.port)), hub)
+    stop, thread = run_daemon(bridge)
+    r = program.registers
+    command = twin_session.declare_publisher("cellsim/welding_cell/command/robot")
+    token = twin_session.liveliness().declare_token("cellsim/welding_cell/alive/twin")
+    safe = lambda v: v["speed_slider_mask"] == 1 and v["speed_slider_fraction"] == 0.0 and (  # noqa: E731
+        v[f"input_int_register_{r.safety_mode_request}"] == 5)
+    try:
+        connected(bridge.robots["robot"], controller)
+        for _ in range(3):  # nothing heard of the twin's mode: the safe command, each cycle
+            assert safe(controller.inputs_until(lambda v: True))
+        fields = {"safety_mode_request": "ssmon", "activity": "welding", "target_pose": 2.0, "speed_limit": 0.5}
+        seqs = itertools.count(1)
+        _commanding(command, seqs, fields, controller, lambda v: v["speed_slider_fraction"] == 0.5)
+        assert bridge.twin_mode("robot") is TwinMode.TWIN
+        if lose == "liveliness":
+            token.undeclare()
+            token = None
+            lost = time.monotonic()
+            _commanding(command, seqs, fields, controller, safe)  # good commands still come: liveliness alone
+        else:
+            lost = time.monotonic()
+            controller.inputs_until(safe, timeout=5.0)  # alive, silent: the command watchdog alone
+        assert time.monotonic() - lost < 0.5 + 0.5  # the command watchdog and a command cycle, with room
     finally:
         if token is not None:
             token.undeclare()

@@ -243,14 +243,18 @@ class Bridge:
         for entity in self.commanded():
             if only is not None and entity != only:
                 continue
-            twin = self._modes.get(entity) is TwinMode.TWIN
+            mode = self._modes.get(entity)
             robot = self.robots.get(entity)
             plc = self.plc is not None and entity in self.plc.commands
-            if not twin and not (isinstance(robot, UrLink) or plc):
+            written = isinstance(robot, UrLink) or plc  # inputs the daemon writes, which hold what it last wrote
+            # a written device whose mode is not heard yet (a daemon just started, maybe while the twin commands it,
+            # or after the twin was lost in twin mode) takes the safe command, never a release: the twin says so
+            twin = mode is TwinMode.TWIN or (mode is None and written)
+            if not twin and not written:
                 continue  # not in twin mode (or never heard of): the device answers to its own controls
             link = self._command_links[entity]
             link.watchdog(now)
-            lost = not self._twin_alive or link.failed
+            lost = not self._twin_alive or link.failed or mode is None
             fields = self._commands.get(entity, {})
             targets = [(m.message, m.cycle_time, m) for m in cfg.commands.get(entity, [])] if twin else []
             if robot is not None:
@@ -332,6 +336,8 @@ class Bridge:
         fields = self.loaded.commands[entity].fields(message.codes)
         previous = self._commands.get(entity)
         self._commands[entity] = fields
+        if entity not in self._modes and self._twin_alive:
+            self._modes[entity] = TwinMode.TWIN  # the twin commands only what it twins: its mode, heard sooner
         if fields != previous and self._modes.get(entity) is TwinMode.TWIN and self._twin_alive:
             self._send_commands(now, only=entity)  # a changed command goes out at once
             self.command_latencies.append(time.perf_counter() - arrived)
