@@ -101,6 +101,18 @@ def test_the_programs_reported_mode_counts_only_while_the_controller_itself_is_n
     for register, code in ((r.safety_mode, 7), (r.activity, -1), (r.reached_pose, 99)):
         with pytest.raises(OutOfRange):
             program.sample(state(program, **{f"output_int_register_{register}": code}))
+    # the controller's own codes outside the lists it documents: the sample is refused (range), never "stopped"
+    for field, code in (("safety_mode", 0), ("safety_mode", 99), ("robot_mode", 42), ("runtime_state", 77)):
+        with pytest.raises(OutOfRange):
+            program.sample(state(program, **{field: code}))
+    # not running yet moving (braking after a protective stop, jogged, backdriven), or its safety mode undefined:
+    # unknown, the dangerous case, never stopped
+    moving = [0.0, 0.0, 0.5, 0.0, 0.0, 0.0]
+    assert program.sample(state(program, safety_mode=3, actual_qd=moving))["safety_mode"] == "unknown"
+    assert program.sample(state(program, runtime_state=1, actual_qd=moving))["safety_mode"] == "unknown"
+    assert program.sample(state(program, robot_mode=6, actual_qd=moving))["safety_mode"] == "unknown"
+    assert program.sample(state(program, safety_mode=11))["safety_mode"] == "unknown"
+    assert program.sample(state(program, safety_mode=3, actual_qd=[0.005] * 6))["safety_mode"] == "stopped"
 
 
 def test_a_command_goes_out_as_the_slider_at_its_modes_cap_and_codes_the_program_reads_back(program):

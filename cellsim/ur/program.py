@@ -46,6 +46,10 @@ from cellsim.vocabulary import SafetyMode
 
 STOP_MODES = (SafetyMode.MONITORED_STOP.value, SafetyMode.STOPPED.value)
 RUNNING_SAFETY = (rtde.SAFETY_NORMAL, rtde.SAFETY_REDUCED)
+STILL = 0.01
+"""rad/s: the fastest any joint may turn for an arm that is not running (stopped, powered off, its program not
+playing) to read as stopped; faster (braking after a stop, jogged from the pendant, backdriven), it reads unknown."""
+UNDEFINED_SAFETY_MODE = 11
 MOVING_STATE = "moving"
 
 
@@ -88,11 +92,20 @@ class UrProgram:
         """The robot's physical-sample fields of a state (``outputs()``'s values); OutOfRange if a register
         holds a code outside its field's list."""
         r = self.registers
+        for name, known in (("safety_mode", rtde.SAFETY_MODES), ("robot_mode", rtde.ROBOT_MODES),
+                            ("runtime_state", rtde.RUNTIME_STATES)):
+            if values[name] not in known:
+                raise OutOfRange(f"{name} {values[name]} is no code the controller documents")
         fields = {f"q{i}": float(q) for i, q in enumerate(values["actual_q"])}
         running = (values["safety_mode"] in RUNNING_SAFETY and values["robot_mode"] == rtde.ROBOT_RUNNING
                    and values["runtime_state"] == rtde.RUNTIME_PLAYING)
         reported = self._value("safety_mode", values[rtde.int_register("output", r.safety_mode)])
-        fields["safety_mode"] = reported if running else SafetyMode.STOPPED.value
+        if running:
+            fields["safety_mode"] = reported
+        elif values["safety_mode"] == UNDEFINED_SAFETY_MODE or max(abs(float(v)) for v in values["actual_qd"]) > STILL:
+            fields["safety_mode"] = SafetyMode.UNKNOWN.value  # not running, yet moving (or its mode undefined)
+        else:
+            fields["safety_mode"] = SafetyMode.STOPPED.value
         fields["activity"] = self._value("activity", values[rtde.int_register("output", r.activity)])
         fields["reached_pose"] = self._value("reached_pose", values[rtde.int_register("output", r.reached_pose)])
         return fields
