@@ -174,12 +174,15 @@ class LinkTrust:
         """Judge a sequence number (and, for a repeat, whether ``content`` differs: a hash of the message):
         None when it follows, else the fault (a refusal or a failure) to give :meth:`fail`, which counts it.
 
-        After the link went stale any number starts the sequence afresh (a restarted sender). A
-        masquerade (see the module docstring) fails every message until it is cleared.
+        After the link went stale any number starts the sequence afresh (a restarted sender), but the very
+        message last heard, again (its number and content), is still a repeat: a frozen stream stays refused, stale,
+        however long it repeats. A masquerade (see the module docstring) fails every message until it is cleared.
         """
         last, last_content = self.last_seq, self.last_content
         self.last_content = content
         if last is None or self.link is PhysicalLink.STALE and self._silent(now) and not self.masquerade:
+            if last is not None and seq == last and content is not None and content == last_content:
+                return Fault.REPEATED  # the same message: a frozen sender, not a restarted one
             self.last_seq = seq
             return None
         delta = (seq - last) % self.modulo if self.modulo else seq - last

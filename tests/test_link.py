@@ -29,6 +29,24 @@ def test_sequence_numbers_refuse_repeats_fail_jumps_and_restart_after_silence():
     assert link.sequence(1, 1.0) is None  # silent, stale: a restarted sender starts afresh
 
 
+def test_a_frozen_sender_stays_refused_after_the_link_went_stale_and_a_restarted_one_is_heard():
+    """The restart rule takes any number once the link is stale and silent, but not the very message last heard
+    again: a stream frozen on one message (its number and content) stays refused, stale, however long it lasts
+    (before, it was taken once every timeout, and a link with recover_after 1 trusted it again each time)."""
+    link = LinkTrust(timeout=0.1, recover_after=1)
+    assert link.receive(0.0, 7, content=70.0).trusted
+    t = 0.0
+    while t < 1.0:  # the same package every 2 ms for a second
+        t += 0.002
+        judgement = link.receive(t, 7, content=70.0)
+        assert not judgement.good and judgement.fault in (Fault.REPEATED, None)
+        link.watchdog(t)
+    assert link.link is PhysicalLink.STALE and link.counts["repeated"] > 400
+    assert link.receive(t + 0.002, 7, content=71.0).trusted  # the same number, new content: a restarted sender
+    link.watchdog(t + 0.5)
+    assert link.receive(t + 0.5, 0, content=1.0).trusted  # stale again, then a restarted count from 0
+
+
 def test_a_wrapping_counter_counts_modulo():
     link = LinkTrust(timeout=0.1, modulo=16, max_gap=2)
     assert link.sequence(15, 0.0) is None
