@@ -122,6 +122,10 @@ def test_a_command_goes_out_as_the_slider_at_its_modes_cap_and_codes_the_program
     assert values == {"speed_slider_mask": 1, "speed_slider_fraction": 0.5, f"input_int_register_{r.safety_mode_request}": 2,
                       f"input_int_register_{r.activity_request}": 2, f"input_int_register_{r.target_pose}": 2,
                       f"input_int_register_{r.heartbeat}": 7}
+    # commanded with no mode (a risk model's null): a stop, slider 0, never -1 (which says "not commanded")
+    values = program.input_values({"safety_mode_request": None, "activity": None, "target_pose": None}, 8)
+    assert values[f"input_int_register_{r.safety_mode_request}"] == 5 and values["speed_slider_fraction"] == 0.0
+    assert values["speed_slider_mask"] == 1
     caps = {"normal": 1.0, "hguid": 0.25, "ssmon": 0.5, "pflim": 0.25, "srmst": 0.0, "stopped": 0.0}  # welding_cell.yaml's
     for mode in MODES:
         for activity in ("idle", "exchWrkp", "welding", "off"):
