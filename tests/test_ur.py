@@ -70,6 +70,18 @@ def test_the_controllers_variables_and_registers_have_their_types_and_others_are
     assert rtde.names_of(b"timestamp,actual_q,") == ["timestamp", "actual_q"]  # ur-rtde ends its lists with a comma
 
 
+def test_a_recipe_whose_types_are_not_the_documented_ones_is_refused():
+    """A controller that answers a recipe with other types (``actual_q`` as one DOUBLE) would have its packages read
+    as what they are not: the recipe is refused at setup, one line naming the field."""
+    from cellsim.bridges.ur import UrLink
+
+    names = ["timestamp", "actual_q"]
+    good = UrLink._recipe(bytes([1]) + b"DOUBLE,VECTOR6D", names, "output")
+    assert good.types == ("DOUBLE", "VECTOR6D")
+    with pytest.raises(rtde.RtdeError, match=r"actual_q DOUBLE \(expected VECTOR6D\)"):
+        UrLink._recipe(bytes([1]) + b"DOUBLE,DOUBLE", names, "output")
+
+
 # -- the program's registers ------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def program(tmp_path_factory):

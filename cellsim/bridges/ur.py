@@ -69,7 +69,7 @@ class RtdeStateChecker(JointStateChecker):
             if not all(math.isfinite(x) for x in (timestamp, *values["actual_q"], *values["actual_qd"])):
                 raise rtde.RtdeError("a value that is not a number")
             cycle = round(timestamp / self.cycle_time)
-        except (rtde.RtdeError, struct.error, AttributeError, OverflowError, ValueError):
+        except (rtde.RtdeError, struct.error, AttributeError, OverflowError, ValueError, TypeError, KeyError):
             return self.fail(Fault.CORRUPT, now)
         self._wall = time.time() if wall is None else wall
         return self.receive(now, cycle, zlib.crc32(payload), values=values, in_range=self._in_range)
@@ -181,6 +181,10 @@ class UrLink(RobotLink):
         if not reply or reply[0] == 0 or len(types) != len(names) or missing:
             said = ", ".join(f"{n} {t}" for n, t in zip(names, types) if t in (rtde.NOT_FOUND, rtde.IN_USE))
             raise rtde.RtdeError(f"the controller refused the {direction} recipe ({said or 'no reason given'})")
+        expected = rtde.output_type if direction == "output" else rtde.input_type
+        wrong = [f"{n} {t} (expected {expected(n)})" for n, t in zip(names, types) if t != expected(n)]
+        if wrong:  # a field of another type would be read as what it is not
+            raise rtde.RtdeError(f"the controller gave the {direction} recipe other types: {', '.join(wrong)}")
         return rtde.Recipe(reply[0], tuple(names), tuple(types))
 
     @staticmethod
