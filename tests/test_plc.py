@@ -229,16 +229,26 @@ def test_in_twin_mode_the_welders_command_nodes_carry_the_twins_command_and_its_
         while not bridge.plc.connected:
             assert time.monotonic() < deadline
             threading.Event().wait(0.01)
+        # the twin's mode not heard yet (the daemon may have started beside a commanding twin): the safe command
+        safe = {"safety_mode_request": "stopped", "activity_request": "off", "command": 0.0}
+        next_message(source.commands, lambda c: c == safe)
         # shadow: the welder's command nodes hold no value (released), the daemon's heartbeat counting
         mode.put(json.dumps({"t": time.time(), "sim_time": 0.0, "value": "shadow"}))
         request = "ns=2;s=Welder.SafetyModeRequest"
         while plc._commands.get(request) != -1 or not isinstance(plc._command_heartbeat, int):
             assert time.monotonic() < deadline, "the daemon never released the welder's command nodes"
             threading.Event().wait(0.01)
-        beat = plc._command_heartbeat
-        while plc._command_heartbeat == beat:
-            assert time.monotonic() < deadline, "the daemon's heartbeat stopped in shadow mode"
-            threading.Event().wait(0.01)
+
+        def next_beat() -> None:
+            beat = plc._command_heartbeat
+            while plc._command_heartbeat == beat:
+                assert time.monotonic() < deadline, "the daemon's heartbeat stopped in shadow mode"
+                threading.Event().wait(0.01)
+
+        next_beat()
+        while not source.commands.empty():  # what the PLC took before the release
+            source.commands.get()
+        next_beat()
         assert source.commands.empty()  # released: the PLC's program runs the welder on its own
         mode.put(json.dumps({"t": time.time(), "sim_time": 0.1, "value": "twin"}))
         while bridge.twin_mode("welder") is not TwinMode.TWIN:
@@ -380,3 +390,64 @@ def test_one_publishs_values_keep_each_nodes_order_and_interleave_by_their_stamp
     assert [(node, value) for node, value in delivered] == [
         ("A", 1), ("B", "x"), ("B", "y"), ("A", 2), ("A", 3), ("B", "z")]
     assert [v for n, v in delivered if n == "A"] == [1, 2, 3] and [v for n, v in delivered if n == "B"] == ["x", "y", "z"]
+
+
+def _unit_link(tmp_path):
+    """A PlcLink on the test's configuration with no PLC behind it: what it publishes, in a list."""
+    from cellsim.bridges.plc import PlcLink
+
+    loaded = load_bridge(plc_config(tmp_path, 4840, "none", "  insecure_because: a unit test\n"))
+
+    class Session:
+        def declare_publisher(self, key):
+            return type("P", (), {"put": lambda self, payload: None})()
+
+    return loaded, PlcLink("welding_cell", loaded.config.plc, Session(), loaded.samples, loaded.commands, loaded.safe,
+                           queue.Queue())
+
+
+def test_the_daemons_heartbeat_goes_to_the_plc_only_once_it_took_every_command_node(tmp_path):
+    """OPC UA applies each node of a write on its own: a command node the PLC refuses (its type, range or access) would
+    leave the old command standing under a heartbeat that still counts. The heartbeat is written after the command
+    nodes, and not at all while any entity's last command was refused: the PLC's own watchdog then acts."""
+    import asyncio
+
+    from asyncua import ua
+
+    loaded, link = _unit_link(tmp_path)
+    heartbeat = loaded.config.plc.command_heartbeat
+    welder = list(loaded.config.plc.entities["welder"].commands.values())
+    writes, refusing = [], {"on": True}
+
+    class Client:
+        def get_node(self, node):
+            return node
+
+        async def write_values(self, nodes, values):
+            writes.append(list(nodes))
+            if refusing["on"] and welder[0] in nodes:
+                raise RuntimeError("BadTypeMismatch")
+
+    link._client = Client()
+    command = [(node, 1, ua.VariantType.Int32) for node in welder]
+
+    async def run():
+        await link._write("welder", command, 7)
+        assert link.refused == {"welder"} and all(heartbeat not in w for w in writes)
+        refusing["on"] = False
+        await link._write("welder", command, 8)
+        assert link.refused == set() and writes[-1] == [heartbeat] and writes[-2] == welder
+
+    asyncio.run(run())
+
+
+def test_a_twin_command_with_no_safety_mode_is_written_as_the_safe_mode_not_as_no_value(tmp_path):
+    """A risk model's null request, in twin mode, is written as the kind's safe mode: no value (-1) is what the
+    daemon writes when the twin does not command the entity, and the PLC program then runs it on its own."""
+    loaded, link = _unit_link(tmp_path)
+    sent = []
+    link._command = lambda entity, command: sent.append((entity, command))
+    link.send("welder", {"safety_mode_request": None, "activity_request": None, "command": False})
+    (entity, command), = sent
+    assert command["safety_mode_request"] == loaded.safe["welder"]["safety_mode_request"] == "stopped"
+    assert command["activity_request"] is None  # no request: the process decides, as in the twin's own model

@@ -115,6 +115,9 @@ class PlcLink:
         self._heartbeat_out = 0
         self._loop: asyncio.AbstractEventLoop | None = None
         self._client = None
+        self._writing: asyncio.Lock | None = None  # one write at a time (made on the loop)
+        self.refused: set[str] = set()
+        """Entities whose last command the PLC refused (a node it would not take): while any is, no heartbeat."""
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="opcua-plc", daemon=True)
 
@@ -203,7 +206,11 @@ class PlcLink:
         if fields is None:
             self.safe_writes += 1
             fields = self.safe[entity]
-        self._command(entity, {**self.safe[entity], **fields})
+        command = {**self.safe[entity], **fields}
+        if command.get("safety_mode_request") is None and "safety_mode_request" in self.safe[entity]:
+            # commanded, but no mode (a risk model's null): the safe one; no value would say "not commanded"
+            command["safety_mode_request"] = self.safe[entity]["safety_mode_request"]
+        self._command(entity, command)
 
     def release(self, entity: str) -> None:
         """The twin does not command the entity (model or shadow mode): its command nodes hold no value (-1,
@@ -221,23 +228,39 @@ class PlcLink:
 
         values = [(node, value(name), variant_type(types[name]))
                   for name, node in self.settings.entities[entity].commands.items()]
-        values.append((self.settings.command_heartbeat, self._heartbeat_out, None))
         loop = self._loop
         if loop is not None and self.connected:
-            asyncio.run_coroutine_threadsafe(self._write(values), loop)
+            asyncio.run_coroutine_threadsafe(self._write(entity, values, self._heartbeat_out), loop)
 
-    async def _write(self, values: list) -> None:
+    async def _write(self, entity: str, values: list, heartbeat: int) -> None:
+        """Write an entity's command nodes, then, only once the PLC took every one of them and every entity's last
+        command, the daemon's heartbeat: OPC UA applies each node of a write on its own, so a refused node (its type,
+        its range, its access) would otherwise leave an old command standing under a heartbeat that still counts.
+        One write at a time, in the order asked: a heartbeat never overtakes the commands before it."""
         from asyncua import ua
 
-        client = self._client
-        if client is None:
-            return
-        try:
-            nodes = [client.get_node(node) for node, _, _ in values]
-            variants = [ua.DataValue(ua.Variant(v, kind or ua.VariantType.Int32)) for _, v, kind in values]
-            await client.write_values(nodes, variants)
-        except Exception as e:  # noqa: BLE001 - a refused or lost write: said; the PLC's own watchdog acts
-            log.warning("PLC write failed: %s", e)
+        if self._writing is None:
+            self._writing = asyncio.Lock()
+        async with self._writing:
+            client = self._client
+            if client is None:
+                return
+            try:
+                nodes = [client.get_node(node) for node, _, _ in values]
+                await client.write_values(nodes, [ua.DataValue(ua.Variant(v, kind)) for _, v, kind in values])
+            except Exception as e:  # noqa: BLE001 - a refused or lost write: said; the heartbeat stops
+                if entity not in self.refused:
+                    log.warning("PLC refused %s's command (%s): the daemon's heartbeat stops until it takes one", entity, e)
+                self.refused.add(entity)
+                return
+            self.refused.discard(entity)
+            if self.refused:
+                return  # another entity's last command was refused: no heartbeat, the PLC's watchdog acts
+            try:
+                await client.write_values([client.get_node(self.settings.command_heartbeat)],
+                                          [ua.DataValue(ua.Variant(heartbeat, ua.VariantType.Int32))])
+            except Exception as e:  # noqa: BLE001 - a lost write: said; the PLC's own watchdog acts
+                log.warning("PLC write failed: %s", e)
 
     # -- the connection (its own thread and asyncio loop) ---------------------------------------------
     def _run(self) -> None:
