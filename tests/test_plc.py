@@ -451,3 +451,27 @@ def test_a_twin_command_with_no_safety_mode_is_written_as_the_safe_mode_not_as_n
     (entity, command), = sent
     assert command["safety_mode_request"] == loaded.safe["welder"]["safety_mode_request"] == "stopped"
     assert command["activity_request"] is None  # no request: the process decides, as in the twin's own model
+
+
+def test_the_plcs_certificate_given_alone_is_trusted_as_it_is_and_never_replaced(tmp_path):
+    """docs/security.md gives the daemon's machine the PLC's certificate, not its key: it is the one trusted, byte for
+    byte (a pair was made over it before, so the daemon pinned a certificate nobody had); the daemon's own certificate
+    without its key is an error naming the missing file, never a new pair over it."""
+    import shutil
+
+    from cellsim.live.pki import opcua_files, opcua_peer_certificate
+
+    made = tmp_path / "plc_machine"
+    plc_certificate, _ = opcua_files(made, "plc")
+    daemon = tmp_path / "daemon_machine"
+    daemon.mkdir()
+    shutil.copy(plc_certificate, daemon / "opcua-plc.pem")
+    given = (daemon / "opcua-plc.pem").read_bytes()
+    assert opcua_peer_certificate(daemon, "plc") == daemon / "opcua-plc.pem"
+    assert (daemon / "opcua-plc.pem").read_bytes() == given and not (daemon / "opcua-plc.key").exists()
+    mine, key = opcua_files(daemon, "bridge")  # its own pair, made on first use
+    key.unlink()
+    before = mine.read_bytes()
+    with pytest.raises(OSError, match="opcua-bridge.key"):
+        opcua_files(daemon, "bridge")
+    assert mine.read_bytes() == before

@@ -257,7 +257,7 @@ def _plc_certificates(args, loaded, side: str) -> tuple | None:
             print(f"cellsim: created the cell's keys in {folder} (docs/security.md)", file=sys.stderr)
         other = "plc" if side == "bridge" else "bridge"
         certificate, key = opcua_files(folder, side)
-        peer, _ = opcua_files(folder, other)
+        peer = pki.opcua_peer_certificate(folder, other)
     except OSError as e:
         raise InputError(f"the PLC's OPC UA certificates in {folder}: {e}") from None
     return certificate, key, peer

@@ -305,9 +305,20 @@ def opcua_files(folder: Path, name: str) -> tuple[Path, Path]:
     folder.mkdir(parents=True, exist_ok=True)
     with open(folder / ".opcua.lock", "w") as lock:  # two processes starting at once make one pair, not two
         fcntl.flock(lock, fcntl.LOCK_EX)
+        if certificate.is_file() and not key.is_file():  # a certificate given without its key is never replaced
+            raise OSError(f"{certificate} has no key beside it ({key.name}): put it there, or remove the certificate "
+                          "to have a new pair made")
         if not (certificate.is_file() and key.is_file()):
             make_opcua_pair(folder, name)  # (the key first, the certificate last: a pair is there once both are)
     return certificate, key
+
+
+def opcua_peer_certificate(folder: Path, name: str) -> Path:
+    """The other side's OPC UA certificate (``name``: ``bridge`` or ``plc``) in the keys ``folder``: its
+    ``opcua-<name>.pem`` as given (the daemon's machine holds the PLC's certificate, not its key); a pair is made
+    only where neither is there (both sides on one machine, first use)."""
+    certificate = folder / f"opcua-{name}.pem"
+    return certificate if certificate.is_file() else opcua_files(folder, name)[0]
 
 
 def make_opcua_pair(folder: Path, name: str) -> None:
