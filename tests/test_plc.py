@@ -74,6 +74,8 @@ def test_a_field_sits_in_its_node_as_its_code_a_boolean_or_a_double_and_a_value_
     (("command: ns=2;s=Welder.Weld", "weld: ns=2;s=Welder.Weld"), "plc.entities.welder.commands.weld"),
     (("endpoint: opc.tcp://127.0.0.1:4840", "endpoint: http://127.0.0.1:4840"), "plc.endpoint"),
     (("  heartbeat: ns=2;s=PLC.Heartbeat", "  watchdog: 0.01\n  heartbeat: ns=2;s=PLC.Heartbeat"), "plc.watchdog"),
+    (("  heartbeat: ns=2;s=PLC.Heartbeat", "  command_cycle_time: 0.3\n  heartbeat: ns=2;s=PLC.Heartbeat"),
+     "plc.command_cycle_time"),
 ])
 def test_a_bad_plc_setting_is_one_error_naming_its_key(tmp_path, change, key):
     path = tmp_path / "bridge.yaml"

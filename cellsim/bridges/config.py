@@ -224,6 +224,10 @@ class PlcSettings:
             raise FieldError("insecure_because", "the PLC is read with security: insecure_because does not apply")
         if self.watchdog <= self.publishing_interval:
             raise FieldError("watchdog", "the watchdog must be longer than the publishing interval")
+        if self.command_cycle_time > self.command_watchdog / 2:
+            raise FieldError("command_cycle_time", "commands must be written at least twice per command_watchdog "
+                             f"({self.command_watchdog:g} s): the PLC's watchdog on the daemon's heartbeat would trip "
+                             "between two writes, and a lost twin's safe command go out a cycle late")
 
 
 @dataclass
