@@ -307,10 +307,26 @@ def test_a_client_with_another_certificate_is_refused_and_the_daemon_refuses_ano
         except Exception as e:  # noqa: BLE001 - what the refusal raises
             return f"refused: {type(e).__name__}"
 
+    async def forged() -> str:
+        """A client of no certificate on a channel without security (asyncua's own client would refuse the PLC's
+        endpoints itself: this one takes any), writing the daemon's command heartbeat."""
+        from asyncua import ua
+
+        client = Client(f"opc.tcp://127.0.0.1:{port}", timeout=5)
+        try:
+            async with client:
+                await client.get_node("ns=2;s=Bridge.Heartbeat").write_value(ua.Variant(7, ua.VariantType.Int32))
+                return "wrote"
+        except Exception as e:  # noqa: BLE001 - what the refusal raises
+            return f"refused: {type(e).__name__}"
+
     try:
         own_certificate, own_key, plc_certificate = certificates[0]
         assert asyncio.run(connect(own_certificate, own_key, plc_certificate)).isdigit()  # the bridge's own: it reads
         assert asyncio.run(connect(*stranger, plc_certificate)).startswith("refused")  # anyone else's: refused
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(Client, "find_endpoint", staticmethod(lambda endpoints, mode, policy: endpoints[0]))
+            assert asyncio.run(forged()) == "refused: BadUserAccessDenied"  # no certificate, no session
     finally:
         plc.close()
     # the daemon, given the certificate of another PLC than the one serving: it never connects

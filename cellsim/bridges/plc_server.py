@@ -89,7 +89,13 @@ class EmulatedPlc:
 
         settings = self.settings
         try:
-            server = Server()
+            users = None
+            if settings.security != "none":  # a session only for the channel that shows the bridge's certificate
+                from asyncua.server.user_managers import CertificateUserManager
+
+                users = CertificateUserManager()  # asyncua's: the secure channel's peer certificate, byte for byte
+                await users.add_user(self.certificates[2], "bridge", format="pem")
+            server = Server(user_manager=users)
             await server.init()
             server.set_endpoint(self.endpoint)
             server.set_server_name("cellsim emulated PLC")
