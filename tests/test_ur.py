@@ -260,6 +260,40 @@ def daemon_beside_controller(sessions, tmp_path, program):
         twin.subscriber.undeclare()
 
 
+class TwinSide:
+    """The twin's side of a daemon commanding a controller: its command publisher and its liveliness token."""
+
+    def __init__(self, session):
+        self.session = session
+        self.command = session.declare_publisher("cellsim/welding_cell/command/robot")
+        self.token = session.liveliness().declare_token("cellsim/welding_cell/alive/twin")
+
+    def lose(self) -> None:
+        """The twin's liveliness goes (as when its process ends)."""
+        self.token.undeclare()
+        self.token = None
+
+
+@contextlib.contextmanager
+def daemon_commanded_by_twin(sessions, tmp_path, program):
+    """The daemon's loop beside an emulated controller, the twin alive on its keys; yields (controller, bridge, the
+    twin's side); everything stopped after."""
+    hub, twin_session = sessions
+    controller = Controller(program)
+    bridge = Bridge(load_bridge(ur_config(tmp_path, controller.port)), hub)
+    stop, thread = run_daemon(bridge)
+    twin = TwinSide(twin_session)
+    try:
+        yield controller, bridge, twin
+    finally:
+        if twin.token is not None:
+            twin.token.undeclare()
+        stop.set()
+        thread.join(timeout=5)
+        bridge.close()
+        controller.server.close()
+
+
 def test_a_controllers_states_become_the_robots_samples_and_faults_fail_it_at_once(sessions, tmp_path, program):  # noqa: F811
     with daemon_beside_controller(sessions, tmp_path, program) as (controller, bridge, link, twin):
         for _ in range(5):
@@ -309,22 +343,18 @@ def test_a_frozen_or_lost_controller_goes_stale_and_is_dialled_again(sessions, t
 
 
 def test_in_twin_mode_the_controller_gets_the_slider_and_registers_and_slider_0_when_the_twin_is_lost(sessions, tmp_path, program):  # noqa: F811
-    hub, twin_session = sessions
-    controller = Controller(program)
-    bridge = Bridge(load_bridge(ur_config(tmp_path, controller.port)), hub)
-    stop, thread = run_daemon(bridge)
     r = program.registers
-    mode = twin_session.declare_publisher("cellsim/welding_cell/twin/robot/twin_mode")
-    command = twin_session.declare_publisher("cellsim/welding_cell/command/robot")
-    token = twin_session.liveliness().declare_token("cellsim/welding_cell/alive/twin")
-    try:
+    with daemon_commanded_by_twin(sessions, tmp_path, program) as (controller, bridge, twin):
+        mode = twin.session.declare_publisher("cellsim/welding_cell/twin/robot/twin_mode")
+        command = twin.command
         mode.put(json.dumps({"t": time.time(), "sim_time": 0.0, "value": "shadow"}))
         deadline = time.monotonic() + 10
         while bridge.twin_mode("robot") is not TwinMode.SHADOW or not bridge.robots["robot"].connected:
             assert time.monotonic() < deadline
             threading.Event().wait(0.01)
-        # shadow: the program runs on its own (no request, the slider untouched), told the daemon is there
-        first = controller.inputs_until(lambda v: True)
+        # shadow: the program runs on its own (no request, the slider untouched), told the daemon is there (what was
+        # written before the mode was heard, the safe command, may come first)
+        first = controller.inputs_until(lambda v: v["speed_slider_mask"] == 0)
         second = controller.inputs_until(lambda v: True)
         for values in (first, second):
             assert values["speed_slider_mask"] == 0 and values[f"input_int_register_{r.safety_mode_request}"] == -1
@@ -347,19 +377,11 @@ def test_in_twin_mode_the_controller_gets_the_slider_and_registers_and_slider_0_
         heartbeats.append(values[f"input_int_register_{r.heartbeat}"])
         heartbeats.append(controller.inputs_until(lambda v: True)[f"input_int_register_{r.heartbeat}"])
         assert heartbeats[1] > heartbeats[0]  # it counts up with every command sent
-        token.undeclare()
-        token = None
+        twin.lose()
         lost = time.monotonic()
         values = controller.inputs_until(lambda v: v["speed_slider_fraction"] == 0.0)
         assert time.monotonic() - lost < 1.0
         assert values[f"input_int_register_{r.safety_mode_request}"] == 5 and values[f"input_int_register_{r.target_pose}"] == -1
-    finally:
-        if token is not None:
-            token.undeclare()
-        stop.set()
-        thread.join(timeout=5)
-        bridge.close()
-        controller.server.close()
 
 
 def _commanding(command, seqs, fields, controller, condition, deadline_s: float = 10.0) -> dict:
@@ -381,16 +403,11 @@ def test_a_daemon_that_has_not_heard_the_twins_mode_holds_the_safe_command_and_e
     program's own), until the twin is heard: a good command of the twin's (it commands only what it twins) counts as
     twin mode. Then the twin is lost one way at a time: its liveliness gone while its commands still come, or its
     commands stopped while it is alive: each alone sets the slider to 0 and asks for a stop."""
-    hub, twin_session = sessions
-    controller = Controller(program)
-    bridge = Bridge(load_bridge(ur_config(tmp_path, controller.port)), hub)
-    stop, thread = run_daemon(bridge)
     r = program.registers
-    command = twin_session.declare_publisher("cellsim/welding_cell/command/robot")
-    token = twin_session.liveliness().declare_token("cellsim/welding_cell/alive/twin")
     safe = lambda v: v["speed_slider_mask"] == 1 and v["speed_slider_fraction"] == 0.0 and (  # noqa: E731
         v[f"input_int_register_{r.safety_mode_request}"] == 5)
-    try:
+    with daemon_commanded_by_twin(sessions, tmp_path, program) as (controller, bridge, twin):
+        command = twin.command
         connected(bridge.robots["robot"], controller)
         for _ in range(3):  # nothing heard of the twin's mode: the safe command, each cycle
             assert safe(controller.inputs_until(lambda v: True))
@@ -399,21 +416,13 @@ def test_a_daemon_that_has_not_heard_the_twins_mode_holds_the_safe_command_and_e
         _commanding(command, seqs, fields, controller, lambda v: v["speed_slider_fraction"] == 0.5)
         assert bridge.twin_mode("robot") is TwinMode.TWIN
         if lose == "liveliness":
-            token.undeclare()
-            token = None
+            twin.lose()
             lost = time.monotonic()
             _commanding(command, seqs, fields, controller, safe)  # good commands still come: liveliness alone
         else:
             lost = time.monotonic()
             controller.inputs_until(safe, timeout=5.0)  # alive, silent: the command watchdog alone
         assert time.monotonic() - lost < 0.5 + 0.5  # the command watchdog and a command cycle, with room
-    finally:
-        if token is not None:
-            token.undeclare()
-        stop.set()
-        thread.join(timeout=5)
-        bridge.close()
-        controller.server.close()
 
 
 def test_the_emulated_controller_refuses_what_rtde_has_no_place_for():
