@@ -23,10 +23,12 @@ from cellsim.blackbox import BlackBox
 from cellsim.diagrams.cell import build_cell
 
 from conftest import ROOT, run
-from live_processes import can_server, free_port, observer, processes, wait_alive
+from live_processes import ChannelWatch, can_server, free_port, observer, processes, wait_alive
 
 WELDING_CELL = ROOT / "scenarios" / "welding_cell.yaml"
 BRIDGE = ROOT / "bridges" / "welding_cell.yaml"
+LINK = "cellsim/welding_cell/twin/light_barrier/physical_link"
+"""The twin's published state of the curtain's link."""
 
 
 def _ports(cell) -> dict[str, int]:
@@ -99,10 +101,11 @@ def _twin(start, tmp, name: str, port: int):
     return twin
 
 
-def _after_silence(twin, done: threading.Event) -> None:
-    """Let the twin see the silence (its curtain goes stale), then stop it cleanly."""
+def _after_silence(twin, done: threading.Event, link: ChannelWatch) -> None:
+    """Let the twin see the silence (its curtain goes stale, as it publishes), then stop it cleanly."""
     assert done.wait(60)
-    threading.Event().wait(1.0)  # the silence lasts a second of the twin's clock: longer than stale_after (0.5 s)
+    link.wait_for("stale", 30)  # past stale_after (0.5 s) of the twin's clock, however far it lags the wall's
+    link.close()
     twin.stop()
     assert twin.popen.returncode == 130, twin.output()
 
@@ -120,10 +123,11 @@ def test_a_scripted_curtain_gives_the_twin_the_same_rows_over_zenoh_and_over_can
         port = free_port()
         twin = _twin(start, tmp_path, "zenoh", port)
         done = threading.Event()
-        with observer(port, role="emulator") as session:  # a source of physical samples
+        with observer(port, role="emulator") as session, observer(port) as watching:  # a source of samples
+            link = ChannelWatch(watching, LINK)
             publisher = session.declare_publisher("cellsim/welding_cell/physical/light_barrier")
             _play(lambda i, broken: publisher.put(encode_fields(time.time(), i + 1, {"broken": broken})), done)
-            _after_silence(twin, done)
+            _after_silence(twin, done, link)
         rows["zenoh"] = _shadowed_curtain_rows(tmp_path / "zenoh" / "blackbox.sqlite")
 
         # CAN: the same readings as the curtain's protected frames, through the bridge daemon
@@ -140,9 +144,12 @@ def test_a_scripted_curtain_gives_the_twin_the_same_rows_over_zenoh_and_over_can
         bus = can.Bus(interface="remote", channel=bus_channel)
         done = threading.Event()
         try:
-            _play(lambda i, broken: bus.send(can.Message(arbitration_id=curtain.frame_id, is_extended_id=False,
-                                                         data=protect(curtain, {"Broken": int(broken)}, i, signer))), done)
-            _after_silence(twin, done)
+            with observer(port) as watching:
+                link = ChannelWatch(watching, LINK)
+                _play(lambda i, broken: bus.send(can.Message(arbitration_id=curtain.frame_id, is_extended_id=False,
+                                                             data=protect(curtain, {"Broken": int(broken)}, i, signer))),
+                      done)
+                _after_silence(twin, done, link)
         finally:
             bus.shutdown()
         bridge.stop()
