@@ -459,18 +459,6 @@ def test_the_daemons_heartbeat_goes_to_the_plc_only_once_it_took_every_command_n
     asyncio.run(run())
 
 
-def test_a_twin_command_with_no_safety_mode_is_written_as_the_safe_mode_not_as_no_value(tmp_path):
-    """A risk model's null request, in twin mode, is written as the kind's safe mode: no value (-1) is what the
-    daemon writes when the twin does not command the entity, and the PLC program then runs it on its own."""
-    loaded, link = _unit_link(tmp_path)
-    sent = []
-    link._command = lambda entity, command: sent.append((entity, command))
-    link.send("welder", {"safety_mode_request": None, "activity_request": None, "command": False})
-    (entity, command), = sent
-    assert command["safety_mode_request"] == loaded.safe["welder"]["safety_mode_request"] == "stopped"
-    assert command["activity_request"] is None  # no request: the process decides, as in the twin's own model
-
-
 def test_the_plcs_certificate_given_alone_is_trusted_as_it_is_and_never_replaced(tmp_path):
     """docs/security.md gives the daemon's machine the PLC's certificate, not its key: it is the one trusted, byte for
     byte (a pair was made over it before, so the daemon pinned a certificate nobody had); the daemon's own certificate

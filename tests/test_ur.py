@@ -134,10 +134,6 @@ def test_a_command_goes_out_as_the_slider_at_its_modes_cap_and_codes_the_program
     assert values == {"speed_slider_mask": 1, "speed_slider_fraction": 0.5, f"input_int_register_{r.safety_mode_request}": 2,
                       f"input_int_register_{r.activity_request}": 2, f"input_int_register_{r.target_pose}": 2,
                       f"input_int_register_{r.heartbeat}": 7}
-    # commanded with no mode (a risk model's null): a stop, slider 0, never -1 (which says "not commanded")
-    values = program.input_values({"safety_mode_request": None, "activity": None, "target_pose": None}, 8)
-    assert values[f"input_int_register_{r.safety_mode_request}"] == 5 and values["speed_slider_fraction"] == 0.0
-    assert values["speed_slider_mask"] == 1
     caps = {"normal": 1.0, "hguid": 0.25, "ssmon": 0.5, "pflim": 0.25, "srmst": 0.0, "stopped": 0.0}  # welding_cell.yaml's
     for mode in MODES:
         for activity in ("idle", "exchWrkp", "welding", "off"):
@@ -423,6 +419,19 @@ def test_a_daemon_that_has_not_heard_the_twins_mode_holds_the_safe_command_and_e
             lost = time.monotonic()
             controller.inputs_until(safe, timeout=5.0)  # alive, silent: the command watchdog alone
         assert time.monotonic() - lost < 0.5 + 0.5  # the command watchdog and a command cycle, with room
+
+
+def test_a_twin_command_with_no_safety_mode_goes_out_as_the_kinds_safe_mode(sessions, tmp_path, program):  # noqa: F811
+    """A risk model's null request, in twin mode, is the kind's safe mode (stopped, 5) on the controller, the rest of
+    the command as the twin sent it: -1 would tell the program the twin does not command the robot, disarming its
+    stop when the daemon is lost. The daemon decides it once, for every protocol it speaks."""
+    r = program.registers
+    with daemon_commanded_by_twin(sessions, tmp_path, program) as (controller, bridge, twin):
+        connected(bridge.robots["robot"], controller)
+        fields = {"safety_mode_request": None, "activity": "welding", "target_pose": 2.0, "speed_limit": 0.5}
+        values = _commanding(twin.command, itertools.count(1), fields, controller,
+                             lambda v: v[f"input_int_register_{r.target_pose}"] == 2)  # the twin's, not the safe hold
+        assert values[f"input_int_register_{r.safety_mode_request}"] == 5 and values["speed_slider_fraction"] == 0.0
 
 
 def test_the_emulated_controller_refuses_what_rtde_has_no_place_for():

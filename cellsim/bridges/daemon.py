@@ -334,6 +334,11 @@ class Bridge:
             self.refused_messages += 1
             return
         fields = self.loaded.commands[entity].fields(message.codes)
+        safe = self.loaded.safe[entity]
+        if fields.get("safety_mode_request", "") is None and safe.get("safety_mode_request") is not None:
+            # commanded, but no mode (a risk model's null): the kind's safe mode, on every protocol; no value is what
+            # a device is told when the twin does not command it (a UR program's -1, a PLC's empty node)
+            fields["safety_mode_request"] = safe["safety_mode_request"]
         previous = self._commands.get(entity)
         self._commands[entity] = fields
         if entity not in self._modes and self._twin_alive:

@@ -206,11 +206,7 @@ class PlcLink:
         if fields is None:
             self.safe_writes += 1
             fields = self.safe[entity]
-        command = {**self.safe[entity], **fields}
-        if command.get("safety_mode_request") is None and "safety_mode_request" in self.safe[entity]:
-            # commanded, but no mode (a risk model's null): the safe one; no value would say "not commanded"
-            command["safety_mode_request"] = self.safe[entity]["safety_mode_request"]
-        self._command(entity, command)
+        self._command(entity, {**self.safe[entity], **fields})
 
     def release(self, entity: str) -> None:
         """The twin does not command the entity (model or shadow mode): its command nodes hold no value (-1,

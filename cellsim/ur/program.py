@@ -128,8 +128,6 @@ class UrProgram:
                     **{rtde.int_register("input", n): -1 for n in (r.safety_mode_request, r.activity_request, r.target_pose)},
                     rtde.int_register("input", r.heartbeat): heartbeat % 2**31}
         mode = command["safety_mode_request"]
-        if mode is None:  # commanded, but no mode: a stop (-1 would say the twin does not command the robot)
-            mode = SafetyMode.STOPPED.value
         target = command.get("target_pose")
         target = -1 if target is None or not math.isfinite(target) or target < 0 else int(target)
         return {
