@@ -20,6 +20,12 @@ MAX_CLOSING_SPEED = 5.0
 3 m/s, a person at 2 m/s."""
 
 
+def witness_on(query, pair, geometry) -> np.ndarray:
+    """The signed-distance ``pair``'s witness point on ``geometry`` (one of its two), in the world (m): SceneGraph may
+    order a pair either way."""
+    return query.GetPoseInWorld(geometry) @ (pair.p_ACa if pair.id_A == geometry else pair.p_BCb)
+
+
 def bounding_sphere(shape, pose) -> tuple[np.ndarray, float]:
     """(centre in the frame, radius) of a sphere holding ``shape`` posed at ``pose`` in its frame (m); an infinite
     radius for a shape this does not know (every pair with it is then measured exactly)."""

@@ -32,6 +32,7 @@ from cellsim.kinds.area_scanner.config import AreaScannerConfig
 from cellsim.kinds.sensing import HEAD_RADIUS, GeometrySensor
 from cellsim.entity import valid_code
 from cellsim.floorplan import Box3
+from cellsim.proximity import witness_on
 from cellsim.systems import write_changed
 from cellsim.vocabulary import TwinMode, value_set
 
@@ -149,7 +150,7 @@ class AreaScanner(GeometrySensor):
             else:
                 continue
             truly = min(truly, index)
-            if index < seen and self.seen(_witness_on(query, pair, target)):
+            if index < seen and self.seen(witness_on(query, pair, target)):
                 seen = index
         clear = len(self.field_ids) + 1
         return (0 if seen == clear else seen), (0 if truly == clear else truly)
@@ -172,7 +173,7 @@ class AreaScanner(GeometrySensor):
         for distance, _, pair, target in sorted(pairs, key=lambda found: found[:2]):
             if distance >= self.cfg.max_range:
                 break
-            if self.seen(_witness_on(query, pair, target)):
+            if self.seen(witness_on(query, pair, target)):
                 return distance
         return self.cfg.max_range
 
@@ -197,12 +198,3 @@ class AreaScanner(GeometrySensor):
 
 def _occupied_look(channel: str, field_name: str):
     return lambda values: None if values.get(channel) is None else ("occupied" if values[channel] == field_name else "free")
-
-
-def _witness_on(query, pair, geometry) -> np.ndarray:
-    """The pair's witness point on ``geometry``, in the cell (SceneGraph may order the pair either way)."""
-    if pair.id_A == geometry:
-        return query.GetPoseInWorld(geometry) @ pair.p_ACa
-    return query.GetPoseInWorld(geometry) @ pair.p_BCb
-
-

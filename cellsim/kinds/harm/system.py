@@ -28,7 +28,7 @@ from pydrake.geometry import QueryObject
 
 from cellsim.channels import enum_type, number_type
 from cellsim.kinds.harm.config import MAX_CLOSING_SPEED, HarmConfig
-from cellsim.proximity import bounding_sphere
+from cellsim.proximity import bounding_sphere, witness_on
 from cellsim.kinds.harm.limits import QUASI_STATIC, TRANSIENT, BodyLimits, severity
 from cellsim.body import REGIONS
 from cellsim.systems import UNCHANGED, CellSystem, write_changed
@@ -280,7 +280,7 @@ class HarmMonitor(CellSystem):
         for pair, region, part in touching:
             body = self.bodies[region]
             on_a = pair.id_A == region
-            p_W = query.GetPoseInWorld(region) @ (pair.p_ACa if on_a else pair.p_BCb)
+            p_W = witness_on(query, pair, region)
             push = pair.nhat_BA_W if on_a else -pair.nhat_BA_W  # from the arm (B, or A) into the region
             speed = float((motion.of_part(part, p_W) - motion.of_region(body, p_W)) @ push)
             pinned = self._pinned(query, body.person, p_W, pair.id_B if on_a else pair.id_A, part, push)
@@ -312,9 +312,7 @@ class HarmMonitor(CellSystem):
                 pair = query.ComputeSignedDistancePairClosestPoints(region, other)
                 if pair.distance > self.cfg.clamp_gap:
                     continue
-                on_a = pair.id_A == other
-                w_W = query.GetPoseInWorld(other) @ (pair.p_ACa if on_a else pair.p_BCb)  # the blocker's point
-                towards = w_W - p_W
+                towards = witness_on(query, pair, other) - p_W  # towards the blocker's point
                 length = float(np.linalg.norm(towards))
                 if length == 0.0 or float(towards @ push) >= self.cos_clamp * length:
                     return True

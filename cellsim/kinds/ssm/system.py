@@ -50,7 +50,7 @@ from pydrake.geometry import QueryObject
 
 from cellsim.channels import number_type
 from cellsim.kinds.ssm.config import GEOMETRY, SsmConfig
-from cellsim.proximity import NearestPair
+from cellsim.proximity import NearestPair, witness_on
 from cellsim.systems import CellSystem, read_scalar, write_scalar
 
 FAR_AWAY = 10.0
@@ -204,7 +204,7 @@ class SpeedSeparationMonitor(CellSystem):
             return FAR_AWAY, 0.0
         kin = self.kinematics
         arm = nearest.id_A if nearest.id_A in self.bodies else nearest.id_B
-        p_W = query.GetPoseInWorld(arm) @ (nearest.p_ACa if arm == nearest.id_A else nearest.p_BCb)
+        p_W = witness_on(query, nearest, arm)
         body = self.bodies[arm]
         X_WB = body.EvalPoseInWorld(kin.context)
         velocity = body.EvalSpatialVelocityInWorld(kin.context).Shift(p_W - X_WB.translation()).translational()
