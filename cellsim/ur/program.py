@@ -49,7 +49,6 @@ RUNNING_SAFETY = (rtde.SAFETY_NORMAL, rtde.SAFETY_REDUCED)
 STILL = 0.01
 """rad/s: the fastest any joint may turn for an arm that is not running (stopped, powered off, its program not
 playing) to read as stopped; faster (braking after a stop, jogged from the pendant, backdriven), it reads unknown."""
-UNDEFINED_SAFETY_MODE = 11
 MOVING_STATE = "moving"
 
 
@@ -102,7 +101,7 @@ class UrProgram:
         reported = self._value("safety_mode", values[rtde.int_register("output", r.safety_mode)])
         if running:
             fields["safety_mode"] = reported
-        elif values["safety_mode"] == UNDEFINED_SAFETY_MODE or max(abs(float(v)) for v in values["actual_qd"]) > STILL:
+        elif values["safety_mode"] == rtde.SAFETY_UNDEFINED or max(abs(float(v)) for v in values["actual_qd"]) > STILL:
             fields["safety_mode"] = SafetyMode.UNKNOWN.value  # not running, yet moving (or its mode undefined)
         else:
             fields["safety_mode"] = SafetyMode.STOPPED.value
