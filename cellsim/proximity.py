@@ -15,10 +15,6 @@ import math
 
 import numpy as np
 
-MAX_CLOSING_SPEED = 5.0
-"""m/s: the fastest a robot part and a body region close on (or part from) each other: an arm's link at
-3 m/s, a person at 2 m/s."""
-
 
 def witness_on(query, pair, geometry) -> np.ndarray:
     """The signed-distance ``pair``'s witness point on ``geometry`` (one of its two), in the world (m): SceneGraph may

@@ -275,8 +275,6 @@ def test_the_touched_region_is_drawn_amber_within_its_limit_and_red_above_it(cel
 def test_a_far_period_between_plant_steps_looks_sooner_not_later():
     """``far_period`` 0.035 s on a 2 ms plant: a look every 17 steps (34 ms), and the reach that switches on the
     plant-step measuring is what closes in those 34 ms, not in a rounded-up 36."""
-    from cellsim.proximity import MAX_CLOSING_SPEED
-
     built = build_cell(load_scenario(CELL, ["harm.far_period=0.035"]), seed=0, duration=1.0, record=False)
     harm = built.modules["harm"]
-    assert harm.far_every == 17 and harm.reach == pytest.approx(MAX_CLOSING_SPEED * 0.034)
+    assert harm.far_every == 17 and harm.reach == pytest.approx(harm.cfg.max_part_speed * 0.034)

@@ -6,7 +6,6 @@ from dataclasses import dataclass
 from typing import Annotated, Literal
 
 from cellsim.config.typed_yaml import FieldError, Range
-from cellsim.proximity import MAX_CLOSING_SPEED
 
 
 @dataclass
@@ -29,11 +28,16 @@ class HarmConfig:
     """How far (degrees) from straight behind the region, seen along the robot's push, that surface may lie."""
     far_period: Annotated[float, Range(0.0001, 0.1, unit="s")] = 0.04
     """While no robot part is within ``cutoff`` of anybody, how often that is checked (s); once one is, contact is
-    measured at every plant step. Nothing can close the cut-off between two checks faster than cutoff / far_period
-    (12.5 m/s by default): a load error unless that is at least MAX_CLOSING_SPEED."""
+    measured at every plant step. A person's body moves only at their updates, each followed by a look one plant step
+    later, so between two looks only the robots move: nothing closes the cut-off between them faster than
+    cutoff / far_period (12.5 m/s by default), a load error unless that is at least ``max_part_speed``."""
+    max_part_speed: Annotated[float, Range(0.1, 50.0, unit="m/s")] = 5.0
+    """The fastest any point of a robot part is taken to move between two looks (m/s). Measured at each look (the
+    plant's body velocities): a part faster than half of it switches the plant-step measuring on, and a part faster
+    than it is a finding of the run, as the looks between may then have missed a contact."""
 
     def __post_init__(self):
-        if self.cutoff / self.far_period < MAX_CLOSING_SPEED:
-            raise FieldError("far_period", f"a robot and a person could close the cut-off ({self.cutoff:g} m) between two "
+        if self.cutoff / self.far_period < self.max_part_speed:
+            raise FieldError("far_period", f"a robot part could close the cut-off ({self.cutoff:g} m) between two "
                              f"checks {self.far_period:g} s apart at {self.cutoff / self.far_period:.3g} m/s, below "
-                             f"{MAX_CLOSING_SPEED:g} m/s: shorten far_period or widen cutoff")
+                             f"max_part_speed ({self.max_part_speed:g} m/s): shorten far_period or widen cutoff")

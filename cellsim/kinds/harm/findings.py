@@ -12,9 +12,10 @@ def _series(bb, channel):
     return bb.series(channel) if channel in bb.channels() else None
 
 
-def harm_findings(name: str, bb) -> list[Finding]:
-    """The contacts (each interval the worst contact's region is not none, with its worst severity) and the closest
-    approach (the least separation of any robot, where and when)."""
+def harm_findings(name: str, bb, max_part_speed: float | None = None) -> list[Finding]:
+    """The contacts (each interval the worst contact's region is not none, with its worst severity), the closest
+    approach (the least separation of any robot, where and when), and a robot part seen faster than
+    ``max_part_speed`` (m/s), the service's assumption between two looks."""
     region = _series(bb, f"{name}.contact_region")
     if region is None:
         return []
@@ -31,7 +32,22 @@ def harm_findings(name: str, bb) -> list[Finding]:
     if start is not None:
         found.append(_contact(name, others, region, start, None))
     approach = _closest(name, bb, others)
-    return ([approach] if approach is not None else []) + found
+    fast = _too_fast(name, bb, max_part_speed)
+    return ([approach] if approach is not None else []) + found + ([fast] if fast is not None else [])
+
+
+def _too_fast(name, bb, max_part_speed) -> Finding | None:
+    """When a robot part was first seen faster than ``max_part_speed``, and the fastest seen."""
+    seen = _series(bb, f"{name}.fastest_part_speed")
+    if seen is None or max_part_speed is None or not len(seen) or float(seen.values[-1]) <= max_part_speed:
+        return None
+    first = int(np.argmax(np.asarray(seen.values, float) > max_part_speed))
+    fastest = float(seen.values[-1])
+    text = (f"a robot part moved at {fastest:.3g} m/s, above the {max_part_speed:g} m/s the harm service assumes between "
+            f"two looks: a contact between them may have been missed (raise {name}.max_part_speed and shorten "
+            f"{name}.far_period to suit)")
+    return Finding(name, "fast part", float(seen.times[first]), None, text,
+                   {"speed": fastest, "max_part_speed": max_part_speed})
 
 
 def _contact(name, others, region, start, end) -> Finding:

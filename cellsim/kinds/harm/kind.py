@@ -27,6 +27,7 @@ class HarmKind(ModuleKind):
         ("contact_speed", "number, m/s", "the worst contact's relative speed along its normal"),
         ("nearest_region", "enum", "body region nearest to a robot within cutoff (none: nobody that near)"),
         ("separation_<robot>", "number, m", "per robot: its least true distance to any body region, up to cutoff"),
+        ("fastest_part_speed", "number, m/s", "the fastest any point of a robot part has moved at a look so far"),
     )
 
     def build(self, cell, name, cfg):
@@ -48,7 +49,7 @@ class HarmKind(ModuleKind):
     def findings(self, name, cfg, blackbox):
         from cellsim.kinds.harm.findings import harm_findings
 
-        return harm_findings(name, blackbox)
+        return harm_findings(name, blackbox, cfg.max_part_speed)
 
     def abstraction(self, abstract, name, cfg):
         """It only watches: nothing of it enters the abstract cell."""

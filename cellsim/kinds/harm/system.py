@@ -1,9 +1,11 @@
 """The harm service: what the robots do to each person's body, measured on the geometry.
 
 One SceneGraph broadphase query returns the pairs of a robot part (an arm's collision shape) and a
-body region (:mod:`cellsim.body`) nearer than ``cutoff``: every ``far_period`` while it returns
-none (nothing can close the cut-off in between, see ``HarmConfig.far_period``), and at every plant
-step while it returns some. A cell where nobody is near an arm costs one query per ``far_period``. For each robot part touching a region (signed distance <= 0):
+body region (:mod:`cellsim.body`) nearer than ``cutoff``: every ``far_period``, and one plant step after
+each person's update, while it returns none (a body moves only at its updates, and no robot part closes
+the cut-off in between, see ``HarmConfig.far_period``), and at every plant step while it returns some or
+a robot part moves faster than half ``max_part_speed``. A cell where nobody is near an arm costs one
+query per ``far_period``. For each robot part touching a region (signed distance <= 0):
 
 * the relative speed along the contact normal, ``v_rel``: the arm's point towards the region
   (the plant's body velocity at the contact point) less the region's point towards the arm
@@ -27,7 +29,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject
 
 from cellsim.channels import enum_type, number_type
-from cellsim.kinds.harm.config import MAX_CLOSING_SPEED, HarmConfig
+from cellsim.kinds.harm.config import HarmConfig
 from cellsim.proximity import bounding_sphere, witness_on
 from cellsim.kinds.harm.limits import QUASI_STATIC, TRANSIENT, BodyLimits, severity
 from cellsim.body import REGIONS
@@ -37,6 +39,9 @@ from cellsim.vocabulary import value_set
 NONE = "none"
 """What the contact channels read while no robot part touches anybody."""
 CONTACT_KINDS = (NONE, TRANSIENT, QUASI_STATIC)
+FAR, NEAR, FAST = 0.0, 1.0, 2.0
+"""The service's state: measuring only at the looks of its schedule; at every plant step, while a pair is within reach
+of a contact, or while a robot part moves faster than half ``max_part_speed``."""
 
 
 @dataclass(frozen=True)
@@ -72,6 +77,8 @@ class HarmMonitor(CellSystem):
       separation_<robot> (channel, m): the robot's least true distance to any body region (negative:
         overlapping), read up to ``cutoff``.
       nearest_region (channel): the body region nearest to any robot within ``cutoff``, else none.
+      fastest_part_speed (channel, m/s): the fastest any point of a robot part has moved at a look so far
+        (above ``max_part_speed``: a contact between two looks may have been missed).
     """
 
     def __init__(self, module: str, cfg: HarmConfig, step: float, limits: BodyLimits, robots: dict[str, float],
@@ -82,9 +89,11 @@ class HarmMonitor(CellSystem):
         self.cfg = cfg
         self.far_every = max(1, math.floor(cfg.far_period / step + 1e-9))
         """Plant steps from one far look to the next: ``far_period`` rounded down to whole steps (never later)."""
-        self.reach = MAX_CLOSING_SPEED * self.far_every * step
-        """m: a pair farther apart than this at one look cannot touch before the next (``far_every`` steps later)."""
-        self._near = self.declare_state("near", [0.0])  # 1 while the last look found a pair within reach
+        self.reach = cfg.max_part_speed * self.far_every * step
+        """m: a pair farther apart than this at one look cannot touch before the next (at most ``far_every`` steps
+        later; the people stand still in between)."""
+        self._near = self.declare_state("near", [FAR])  # FAR, NEAR or FAST
+        self._looks: tuple[int, np.ndarray] | None = None  # (steps in one round, whether each is a look): _schedule
         self.limits = limits
         self.robots = list(robots)
         self.people = list(people)
@@ -116,6 +125,8 @@ class HarmMonitor(CellSystem):
             *(self.declare_channel(f"separation_{robot}", m, cfg.cutoff, description=f"True least distance from {robot} to a body")
               for robot in self.robots),
         ]
+        self._fastest = self.declare_channel("fastest_part_speed", speed, 0.0,
+                                             description="Fastest a robot part's point has moved at a look so far")
         # nobody near: no contact (codes 0: none), each separation at the cut-off
         self._clear = [0.0] * (len(self._outputs) - len(self.robots)) + [cfg.cutoff] * len(self.robots)
         # nearest_region and the separations (the last channels): measured to the cut-off at each far look
@@ -141,6 +152,38 @@ class HarmMonitor(CellSystem):
             centre, radius = bounding_sphere(inspector.GetShape(geometry), inspector.GetPoseInFrame(geometry))
             spheres.setdefault(int(part.body), []).append((centre, radius))
         self.spheres = [(body, centre, radius) for body, found in spheres.items() for centre, radius in found]
+        # how far from its body's origin each arm body's shapes reach (m): its points' speed is at most |v| + |w| that
+        self._extents = [(body, max(float(np.linalg.norm(c)) + r for c, r in found)) for body, found in spheres.items()]
+        self._looks = self._schedule()
+
+    def _schedule(self) -> tuple[int, np.ndarray]:
+        """When the service looks while nothing is near: one plant step after every ``far_every``-th (never at 0,
+        where every module's first update still has to place it), and one step after each person's update, where
+        the body may have jumped (a turn). (Steps in one round of the schedule, whether each step is a look.)"""
+        step = self.period
+        cadences = [(self.far_every, 1)]
+        for system in self.person_systems:
+            every = max(1, round(system.period / step))
+            cadences.append((every, (round(system.offset / step) + 1) % every))
+        steps = math.lcm(*(every for every, _ in cadences))
+        if steps > 1_000_000:  # periods with no small common multiple: one plant-step look per step of the round
+            raise ValueError(f"{self.module}: the people's update periods and far_period have no common multiple within "
+                             f"{1_000_000 * step:g} s; make them multiples of one another")
+        looks = np.zeros(steps, dtype=bool)
+        for every, phase in cadences:
+            looks[phase::every] = True
+        return steps, looks
+
+    def _part_speed(self, context) -> float:
+        """The fastest any point of a robot part moves now (m/s), bounded from each arm body's spatial velocity."""
+        velocities = self.body_velocities_port.Eval(context)
+        fastest = 0.0
+        for body, extent in self._extents:
+            w_v = velocities[body].get_coeffs()
+            speed = math.sqrt(w_v[3] * w_v[3] + w_v[4] * w_v[4] + w_v[5] * w_v[5]) + extent * math.sqrt(
+                w_v[0] * w_v[0] + w_v[1] * w_v[1] + w_v[2] * w_v[2])
+            fastest = max(fastest, speed)
+        return fastest
 
     def _far(self, context) -> bool:
         """Whether every robot part is farther than the cut-off from every person, by bounding volumes alone (each
@@ -211,34 +254,49 @@ class HarmMonitor(CellSystem):
 
     # -- measuring ------------------------------------------------------------------------------
     def update(self, context, xd):
-        """At every plant step (one event, so that the far look falls on a plant step exactly): measure while the
-        last look found a pair within reach; else only every ``far_period`` (:meth:`_far_look`)."""
-        near = context.get_discrete_state(self._near).GetAtIndex(0) != 0.0
-        far_look = round(context.get_time() / self.period) % self.far_every == 0
-        if near:
-            return self._measure(context, xd, far_look, near=True)
-        return self._far_look(context, xd) if far_look else UNCHANGED
+        """At every plant step (one event, so that a look falls on a plant step exactly): measure while the last look
+        found a pair within reach or a fast part; else only at the looks of the schedule (:meth:`_schedule`)."""
+        state = context.get_discrete_state(self._near).GetAtIndex(0)
+        steps, looks = self._looks
+        look = looks[round(context.get_time() / self.period) % steps]
+        if state != FAR:
+            return self._measure(context, xd, look, state)
+        return self._far_look(context, xd) if look else UNCHANGED
 
     def _far_look(self, context, xd):
-        """Every ``far_period`` while nothing was within reach: is anything within the cut-off now?"""
-        if self._far(context):
+        """A look of the schedule while nothing was within reach: is anything within the cut-off now?"""
+        fast, wrote = self._note_speed(context, xd)
+        if not fast and self._far(context):
             previous = [context.get_discrete_state(g).GetAtIndex(0) for g in self._outputs]
-            if previous == self._clear:
+            if previous != self._clear:
+                write_changed(xd, self._outputs, self._clear, previous)
+            elif not wrote:
                 return UNCHANGED
-            write_changed(xd, self._outputs, self._clear, previous)
             return None
-        return self._measure(context, xd, True, near=False)
+        return self._measure(context, xd, True, FAR, fast)
 
-    def _measure(self, context, xd, far_look: bool, near: bool):
-        """Measure now: at a far look, every pair within the cut-off; in between (while near), those within reach of
-        a contact. Switches the plant-step measuring on or off as a pair comes within reach or leaves it."""
+    def _note_speed(self, context, xd) -> tuple[bool, bool]:
+        """At a look of the schedule: (whether a robot part moves faster than half ``max_part_speed``, whether that is
+        the fastest yet: ``fastest_part_speed`` is then written)."""
+        speed = self._part_speed(context)
+        faster = speed > context.get_discrete_state(self._fastest).GetAtIndex(0)
+        if faster:
+            xd.get_mutable_vector(self._fastest).SetAtIndex(0, speed)
+        return speed > 0.5 * self.cfg.max_part_speed, faster
+
+    def _measure(self, context, xd, look: bool, state: float, fast: bool | None = None):
+        """Measure now: at a look of the schedule, every pair within the cut-off; in between, those within reach of a
+        contact. The plant-step measuring stays on while a pair is within reach, and while the last look found a
+        robot part fast (``fast``: found already at this look)."""
+        if fast is None:
+            fast = self._note_speed(context, xd)[0] if look else state == FAST
         query = self.query_port.Eval(context)
-        pairs, values = self._look(context, query, self.cfg.cutoff if far_look else self.reach)
-        now_near = any(p.distance <= self.reach for p in pairs)
-        if now_near != near:
-            xd.get_mutable_vector(self._near).SetAtIndex(0, 1.0 if now_near else 0.0)
+        pairs, values = self._look(context, query, self.cfg.cutoff if look else self.reach)
+        now = FAST if fast else NEAR if any(p.distance <= self.reach for p in pairs) else FAR
+        if now != state:
+            xd.get_mutable_vector(self._near).SetAtIndex(0, now)
         previous = [context.get_discrete_state(g).GetAtIndex(0) for g in self._outputs]
-        if not far_look:  # what lies beyond reach (nothing found within it) stays as the last far look saw it
+        if not look:  # what lies beyond reach (nothing found within it) stays as the last look saw it
             for i in range(self._first_far, len(values)):
                 if values[i] == self._clear[i]:
                     values[i] = previous[i]
