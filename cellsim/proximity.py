@@ -61,13 +61,16 @@ class _Spheres:
         # anchored geometry (the world frame) does not move: its centres are fixed once
         self.fixed = np.array(frames.pop(world, []), int)
         self.moving = [(frame, np.array(members, int)) for frame, members in frames.items()]
+        self._frames = [frame for frame, _ in self.moving]
+        self._members = np.array([i for _, members in self.moving for i in members], int)
+        self._frame_of = np.array([k for k, (_, members) in enumerate(self.moving) for _ in members], int)
 
     def centres(self, query) -> np.ndarray:
-        """World positions (m) of the spheres' centres now."""
+        """World positions (m) of the spheres' centres now (every frame's pose at once: one numpy expression)."""
         out = self.local.copy()
-        for frame, members in self.moving:
-            X = query.GetPoseInWorld(frame)
-            out[members] = self.local[members] @ X.rotation().matrix().T + X.translation()
+        if self._frames:
+            poses = np.array([query.GetPoseInWorld(frame).GetAsMatrix34() for frame in self._frames])[self._frame_of]
+            out[self._members] = np.einsum("nij,nj->ni", poses[:, :, :3], self.local[self._members]) + poses[:, :, 3]
         return out
 
 
@@ -85,13 +88,50 @@ class NearestPair:
     def __bool__(self) -> bool:
         return bool(self.a.ids and self.b.ids)
 
+    def _bounds(self, query) -> np.ndarray:
+        """Each pair's distance bounded from below (m), by the bounding spheres: [i of these, j of those]."""
+        ca, cb = self.a.centres(query), self.b.centres(query)
+        return np.sqrt(((ca[:, None, :] - cb[None, :, :]) ** 2).sum(axis=2)) - self._radii
+
+    def nearest_and_touching(self, query, within: float, groups: list[list[int]]) -> list:
+        """For each group of ``these`` (their indices), its nearest pair with one of ``those`` if no farther apart
+        than ``within`` (m); and every pair touching (signed distance <= 0). SignedDistancePairs, each once, in the
+        order of ``these`` then ``those``; exact distances asked only of the pairs whose bound could be that near."""
+        if not self:
+            return []
+        bound = self._bounds(query)
+        columns = self._columns
+        found: dict[tuple[int, int], object] = {}
+
+        def exact(i: int, j: int):
+            pair = found.get((i, j))
+            if pair is None:
+                pair = found[(i, j)] = query.ComputeSignedDistancePairClosestPoints(self.a.ids[i], self.b.ids[j])
+            return pair
+
+        keep = set()
+        for rows in groups:
+            flat = bound[rows].ravel()
+            best, best_distance = None, within
+            for k in np.argsort(flat, kind="stable"):
+                if flat[k] > best_distance + 1e-9:
+                    break  # no pair from here on can be nearer than the one found
+                row, j = divmod(int(k), columns)
+                pair = exact(rows[row], j)
+                if pair.distance < best_distance or (best is None and pair.distance <= within):
+                    best, best_distance = (rows[row], j), pair.distance
+            if best is not None:
+                keep.add(best)
+        for i, j in zip(*np.nonzero(bound <= 1e-9)):
+            if exact(int(i), int(j)).distance <= 0.0:
+                keep.add((int(i), int(j)))
+        return [found[key] for key in sorted(keep)]
+
     def __call__(self, query, within: float = math.inf):
         """The nearest pair now (a SignedDistancePair) if it is within ``within`` (m), else None."""
         if not self:
             return None
-        ca, cb = self.a.centres(query), self.b.centres(query)
-        bound = np.sqrt(((ca[:, None, :] - cb[None, :, :]) ** 2).sum(axis=2)) - self._radii
-        flat = bound.ravel()
+        flat = self._bounds(query).ravel()
         best, best_distance = None, within
         for k in np.argsort(flat, kind="stable"):
             if flat[k] > best_distance:

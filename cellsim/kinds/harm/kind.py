@@ -94,5 +94,4 @@ def build_harm(cell, name: str, cfg: HarmConfig):
         cell.builder.Connect(body.previous_pose_port, previous)
         bodies.update({g: (index, region) for g, region in body.regions.items()})
     system.set_geometries(cell.scene_graph.model_inspector(), parts, bodies, cell.fixture_geometry)
-    cell.measure_between(list(bodies), list(parts))
     return system

@@ -1,7 +1,8 @@
 """The harm service: what the robots do to each person's body, measured on the geometry.
 
-One SceneGraph broadphase query returns the pairs of a robot part (an arm's collision shape) and a
-body region (:mod:`cellsim.body`) nearer than ``cutoff``: every ``far_period``, and one plant step after
+A look finds the pairs of a robot part (an arm's collision shape) and a body region
+(:mod:`cellsim.body`) nearer than ``cutoff`` (bounding spheres first, then SceneGraph's exact distance of each
+pair they leave, :class:`cellsim.proximity.NearestPair`): every ``far_period``, and one plant step after
 each person's update, while it returns none (a body moves only at its updates, and no robot part closes
 the cut-off in between, see ``HarmConfig.far_period``), and at every plant step while it returns some or
 a robot part moves faster than half ``max_part_speed``. A cell where nobody is near an arm costs one
@@ -30,7 +31,7 @@ from pydrake.geometry import QueryObject
 
 from cellsim.channels import enum_type, number_type
 from cellsim.kinds.harm.config import HarmConfig
-from cellsim.proximity import bounding_sphere, witness_on
+from cellsim.proximity import NearestPair, bounding_sphere, witness_on
 from cellsim.kinds.harm.limits import QUASI_STATIC, TRANSIENT, BodyLimits, severity
 from cellsim.body import REGIONS
 from cellsim.systems import UNCHANGED, CellSystem, write_changed
@@ -146,6 +147,9 @@ class HarmMonitor(CellSystem):
         self.parts = dict(parts)
         self.bodies = {g: RegionGeometry(p, region, inspector.GetFrameId(g)) for g, (p, region) in bodies.items()}
         self.clamps = [*fixtures, *parts]  # what a region can be pinned against: fixtures, every arm's shapes
+        self._pairs = NearestPair(inspector, list(self.parts), list(self.bodies))  # every robot part and body region
+        parts = list(self.parts.values())
+        self._robot_rows = [[i for i, part in enumerate(parts) if part.robot == robot] for robot in self.robots]
         # each arm body's shapes within a sphere about a point fixed to it: (body index, centre in its frame, radius)
         spheres: dict = {}
         for geometry, part in self.parts.items():
@@ -310,16 +314,13 @@ class HarmMonitor(CellSystem):
         return {spec.signal: spec.type.decode([value]) for (spec, _), value in zip(self.channels, values)}
 
     def _look(self, context, query, within: float) -> tuple[list, list[float]]:
-        """(the robot-part/body-region pairs within ``within`` (m), the channels' values they give)."""
-        pairs = [p for p in query.ComputeSignedDistancePairwiseClosestPoints(within) if self._ours(p)]
+        """(the robot-part/body-region pairs that decide the channels: each robot's nearest within ``within`` (m), and
+        every one touching; the channels' values they give)."""
+        pairs = self._pairs.nearest_and_touching(query, within, self._robot_rows)
         return pairs, (self.measure(context, query, pairs) if pairs else list(self._clear))
 
-    def _ours(self, pair) -> bool:
-        """A robot part and a body region (the broadphase also returns pairs other modules measure)."""
-        return (pair.id_A in self.bodies and pair.id_B in self.parts) or (pair.id_B in self.bodies and pair.id_A in self.parts)
-
     def measure(self, context, query, pairs) -> list[float]:
-        """The channels' values for the pairs the broadphase found near."""
+        """The channels' values for the pairs a look found near."""
         separation = dict.fromkeys(self.robots, self.cfg.cutoff)
         nearest, nearest_distance = NONE, self.cfg.cutoff
         touching = []
