@@ -24,9 +24,18 @@ def witness_on(query, pair, geometry) -> np.ndarray:
 
 def bounding_sphere(shape, pose) -> tuple[np.ndarray, float]:
     """(centre in the frame, radius) of a sphere holding ``shape`` posed at ``pose`` in its frame (m); an infinite
-    radius for a shape this does not know (every pair with it is then measured exactly)."""
-    from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
+    radius for a shape this does not know (every pair with it is then measured exactly). A mesh is bounded by its
+    convex hull's vertices (as SceneGraph measures distances to a mesh)."""
+    from pydrake.geometry import Box, Capsule, Convex, Cylinder, Ellipsoid, Mesh, Sphere
 
+    if isinstance(shape, (Mesh, Convex)):
+        try:
+            hull = shape.GetConvexHull()
+        except Exception:  # noqa: BLE001 - a file SceneGraph can read but not hull: measure every pair exactly
+            return np.asarray(pose.translation(), float), math.inf
+        vertices = np.array([hull.vertex(i) for i in range(hull.num_vertices())], float)
+        middle = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+        return np.asarray(pose @ middle, float), float(np.linalg.norm(vertices - middle, axis=1).max())
     if isinstance(shape, Sphere):
         radius = shape.radius()
     elif isinstance(shape, Box):

@@ -64,12 +64,17 @@ def test_the_nearest_pair_is_the_nearest_of_all_pairs(tmp_path, seed):
     assert nearest(query, truth.distance - 1e-6) is None
 
 
-def test_a_shape_it_cannot_bound_is_always_measured(tmp_path):
-    """A convex mesh has no bounding sphere here (infinite radius): its pairs are never skipped."""
+def test_a_mesh_is_bounded_by_its_hull_and_a_shape_it_cannot_bound_is_always_measured(tmp_path):
+    """A convex mesh's sphere holds its hull: its pairs are skipped only where no point of it can be nearer, so the
+    nearest pair is the one measuring every pair finds. A shape with no bound (a half space) has an infinite radius:
+    its pairs are never skipped."""
+    from pydrake.geometry import HalfSpace
+
     mesh = tmp_path / "tetra.obj"
     mesh.write_text("v 0 0 0\nv 0.3 0 0\nv 0 0.3 0\nv 0 0 0.3\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
     convex = Convex(str(mesh))
-    assert math.isinf(bounding_sphere(convex, RigidTransform())[1])
+    assert bounding_sphere(convex, RigidTransform())[1] == pytest.approx(math.sqrt(3 * 0.15 ** 2))
+    assert math.isinf(bounding_sphere(HalfSpace(), RigidTransform())[1])
     for seed in range(6):
         query, ida, idb = _scene(tmp_path, [convex, Sphere(0.05)], [Box(0.1, 0.1, 0.1), convex], seed)
         assert NearestPair(query.inspector(), ida, idb)(query).distance == pytest.approx(_brute(query, ida, idb).distance)
@@ -79,3 +84,32 @@ def test_no_geometry_on_one_side_finds_nothing(tmp_path):
     query, ida, _ = _scene(tmp_path, [Sphere(0.1), Sphere(0.1)], [Sphere(0.1), Sphere(0.1)], 0)
     nearest = NearestPair(query.inspector(), ida, [])
     assert not nearest and nearest(query) is None
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_each_groups_nearest_and_every_touching_pair_are_those_measuring_every_pair_finds(tmp_path, seed):
+    """``nearest_and_touching``: for each group of ``these`` (an arm's shapes), its nearest pair if within the
+    distance asked, and every pair that touches: the same pairs, with the same distances, as measuring all of them.
+    The bodies sit close (a metre's cube): over the twelve seeds seven pairs touch."""
+    a = [Cylinder(0.05, 0.4), Box(0.1, 0.2, 0.3), Capsule(0.04, 0.3), Sphere(0.1), Cylinder(0.08, 0.5), Sphere(0.15)]
+    b = [Capsule(0.2, 0.35), Box(0.4, 0.3, 0.25), Sphere(0.25), Cylinder(0.2, 0.3), Ellipsoid(0.15, 0.3, 0.2),
+         Box(0.5, 0.5, 0.2)]
+    query, ida, idb = _scene(tmp_path, a, b, seed)
+    groups = [[0, 1, 2, 3], [4, 5]]
+    every = {(i, j): query.ComputeSignedDistancePairClosestPoints(ida[i], idb[j]) for i in range(len(ida))
+             for j in range(len(idb))}
+    touching = {key for key, pair in every.items() if pair.distance <= 0.0}
+    for within in (0.05, 0.3, 2.0):
+        found = NearestPair(query.inspector(), ida, idb).nearest_and_touching(query, within, groups)
+        keys = [(ida.index(p.id_A), idb.index(p.id_B)) if p.id_A in ida else (ida.index(p.id_B), idb.index(p.id_A))
+                for p in found]
+        assert len(keys) == len(set(keys)) and keys == sorted(keys)
+        expected = set(touching)
+        for rows in groups:
+            best = min((every[(i, j)].distance, (i, j)) for i in rows for j in range(len(idb)))
+            if best[0] <= within:
+                assert any(k[0] in rows and every[k].distance == pytest.approx(best[0], abs=1e-12) for k in keys)
+                expected.add(next(k for k in keys if k[0] in rows and every[k].distance == pytest.approx(best[0], abs=1e-12)))
+        assert set(keys) == expected
+        for key, pair in zip(keys, found):
+            assert pair.distance == pytest.approx(every[key].distance, abs=1e-12)

@@ -33,8 +33,9 @@ class HarmConfig:
     cutoff / far_period (12.5 m/s by default), a load error unless that is at least ``max_part_speed``."""
     max_part_speed: Annotated[float, Range(0.1, 50.0, unit="m/s")] = 5.0
     """The fastest any point of a robot part is taken to move between two looks (m/s). Measured at each look (the
-    plant's body velocities): a part faster than half of it switches the plant-step measuring on, and a part faster
-    than it is a finding of the run, as the looks between may then have missed a contact."""
+    plant's body velocities): a part faster than half of it switches the plant-step measuring on; one found faster
+    than it at the end of an interval watched only at the looks is a finding of the run (a contact in it may have been
+    missed)."""
 
     def __post_init__(self):
         if self.cutoff / self.far_period < self.max_part_speed:

@@ -37,15 +37,19 @@ def harm_findings(name: str, bb, max_part_speed: float | None = None) -> list[Fi
 
 
 def _too_fast(name, bb, max_part_speed) -> Finding | None:
-    """When a robot part was first seen faster than ``max_part_speed``, and the fastest seen."""
-    seen = _series(bb, f"{name}.fastest_part_speed")
-    if seen is None or max_part_speed is None or not len(seen) or float(seen.values[-1]) <= max_part_speed:
+    """When a look first found a robot part faster than ``max_part_speed`` after an interval the service watched only
+    at its looks (it had sped up by more than half of it within one), and the fastest such."""
+    seen = _series(bb, f"{name}.unwatched_part_speed")
+    if seen is None or max_part_speed is None or not len(seen):
         return None
-    first = int(np.argmax(np.asarray(seen.values, float) > max_part_speed))
-    fastest = float(seen.values[-1])
-    text = (f"a robot part moved at {fastest:.3g} m/s, above the {max_part_speed:g} m/s the harm service assumes between "
-            f"two looks: a contact between them may have been missed (raise {name}.max_part_speed and shorten "
-            f"{name}.far_period to suit)")
+    speeds = np.array([v if isinstance(v, (int, float)) else np.inf for v in seen.values], float)
+    if not speeds[-1] > max_part_speed:
+        return None
+    first = int(np.argmax(speeds > max_part_speed))
+    fastest = float(speeds[-1])
+    text = (f"a robot part moved at {fastest:.3g} m/s at the end of an interval the harm service watched only at its "
+            f"looks, above the {max_part_speed:g} m/s it assumes there: a contact in it may have been missed (raise "
+            f"{name}.max_part_speed and shorten {name}.far_period to suit)")
     return Finding(name, "fast part", float(seen.times[first]), None, text,
                    {"speed": fastest, "max_part_speed": max_part_speed})
 

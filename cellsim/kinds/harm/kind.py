@@ -27,7 +27,8 @@ class HarmKind(ModuleKind):
         ("contact_speed", "number, m/s", "the worst contact's relative speed along its normal"),
         ("nearest_region", "enum", "body region nearest to a robot within cutoff (none: nobody that near)"),
         ("separation_<robot>", "number, m", "per robot: its least true distance to any body region, up to cutoff"),
-        ("fastest_part_speed", "number, m/s", "the fastest any point of a robot part has moved at a look so far"),
+        ("unwatched_part_speed", "number, m/s",
+         "the fastest a robot part's point moved at a look ending an interval watched only at looks"),
     )
 
     def build(self, cell, name, cfg):

@@ -78,8 +78,8 @@ class HarmMonitor(CellSystem):
       separation_<robot> (channel, m): the robot's least true distance to any body region (negative:
         overlapping), read up to ``cutoff``.
       nearest_region (channel): the body region nearest to any robot within ``cutoff``, else none.
-      fastest_part_speed (channel, m/s): the fastest any point of a robot part has moved at a look so far
-        (above ``max_part_speed``: a contact between two looks may have been missed).
+      unwatched_part_speed (channel, m/s): the fastest any point of a robot part moved at a look ending an interval
+        the service watched only at its looks (above ``max_part_speed``: a contact in it may have been missed).
     """
 
     def __init__(self, module: str, cfg: HarmConfig, step: float, limits: BodyLimits, robots: dict[str, float],
@@ -126,15 +126,21 @@ class HarmMonitor(CellSystem):
             *(self.declare_channel(f"separation_{robot}", m, cfg.cutoff, description=f"True least distance from {robot} to a body")
               for robot in self.robots),
         ]
-        self._fastest = self.declare_channel("fastest_part_speed", speed, 0.0,
-                                             description="Fastest a robot part's point has moved at a look so far")
+        self._unwatched = self.declare_channel(
+            "unwatched_part_speed", speed, 0.0,
+            description="Fastest a robot part's point moved at a look ending an interval watched only at looks")
         # nobody near: no contact (codes 0: none), each separation at the cut-off
         self._clear = [0.0] * (len(self._outputs) - len(self.robots)) + [cfg.cutoff] * len(self.robots)
         # nearest_region and the separations (the last channels): measured to the cut-off at each far look
         self._first_far = len(self._outputs) - len(self.robots) - 1
 
     def add_person(self, name: str, system) -> tuple:
-        """Declare a person's pose inputs; returns the (pose, previous pose) ports to connect."""
+        """Declare a person's pose inputs; returns the (pose, previous pose) ports to connect. The person's body must
+        move only at their periodic updates (each is followed by a look): not a kind that also updates on a
+        sample's arrival."""
+        if getattr(system, "takes_samples_on_arrival", False):
+            raise ValueError(f"{self.module}: person {name} moves on a sample's arrival, between the updates the harm "
+                             "service looks after")
         ports = (self.declare_input(f"{name}_pose", 7), self.declare_input(f"{name}_previous_pose", 7))
         self.pose_ports.append(ports)
         self.person_systems.append(system)
@@ -158,14 +164,19 @@ class HarmMonitor(CellSystem):
         self.spheres = [(body, centre, radius) for body, found in spheres.items() for centre, radius in found]
         # how far from its body's origin each arm body's shapes reach (m): its points' speed is at most |v| + |w| that
         self._extents = [(body, max(float(np.linalg.norm(c)) + r for c, r in found)) for body, found in spheres.items()]
+        unbounded = [self.parts[g].name for g in self.parts if not math.isfinite(bounding_sphere(
+            inspector.GetShape(g), inspector.GetPoseInFrame(g))[1])]
+        if unbounded:
+            raise ValueError(f"{self.module}: the shape of robot part {unbounded[0]} cannot be bounded (a box, cylinder, "
+                             "sphere, capsule, ellipsoid or mesh can): its speed could not be measured")
         self._looks = self._schedule()
 
     def _schedule(self) -> tuple[int, np.ndarray]:
-        """When the service looks while nothing is near: one plant step after every ``far_every``-th (never at 0,
-        where every module's first update still has to place it), and one step after each person's update, where
-        the body may have jumped (a turn). (Steps in one round of the schedule, whether each step is a look.)"""
+        """When the service looks while nothing is near: one plant step after each person's update, where the body
+        may have jumped (a turn), and at least every ``far_every`` steps, one step after each multiple of them (where
+        a person updated at the multiple is seen too). (Steps in one round of the schedule, whether each is a look.)"""
         step = self.period
-        cadences = [(self.far_every, 1)]
+        cadences = [(self.far_every, 1 % self.far_every)]
         for system in self.person_systems:
             every = max(1, round(system.period / step))
             cadences.append((every, (round(system.offset / step) + 1) % every))
@@ -269,7 +280,7 @@ class HarmMonitor(CellSystem):
 
     def _far_look(self, context, xd):
         """A look of the schedule while nothing was within reach: is anything within the cut-off now?"""
-        fast, wrote = self._note_speed(context, xd)
+        fast, wrote = self._note_speed(context, xd, unwatched=True)
         if not fast and self._far(context):
             previous = [context.get_discrete_state(g).GetAtIndex(0) for g in self._outputs]
             if previous != self._clear:
@@ -279,14 +290,15 @@ class HarmMonitor(CellSystem):
             return None
         return self._measure(context, xd, True, FAR, fast)
 
-    def _note_speed(self, context, xd) -> tuple[bool, bool]:
-        """At a look of the schedule: (whether a robot part moves faster than half ``max_part_speed``, whether that is
-        the fastest yet: ``fastest_part_speed`` is then written)."""
+    def _note_speed(self, context, xd, unwatched: bool = False) -> tuple[bool, bool]:
+        """At a look of the schedule: (whether a robot part moves faster than half ``max_part_speed``, whether
+        ``unwatched_part_speed`` was written: the fastest yet at a look ending an ``unwatched`` interval, one measured
+        only at its looks)."""
         speed = self._part_speed(context)
-        faster = speed > context.get_discrete_state(self._fastest).GetAtIndex(0)
-        if faster:
-            xd.get_mutable_vector(self._fastest).SetAtIndex(0, speed)
-        return speed > 0.5 * self.cfg.max_part_speed, faster
+        wrote = unwatched and speed > context.get_discrete_state(self._unwatched).GetAtIndex(0)
+        if wrote:
+            xd.get_mutable_vector(self._unwatched).SetAtIndex(0, speed)
+        return speed > 0.5 * self.cfg.max_part_speed, wrote
 
     def _measure(self, context, xd, look: bool, state: float, fast: bool | None = None):
         """Measure now: at a look of the schedule, every pair within the cut-off; in between, those within reach of a
