@@ -179,18 +179,26 @@ def test_a_bad_rtde_setting_is_one_error_naming_its_key(tmp_path, extra, key):
 class Controller:
     """An emulated controller (the server the emulator runs) on a free loopback port, fed by the test."""
 
-    def __init__(self, program):
+    def __init__(self, program, takes_slider: bool = True):
         self.program = program
         self.inputs: queue.Queue = queue.Queue()
-        self.server = RtdeServer("127.0.0.1", 0, on_inputs=self.inputs.put)
+        self.slider = 1.0
+        self.takes_slider = takes_slider
+        self.server = RtdeServer("127.0.0.1", 0, on_inputs=self._take)
         self.port = self.server.address[1]
         self.t = 0.0
+
+    def _take(self, values: dict) -> None:
+        """The daemon's inputs: the slider taken as a controller does (unless told to ignore it), and queued."""
+        if self.takes_slider and values.get("speed_slider_mask", 0) & 1:
+            self.slider = values["speed_slider_fraction"]
+        self.inputs.put(values)
 
     def publish(self, fault=None, **fields) -> None:
         self.t += 0.002
         sample = {**{f"q{i}": 0.1 * i for i in range(6)}, "safety_mode": "normal", "activity": "welding",
                   "reached_pose": "home", **fields}
-        self.server.publish(self.program.state(sample, [0.0] * 6, self.t, 1.0), fault)
+        self.server.publish(self.program.state(sample, [0.0] * 6, self.t, self.slider), fault)
 
     def inputs_until(self, condition, timeout: float = 5.0) -> dict:
         deadline = time.monotonic() + timeout
@@ -236,11 +244,11 @@ def run_daemon(bridge: Bridge):
 
 
 @contextlib.contextmanager
-def daemon_beside_controller(sessions, tmp_path, program):
+def daemon_beside_controller(sessions, tmp_path, program, takes_slider: bool = True):
     """The daemon's loop running beside an emulated controller on a free loopback port, connected; yields
     (controller, bridge, the robot's link, what the twin hears); everything stopped after."""
     hub, twin_session = sessions
-    controller = Controller(program)
+    controller = Controller(program, takes_slider)
     bridge = Bridge(load_bridge(ur_config(tmp_path, controller.port)), hub)
     twin = Twin(twin_session)
     stop, thread = run_daemon(bridge)
@@ -306,6 +314,54 @@ def test_a_controllers_states_become_the_robots_samples_and_faults_fail_it_at_on
         # a package one byte short: corrupt, at once
         controller.publish(fault="corrupt")
         assert twin.next_sample(lambda m: "failed" in m)["failed"] == "corrupt"
+
+
+@pytest.mark.parametrize("takes", [True, False])
+def test_a_controller_that_does_not_take_the_slider_reads_unknown_where_its_arm_is(sessions, tmp_path, program, takes):  # noqa: F811
+    """The daemon, the twin's mode not heard, writes the safe command: the slider at 0. A controller that takes it
+    reports its program's mode; one still at full speed fraction once the grace has passed does not take the
+    twin's slider: its safety mode reads unknown (it may be faster than asked), its joints as they are."""
+    from cellsim.bridges.ur import SLIDER_GRACE
+
+    with daemon_beside_controller(sessions, tmp_path, program, takes_slider=takes) as (controller, bridge, link, twin):
+        controller.inputs_until(lambda v: v["speed_slider_mask"] == 1 and v["speed_slider_fraction"] == 0.0)
+        written = time.monotonic()
+        modes = []
+        deadline = written + 10.0
+        while not (takes and time.monotonic() > written + 3 * SLIDER_GRACE and len(modes) > 20) and not (
+                not takes and modes and modes[-1] == "unknown"):
+            assert time.monotonic() < deadline, f"read {modes[-5:]}"
+            controller.publish(safety_mode="ssmon")
+            sample = twin.next_sample(lambda m: "fields" in m)
+            modes.append(sample["fields"]["safety_mode"])
+        if takes:
+            assert set(modes) == {"ssmon"} and link.checker.slider_refused == 0
+        else:
+            assert sample["fields"]["q3"] == pytest.approx(0.3) and link.checker.slider_refused > 0
+
+
+def test_the_slider_a_controller_may_show_is_the_last_it_had_time_to_take_or_any_written_since():
+    """Writes at 0 (0.2) and 30 ms (0.8): within the grace nothing is judged; after it the 0.2 binds, and the 0.8
+    too, which it may have taken already; once the 0.8 is as old, it alone. A slider falling at every write binds
+    each value as it ages. A release (the program's own slider) expects nothing."""
+    from cellsim.bridges.ur import SLIDER_GRACE, RtdeStateChecker
+
+    checker = RtdeStateChecker(timeout=1.0)
+    checker.wrote_slider(0.2, 10.0)
+    checker.wrote_slider(0.8, 10.03)
+    assert checker.slider_allowed(10.0 + SLIDER_GRACE / 2) is None
+    assert checker.slider_allowed(10.0 + SLIDER_GRACE + 0.01) == 0.8
+    checker.wrote_slider(0.1, 10.03 + SLIDER_GRACE)
+    assert checker.slider_allowed(10.03 + SLIDER_GRACE + 0.001) == 0.8  # the 0.1 is too new to bind
+    assert checker.slider_allowed(10.03 + 2 * SLIDER_GRACE + 0.001) == 0.1
+    falling = RtdeStateChecker(timeout=1.0)
+    for k in range(30):
+        falling.wrote_slider(1.0 - 0.03 * k, 20.0 + 0.02 * k)
+    now = 20.0 + 0.02 * 29
+    newest_old = max(k for k in range(30) if 20.0 + 0.02 * k <= now - SLIDER_GRACE)
+    assert falling.slider_allowed(now) == pytest.approx(1.0 - 0.03 * newest_old)
+    falling.wrote_slider(None, now)
+    assert falling.slider_allowed(now + 1.0) is None
 
 
 def test_a_frozen_or_lost_controller_goes_stale_and_is_dialled_again(sessions, tmp_path, program):  # noqa: F811

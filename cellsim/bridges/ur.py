@@ -14,7 +14,11 @@ physical twin's data (``RtdeStateChecker``, the link rule of ``cellsim.link``):
   stale), a jump of more than 5 cycles is *counter*;
 * joints beyond the configured limit or speed, or a register holding a code
   outside its field's list, are *range*; no good package within the watchdog is
-  *timeout*.
+  *timeout*;
+* a controller whose ``target_speed_fraction`` stays above the speed slider the
+  daemon wrote, ``SLIDER_GRACE`` after it was written, does not take the twin's
+  slider: its state is still the robot's sample (where the arm is), but its safety
+  mode reads ``unknown`` (it may move faster than the twin asked) while it does.
 
 A good state becomes the robot's physical sample (and a ROS 2 JointState, as for
 any robot link); any fault publishes a link failure at once. A lost connection
@@ -37,12 +41,14 @@ import struct
 import threading
 import time
 import zlib
+from collections import deque
 from dataclasses import dataclass, field
 
 from cellsim.bridges.robot import JointStateChecker, RobotLink
 from cellsim.link import Fault, Judgement
 from cellsim.ur import rtde
 from cellsim.ur.program import OutOfRange, UrProgram
+from cellsim.vocabulary import SafetyMode
 
 log = logging.getLogger("cellsim.bridge")
 SETUP_TIMEOUT = 2.0
@@ -50,6 +56,11 @@ SETUP_TIMEOUT = 2.0
 RECEIVE_TIMEOUT = 1.0
 """A streaming controller silent for this long (s) is taken as lost and dialled again (the watchdog has failed
 the link long before)."""
+SLIDER_GRACE = 0.1
+"""How long (s) a controller may take to show a speed slider written (its ``target_speed_fraction``): the input's
+way, a control cycle and the state's way back, with room."""
+SLIDER_TOLERANCE = 1e-3
+"""How far above the slider written a controller's ``target_speed_fraction`` may read (a rounding)."""
 
 
 @dataclass
@@ -59,6 +70,31 @@ class RtdeStateChecker(JointStateChecker):
     recipe: rtde.Recipe | None = None
     program: UrProgram | None = None
     cycle_time: float = 0.002
+    slider_refused: int = 0
+    """States read while the controller ran faster than the speed slider the daemon wrote (past the grace)."""
+    _written: deque = field(default_factory=deque)
+    """(daemon clock, fraction) of the sliders written since the newest one the controller must show by now."""
+    _now: float = 0.0
+    _taken: bool = True
+
+    def wrote_slider(self, fraction: float | None, now: float) -> None:
+        """The daemon wrote the speed slider ``fraction`` at ``now`` (its clock); None: it released the slider (the
+        program's own), which then holds no expectation."""
+        if fraction is None:
+            self._written.clear()
+        else:
+            self._written.append((now, fraction))
+
+    def slider_allowed(self, now: float) -> float | None:
+        """The fastest slider the controller may show at ``now``: the newest one written at least ``SLIDER_GRACE``
+        before, or any written since (it may have taken a later one already); None while nothing written is that
+        old."""
+        written = self._written
+        while len(written) >= 2 and written[1][0] <= now - SLIDER_GRACE:
+            written.popleft()
+        if not written or written[0][0] > now - SLIDER_GRACE:
+            return None
+        return max(fraction for _, fraction in written)
 
     def check(self, payload: bytes, now: float, wall: float | None = None) -> Judgement:
         """Judge one data package's payload (recipe id first) that arrived at ``now`` (the daemon's clock) and
@@ -72,6 +108,7 @@ class RtdeStateChecker(JointStateChecker):
         except (rtde.RtdeError, struct.error, AttributeError, OverflowError, ValueError, TypeError, KeyError):
             return self.fail(Fault.CORRUPT, now)
         self._wall = time.time() if wall is None else wall
+        self._now = now
         return self.receive(now, cycle, zlib.crc32(payload), values=values, in_range=self._in_range)
 
     def _in_range(self, values: dict) -> Fault | None:
@@ -81,6 +118,16 @@ class RtdeStateChecker(JointStateChecker):
             fields = self.program.sample(values)
         except OutOfRange:
             return Fault.RANGE
+        allowed = self.slider_allowed(self._now)
+        if allowed is not None and not values["target_speed_fraction"] <= allowed + SLIDER_TOLERANCE:
+            if not self.slider_refused or self._taken:
+                log.warning("the RTDE controller runs at speed fraction %s where the daemon wrote %s: it does not take "
+                            "the slider; its safety mode reads unknown", values["target_speed_fraction"], allowed)
+            self.slider_refused += 1
+            self._taken = False
+            fields["safety_mode"] = SafetyMode.UNKNOWN.value
+        else:
+            self._taken = True
         values.update(t=self._wall, position=list(values["actual_q"]), velocity=list(values["actual_qd"]), **fields)
         return None
 
@@ -241,6 +288,8 @@ class UrLink(RobotLink):
             sock = self._sock
             if sock is None:
                 return
+            self.checker.wrote_slider(values["speed_slider_fraction"] if values["speed_slider_mask"] & 1 else None,
+                                      time.monotonic())
             try:  # never blocks the daemon's thread: a controller that does not take its inputs is dropped
                 sent = sock.send(data, socket.MSG_DONTWAIT)
             except (BlockingIOError, InterruptedError):
