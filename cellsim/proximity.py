@@ -99,7 +99,11 @@ class NearestPair:
 
     def _bounds(self, query) -> np.ndarray:
         """Each pair's distance bounded from below (m), by the bounding spheres: [i of these, j of those]."""
-        ca, cb = self.a.centres(query), self.b.centres(query)
+        return self.bounds_from(self.a.centres(query), self.b.centres(query))
+
+    def bounds_from(self, ca: np.ndarray, cb: np.ndarray) -> np.ndarray:
+        """Each pair's distance bounded from below (m) by the spheres at centres ``ca`` (of these) and ``cb`` (of
+        those) in the world (``_Spheres.centres``)."""
         return np.sqrt(((ca[:, None, :] - cb[None, :, :]) ** 2).sum(axis=2)) - self._radii
 
     def nearest_and_touching(self, query, within: float, groups: list[list[int]]) -> list:

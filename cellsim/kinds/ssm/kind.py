@@ -57,8 +57,11 @@ def build_ssm(cell, name: str, cfg: SsmConfig) -> SpeedSeparationMonitor:
                                                    robot_cfg.base_position[:2], robot_cfg.speed_limits.ssmon))
     cell.builder.Connect(cell.plant.get_state_output_port(cell.robots[cfg.robot]), system.robot_state_port)
     cell.builder.Connect(system.GetOutputPort("speed_limit"), robot.speed_limit_port)
+    cell.builder.Connect(robot.GetOutputPort("safety_mode"), system.robot_mode_port)
     cell.connect_query(system.query_port)  # the monitor's separation, or the truth beside a sensor's
     system.set_geometries(cell.scene_graph.model_inspector(), cell.arm_geometry[cfg.robot], cell.people)
+    system.watch_truth(cell.scenario.time_step, [robot.period, *(person.period for person in cell.bodies.values())],
+                       cfg.max_margin_fall)
     if not system.from_geometry:  # a sensor's distance: every entity is built by now
         channels = cell.channels()
         where = f"behaviours.{name}.separation"

@@ -48,11 +48,13 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject
 
-from cellsim.channels import number_type
+from cellsim.channels import enum_type, number_type
 from cellsim.kinds.ssm.config import GEOMETRY, SsmConfig
 from cellsim.proximity import NearestPair, witness_on
-from cellsim.systems import CellSystem, read_scalar, write_scalar
+from cellsim.systems import UNCHANGED, CellSystem, read_scalar, write_scalar
+from cellsim.vocabulary import SafetyMode
 
+_SSMON = float(SafetyMode.SPEED_SEPARATION.code)
 FAR_AWAY = 10.0
 """m: the separation read with nobody in the cell."""
 DISC_RADIUS = 0.5
@@ -104,15 +106,20 @@ class SsmParameters:
 class SpeedSeparationMonitor(CellSystem):
     """Ports:
       robot_state (input): the robot's plant state [q (rad), v (rad/s)].
+      robot_safety_mode (input): the robot's safety mode (its code): the true margin is watched at every plant step
+        near 0 only in ssmon, where TrueSSM judges it.
       geometry_query (input, geometry separation only): SceneGraph's QueryObject.
       separation_measured (input, a sensor's separation only): that sensor's distance (m).
       separation (channel, m): the separation d used (negative: overlapping).
       protective_distance (channel, m): S_p for the robot's current speed towards the person.
       margin (channel, m): d - S_p.
       speed_limit (channel, m/s): v_max, the speed the robot may have now (its speed_limit input).
-      true_margin (channel, m): on the truth, whatever the monitor's separation comes from: the true separation
-        (the arm's shapes to every body region) less S_p of the robot's true speed towards that person, with no
-        allowances; read up to FAR_AWAY (a falsification search climbs it from anywhere in the cell).
+      true_margin (channel, m): on the truth, whatever the monitor's separation comes from: the least, over the
+        arm's shapes, of a shape's true separation from the nearest body region less S_p of its true speed towards
+        that region, with no allowances; read up to FAR_AWAY (a falsification search climbs it from
+        anywhere in the cell). Judged one plant step after each of the monitor's updates and each person's (a
+        person's move is seen at once, not at the monitor's next update), and at every plant step while it is
+        near 0 (``max_margin_fall``): see ``watch_truth``.
     """
 
     def __init__(self, module: str, cfg: SsmConfig, parameters: SsmParameters, kinematics, base_xy=(0.0, 0.0),
@@ -125,6 +132,8 @@ class SpeedSeparationMonitor(CellSystem):
         self.cap = cap
         self.from_geometry = cfg.separation == GEOMETRY
         self.robot_state_port = self.declare_input("robot_state", 2 * kinematics.num_joints)
+        self.robot_mode_port = self.declare_input("robot_safety_mode", ctype=enum_type(SafetyMode),
+                                                  default=SafetyMode.SPEED_SEPARATION.code)
         self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
         if not self.from_geometry:
             self.separation_port = self.declare_input("separation_measured")
@@ -183,6 +192,42 @@ class SpeedSeparationMonitor(CellSystem):
         self.bodies = {g: plant.GetBodyByName(body) for g, body in arm.items()}
         self.pairs = NearestPair(inspector, list(arm), people)
 
+    def watch_truth(self, step: float, periods: list[float], max_fall: float) -> None:
+        """Judge ``true_margin`` in an event of its own at the plant step (``step``, s): one step after each of this
+        monitor's updates and each of ``periods`` (s: the people's and the robot's updates, from t = 0; Drake's
+        updates at one time read the state before any, so judged at the monitor's own update it would see a
+        person's move a period late), and, in ssmon, at every step while the margin is nearer 0 than it can fall,
+        at ``max_fall`` m/s, before the next of those."""
+        from dataclasses import replace
+
+        steps = [max(1, round(p / step)) for p in (self.period, *periods)]
+        rounds = math.lcm(*steps)
+        if rounds > 1_000_000:
+            raise ValueError(f"{self.module}: its period and the people's have no common multiple within "
+                             f"{1_000_000 * step:g} s; make them multiples of one another")
+        looks = np.zeros(rounds, dtype=bool)
+        for every in steps:
+            looks[1 % every::every] = True
+        at = np.flatnonzero(looks)
+        gap = int(max(np.diff(at).max(initial=0), at[0] + rounds - at[-1]))  # the longest wait for a look, in steps
+        self._step = step
+        self._truth_looks = (rounds, looks)
+        self._watch_below = max_fall * gap * step
+        """m: a true margin above this at a judgement cannot reach 0 before the next scheduled one."""
+        self._close = self.declare_state("truth_close", [0.0])  # 1: judged at every step
+        self.DeclarePeriodicDiscreteUpdateEvent(step, 0.0, self._judge_truth)
+        self.channels = [(replace(spec, period=step, offset=0.0) if spec.signal == "true_margin" else spec, port)
+                         for spec, port in self.channels]
+
+    def decide_after(self, offset: float) -> None:
+        """As any module's; the true margin stays judged at the plant step (:meth:`watch_truth`)."""
+        from dataclasses import replace
+
+        super().decide_after(offset)
+        if getattr(self, "_truth_looks", None) is not None:
+            self.channels = [(replace(spec, offset=0.0) if spec.signal == "true_margin" else spec, port)
+                             for spec, port in self.channels]
+
     def measure(self, context) -> tuple[float, float]:
         """(separation d in m, robot speed towards the person v_r in m/s), as the monitor has them."""
         kin = self.kinematics
@@ -195,23 +240,94 @@ class SpeedSeparationMonitor(CellSystem):
 
     def truth(self, context) -> tuple[float, float]:
         """(the true separation d in m, read up to FAR_AWAY, and the robot's true speed towards that person
-        v_r in m/s), on the geometry; the kinematics set to the robot's state already."""
+        v_r in m/s: the nearest pair's), on the geometry; the kinematics set to the robot's state already."""
         if not self.pairs:
             return FAR_AWAY, 0.0
         query = self.query_port.Eval(context)
         nearest = self.pairs(query, FAR_AWAY)
         if nearest is None:
             return FAR_AWAY, 0.0
+        return min(nearest.distance, FAR_AWAY), self._towards(query, nearest)
+
+    def _towards(self, query, pair, motion=None) -> float:
+        """The speed (m/s, not below 0) of the arm's point of ``pair`` towards the person's (its whole speed where
+        they overlap); the kinematics set to the robot's state already; ``motion``: the arm body's spatial velocity
+        [w, v] (world frame, at its origin) if known."""
         kin = self.kinematics
-        arm = nearest.id_A if nearest.id_A in self.bodies else nearest.id_B
-        p_W = witness_on(query, nearest, arm)
+        arm = pair.id_A if pair.id_A in self.bodies else pair.id_B
+        p_W = witness_on(query, pair, arm)
         body = self.bodies[arm]
-        X_WB = body.EvalPoseInWorld(kin.context)
-        velocity = body.EvalSpatialVelocityInWorld(kin.context).Shift(p_W - X_WB.translation()).translational()
-        # nhat_BA_W points from B to A: towards the person when the person is A
-        towards = nearest.nhat_BA_W if arm == nearest.id_B else -nearest.nhat_BA_W
-        speed = float(velocity @ towards) if nearest.distance > 0.0 else float(np.linalg.norm(velocity))
-        return min(nearest.distance, FAR_AWAY), max(speed, 0.0)
+        if motion is None:
+            motion = body.EvalSpatialVelocityInWorld(kin.context).get_coeffs()
+        rx, ry, rz = (p_W - body.EvalPoseInWorld(kin.context).translation()).tolist()
+        wx, wy, wz, vx, vy, vz = motion.tolist()
+        vx, vy, vz = vx + wy * rz - wz * ry, vy + wz * rx - wx * rz, vz + wx * ry - wy * rx  # v + w x r
+        if pair.distance <= 0.0:
+            return math.sqrt(vx * vx + vy * vy + vz * vz)
+        nx, ny, nz = pair.nhat_BA_W.tolist()  # from B to A: towards the person when the person is A
+        speed = vx * nx + vy * ny + vz * nz
+        return max(speed if arm == pair.id_B else -speed, 0.0)
+
+    def true_margin(self, context, reaction: float) -> float:
+        """The least, over the arm's shapes, of the shape's true separation from the nearest body region less S_p
+        (no allowances, ``reaction`` s of reaction still to come) of its true speed towards that region; read up to
+        FAR_AWAY. Shapes are measured in order of a lower bound (their bounding sphere's distance from any region's
+        less S_p of the shape's fastest point), until none can be lower than the least found."""
+        kin, sp = self.kinematics, self.parameters.true_protective_distance
+        least = FAR_AWAY - sp(0.0, reaction)
+        if not self.pairs:
+            return least
+        kin.plant.SetPositionsAndVelocities(kin.context, self.robot_state_port.Eval(context))
+        query = self.query_port.Eval(context)
+        centres = self.pairs.a.centres(query)
+        bounds = self.pairs.bounds_from(centres, self.pairs.b.centres(query))
+        ids_a, ids_b = self.pairs.a.ids, self.pairs.b.ids
+        motion = [self.bodies[g].EvalSpatialVelocityInWorld(kin.context).get_coeffs() for g in ids_a]
+        fastest = []  # each shape's fastest point: its sphere centre's speed and the sphere's radius turning
+        for i, g in enumerate(ids_a):
+            wx, wy, wz, vx, vy, vz = motion[i].tolist()
+            rx, ry, rz = (centres[i] - self.bodies[g].EvalPoseInWorld(kin.context).translation()).tolist()
+            vx, vy, vz = vx + wy * rz - wz * ry, vy + wz * rx - wx * rz, vz + wx * ry - wy * rx
+            fastest.append(math.sqrt(vx * vx + vy * vy + vz * vz)
+                           + self.pairs.a.radii[i] * math.sqrt(wx * wx + wy * wy + wz * wz))
+        nearest = bounds.min(axis=1)
+        lower = [bound - sp(v, reaction) if bound <= FAR_AWAY else math.inf for bound, v in zip(nearest, fastest)]
+        for i in np.argsort(lower, kind="stable"):
+            if not lower[i] < least:
+                break  # no shape from here on can have a lower margin
+            row = bounds[i]
+            pair, distance = None, FAR_AWAY
+            for j in np.argsort(row, kind="stable"):
+                if row[j] > distance:
+                    break
+                found = query.ComputeSignedDistancePairClosestPoints(ids_a[i], ids_b[j])
+                if found.distance < distance or pair is None and found.distance <= FAR_AWAY:
+                    pair, distance = found, found.distance
+            if pair is not None:
+                least = min(least, distance - sp(self._towards(query, pair, motion[i]), reaction))
+        return least
+
+    def _reaction(self, context, t: float, since: float) -> float:
+        """The reaction time still to come at ``t`` (s): all of T_r, or what is left of it once a stop was ordered
+        at ``since`` (NaN: none was)."""
+        t_r = self.parameters.reaction_time
+        return t_r if math.isnan(since) else max(0.0, t_r - (t - since))
+
+    def _judge_truth(self, context, xd):
+        """At every plant step (``watch_truth``'s event): the true margin, at a look of the schedule or while near 0."""
+        close = context.get_discrete_state(self._close).GetAtIndex(0) != 0.0
+        rounds, looks = self._truth_looks
+        t = context.get_time()
+        if not close and not looks[round(t / self._step) % rounds]:
+            return UNCHANGED
+        reaction = self._reaction(context, t, read_scalar(context, self._stop_ordered))
+        margin = self.true_margin(context, reaction)
+        now_close = margin < self._watch_below and self.robot_mode_port.Eval(context)[0] == _SSMON
+        if margin == read_scalar(context, self._true_margin) and now_close == close:
+            return UNCHANGED
+        write_scalar(xd, self._true_margin, margin)
+        write_scalar(xd, self._close, 1.0 if now_close else 0.0)
+        return None
 
     def update(self, context, xd):
         t = context.get_time()
@@ -222,17 +338,13 @@ class SpeedSeparationMonitor(CellSystem):
             since = math.nan
         elif math.isnan(since):
             since = t
-        reaction = self.parameters.reaction_time if math.isnan(since) else max(0.0, self.parameters.reaction_time - (t - since))
+        reaction = self._reaction(context, t, since)
         protective = self.parameters.protective_distance(v_r, reaction)
         write_scalar(xd, self._stop_ordered, since)
         write_scalar(xd, self._separation, d)
         write_scalar(xd, self._protective, protective)
         write_scalar(xd, self._margin, d - protective)
         write_scalar(xd, self._limit, limit)
-        true_d, true_v = (d, v_r) if self.from_geometry else self.truth(context)
-        true_margin = true_d - self.parameters.true_protective_distance(true_v, reaction)
-        if true_margin != read_scalar(context, self._true_margin):
-            write_scalar(xd, self._true_margin, true_margin)
 
 
 def parameters_of(cfg: SsmConfig, robot_cfg) -> SsmParameters:

@@ -1,0 +1,113 @@
+"""TrueSSM's margin on the truth: every part of the arm judged, a person's move seen at once, and the margin
+watched at every plant step while it is near 0 in ssmon.
+
+An audit (helper) found the true margin took only the nearest pair's speed (a farther part moving fast towards the
+person was never judged: 0.856 m reported where another part had 0.047 m), and judged it at the monitor's update,
+which reads a person's move of the same instant a period late: a run whose margin truly fell to -0.003 m passed
+TrueSSM on its 20 ms samples.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sqlite3
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+
+from cellsim.diagrams.cell import build_cell
+from cellsim.proximity import witness_on
+from cellsim.scenario import load_scenario
+from conftest import ROOT
+
+TENDING = ROOT / "scenarios" / "machine_tending.yaml"
+STANDOFF = ROOT / "scenarios" / "machine_tending_standoff.yaml"
+WIDE = {**os.environ, "COLUMNS": "300"}
+
+
+def by_every_pair(ssm, context, reaction: float) -> tuple[float, float]:
+    """(the least over the arm's shapes of its nearest region's distance less S_p of its speed towards it, the
+    nearest pair's own margin), measured pair by pair with the plant's own velocity shift."""
+    kin, sp = ssm.kinematics, ssm.parameters.true_protective_distance
+    kin.plant.SetPositionsAndVelocities(kin.context, ssm.robot_state_port.Eval(context))
+    query = ssm.query_port.Eval(context)
+    margins, nearest = [], None
+    for arm in ssm.pairs.a.ids:
+        pair = min((query.ComputeSignedDistancePairClosestPoints(arm, region) for region in ssm.pairs.b.ids),
+                   key=lambda p: p.distance)
+        body = ssm.bodies[arm]
+        p_W = witness_on(query, pair, arm)
+        velocity = body.EvalSpatialVelocityInWorld(kin.context).Shift(
+            p_W - body.EvalPoseInWorld(kin.context).translation()).translational()
+        towards = pair.nhat_BA_W if arm == pair.id_B else -pair.nhat_BA_W
+        speed = max(float(velocity @ towards) if pair.distance > 0 else float(np.linalg.norm(velocity)), 0.0)
+        margins.append(min(pair.distance, 10.0) - sp(speed, reaction))
+        if nearest is None or pair.distance < nearest[0]:
+            nearest = (pair.distance, margins[-1])
+    return min(margins), nearest[1]
+
+
+def test_every_part_of_the_arm_is_judged_not_only_the_nearest():
+    """Random arm states (joints and joint speeds) beside a person: the margin is the least over the arm's parts,
+    measured pair by pair; in some of them a part farther than the nearest, moving towards the person, has the
+    lower margin (what the nearest pair alone missed)."""
+    built = build_cell(load_scenario(TENDING), seed=0, duration=1.0, record=False)
+    context = Simulator(built.diagram).get_mutable_context()
+    built.set_initial_state(context)
+    ssm, plant = built.modules["ssm"], built.plant
+    person = built.modules["operator"]
+    rng = np.random.default_rng(11)
+    farther_lower = 0
+    for _ in range(40):
+        q = rng.uniform(-2.5, 2.5, 6)
+        q[1] = rng.uniform(-2.2, -0.9)  # the upper arm up
+        plant.SetPositions(plant.GetMyMutableContextFromRoot(context), built.robots["robot"], q)
+        plant.SetVelocities(plant.GetMyMutableContextFromRoot(context), built.robots["robot"], rng.uniform(-1.0, 1.0, 6))
+        person.set_pose(context, [rng.uniform(-0.8, 1.2), rng.uniform(-1.6, -0.6), rng.uniform(-3, 3), 0, 0, 0, 0])
+        own = ssm.GetMyContextFromRoot(context)
+        for reaction in (0.1, 0.03):
+            least, nearest_only = by_every_pair(ssm, own, reaction)
+            assert ssm.true_margin(own, reaction) == pytest.approx(least, abs=1e-9)
+            farther_lower += least < nearest_only - 1e-6
+    assert farther_lower >= 5, "the states never had a farther part with the lower margin: the test shows nothing"
+
+
+def test_a_margin_that_falls_below_zero_between_the_monitors_updates_is_caught(tmp_path):
+    """The audit's run: the stand-off cell with the person's south stop at (-0.95, -1.612). On the monitor's
+    20 ms samples, a person's move seen a period late, TrueSSM held (+0.0024 m); judged after each move and at
+    every plant step near 0 in ssmon, it is violated, and the record has margins between the monitor's updates."""
+    out = tmp_path / "run"
+    done = subprocess.run([sys.executable, "-m", "cellsim", "simulate", str(STANDOFF), "--out", str(out),
+                           "--set", "operator.waypoints.bench_south.position=[-0.95,-1.612]"],
+                          capture_output=True, text=True, timeout=600, env=WIDE)
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert "violated: TrueSSM" in done.stdout
+    db = sqlite3.connect(out / "blackbox.sqlite")
+    rows = [(t, json.loads(p)["value"]) for t, p in db.execute(
+        "SELECT t, payload FROM messages WHERE channel = 'ssm.true_margin' ORDER BY t")]
+    db.close()
+    negative = [t for t, m in rows if m < 0.0]
+    assert negative, "no negative true margin recorded"
+    between = [t for t, _ in rows if round(t * 1000) % 20 not in (0, 2)]
+    assert between, "the margin was never judged between the monitor's updates (every plant step near 0)"
+
+
+def test_the_margin_is_judged_one_plant_step_after_the_people_and_the_monitor_move():
+    """The judging schedule: one step after each multiple of the monitor's, the robot's and the person's periods
+    (0.02, 0.02, 0.04 s: every 0.02 s, at 2 ms), and the margin watched at every step below what it can fall
+    (5 m/s) in the 20 ms to the next judgement."""
+    built = build_cell(load_scenario(TENDING), seed=0, duration=1.0, record=False)
+    ssm = built.modules["ssm"]
+    rounds, looks = ssm._truth_looks
+    assert rounds == 20 and list(np.flatnonzero(looks)) == [1, 11]
+    assert ssm._watch_below == pytest.approx(5.0 * 0.02)
+    with_person_every_30ms = build_cell(load_scenario(TENDING, ["operator.period=0.03"]), seed=0, duration=1.0,
+                                        record=False).modules["ssm"]
+    rounds, looks = with_person_every_30ms._truth_looks
+    assert rounds == 30 and list(np.flatnonzero(looks)) == [1, 11, 16, 21]
+    assert with_person_every_30ms._watch_below == pytest.approx(5.0 * 0.020)  # the longest wait: 10 steps
