@@ -73,6 +73,39 @@ class Box3:
         ]
 
 
+class SightLines:
+    """Lines of sight from one point (a scanner's head) past fixed boxes: which of many points they reach, in one
+    numpy expression over every box and point (the slab test of :meth:`Box3.blocks`)."""
+
+    def __init__(self, origin, boxes: list[Box3]):
+        self.boxes = list(boxes)
+        origin = np.asarray(origin, float)
+        rotations = [np.array([[math.cos(b.yaw), math.sin(b.yaw), 0.0], [-math.sin(b.yaw), math.cos(b.yaw), 0.0],
+                               [0.0, 0.0, 1.0]]) for b in self.boxes]
+        self._rotation = np.array(rotations).reshape(-1, 3, 3)  # into each box's frame
+        self._centre = np.array([r @ b.center for r, b in zip(rotations, self.boxes)]).reshape(-1, 3)
+        self._half = np.array([b.half for b in self.boxes], float).reshape(-1, 3)
+        self._start = np.array([r @ origin for r in rotations]).reshape(-1, 3) - self._centre  # origin in each frame
+
+    def reach(self, points: np.ndarray) -> np.ndarray:
+        """Whether the segment from the origin to each of ``points`` (an (n, 3) array) passes through no box."""
+        points = np.asarray(points, float).reshape(-1, 3)
+        if not len(self.boxes) or not len(points):
+            return np.ones(len(points), bool)
+        end = np.einsum("wij,nj->wni", self._rotation, points) - self._centre[:, None, :]
+        start, half = self._start[:, None, :], self._half[:, None, :]
+        step = end - start
+        flat = np.abs(step) < _EPS
+        inside = (-half < start) & (start < half)
+        safe = np.where(flat, 1.0, step)
+        u, v = (-half - start) / safe, (half - start) / safe
+        low = np.where(flat, np.where(inside, -np.inf, np.inf), np.minimum(u, v))
+        high = np.where(flat, np.where(inside, np.inf, -np.inf), np.maximum(u, v))
+        enter = np.maximum(low.max(axis=2), 0.0)
+        leave = np.minimum(high.min(axis=2), 1.0)
+        return ~((leave - enter) > _EPS).any(axis=0)
+
+
 # -- polygons ----------------------------------------------------------------------
 def signed_area(polygon) -> float:
     """The polygon's signed area (m²), positive when counter-clockwise."""

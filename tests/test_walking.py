@@ -136,3 +136,28 @@ def test_a_box_blocks_a_line_of_sight_exactly_when_the_segment_passes_through_it
         assert box.blocks(p0, p1) == (depth > 0), (box, p0, p1, depth)
         assert box.blocks(tuple(p0), list(p1)) == (depth > 0)  # any sequence of three numbers
     assert checked > 2500 and 100 < blocked < checked - 100
+
+
+def test_sight_lines_from_one_point_past_many_boxes_are_each_boxs_test_at_once():
+    """``SightLines.reach`` (an area scanner's look at a limb's points) against ``Box3.blocks`` of every box, segment
+    by segment: the same answers for 3,000 points past five boxes turned any way, some points level with the origin."""
+    import math
+
+    from cellsim.floorplan import Box3, SightLines
+
+    rng = np.random.default_rng(3)
+    for _ in range(4):
+        origin = np.array([0.1, -0.2, 0.15])
+        boxes = []
+        while len(boxes) < 5:  # a scanner is never inside a box it looks past
+            box = Box3(rng.uniform(-1, 1, 3), rng.uniform(0.05, 0.5, 3),
+                       float(rng.choice([0.0, math.pi / 2, rng.uniform(-3, 3)])))
+            if not box.contains(origin, margin=0.01):
+                boxes.append(box)
+        points = rng.uniform(-2, 2, (3000, 3))
+        points[::7, 2] = origin[2]  # level with the origin: a step along z of exactly 0
+        reached = SightLines(origin, boxes).reach(points)
+        alone = np.array([not any(box.blocks(origin, p) for box in boxes) for p in points])
+        assert reached.tolist() == alone.tolist()
+        assert 100 < (~alone).sum() < 2900
+    assert SightLines(origin, []).reach(points).all() and len(SightLines(origin, boxes).reach(np.empty((0, 3)))) == 0

@@ -10,7 +10,7 @@ from pydrake.geometry import Box, Convex
 from pydrake.math import RigidTransform
 
 from cellsim.config.typed_yaml import FieldError, Range
-from cellsim.floorplan import is_convex, is_simple, signed_area, triangulate
+from cellsim.floorplan import is_convex, is_simple, point_in_polygon, signed_area, triangulate
 from cellsim.config.layout import Region
 from cellsim.config.twin import TwinSettings
 from cellsim.config.units import Distance, Period, Vec2, Vec3
@@ -41,6 +41,12 @@ class ScannerField:
                 raise FieldError("polygon", "the polygon has no area")
         if not self.heights[0] < self.heights[1]:
             raise FieldError("heights", "the bottom height must be below the top")
+
+    def contains(self, point) -> bool:
+        """Whether ``point`` (x, y, z in m) lies in the field's volume (its boundary included)."""
+        if self.box is not None:
+            return all(lo <= p <= hi for lo, p, hi in zip(self.box.min, point, self.box.max))
+        return self.heights[0] <= point[2] <= self.heights[1] and point_in_polygon(point[:2], self.polygon)
 
     def corners(self) -> list[tuple[float, float, float]]:
         """Every corner of the field's volume (m)."""

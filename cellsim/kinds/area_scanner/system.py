@@ -4,20 +4,25 @@ Its fields are volumes of the cell, listed innermost (most restrictive) first:
 a box, or a polygon on the floor extruded between two heights. Each field is
 SceneGraph geometry (a box, a convex prism, or the prisms of its triangles when
 the polygon is not convex), and a person is *in* a field when their geometry
-meets it and the scanner sees them: the segment from the scanner to the point
-of the person deepest in the field passes through no fixture. A person behind
-the press body is not detected, as with the real scanner, whose beams do not
-pass through it. The beams sweep the heights of the fields (a floor-level
-scanner sees legs, not a head above a table).
+meets it and the scanner sees them: the segment from the scanner to a point of
+the person in the field passes through no fixture. The points looked at are the
+one deepest in the field and, for a limb (a capsule: the legs), points along it
+every ``SIGHT_STEP`` within the beams' heights, each facing the scanner, 45 degrees
+either side and at either edge of the limb as the scanner sees it: a leg half hidden by a fixture's
+corner is seen by its other half, as by the real scanner's beams. A person
+wholly behind the press body is not detected: the beams do not pass through it.
+The beams sweep the heights of the fields (a floor-level scanner sees legs, not
+a head above a table).
 
 The ``field`` channel reads the innermost occupied field, else the clear
 reading named by the scenario; ``distance`` is the distance to the nearest
-point of a person the beams reach (``max_range`` when none). Shadowing its physical
+point of a person the beams reach, of those looked at (``max_range`` when none). Shadowing its physical
 twin with no valid sample, it fails safe: the innermost field, distance 0.
 """
 
 from __future__ import annotations
 
+import math
 
 import numpy as np
 from pydrake.geometry import (
@@ -31,10 +36,16 @@ from cellsim.channels import enum_type, number_type
 from cellsim.kinds.area_scanner.config import AreaScannerConfig
 from cellsim.kinds.sensing import HEAD_RADIUS, GeometrySensor
 from cellsim.entity import valid_code
-from cellsim.floorplan import Box3
+from cellsim.floorplan import Box3, SightLines
 from cellsim.proximity import witness_on
 from cellsim.systems import write_changed
 from cellsim.vocabulary import TwinMode, value_set
+
+SIGHT_STEP = 0.05
+"""m: along a limb, how far apart the points the scanner looks at lie."""
+_NO_POINTS = np.empty((0, 3))
+_AROUND = [(1.0, 0.0), *((math.cos(a), sign * math.sin(a)) for a in (math.pi / 4, math.pi / 2) for sign in (1.0, -1.0))]
+"""Around a limb, the points looked at: facing the scanner, 45 degrees either side, and at its edges (90)."""
 
 class AreaScanner(GeometrySensor):
     """A safety laser scanner.
@@ -57,10 +68,14 @@ class AreaScanner(GeometrySensor):
         self.readings = value_set(f"{module}_field", [cfg.clear, *cfg.fields])
         # fixtures block the beams, except one the scanner is mounted inside
         self.walls = [box for box in map(Box3.of, fixtures) if not box.contains(self.position)]
+        self.lines = SightLines(self.position, self.walls)
         # the heights the scanner's beams sweep: from its lowest field's bottom to its highest's top
         bounds = [corner[2] for spec in cfg.fields.values() for corner in spec.corners()]
         self.band = (min(bounds) - 1e-6, max(bounds) + 1e-6)
         self.field_ids: list[list] = []
+        self.cfg_fields = list(cfg.fields.values())
+        self._limbs: dict | None = None  # each target that is a capsule (a limb) -> its shape (sight_points)
+        self._sight: dict = {}  # (target, its pose) -> its sight points
         self.field_of: dict = {}
         """Each field piece's GeometryId -> the field's index (0: innermost)."""
         self.unseen_readings = value_set(f"{module}_unseen", ["none", *cfg.fields])
@@ -135,6 +150,52 @@ class AreaScanner(GeometrySensor):
             return False
         return not any(wall.blocks(self.position, point) for wall in self.walls)
 
+    def sight_points(self, query, target) -> np.ndarray:
+        """The points the beams reach of a limb (a capsule), nearest the scanner first: of those along its axis
+        every SIGHT_STEP within the beams' heights, the points of its surface facing the scanner, 45 degrees either
+        side and at its edges as the scanner sees it, each seen through no fixture. None for another shape (its deepest or nearest
+        point alone is looked at). Kept while the limb stands where they were found (the field test and the
+        distance share them)."""
+        if self._limbs is None:
+            from pydrake.geometry import Capsule
+
+            inspector = query.inspector()
+            self._limbs = {g: inspector.GetShape(g) for g in self.targets if isinstance(inspector.GetShape(g), Capsule)}
+        shape = self._limbs.get(target)
+        if shape is None:
+            return _NO_POINTS
+        pose = query.GetPoseInWorld(target).GetAsMatrix34()
+        key = (target, pose.tobytes())
+        points = self._sight.get(key)
+        if points is None:
+            if len(self._sight) > 64:
+                self._sight.clear()
+            points = self._sight[key] = self._limb_points(pose, shape.radius(), shape.length() / 2.0)
+        return points
+
+    def _limb_points(self, pose: np.ndarray, radius: float, half: float) -> np.ndarray:
+        """:meth:`sight_points` of a capsule of ``radius`` and axis half-length ``half`` (m) at ``pose`` (3x4)."""
+        a, b = pose[:, 3] - half * pose[:, 2], pose[:, 3] + half * pose[:, 2]
+        if min(a[2], b[2]) - radius > self.band[1] or max(a[2], b[2]) + radius < self.band[0]:
+            return _NO_POINTS  # wholly above or below the beams
+        axis = b - a
+        length = float(np.linalg.norm(axis))
+        k = axis / length if length > 0 else np.array([0.0, 0.0, 1.0])
+        centres = a + np.linspace(0.0, 1.0, max(2, int(np.ceil(length / SIGHT_STEP)) + 1))[:, None] * axis
+        centres = centres[(centres[:, 2] >= self.band[0] - radius) & (centres[:, 2] <= self.band[1] + radius)]
+        towards = self.position - centres
+        towards -= (towards @ k)[:, None] * k  # across the limb, towards the scanner
+        norms = np.linalg.norm(towards, axis=1)
+        keep = norms > radius  # the head inside a limb's reach: its nearest point says it
+        facing = towards[keep] / norms[keep, None]
+        centres = centres[keep]
+        edge = np.stack([k[1] * facing[:, 2] - k[2] * facing[:, 1], k[2] * facing[:, 0] - k[0] * facing[:, 2],
+                         k[0] * facing[:, 1] - k[1] * facing[:, 0]], axis=1)  # k x facing
+        points = np.concatenate([centres + radius * (c * facing + s * edge) for c, s in _AROUND])
+        points = points[(points[:, 2] >= self.band[0]) & (points[:, 2] <= self.band[1])]
+        points = points[self.lines.reach(points)]
+        return points[np.argsort(np.linalg.norm(points - self.position, axis=1), kind="stable")]
+
     def occupancy(self, query) -> tuple[int, int]:
         """(code of the innermost field someone is seen in, else clear; code of the innermost field someone's
         body truly meets, seen or not, else clear), from one broadphase query of the pairs overlapping now."""
@@ -150,7 +211,8 @@ class AreaScanner(GeometrySensor):
             else:
                 continue
             truly = min(truly, index)
-            if index < seen and self.seen(witness_on(query, pair, target)):
+            if index < seen and (self.seen(witness_on(query, pair, target)) or any(
+                    self.cfg_fields[index - 1].contains(p) for p in self.sight_points(query, target))):
                 seen = index
         clear = len(self.field_ids) + 1
         return (0 if seen == clear else seen), (0 if truly == clear else truly)
@@ -170,12 +232,16 @@ class AreaScanner(GeometrySensor):
         for target in self.targets:
             pair = query.ComputeSignedDistancePairClosestPoints(self.head_id, target)
             pairs.append((pair.distance + HEAD_RADIUS, len(pairs), pair, target))
+        best = self.cfg.max_range
         for distance, _, pair, target in sorted(pairs, key=lambda found: found[:2]):
-            if distance >= self.cfg.max_range:
-                break
+            if distance >= best:
+                break  # no point of this target or a farther one is nearer than the one seen
             if self.seen(witness_on(query, pair, target)):
-                return distance
-        return self.cfg.max_range
+                return distance  # its nearest point: nothing seen can be nearer
+            seen = self.sight_points(query, target)  # a limb half hidden: its other points, nearest first
+            if len(seen):
+                best = min(best, float(np.linalg.norm(seen[0] - self.position)))
+        return best
 
     def sample_is_valid(self, sample) -> bool:
         return valid_code(sample[0], self.readings) and np.isfinite(sample[1]) and sample[1] >= 0.0

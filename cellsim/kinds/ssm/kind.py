@@ -60,7 +60,7 @@ def build_ssm(cell, name: str, cfg: SsmConfig) -> SpeedSeparationMonitor:
     cell.builder.Connect(robot.GetOutputPort("safety_mode"), system.robot_mode_port)
     cell.connect_query(system.query_port)  # the monitor's separation, or the truth beside a sensor's
     system.set_geometries(cell.scene_graph.model_inspector(), cell.arm_geometry[cfg.robot], cell.people)
-    system.watch_truth(cell.scenario.time_step, [robot.period, *(person.period for person in cell.bodies.values())],
+    system.watch_truth(cell.scenario.time_step, [person.period for person in cell.bodies.values()], robot.period,
                        cfg.max_margin_fall)
     if not system.from_geometry:  # a sensor's distance: every entity is built by now
         channels = cell.channels()

@@ -192,24 +192,27 @@ class SpeedSeparationMonitor(CellSystem):
         self.bodies = {g: plant.GetBodyByName(body) for g, body in arm.items()}
         self.pairs = NearestPair(inspector, list(arm), people)
 
-    def watch_truth(self, step: float, periods: list[float], max_fall: float) -> None:
-        """Judge ``true_margin`` in an event of its own at the plant step (``step``, s): one step after each of this
-        monitor's updates and each of ``periods`` (s: the people's and the robot's updates, from t = 0; Drake's
-        updates at one time read the state before any, so judged at the monitor's own update it would see a
-        person's move a period late), and, in ssmon, at every step while the margin is nearer 0 than it can fall,
+    def watch_truth(self, step: float, people: list[float], robot: float, max_fall: float) -> None:
+        """Judge ``true_margin`` in an event of its own at the plant step (``step``, s): one step after each update
+        of the people (their ``people`` periods, s, from t = 0; Drake's updates at one time read the state before
+        any, so judged at this monitor's own update it would see a person's move a period late), one step after
+        each of the robot's (its ``robot`` period) while it is in ssmon (where TrueSSM judges the margin; its
+        mode changes at its updates), and, in ssmon, at every step while the margin is nearer 0 than it can fall,
         at ``max_fall`` m/s, before the next of those."""
         from dataclasses import replace
 
-        steps = [max(1, round(p / step)) for p in (self.period, *periods)]
-        rounds = math.lcm(*steps)
+        always = [max(1, round(p / step)) for p in people] or [max(1, round(self.period / step))]
+        in_ssmon = max(1, round(robot / step))
+        rounds = math.lcm(*always, in_ssmon)
         if rounds > 1_000_000:
-            raise ValueError(f"{self.module}: its period and the people's have no common multiple within "
+            raise ValueError(f"{self.module}: the robot's and the people's periods have no common multiple within "
                              f"{1_000_000 * step:g} s; make them multiples of one another")
-        looks = np.zeros(rounds, dtype=bool)
-        for every in steps:
-            looks[1 % every::every] = True
+        looks = np.zeros(rounds, dtype=np.int8)  # 0: no look; 1: a look; 2: a look while the robot is in ssmon
+        looks[1 % in_ssmon::in_ssmon] = 2
+        for every in always:
+            looks[1 % every::every] = 1
         at = np.flatnonzero(looks)
-        gap = int(max(np.diff(at).max(initial=0), at[0] + rounds - at[-1]))  # the longest wait for a look, in steps
+        gap = int(max(np.diff(at).max(initial=0), at[0] + rounds - at[-1]))  # the longest wait in ssmon, in steps
         self._step = step
         self._truth_looks = (rounds, looks)
         self._watch_below = max_fall * gap * step
@@ -318,8 +321,10 @@ class SpeedSeparationMonitor(CellSystem):
         close = context.get_discrete_state(self._close).GetAtIndex(0) != 0.0
         rounds, looks = self._truth_looks
         t = context.get_time()
-        if not close and not looks[round(t / self._step) % rounds]:
-            return UNCHANGED
+        if not close:
+            look = looks[round(t / self._step) % rounds]
+            if not look or (look == 2 and self.robot_mode_port.Eval(context)[0] != _SSMON):
+                return UNCHANGED
         reaction = self._reaction(context, t, read_scalar(context, self._stop_ordered))
         margin = self.true_margin(context, reaction)
         now_close = margin < self._watch_below and self.robot_mode_port.Eval(context)[0] == _SSMON
