@@ -75,22 +75,29 @@ class Box3:
 
 class SightLines:
     """Lines of sight from one point (a scanner's head) past fixed boxes: which of many points they reach, in one
-    numpy expression over every box and point (the slab test of :meth:`Box3.blocks`)."""
+    numpy expression over every box and point (the slab test of :meth:`Box3.blocks`).
 
-    def __init__(self, origin, boxes: list[Box3]):
-        self.boxes = list(boxes)
-        origin = np.asarray(origin, float)
+    A box the origin lies in (the fixture a scanner is mounted in) blocks a line that runs more than ``mount_depth``
+    (m) inside it: a scanner in a pedestal's corner sees out past the corner's faces, not through the pedestal."""
+
+    def __init__(self, origin, boxes: list[Box3], mount_depth: float = 0.0):
+        self.origin = np.asarray(origin, float)
+        self.mounts = [box for box in boxes if box.contains(self.origin)]
+        self.boxes = [box for box in boxes if not box.contains(self.origin)]
+        self.mount_depth = float(mount_depth)
+        every = self.boxes + self.mounts
         rotations = [np.array([[math.cos(b.yaw), math.sin(b.yaw), 0.0], [-math.sin(b.yaw), math.cos(b.yaw), 0.0],
-                               [0.0, 0.0, 1.0]]) for b in self.boxes]
+                               [0.0, 0.0, 1.0]]) for b in every]
         self._rotation = np.array(rotations).reshape(-1, 3, 3)  # into each box's frame
-        self._centre = np.array([r @ b.center for r, b in zip(rotations, self.boxes)]).reshape(-1, 3)
-        self._half = np.array([b.half for b in self.boxes], float).reshape(-1, 3)
-        self._start = np.array([r @ origin for r in rotations]).reshape(-1, 3) - self._centre  # origin in each frame
+        self._centre = np.array([r @ b.center for r, b in zip(rotations, every)]).reshape(-1, 3)
+        self._half = np.array([b.half for b in every], float).reshape(-1, 3)
+        self._start = np.array([r @ self.origin for r in rotations]).reshape(-1, 3) - self._centre
 
     def reach(self, points: np.ndarray) -> np.ndarray:
-        """Whether the segment from the origin to each of ``points`` (an (n, 3) array) passes through no box."""
+        """Whether the segment from the origin to each of ``points`` (an (n, 3) array) passes through no box (and
+        runs no deeper than ``mount_depth`` through the one the origin lies in)."""
         points = np.asarray(points, float).reshape(-1, 3)
-        if not len(self.boxes) or not len(points):
+        if not len(self._half) or not len(points):
             return np.ones(len(points), bool)
         end = np.einsum("wij,nj->wni", self._rotation, points) - self._centre[:, None, :]
         start, half = self._start[:, None, :], self._half[:, None, :]
@@ -103,7 +110,12 @@ class SightLines:
         high = np.where(flat, np.where(inside, np.inf, -np.inf), np.maximum(u, v))
         enter = np.maximum(low.max(axis=2), 0.0)
         leave = np.minimum(high.min(axis=2), 1.0)
-        return ~((leave - enter) > _EPS).any(axis=0)
+        walls = len(self.boxes)
+        reached = ~((leave[:walls] - enter[:walls]) > _EPS).any(axis=0)
+        if self.mounts:  # the length of each line inside each mount: from the origin to where it leaves
+            length = np.linalg.norm(points - self.origin, axis=1)
+            reached &= ~((leave[walls:] * length) > self.mount_depth).any(axis=0)
+        return reached
 
 
 # -- polygons ----------------------------------------------------------------------

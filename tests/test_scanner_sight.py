@@ -4,8 +4,9 @@ An audit (helper) found the scanner looked at a single point of each leg (the on
 nearest its head): a leg half hidden by the bench's corner read as not there at all, `clear` and 6 m where its
 other half stood in the protective field 0.99 m away, so the twin reported a blind spot a real scanner would not
 have, and fed the speed monitor a separation six times too wide. It now looks at points along each leg facing it,
-45 degrees either side and at its edges. The reference here looks at the legs' whole surface facing the scanner
-(25 heights by 48 directions), through the fixtures by ``Box3.blocks``, one segment at a time.
+30 and 60 degrees either side and at its edges. The reference here looks at the legs' whole surface facing the
+scanner (25 heights by 48 directions), through the fixtures by ``Box3.blocks``, one segment at a time, and through
+the pedestal the scanner sits in by a walk along the line: no deeper than the head's own depth in it.
 """
 
 from __future__ import annotations
@@ -35,7 +36,23 @@ def cell():
 
 def reference(sf, scanner, query, legs):
     """(the innermost field a visible point of a leg lies in, else 0; the nearest visible point's distance)."""
-    walls = [box for box in map(Box3.of, sf.scenario.layout.fixtures.values()) if not box.contains(scanner.position)]
+    boxes = list(map(Box3.of, sf.scenario.layout.fixtures.values()))
+    walls = [box for box in boxes if not box.contains(scanner.position)]
+    mounts = [box for box in boxes if box.contains(scanner.position)]
+    walk = np.linspace(0.0, 1.0, 401)
+
+    def through_mount(p) -> bool:
+        """The line runs deeper than the head's own depth through the pedestal the scanner sits in (a walk)."""
+        line = scanner.position + walk[:, None] * (p - scanner.position)
+        step = float(np.linalg.norm(p - scanner.position)) / (len(walk) - 1)
+        for box in mounts:
+            c, s = math.cos(box.yaw), math.sin(box.yaw)
+            d = line - box.center
+            local = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]], axis=1)
+            if np.all(np.abs(local) <= box.half, axis=1).sum() * step > scanner.mount_depth + step:
+                return True
+        return False
+
     fields = list(scanner.cfg.fields.values())
     inspector = query.inspector()
     best, nearest = 0, scanner.cfg.max_range
@@ -49,6 +66,8 @@ def reference(sf, scanner, query, legs):
                 if (X.rotation() @ normal) @ (scanner.position - p) <= 0.0:
                     continue  # the far side of the leg
                 if not scanner.band[0] <= p[2] <= scanner.band[1] or any(w.blocks(scanner.position, p) for w in walls):
+                    continue
+                if through_mount(p):
                     continue
                 nearest = min(nearest, float(np.linalg.norm(p - scanner.position)))
                 for k, spec in enumerate(fields, 1):

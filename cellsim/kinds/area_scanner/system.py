@@ -7,17 +7,20 @@ the polygon is not convex), and a person is *in* a field when their geometry
 meets it and the scanner sees them: the segment from the scanner to a point of
 the person in the field passes through no fixture. The points looked at are the
 one deepest in the field and, for a limb (a capsule: the legs), points along it
-every ``SIGHT_STEP`` within the beams' heights, each facing the scanner, 45 degrees
-either side and at either edge of the limb as the scanner sees it: a leg half hidden by a fixture's
-corner is seen by its other half, as by the real scanner's beams. A person
-wholly behind the press body is not detected: the beams do not pass through it.
-The beams sweep the heights of the fields (a floor-level scanner sees legs, not
-a head above a table).
+every ``SIGHT_STEP`` within the beams' heights, each facing the scanner, 30 and
+60 degrees either side and at either edge of the limb as the scanner sees it: a
+leg half hidden by a fixture's corner is seen by its other half, as by the real
+scanner's beams. A person wholly behind the press body is not detected: the
+beams do not pass through it, nor through the fixture the scanner is mounted in
+deeper than the head sits in it (a scanner in a pedestal's corner sees out past
+the corner, not through the pedestal). The beams sweep the heights of the fields
+(a floor-level scanner sees legs, not a head above a table).
 
 The ``field`` channel reads the innermost occupied field, else the clear
 reading named by the scenario; ``distance`` is the distance to the nearest
-point of a person the beams reach, of those looked at (``max_range`` when none). Shadowing its physical
-twin with no valid sample, it fails safe: the innermost field, distance 0.
+point of a person the beams reach, of those looked at (``max_range`` when
+none). Shadowing its physical twin with no valid sample, it fails safe: the
+innermost field, distance 0.
 """
 
 from __future__ import annotations
@@ -44,8 +47,9 @@ from cellsim.vocabulary import TwinMode, value_set
 SIGHT_STEP = 0.05
 """m: along a limb, how far apart the points the scanner looks at lie."""
 _NO_POINTS = np.empty((0, 3))
-_AROUND = [(1.0, 0.0), *((math.cos(a), sign * math.sin(a)) for a in (math.pi / 4, math.pi / 2) for sign in (1.0, -1.0))]
-"""Around a limb, the points looked at: facing the scanner, 45 degrees either side, and at its edges (90)."""
+_AROUND = [(1.0, 0.0), *((math.cos(a), sign * math.sin(a)) for a in (math.pi / 6, math.pi / 3, math.pi / 2)
+                          for sign in (1.0, -1.0))]
+"""Around a limb, the points looked at: facing the scanner, 30 and 60 degrees either side, and at its edges (90)."""
 
 class AreaScanner(GeometrySensor):
     """A safety laser scanner.
@@ -66,9 +70,14 @@ class AreaScanner(GeometrySensor):
         self.cfg = cfg
         self.position = np.array(cfg.position, float)
         self.readings = value_set(f"{module}_field", [cfg.clear, *cfg.fields])
-        # fixtures block the beams, except one the scanner is mounted inside
-        self.walls = [box for box in map(Box3.of, fixtures) if not box.contains(self.position)]
-        self.lines = SightLines(self.position, self.walls)
+        # fixtures block the beams; one the scanner is mounted inside, beyond the head's own depth in it
+        boxes = list(map(Box3.of, fixtures))
+        self.walls = [box for box in boxes if not box.contains(self.position)]
+        mounts = [box for box in boxes if box.contains(self.position)]
+        # how deep the head sits in its mount (to the nearest face), and its own radius: beams leave within that
+        self.mount_depth = min((float(np.min(box.half - np.abs(box.to_local(self.position)))) for box in mounts),
+                               default=0.0) + HEAD_RADIUS
+        self.lines = SightLines(self.position, boxes, self.mount_depth)
         # the heights the scanner's beams sweep: from its lowest field's bottom to its highest's top
         bounds = [corner[2] for spec in cfg.fields.values() for corner in spec.corners()]
         self.band = (min(bounds) - 1e-6, max(bounds) + 1e-6)
@@ -145,17 +154,21 @@ class AreaScanner(GeometrySensor):
         return Sight((channel,), sees)
 
     def seen(self, point) -> bool:
-        """Whether the beams reach ``point``: within the heights they sweep, through no fixture."""
+        """Whether the beams reach ``point``: within the heights they sweep, through no fixture (nor through the
+        one the scanner is mounted in, beyond the head's depth in it)."""
         if not self.band[0] <= point[2] <= self.band[1]:
             return False
-        return not any(wall.blocks(self.position, point) for wall in self.walls)
+        if any(wall.blocks(self.position, point) for wall in self.walls):
+            return False
+        return not self.lines.mounts or bool(self.lines.reach(np.asarray(point, float)[None, :])[0])
 
     def sight_points(self, query, target) -> np.ndarray:
         """The points the beams reach of a limb (a capsule), nearest the scanner first: of those along its axis
-        every SIGHT_STEP within the beams' heights, the points of its surface facing the scanner, 45 degrees either
-        side and at its edges as the scanner sees it, each seen through no fixture. None for another shape (its deepest or nearest
-        point alone is looked at). Kept while the limb stands where they were found (the field test and the
-        distance share them)."""
+        every SIGHT_STEP within the beams' heights, the points of its surface facing the scanner, 30 and 60
+        degrees either side and at its edges as the scanner sees it, each seen through no fixture (nor deeper than
+        the head's own depth through its mount). None for another shape (its deepest or nearest point alone is
+        looked at). Kept while the limb stands where they were found (the field test and the distance share
+        them)."""
         if self._limbs is None:
             from pydrake.geometry import Capsule
 
