@@ -12,6 +12,7 @@ from pydrake.geometry import GeometryInstance, MakePhongIllustrationProperties, 
 from pydrake.math import RigidTransform
 
 from cellsim.entity import EntitySystem
+from cellsim.systems import read_scalar, write_scalar
 
 HEAD_RADIUS = 0.05  # m, the scanner head's sphere
 REACH = 1.0
@@ -27,6 +28,17 @@ class GeometrySensor(EntitySystem):
         self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
         self.targets: tuple = ()
         self.target_set: frozenset = frozenset()
+        self._truth_before = self.declare_state("truth_before", [0.0])  # the truth at the last update (its code)
+
+    def held_to(self, context, xd, truly: float, physical: bool, less_restrictive) -> float:
+        """The truth (its code) a reading is held to for a blind spot: ``truly`` now; for a ``physical`` reading
+        (shadow or twin mode) the less restrictive (``less_restrictive(a, b)``) of it and the truth at the last
+        update, as a physical sensor takes up to its period (its response time) to show what the twin's geometry
+        shows at once: a person it saw one period later was not in its blind spot."""
+        before = read_scalar(context, self._truth_before)
+        if truly != before:
+            write_scalar(xd, self._truth_before, truly)
+        return less_restrictive(truly, before) if physical else truly
 
     def register_head(self, scene_graph, source, position) -> object:
         """The sensor head: a small sphere at ``position`` that distances are measured from; its GeometryId."""

@@ -100,7 +100,8 @@ class LightBarrier(GeometrySensor):
             broken = True
         else:
             broken = view.sample[0] > 0.5
-            truly = not broken and self.query_port.HasValue(context) and self.measure(context)
+            truly = self.query_port.HasValue(context) and self.measure(context)
+            truly = not broken and bool(self.held_to(context, xd, float(truly), True, min))
         if self.cfg.restart_interlock:
             write_scalar(xd, self._interrupted, 1.0 if broken else 0.0)
             broken = self._interlocked(context, xd, broken)
