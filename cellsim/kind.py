@@ -58,13 +58,14 @@ class Figure:
 class Finding:
     """What a run showed that its summary and report name with times and places, read back from its black box
     by the module's kind (:meth:`ModuleKind.findings`): a contact with a person, the closest approach, a blind spot,
-    a robot part faster than the harm service's looks assume;
+    a robot part faster than the harm service's looks assume, a true SSM margin falling faster than its monitor's
+    watch assumes;
     and, of a live twin's run, an entity whose samples it decided on slower than its scenario assumes
     (:func:`cellsim.live.reaction.reaction_findings`)."""
 
     subject: str
     """The module that measured it (``harm``, ``scanner``)."""
-    what: Literal["contact", "closest approach", "blind spot", "slow reaction", "fast part"]
+    what: Literal["contact", "closest approach", "blind spot", "slow reaction", "fast part", "fast fall"]
     start: float
     """When it began (s)."""
     end: float | None

@@ -30,39 +30,45 @@ STANDOFF = ROOT / "scenarios" / "machine_tending_standoff.yaml"
 WIDE = {**os.environ, "COLUMNS": "300"}
 
 
-def by_every_pair(ssm, context, reaction: float) -> tuple[float, float]:
-    """(the least over the arm's shapes of its nearest region's distance less S_p of its speed towards it, the
-    nearest pair's own margin), measured pair by pair with the plant's own velocity shift."""
+def by_every_pair(ssm, context, reaction: float) -> tuple[float, float, float]:
+    """(the least over every pair of an arm's shape and a body region of their distance less S_p of the shape's
+    speed towards the region; the same over each shape's nearest region alone; the nearest pair's own margin),
+    measured pair by pair with the plant's own velocity shift."""
     kin, sp = ssm.kinematics, ssm.parameters.true_protective_distance
     kin.plant.SetPositionsAndVelocities(kin.context, ssm.robot_state_port.Eval(context))
     query = ssm.query_port.Eval(context)
-    margins, nearest = [], None
+    every, nearest_region, nearest = [], [], None
     for arm in ssm.pairs.a.ids:
-        pair = min((query.ComputeSignedDistancePairClosestPoints(arm, region) for region in ssm.pairs.b.ids),
-                   key=lambda p: p.distance)
         body = ssm.bodies[arm]
-        p_W = witness_on(query, pair, arm)
-        velocity = body.EvalSpatialVelocityInWorld(kin.context).Shift(
-            p_W - body.EvalPoseInWorld(kin.context).translation()).translational()
-        towards = pair.nhat_BA_W if arm == pair.id_B else -pair.nhat_BA_W
-        speed = max(float(velocity @ towards) if pair.distance > 0 else float(np.linalg.norm(velocity)), 0.0)
-        margins.append(min(pair.distance, 10.0) - sp(speed, reaction))
-        if nearest is None or pair.distance < nearest[0]:
-            nearest = (pair.distance, margins[-1])
-    return min(margins), nearest[1]
+        measured = []
+        for region in ssm.pairs.b.ids:
+            pair = query.ComputeSignedDistancePairClosestPoints(arm, region)
+            p_W = witness_on(query, pair, arm)
+            velocity = body.EvalSpatialVelocityInWorld(kin.context).Shift(
+                p_W - body.EvalPoseInWorld(kin.context).translation()).translational()
+            towards = pair.nhat_BA_W if arm == pair.id_B else -pair.nhat_BA_W
+            speed = max(float(velocity @ towards) if pair.distance > 0 else float(np.linalg.norm(velocity)), 0.0)
+            measured.append((pair.distance, min(pair.distance, 10.0) - sp(speed, reaction)))
+        every += [margin for _, margin in measured]
+        nearest_region.append(min(measured)[1])
+        if nearest is None or min(measured)[0] < nearest[0]:
+            nearest = min(measured)
+    return min(every), min(nearest_region), nearest[1]
 
 
-def test_every_part_of_the_arm_is_judged_not_only_the_nearest():
-    """Random arm states (joints and joint speeds) beside a person: the margin is the least over the arm's parts,
-    measured pair by pair; in some of them a part farther than the nearest, moving towards the person, has the
-    lower margin (what the nearest pair alone missed)."""
+def test_every_pair_of_an_arm_part_and_a_body_region_is_judged():
+    """Random arm states (joints and joint speeds) beside a person: the margin is the least over every pair of an
+    arm part and a body region, measured pair by pair. In some of them a part farther than the nearest, moving
+    towards the person, has the lower margin (what the nearest pair alone missed), and in some a part's nearest
+    region is not its lowest (a part moving away from the upper arm, towards the pelvis: what a review found the
+    nearest region per part alone missed)."""
     built = build_cell(load_scenario(TENDING), seed=0, duration=1.0, record=False)
     context = Simulator(built.diagram).get_mutable_context()
     built.set_initial_state(context)
     ssm, plant = built.modules["ssm"], built.plant
     person = built.modules["operator"]
     rng = np.random.default_rng(11)
-    farther_lower = 0
+    farther_part = other_region = 0
     for _ in range(40):
         q = rng.uniform(-2.5, 2.5, 6)
         q[1] = rng.uniform(-2.2, -0.9)  # the upper arm up
@@ -71,10 +77,11 @@ def test_every_part_of_the_arm_is_judged_not_only_the_nearest():
         person.set_pose(context, [rng.uniform(-0.8, 1.2), rng.uniform(-1.6, -0.6), rng.uniform(-3, 3), 0, 0, 0, 0])
         own = ssm.GetMyContextFromRoot(context)
         for reaction in (0.1, 0.03):
-            least, nearest_only = by_every_pair(ssm, own, reaction)
+            least, per_part, nearest_only = by_every_pair(ssm, own, reaction)
             assert ssm.true_margin(own, reaction) == pytest.approx(least, abs=1e-9)
-            farther_lower += least < nearest_only - 1e-6
-    assert farther_lower >= 5, "the states never had a farther part with the lower margin: the test shows nothing"
+            farther_part += per_part < nearest_only - 1e-6
+            other_region += least < per_part - 1e-6
+    assert farther_part >= 5 and other_region >= 3, (farther_part, other_region)
 
 
 def test_a_margin_that_falls_below_zero_between_the_monitors_updates_is_caught(tmp_path):
@@ -98,16 +105,36 @@ def test_a_margin_that_falls_below_zero_between_the_monitors_updates_is_caught(t
 
 
 def test_the_margin_is_judged_one_plant_step_after_the_people_and_the_monitor_move():
-    """The judging schedule: one step after each multiple of the monitor's, the robot's and the person's periods
-    (0.02, 0.02, 0.04 s: every 0.02 s, at 2 ms), and the margin watched at every step below what it can fall
-    (5 m/s) in the 20 ms to the next judgement."""
+    """The judging schedule: one step after each update of the person (0.04 s) and, in ssmon, of the robot and the
+    monitor (0.02 s): every 0.02 s, at 2 ms; and the margin watched at every step below what it can fall (10 m/s)
+    in the 20 ms to the next judgement."""
     built = build_cell(load_scenario(TENDING), seed=0, duration=1.0, record=False)
     ssm = built.modules["ssm"]
     rounds, looks = ssm._truth_looks
     assert rounds == 20 and list(np.flatnonzero(looks)) == [1, 11]
-    assert ssm._watch_below == pytest.approx(5.0 * 0.02)
+    assert ssm._watch_below == pytest.approx(10.0 * 0.02)
     with_person_every_30ms = build_cell(load_scenario(TENDING, ["operator.period=0.03"]), seed=0, duration=1.0,
                                         record=False).modules["ssm"]
     rounds, looks = with_person_every_30ms._truth_looks
     assert rounds == 30 and list(np.flatnonzero(looks)) == [1, 11, 16, 21]
-    assert with_person_every_30ms._watch_below == pytest.approx(5.0 * 0.020)  # the longest wait: 10 steps
+    assert with_person_every_30ms._watch_below == pytest.approx(10.0 * 0.020)  # the longest wait: 10 steps
+    # in a live twin the monitor decides a step after the entities' updates: its judgement a step after that
+    ssm.decide_after(0.002)
+    rounds, looks = ssm._truth_looks
+    assert list(np.flatnonzero(looks)) == [1, 2, 11, 12] and looks[2] == looks[12] == 2 and looks[1] == 1
+
+
+def test_a_margin_falling_faster_than_the_watch_assumes_is_a_finding_of_the_run(tmp_path):
+    """The machine-tending cell's margin falls at up to about 3.5 m/s between two judgements it was not watched
+    between: with max_margin_fall 1 m/s the summary says a dip below 0 between them may have been missed; at the
+    default (10 m/s) it says nothing of it."""
+    def run(name, *overrides):
+        done = subprocess.run([sys.executable, "-m", "cellsim", "simulate", str(TENDING), "--out", str(tmp_path / name),
+                               "--duration", "15", *(a for o in overrides for a in ("--set", o))],
+                              capture_output=True, text=True, timeout=600, env=WIDE)
+        assert done.returncode in (0, 1), done.stderr
+        return done.stdout
+
+    slow = run("slow", "ssm.max_margin_fall=1")
+    assert "fast fall" in slow and "faster than the 1 m/s it assumes" in slow
+    assert "fast fall" not in run("default")

@@ -496,7 +496,7 @@ def _harm(results: Mapping, runs: Sequence[Mapping]) -> dict:
     completed = [r for r in runs if not _is_failed(r)]
     regions: dict[str, dict] = {}
     blind: dict[tuple[str, str], dict] = {}
-    fast: list[dict] = []  # runs where a robot part was faster than the service's looks assume
+    fast: list[dict] = []  # runs whose measurement was outrun between two looks (a part too fast, a margin falling)
     closest = None
     for run in completed:
         index = _run_index(run, runs.index(run))
@@ -521,9 +521,8 @@ def _harm(results: Mapping, runs: Sequence[Mapping]) -> dict:
                 end = f.get("end") if is_number(f.get("end")) else _dict(results.get("campaign")).get("duration")
                 if is_number(end) and is_number(f.get("start")):
                     entry["seconds"] += end - f["start"]
-            elif f.get("what") == "fast part":
-                fast.append({"run": index, "speed": sig3(f["speed"]) if is_number(f.get("speed")) else "?",
-                             "assumed": f.get("max_part_speed")})
+            elif f.get("what") in ("fast part", "fast fall"):
+                fast.append({"run": index, "text": str(f.get("text", ""))})
             elif f.get("what") == "closest approach" and is_number(f.get("distance")):
                 if closest is None or f["distance"] < closest["distance"]:
                     closest = {**f, "run": index}

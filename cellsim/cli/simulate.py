@@ -115,13 +115,13 @@ def findings_lines(summary, most: int = 6) -> list[tuple[str, str]]:
     at most ``most`` of each kind (and how many more), and the default conditions it waives with its reasons."""
     rows = []
     for what, label in (("closest approach", "closest approach"), ("contact", "contact"), ("blind spot", "blind spot"),
-                        ("slow reaction", "slow reaction"), ("fast part", "fast part")):
+                        ("slow reaction", "slow reaction"), ("fast part", "fast part"), ("fast fall", "fast fall")):
         found = [f for f in summary.findings if f.what == what]
         if what == "contact":
             found.sort(key=lambda f: -f.data.get("severity", 0.0))
         for f in found[:most]:
             when = f"{f.start:.2f} s to the end" if f.end is None else f"{f.start:.2f}-{f.end:.2f} s"
-            text = f"[red]{f.text}[/red]" if f.data.get("severity", 0.0) > 1.0 or what in ("slow reaction", "fast part") else f.text
+            text = f"[red]{f.text}[/red]" if f.data.get("severity", 0.0) > 1.0 or what in ("slow reaction", "fast part", "fast fall") else f.text
             rows.append((label, f"{text} ({when})" if what != "closest approach" else text))
         if len(found) > most:
             rows.append((label, f"... and {len(found) - most} more (cellsim report, or the black box)"))

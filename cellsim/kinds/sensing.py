@@ -29,16 +29,21 @@ class GeometrySensor(EntitySystem):
         self.targets: tuple = ()
         self.target_set: frozenset = frozenset()
         self._truth_before = self.declare_state("truth_before", [0.0])  # the truth at the last update (its code)
+        self._reading_before = self.declare_state("reading_before", [0.0])  # the reading then (its code)
 
-    def held_to(self, context, xd, truly: float, physical: bool, less_restrictive) -> float:
-        """The truth (its code) a reading is held to for a blind spot: ``truly`` now; for a ``physical`` reading
-        (shadow or twin mode) the less restrictive (``less_restrictive(a, b)``) of it and the truth at the last
-        update, as a physical sensor takes up to its period (its response time) to show what the twin's geometry
-        shows at once: a person it saw one period later was not in its blind spot."""
-        before = read_scalar(context, self._truth_before)
-        if truly != before:
+    def held_to(self, context, xd, truly: float, reading: float, physical: bool, stricter) -> tuple[float, float]:
+        """(the truth, the reading) a blind spot is judged on, as codes: ``truly`` and ``reading`` now for the
+        geometry's own reading (model mode); for a ``physical`` one (shadow or twin mode) the truth at the last
+        update and the stricter (``stricter(a, b)``) of the readings then and now. A physical sensor takes up to
+        its period (its response time) to show what the twin's geometry shows at once: a person it showed one
+        period later was not in its blind spot, and one it never showed was, however briefly they were there. A
+        physical blind spot is so reported one period after it began."""
+        truth_before, reading_before = read_scalar(context, self._truth_before), read_scalar(context, self._reading_before)
+        if truly != truth_before:
             write_scalar(xd, self._truth_before, truly)
-        return less_restrictive(truly, before) if physical else truly
+        if reading != reading_before:
+            write_scalar(xd, self._reading_before, reading)
+        return (truth_before, stricter(reading_before, reading)) if physical else (truly, reading)
 
     def register_head(self, scene_graph, source, position) -> object:
         """The sensor head: a small sphere at ``position`` that distances are measured from; its GeometryId."""

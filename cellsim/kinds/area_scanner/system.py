@@ -270,11 +270,17 @@ class AreaScanner(GeometrySensor):
         else:
             reading, distance = int(view.sample[0]), float(view.sample[1])
         # a blind spot: someone truly in a field more restrictive than the reading (clear reads as beyond them all)
-        truly = int(self.held_to(context, xd, float(truly), view.mode is not TwinMode.MODEL and view.sample is not None,
-                                 lambda a, b: 0.0 if a == 0 or b == 0 else max(a, b)))
-        unseen = truly if truly and (reading == 0 or truly < reading) else 0
+        truly, judged = self.held_to(context, xd, float(truly), float(reading),
+                                     view.mode is not TwinMode.MODEL and view.sample is not None, _stricter_field)
+        truly, judged = int(truly), int(judged)
+        unseen = truly if truly and (judged == 0 or truly < judged) else 0
         published = [context.get_discrete_state(g)[0] for g in (*self._outputs, self._unseen)]
         write_changed(xd, [*self._outputs, self._unseen], [float(reading), distance, float(unseen)], published)
+
+
+def _stricter_field(a: float, b: float) -> float:
+    """The more restrictive of two field readings (codes; 0, clear, the least; 1, the innermost field, the most)."""
+    return b if a == 0 else a if b == 0 else min(a, b)
 
 
 def _occupied_look(channel: str, field_name: str):

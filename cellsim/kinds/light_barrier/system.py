@@ -93,20 +93,21 @@ class LightBarrier(GeometrySensor):
 
     def update(self, context, xd):
         view = self.consult_physical(context, xd)
-        truly = False  # a body in the beams the reading does not show (in model mode the reading is the geometry)
+        physical = view.mode is not TwinMode.MODEL and view.sample is not None
         if view.mode is TwinMode.MODEL:
-            broken = self.measure(context)
+            truly = broken = self.measure(context)  # the reading is the geometry: it misses nobody
         elif view.sample is None:
-            broken = True
+            truly, broken = False, True  # failing safe: broken
         else:
             broken = view.sample[0] > 0.5
             truly = self.query_port.HasValue(context) and self.measure(context)
-            truly = not broken and bool(self.held_to(context, xd, float(truly), True, min))
         if self.cfg.restart_interlock:
             write_scalar(xd, self._interrupted, 1.0 if broken else 0.0)
             broken = self._interlocked(context, xd, broken)
         write_scalar(xd, self._broken, 1.0 if broken else 0.0)
-        unseen = 1.0 if truly and not broken else 0.0
+        # a blind spot: a body in the beams the reading (latched, with an interlock) never showed
+        truth, shown = self.held_to(context, xd, 1.0 if truly else 0.0, 1.0 if broken else 0.0, physical, max)
+        unseen = 1.0 if truth and not shown else 0.0
         if unseen != read_scalar(context, self._unseen):
             write_scalar(xd, self._unseen, unseen)
 

@@ -112,9 +112,10 @@ class RangeDetector(GeometrySensor):
         write_scalar(xd, self._distance, distance)
         # a blind spot: someone truly in a zone more restrictive than the reading (noise, or the physical sensor)
         truly = Range.FAR if true_distance is None else self.classify(true_distance)
-        truly = Range.from_code(int(self.held_to(
-            context, xd, float(truly.code), view.mode is not TwinMode.MODEL and view.sample is not None,
-            lambda a, b: min(a, b, key=lambda code: _RESTRICTIVE[Range.from_code(int(code))]))))
+        truth, judged = self.held_to(
+            context, xd, float(truly.code), float(reading.code), view.mode is not TwinMode.MODEL and view.sample is not None,
+            lambda a, b: max(a, b, key=lambda code: _RESTRICTIVE[Range.from_code(int(code))]))
+        truly, reading = Range.from_code(int(truth)), Range.from_code(int(judged))
         unseen = truly.value if _RESTRICTIVE[truly] > _RESTRICTIVE[reading] else "none"
         code = self.unseen_readings(unseen).code
         if code != read_scalar(context, self._unseen):

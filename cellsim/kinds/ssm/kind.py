@@ -23,6 +23,8 @@ class SsmKind(ModuleKind):
         ("margin", "number, m", "separation less S_p (negative: too fast for the separation)"),
         ("speed_limit", "number, m/s", "the speed the robot may have now; the robot follows it in ssmon"),
         ("true_margin", "number, m", "on the truth: true separation less S_p of the true speed, no allowances"),
+        ("unwatched_margin_fall", "number, m/s",
+         "the fastest the true margin fell in ssmon between two judgements not watched at every step"),
     )
 
     def build(self, cell, name, cfg):
@@ -38,6 +40,24 @@ class SsmKind(ModuleKind):
             f"G({cfg.robot}.safety_mode == ssmon -> {name}.true_margin >= 0)",
             "While a monitored arm is in speed and separation monitoring, its true separation from every person "
             "exceeds the protective distance of its true speed.")}
+
+    def findings(self, name, cfg, blackbox):
+        """A true margin seen falling faster than ``max_margin_fall`` between two judgements (a dip may be missed)."""
+        from cellsim.kind import Finding
+
+        channel = f"{name}.unwatched_margin_fall"
+        if channel not in blackbox.channels():
+            return []
+        series = blackbox.series(channel)
+        over = [(t, v) for t, v in zip(series.times.tolist(), series.values) if isinstance(v, (int, float))
+                and v > cfg.max_margin_fall]
+        if not over:
+            return []
+        fastest = max(v for _, v in over)
+        return [Finding(name, "fast fall", over[0][0], None,
+                        f"the true margin fell at {fastest:.3g} m/s between two of {name}'s judgements, faster than the "
+                        f"{cfg.max_margin_fall:g} m/s it assumes there: a dip below 0 between them may have been missed "
+                        f"(raise {name}.max_margin_fall)", {"speed": fastest, "max_margin_fall": cfg.max_margin_fall})]
 
     def abstraction(self, abstract, name, cfg):
         """It only watches: nothing of it enters the abstract cell."""

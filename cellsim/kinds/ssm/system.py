@@ -48,13 +48,15 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject
 
-from cellsim.channels import enum_type, number_type
+from cellsim.channels import number_type
 from cellsim.kinds.ssm.config import GEOMETRY, SsmConfig
 from cellsim.proximity import NearestPair, witness_on
 from cellsim.systems import UNCHANGED, CellSystem, read_scalar, write_scalar
 from cellsim.vocabulary import SafetyMode
 
 _SSMON = float(SafetyMode.SPEED_SEPARATION.code)
+_JUDGED = ("true_margin", "unwatched_margin_fall")
+"""The channels the truth's own event writes, at the plant step."""
 FAR_AWAY = 10.0
 """m: the separation read with nobody in the cell."""
 DISC_RADIUS = 0.5
@@ -87,6 +89,12 @@ class SsmParameters:
         stopping_time = v_r / a
         return v_h * (t_r + stopping_time) + v_r * t_r + v_r * v_r / (2.0 * a) + self.allowances
 
+    def true_protective_distances(self, robot_speeds: np.ndarray, reaction: float) -> np.ndarray:
+        """:meth:`true_protective_distance` of many speeds at once (m/s, an array; ``reaction`` s still to come)."""
+        v_h, a = self.human_speed, self.deceleration
+        v_r = np.maximum(robot_speeds, 0.0)
+        return v_h * (reaction + v_r / a) + v_r * reaction + v_r * v_r / (2.0 * a)
+
     def true_protective_distance(self, robot_speed: float, reaction: float | None = None) -> float:
         """S_p (m) on the truth: the true speed towards the person and no allowances (C, Z_d and Z_r are for what
         a sensor cannot know); the person's speed is still v_h, which they may take at any instant."""
@@ -114,9 +122,11 @@ class SpeedSeparationMonitor(CellSystem):
       protective_distance (channel, m): S_p for the robot's current speed towards the person.
       margin (channel, m): d - S_p.
       speed_limit (channel, m/s): v_max, the speed the robot may have now (its speed_limit input).
-      true_margin (channel, m): on the truth, whatever the monitor's separation comes from: the least, over the
-        arm's shapes, of a shape's true separation from the nearest body region less S_p of its true speed towards
-        that region, with no allowances; read up to FAR_AWAY (a falsification search climbs it from
+      unwatched_margin_fall (channel, m/s): the fastest the true margin fell, in ssmon, between two judgements it
+        was not watched between (above ``max_margin_fall``: a dip below 0 between them may have been missed).
+      true_margin (channel, m): on the truth, whatever the monitor's separation comes from: the least, over every
+        pair of an arm's shape and a person's body region, of their true separation less S_p of the shape's true
+        speed towards that region, with no allowances; read up to FAR_AWAY (a falsification search climbs it from
         anywhere in the cell). Judged one plant step after each of the monitor's updates and each person's (a
         person's move is seen at once, not at the monitor's next update), and at every plant step while it is
         near 0 (``max_margin_fall``): see ``watch_truth``.
@@ -132,8 +142,8 @@ class SpeedSeparationMonitor(CellSystem):
         self.cap = cap
         self.from_geometry = cfg.separation == GEOMETRY
         self.robot_state_port = self.declare_input("robot_state", 2 * kinematics.num_joints)
-        self.robot_mode_port = self.declare_input("robot_safety_mode", ctype=enum_type(SafetyMode),
-                                                  default=SafetyMode.SPEED_SEPARATION.code)
+        # (its builder wires it, no controller drives it: untyped)
+        self.robot_mode_port = self.declare_input("robot_safety_mode", default=SafetyMode.SPEED_SEPARATION.code)
         self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
         if not self.from_geometry:
             self.separation_port = self.declare_input("separation_measured")
@@ -195,40 +205,55 @@ class SpeedSeparationMonitor(CellSystem):
     def watch_truth(self, step: float, people: list[float], robot: float, max_fall: float) -> None:
         """Judge ``true_margin`` in an event of its own at the plant step (``step``, s): one step after each update
         of the people (their ``people`` periods, s, from t = 0; Drake's updates at one time read the state before
-        any, so judged at this monitor's own update it would see a person's move a period late), one step after
-        each of the robot's (its ``robot`` period) while it is in ssmon (where TrueSSM judges the margin; its
-        mode changes at its updates), and, in ssmon, at every step while the margin is nearer 0 than it can fall,
-        at ``max_fall`` m/s, before the next of those."""
+        any, so judged at this monitor's own update it would see a person's move a period late); while the robot
+        is in ssmon (where TrueSSM judges the margin), one step after each of the robot's updates (its ``robot``
+        period: its mode changes then) and of this monitor's (a stop order lifted raises S_p at once); and, in
+        ssmon, at every step while the margin is nearer 0 than it can fall, at ``max_fall`` m/s, before the next
+        of those."""
         from dataclasses import replace
 
-        always = [max(1, round(p / step)) for p in people] or [max(1, round(self.period / step))]
-        in_ssmon = max(1, round(robot / step))
-        rounds = math.lcm(*always, in_ssmon)
+        self._step = step
+        self._truth_periods = (list(people), robot, max_fall)
+        self._close = self.declare_state("truth_close", [0.0])  # 1: judged at every step
+        self._judged = self.declare_state("truth_judged", [math.nan, math.nan])  # (s, m): the last judgement
+        self._fall = self.declare_channel(
+            "unwatched_margin_fall", number_type("m/s"), 0.0,
+            description="Fastest the true margin fell between two judgements in ssmon not watched at every step")
+        self._schedule_truth()
+        self.DeclarePeriodicDiscreteUpdateEvent(step, 0.0, self._judge_truth)
+        self.channels = [(replace(spec, period=step, offset=0.0) if spec.signal in _JUDGED else spec, port)
+                         for spec, port in self.channels]
+
+    def _schedule_truth(self) -> None:
+        """The judging schedule of :meth:`watch_truth`, with this monitor's own updates at its offset."""
+        step = self._step
+        people, robot, max_fall = self._truth_periods
+        always = [max(1, round(p / step)) for p in people]
+        in_ssmon = [(max(1, round(robot / step)), 1), (max(1, round(self.period / step)), round(self.offset / step) + 1)]
+        rounds = math.lcm(*always, *(every for every, _ in in_ssmon))
         if rounds > 1_000_000:
-            raise ValueError(f"{self.module}: the robot's and the people's periods have no common multiple within "
-                             f"{1_000_000 * step:g} s; make them multiples of one another")
+            raise ValueError(f"{self.module}: the robot's, the people's and its own periods have no common multiple "
+                             f"within {1_000_000 * step:g} s; make them multiples of one another")
         looks = np.zeros(rounds, dtype=np.int8)  # 0: no look; 1: a look; 2: a look while the robot is in ssmon
-        looks[1 % in_ssmon::in_ssmon] = 2
+        for every, phase in in_ssmon:
+            looks[phase % every::every] = 2
         for every in always:
             looks[1 % every::every] = 1
         at = np.flatnonzero(looks)
         gap = int(max(np.diff(at).max(initial=0), at[0] + rounds - at[-1]))  # the longest wait in ssmon, in steps
-        self._step = step
         self._truth_looks = (rounds, looks)
         self._watch_below = max_fall * gap * step
         """m: a true margin above this at a judgement cannot reach 0 before the next scheduled one."""
-        self._close = self.declare_state("truth_close", [0.0])  # 1: judged at every step
-        self.DeclarePeriodicDiscreteUpdateEvent(step, 0.0, self._judge_truth)
-        self.channels = [(replace(spec, period=step, offset=0.0) if spec.signal == "true_margin" else spec, port)
-                         for spec, port in self.channels]
 
     def decide_after(self, offset: float) -> None:
-        """As any module's; the true margin stays judged at the plant step (:meth:`watch_truth`)."""
+        """As any module's; the true margin stays judged at the plant step (:meth:`watch_truth`), one step after this
+        monitor's updates at their offset."""
         from dataclasses import replace
 
         super().decide_after(offset)
         if getattr(self, "_truth_looks", None) is not None:
-            self.channels = [(replace(spec, offset=0.0) if spec.signal == "true_margin" else spec, port)
+            self._schedule_truth()
+            self.channels = [(replace(spec, offset=0.0) if spec.signal in _JUDGED else spec, port)
                              for spec, port in self.channels]
 
     def measure(self, context) -> tuple[float, float]:
@@ -272,42 +297,58 @@ class SpeedSeparationMonitor(CellSystem):
         return max(speed if arm == pair.id_B else -speed, 0.0)
 
     def true_margin(self, context, reaction: float) -> float:
-        """The least, over the arm's shapes, of the shape's true separation from the nearest body region less S_p
-        (no allowances, ``reaction`` s of reaction still to come) of its true speed towards that region; read up to
-        FAR_AWAY. Shapes are measured in order of a lower bound (their bounding sphere's distance from any region's
-        less S_p of the shape's fastest point), until none can be lower than the least found."""
+        """The least, over every pair of an arm's shape and a body region, of their true separation less S_p (no
+        allowances, ``reaction`` s of reaction still to come) of the shape's true speed towards that region; read up
+        to FAR_AWAY. Pairs are measured in order of a lower bound (their bounding spheres' distance less S_p of the
+        shape's fastest point: its sphere centre's speed and the sphere's radius turning), until none can be lower
+        than the least found."""
         kin, sp = self.kinematics, self.parameters.true_protective_distance
         least = FAR_AWAY - sp(0.0, reaction)
         if not self.pairs:
             return least
         kin.plant.SetPositionsAndVelocities(kin.context, self.robot_state_port.Eval(context))
         query = self.query_port.Eval(context)
-        centres = self.pairs.a.centres(query)
-        bounds = self.pairs.bounds_from(centres, self.pairs.b.centres(query))
+        centres, regions = self.pairs.a.centres(query), self.pairs.b.centres(query)
+        bounds = self.pairs.bounds_from(centres, regions)
         ids_a, ids_b = self.pairs.a.ids, self.pairs.b.ids
         motion = [self.bodies[g].EvalSpatialVelocityInWorld(kin.context).get_coeffs() for g in ids_a]
-        fastest = []  # each shape's fastest point: its sphere centre's speed and the sphere's radius turning
+        # each shape's sphere centre's velocity, and its points' most beyond that (the sphere's radius turning)
+        centre_v = np.empty((len(ids_a), 3))
+        turning = np.empty(len(ids_a))
         for i, g in enumerate(ids_a):
             wx, wy, wz, vx, vy, vz = motion[i].tolist()
             rx, ry, rz = (centres[i] - self.bodies[g].EvalPoseInWorld(kin.context).translation()).tolist()
-            vx, vy, vz = vx + wy * rz - wz * ry, vy + wz * rx - wx * rz, vz + wx * ry - wy * rx
-            fastest.append(math.sqrt(vx * vx + vy * vy + vz * vz)
-                           + self.pairs.a.radii[i] * math.sqrt(wx * wx + wy * wy + wz * wz))
-        nearest = bounds.min(axis=1)
-        lower = [bound - sp(v, reaction) if bound <= FAR_AWAY else math.inf for bound, v in zip(nearest, fastest)]
-        for i in np.argsort(lower, kind="stable"):
-            if not lower[i] < least:
-                break  # no shape from here on can have a lower margin
-            row = bounds[i]
-            pair, distance = None, FAR_AWAY
-            for j in np.argsort(row, kind="stable"):
-                if row[j] > distance:
-                    break
-                found = query.ComputeSignedDistancePairClosestPoints(ids_a[i], ids_b[j])
-                if found.distance < distance or pair is None and found.distance <= FAR_AWAY:
-                    pair, distance = found, found.distance
-            if pair is not None:
-                least = min(least, distance - sp(self._towards(query, pair, motion[i]), reaction))
+            centre_v[i] = (vx + wy * rz - wz * ry, vy + wz * rx - wx * rz, vz + wx * ry - wy * rx)
+            w = math.sqrt(wx * wx + wy * wy + wz * wz)
+            turning[i] = self.pairs.a.radii[i] * w if w else 0.0  # (no NaN from a sphere of no bound standing still)
+        speed = np.linalg.norm(centre_v, axis=1)
+        fastest = (speed + turning)[:, None]
+        # towards a region the witness points' direction lies within asin((r_i + r_j) / D) of the centres': the
+        # speed along it is at most the centre's along the centres' direction, plus its speed times the two
+        # directions' distance (2 sin of half that angle), plus the turning; spheres that meet: the whole speed
+        apart = regions[None, :, :] - centres[:, None, :]
+        distance = np.linalg.norm(apart, axis=2)
+        spread = self.pairs._radii / np.maximum(distance, 1e-12)
+        separate = spread < 1.0
+        along = np.einsum("ik,ijk->ij", centre_v, apart) / np.maximum(distance, 1e-12)
+        skew = 2.0 * np.sin(0.5 * np.arcsin(np.minimum(spread, 1.0)))
+        towards = np.where(separate, np.maximum(along + speed[:, None] * skew, 0.0) + turning[:, None], fastest)
+        towards = np.minimum(towards, fastest)
+        lower = bounds - self.parameters.true_protective_distances(towards, reaction)
+        lower[bounds > FAR_AWAY] = np.inf  # beyond FAR_AWAY a pair reads as nobody near
+        lower[np.isnan(lower)] = -np.inf  # a shape no sphere holds: measured first
+        flat = lower.ravel()
+        columns = lower.shape[1]
+        for k in np.argsort(flat, kind="stable"):
+            if not flat[k] < least:
+                break  # no pair from here on can have a lower margin
+            i, j = divmod(int(k), columns)
+            pair = query.ComputeSignedDistancePairClosestPoints(ids_a[i], ids_b[j])
+            if pair.distance > FAR_AWAY:
+                continue
+            bound = sp(towards[i, j], reaction) if pair.distance > 0.0 else sp(fastest[i, 0], reaction)
+            if pair.distance - bound < least:  # its exact distance, its speed bounded: worth its witness's speed
+                least = min(least, pair.distance - sp(self._towards(query, pair, motion[i]), reaction))
         return least
 
     def _reaction(self, context, t: float, since: float) -> float:
@@ -327,9 +368,14 @@ class SpeedSeparationMonitor(CellSystem):
                 return UNCHANGED
         reaction = self._reaction(context, t, read_scalar(context, self._stop_ordered))
         margin = self.true_margin(context, reaction)
-        now_close = margin < self._watch_below and self.robot_mode_port.Eval(context)[0] == _SSMON
-        if margin == read_scalar(context, self._true_margin) and now_close == close:
-            return UNCHANGED
+        in_ssmon = self.robot_mode_port.Eval(context)[0] == _SSMON
+        now_close = margin < self._watch_below and in_ssmon
+        then, before = context.get_discrete_state(self._judged).get_value()
+        if in_ssmon and not close and t > then:  # an interval watched only at its ends: how fast did it fall?
+            fall = (before - margin) / (t - then)
+            if fall > read_scalar(context, self._fall):
+                write_scalar(xd, self._fall, fall)
+        xd.get_mutable_vector(self._judged).SetFromVector([t, margin])
         write_scalar(xd, self._true_margin, margin)
         write_scalar(xd, self._close, 1.0 if now_close else 0.0)
         return None
