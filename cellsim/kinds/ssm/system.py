@@ -334,7 +334,8 @@ class SpeedSeparationMonitor(CellSystem):
         skew = 2.0 * np.sin(0.5 * np.arcsin(np.minimum(spread, 1.0)))
         towards = np.where(separate, np.maximum(along + speed[:, None] * skew, 0.0) + turning[:, None], fastest)
         towards = np.minimum(towards, fastest)
-        lower = bounds - self.parameters.true_protective_distances(towards, reaction)
+        protective = self.parameters.true_protective_distances(towards, reaction)  # each pair's at its bound speed
+        lower = bounds - protective
         lower[bounds > FAR_AWAY] = np.inf  # beyond FAR_AWAY a pair reads as nobody near
         lower[np.isnan(lower)] = -np.inf  # a shape no sphere holds: measured first
         flat = lower.ravel()
@@ -346,7 +347,7 @@ class SpeedSeparationMonitor(CellSystem):
             pair = query.ComputeSignedDistancePairClosestPoints(ids_a[i], ids_b[j])
             if pair.distance > FAR_AWAY:
                 continue
-            bound = sp(towards[i, j], reaction) if pair.distance > 0.0 else sp(fastest[i, 0], reaction)
+            bound = protective[i, j] if pair.distance > 0.0 else sp(fastest[i, 0], reaction)
             if pair.distance - bound < least:  # its exact distance, its speed bounded: worth its witness's speed
                 least = min(least, pair.distance - sp(self._towards(query, pair, motion[i]), reaction))
         return least
