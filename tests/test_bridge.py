@@ -729,6 +729,7 @@ def test_a_twin_mode_that_is_not_one_is_refused_and_the_mode_stays_as_it_was(ses
     hub, _ = sessions
     bridge = Bridge(load_bridge(e2e_config), hub)
     try:
+        bridge.take(("alive", None, True, 0.0))  # modes are taken from a living twin only (test_ur)
         bridge.take(("mode", "welder", codec.encode_value(1.0, 0.5, "twin"), 0.0))
         assert bridge.twin_mode("welder") is TwinMode.TWIN and bridge.refused_messages == 0
         for bad in (codec.encode_value(1.0, 0.6, "flying"), codec.encode_value(1.0, 0.7, 3), b"{not json"):

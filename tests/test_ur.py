@@ -633,3 +633,25 @@ def test_emulate_on_a_port_already_taken_is_one_line_naming_it_exit_2_and_writes
     said = proc.stderr.strip().splitlines()[-1]
     assert said.startswith("cellsim: error: cannot serve the devices' protocols") and str(busy) in said, proc.stderr
     assert not (tmp_path / "emulator").exists()  # refused before anything is recorded
+
+
+def test_a_twin_mode_heard_while_the_twin_is_lost_is_refused(sessions, tmp_path, program):  # noqa: F811
+    """A mode message while the twin's liveliness is gone (stale, or forged with a leaked key) could release a robot
+    the daemon holds safe: it is refused, counted, and the mode stays as it was; once the twin is alive, its modes
+    are taken."""
+    hub, _ = sessions
+    bridge = Bridge(load_bridge(ur_config(tmp_path, 9)), hub)  # never dialled: the daemon's loop is not run
+    try:
+        shadow = json.dumps({"t": time.time(), "sim_time": 0.0, "value": "shadow"}).encode()
+        bridge.take(("alive", None, False, 0.0))
+        refused = bridge.refused_messages
+        bridge.take(("mode", "robot", shadow, 0.0))
+        assert bridge.twin_mode("robot") is None and bridge.refused_messages == refused + 1
+        bridge.take(("alive", None, True, 0.0))
+        bridge.take(("mode", "robot", shadow, 0.0))
+        assert bridge.twin_mode("robot") is TwinMode.SHADOW
+        bridge.take(("alive", None, False, 0.0))  # lost again: a later mode does not change what was heard
+        bridge.take(("mode", "robot", json.dumps({"t": time.time(), "sim_time": 1.0, "value": "model"}).encode(), 0.0))
+        assert bridge.twin_mode("robot") is TwinMode.SHADOW
+    finally:
+        bridge.close()

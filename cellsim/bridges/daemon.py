@@ -23,7 +23,8 @@ robot gets requests on its controller's request key the same way. A UR program
 and a PLC are told instead, at the command cycle, that the twin does not command
 the entity (``release``: no request, their heartbeat still counting), so that
 their own watch on the daemon's heartbeat tells a lost daemon from a twin that
-only watches.
+only watches. Twin modes are taken only while the twin is alive: a mode heard
+while it is lost is refused (the twin republishes its modes every second).
 
 **Diagnostics** per device (``cellsim.bridges.diagnostics``) and the daemon's own
 status (frames, added latency) go out on ``cellsim/<cell>/diagnostics/...``.
@@ -307,6 +308,11 @@ class Bridge:
             self._twin_alive = payload
             return
         if kind == "mode":
+            if not self._twin_alive:
+                # only the living twin says what it twins: a mode heard while it is lost (a stale or forged one) could
+                # release a device the daemon holds safe; the twin publishes its modes every second, heard once alive
+                self.refused_messages += 1
+                return
             try:
                 _, value = codec.decode_value(payload)
             except CodecError:
