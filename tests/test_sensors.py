@@ -202,6 +202,22 @@ def test_a_person_in_the_beams_at_one_update_only_that_the_sensor_never_showed_i
     assert system.unseen_readings.from_code(after.get_vector(system.group("unseen"))[0]).value == "beams"
 
 
+def test_a_person_the_physical_sensor_loses_for_one_update_is_in_its_blind_spot(shadowed):
+    """A review found the one-update-later rule let a standing person whom the physical sensor lost for one update
+    pass (every judgement had a reading that showed them): someone truly there since the last update is shown by
+    now, so a reading that does not show them is a blind spot at once."""
+    built, context = shadowed
+    rd = built.modules["range_detector"]
+    own = rd.GetMyMutableContextFromRoot(context)
+    sensor = np.array(rd.cfg.position)
+    put_operator(built, context, *(sensor[:2] - [0.5, 0.0]))  # close, all along
+    rd.physical_sample_port.FixValue(own, np.array([own.get_time(), 1.0, Range.FAR.code, 3.0]))  # lost now
+    own.get_mutable_discrete_state(rd.group("truth_before")).SetAtIndex(0, float(Range.CLOSE.code))
+    own.get_mutable_discrete_state(rd.group("reading_before")).SetAtIndex(0, float(Range.CLOSE.code))  # shown then
+    after = rd.EvalUniquePeriodicDiscreteUpdate(own)
+    assert rd.unseen_readings.from_code(after.get_vector(rd.group("unseen"))[0]).value == "close"
+
+
 def test_the_range_detectors_noise_can_hide_a_person_and_the_twin_says_so(cell):
     """In model mode the reading is the true distance plus noise: noise pushing a person just inside the near zone
     out of it is a blind spot the geometry shows."""

@@ -125,9 +125,9 @@ def test_the_margin_is_judged_one_plant_step_after_the_people_and_the_monitor_mo
 
 
 def test_a_margin_falling_faster_than_the_watch_assumes_is_a_finding_of_the_run(tmp_path):
-    """The machine-tending cell's margin falls at up to about 3.5 m/s between two judgements it was not watched
-    between: with max_margin_fall 1 m/s the summary says a dip below 0 between them may have been missed; at the
-    default (10 m/s) it says nothing of it."""
+    """The machine-tending cell's margin falls at up to about 1.4 m/s (the robot alone moving) between two
+    judgements it was not watched between: with max_margin_fall 1 m/s the summary says a dip below 0 between them
+    may have been missed; at the default (10 m/s) it says nothing of it."""
     def run(name, *overrides):
         done = subprocess.run([sys.executable, "-m", "cellsim", "simulate", str(TENDING), "--out", str(tmp_path / name),
                                "--duration", "15", *(a for o in overrides for a in ("--set", o))],

@@ -31,19 +31,24 @@ class GeometrySensor(EntitySystem):
         self._truth_before = self.declare_state("truth_before", [0.0])  # the truth at the last update (its code)
         self._reading_before = self.declare_state("reading_before", [0.0])  # the reading then (its code)
 
-    def held_to(self, context, xd, truly: float, reading: float, physical: bool, stricter) -> tuple[float, float]:
-        """(the truth, the reading) a blind spot is judged on, as codes: ``truly`` and ``reading`` now for the
-        geometry's own reading (model mode); for a ``physical`` one (shadow or twin mode) the truth at the last
-        update and the stricter (``stricter(a, b)``) of the readings then and now. A physical sensor takes up to
-        its period (its response time) to show what the twin's geometry shows at once: a person it showed one
-        period later was not in its blind spot, and one it never showed was, however briefly they were there. A
-        physical blind spot is so reported one period after it began."""
-        truth_before, reading_before = read_scalar(context, self._truth_before), read_scalar(context, self._reading_before)
+    def held_to(self, context, xd, truly: float, reading: float, physical: bool, stricter) -> list[tuple[float, float]]:
+        """The (truth, reading) pairs a blind spot is judged on, as codes (a blind spot where any pair's truth is
+        stricter than its reading): ``truly`` and ``reading`` now for the geometry's own reading (model mode). A
+        physical sensor (shadow or twin mode) takes up to its period (its response time) to show what the twin's
+        geometry shows at once, so for one: the truth at the last update against the stricter (``stricter(a, b)``)
+        of the readings then and now (a person it never showed was in its blind spot, however briefly they were
+        there: reported a period after it began), and the looser of the truths then and now against the reading
+        now (a person there since the last update is shown by now: one it loses for an update is in it)."""
+        truth_before = read_scalar(context, self._truth_before)
+        reading_before = read_scalar(context, self._reading_before)
         if truly != truth_before:
             write_scalar(xd, self._truth_before, truly)
         if reading != reading_before:
             write_scalar(xd, self._reading_before, reading)
-        return (truth_before, stricter(reading_before, reading)) if physical else (truly, reading)
+        if not physical:
+            return [(truly, reading)]
+        looser = truly if stricter(truth_before, truly) == truth_before else truth_before
+        return [(truth_before, stricter(reading_before, reading)), (looser, reading)]
 
     def register_head(self, scene_graph, source, position) -> object:
         """The sensor head: a small sphere at ``position`` that distances are measured from; its GeometryId."""

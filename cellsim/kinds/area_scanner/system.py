@@ -270,10 +270,11 @@ class AreaScanner(GeometrySensor):
         else:
             reading, distance = int(view.sample[0]), float(view.sample[1])
         # a blind spot: someone truly in a field more restrictive than the reading (clear reads as beyond them all)
-        truly, judged = self.held_to(context, xd, float(truly), float(reading),
-                                     view.mode is not TwinMode.MODEL and view.sample is not None, _stricter_field)
-        truly, judged = int(truly), int(judged)
-        unseen = truly if truly and (judged == 0 or truly < judged) else 0
+        unseen = 0
+        for truth, shown in self.held_to(context, xd, float(truly), float(reading),
+                                         view.mode is not TwinMode.MODEL and view.sample is not None, _stricter_field):
+            if truth and (shown == 0 or truth < shown):
+                unseen = int(_stricter_field(unseen, truth))
         published = [context.get_discrete_state(g)[0] for g in (*self._outputs, self._unseen)]
         write_changed(xd, [*self._outputs, self._unseen], [float(reading), distance, float(unseen)], published)
 

@@ -97,7 +97,8 @@ class LightBarrier(GeometrySensor):
         if view.mode is TwinMode.MODEL:
             truly = broken = self.measure(context)  # the reading is the geometry: it misses nobody
         elif view.sample is None:
-            truly, broken = False, True  # failing safe: broken
+            broken = True  # failing safe: broken (and the truth kept for the next update's judgement)
+            truly = self.query_port.HasValue(context) and self.measure(context)
         else:
             broken = view.sample[0] > 0.5
             truly = self.query_port.HasValue(context) and self.measure(context)
@@ -106,8 +107,8 @@ class LightBarrier(GeometrySensor):
             broken = self._interlocked(context, xd, broken)
         write_scalar(xd, self._broken, 1.0 if broken else 0.0)
         # a blind spot: a body in the beams the reading (latched, with an interlock) never showed
-        truth, shown = self.held_to(context, xd, 1.0 if truly else 0.0, 1.0 if broken else 0.0, physical, max)
-        unseen = 1.0 if truth and not shown else 0.0
+        unseen = 1.0 if any(truth and not shown for truth, shown in self.held_to(
+            context, xd, 1.0 if truly else 0.0, 1.0 if broken else 0.0, physical, max)) else 0.0
         if unseen != read_scalar(context, self._unseen):
             write_scalar(xd, self._unseen, unseen)
 

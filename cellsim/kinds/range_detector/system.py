@@ -112,11 +112,15 @@ class RangeDetector(GeometrySensor):
         write_scalar(xd, self._distance, distance)
         # a blind spot: someone truly in a zone more restrictive than the reading (noise, or the physical sensor)
         truly = Range.FAR if true_distance is None else self.classify(true_distance)
-        truth, judged = self.held_to(
-            context, xd, float(truly.code), float(reading.code), view.mode is not TwinMode.MODEL and view.sample is not None,
-            lambda a, b: max(a, b, key=lambda code: _RESTRICTIVE[Range.from_code(int(code))]))
-        truly, reading = Range.from_code(int(truth)), Range.from_code(int(judged))
-        unseen = truly.value if _RESTRICTIVE[truly] > _RESTRICTIVE[reading] else "none"
+        unseen = "none"
+        for truth, shown in self.held_to(
+                context, xd, float(truly.code), float(reading.code),
+                view.mode is not TwinMode.MODEL and view.sample is not None,
+                lambda a, b: max(a, b, key=lambda code: _RESTRICTIVE[Range.from_code(int(code))])):
+            truth, shown = Range.from_code(int(truth)), Range.from_code(int(shown))
+            stricter_than_found = unseen == "none" or _RESTRICTIVE[truth] > _RESTRICTIVE[Range(unseen)]
+            if _RESTRICTIVE[truth] > _RESTRICTIVE[shown] and stricter_than_found:
+                unseen = truth.value
         code = self.unseen_readings(unseen).code
         if code != read_scalar(context, self._unseen):
             write_scalar(xd, self._unseen, code)

@@ -123,7 +123,8 @@ class SpeedSeparationMonitor(CellSystem):
       margin (channel, m): d - S_p.
       speed_limit (channel, m/s): v_max, the speed the robot may have now (its speed_limit input).
       unwatched_margin_fall (channel, m/s): the fastest the true margin fell, in ssmon, between two judgements it
-        was not watched between (above ``max_margin_fall``: a dip below 0 between them may have been missed).
+        was not watched between while the robot alone moved (no person's update nor stop order between them: those
+        jump the margin and are judged a step later); above ``max_margin_fall``: a dip below 0 may have been missed.
       true_margin (channel, m): on the truth, whatever the monitor's separation comes from: the least, over every
         pair of an arm's shape and a person's body region, of their true separation less S_p of the shape's true
         speed towards that region, with no allowances; read up to FAR_AWAY (a falsification search climbs it from
@@ -215,7 +216,7 @@ class SpeedSeparationMonitor(CellSystem):
         self._step = step
         self._truth_periods = (list(people), robot, max_fall)
         self._close = self.declare_state("truth_close", [0.0])  # 1: judged at every step
-        self._judged = self.declare_state("truth_judged", [math.nan, math.nan])  # (s, m): the last judgement
+        self._judged = self.declare_state("truth_judged", [math.nan, math.nan, math.nan])  # (s, m, stop order): last
         self._fall = self.declare_channel(
             "unwatched_margin_fall", number_type("m/s"), 0.0,
             description="Fastest the true margin fell between two judgements in ssmon not watched at every step")
@@ -363,20 +364,23 @@ class SpeedSeparationMonitor(CellSystem):
         close = context.get_discrete_state(self._close).GetAtIndex(0) != 0.0
         rounds, looks = self._truth_looks
         t = context.get_time()
-        if not close:
-            look = looks[round(t / self._step) % rounds]
-            if not look or (look == 2 and self.robot_mode_port.Eval(context)[0] != _SSMON):
-                return UNCHANGED
-        reaction = self._reaction(context, t, read_scalar(context, self._stop_ordered))
+        look = looks[round(t / self._step) % rounds]
+        if not close and (not look or (look == 2 and self.robot_mode_port.Eval(context)[0] != _SSMON)):
+            return UNCHANGED
+        since = read_scalar(context, self._stop_ordered)
+        reaction = self._reaction(context, t, since)
         margin = self.true_margin(context, reaction)
         in_ssmon = self.robot_mode_port.Eval(context)[0] == _SSMON
         now_close = margin < self._watch_below and in_ssmon
-        then, before = context.get_discrete_state(self._judged).get_value()
-        if in_ssmon and not close and t > then:  # an interval watched only at its ends: how fast did it fall?
+        then, before, since_then = context.get_discrete_state(self._judged).get_value()
+        jumped = look == 1 or not (since == since_then or (math.isnan(since) and math.isnan(since_then)))
+        if in_ssmon and not close and t > then and not jumped:
+            # an interval watched only at its ends, the robot alone moving (a person's move, or a stop order given or
+            # lifted, is a jump of the margin judged a step after it, not a fall): how fast did it fall?
             fall = (before - margin) / (t - then)
             if fall > read_scalar(context, self._fall):
                 write_scalar(xd, self._fall, fall)
-        xd.get_mutable_vector(self._judged).SetFromVector([t, margin])
+        xd.get_mutable_vector(self._judged).SetFromVector([t, margin, since])
         write_scalar(xd, self._true_margin, margin)
         write_scalar(xd, self._close, 1.0 if now_close else 0.0)
         return None
