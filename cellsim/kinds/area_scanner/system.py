@@ -70,14 +70,13 @@ class AreaScanner(GeometrySensor):
         self.cfg = cfg
         self.position = np.array(cfg.position, float)
         self.readings = value_set(f"{module}_field", [cfg.clear, *cfg.fields])
-        # fixtures block the beams; one the scanner is mounted inside, beyond the head's own depth in it
+        # fixtures block the beams; one the scanner is mounted inside, beyond the head's own depth in it (to the mount's
+        # nearest face, and the head's radius: the beams leave within that)
         boxes = list(map(Box3.of, fixtures))
-        self.walls = [box for box in boxes if not box.contains(self.position)]
-        mounts = [box for box in boxes if box.contains(self.position)]
-        # how deep the head sits in its mount (to the nearest face), and its own radius: beams leave within that
-        self.mount_depth = min((float(np.min(box.half - np.abs(box.to_local(self.position)))) for box in mounts),
-                               default=0.0) + HEAD_RADIUS
+        self.mount_depth = min((float(np.min(box.half - np.abs(box.to_local(self.position)))) for box in boxes
+                                if box.contains(self.position)), default=0.0) + HEAD_RADIUS
         self.lines = SightLines(self.position, boxes, self.mount_depth)
+        self.walls = self.lines.boxes  # every fixture but the mount
         # the heights the scanner's beams sweep: from its lowest field's bottom to its highest's top
         bounds = [corner[2] for spec in cfg.fields.values() for corner in spec.corners()]
         self.band = (min(bounds) - 1e-6, max(bounds) + 1e-6)
@@ -251,9 +250,9 @@ class AreaScanner(GeometrySensor):
                 break  # no point of this target or a farther one is nearer than the one seen
             if self.seen(witness_on(query, pair, target)):
                 return distance  # its nearest point: nothing seen can be nearer
-            seen = self.sight_points(query, target)  # a limb half hidden: its other points, nearest first
-            if len(seen):
-                best = min(best, float(np.linalg.norm(seen[0] - self.position)))
+            visible = self.sight_points(query, target)  # a limb half hidden: its other points, nearest first
+            if len(visible):
+                best = min(best, float(np.linalg.norm(visible[0] - self.position)))
         return best
 
     def sample_is_valid(self, sample) -> bool:
