@@ -485,3 +485,26 @@ def test_the_harm_section_shows_contacts_severities_and_blind_spots(browser, ten
     conditions = page.locator("#conditions").inner_text()
     assert "TrueSSM" in conditions and "NoHarm" in conditions and "NoClamping" in conditions
     opened.close(screenshot=out / "harm.png")
+
+
+def test_a_measurement_outrun_between_looks_is_named_per_run_in_the_harm_section(browser, tmp_path):
+    """Two runs of the machine-tending cell with its monitor assuming the true margin falls at 1 m/s at most: each
+    run's 'fast fall' finding is listed with its own text and a link to its run, the count reads as English."""
+    out = tmp_path / "outrun"
+    main(["campaign", str(ROOT / "scenarios" / "machine_tending.yaml"), "--runs", "2", "--jobs", "2", "--seed", "0",
+          "--out", str(out), "--quiet", "--set", "ssm.max_margin_fall=1"])
+    results = json.loads((out / "results.json").read_text())
+    found = [(r["index"], f["text"]) for r in results["runs"] for f in r["findings"] if f["what"] == "fast fall"]
+    assert found, "no run found the fall faster than assumed"
+    opened = Opened(browser, out / "report.html", "#harm")
+    block = opened.page.locator("#fast-parts")
+    assert block.is_visible()
+    text = block.inner_text()
+    plural = "s" if len(found) != 1 else ""
+    assert text.startswith(f"In {len(found)} finding{plural} the twin's measurement") and '""' not in text
+    items = block.locator("li")
+    assert items.count() == len(found)
+    for k, (index, finding) in enumerate(found):
+        assert f"Run {index}: {finding}" == items.nth(k).inner_text()
+        assert items.nth(k).locator(f"a[href='#run-{index}']").count() == 1
+    opened.close(screenshot=out / "outrun.png")
