@@ -278,24 +278,15 @@ class SpeedSeparationMonitor(CellSystem):
             return FAR_AWAY, 0.0
         return min(nearest.distance, FAR_AWAY), self._towards(query, nearest)
 
-    def _towards(self, query, pair, motion=None) -> float:
+    def _towards(self, query, pair) -> float:
         """The speed (m/s, not below 0) of the arm's point of ``pair`` towards the person's (its whole speed where
-        they overlap); the kinematics set to the robot's state already; ``motion``: the arm body's spatial velocity
-        [w, v] (world frame, at its origin) if known."""
+        they overlap); the kinematics set to the robot's state already."""
         kin = self.kinematics
         arm = pair.id_A if pair.id_A in self.bodies else pair.id_B
-        p_W = witness_on(query, pair, arm)
         body = self.bodies[arm]
-        if motion is None:
-            motion = body.EvalSpatialVelocityInWorld(kin.context).get_coeffs()
-        rx, ry, rz = (p_W - body.EvalPoseInWorld(kin.context).translation()).tolist()
-        wx, wy, wz, vx, vy, vz = motion.tolist()
-        vx, vy, vz = vx + wy * rz - wz * ry, vy + wz * rx - wx * rz, vz + wx * ry - wy * rx  # v + w x r
-        if pair.distance <= 0.0:
-            return math.sqrt(vx * vx + vy * vy + vz * vz)
-        nx, ny, nz = pair.nhat_BA_W.tolist()  # from B to A: towards the person when the person is A
-        speed = vx * nx + vy * ny + vz * nz
-        return max(speed if arm == pair.id_B else -speed, 0.0)
+        w_v = body.EvalSpatialVelocityInWorld(kin.context).get_coeffs()
+        return _speed_towards(pair, arm == pair.id_A, witness_on(query, pair, arm),
+                              body.EvalPoseInWorld(kin.context).translation(), w_v[3:], w_v[:3])
 
     def true_margin(self, context, reaction: float) -> float:
         """The least, over every pair of an arm's shape and a body region, of their true separation less S_p (no
@@ -350,7 +341,10 @@ class SpeedSeparationMonitor(CellSystem):
                 continue
             bound = protective[i, j] if pair.distance > 0.0 else sp(fastest[i, 0], reaction)
             if pair.distance - bound < least:  # its exact distance, its speed bounded: worth its witness's speed
-                least = min(least, pair.distance - sp(self._towards(query, pair, motion[i]), reaction))
+                on_a = pair.id_A == ids_a[i]
+                p_W = query.GetPoseInWorld(ids_a[i]) @ (pair.p_ACa if on_a else pair.p_BCb)
+                speed = _speed_towards(pair, on_a, p_W, centres[i], centre_v[i], motion[i][:3])
+                least = min(least, pair.distance - sp(speed, reaction))
         return least
 
     def _reaction(self, context, t: float, since: float) -> float:
@@ -401,6 +395,21 @@ class SpeedSeparationMonitor(CellSystem):
         write_scalar(xd, self._protective, protective)
         write_scalar(xd, self._margin, d - protective)
         write_scalar(xd, self._limit, limit)
+
+
+def _speed_towards(pair, arm_is_a: bool, p_W, c_W, v_c, w) -> float:
+    """The speed (m/s, not below 0) towards the person of the arm's witness point ``p_W`` of ``pair`` (its whole
+    speed where they overlap), from the velocity ``v_c`` of a point ``c_W`` fixed to the arm's body and its angular
+    velocity ``w`` (world frame): v = v_c + w x (p - c)."""
+    rx, ry, rz = (p_W - c_W).tolist()
+    wx, wy, wz = w.tolist()
+    vx, vy, vz = v_c.tolist()
+    vx, vy, vz = vx + wy * rz - wz * ry, vy + wz * rx - wx * rz, vz + wx * ry - wy * rx
+    if pair.distance <= 0.0:
+        return math.sqrt(vx * vx + vy * vy + vz * vz)
+    nx, ny, nz = pair.nhat_BA_W.tolist()  # from B to A: towards the person when the person is A
+    speed = vx * nx + vy * ny + vz * nz
+    return max(-speed if arm_is_a else speed, 0.0)
 
 
 def parameters_of(cfg: SsmConfig, robot_cfg) -> SsmParameters:
