@@ -251,6 +251,7 @@ def test_commands_reach_the_bus_only_in_twin_mode_and_the_safe_ones_when_the_sup
 
     try:
         token = twin.liveliness().declare_token("cellsim/welding_cell/alive/twin")
+        until(lambda: bridge._twin_alive, "the twin's token")  # its modes are taken only from a living twin
         # shadow mode: nothing goes to the bus, whatever the twin says
         mode.put(json.dumps({"t": time.time(), "sim_time": 0.0, "value": "shadow"}))
         until(lambda: bridge.twin_mode("welder") is TwinMode.SHADOW, "shadow mode heard")
@@ -507,8 +508,9 @@ def test_robot_requests_go_to_the_controller_in_twin_mode_and_a_stop_when_the_tw
                 pass
 
     try:
+        take_until(lambda: bridge._twin_alive)  # its modes are taken only from a living twin
         mode.put(json.dumps({"t": time.time(), "sim_time": 0.0, "value": "shadow"}))
-        take_until(lambda: bridge.twin_mode("robot") is TwinMode.SHADOW and bridge._twin_alive)
+        take_until(lambda: bridge.twin_mode("robot") is TwinMode.SHADOW)
         bridge.send_commands()
         assert bridge.robots["robot"].requests_sent == 0  # shadow: the controller answers to its own program
         mode.put(json.dumps({"t": time.time(), "sim_time": 0.1, "value": "twin"}))
@@ -660,6 +662,7 @@ def test_a_future_stamped_command_does_not_keep_a_lost_twin_in_charge(sessions, 
         return out
 
     try:
+        wait_for(lambda: bridge.take_inbox() or bridge._twin_alive, 10, "the twin's token")  # modes: a living twin's
         mode.put(json.dumps({"t": time.time(), "sim_time": 0.0, "value": "twin"}))
         command.put(json.dumps({"t": time.time(), "seq": 1, "fields": fields}))
         wait_for(lambda: bridge.take_inbox() or bridge._commands.get("welder") == fields and bridge._twin_alive, 10,

@@ -228,7 +228,7 @@ def test_in_twin_mode_the_welders_command_nodes_carry_the_twins_command_and_its_
     token = twin.liveliness().declare_token("cellsim/welding_cell/alive/twin")
     try:
         deadline = time.monotonic() + 10
-        while not bridge.plc.connected:
+        while not bridge.plc.connected or not bridge._twin_alive:  # modes are taken only from a living twin
             assert time.monotonic() < deadline
             threading.Event().wait(0.01)
         # the twin's mode not heard yet (the daemon may have started beside a commanding twin): the safe command

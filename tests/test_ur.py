@@ -399,8 +399,11 @@ def test_in_twin_mode_the_controller_gets_the_slider_and_registers_and_slider_0_
     with daemon_commanded_by_twin(sessions, tmp_path, program) as (controller, bridge, twin):
         mode = twin.session.declare_publisher("cellsim/welding_cell/twin/robot/twin_mode")
         command = twin.command
-        mode.put(json.dumps({"t": time.time(), "sim_time": 0.0, "value": "shadow"}))
         deadline = time.monotonic() + 10
+        while not bridge._twin_alive:  # its modes are taken only from a living twin (which republishes them)
+            assert time.monotonic() < deadline
+            threading.Event().wait(0.01)
+        mode.put(json.dumps({"t": time.time(), "sim_time": 0.0, "value": "shadow"}))
         while bridge.twin_mode("robot") is not TwinMode.SHADOW or not bridge.robots["robot"].connected:
             assert time.monotonic() < deadline
             threading.Event().wait(0.01)
