@@ -10,7 +10,6 @@ TrueSSM on its 20 ms samples.
 from __future__ import annotations
 
 import json
-import math
 import os
 import sqlite3
 import subprocess
@@ -138,3 +137,18 @@ def test_a_margin_falling_faster_than_the_watch_assumes_is_a_finding_of_the_run(
     slow = run("slow", "ssm.max_margin_fall=1")
     assert "fast fall" in slow and "faster than the 1 m/s it assumes" in slow
     assert "fast fall" not in run("default")
+
+
+def test_the_protective_distance_of_many_speeds_is_each_ones():
+    """The pruning bound's S_p (every pair's at once) is the formula's, speed by speed: a bound that read less than
+    S_p could prune the pair with the least margin."""
+    from cellsim.kinds.ssm.system import SsmParameters
+
+    p = SsmParameters(human_speed=1.6, reaction_time=0.1, deceleration=2.5, intrusion_distance=0.1,
+                      sensor_uncertainty=0.05, robot_uncertainty=0.02)
+    speeds = np.array([[-1.0, 0.0, 0.3], [0.9, 1.5, 4.0]])
+    for reaction in (0.1, 0.04, 0.0):
+        many = p.true_protective_distances(speeds, reaction)
+        assert many.shape == speeds.shape
+        for v, s in zip(speeds.ravel(), many.ravel()):
+            assert s == pytest.approx(p.true_protective_distance(v, reaction), abs=1e-12)
