@@ -152,3 +152,16 @@ def test_the_protective_distance_of_many_speeds_is_each_ones():
         assert many.shape == speeds.shape
         for v, s in zip(speeds.ravel(), many.ravel()):
             assert s == pytest.approx(p.true_protective_distance(v, reaction), abs=1e-12)
+
+
+def test_periods_the_truth_cannot_be_judged_on_are_one_error_line_naming_the_key(tmp_path):
+    """A person every 9.998 s and the monitor every 9.994 s share no multiple within 2,000 s: one line naming the
+    monitor's period, exit 2, nothing written."""
+    out = tmp_path / "run"
+    done = subprocess.run([sys.executable, "-m", "cellsim", "simulate", str(TENDING), "--out", str(out), "--duration", "1",
+                           "--set", "operator.period=9.998", "--set", "ssm.period=9.994"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "behaviours.ssm.period" in lines[0] and "no common multiple" in lines[0]
+    assert not out.exists()

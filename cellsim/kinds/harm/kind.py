@@ -94,5 +94,9 @@ def build_harm(cell, name: str, cfg: HarmConfig):
         cell.builder.Connect(body.pose_port, pose)
         cell.builder.Connect(body.previous_pose_port, previous)
         bodies.update({g: (index, region) for g, region in body.regions.items()})
-    system.set_geometries(cell.scene_graph.model_inspector(), parts, bodies, cell.fixture_geometry)
+    try:
+        system.set_geometries(cell.scene_graph.model_inspector(), parts, bodies, cell.fixture_geometry)
+    except ValueError as e:  # a look schedule with no common multiple, an arm shape with no bound
+        raise cell.sf.error(f"services.{name}.far_period" if "common multiple" in str(e) else f"services.{name}",
+                            str(e).removeprefix(f"{name}: ")) from None
     return system

@@ -80,8 +80,11 @@ def build_ssm(cell, name: str, cfg: SsmConfig) -> SpeedSeparationMonitor:
     cell.builder.Connect(robot.GetOutputPort("safety_mode"), system.robot_mode_port)
     cell.connect_query(system.query_port)  # the monitor's separation, or the truth beside a sensor's
     system.set_geometries(cell.scene_graph.model_inspector(), cell.arm_geometry[cfg.robot], cell.people)
-    system.watch_truth(cell.scenario.time_step, [person.period for person in cell.bodies.values()], robot.period,
-                       cfg.max_margin_fall)
+    try:
+        system.watch_truth(cell.scenario.time_step, [person.period for person in cell.bodies.values()], robot.period,
+                           cfg.max_margin_fall)
+    except ValueError as e:  # periods with no common multiple to judge the truth on: the scenario's to change
+        raise cell.sf.error(f"behaviours.{name}.period", str(e).removeprefix(f"{name}: ")) from None
     if not system.from_geometry:  # a sensor's distance: every entity is built by now
         channels = cell.channels()
         where = f"behaviours.{name}.separation"
