@@ -23,7 +23,9 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+
+import numpy as np
 
 from cellsim.verify.expressions import Thresholds, VerifyError
 from cellsim.verify.model import AbstractCell, PersonRole, Pose, lookup, prism_name, set_of
@@ -51,6 +53,9 @@ class PersonPlaces:
     """Steps between the person's updates (its own period over the step): it changes place only at those."""
     end: int | None = None
     """The place where its script leaves it at the run's end (``PersonRole.end``); None: not known."""
+    crossings: dict = field(default_factory=dict, repr=False, compare=False)
+    """:func:`crossing_periods` found so far, by (period, speed, exact): the model and each witness's check ask
+    the same."""
 
     def at(self, place: int) -> Place:
         return self.places[place]
@@ -204,39 +209,64 @@ def crossing_periods(person: PersonPlaces, period: float, speed: float, exact: b
 
     ``exact``: without the grid steps' slack, as if each place's border lay on its touching poses: no bound (it may
     claim more than a walk takes), but where it says more than the bound does, a finer grid would tell."""
+    key = (period, speed, exact)
+    found = person.crossings.get(key)
+    if found is None:
+        found = person.crossings[key] = _crossing_periods(person, period, speed, exact)
+    return found
+
+
+def _crossing_periods(person: PersonPlaces, period: float, speed: float, exact: bool) -> dict[tuple[int, int, int], int]:
+    """:func:`crossing_periods`, computed: each place's borders found in one pass over its poses, each pair of
+    borders' least distance in one numpy expression."""
     step = person.role.step
-    cell_of = {}
+    cell_of: dict[tuple[int, int], set[int]] = {}
     for place in person.places:
         for pose in place.poses:
             cell_of.setdefault((round(pose.x / step), round(pose.y / step)), set()).add(place.index)
+    around = [(dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)]
 
-    def border(place: Place, other: int | None) -> list[tuple[float, float]]:
-        """Points of ``place`` touching place ``other`` (a grid neighbour or the same point)."""
-        found = []
+    def borders(place: Place) -> dict[int, np.ndarray]:
+        """Each neighbouring place -> the points of ``place`` touching it (a grid neighbour or the same point)."""
+        found: dict[int, dict] = {}
         for pose in place.poses:
             cx, cy = round(pose.x / step), round(pose.y / step)
-            if any(other in cell_of.get((cx + dx, cy + dy), ()) for dx in (-1, 0, 1) for dy in (-1, 0, 1)):
-                found.append((pose.x, pose.y))
-        return list(dict.fromkeys(found))
+            touching = set().union(*(cell_of.get((cx + dx, cy + dy), ()) for dx, dy in around))
+            for other in touching:
+                found.setdefault(other, {})[(pose.x, pose.y)] = None
+        return {other: np.array(list(points), float) for other, points in found.items()}
 
     need = {}
     for place in person.places:
-        exits = {b: border(place, b) for b in person.neighbours[place.index]}
+        touching = borders(place)
+        exits = {b: touching.get(b, np.empty((0, 2))) for b in person.neighbours[place.index]}
         entries = dict(exits)  # a neighbour's border is where one enters from it as well as where one leaves to it
         if place.index == person.start:
-            entries[ENTERED_AT_START] = [(person.role.start.x, person.role.start.y)]
+            entries[ENTERED_AT_START] = np.array([[person.role.start.x, person.role.start.y]], float)
         for a, ins in entries.items():
             for b, outs in exits.items():
-                if a == b or not ins or not outs:
+                if a == b or not len(ins) or not len(outs):
                     continue
                 from_start = a == ENTERED_AT_START
                 slack = 0.0 if exact else (step if from_start else 2 * step)
-                distance = min(math.dist(p, q) for p in ins for q in outs) - slack
+                distance = _least_distance(ins, outs) - slack
                 crossing = math.ceil(distance / (speed * period) - 1e-9) if distance > 0 else 0
                 periods = crossing if from_start else crossing - 1
                 if periods > 1:  # one period is what any step takes
                     need[(a, place.index, b)] = periods
     return need
+
+
+def _least_distance(ins, outs) -> float:
+    """The least distance (m) between any of the points ``ins`` and any of ``outs`` ((n, 2) arrays), in blocks of a
+    few million pairs."""
+    best = math.inf
+    rows = max(1, 4_000_000 // len(outs))
+    for first in range(0, len(ins), rows):
+        block = ins[first:first + rows]
+        d2 = ((block[:, None, :] - outs[None, :, :]) ** 2).sum(axis=2)
+        best = min(best, float(d2.min()))
+    return math.sqrt(best)
 
 
 def pace_departure(person: PersonPlaces, witness: list[dict], period: float, speed: float,
