@@ -239,6 +239,45 @@ def test_a_robot_in_twin_mode_sends_its_physical_twin_the_ssm_limit_in_force_and
     assert sent[at] == 0.5  # no ssm module: its input reads unlimited, the ssmon cap goes out
 
 
+def test_on_the_geometry_a_lost_link_of_a_person_or_the_robot_reads_no_separation_and_stops_the_arm():
+    """The separation on the geometry is between digital bodies: one whose physical link is not ok holds a pose the
+    real one may have left. A person tracked from 6 s (shadow) whose samples never come: the model run's limit falls
+    as they come near, but the lost one's must not hold the last pose's limit: it reads 0 from the first update
+    the stale link is seen. A robot in twin mode whose samples never come is told no speed."""
+    from cellsim.api import build
+    from cellsim.config.twin import TwinModeChange
+    from cellsim.simulation import make_simulator
+    from cellsim.vocabulary import PhysicalLink, TwinMode
+
+    def limits(sf, entity: str, times):
+        cell = build(sf)
+        simulator = make_simulator(cell)
+        simulator.Initialize()
+        context = simulator.get_mutable_context()
+        limit = cell.diagram.GetOutputPort("assembler_ssm.speed_limit")
+        link = cell.diagram.GetOutputPort(f"{entity}.physical_link")
+        command = cell.diagram.GetOutputPort("loader.physical_command")
+        at = list(cell.entity("loader").command_fields).index("speed_limit") + 1
+        found = []
+        for t in times:
+            simulator.AdvanceTo(t)
+            found.append((PhysicalLink.from_code(int(link.Eval(context)[0])), limit.Eval(context)[0],
+                          command.Eval(context)[at]))
+        return found
+
+    times = (5.0, 12.0, 19.0)
+    tracked = load_scenario(ASSEMBLY_BENCH, ["duration=20"])
+    model = limits(tracked, "operator", times)
+    tracked.scenario.entities["operator"].twin.changes = [TwinModeChange(at=6.0, mode=TwinMode.SHADOW)]
+    lost = limits(tracked, "operator", times)
+    assert model[0] == lost[0] and model[0][1] > 0.5  # nobody near at 5 s: the same limit, the link unused
+    assert all(m[1] > 0.0 for m in model)  # the real person near, as the model run shows: a limit above 0 there
+    assert [(link, limit) for link, limit, _ in lost[1:]] == [(PhysicalLink.STALE, 0.0)] * 2
+
+    arm_lost = limits(load_scenario(ASSEMBLY_BENCH, ["duration=20", "loader.twin.mode=twin"]), "loader", (2.0, 8.0))
+    assert [(link, sent) for link, _, sent in arm_lost] == [(PhysicalLink.STALE, 0.0)] * 2
+
+
 # A person clearing the jam steps back into the approach field and in again (as in the witness with which
 # `cellsim verify` found the fault and the twin confirmed it): the field is never clear, so JAM stays active.
 IN_OUT_AND_IN = """\

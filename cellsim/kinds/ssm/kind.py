@@ -85,7 +85,11 @@ def build_ssm(cell, name: str, cfg: SsmConfig) -> SpeedSeparationMonitor:
                            cfg.max_margin_fall)
     except ValueError as e:  # periods with no common multiple to judge the truth on: the scenario's to change
         raise cell.sf.error(f"behaviours.{name}.period", str(e).removeprefix(f"{name}: ")) from None
-    if not system.from_geometry:  # a sensor's distance: every entity is built by now
+    if system.from_geometry:  # bodies the twin may have lost track of: the robot's and every person's links
+        watched = [cfg.robot, *cell.bodies]
+        for entity, port in zip(watched, system.watch_links(watched)):
+            cell.builder.Connect(cell.modules[entity].GetOutputPort("physical_link"), port)
+    else:  # a sensor's distance: every entity is built by now
         channels = cell.channels()
         where = f"behaviours.{name}.separation"
         if cfg.separation not in channels:

@@ -36,7 +36,10 @@ v_max = sqrt((a T_r)^2 + 2 a (d - C)) - a T_r. A robot that follows it brakes at
 keeps ``margin`` >= 0: as d falls by v_h dt, S_p falls by (v_h + a T_r + v_r) dt. In ``ssmon``
 the robot follows ``speed_limit`` continuously (its ``speed_limit`` input); a risk model or a
 condition reads ``margin``. A separation with no value (a stale sensor) reads as 0: the limit
-is 0, the robot stops. A stopped robot starts again only once d exceeds S_p of its first speed.
+is 0, the robot stops. On the geometry, so does a separation whose bodies the twin no longer
+knows: while the robot's or a person's physical link is not ok (stale, corrupt, recovering), its
+digital body holds a pose the real one may have left. A stopped robot starts again only once d
+exceeds S_p of its first speed.
 """
 
 from __future__ import annotations
@@ -52,9 +55,11 @@ from cellsim.channels import number_type
 from cellsim.kinds.ssm.config import GEOMETRY, SsmConfig
 from cellsim.proximity import NearestPair, witness_on
 from cellsim.systems import UNCHANGED, CellSystem, read_scalar, write_scalar
-from cellsim.vocabulary import SafetyMode
+from cellsim.vocabulary import PhysicalLink, SafetyMode
 
 _SSMON = float(SafetyMode.SPEED_SEPARATION.code)
+_TRUSTED_LINKS = frozenset({float(PhysicalLink.UNUSED.code), float(PhysicalLink.OK.code)})
+"""The physical links a digital body can be trusted through: none used (a digital model), or ok."""
 _JUDGED = ("true_margin", "unwatched_margin_fall")
 """The channels the truth's own event writes, at the plant step."""
 FAR_AWAY = 10.0
@@ -118,6 +123,8 @@ class SpeedSeparationMonitor(CellSystem):
         near 0 only in ssmon, where TrueSSM judges it.
       geometry_query (input, geometry separation only): SceneGraph's QueryObject.
       separation_measured (input, a sensor's separation only): that sensor's distance (m).
+      <entity>_link (inputs, geometry separation only): the physical link (its code) of the robot and of each
+        person whose bodies the separation is measured between (``watch_links``): one not ok or unused reads 0.
       separation (channel, m): the separation d used (negative: overlapping).
       protective_distance (channel, m): S_p for the robot's current speed towards the person.
       margin (channel, m): d - S_p.
@@ -150,6 +157,8 @@ class SpeedSeparationMonitor(CellSystem):
             self.separation_port = self.declare_input("separation_measured")
         self.pairs = None
         """Finds the nearest pair of an arm's shape and a person's body region (``set_geometries``)."""
+        self.link_ports: list = []
+        """The robot's and the people's physical links, on the geometry (``watch_links``)."""
         self.bodies: dict = {}
         """Arm GeometryId -> the body of the private kinematics plant it is fixed to."""
         far = parameters.speed_limit(FAR_AWAY)
@@ -202,6 +211,17 @@ class SpeedSeparationMonitor(CellSystem):
         plant = self.kinematics.plant
         self.bodies = {g: plant.GetBodyByName(body) for g, body in arm.items()}
         self.pairs = NearestPair(inspector, list(arm), people)
+
+    def watch_links(self, entities: list[str]) -> list:
+        """Declare an input of the physical link of each of ``entities`` (the robot and the people, by module name);
+        returns the ports to connect to their ``physical_link`` channels. On the geometry, the separation reads 0
+        while one is not ok or unused."""
+        self.link_ports = [self.declare_input(f"{entity}_link", default=PhysicalLink.UNUSED.code) for entity in entities]
+        return self.link_ports
+
+    def bodies_trusted(self, context) -> bool:
+        """Whether every digital body the separation is measured between follows its physical twin, or has none."""
+        return all(port.Eval(context)[0] in _TRUSTED_LINKS for port in self.link_ports)
 
     def watch_truth(self, step: float, people: list[float], robot: float, max_fall: float) -> None:
         """Judge ``true_margin`` in an event of its own at the plant step (``step``, s): one step after each update
@@ -261,8 +281,8 @@ class SpeedSeparationMonitor(CellSystem):
         """(separation d in m, robot speed towards the person v_r in m/s), as the monitor has them."""
         kin = self.kinematics
         kin.plant.SetPositionsAndVelocities(kin.context, self.robot_state_port.Eval(context))
-        if not self.from_geometry:
-            d = self.separation_port.Eval(context)[0]
+        if not self.from_geometry or not self.bodies_trusted(context):
+            d = self.separation_port.Eval(context)[0] if not self.from_geometry else 0.0
             tool_velocity = kin.tool.CalcSpatialVelocityInWorld(kin.context).translational()
             return (d if math.isfinite(d) else 0.0), float(np.linalg.norm(tool_velocity))
         return self.truth(context)
