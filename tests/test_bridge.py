@@ -566,6 +566,55 @@ def test_an_emulated_device_fails_safe_on_a_bad_command_frame_as_the_real_one_wo
         daemon.shutdown()
 
 
+def test_an_emulated_device_whose_one_command_message_stops_takes_that_messages_safe_values(e2e_config):
+    """The welder's safety mode and its weld command come in two messages, each with its own watchdog: while the
+    weld commands keep coming, a safety mode request silent for longer than its watchdog is not the last one heard
+    but its safe value (the devices' clock is the test's: no waiting)."""
+    from types import SimpleNamespace
+
+    from cellsim.bridges.devices import EmulatedDevices
+
+    loaded = load_bridge(e2e_config)
+    bus = can.Bus(interface="virtual", channel="emulated-welder-watchdogs")
+    daemon = can.Bus(interface="virtual", channel="emulated-welder-watchdogs")
+    delivered: queue.Queue = queue.Queue()
+    enum, number = SimpleNamespace(kind="enum"), number_type(None)
+    source = SimpleNamespace(inputs=["safety_mode_request", "activity_request", "command"],
+                             codec=SimpleNamespace(types=[enum, enum, number]),
+                             deliver=lambda payload: delivered.put(json.loads(payload)["fields"]))
+    devices = EmulatedDevices(loaded, bus, session=None)
+    now = [0.0]
+    devices.clock = lambda: now[0]
+    request = loaded.database.get_message_by_name("SafetyModeRequest")
+    command = loaded.database.get_message_by_name("WelderCommand")
+    watchdog = next(m.watchdog for m in loaded.config.commands["welder"] if m.message == "SafetyModeRequest")
+
+    def send(message, values, counter):
+        daemon.send(can.Message(arbitration_id=message.frame_id, data=protect(message, values, counter),
+                                is_extended_id=False))
+        return delivered.get(timeout=5)
+
+    try:
+        assert devices.feed_commands(SimpleNamespace(module="welder"), source)
+        for counter in range(3):  # both trusted after three good frames in a row
+            send(request, {"SafetyMode": "normal"}, counter)
+            fields = send(command, {"ActivityRequest": "none", "Weld": 1}, counter)
+        assert fields["safety_mode_request"] == "normal" and fields["command"] == 1.0
+        now[0] = 0.9 * watchdog  # the request still within its watchdog: as last heard
+        assert send(command, {"ActivityRequest": "none", "Weld": 1}, 3)["safety_mode_request"] == "normal"
+        now[0] = 1.1 * watchdog  # silent for longer than its watchdog: its safe value, the weld command as sent
+        fields = send(command, {"ActivityRequest": "none", "Weld": 1}, 4)
+        assert fields["safety_mode_request"] == "stopped" and fields["command"] == 1.0
+        for counter in range(5, 7):  # it comes back: safe until recover_after good frames in a row
+            now[0] += 0.01
+            assert send(request, {"SafetyMode": "normal"}, counter)["safety_mode_request"] == "stopped"
+        assert send(request, {"SafetyMode": "normal"}, 7)["safety_mode_request"] == "normal"
+    finally:
+        devices.close()
+        bus.shutdown()
+        daemon.shutdown()
+
+
 @pytest.mark.parametrize("args, expected", [
     (["--can", "virtual:x", "--fault", "welder=freeze"], "welder is a CAN device; its faults: drop, crc"),
     (["--can", "virtual:x", "--fault", "robot=crc"], "robot is on Zenoh; its faults: silence"),

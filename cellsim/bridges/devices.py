@@ -248,7 +248,9 @@ class EmulatedDevices:
         if loaded.authenticated() and can_key is None:
             raise ValueError(f"{', '.join(loaded.authenticated())} are authenticated: the devices need the CAN key")
         self._feeds: dict[int, tuple] = {}  # frame id -> (entity, mapping, checker)
-        self._entities: dict[str, dict] = {}  # entity -> {"source", "types", "inputs", "values": {mapping: fields}}
+        self._entities: dict[str, dict] = {}  # entity -> {"source", "names", "seq", "checkers", "fields", "values"}
+        self.clock = time.monotonic
+        """The devices' clock (s) their frames' watchdogs run on."""
         self._subscribers = []
         self._lock = threading.Lock()
         self._notifier = None
@@ -318,13 +320,16 @@ class EmulatedDevices:
             return False
         mappings = cfg.commands[name]
         safe = self.loaded.safe[name]
-        self._entities[name] = {"source": source, "names": source.inputs, "seq": 0,
-                                "values": {m.message: {f: safe[f] for f in m.fields.values()} for m in mappings}}
+        state = self._entities[name] = {
+            "source": source, "names": source.inputs, "seq": 0, "checkers": {},
+            "fields": {m.message: list(m.fields.values()) for m in mappings},
+            "values": {m.message: {f: safe[f] for f in m.fields.values()} for m in mappings}}
         for mapping in mappings:
             message = self.loaded.database.get_message_by_name(mapping.message)
             checker = DeviceChecker(message=message, timeout=mapping.watchdog, recover_after=cfg.recover_after,
                                     authenticator=self._authenticator(message))
             self._feeds[message.frame_id] = (name, mapping, checker)
+            state["checkers"][mapping.message] = checker
         if self._notifier is None:
             import can
 
@@ -343,15 +348,22 @@ class EmulatedDevices:
         if feed is None or frame.is_error_frame or frame.is_remote_frame:
             return
         name, mapping, checker = feed
-        verdict = checker.check(bytes(frame.data), time.monotonic())
-        if verdict.trusted:
-            carried = self.loaded.signals(mapping).fields(verdict.values)
-        else:
-            carried = {f: self.loaded.safe[name][f] for f in mapping.fields.values()}
+        now = self.clock()
+        verdict = checker.check(bytes(frame.data), now)
+        safe = self.loaded.safe[name]
+        carried = self.loaded.signals(mapping).fields(verdict.values) if verdict.trusted else None
         with self._lock:
             state = self._entities[name]
             self.command_frames += 1
-            state["values"][mapping.message] = carried
+            # each of the entity's messages as its own link has it now: one whose frames stopped (its watchdog) or
+            # failed reads its safe values, whatever its other messages still bring
+            for other, other_checker in state["checkers"].items():
+                if other_checker is not checker:
+                    other_checker.watchdog(now)
+                if other_checker.failed:
+                    state["values"][other] = {f: safe[f] for f in state["fields"][other]}
+            if carried is not None:
+                state["values"][mapping.message] = carried
             state["seq"] += 1
             fields = {k: v for values in state["values"].values() for k, v in values.items()}
             fields = {n: fields.get(n) for n in state["names"]}
