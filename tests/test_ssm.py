@@ -209,6 +209,26 @@ def test_in_ssmon_a_speed_limit_with_no_value_stops_the_arm():
         assert (state[1] > 0.0) == moves, (mode, limit)
 
 
+@pytest.mark.parametrize("code", [float("nan"), -1.0, 99.0, "unknown"])
+def test_a_mode_request_with_no_mode_an_arm_can_take_stops_the_arm(code):
+    """A request the codec can carry but no arm can obey (no value, a code of no mode, ``unknown``: an emulated arm
+    commanded by the twin) stops the arm, as a machine does, rather than stop the run."""
+    from cellsim.diagrams.cell import build_cell
+    from cellsim.kinds.robot.system import requested_mode
+    from cellsim.vocabulary import SafetyMode
+
+    if code == "unknown":
+        code = float(SafetyMode.UNKNOWN.code)
+    assert requested_mode(code) is SafetyMode.STOPPED
+    assert requested_mode(float(SafetyMode.SPEED_SEPARATION.code)) is SafetyMode.SPEED_SEPARATION
+    cell = build_cell(load_scenario(ASSEMBLY_BENCH), seed=0, duration=1.0, record=False)
+    robot = cell.modules["loader"]
+    state = robot.start_segment(robot.poses[robot.pose_names.index("home")], robot.pose_names.index("bench_pick"))
+    for _ in range(10):
+        state, _, _ = robot._advance(state, requested_mode(code), state[0], 1.0)
+    assert state[1] == 0.0  # it has not left its pose
+
+
 def test_a_robot_in_twin_mode_sends_its_physical_twin_the_ssm_limit_in_force_and_the_cap_without_one():
     """The SSM monitor's speed_limit is a command of the robot: what the physical controller is told (a UR's speed
     slider), at most the ssmon cap; a cell with no ssm sends the cap (an unlimited speed is no number a message

@@ -42,6 +42,15 @@ HOLD = -1.0
 
 STANDSTILL_MODES = frozenset({SafetyMode.MONITORED_STOP, SafetyMode.STOPPED})
 _MODES = tuple(SafetyMode)
+
+
+def requested_mode(code: float) -> SafetyMode:
+    """The safety mode a request's ``code`` asks of the arm: a request with no value (NaN, -1), with no mode's code,
+    or asking for ``unknown`` (no mode an arm can be put in) is a stop."""
+    if not (math.isfinite(code) and 0 <= code < len(_MODES)):
+        return SafetyMode.STOPPED
+    mode = _MODES[int(code)]
+    return SafetyMode.STOPPED if mode is SafetyMode.UNKNOWN else mode
 _SEGMENT_SAMPLES = 24
 TRACKING_ALLOWANCE = 0.04
 """The arm plans its tool speed this far below a mode's speed cap (m/s): the joint controller
@@ -247,7 +256,7 @@ class Robot(EntitySystem):
     # -- update ---------------------------------------------------------------------
     def update(self, context, xd):
         view = self.consult_physical(context, xd)
-        mode = _MODES[int(self.mode_request_port.Eval(context)[0])]
+        mode = requested_mode(self.mode_request_port.Eval(context)[0])
         target = self.target_port.Eval(context)[0]
         activity = self.activity_port.Eval(context)[0]
         state = context.get_discrete_state(self._state).get_value()
