@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import sqlite3
 
 import pytest
@@ -87,7 +89,8 @@ def test_bad_scenario_files_one_line_exit_2_nothing_written(case, tmp_path, caps
     old, new, problem = BAD[case]
     text = WELDING_CELL.read_text()
     assert old in text
-    bad = WELDING_CELL.parent / f".bad-{tmp_path.name}.yaml"  # beside the original, so models resolve
+    # beside the original, so models resolve; named by the process too (two test workers' tmp_paths share names)
+    bad = WELDING_CELL.parent / f".bad-{os.getpid()}-{tmp_path.name}.yaml"
     try:
         bad.write_text(text.replace(old, new, 1))
         out = tmp_path / "out"
