@@ -165,9 +165,12 @@ def test_a_curtain_reporting_clear_while_a_body_is_in_its_beams_is_a_blind_spot(
 ])
 def test_a_range_detector_reporting_farther_than_the_truth_is_a_blind_spot(shadowed, gap, reported, unseen):
     built, context = shadowed
-    sensor = np.array(built.modules["range_detector"].cfg.position)
+    cfg = built.modules["range_detector"].cfg
+    sensor = np.array(cfg.position)
     put_operator(built, context, *(sensor[:2] - [gap, 0.0]))
-    assert _unseen_after_update(built, context, "range_detector", [reported.code, 3.0]) == unseen
+    # a sample's distance is one of its class (a sample whose two fields disagree is corrupt)
+    distance = {Range.FAR: 3.0, Range.NEAR: (cfg.close_below + cfg.near_below) / 2, Range.CLOSE: cfg.close_below / 2}
+    assert _unseen_after_update(built, context, "range_detector", [reported.code, distance[reported]]) == unseen
 
 
 def test_a_person_a_physical_sensor_shows_one_period_later_was_not_in_its_blind_spot(shadowed):

@@ -67,13 +67,18 @@ def shadowed_range_detector(recover_after: int):
 def test_corrupt_samples_fail_safe():
     _, rd, own, _sim = shadowed_range_detector(recover_after=1)  # each sample judged alone
     readings = {}
-    for label, sample in {"ok": [0.0, 1.0, 0.0, 2.5], "bad enum": [0.0, 1.0, 7.0, 2.5], "nan": [0.0, 1.0, 0.0, np.nan]}.items():
+    samples = {"ok": [0.0, 1.0, 0.0, 2.5], "bad enum": [0.0, 1.0, 7.0, 2.5], "nan": [0.0, 1.0, 0.0, np.nan],
+               "far at 0.2 m": [0.0, 1.0, 0.0, 0.2],  # the two fields disagree: one is wrong
+               "near, rounded across": [0.0, 1.0, 1.0, rd.cfg.near_below + 0.001]}  # (a transport's rounding)
+    for label, sample in samples.items():
         rd.physical_sample_port.FixValue(own, np.array(sample))
         state = rd.EvalUniquePeriodicDiscreteUpdate(own)
         readings[label] = (state.get_vector(rd.group("range")).GetAtIndex(0), state.get_vector(rd.group("physical_link")).GetAtIndex(0))
     assert readings["ok"] == (0.0, 1.0)  # far, link ok
     assert readings["bad enum"] == (2.0, 3.0)  # close, link corrupt
     assert readings["nan"] == (2.0, 3.0)
+    assert readings["far at 0.2 m"] == (2.0, 3.0)
+    assert readings["near, rounded across"] == (1.0, 1.0)  # near, link ok
 
 
 def test_commands_go_out_only_in_twin_mode(tmp_path):

@@ -256,7 +256,8 @@ class AreaScanner(GeometrySensor):
         return best
 
     def sample_is_valid(self, sample) -> bool:
-        return valid_code(sample[0], self.readings) and np.isfinite(sample[1]) and sample[1] >= 0.0
+        """A field's code, and a distance the scanner can measure: 0 to its max_range."""
+        return valid_code(sample[0], self.readings) and np.isfinite(sample[1]) and 0.0 <= sample[1] <= self.cfg.max_range
 
     def update(self, context, xd):
         view = self.consult_physical(context, xd)

@@ -14,6 +14,11 @@ from cellsim.vocabulary import Range, TwinMode, value_set
 from cellsim.kinds.range_detector.config import RangeDetectorConfig
 
 
+SAMPLE_ROUNDING = 0.01
+"""m: how far a physical sample's distance may lie outside the band of its range code and still agree with it (a
+transport's rounding of the distance: a CAN signal's resolution is a millimetre)."""
+
+
 class RangeDetector(GeometrySensor):
     """A safety scanner at a point, classifying the nearest person's distance.
 
@@ -95,7 +100,12 @@ class RangeDetector(GeometrySensor):
         return nearest
 
     def sample_is_valid(self, sample) -> bool:
-        return valid_code(sample[0], Range)
+        """A range code, and a distance it is the class of, within ``SAMPLE_ROUNDING`` (a sample whose two fields
+        disagree: one of them is wrong, and a reader of either would act on it)."""
+        if not (valid_code(sample[0], Range) and math.isfinite(sample[1])):
+            return False
+        reported, distance = Range.from_code(int(sample[0])), sample[1]
+        return reported in (self.classify(distance - SAMPLE_ROUNDING), self.classify(distance + SAMPLE_ROUNDING))
 
     def update(self, context, xd):
         view = self.consult_physical(context, xd)
