@@ -81,6 +81,9 @@ BAD = {
                       "    unsupported_request: ignore\n    twin: {mode: shadw}\n", "'shadw' is not one of: model, shadow, twin"),
     "wrong value type": ("    near_below: 2.0\n", "    near_below: two\n", "expected a number"),
     "missing model file": ("    model: models/ur10.urdf\n", "    model: models/ur5.urdf\n", "file not found: models/ur5.urdf"),
+    "collaborative mode above normal": ("    speed_limits: {normal: 1.0, hguid: 0.25, ssmon: 0.5, pflim: 0.25}\n",
+                                        "    speed_limits: {normal: 1.0, hguid: 0.25, ssmon: 1.5, pflim: 0.25}\n",
+                                        "speed_limits.ssmon: 1.5 m/s is above normal"),
 }
 
 

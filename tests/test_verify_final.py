@@ -89,6 +89,24 @@ def test_a_run_that_may_end_before_the_script_is_over_ends_anywhere_and_the_twin
     assert "may not be over by its last update" in assumption and "may stand anywhere then" in assumption
 
 
+def test_a_person_whose_last_stop_shares_its_starting_place_is_walked_there_by_the_witness(tmp_path):
+    """The welding cell with the operator's last stop moved into the cell: ``Final:Cell`` reads only the operator's own
+    zone, so it is decided at the last stop without cutting the floor by it, and the last stop lies in the operator's
+    starting place. The witness is the initial state; its replay must walk to the last stop and stay, not stand at
+    the start (a helper's audit found the twin 'refuting' it so, and the property left undecided)."""
+    from conftest import WELDING_CELL
+
+    scenario = tmp_path / "end_in_cell.yaml"
+    scenario.write_text(f"base: {WELDING_CELL}\nname: welding_cell_end_in_cell\nentities:\n  operator:\n"
+                        "    waypoints:\n      exit: {position: [-1.0, -1.2], wait: 2.0}\n")
+    done = _verify(str(scenario), "--json", "--refine", "0", "--out", str(tmp_path / "out"))
+    assert done.returncode == 1, done.stderr
+    final = {p["name"]: p for p in json.loads(done.stdout)["properties"]}["Final:Cell"]
+    assert final["ending"] == "violated" and final["twin"]["confirmed"]
+    witness = (tmp_path / "out" / "Final_Cell.yaml").read_text()
+    assert "-1.0" in witness and "-1.2" in witness  # its walk ends at the last stop
+
+
 def _slowest_script_end(sf) -> float:
     """When the operator's script is over at the slowest pace its jitter allows, by the twin's own walk planner."""
     import dataclasses

@@ -16,7 +16,7 @@ def add_parser(subparsers) -> None:
         description="Rebuild a run's trace from its black box and evaluate every safety condition "
         "and use-case classifier of the scenario's validation section. RUN is a run folder (as written "
         "by simulate) or a black-box file. Given a campaign folder, it checks every run and gives, per "
-        "condition and for any condition, the violation rate and its exact (Clopper-Pearson) 95 %% upper "
+        "condition and for any condition, the violation rate and its exact (Clopper-Pearson) 95 % upper "
         "bound, with the sampling distribution it holds under. Exits 0 if every condition holds (on every "
         "run), 1 if one is violated or undecided, 2 if the run (or any run of the campaign) cannot be checked: "
         "evidence never shrinks silently.",

@@ -68,6 +68,11 @@ def _ending(checked, replay, replayed: bool, symbolic: bool, refinements) -> Fin
         if fair:
             return Final(name, Ending.HOLDS, f"proved in the abstraction under fairness: {slower}, but it can always "
                          "still come, so it comes on every path where what can be done again and again is done")
+        if getattr(checked, "owed_at_end", False):
+            return Final(name, Ending.UNDECIDED, f"{slower}, and a run may end owing it: it can always still come, but "
+                         "not while the people stand where their scripts leave them, and the twin's runs end with them "
+                         "there (a response still owed at the end violates the condition); no witness of that is built "
+                         "or run on the twin yet")
         return Final(name, Ending.UNDECIDED, f"{slower}, and the abstraction reaches a state from which it can never "
                      "come: no witness of that is built or run on the twin yet")
     tried = f"; refinement: {', '.join(refinements)}" if refinements else ""

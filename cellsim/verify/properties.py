@@ -84,6 +84,7 @@ class ConditionProperties:
         self.skipped: list[Skipped] = []
         self.user: list[tuple[str, str, str]] = []  # (name, pctl text, description)
         self._final_assumed = False
+        self._response_assumed = False
 
     def channel(self, variable: str) -> str:
         return self.aliases.get(variable, variable)
@@ -154,6 +155,9 @@ class ConditionProperties:
             if c.shape == "response":
                 within = RESPONSE_PERIODS * cell.period
                 response = tuple(to_prism(c.parts[i], encodings, names) for i in (0, 2))
+                if not self._response_assumed:
+                    self._response_assumed = True
+                    cell.assume(RUN_GOES_ON)
             cell.properties.append(Property(c.name, c.description, bad=bad, condition=c.name, sustained=sustained,
                                             within=within, response=response, final=c.shape == "final"))
 
@@ -223,6 +227,13 @@ class ConditionProperties:
                 except FormulaError as e:
                     raise VerifyError(f"verify.{name}: \"{source}\": {e.message}") from None
                 self._reads(formula, {v: self.channel(v) for v in variables_of(formula)}, f"verify.{name}")
+
+
+RUN_GOES_ON = ("a liveness condition G(a -> F b) is judged as if the run went on after a response is owed (the model "
+               "has no end of run; the twin's check fails a response still owed when the run ends): one that cannot "
+               "come while the people stand where their scripts leave them ends undecided, and one that can is "
+               "assumed to come before the run ends (a run cut within its response time of an a is the twin's check "
+               "to judge)")
 
 
 def _shape(formula):

@@ -96,7 +96,7 @@ def dd_memory(bound: float) -> int:
 def labels_of(prop: Property, label: str) -> list[str]:
     """The labels a property's check reads: its bad states', its sustained violation's, its response's a and b."""
     return [label, *([sustained_label(label)] if prop.sustained else []),
-            *([f"{label}_a", f"{label}_b"] if prop.response else [])]
+            *([f"{label}_a", f"{label}_b", f"{label}_end"] if prop.response else [])]
 
 
 def sustained_label(label: str) -> str:
@@ -234,11 +234,18 @@ def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset
                 abstract.labels[sustained_label(f"bad{i}")] = prop.sustained
             if prop.response:
                 abstract.labels[f"bad{i}_a"], abstract.labels[f"bad{i}_b"] = prop.response
+                abstract.labels[f"bad{i}_end"] = _at_the_end(abstract)
     header = (f"Abstract model of the cell '{scenario.name}', written by cellsim verify.\n"
               f"One step is one period of {period:g} s. Assumptions:\n" + "\n".join(f"- {a}" for a in abstract.assumptions))
     text = abstract.program(header).text()
     times["model"] = time.perf_counter() - mark
     return AbstractModel(abstract, text, properties, skipped, labels, times, header, parts)
+
+
+def _at_the_end(abstract: AbstractCell) -> str:
+    """The states a run may end in: each person whose script's end is known stands there (the others anywhere)."""
+    people = abstract.places.people if abstract.places is not None else []
+    return " & ".join(f"{p.variable} = {p.end}" for p in people if p.end is not None) or "true"
 
 
 def _time_assumption(abstract: AbstractCell) -> str:

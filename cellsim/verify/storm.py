@@ -35,7 +35,10 @@ class Checked:
     """The valuations of the states along a shortest path to a bad state (a violated safety property)."""
     fair: bool | None = None
     """A liveness condition whose stronger response failed: whether it holds under fairness
-    (:func:`always_answerable`); None when not asked (or not answerable: decision diagrams)."""
+    (:func:`always_answerable`, and not :func:`owed_at_the_end`); None when not asked."""
+    owed_at_end: bool = False
+    """A liveness condition whose response can always still come, but not while the people stand where their
+    scripts leave them, from a state reachable with it owed (:func:`owed_at_the_end`): a run may end owing it."""
     deferred: bool = False
     """Violated, its witness not built: a refinement took up another property's witness in the same round, and the
     refined model checks this one again (``verify(..., enough=...)``); never in a round's final result."""
@@ -207,14 +210,17 @@ def check(program, model, prop: Property, bad_label: str | None, still: tuple[st
         holds = value <= 0.0
         witness = None
         fair = None
+        owed = False
         if not holds and prop.response:
             fair = always_answerable(program, model, f"{bad_label}_a", f"{bad_label}_b")
+            owed = fair and owed_at_the_end(program, model, f"{bad_label}_a", f"{bad_label}_b", f"{bad_label}_end")
+            fair = fair and not owed
         elif not holds and not model.is_symbolic_model:
             sustained = f"{bad_label}_sustained" if prop.sustained else None
             if sustained:
                 witness = shortest_path(program, model, sustained, required=False, still=still, valuations=valuations)
             witness = witness or shortest_path(program, model, bad_label, still=still, valuations=valuations)
-        return Checked(prop, value, time.perf_counter() - start, holds, witness, fair)
+        return Checked(prop, value, time.perf_counter() - start, holds, witness, fair, owed_at_end=owed)
     if isinstance(value, bool):
         return Checked(prop, value, seconds, value)
     return Checked(prop, float(value), seconds, None)
@@ -238,6 +244,20 @@ def always_answerable(program, model, a_label: str, b_label: str) -> bool:
     values = stormpy.model_checking(model, formula).get_value_vector()
     a, b = model.labeling.get_states(a_label), model.labeling.get_states(b_label)
     return not any(values[s] > 0 for s in range(model.nr_states) if a.get(s) and not b.get(s))
+
+
+def owed_at_the_end(program, model, a_label: str, b_label: str, end_label: str) -> bool:
+    """Whether a run may end owing a response: from an ``a`` state, without passing ``b``, a state is reachable where
+    every person stands where its script leaves it (``end``: the run's last states, as for ``Final`` conditions)
+    from which ``b`` can never come while they stay there. The twin's run does end with them there, and its check
+    judges ``F b`` strongly: a response still owed at the end is a violation, which fairness (a person free to leave
+    does leave) cannot answer when the script has them stay. One qualitative question of the initial state, on
+    decision diagrams or sparse alike."""
+    stormpy = _quiet()
+    stuck = f'"{end_label}" & !"{b_label}" & Pmax<=0 [ "{end_label}" U "{b_label}" ]'
+    text = f'Pmax>0 [ F ("{a_label}" & !"{b_label}" & Pmax>0 [ !"{b_label}" U ({stuck}) ]) ]'
+    (formula,) = stormpy.parse_properties(text, program)
+    return bool(_initial_value(stormpy, model, formula))
 
 
 def shortest_path(program, model, label: str, required: bool = True, still: tuple[str, ...] = (),

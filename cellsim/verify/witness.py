@@ -102,8 +102,8 @@ def walks(model, checked: Checked, shift: float) -> tuple[dict, float]:
         buttons = {port: press_variable(role.module, port) for port in role.buttons}
         stops, presses = [], {}
         for i, (place, first, last, pose) in enumerate(runs):
-            if i == 0 and place == person.start:
-                continue  # where it starts
+            if i == 0 and place == person.start and pose == role.start:
+                continue  # where it starts (unless the run ends in its starting place, at its last stop)
             pressed = [port for port, var in buttons.items() if any(path[s].get(var) for s in range(first, last + 1))]
             if pressed:
                 presses[len(stops)] = pressed[0]

@@ -24,6 +24,14 @@ class SpeedLimits:
     pflim: Speed = 0.25
     """Power and force limiting (ISO/TS 15066: collaborative speed)."""
 
+    def __post_init__(self):
+        # a collaborative mode reduces the speed: the arm's timing and braking (and verify's bounds of them) count
+        # on none being faster than normal
+        for mode in ("hguid", "ssmon", "pflim"):
+            if getattr(self, mode) > self.normal:
+                raise FieldError(mode, f"{getattr(self, mode):g} m/s is above normal ({self.normal:g} m/s): a "
+                                 "collaborative mode cannot allow more than full speed")
+
 
 @dataclass(frozen=True)
 class ToolTarget:
