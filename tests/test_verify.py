@@ -220,6 +220,58 @@ def test_a_model_of_many_states_is_checked_on_decision_diagrams_and_a_witness_re
         assert all(isinstance(v, (bool, int)) for v in start.values())
 
 
+def test_people_held_at_their_start_give_a_witness_where_the_whole_cell_is_too_large_to_make_sparse():
+    """Holding a person where it starts only takes choices away, so a path of the smaller model is one of the whole
+    cell's: a floor module keeps just the commands that leave its person's place as it is, and the people are held
+    all but one in turn, then all."""
+    from cellsim.verify.prism import Command, Module, Program, Var
+    from cellsim.verify.run import _holdings, held, with_held
+
+    class Person:
+        def __init__(self, module):
+            self.role, self.variable = type("Role", (), {"module": module})(), f"{module}_place"
+
+    a, b = Person("operator"), Person("visitor")
+    b.start = 2
+    floor = Module("visitor_floor", [Var("visitor_place", 0, 3, 2), Var("visitor_place_dwell", 0, 3, 0)], [
+        Command("visitor_place=2", (("1", {}),)),
+        Command("visitor_place=2", (("1", {"visitor_place": "1"}),)),
+        Command("visitor_place=1", (("1", {"visitor_place_dwell": "min(visitor_place_dwell+1, 3)"}),))])
+    other = Module("operator_floor", [], [Command("operator_place=0", (("1", {"operator_place": "1"}),))])
+    program = Program([floor, other], labels={"seen": "visitor_place=2 | operator_place=1"})
+    kept = held(program, [b])
+    # the moves gone, the place its start's number wherever read, the pace's own variables as they were
+    assert [c.guard for c in kept.modules[0].commands] == ["2=2", "2=1"]
+    assert [v.name for v in kept.modules[0].variables] == ["visitor_place_dwell"]
+    assert kept.modules[0].commands[1].updates[0][1] == {"visitor_place_dwell": "min(visitor_place_dwell+1, 3)"}
+    assert kept.labels == {"seen": "2=2 | operator_place=1"}
+    assert kept.modules[1] == other and program.modules[0] == floor  # the others, and the program itself, untouched
+    assert with_held([{"operator_place": 1}], [b]) == [{"operator_place": 1, "visitor_place": 2}]
+    assert _holdings([a, b]) == [[b], [a], [a, b]]
+    assert _holdings([a]) == [[a]]
+
+
+@pytest.mark.slow
+def test_two_operators_too_large_to_make_sparse_take_a_witness_from_the_cell_with_a_person_held(monkeypatch):
+    """The two-operator cell forced onto the decision diagrams alone (as its paced model is, 25 million states): the
+    robot's missed detection needs the operator alone, and gets a witness from the cell with the visitor held at its
+    start, in which the visitor never moves; the scanner's and the curtain's need both people moving (the second
+    person is the point of the cell), so no held model has them violated and they keep none."""
+    import cellsim.verify.run as run
+
+    monkeypatch.setattr(run, "EXPLICIT_LIMIT", 10_000_000)  # the whole cell has some 15 million transitions
+    result = run.verify(load_scenario(ROOT / "scenarios" / "two_operators.yaml"))
+    assert result.stats.symbolic and result.stats.transitions > 10_000_000
+    violated = {r.prop.name: r for r in result.results if r.holds is False and r.prop.within is None}
+    assert set(violated) >= {"HRW:detected", "HS:detected", "HC:detected"}
+    witnessed = violated["HRW:detected"]
+    assert witnessed.witness_from == "the model with visitor held at the start"
+    (visitor,) = [p for p in result.model.cell.places.people if p.role.module == "visitor"]
+    assert {state[visitor.variable] for state in witnessed.witness} == {visitor.start}
+    assert len({state["operator_place"] for state in witnessed.witness}) > 1  # the operator walks
+    assert violated["HS:detected"].witness is None and violated["HC:detected"].witness is None
+
+
 def test_a_witness_of_a_cell_verified_with_set_overrides_keeps_them(tmp_path):
     """The witness scenario is the cell that was verified: its --set values are written into it
     (the walk's own keys win: an override of the replaced waypoints has nothing to apply to)."""

@@ -84,10 +84,12 @@ def _ending(checked, replay, replayed: bool, symbolic: bool, refinements) -> Fin
         why = ("the witness was not replayed on the twin (--no-replay)" if not replayed
                else "the witness has no replay")
         return Final(name, Ending.UNDECIDED, why + tried)
+    source = getattr(checked, "witness_from", "")
+    source = f" (from {source}: a path of the whole cell's model too)" if source else ""
     if replay.confirmed:
-        return Final(name, Ending.VIOLATED, f"the twin confirms the witness: {replay.runs[-1]}")
-    return Final(name, Ending.UNDECIDED, f"the twin refutes the witness in {len(replay.runs)} runs: the abstraction "
-                                         f"allows a behaviour the cell does not show{tried}")
+        return Final(name, Ending.VIOLATED, f"the twin confirms the witness{source}: {replay.runs[-1]}")
+    return Final(name, Ending.UNDECIDED, f"the twin refutes the witness{source} in {len(replay.runs)} runs: the "
+                                         f"abstraction allows a behaviour the cell does not show{tried}")
 
 
 def exit_code(endings: list[Final]) -> int:

@@ -60,7 +60,10 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
         # a witness a module faults settles the round: the others wait for the refined model (while one may come)
         enough = None if len(done) >= budget else (
             lambda model, checked: checked.prop.name not in confirmed and _faults(model, checked.witness))
-        result = verify(sf, export=export, timed=timed, refinements=keys, on_stage=on_stage, checked_before=once,
+        # a violation the twin confirmed stands for good: its monitor leaves the refined model (a smaller one to
+        # build), unless the model is exported, which keeps every monitor
+        before = {**once, **({} if export is not None else {name: c for name, (c, _) in confirmed.items()})}
+        result = verify(sf, export=export, timed=timed, refinements=keys, on_stage=on_stage, checked_before=before,
                         model=built, enough=enough)
         once = once or {r.prop.name: r for r in result.results if r.prop.within is not None}
         open_ = _witnessed(result, done, confirmed)

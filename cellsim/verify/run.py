@@ -366,9 +366,14 @@ def _storm(model: AbstractModel, memory: int, say, enough=None):
         count(whole_stats)
         if whole_stats.transitions > EXPLICIT_LIMIT:
             say(f"Storm: {whole_stats.states:,} states, {whole_stats.transitions:,} transitions: "
-                "checked as decision diagrams, without witnesses")
+                "checked as decision diagrams")
             checked(program, symbolic, model.properties)
+            del symbolic
             stats = largest = whole_stats
+            for props, group in model.groups():
+                again = [p for p in props if p.bad and p.within is None and results[p.name].holds is False]
+                if again:
+                    _witness_held(model, group, again, results, memory, Path(scratch), say, count)
         else:
             # every property checked on the decision diagrams; only a group with a violated one (its witness, or
             # whether its response can always still come) is built again, with only its own monitor: state by state
@@ -411,6 +416,85 @@ def _storm(model: AbstractModel, memory: int, say, enough=None):
                     for p in again)
             largest = stats  # the whole cell, every monitor in it: no group is larger
     return results, times, stats, largest, refinable
+
+
+def held(program: Program, people: list) -> Program:
+    """``program`` with ``people`` (``PersonPlaces``) held where they start: each floor module keeps only the commands
+    that leave its person's place as it is, and the place is no longer a variable but the start place's number
+    wherever it is read (Storm folds a variable nothing changes into a constant, and would then not know it when the
+    model is made sparse). Every path of it is a path of ``program`` (only choices of where to walk are taken away),
+    so a witness found in it is one of ``program``, each held person at its start (:func:`with_held`)."""
+    import re
+    from dataclasses import replace as copy
+
+    floors = {f"{p.role.module}_floor": p.variable for p in people}
+    starts = {p.variable: str(p.start) for p in people}
+    pattern = re.compile(r"\b(" + "|".join(map(re.escape, starts)) + r")\b") if starts else None
+
+    def fixed(expr: str) -> str:
+        return pattern.sub(lambda m: starts[m.group(1)], expr) if pattern else expr
+
+    def command(c):
+        return copy(c, guard=fixed(c.guard), updates=tuple((fixed(p), {k: fixed(v) for k, v in u.items()})
+                                                         for p, u in c.updates))
+
+    def module(m):
+        var = floors.get(m.name)
+        kept = [c for c in m.commands if var is None or not any(var in u for _, u in c.updates)]
+        return copy(m, variables=[v for v in m.variables if v.name not in starts], commands=[command(c) for c in kept])
+
+    return copy(program, modules=[module(m) for m in program.modules],
+                formulas={k: fixed(v) for k, v in program.formulas.items()},
+                labels={k: fixed(v) for k, v in program.labels.items()})
+
+
+def with_held(witness: list[dict], people: list) -> list[dict]:
+    """A witness of a model with ``people`` held (:func:`held`), each state given their places back (their starts)."""
+    return [{**state, **{p.variable: p.start for p in people}} for state in witness]
+
+
+def _holdings(people: list) -> list[list]:
+    """The sets of people to hold, in the order to try them: all but one (each in turn, as the scenario lists them),
+    then all (the cell's own choices only); none for a cell of one person but that last."""
+    if len(people) < 2:
+        return [list(people)] if people else []
+    return [[q for q in people if q is not p] for p in people] + [list(people)]
+
+
+def _witness_held(model: AbstractModel, group: Program, props: list, results: dict, memory: int, scratch: Path, say,
+                  count) -> None:
+    """Witnesses of ``props`` (violated in the cell too large to make sparse) from the group's model with some people
+    held at their start (:func:`held`): the first such model small enough to make sparse in which a property is
+    still violated gives its witness (its value stays the whole cell's)."""
+    people = model.cell.places.people if model.cell.places is not None else []
+    wanted = list(props)
+    for i, holding in enumerate(_holdings(people)):
+        if not wanted:
+            return
+        sub = held(group, holding)
+        who = ", ".join(p.role.module for p in holding)
+        path = scratch / f"held{i}.prism"
+        path.write_text(sub.text() + valuation_labels(sub.variables()))
+        say(f"Storm: the state space for {', '.join(p.name for p in wanted)} with {who} held at the start")
+        program, symbolic, sub_stats = build_symbolic(path, memory)
+        count(sub_stats)
+        if sub_stats.transitions > EXPLICIT_LIMIT:
+            continue
+        found = {}
+        for prop in wanted:
+            label = model.labels.get(prop.name)
+            if check(program, symbolic, prop, label, ()).holds is False:
+                found[prop.name] = prop
+        if not found:
+            continue
+        built, valuations = to_sparse(symbolic, sub.variables())
+        still = tuple(person.variable for person in people)
+        for prop in found.values():
+            mine = check(program, built, prop, model.labels.get(prop.name), still, valuations)
+            if mine.witness is not None:
+                results[prop.name] = replace(results[prop.name], witness=with_held(mine.witness, holding),
+                                             witness_from=f"the model with {who} held at the start")
+                wanted.remove(prop)
 
 
 def _stopped(stopped: ProcessStopped, memory: int) -> str:

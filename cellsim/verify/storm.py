@@ -39,6 +39,9 @@ class Checked:
     owed_at_end: bool = False
     """A liveness condition whose response can always still come, but not while the people stand where their
     scripts leave them, from a state reachable with it owed (:func:`owed_at_the_end`): a run may end owing it."""
+    witness_from: str = ""
+    """Where the witness came from when not the property's own model: the people a smaller model held at their
+    start (``cellsim.verify.run``: the whole cell too large to make sparse)."""
     deferred: bool = False
     """Violated, its witness not built: a refinement took up another property's witness in the same round, and the
     refined model checks this one again (``verify(..., enough=...)``); never in a round's final result."""
