@@ -100,6 +100,18 @@ def test_an_interrupted_campaign_resumes_and_can_be_extended(campaign, tmp_path)
         assert results["runs"][i]["configuration"] == before[i]["configuration"]
 
 
+def test_a_campaign_is_never_made_smaller_than_the_runs_it_has_finished(small_campaign, tmp_path, capsys):
+    """Fewer --runs than a folder has finished would leave finished runs out of the sample, a violating one among
+    them (a helper's audit found it reported 0 of 2 where check said 1 of 3): refused, one line, nothing changed."""
+    base, args = _copy_of(small_campaign, tmp_path)
+    out = base / "c"
+    before = (out / "results.json").read_text()
+    assert main([*args[:-1], "--runs", "1", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "1 finished run(s) of these inputs beyond --runs 1 (up to run 2)" in err
+    assert "--runs 2" in err and (out / "results.json").read_text() == before
+
+
 def test_a_different_campaign_is_not_mixed_into_a_folder(campaign, capsys):
     _, out = campaign
     assert main(["campaign", str(WELDING_CELL), "--runs", "3", "--seed", "6", "--out", str(out), "--quiet"]) == 2

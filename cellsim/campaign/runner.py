@@ -138,6 +138,12 @@ def prepare(plan: CampaignPlan, out: Path, identity: dict, restart: bool = False
     check_resumable(out, identity, restart)
     if plan_path.exists() and restart:
         discard(out)
+    elif plan_path.exists():
+        beyond = _finished_from(out, plan.runs, identity)
+        if beyond:  # a sample is never made smaller after the fact: a run left out may be one that violated
+            raise CampaignError(f"{out} holds {len(beyond)} finished run(s) of these inputs beyond --runs {plan.runs} "
+                                f"(up to run {max(beyond) + 1}): pass --runs {max(beyond) + 1} or more to keep "
+                                f"them, or {RESTART_HINT}")
     out.mkdir(parents=True, exist_ok=True)
     write_json(plan_path, {"identity": identity, "runs": plan.runs, "scenario": plan.scenario})
     done = []
@@ -152,6 +158,22 @@ def prepare(plan: CampaignPlan, out: Path, identity: dict, restart: bool = False
             if result.get("inputs_hash") == identity["hash"]:
                 done.append(result)  # any other is redone: never count a run of other inputs
     return done
+
+
+def _finished_from(out: Path, first: int, identity: dict) -> list[int]:
+    """The indices, from ``first`` on, of the runs of ``out`` finished with these inputs (``identity``)."""
+    found = []
+    for path in sorted((out / RUNS).glob("*/" + RESULT)) if (out / RUNS).is_dir() else ():
+        name = path.parent.name
+        if not name.isdigit() or int(name) < first:
+            continue
+        try:
+            result = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError):
+            continue  # a result cut short counts as not finished (it would be redone)
+        if isinstance(result, dict) and result.get("inputs_hash") == identity["hash"]:
+            found.append(int(name))
+    return found
 
 
 def check_resumable(out: Path, identity: dict, restart: bool = False) -> None:
