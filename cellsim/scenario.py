@@ -283,6 +283,7 @@ def _check_sampler_range(sf: ScenarioFile, name: str, sampler, paths: list[str])
         drawn = {"minimum": sampler.minimum, "total": sampler.total - (n - 1) * sampler.minimum}
     else:
         drawn = {f"values.{i}": v for i, v in enumerate(sampler.values) if isinstance(v, (int, float)) and not isinstance(v, bool)}
+        _check_choices(sf, name, sampler, paths)
     for dotted in paths:
         valid = range_of(type_at(sf.scenario, _shortcut(sf.scenario)(dotted.split("."))))
         if valid is None:
@@ -293,6 +294,25 @@ def _check_sampler_range(sf: ScenarioFile, name: str, sampler, paths: list[str])
                     f"campaign.samplers.{name}.{key}",
                     f"draws {value:g}, outside what {dotted} accepts: {valid}",
                 )
+
+
+def _check_choices(sf: ScenarioFile, name: str, sampler, paths: list[str]) -> None:
+    """Each value a choice draws is one its configuration point's fields accept: set on the scenario as a run would
+    set it (a value no field could take would fail the runs that draw it, after the campaign had begun)."""
+    import dataclasses
+    import json
+
+    from cellsim.config.typed_yaml import apply_override
+
+    for i, value in enumerate(sampler.values):
+        text = json.dumps(value) if isinstance(value, (bool, str)) else repr(value)
+        for dotted in paths:
+            trial = dataclasses.replace(sf.loaded)  # (a new value is built; the scenario's stays as it is)
+            try:
+                apply_override(trial, f"{dotted}={text}", _shortcut(sf.scenario))
+            except ConfigError as e:
+                raise sf.error(f"campaign.samplers.{name}.values.{i}",
+                               f"draws {text}, which {dotted} does not accept: {e.problem}") from None
 
 
 def unit_of(scenario: Scenario, dotted: str) -> str:

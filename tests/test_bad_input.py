@@ -177,6 +177,22 @@ def test_a_sampler_that_would_draw_out_of_range_is_refused_at_load_time(override
         load_scenario(WELDING_CELL, [override])
 
 
+def test_a_choice_a_field_cannot_take_is_refused_at_its_line_before_any_run(tmp_path, capsys):
+    """An audit found a choice of 'shadw' for a twin mode passing `scenario check`, then failing the campaign's
+    runs that drew it, the bound stated over both values: each value is now set on the scenario at load time."""
+    from cellsim.cli import main
+
+    scenario = tmp_path / "choice.yaml"
+    scenario.write_text(f"base: {WELDING_CELL}\nname: choice\nconfiguration_points:\n"
+                        "  barrier_mode: {paths: [light_barrier.twin.mode]}\ncampaign:\n  samplers:\n"
+                        "    barrier_mode: {kind: choice, values: [model, shadw]}\n")
+    assert main(["scenario", "check", str(scenario)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{scenario}:7:" in err and "values.1" in err and "shadw" in err
+    scenario.write_text(scenario.read_text().replace("shadw", "shadow"))
+    assert main(["scenario", "check", str(scenario)]) == 0
+
+
 BAD_NUMBERS = {
     # category: (override path, bad values)
     "period": ("robot.period", ["nan", ".inf", "0", "-0.02", "1e9", "0.003"]),

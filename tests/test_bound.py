@@ -57,7 +57,10 @@ def test_the_campaign_block_counts_undecided_runs_against_a_condition_and_leaves
         {"status": "failed"},
     ]
     block = campaign_bounds(runs, ["A", "B", "C"], "uniform waits")
-    assert block["excluded_failed_runs"] == 1 and block["sampling"] == "uniform waits"
+    assert block["excluded_failed_runs"] == 1 and block["sampling"].startswith("uniform waits; ")
+    # a failed run's configuration is not covered: the statement says the sample is of the runs that complete
+    assert "only those that complete (1 of 4 did not" in block["sampling"]
+    assert campaign_bounds(runs[:3], ["A"], "uniform waits")["sampling"] == "uniform waits"
     assert block["conditions"]["A"]["failures"] == 1 and block["conditions"]["A"]["runs"] == 3
     assert block["conditions"]["B"]["failures"] == 1 and block["conditions"]["C"]["failures"] == 0
     assert block["overall"]["failures"] == 2
@@ -134,3 +137,14 @@ def test_a_probability_reads_as_people_write_it():
     from cellsim.validation.bound import probability
 
     assert [probability(p) for p in (None, 0.000998345, 0.0372, 0.5, 1.0)] == ["-", "0.000998", "0.0372", "0.5", "1"]
+
+
+def test_the_sampling_in_words_names_what_every_run_has_in_common():
+    """A bound holds for runs drawn as the campaign's: their duration and the campaign's --set overrides are part of
+    that (an audit found 3 s runs stated as the scenario's 20 s of waits, with no word of the overrides)."""
+    from cellsim.config.sampling import ChoiceSampler, describe_sampling
+
+    words = describe_sampling({"mode": ChoiceSampler(kind="choice", values=["model", "shadow"])},
+                              {"mode": ["light_barrier.twin.mode"]}, 3.0, ("duration=3", "robot.braking_time=0.4"))
+    assert "each one of model, shadow, equally likely" in words
+    assert "every run 3 s long with duration=3, robot.braking_time=0.4" in words

@@ -42,6 +42,7 @@ def test_until_bound_says_how_many_runs_it_takes_then_stops_there(clean):
     assert set(bounds["conditions"]) == set(results["campaign"]["conditions"])
     # the distribution it holds under: the scenario's samplers, in words
     assert "operator_waits" in bounds["sampling"] and "summing to 20" in bounds["sampling"]
+    assert "every run 30 s long" in bounds["sampling"]  # what the runs have in common is part of it too
     assert "Clopper-Pearson" in bounds["method"] and "counts as violating it" in bounds["counted"]
 
 

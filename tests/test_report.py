@@ -208,6 +208,29 @@ def test_no_violations_badge():
     assert parse(page).errors == []
 
 
+def test_the_header_says_what_the_verdicts_do_not():
+    """A helper's audit found a campaign whose scanner missed a person in its field in 2 of 3 runs under a green
+    'no violations' badge, the blind spots only in a table further down; an undecided run green too; and a campaign
+    stopped early headed with the runs it planned. The header now says each."""
+    results = copy.deepcopy(RESULTS)
+    first = results["runs"][0]
+    runs = [dict(first, index=i, findings=found, undecided=undecided) for i, (found, undecided) in enumerate([
+        ([{"what": "blind spot", "subject": "scanner", "field": "protective", "start": 1.0, "end": 2.0, "text": "x"}], []),
+        ([{"what": "contact", "subject": "harm", "severity": 1.4, "region": "hand", "start": 3.0, "end": None,
+           "text": "y"}], []),
+        ([{"what": "contact", "subject": "harm", "severity": 0.4, "region": "hand", "start": 3.0, "end": None,
+           "text": "z"}], ["HS:detected"]),
+    ])]
+    results["runs"] = runs
+    results["campaign"]["runs"] = 9
+    page = render_report(results, {})
+    header = page[:page.index("</header>")]
+    assert "no violations" not in header and "1 run undecided" in header
+    assert "1 run with blind spots" in header and "1 run with harm above its limits" in header  # (0.4: within)
+    assert "3 of 9 planned" in header
+    assert parse(page).errors == []
+
+
 def test_violating_run_has_timeline_section(parsed, page):
     sections = [a for t, a, _ in parsed.elements if t == "section" and a.get("id", "").startswith("timeline-")]
     assert [s["id"] for s in sections] == ["timeline-1"]

@@ -394,6 +394,24 @@ def _conditions(results: Mapping) -> list[str]:
     return names
 
 
+FINDING_RUNS = {
+    "with blind spots": lambda f: f.get("what") == "blind spot",
+    "with harm above its limits": lambda f: f.get("what") == "contact" and is_number(f.get("severity"))
+    and f["severity"] > 1.0,
+    "outrunning a measurement": lambda f: f.get("what") in ("fast part", "fast fall"),
+}
+"""What runs can show beside the conditions' verdicts, each a badge of the report's header and a line of the
+campaign's summary: blind spots, contacts above their limits (a waived NoHarm's too), a measurement outrun between
+two looks."""
+
+
+def finding_runs(runs: Sequence[Mapping]) -> dict[str, list[int]]:
+    """The indices of the runs that showed each of :data:`FINDING_RUNS` (only those some run showed)."""
+    found = {what: [_run_index(r, i) for i, r in enumerate(runs)
+                    if any(keep(_dict(f)) for f in _list(r.get("findings")))] for what, keep in FINDING_RUNS.items()}
+    return {what: indices for what, indices in found.items() if indices}
+
+
 def _violating_runs(runs: Sequence[Mapping]) -> list[tuple[int, Mapping]]:
     return [(_run_index(r, i), r) for i, r in enumerate(runs) if _violated(r)]
 
@@ -402,9 +420,12 @@ def _header(results: Mapping, runs: Sequence[Mapping]) -> dict:
     campaign = _dict(results.get("campaign"))
     record = _dict(results.get("provenance"))
     violating = _violating_runs(runs)
+    planned = campaign.get("runs", len(runs))
+    done = sum(1 for r in runs if not _is_failed(r))
+    count = planned if planned == done or not is_number(planned) else f"{done} of {planned} planned"
     meta = [
         ("Scenario", campaign.get("scenario")),
-        ("Budget" if results.get("search") else "Runs", campaign.get("runs", len(runs))),
+        ("Budget" if results.get("search") else "Runs", count),
         ("Seed", campaign.get("seed")),
         ("Duration", _seconds(campaign["duration"]) if is_number(campaign.get("duration")) else None),
         ("Created", campaign.get("created")),
@@ -413,7 +434,9 @@ def _header(results: Mapping, runs: Sequence[Mapping]) -> dict:
         "meta": [(label, value) for label, value in meta if value is not None],
         "violating_runs": len(violating),
         "violated_conditions": len({c for _, r in violating for c in _violated(r)}),
+        "undecided_runs": sum(1 for r in runs if not _is_failed(r) and not _violated(r) and _list(r.get("undecided"))),
         "failed": sum(1 for r in runs if _is_failed(r)),
+        "findings": {what: len(indices) for what, indices in finding_runs(runs).items()},
         "versions": ", ".join(f"{k} {v}" for k, v in _dict(record.get("versions")).items()),
         "command": record.get("command"),
         "input_hash": _dict(record.get("inputs")).get("hash"),

@@ -315,7 +315,8 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
             "coverage": coverage.to_json(),
         },
         "bounds": {"excluded": search["not_a_sample"]} if search else campaign_bounds(runs, conditions, describe_sampling(
-            sc.campaign.samplers, {name: point.paths for name, point in sc.configuration_points.items()})),
+            sc.campaign.samplers, {name: point.paths for name, point in sc.configuration_points.items()},
+            plan.duration if plan.duration is not None else sc.duration, tuple(plan.overrides))),
         "timing": {
             "simulate": stage("simulate"),
             "trace": stage("trace"),

@@ -244,8 +244,10 @@ def run_seed(seed: int, index: int) -> int:
     return x ^ (x >> 16)
 
 
-def describe_sampling(samplers: dict[str, Sampler], points: dict[str, list[str]]) -> str:
-    """The distribution a campaign's runs are drawn from, in words: what a bound on them holds under."""
+def describe_sampling(samplers: dict[str, Sampler], points: dict[str, list[str]], duration: float | None = None,
+                      overrides: tuple[str, ...] = ()) -> str:
+    """The distribution a campaign's runs are drawn from, in words: what a bound on them holds under; ``duration``
+    (s) and ``overrides`` (the campaign's ``--set``s), what every run has in common, are part of it."""
     parts = []
     for name in sorted(samplers):
         s, paths = samplers[name], points.get(name, [])
@@ -257,4 +259,8 @@ def describe_sampling(samplers: dict[str, Sampler], points: dict[str, list[str]]
         else:
             parts.append(f"{name} ({keys}): uniform over the values of at least {s.minimum:g} summing to {s.total:g}")
     drawn = "; ".join(parts) if parts else "no configuration point is sampled: every run has the scenario's configuration"
-    return f"{drawn}; each run with its own simulation seed, drawn from the campaign seed"
+    common = [f"{duration:g} s long" if duration is not None else "",
+              f"with {', '.join(overrides)}" if overrides else ""]
+    common = " ".join(c for c in common if c)
+    return f"{drawn}; every run {common}, each with its own simulation seed, drawn from the campaign seed" if common \
+        else f"{drawn}; each run with its own simulation seed, drawn from the campaign seed"

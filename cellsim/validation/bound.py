@@ -117,6 +117,10 @@ def campaign_bounds(runs: list[dict], conditions: list[str], sampling: str, conf
     are counted over and under which sampling distribution they hold."""
     completed = [r for r in runs if r.get("status") != "failed"]
     overall = Bound(sum(counts_against(r) for r in completed), len(completed), confidence)
+    failed = len(runs) - len(completed)
+    if failed:  # the completed runs are a sample of the runs that complete, not of every run drawn
+        sampling = (f"{sampling}; of the runs drawn so, only those that complete ({failed} of {len(runs)} did not: a "
+                    "configuration that cannot be simulated is not covered)")
     return {
         "confidence": confidence,
         "method": METHOD,
