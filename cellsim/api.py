@@ -442,7 +442,7 @@ def check_campaign(folder: str | os.PathLike, scenario: ScenarioFile | None = No
     for done, path in enumerate(folders, start=1):
         try:
             result = check(path, scenario).result
-        except CheckError as e:  # a run that never finished, or was damaged
+        except (CheckError, ConfigError) as e:  # a run that never finished, or was damaged (its scenario too)
             runs.append({"run": path.name, "status": "failed", "error": str(e)})
         else:
             conditions.update(dict.fromkeys(result.verdicts))
@@ -450,13 +450,29 @@ def check_campaign(folder: str | os.PathLike, scenario: ScenarioFile | None = No
                          "undecided": result.undecided})
         if progress is not None:
             progress(done, len(folders))
-    if read_search(folder) is not None:  # a search chose these runs: they bound nothing
-        return CampaignCheck(folder, runs, list(conditions), None, NOT_A_SAMPLE)
+    if read_search(folder) is not None or any(_chosen_by_search(path) for path in folders):
+        return CampaignCheck(folder, runs, list(conditions), None, NOT_A_SAMPLE)  # a search chose them: no bound
     try:
         sampling = json.loads((folder / RESULTS).read_text())["bounds"]["sampling"]
-    except (OSError, ValueError, KeyError, TypeError):
-        sampling = f"not recorded ({folder / RESULTS} is missing or has no bounds): state it yourself"
+        if not isinstance(sampling, str):
+            raise TypeError(sampling)
+    except (OSError, ValueError, KeyError, TypeError):  # a bound is nothing without the distribution it holds under
+        return CampaignCheck(folder, runs, list(conditions), None,
+                             f"{folder / RESULTS} is missing or records no sampling distribution: what the runs were "
+                             "drawn from is not known, so no violation rate or bound follows from them")
     return CampaignCheck(folder, runs, list(conditions), campaign_bounds(runs, list(conditions), sampling))
+
+
+def _chosen_by_search(run: Path) -> bool:
+    """Whether a run's own result records a falsification search's choice of it."""
+    import json
+
+    from cellsim.campaign.runner import RESULT
+
+    try:
+        return isinstance(json.loads((run / RESULT).read_text()).get("search"), dict)
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 # -- evidence -------------------------------------------------------------------------------------

@@ -58,6 +58,44 @@ def test_check_on_a_campaign_folder_gives_each_conditions_rate_and_bound(clean):
     assert [r["run"] for r in as_json["runs"]] == ["0000", "0001", "0002", "0003", "0004"]
 
 
+def test_a_campaign_whose_sampling_is_not_recorded_is_checked_without_a_bound(clean, tmp_path):
+    """A bound holds under the distribution the runs were drawn from: with results.json gone (or damaged) that is not
+    known, so check gives each condition's violating runs and no bound (an audit found it bounding such runs, the
+    distribution 'not recorded: state it yourself')."""
+    _, finished = clean
+    out = shutil.copytree(finished, tmp_path / "c")
+    (out / "results.json").write_text("{")
+    done = _cellsim("check", out, "--json")
+    assert done.returncode == 0, done.stderr
+    shown = json.loads(done.stdout)
+    assert "missing or records no sampling distribution" in shown["bounds"]["excluded"]
+    assert "overall" not in shown["bounds"] and len(shown["runs"]) == 5
+
+
+def test_runs_a_search_chose_bound_nothing_even_when_the_folder_lost_its_plan(clean, tmp_path):
+    """A run's own result records that a search chose it: such runs give no bound, whatever the folder's plan says
+    (an audit bounded a search's runs once its plan.json was unreadable)."""
+    _, finished = clean
+    out = shutil.copytree(finished, tmp_path / "c")
+    result = out / "runs" / "0001" / "result.json"
+    result.write_text(json.dumps({**json.loads(result.read_text()), "search": {"score": 0.5}}))
+    (out / "plan.json").write_text("{")
+    shown = json.loads(_cellsim("check", out, "--json").stdout)
+    assert "chosen by the search" in shown["bounds"]["excluded"] and "overall" not in shown["bounds"]
+
+
+def test_a_run_whose_scenario_was_damaged_is_left_out_of_the_figures_by_name(clean, tmp_path):
+    """One damaged run's scenario does not stop the campaign's check: the others are judged and bounded, and it is
+    named as left out (exit 2: evidence never shrinks silently)."""
+    _, finished = clean
+    out = shutil.copytree(finished, tmp_path / "c")
+    (out / "runs" / "0002" / "scenario.yaml").write_text("base: [\n")
+    done = _cellsim("check", out, "--json")
+    assert done.returncode == 2
+    shown = json.loads(done.stdout)
+    assert shown["bounds"]["overall"]["runs"] == 4 and "0002" in done.stderr and "could not be checked" in done.stderr
+
+
 @pytest.mark.parametrize("flag", [["--robustness"], ["--export-trace", "t.json"]])
 def test_a_one_run_option_on_a_campaign_folder_is_one_line_and_exit_2(clean, flag, tmp_path):
     _, out = clean

@@ -126,7 +126,7 @@ def check_campaign(args) -> int:
     finally:
         if bar is not None:
             bar.stop()
-    if found.bounds is None:  # a search chose these runs: they bound nothing
+    if found.bounds is None:  # a search chose these runs, or what they were drawn from is unknown: no bound
         return _report_search_runs(args, found.runs, found.conditions, found.not_a_sample)
     if args.json:
         json.dump({"campaign": str(args.run), "bounds": found.bounds, "runs": found.runs}, sys.stdout, indent=2)
@@ -149,7 +149,8 @@ def _uncheckable(folder: Path, runs: list[dict]) -> bool:
 
 
 def _report_search_runs(args, runs: list[dict], conditions: list[str], reason: str) -> int:
-    """A falsification folder's runs re-checked: which violate what, and no bound (``reason``)."""
+    """Runs re-checked that bound nothing (a falsification search's, or a campaign's whose sampling distribution is
+    not recorded): which violate what, and no bound (``reason``)."""
     import json
 
     from rich.console import Console
@@ -162,7 +163,7 @@ def _report_search_runs(args, runs: list[dict], conditions: list[str], reason: s
         json.dump({"campaign": str(args.run), "bounds": {"excluded": reason}, "runs": runs}, sys.stdout, indent=2)
         sys.stdout.write("\n")
     else:
-        table = Table(title=f"Safety conditions over the runs of the search in {args.run}", title_justify="left")
+        table = Table(title=f"Safety conditions over the runs in {args.run}", title_justify="left")
         table.add_column("condition")
         table.add_column("violating runs", justify="right")
         for name, found in violating.items():
