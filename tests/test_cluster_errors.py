@@ -23,6 +23,9 @@ def test_a_failure_on_the_cluster_is_one_campaign_error_that_says_how_to_resume(
             future.set_exception(ClusterError("worker tcp://127.0.0.1:2 has cellsim 0.0, the campaign 0.1"))
             return future
 
+        def slots(self):
+            return 2
+
         def close(self):
             pass
 
@@ -32,12 +35,12 @@ def test_a_failure_on_the_cluster_is_one_campaign_error_that_says_how_to_resume(
             engine.run_all(workers, None, tmp_path, [(0, None, None)], {}, lambda result: None)
 
 
-def test_a_run_cancelled_on_the_cluster_counts_as_done_for_whoever_waits_on_it():
-    """A search that stops with a run in flight cancels it and waits for the rest: the cancelled run's future must
-    count as done (no executor stands behind it to say so), or the search waits for ever. Its task is cancelled too."""
+def test_a_run_handed_to_the_cluster_is_never_cancelled_and_is_kept_when_it_finishes(tmp_path):
+    """A campaign stopping early (--until-bound, a search's end) cancels the runs it has not started; a run handed to
+    a cluster has started (the campaign hands it no more than its threads), so, as on a local pool, it cannot be
+    cancelled and its result is kept (an audit found the cluster's runs cancelled while running on a worker and
+    dropped, a cluster campaign undercounting what a local one counts)."""
     import threading
-    from concurrent.futures import FIRST_COMPLETED, wait
-    from pathlib import Path
 
     from cellsim.campaign.cluster import ClusterPool
 
@@ -53,15 +56,23 @@ def test_a_run_cancelled_on_the_cluster_counts_as_done_for_whoever_waits_on_it()
         def cancel(self):
             self.cancelled = True
 
+        def result(self):  # the worker's run: its result and the files to write (none here)
+            return {"index": 3, "out": "runs/0003"}, {}
+
     class Client:
         def submit(self, *args, **kwargs):
             self.task = Task()
             return self.task
 
+        def nthreads(self):
+            return {"tcp://127.0.0.1:1": 2, "tcp://127.0.0.1:2": 1}
+
     pool = object.__new__(ClusterPool)  # no scheduler: only submit's futures are under test
     pool.client, pool._tasks, pool._lock = Client(), [], threading.Lock()
     pool.inputs_dir, pool.digest, pool.snapshot, pool.version, pool.result_name = "", "", None, "", "result.json"
-    future = pool.submit(lambda: None, None, Path("."), 3)
-    threading.Timer(0.05, future.cancel).start()
-    done, _ = wait([future], timeout=30, return_when=FIRST_COMPLETED)
-    assert future in done and future.cancelled() and pool.client.task.cancelled
+    assert pool.slots() == 3
+    future = pool.submit(lambda: None, None, tmp_path, 3)
+    assert future.running() and not future.cancel() and not pool.client.task.cancelled
+    for callback in pool.client.task.callbacks:  # the task ends on the worker
+        callback(pool.client.task)
+    assert future.result(timeout=0) == {"index": 3, "out": "runs/0003"}

@@ -169,8 +169,11 @@ class ClusterPool:
         self._lock = threading.Lock()
 
     def submit(self, execute_run, plan, out: Path, index: int, origin=None, configuration=None, search=None):
-        """Run ``execute_run(plan, <scratch>, index, origin, configuration, search)`` on a worker."""
+        """Run ``execute_run(plan, <scratch>, index, origin, configuration, search)`` on a worker. The future is
+        running from the start (the campaign hands a cluster no more runs than it has slots: each starts at once),
+        so, as with a local pool, a run once handed over cannot be cancelled: it finishes and is kept."""
         future: concurrent.futures.Future = concurrent.futures.Future()
+        future.set_running_or_notify_cancel()
         task = self.client.submit(run_remotely, execute_run, plan, self.inputs_dir, self.digest, self.snapshot, index,
                                   origin, configuration, search, self.version, pure=False,
                                   key=f"cellsim-run-{index}-{uuid.uuid4().hex}")
@@ -178,29 +181,16 @@ class ClusterPool:
             self._tasks.append(task)
 
         def done(task_future) -> None:
-            if future.cancelled():
-                return
             try:
                 result, files = task_future.result()
                 write_run_files(Path(out) / result["out"], files, self.result_name)
             except BaseException as e:  # noqa: BLE001 - handed to whoever waits on the future, as one line
-                if future.set_running_or_notify_cancel():
-                    future.set_exception(e if isinstance(e, ClusterError) else
-                                         ClusterError(f"run {index} failed on the cluster ({type(e).__name__}: {e})"))
+                future.set_exception(e if isinstance(e, ClusterError) else
+                                     ClusterError(f"run {index} failed on the cluster ({type(e).__name__}: {e})"))
                 return
-            if future.set_running_or_notify_cancel():
-                future.set_result(result)
-
-        def cancelled(f) -> None:
-            # No executor stands behind this future to tell its waiters that it was cancelled (a process pool
-            # does): without it, concurrent.futures.wait() never counts it done, and a search that stops with
-            # a run in flight waits for ever.
-            if f.cancelled():
-                task.cancel()
-                f.set_running_or_notify_cancel()
+            future.set_result(result)
 
         task.add_done_callback(done)
-        future.add_done_callback(cancelled)
         return future
 
     def retries(self) -> int:
@@ -214,6 +204,10 @@ class ClusterPool:
 
     def workers(self) -> int:
         return len(self.client.scheduler_info(n_workers=-1).get("workers", {}))
+
+    def slots(self) -> int:
+        """Runs the cluster can run at once now: its workers' threads (at least one, while none has joined)."""
+        return max(1, sum(self.client.nthreads().values()))
 
     def close(self) -> None:
         self.client.close()

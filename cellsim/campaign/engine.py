@@ -234,8 +234,8 @@ class Workers:
 
     submit: Callable | None
     cluster: object | None = None
-    slots: int | None = None
-    """Runs to keep in flight at most (None: submit them all, the cluster queues them)."""
+    slots: int | Callable[[], int] | None = None
+    """Runs to keep in flight at most (a cluster: asked again as workers come and go; None: submit them all)."""
 
     def record(self) -> dict | None:
         """What results.json says of the cluster: its scheduler, workers and retried runs."""
@@ -267,7 +267,7 @@ def worker_pool(jobs: int, scheduler: str | None = None, inputs_dir: Path | None
         except ClusterError as e:
             raise CampaignError(str(e)) from None
         try:
-            yield Workers(cluster.submit, cluster)
+            yield Workers(cluster.submit, cluster, slots=cluster.slots)
         except ClusterError as e:  # a worker of another version, a run lost on too many workers
             raise CampaignError(f"{e}; the finished runs are kept: run the same command again to resume") from None
         finally:
@@ -358,7 +358,7 @@ def run_all(workers: "Workers", plan: CampaignPlan, out: Path, tasks: Iterable[T
             on_result(execute_run(plan, out, index, origin, configuration, place))
         return
     waiting = list(reversed(tasks))
-    slots = workers.slots or len(tasks)
+    slots = workers.slots if callable(workers.slots) else (lambda: workers.slots or len(tasks))
     index_of: dict = {}
     try:
         while waiting or index_of:
@@ -368,7 +368,7 @@ def run_all(workers: "Workers", plan: CampaignPlan, out: Path, tasks: Iterable[T
                 for future, index in index_of.items():
                     if index >= limit:
                         future.cancel()  # not started yet: dropped; a running one finishes
-            while waiting and len(index_of) < slots:
+            while waiting and len(index_of) < max(1, slots()):
                 index, configuration, place = waiting.pop()
                 index_of[workers.submit(execute_run, plan, out, index, origin, configuration, place)] = index
             if not index_of:
