@@ -112,6 +112,17 @@ def test_a_campaign_is_never_made_smaller_than_the_runs_it_has_finished(small_ca
     assert "--runs 2" in err and (out / "results.json").read_text() == before
 
 
+@pytest.mark.parametrize("assignment", ["operator.waypoints.bench.wait=3", "entities.operator.waypoints.bench.wait=3"])
+def test_a_set_on_a_sampled_path_is_refused_not_drawn_over(tmp_path, capsys, assignment):
+    """Each run draws its own value of a sampled path: a --set there (or around it) would be replaced in every run
+    while recorded as the campaign's (an audit found it so). Refused, one line naming the sampler, nothing written."""
+    out = tmp_path / "c"
+    assert main(["campaign", str(WELDING_CELL), "--runs", "1", "--set", assignment, "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "the campaign samples operator.waypoints" in err and "operator_waits" in err
+    assert not out.exists()
+
+
 def test_a_different_campaign_is_not_mixed_into_a_folder(campaign, capsys):
     _, out = campaign
     assert main(["campaign", str(WELDING_CELL), "--runs", "3", "--seed", "6", "--out", str(out), "--quiet"]) == 2

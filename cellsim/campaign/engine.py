@@ -311,9 +311,31 @@ def set_up(scenario: str, overrides: tuple[str, ...], seed: int, duration: float
 
     _base_scenario.cache_clear()  # read afresh: the per-process cache serves this campaign's runs only
     given = load_scenario(scenario, overrides)
+    _refuse_overridden_samples(given, overrides)
     case = scenario_safety_case(given)
     inputs = read_inputs(given)
     return SetUp(given, case, inputs, inputs.identity(overrides, seed, duration))
+
+
+def _refuse_overridden_samples(sf, overrides: tuple[str, ...]) -> None:
+    """A ``--set`` on a path the campaign samples (or inside one, or around one) would be replaced in every run by the
+    drawn value, yet recorded as the campaign's: ConfigError naming both."""
+    from cellsim.config.typed_yaml import ConfigError
+    from cellsim.scenario import _shortcut
+
+    sc = sf.scenario
+    resolve = _shortcut(sc)
+    sampled = {tuple(resolve(path.split("."))): (name, path) for name in sc.campaign.samplers
+               for path in sc.configuration_points[name].paths}
+    for assignment in overrides:
+        given = assignment.split("=", 1)[0].strip()
+        key = tuple(resolve(given.split(".")))
+        for path, (name, written) in sampled.items():
+            n = min(len(key), len(path))
+            if key[:n] == path[:n]:
+                raise ConfigError("--set", None, given, f"the campaign samples {written} (configuration point "
+                                  f"'{name}'): each run would draw its own value over this one; drop the --set, or "
+                                  f"the sampler (campaign.samplers.{name})")
 
 
 def snapshot_plan(plan: CampaignPlan, out: Path, inputs) -> CampaignPlan:
