@@ -46,12 +46,19 @@ from cellsim.version import __version__
 from cellsim.atomic import write_text
 from cellsim.config.typed_yaml import ConfigError, dump_yaml, from_data, to_data
 
-IDENTITY_FORMAT = 1
+IDENTITY_FORMAT = 2
 """Version of the identity record; identities of different formats never match."""
 BLACKBOX = "blackbox.sqlite"
 """A run folder's black box."""
 RESOLVED_SCENARIO = "scenario.yaml"
 """A run folder's resolved scenario (it re-runs the run)."""
+
+
+def simulator_versions() -> dict[str, str]:
+    """The versions a simulated run's numbers depend on (cellsim, Drake, NumPy): runs of one campaign must share
+    them (its identity holds them; a cluster's workers are checked against them)."""
+    versions = package_versions()
+    return {k: versions[k] for k in ("cellsim", "drake", "numpy")}
 
 
 def package_versions() -> dict[str, str]:
@@ -128,11 +135,13 @@ class Inputs:
         """The content identity of these files with the other inputs of a run or campaign.
 
         ``hash`` covers the files' digests (by key, not path), the overrides, seed,
-        duration and cellsim's version; ``files`` also names where each was read.
+        duration and the versions of cellsim, Drake and NumPy (:func:`simulator_versions`): a campaign resumed
+        after an upgrade would mix runs of two simulators; ``files`` also names where each was read.
         """
         essence = {
             "format": IDENTITY_FORMAT,
             "cellsim": __version__,
+            "simulator": simulator_versions(),
             "overrides": list(overrides),
             "seed": seed,
             "duration": duration,
@@ -264,6 +273,9 @@ def changes(old: dict, new: dict) -> list[str]:
         found.append(f"inputs recorded in format {old.get('format')}, this cellsim writes {new.get('format')}")
     if old.get("cellsim") != new.get("cellsim"):
         found.append(f"cellsim version {old.get('cellsim')} -> {new.get('cellsim')}")
+    old_sim, new_sim = old.get("simulator") or {}, new.get("simulator") or {}
+    found += [f"{k} version {old_sim.get(k)} -> {new_sim.get(k)}" for k in ("drake", "numpy")
+              if old_sim.get(k) != new_sim.get(k) and old.get("format") == new.get("format")]
     old_files, new_files = old.get("files", {}), new.get("files", {})
     for key in [*old_files, *(k for k in new_files if k not in old_files)]:
         a, b = old_files.get(key), new_files.get(key)

@@ -81,6 +81,13 @@ def test_what_changed_is_named(scenarios):
     ]
     assert changes(after, _identity(scenario, seed=4, duration=None)) == ["seed 0 -> 4", "duration 3 s -> the scenario's"]
     assert changes({**after, "cellsim": "0.0.9"}, after) == [f"cellsim version 0.0.9 -> {cellsim.__version__}"]
+    # a run's numbers depend on Drake and NumPy too: a campaign resumed after an upgrade would mix two simulators
+    import importlib.metadata
+
+    drake_now = importlib.metadata.version("drake")
+    assert after["simulator"]["drake"] == drake_now and after["simulator"]["numpy"]
+    older = {**after, "simulator": {**after["simulator"], "drake": "1.0.0"}}
+    assert changes(older, after) == [f"drake version 1.0.0 -> {drake_now}"]
     # another risk model, named by an override
     other = scenarios / "other_risk_model.yaml"
     other.write_text(risk.read_text().replace(NORMAL_DEFAULT, SSMON_DEFAULT))

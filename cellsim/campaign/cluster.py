@@ -90,17 +90,20 @@ def _remap(text: str, old: str, new: str) -> str:
 
 
 def run_remotely(execute_run, plan, inputs_dir: str, digest: str, snapshot: dict[str, bytes], index: int, origin,
-                 configuration, search, version: str) -> tuple[dict, dict[str, bytes]]:
+                 configuration, search, version: dict) -> tuple[dict, dict[str, bytes]]:
     """On a worker: run ``index`` from the snapshot (``execute_run``: the campaign's); returns its result and
-    its folder's files."""
+    its folder's files. ``version``: the campaign's :func:`cellsim.provenance.simulator_versions`."""
     import dataclasses
 
     from distributed import get_worker
 
-    from cellsim.version import __version__
+    from cellsim.provenance import simulator_versions
 
-    if __version__ != version:
-        raise ClusterError(f"worker {get_worker().address} has cellsim {__version__}, the campaign {version}")
+    mine = simulator_versions()
+    for package in mine:  # a run's numbers depend on each: a worker must have the campaign's own
+        if mine[package] != version.get(package):
+            raise ClusterError(f"worker {get_worker().address} has {package} {mine[package]}, the campaign "
+                               f"{version.get(package)}")
     base = Path(get_worker().local_directory)
     cache = base / CACHE / digest
     if not cache.is_dir():
@@ -145,7 +148,7 @@ class ClusterPool:
     """``submit(execute_run, plan, out, index, ...)`` onto a Dask cluster, with the local pool's futures.
 
     The futures are :class:`concurrent.futures.Future` resolving to the run's result
-    once its files are written under ``out``; cancelling one cancels its task.
+    once its files are written under ``out``; each is running from the start (never cancelled).
     """
 
     def __init__(self, address: str, inputs_dir: Path, result_name: str):
@@ -153,7 +156,7 @@ class ClusterPool:
             from distributed import Client
         except ImportError as e:  # pragma: no cover - distributed is a dependency
             raise ClusterError(f"--scheduler needs the distributed package ({e})") from None
-        from cellsim.version import __version__
+        from cellsim.provenance import simulator_versions
 
         try:
             self.client = Client(address, timeout=CONNECT_TIMEOUT, set_as_default=False)
@@ -161,7 +164,7 @@ class ClusterPool:
             raise ClusterError(f"cannot reach the Dask scheduler at {address}: {e}") from None
         self.address = address
         self.result_name = result_name
-        self.version = __version__
+        self.version = simulator_versions()
         self.inputs_dir = str(inputs_dir.resolve())
         self.digest, snapshot = read_snapshot(inputs_dir)
         self.snapshot = self.client.scatter(snapshot, broadcast=True, hash=False)
