@@ -524,8 +524,9 @@ def test_timed_bounds_every_module_s_durations_below_and_says_so(tmp_path):
     assert done.returncode in (0, 3), done.stderr  # (a witness not replayed leaves its property undecided)
     result = json.loads(done.stdout)
     assumptions = "\n".join(result["assumptions"])
-    assert "robot's tool is located on the commanded path (tracking error neglected); its moves take at least their " \
-           "time at full speed without acceleration" in assumptions
+    assert "robot's tool is located on the commanded path (tracking error neglected), the regions it passes through " \
+           "found at 201 points of each move (a region crossed between two is missed); its moves take at least " \
+           "their time at full speed without acceleration" in assumptions
     assert "process_controller's dwells and operations count whole periods of 0.04 s" in assumptions
     untimed = _verify(str(WELDING_CELL), "--json", "--no-replay", "--refine", "0", "--out", str(tmp_path / "u"))
     assert json.loads(untimed.stdout)["states"] * 5 < result["states"]

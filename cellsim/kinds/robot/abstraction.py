@@ -140,7 +140,9 @@ class RobotAbstraction(ModuleAbstraction):
         # its safety mode, and the speed cap over the last braking time
         self._safety(cell, period)
         self._activity(cell)
-        cell.assume(f"{r}'s tool is located on the commanded path (tracking error neglected); its moves take "
+        cell.assume(f"{r}'s tool is located on the commanded path (tracking error neglected), the regions it "
+                    f"passes through found at {SAMPLES + 1} points of each move (a region crossed between two is "
+                    "missed); its moves take "
                     + ("at least their time at full speed without acceleration" if self.timed(cell)
                        else "any time from one period on"))
 
