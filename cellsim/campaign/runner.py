@@ -272,7 +272,7 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
     """Totals, results.json and report.html from the runs' results; ``record`` is the
     campaign's provenance (:func:`cellsim.provenance.provenance`); ``search``, the
     falsification search's record when a search chose the runs (then no bound is given)."""
-    from cellsim.campaign.report import write_report
+    from cellsim.campaign.report import finding_runs, write_report
     from cellsim.scenario import unit_of
     from cellsim.validation.bound import campaign_bounds
 
@@ -313,6 +313,7 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
             "undecided": {c: sum(c in r.get("undecided", ()) for r in runs) for c in conditions},
             "use_cases": {u: sum(u in r.get("use_cases", ()) for r in runs) for u in sc.validation.use_cases},
             "coverage": coverage.to_json(),
+            "finding_runs": finding_runs(runs),
         },
         "bounds": {"excluded": search["not_a_sample"]} if search else campaign_bounds(runs, conditions, describe_sampling(
             sc.campaign.samplers, {name: point.paths for name, point in sc.configuration_points.items()},

@@ -133,9 +133,7 @@ def print_campaign(outcome) -> None:
             "undecided (inconclusive or missing data)",
             "[yellow]" + "\n".join(f"{c}: {_run_list(runs)}" for c, runs in undecided.items()) + "[/yellow]",
         )
-    from cellsim.campaign.report import finding_runs
-
-    for what, runs in finding_runs(outcome.results["runs"]).items():
+    for what, runs in totals.get("finding_runs", {}).items():  # what the verdicts do not say (cellsim.campaign.report)
         table.add_row(f"runs {what}", f"[red]{_run_list(runs)}[/red] (the report's harm section)")
     bounds = outcome.results.get("bounds")
     target = outcome.results["campaign"].get("until_bound")
