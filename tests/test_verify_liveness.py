@@ -86,8 +86,11 @@ def test_a_response_a_run_may_end_owing_is_found_where_the_script_leaves_the_per
     fails it, whatever fairness says. Left at 0, the response comes while it stands there."""
     program, model = _model(tmp_path, OWED, engine)
     assert always_answerable(program, model, "a", "b")
-    assert owed_at_the_end(program, model, "a", "b", "end_at_1")
-    assert not owed_at_the_end(program, model, "a", "b", "end_at_0")
+    assert owed_at_the_end(program, model, "a", "b", ["end_at_1"])
+    assert not owed_at_the_end(program, model, "a", "b", ["end_at_0"])
+    # a person whose script may not be over stands at one of its places, either, and stays: at 1 it is owed
+    assert owed_at_the_end(program, model, "a", "b", ["end_at_0", "end_at_1"])
+    assert owed_at_the_end(program, model, "a", "b", [])  # too many ways to ask: taken to be owed
 
 
 @dataclass
@@ -153,3 +156,10 @@ def test_a_response_owed_where_the_script_leaves_the_person_is_undecided_and_the
     checked = subprocess.run([sys.executable, "-m", "cellsim", "check", str(run), "--json"], capture_output=True,
                              text=True, timeout=600, cwd=ROOT)
     assert json.loads(checked.stdout)["verdicts"]["HS:handled"]["status"] == "violated"
+    # its last stop held past the run's end: where it stands when the run ends is not known, so it may be any of its
+    # places, and stay there (a review found the end left out then, and HOLDS again)
+    scenario.write_text(STANDOFF.format(base=WELDING_CELL).replace("wait: 2.0", "wait: 60.0"))
+    proc = subprocess.run([sys.executable, "-m", "cellsim", "verify", str(scenario), "--no-replay", "--json"],
+                          capture_output=True, text=True, timeout=600, cwd=ROOT)
+    endings = {e["name"]: e for e in json.loads(proc.stdout)["properties"]}
+    assert endings["HS:handled"]["ending"] == "undecided" and "a run may end owing it" in endings["HS:handled"]["reason"]

@@ -152,6 +152,9 @@ class Property:
     response: tuple[str, str] | None = None
     """A liveness condition's ``a`` and ``b`` (PRISM expressions): whether ``b`` can still come from every state
     reachable from ``a`` without it (:func:`cellsim.verify.storm.always_answerable`)."""
+    ends: int = 1
+    """A liveness condition: how many labels ``<label>_end<k>`` say where the people may stand when a run ends, each
+    one way they may stand there (:func:`cellsim.verify.storm.owed_at_the_end`); 0: too many ways to ask."""
 
 
 @dataclass(frozen=True)

@@ -96,7 +96,7 @@ def dd_memory(bound: float) -> int:
 def labels_of(prop: Property, label: str) -> list[str]:
     """The labels a property's check reads: its bad states', its sustained violation's, its response's a and b."""
     return [label, *([sustained_label(label)] if prop.sustained else []),
-            *([f"{label}_a", f"{label}_b", f"{label}_end"] if prop.response else [])]
+            *([f"{label}_a", f"{label}_b", *(f"{label}_end{k}" for k in range(prop.ends))] if prop.response else [])]
 
 
 def sustained_label(label: str) -> str:
@@ -234,7 +234,10 @@ def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset
                 abstract.labels[sustained_label(f"bad{i}")] = prop.sustained
             if prop.response:
                 abstract.labels[f"bad{i}_a"], abstract.labels[f"bad{i}_b"] = prop.response
-                abstract.labels[f"bad{i}_end"] = _at_the_end(abstract)
+                ends = _at_the_end(abstract)
+                prop.ends = len(ends)
+                for k, where in enumerate(ends):
+                    abstract.labels[f"bad{i}_end{k}"] = where
     header = (f"Abstract model of the cell '{scenario.name}', written by cellsim verify.\n"
               f"One step is one period of {period:g} s. Assumptions:\n" + "\n".join(f"- {a}" for a in abstract.assumptions))
     text = abstract.program(header).text()
@@ -242,10 +245,24 @@ def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset
     return AbstractModel(abstract, text, properties, skipped, labels, times, header, parts)
 
 
-def _at_the_end(abstract: AbstractCell) -> str:
-    """The states a run may end in: each person whose script's end is known stands there (the others anywhere)."""
+AT_THE_END_WAYS = 64
+"""The most ways the people may stand when a run ends (their unknown ends' places, combined) that a liveness
+condition's end is asked about, one by one; beyond, a run is taken to be able to end owing any response."""
+
+
+def _at_the_end(abstract: AbstractCell) -> list[str]:
+    """Each way the people may stand when a run ends, as an expression: every person whose script's end is known at
+    its last stop, each of the others at one of its places (it stands somewhere, and stays there); [] when there
+    are more than ``AT_THE_END_WAYS`` ways."""
+    import itertools
+
     people = abstract.places.people if abstract.places is not None else []
-    return " & ".join(f"{p.variable} = {p.end}" for p in people if p.end is not None) or "true"
+    known = [f"{p.variable} = {p.end}" for p in people if p.end is not None]
+    unknown = [p for p in people if p.end is None]
+    if math.prod(len(p.places) for p in unknown) > AT_THE_END_WAYS:
+        return []
+    ways = itertools.product(*([f"{p.variable} = {place.index}" for place in p.places] for p in unknown))
+    return [" & ".join([*known, *way]) or "true" for way in ways]
 
 
 def _time_assumption(abstract: AbstractCell) -> str:

@@ -216,7 +216,8 @@ def check(program, model, prop: Property, bad_label: str | None, still: tuple[st
         owed = False
         if not holds and prop.response:
             fair = always_answerable(program, model, f"{bad_label}_a", f"{bad_label}_b")
-            owed = fair and owed_at_the_end(program, model, f"{bad_label}_a", f"{bad_label}_b", f"{bad_label}_end")
+            owed = fair and owed_at_the_end(program, model, f"{bad_label}_a", f"{bad_label}_b",
+                                            [f"{bad_label}_end{k}" for k in range(prop.ends)])
             fair = fair and not owed
         elif not holds and not model.is_symbolic_model:
             sustained = f"{bad_label}_sustained" if prop.sustained else None
@@ -249,16 +250,19 @@ def always_answerable(program, model, a_label: str, b_label: str) -> bool:
     return not any(values[s] > 0 for s in range(model.nr_states) if a.get(s) and not b.get(s))
 
 
-def owed_at_the_end(program, model, a_label: str, b_label: str, end_label: str) -> bool:
+def owed_at_the_end(program, model, a_label: str, b_label: str, end_labels: list[str]) -> bool:
     """Whether a run may end owing a response: from an ``a`` state, without passing ``b``, a state is reachable where
-    every person stands where its script leaves it (``end``: the run's last states, as for ``Final`` conditions)
-    from which ``b`` can never come while they stay there. The twin's run does end with them there, and its check
-    judges ``F b`` strongly: a response still owed at the end is a violation, which fairness (a person free to leave
-    does leave) cannot answer when the script has them stay. One qualitative question of the initial state, on
-    decision diagrams or sparse alike."""
+    the people stand as a run may end (each of ``end_labels``: every person at its last stop, one whose end is not
+    known at one of its places, as for ``Final`` conditions) from which ``b`` can never come while they stay there.
+    The twin's run does end with them standing so, and its check judges ``F b`` strongly: a response still owed at
+    the end is a violation, which fairness (a person free to leave does leave) cannot answer when the script has
+    them stay. One qualitative question of the initial state, on decision diagrams or sparse alike; with no ways
+    given (too many to ask), a run is taken to be able to end owing it."""
+    if not end_labels:
+        return True
     stormpy = _quiet()
-    stuck = f'"{end_label}" & !"{b_label}" & Pmax<=0 [ "{end_label}" U "{b_label}" ]'
-    text = f'Pmax>0 [ F ("{a_label}" & !"{b_label}" & Pmax>0 [ !"{b_label}" U ({stuck}) ]) ]'
+    stuck = " | ".join(f'("{end}" & Pmax<=0 [ "{end}" U "{b_label}" ])' for end in end_labels)
+    text = f'Pmax>0 [ F ("{a_label}" & !"{b_label}" & Pmax>0 [ !"{b_label}" U (!"{b_label}" & ({stuck})) ]) ]'
     (formula,) = stormpy.parse_properties(text, program)
     return bool(_initial_value(stormpy, model, formula))
 
