@@ -609,6 +609,12 @@ def test_an_emulated_device_whose_one_command_message_stops_takes_that_messages_
             now[0] += 0.01
             assert send(request, {"SafetyMode": "normal"}, counter)["safety_mode_request"] == "stopped"
         assert send(request, {"SafetyMode": "normal"}, 7)["safety_mode_request"] == "normal"
+        # a frozen stream: the same frame again and again is refused, not good, and its watchdog runs out (a review
+        # found the repeats themselves keeping the last request trusted for ever)
+        now[0] += 0.5 * watchdog
+        assert send(request, {"SafetyMode": "normal"}, 7)["safety_mode_request"] == "normal"
+        now[0] += 0.6 * watchdog
+        assert send(request, {"SafetyMode": "normal"}, 7)["safety_mode_request"] == "stopped"
     finally:
         devices.close()
         bus.shutdown()

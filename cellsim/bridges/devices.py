@@ -358,8 +358,7 @@ class EmulatedDevices:
             # each of the entity's messages as its own link has it now: one whose frames stopped (its watchdog) or
             # failed reads its safe values, whatever its other messages still bring
             for other, other_checker in state["checkers"].items():
-                if other_checker is not checker:
-                    other_checker.watchdog(now)
+                other_checker.watchdog(now)  # (this frame's own too: a frozen stream's repeats are refused, not good)
                 if other_checker.failed:
                     state["values"][other] = {f: safe[f] for f in state["fields"][other]}
             if carried is not None:
