@@ -275,6 +275,7 @@ def test_on_the_geometry_a_lost_link_of_a_person_or_the_robot_reads_no_separatio
         simulator.Initialize()
         context = simulator.get_mutable_context()
         limit = cell.diagram.GetOutputPort("assembler_ssm.speed_limit")
+        margin = cell.diagram.GetOutputPort("loader_ssm.margin" if entity == "loader" else "assembler_ssm.margin")
         link = cell.diagram.GetOutputPort(f"{entity}.physical_link")
         command = cell.diagram.GetOutputPort("loader.physical_command")
         at = list(cell.entity("loader").command_fields).index("speed_limit") + 1
@@ -283,6 +284,8 @@ def test_on_the_geometry_a_lost_link_of_a_person_or_the_robot_reads_no_separatio
             simulator.AdvanceTo(t)
             found.append((PhysicalLink.from_code(int(link.Eval(context)[0])), limit.Eval(context)[0],
                           command.Eval(context)[at]))
+            # no separation measured: no margin either (a condition on it undecided, not violated by a stopped arm)
+            assert math.isnan(margin.Eval(context)[0]) == (found[-1][0] is PhysicalLink.STALE), t
         return found
 
     times = (5.0, 12.0, 19.0)

@@ -35,11 +35,12 @@ latency of this module's period and the robot's (``latency``):
 v_max = sqrt((a T_r)^2 + 2 a (d - C)) - a T_r. A robot that follows it brakes at a or faster
 keeps ``margin`` >= 0: as d falls by v_h dt, S_p falls by (v_h + a T_r + v_r) dt. In ``ssmon``
 the robot follows ``speed_limit`` continuously (its ``speed_limit`` input); a risk model or a
-condition reads ``margin``. A separation with no value (a stale sensor) reads as 0: the limit
-is 0, the robot stops. On the geometry, so does a separation whose bodies the twin no longer
-knows: while the robot's or a person's physical link is not ok (stale, corrupt, recovering), its
-digital body holds a pose the real one may have left. A stopped robot starts again only once d
-exceeds S_p of its first speed.
+condition reads ``margin``. A separation with no value (a stale sensor) allows no speed: the
+limit is 0, the robot stops, and the separation and margin have no value either (a condition on
+them is undecided there, not held nor violated: nothing measured them). On the geometry, so does
+a separation whose bodies the twin no longer knows: while the robot's or a person's physical link
+is not ok (stale, corrupt, recovering), its digital body holds a pose the real one may have left.
+A stopped robot starts again only once d exceeds S_p of its first speed.
 """
 
 from __future__ import annotations
@@ -278,13 +279,14 @@ class SpeedSeparationMonitor(CellSystem):
                              for spec, port in self.channels]
 
     def measure(self, context) -> tuple[float, float]:
-        """(separation d in m, robot speed towards the person v_r in m/s), as the monitor has them."""
+        """(separation d in m, robot speed towards the person v_r in m/s), as the monitor has them; d is NaN (no value)
+        when it is not known: a stale sensor's, or bodies the twin no longer tracks (``bodies_trusted``)."""
         kin = self.kinematics
         kin.plant.SetPositionsAndVelocities(kin.context, self.robot_state_port.Eval(context))
         if not self.from_geometry or not self.bodies_trusted(context):
-            d = self.separation_port.Eval(context)[0] if not self.from_geometry else 0.0
+            d = self.separation_port.Eval(context)[0] if not self.from_geometry else math.nan
             tool_velocity = kin.tool.CalcSpatialVelocityInWorld(kin.context).translational()
-            return (d if math.isfinite(d) else 0.0), float(np.linalg.norm(tool_velocity))
+            return (d if math.isfinite(d) else math.nan), float(np.linalg.norm(tool_velocity))
         return self.truth(context)
 
     def truth(self, context) -> tuple[float, float]:
