@@ -29,6 +29,7 @@ import numpy as np
 
 from cellsim.verify.model import ModuleAbstraction, AbstractCell, lookup, runs_of, set_of, updates_in
 from cellsim.verify.prism import Command, Enum, Module, Var
+from cellsim.kinds.robot.system import requested_mode
 from cellsim.vocabulary import SafetyMode
 
 SAMPLES = 200
@@ -194,13 +195,14 @@ class RobotAbstraction(ModuleAbstraction):
         context = built.diagram.CreateDefaultContext()
         built.set_initial_state(context)
         code = self.system.mode_request_port.Eval(self.system.GetMyContextFromRoot(context))[0]
-        return int(code) if 0 <= code < len(_MODES) else SafetyMode.UNKNOWN.code
+        return requested_mode(code).code
 
     def _safety(self, cell: AbstractCell, period: float) -> None:
         r, robot = self.name, self.system
         request = cell.input(r, "safety_mode_request")
         mode = f"{r}_mode"
-        new_mode = f"({request} >= 0 ? {request} : {SafetyMode.UNKNOWN.code})"
+        # as the twin reads a request (requested_mode): no value, or 'unknown', is a stop
+        new_mode = f"({request} >= 0 & {request} != {SafetyMode.UNKNOWN.code} ? {request} : {SafetyMode.STOPPED.code})"
         initial = self._initial_mode(cell)
         cell.define(f"{r}.safety_mode", mode)
         if f"{r}.tool_speed" not in cell.reads:
