@@ -300,12 +300,11 @@ def _check_choices(sf: ScenarioFile, name: str, sampler, paths: list[str]) -> No
     """Each value a choice draws is one its configuration point's fields accept: set on the scenario as a run would
     set it (a value no field could take would fail the runs that draw it, after the campaign had begun)."""
     import dataclasses
-    import json
 
-    from cellsim.config.typed_yaml import apply_override
+    from cellsim.config.typed_yaml import apply_override, override_value
 
     for i, value in enumerate(sampler.values):
-        text = json.dumps(value) if isinstance(value, (bool, str)) else repr(value)
+        text = override_value(value)
         for dotted in paths:
             trial = dataclasses.replace(sf.loaded)  # (a new value is built; the scenario's stays as it is)
             try:

@@ -125,6 +125,21 @@ def test_shadowing_with_no_sample_the_scanner_fails_safe_to_its_innermost_field(
         assert bb.series("press_scanner.distance").values[-1] == 0.0
 
 
+def test_a_physical_sample_farther_than_the_scanner_can_measure_is_corrupt(tmp_path):
+    """A scanner's distance lies within 0..max_range (a transport's rounding allowed): a PLC-fed scanner reporting
+    1e9 m would have driven an SSM reading its distance (the live-twin audit)."""
+    from cellsim.diagrams.cell import build_cell
+    from cellsim.kinds.sensing import SAMPLE_ROUNDING
+
+    built = build_cell(load_scenario(scanner_cell(tmp_path, extra="twin: {mode: shadow}")), seed=0, duration=1.0,
+                       record=False)
+    scanner = built.modules["press_scanner"]
+    free, reach = scanner.readings("free").code, scanner.cfg.max_range
+    assert scanner.sample_is_valid([free, reach]) and scanner.sample_is_valid([free, reach + 0.5 * SAMPLE_ROUNDING])
+    assert not scanner.sample_is_valid([free, reach + 2 * SAMPLE_ROUNDING])
+    assert not scanner.sample_is_valid([free, 1e9]) and not scanner.sample_is_valid([free, -0.1])
+
+
 @pytest.mark.parametrize(
     "edits, key, expected",
     [

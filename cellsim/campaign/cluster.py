@@ -100,6 +100,8 @@ def run_remotely(execute_run, plan, inputs_dir: str, digest: str, snapshot: dict
     from cellsim.provenance import simulator_versions
 
     mine = simulator_versions()
+    if not isinstance(version, dict):  # a campaign of a cellsim that sent its own version alone
+        version = {"cellsim": str(version)}
     for package in mine:  # a run's numbers depend on each: a worker must have the campaign's own
         if mine[package] != version.get(package):
             raise ClusterError(f"worker {get_worker().address} has {package} {mine[package]}, the campaign "

@@ -33,6 +33,7 @@ from pathlib import Path
 from cellsim.atomic import LOCK, FolderBusy, folder_lock, write_text
 from cellsim.campaign.local_pool import LocalPool
 from cellsim.config.sampling import draw_configuration, run_seed
+from cellsim.config.typed_yaml import override_value
 from cellsim.provenance import INPUTS, SnapshotError, command_line, read_inputs, snapshot_scenario
 
 PLAN = "campaign.json"
@@ -73,15 +74,11 @@ def run_dir(out: Path, index: int) -> Path:
 
 def run_overrides(plan: CampaignPlan, configuration: dict[str, object], seed: int) -> list[str]:
     """The ``--set`` overrides that make run ``index`` out of the scenario."""
-    sets = list(plan.overrides) + [f"{path}={_yaml_scalar(v)}" for path, v in configuration.items()]
+    sets = list(plan.overrides) + [f"{path}={override_value(v)}" for path, v in configuration.items()]
     sets.append(f"seed={seed}")
     if plan.duration is not None:
         sets.append(f"duration={plan.duration}")
     return sets
-
-
-def _yaml_scalar(value: object) -> str:
-    return json.dumps(value) if isinstance(value, (bool, str)) else repr(value)
 
 
 @functools.lru_cache(maxsize=4)

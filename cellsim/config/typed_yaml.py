@@ -865,6 +865,14 @@ def type_at(root: Any, parts: list[str]) -> Any:
     return _locate(root, parts)[1]
 
 
+def override_value(value: object) -> str:
+    """``value`` written as the right-hand side of a ``--set`` (YAML): a string or bool as JSON (quoted, lower case),
+    a number as Python writes it. The one spelling of a sampled value, at load time and in every run."""
+    import json
+
+    return json.dumps(value) if isinstance(value, (bool, str)) else repr(value)
+
+
 def apply_override(loaded: Loaded[T], assignment: str,
                    resolve: Callable[[list[str]], list[str]] | None = None) -> None:
     """Apply ``"dotted.path=value"`` (value parsed as YAML) to ``loaded.value``.

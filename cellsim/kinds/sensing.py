@@ -15,6 +15,10 @@ from cellsim.entity import EntitySystem
 from cellsim.systems import read_scalar, write_scalar
 
 HEAD_RADIUS = 0.05  # m, the scanner head's sphere
+SAMPLE_ROUNDING = 0.01
+"""m: how far a physical sample's distance may lie beyond what the sensor can measure (its range code's band, its
+maximum range) and still be taken: a transport's rounding of the distance (a CAN signal's resolution is a
+millimetre)."""
 REACH = 1.0
 """How far (m) from a sensor's volume a person may stand and still be the one it sees
 (an arm reaching in): used only to mark people in Meshcat."""

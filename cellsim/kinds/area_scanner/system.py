@@ -37,7 +37,7 @@ from pydrake.geometry import (
 
 from cellsim.channels import enum_type, number_type
 from cellsim.kinds.area_scanner.config import AreaScannerConfig
-from cellsim.kinds.sensing import HEAD_RADIUS, GeometrySensor
+from cellsim.kinds.sensing import HEAD_RADIUS, SAMPLE_ROUNDING, GeometrySensor
 from cellsim.entity import valid_code
 from cellsim.floorplan import Box3, SightLines
 from cellsim.proximity import witness_on
@@ -256,8 +256,9 @@ class AreaScanner(GeometrySensor):
         return best
 
     def sample_is_valid(self, sample) -> bool:
-        """A field's code, and a distance the scanner can measure: 0 to its max_range."""
-        return valid_code(sample[0], self.readings) and np.isfinite(sample[1]) and 0.0 <= sample[1] <= self.cfg.max_range
+        """A field's code, and a distance the scanner can measure: 0 to its max_range (within ``SAMPLE_ROUNDING``)."""
+        return (valid_code(sample[0], self.readings) and np.isfinite(sample[1])
+                and 0.0 <= sample[1] <= self.cfg.max_range + SAMPLE_ROUNDING)
 
     def update(self, context, xd):
         view = self.consult_physical(context, xd)

@@ -8,15 +8,10 @@ import numpy as np
 
 from cellsim.channels import enum_type, number_type
 from cellsim.entity import valid_code
-from cellsim.kinds.sensing import HEAD_RADIUS, REACH, GeometrySensor
+from cellsim.kinds.sensing import HEAD_RADIUS, REACH, SAMPLE_ROUNDING, GeometrySensor
 from cellsim.systems import read_scalar, write_scalar
 from cellsim.vocabulary import Range, TwinMode, value_set
 from cellsim.kinds.range_detector.config import RangeDetectorConfig
-
-
-SAMPLE_ROUNDING = 0.01
-"""m: how far a physical sample's distance may lie outside the band of its range code and still agree with it (a
-transport's rounding of the distance: a CAN signal's resolution is a millimetre)."""
 
 
 class RangeDetector(GeometrySensor):
