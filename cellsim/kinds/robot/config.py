@@ -13,7 +13,8 @@ from cellsim.config.units import Degrees, JointAngle, Period, Speed, Vec3
 
 @dataclass
 class SpeedLimits:
-    """Cap on the tool's speed (m/s) in each moving safety mode; srmst and stopped are standstill."""
+    """Cap on the tool's speed (m/s) in each moving safety mode; srmst and stopped are standstill. A collaborative
+    mode's cap is at most normal's."""
 
     normal: Speed = 1.0
     """Full speed."""
