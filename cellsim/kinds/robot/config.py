@@ -17,7 +17,7 @@ class SpeedLimits:
     mode's cap is at most normal's."""
 
     normal: Speed = 1.0
-    """Full speed."""
+    """Full speed: the highest cap (each collaborative mode's is at most this)."""
     hguid: Speed = 0.25
     """Hand-guided operation."""
     ssmon: Speed = 0.5
