@@ -532,57 +532,54 @@ def test_robot_requests_go_to_the_controller_in_twin_mode_and_a_stop_when_the_tw
         bridge.close()
 
 
-def test_an_emulated_device_fails_safe_on_a_bad_command_frame_as_the_real_one_would(e2e_config):
+@pytest.fixture
+def emulated_welder(e2e_config, request):
+    """The welder's emulated CAN device fed by a daemon's bus (python-can's virtual interface, in this process): (the
+    loaded bridge, the devices, the daemon's bus, the queue of the commands the device hands over). Closed after."""
     from types import SimpleNamespace
 
     from cellsim.bridges.devices import EmulatedDevices
 
     loaded = load_bridge(e2e_config)
-    bus = can.Bus(interface="virtual", channel="emulated-welder")
-    daemon = can.Bus(interface="virtual", channel="emulated-welder")
+    channel = f"emulated-welder-{request.node.name}"
+    bus = can.Bus(interface="virtual", channel=channel)
+    daemon = can.Bus(interface="virtual", channel=channel)
     delivered: queue.Queue = queue.Queue()
     enum, number = SimpleNamespace(kind="enum"), number_type(None)
     source = SimpleNamespace(inputs=["safety_mode_request", "activity_request", "command"],
                              codec=SimpleNamespace(types=[enum, enum, number]),
                              deliver=lambda payload: delivered.put(json.loads(payload)["fields"]))
     devices = EmulatedDevices(loaded, bus, session=None)
-    request = loaded.database.get_message_by_name("SafetyModeRequest")
     try:
         assert devices.feed_commands(SimpleNamespace(module="welder"), source)
-        frame = lambda data: can.Message(arbitration_id=request.frame_id, data=data, is_extended_id=False)  # noqa: E731
-        for counter in range(3):  # trusted after three good frames in a row
-            daemon.send(frame(protect(request, {"SafetyMode": "ssmon"}, counter)))
-            fields = delivered.get(timeout=5)
-        assert fields == {"safety_mode_request": "ssmon", "activity_request": "off", "command": 0.0}
-        bad = bytearray(protect(request, {"SafetyMode": "normal"}, 3))
-        bad[0] ^= 0x01  # a corrupted CRC: the frame's safe values, not what it says
-        daemon.send(frame(bytes(bad)))
-        assert delivered.get(timeout=5)["safety_mode_request"] == "stopped"
-        daemon.send(frame(protect(request, {"SafetyMode": "normal"}, 4)))
-        assert delivered.get(timeout=5)["safety_mode_request"] == "stopped"  # recovering: still safe
+        yield loaded, devices, daemon, delivered
     finally:
         devices.close()
         bus.shutdown()
         daemon.shutdown()
 
 
-def test_an_emulated_device_whose_one_command_message_stops_takes_that_messages_safe_values(e2e_config):
+def test_an_emulated_device_fails_safe_on_a_bad_command_frame_as_the_real_one_would(emulated_welder):
+    loaded, devices, daemon, delivered = emulated_welder
+    request = loaded.database.get_message_by_name("SafetyModeRequest")
+    frame = lambda data: can.Message(arbitration_id=request.frame_id, data=data, is_extended_id=False)  # noqa: E731
+    for counter in range(3):  # trusted after three good frames in a row
+        daemon.send(frame(protect(request, {"SafetyMode": "ssmon"}, counter)))
+        fields = delivered.get(timeout=5)
+    assert fields == {"safety_mode_request": "ssmon", "activity_request": "off", "command": 0.0}
+    bad = bytearray(protect(request, {"SafetyMode": "normal"}, 3))
+    bad[0] ^= 0x01  # a corrupted CRC: the frame's safe values, not what it says
+    daemon.send(frame(bytes(bad)))
+    assert delivered.get(timeout=5)["safety_mode_request"] == "stopped"
+    daemon.send(frame(protect(request, {"SafetyMode": "normal"}, 4)))
+    assert delivered.get(timeout=5)["safety_mode_request"] == "stopped"  # recovering: still safe
+
+
+def test_an_emulated_device_whose_one_command_message_stops_takes_that_messages_safe_values(emulated_welder):
     """The welder's safety mode and its weld command come in two messages, each with its own watchdog: while the
     weld commands keep coming, a safety mode request silent for longer than its watchdog is not the last one heard
     but its safe value (the devices' clock is the test's: no waiting)."""
-    from types import SimpleNamespace
-
-    from cellsim.bridges.devices import EmulatedDevices
-
-    loaded = load_bridge(e2e_config)
-    bus = can.Bus(interface="virtual", channel="emulated-welder-watchdogs")
-    daemon = can.Bus(interface="virtual", channel="emulated-welder-watchdogs")
-    delivered: queue.Queue = queue.Queue()
-    enum, number = SimpleNamespace(kind="enum"), number_type(None)
-    source = SimpleNamespace(inputs=["safety_mode_request", "activity_request", "command"],
-                             codec=SimpleNamespace(types=[enum, enum, number]),
-                             deliver=lambda payload: delivered.put(json.loads(payload)["fields"]))
-    devices = EmulatedDevices(loaded, bus, session=None)
+    loaded, devices, daemon, delivered = emulated_welder
     now = [0.0]
     devices.clock = lambda: now[0]
     request = loaded.database.get_message_by_name("SafetyModeRequest")
@@ -594,31 +591,25 @@ def test_an_emulated_device_whose_one_command_message_stops_takes_that_messages_
                                 is_extended_id=False))
         return delivered.get(timeout=5)
 
-    try:
-        assert devices.feed_commands(SimpleNamespace(module="welder"), source)
-        for counter in range(3):  # both trusted after three good frames in a row
-            send(request, {"SafetyMode": "normal"}, counter)
-            fields = send(command, {"ActivityRequest": "none", "Weld": 1}, counter)
-        assert fields["safety_mode_request"] == "normal" and fields["command"] == 1.0
-        now[0] = 0.9 * watchdog  # the request still within its watchdog: as last heard
-        assert send(command, {"ActivityRequest": "none", "Weld": 1}, 3)["safety_mode_request"] == "normal"
-        now[0] = 1.1 * watchdog  # silent for longer than its watchdog: its safe value, the weld command as sent
-        fields = send(command, {"ActivityRequest": "none", "Weld": 1}, 4)
-        assert fields["safety_mode_request"] == "stopped" and fields["command"] == 1.0
-        for counter in range(5, 7):  # it comes back: safe until recover_after good frames in a row
-            now[0] += 0.01
-            assert send(request, {"SafetyMode": "normal"}, counter)["safety_mode_request"] == "stopped"
-        assert send(request, {"SafetyMode": "normal"}, 7)["safety_mode_request"] == "normal"
-        # a frozen stream: the same frame again and again is refused, not good, and its watchdog runs out (a review
-        # found the repeats themselves keeping the last request trusted for ever)
-        now[0] += 0.5 * watchdog
-        assert send(request, {"SafetyMode": "normal"}, 7)["safety_mode_request"] == "normal"
-        now[0] += 0.6 * watchdog
-        assert send(request, {"SafetyMode": "normal"}, 7)["safety_mode_request"] == "stopped"
-    finally:
-        devices.close()
-        bus.shutdown()
-        daemon.shutdown()
+    for counter in range(3):  # both trusted after three good frames in a row
+        send(request, {"SafetyMode": "normal"}, counter)
+        fields = send(command, {"ActivityRequest": "none", "Weld": 1}, counter)
+    assert fields["safety_mode_request"] == "normal" and fields["command"] == 1.0
+    now[0] = 0.9 * watchdog  # the request still within its watchdog: as last heard
+    assert send(command, {"ActivityRequest": "none", "Weld": 1}, 3)["safety_mode_request"] == "normal"
+    now[0] = 1.1 * watchdog  # silent for longer than its watchdog: its safe value, the weld command as sent
+    fields = send(command, {"ActivityRequest": "none", "Weld": 1}, 4)
+    assert fields["safety_mode_request"] == "stopped" and fields["command"] == 1.0
+    for counter in range(5, 7):  # it comes back: safe until recover_after good frames in a row
+        now[0] += 0.01
+        assert send(request, {"SafetyMode": "normal"}, counter)["safety_mode_request"] == "stopped"
+    assert send(request, {"SafetyMode": "normal"}, 7)["safety_mode_request"] == "normal"
+    # a frozen stream: the same frame again and again is refused, not good, and its watchdog runs out (a review
+    # found the repeats themselves keeping the last request trusted for ever)
+    now[0] += 0.5 * watchdog
+    assert send(request, {"SafetyMode": "normal"}, 7)["safety_mode_request"] == "normal"
+    now[0] += 0.6 * watchdog
+    assert send(request, {"SafetyMode": "normal"}, 7)["safety_mode_request"] == "stopped"
 
 
 @pytest.mark.parametrize("args, expected", [
