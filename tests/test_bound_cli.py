@@ -44,6 +44,7 @@ def test_until_bound_says_how_many_runs_it_takes_then_stops_there(clean):
     assert "operator_waits" in bounds["sampling"] and "summing to 20" in bounds["sampling"]
     assert "every run 30 s long" in bounds["sampling"]  # what the runs have in common is part of it too
     assert "Clopper-Pearson" in bounds["method"] and "counts as violating it" in bounds["counted"]
+    assert "decided as their outcomes came" not in bounds["sampling"]  # none counted against it: 0 of 5 is exact
 
 
 def test_check_on_a_campaign_folder_gives_each_conditions_rate_and_bound(clean):
@@ -139,9 +140,17 @@ def test_until_bound_stops_at_the_first_violation_and_says_the_violation_is_the_
     assert runs and runs[-1]["violations"] and not any(r["violations"] for r in runs[:-1])  # one worker: it stopped there
     assert len(runs) < runs_needed(0.01) and results["bounds"]["overall"]["failures"] == 1
     assert "the violation is the finding" in done.stdout
+    # its number of runs was decided by their outcomes: the exact bound takes it as fixed, which the statement says
+    assert "decided as their outcomes came (--until-bound stops at the first run" in results["bounds"]["sampling"]
     # asked again, it does not run on past the violation
     again = _cellsim("campaign", TWO_OPERATORS, "--until-bound", "0.01", "--jobs", "1", "--out", out)
     assert again.returncode == 1 and len(json.loads((out / "results.json").read_text())["runs"]) == len(runs)
+    # extended past the violation with --runs: said too, and the whole history of its sizing is kept
+    extended = _cellsim("campaign", TWO_OPERATORS, "--runs", str(len(runs) + 1), "--jobs", "1", "--out", out)
+    assert extended.returncode == 1, extended.stderr
+    results = json.loads((out / "results.json").read_text())
+    assert "the campaign was extended after runs counted against it" in results["bounds"]["sampling"]
+    assert [e["until_bound"] for e in results["campaign"]["sizing"]] == [0.01, 0.01, None]
 
 
 @pytest.mark.parametrize("args, message", [

@@ -136,16 +136,22 @@ def prepare(plan: CampaignPlan, out: Path, identity: dict, restart: bool = False
     """
     plan_path = out / PLAN
     check_resumable(out, identity, restart)
+    from cellsim.validation.bound import counts_against
+
+    sizing = []  # how the number of runs was decided, call by call (a bound's honesty depends on it)
     if plan_path.exists() and restart:
         discard(out)
     elif plan_path.exists():
+        try:
+            sizing = list(json.loads(plan_path.read_text()).get("sizing") or [])
+        except (OSError, ValueError, AttributeError):
+            sizing = []
         beyond = _finished_from(out, plan.runs, identity)
         if beyond:  # a sample is never made smaller after the fact: a run left out may be one that violated
             raise CampaignError(f"{out} holds {len(beyond)} finished run(s) of these inputs beyond --runs {plan.runs} "
                                 f"(up to run {max(beyond) + 1}): pass --runs {max(beyond) + 1} or more to keep "
                                 f"them, or {RESTART_HINT}")
     out.mkdir(parents=True, exist_ok=True)
-    write_json(plan_path, {"identity": identity, "runs": plan.runs, "scenario": plan.scenario})
     done = []
     for index in range(plan.runs):
         path = run_dir(out, index) / RESULT
@@ -157,7 +163,29 @@ def prepare(plan: CampaignPlan, out: Path, identity: dict, restart: bool = False
                 continue
             if result.get("inputs_hash") == identity["hash"]:
                 done.append(result)  # any other is redone: never count a run of other inputs
+    sizing.append({"runs": plan.runs, "until_bound": plan.until_bound, "finished_before": len(done),
+                   "against_before": sum(1 for r in done if counts_against(r))})
+    write_json(plan_path, {"identity": identity, "runs": plan.runs, "scenario": plan.scenario, "sizing": sizing})
     return done
+
+
+def chosen_as_they_came(sizing: list[dict], any_against: bool) -> str | None:
+    """How the number of runs depended on the runs' outcomes, in words, or None where it did not: ``--until-bound``
+    that stopped at a run counted against the bound (``any_against``: one did; with none, its runs went to the number
+    fixed in advance, and 0 of them is an exact bound), and a campaign extended after runs counted against it. The
+    exact bound takes the number of runs as fixed."""
+    stopped = any_against and any(entry.get("until_bound") is not None for entry in sizing)
+    extended = any(entry.get("against_before") and entry.get("runs", 0) > entry.get("finished_before", 0)
+                   for entry in sizing[1:])
+    if not (stopped or extended):
+        return None
+    how = []
+    if stopped:
+        how.append("--until-bound stops at the first run counted against the bound")
+    if extended:
+        how.append("the campaign was extended after runs counted against it")
+    return (f"the number of runs was decided as their outcomes came ({'; '.join(how)}): the exact bound takes it as "
+            "fixed in advance, so it is approximate here")
 
 
 def _finished_from(out: Path, first: int, identity: dict) -> list[int]:
@@ -273,10 +301,15 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
     campaign's provenance (:func:`cellsim.provenance.provenance`); ``search``, the
     falsification search's record when a search chose the runs (then no bound is given)."""
     from cellsim.campaign.report import finding_runs, write_report
+    from cellsim.validation.bound import counts_against
     from cellsim.scenario import unit_of
     from cellsim.validation.bound import campaign_bounds
 
     sc = sf.scenario
+    try:
+        sizing = [] if search else (json.loads((out / PLAN).read_text()).get("sizing") or [])
+    except (OSError, ValueError, AttributeError):
+        sizing = []
     t0 = time.perf_counter()
     coverage = case.coverage.merge([r["coverage"] for r in runs if "coverage" in r])
     t_coverage = time.perf_counter() - t0
@@ -300,6 +333,7 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
                              if description_of(e)},
             "samplers": {name: to_data(s) for name, s in sc.campaign.samplers.items()},
             "until_bound": plan.until_bound,
+            "sizing": sizing,
         },
         "provenance": record,
         "runs": [{**r, "rerun": _rerun_command(out, r)} for r in runs],
@@ -315,9 +349,11 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
             "coverage": coverage.to_json(),
             "finding_runs": finding_runs(runs),
         },
-        "bounds": {"excluded": search["not_a_sample"]} if search else campaign_bounds(runs, conditions, describe_sampling(
-            sc.campaign.samplers, {name: point.paths for name, point in sc.configuration_points.items()},
-            plan.duration if plan.duration is not None else sc.duration, tuple(plan.overrides))),
+        "bounds": {"excluded": search["not_a_sample"]} if search else campaign_bounds(runs, conditions, "; ".join(
+            filter(None, [describe_sampling(
+                sc.campaign.samplers, {name: point.paths for name, point in sc.configuration_points.items()},
+                plan.duration if plan.duration is not None else sc.duration, tuple(plan.overrides)),
+                chosen_as_they_came(sizing, any(counts_against(r) for r in completed))]))),
         "timing": {
             "simulate": stage("simulate"),
             "trace": stage("trace"),
