@@ -226,6 +226,9 @@ def test_the_header_says_what_the_verdicts_do_not():
     page = render_report(results, {})
     header = page[:page.index("</header>")]
     assert "no violations" not in header and "1 run undecided" in header
+    results["runs"] = runs[:1]  # a blind spot alone: no condition violated, and not a green badge
+    alone = render_report(results, {})
+    assert "no condition violated" in alone[:alone.index("</header>")] and "badge ok" not in alone[:alone.index("</header>")]
     assert "1 run with blind spots" in header and "1 run with harm above its limits" in header  # (0.4: within)
     assert "3 of 9 planned" in header
     assert parse(page).errors == []
