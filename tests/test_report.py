@@ -234,6 +234,16 @@ def test_the_header_says_what_the_verdicts_do_not():
     assert parse(page).errors == []
 
 
+def test_a_search_s_use_case_shares_are_not_rates():
+    """A falsification search chose its runs: the share of them that exercised a use case is theirs, not a rate
+    among the cell's runs (the evidence audit found it read as one)."""
+    results = copy.deepcopy(RESULTS)
+    results["search"] = {"method": "cmaes", "budget": 3}
+    shown = section(render_report(results, {}), "use-cases")
+    assert "Share of the search" in shown and "not a rate" in shown
+    assert "Share of the search" not in section(render_report(copy.deepcopy(RESULTS), {}), "use-cases")
+
+
 def test_violating_run_has_timeline_section(parsed, page):
     sections = [a for t, a, _ in parsed.elements if t == "section" and a.get("id", "").startswith("timeline-")]
     assert [s["id"] for s in sections] == ["timeline-1"]
