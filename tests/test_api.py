@@ -359,3 +359,18 @@ def test_the_scripting_guide_names_only_public_names():
     used = set(re.findall(r"\bcellsim\.([A-Za-z_]+)\(", text)) | set(re.findall(r"`cellsim\.([A-Za-z_]+)`", text))
     used.discard("__all__")
     assert used and used <= set(cellsim.__all__), used - set(cellsim.__all__)
+
+
+@pytest.mark.slow
+def test_a_script_with_no_main_guard_runs_a_campaign_on_two_workers(tmp_path):
+    """The scripting guide's campaign, written as a plain script (no ``if __name__ == "__main__":``): its spawned
+    workers must not run the script again (they did, found the folder taken, and died: 'a worker process died')."""
+    script = tmp_path / "campaign.py"
+    script.write_text(
+        "import cellsim\n"
+        f"outcome = cellsim.run_campaign({str(ROOT / 'scenarios' / 'welding_cell.yaml')!r}, {str(tmp_path / 'c')!r},\n"
+        "                               runs=2, jobs=2, duration=2.0)\n"
+        "print('runs', outcome.results['totals']['runs'])\n")
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "runs 2" in done.stdout and len(json.loads((tmp_path / "c" / "results.json").read_text())["runs"]) == 2

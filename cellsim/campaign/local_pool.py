@@ -15,6 +15,7 @@ never run more than ``jobs`` tasks at once.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import multiprocessing
 import os
@@ -64,7 +65,8 @@ class LocalPool:
             self._executor = self._new_executor()
             self._submitted = 0
         self._submitted += 1
-        return self._executor.submit(fn, *args, **kwargs)
+        with _main_left_alone():  # (a worker is started, if one is, within this call)
+            return self._executor.submit(fn, *args, **kwargs)
 
     def shutdown(self, cancel: bool = False) -> None:
         """Waits until every worker, of every executor, has exited; ``cancel``: the current
@@ -73,6 +75,25 @@ class LocalPool:
         for retiring in self._retiring:
             retiring.join()
         self._retiring.clear()
+
+
+@contextlib.contextmanager
+def _main_left_alone():
+    """While workers are started: the caller's script is not theirs to run. A spawned worker runs the parent's main
+    module again (as ``__mp_main__``) before its task, so a script that calls ``cellsim.run_campaign`` at its top
+    level, with no ``if __name__ == "__main__":`` guard, would start the campaign again in every worker (which then
+    dies: the folder is taken). The workers run cellsim's own functions only, so the main module's file is hidden
+    from them while they start; a module run with ``-m`` (a spec) is left as it is."""
+    main = sys.modules.get("__main__")
+    path = getattr(main, "__file__", None)
+    if main is None or path is None or getattr(main, "__spec__", None) is not None:
+        yield
+        return
+    del main.__file__
+    try:
+        yield
+    finally:
+        main.__file__ = path
 
 
 def _init_worker(parent: int) -> None:
