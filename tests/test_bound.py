@@ -148,3 +148,19 @@ def test_the_sampling_in_words_names_what_every_run_has_in_common():
                               {"mode": ["light_barrier.twin.mode"]}, 3.0, ("duration=3", "robot.braking_time=0.4"))
     assert "each one of model, shadow, equally likely" in words
     assert "every run 3 s long with duration=3, robot.braking_time=0.4" in words
+
+
+def test_a_campaign_s_size_is_said_to_follow_its_outcomes_only_where_it_did():
+    """An --until-bound stop at a violation, or a plan grown after runs counted against it, chose the number of runs
+    by their outcomes; resuming an interrupted campaign of the same size, or --until-bound that reached its runs
+    clean, did not."""
+    from cellsim.campaign.runner import chosen_as_they_came
+
+    fixed = {"runs": 10, "until_bound": None, "finished_before": 0, "against_before": 0}
+    resumed = {"runs": 10, "until_bound": None, "finished_before": 7, "against_before": 1}
+    grown = {"runs": 20, "until_bound": None, "finished_before": 10, "against_before": 1}
+    bounded = {"runs": 299, "until_bound": 0.01, "finished_before": 0, "against_before": 0}
+    assert chosen_as_they_came([fixed, resumed], any_against=True) is None
+    assert "extended after runs counted against it" in chosen_as_they_came([fixed, grown], any_against=True)
+    assert chosen_as_they_came([bounded], any_against=False) is None  # 0 of 299: exact
+    assert "--until-bound stops" in chosen_as_they_came([bounded], any_against=True)
