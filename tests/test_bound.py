@@ -164,3 +164,5 @@ def test_a_campaign_s_size_is_said_to_follow_its_outcomes_only_where_it_did():
     assert "extended after runs counted against it" in chosen_as_they_came([fixed, grown], any_against=True)
     assert chosen_as_they_came([bounded], any_against=False) is None  # 0 of 299: exact
     assert "--until-bound stops" in chosen_as_they_came([bounded], any_against=True)
+    after_a_stop = {"runs": 6, "until_bound": None, "finished_before": 5, "against_before": 1}
+    assert "extended after runs counted against it" in chosen_as_they_came([bounded, after_a_stop], any_against=True)

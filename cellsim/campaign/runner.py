@@ -175,9 +175,12 @@ def chosen_as_they_came(sizing: list[dict], any_against: bool) -> str | None:
     fixed in advance, and 0 of them is an exact bound), and a campaign extended after runs counted against it. The
     exact bound takes the number of runs as fixed."""
     stopped = any_against and any(entry.get("until_bound") is not None for entry in sizing)
-    # a size grown beyond every earlier plan once runs against it were seen (resuming an interrupted campaign of the
-    # same size is no decision)
-    extended = any(entry.get("against_before") and entry.get("runs", 0) > max(e.get("runs", 0) for e in sizing[:k])
+    # a plan changed (more runs, or --until-bound given or dropped) once runs against it were seen; resuming an
+    # interrupted campaign as it was planned is no new decision
+    def plan(entry):
+        return entry.get("runs"), entry.get("until_bound")
+
+    extended = any(entry.get("against_before") and plan(entry) != plan(sizing[k - 1])
                    for k, entry in enumerate(sizing) if k)
     if not (stopped or extended):
         return None
