@@ -125,7 +125,8 @@ class SpeedSeparationMonitor(CellSystem):
       geometry_query (input, geometry separation only): SceneGraph's QueryObject.
       separation_measured (input, a sensor's separation only): that sensor's distance (m).
       <entity>_link (inputs, geometry separation only): the physical link (its code) of the robot and of each
-        person whose bodies the separation is measured between (``watch_links``): one not ok or unused reads 0.
+        person whose bodies the separation is measured between (``watch_links``): while one is not ok or unused,
+        the separation has no value and the limit is 0.
       separation (channel, m): the separation d used (negative: overlapping).
       protective_distance (channel, m): S_p for the robot's current speed towards the person.
       margin (channel, m): d - S_p.
@@ -215,8 +216,8 @@ class SpeedSeparationMonitor(CellSystem):
 
     def watch_links(self, entities: list[str]) -> list:
         """Declare an input of the physical link of each of ``entities`` (the robot and the people, by module name);
-        returns the ports to connect to their ``physical_link`` channels. On the geometry, the separation reads 0
-        while one is not ok or unused."""
+        returns the ports to connect to their ``physical_link`` channels. On the geometry, the separation has no
+        value (and the limit is 0) while one is not ok or unused."""
         self.link_ports = [self.declare_input(f"{entity}_link", default=PhysicalLink.UNUSED.code) for entity in entities]
         return self.link_ports
 
@@ -286,7 +287,7 @@ class SpeedSeparationMonitor(CellSystem):
         if not self.from_geometry or not self.bodies_trusted(context):
             d = self.separation_port.Eval(context)[0] if not self.from_geometry else math.nan
             tool_velocity = kin.tool.CalcSpatialVelocityInWorld(kin.context).translational()
-            return (d if math.isfinite(d) else math.nan), float(np.linalg.norm(tool_velocity))
+            return (d if math.isfinite(d) else math.nan), float(np.linalg.norm(tool_velocity))  # (inf: no value)
         return self.truth(context)
 
     def truth(self, context) -> tuple[float, float]:
