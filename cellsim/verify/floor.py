@@ -348,6 +348,8 @@ def build_floor(cell: AbstractCell, places: Places) -> None:
                 cell.define(signal, expr, encoding)
     readings: dict[str, list[tuple[str, str]]] = {}  # sensor -> (its signal, what it reads of the places now)
     for signal, parts in per_signal.items():
+        if sensed[signal].combine is None:  # each person's alone: its module reads the .of_<person> formulas
+            continue
         expr = _combine(cell, signal, parts, sensed[signal])
         if signal in cell.internal:
             cell.define(signal, expr, cell.encoding(signal))

@@ -56,6 +56,15 @@ class Abstraction(Protocol):
         """Add the module's PRISM modules and define its output signals."""
 
 
+def declare_for_readers(part, cell: "AbstractCell") -> None:
+    """Round 1, last: once every module and condition has said what it reads, a module whose signal is costly to
+    model (a true separation: distances measured at every pose of the floor) declares what it needs for the signals
+    somebody reads (``declare_for_readers(cell)``, where its abstraction has one)."""
+    late = getattr(part, "declare_for_readers", None)
+    if late is not None:
+        late(cell)
+
+
 @dataclass(frozen=True)
 class Pose:
     """Where a person can stand, facing ``yaw`` (rad), reaching towards ``reach`` (a point, m) or not."""
@@ -105,9 +114,10 @@ class SensedSignal:
     sensor's role has its own ``measure``, ``measure(that measurement)``)."""
 
     measure: Callable[[object], object]
-    combine: Callable[[list], object]
+    combine: Callable[[list], object] | None
     """The reading of several people from each one's alone (nearest, any...), on values in the channel's words
-    (a number: in its unit)."""
+    (a number: in its unit); None: a measurement of each person alone, never combined (only its
+    ``<signal>.of_<person>`` formulas are defined, for the module that asked for it)."""
 
 
 @dataclass
@@ -142,7 +152,8 @@ class Property:
     """The validation condition whose violation the twin must show."""
     sustained: str = ""
     """PRISM expression of the bad states where the violation lasted its whole window (a bounded response):
-    the witness sought first, as it holds whatever the order of events within a period."""
+    the witness sought first, as it holds whatever the order of events within a period; an invariant's, where it
+    fails on its signals' firm formulas too (``Signal.firm``)."""
     within: float | None = None
     """A liveness condition ``G(a -> F b)``, checked as the stronger ``G(a -> F[0, within] b)`` (s): holding proves
     the condition; failing says only that ``b`` may take longer (then judged under fairness, ``response``)."""
@@ -163,6 +174,10 @@ class Signal:
     formula: str
     """The PRISM formula's name that carries it."""
     encoding: Encoding
+    firm: str | None = None
+    """Where the formula over-approximates (a value the cell may or may not have there), the name of a formula that
+    reads that value only where the cell most likely has it: a property's witness is sought first among the states
+    where it fails on the firm formulas too (``Property.sustained``), so that the twin is handed the likelier one."""
 
 
 def prism_name(signal: str) -> str:
@@ -280,13 +295,16 @@ class AbstractCell:
             return bool
         return Thresholds(tuple(sorted(self.thresholds.get(signal, ()))))
 
-    def define(self, signal: str, expr: str, encoding: Encoding | None = None) -> str:
-        """``signal`` is ``expr`` (codes of its encoding); returns its formula's name."""
+    def define(self, signal: str, expr: str, encoding: Encoding | None = None, firm: str | None = None) -> str:
+        """``signal`` is ``expr`` (codes of its encoding); returns its formula's name. ``firm``: where ``expr``
+        over-approximates, the likelier reading (``Signal.firm``)."""
         if signal in self.signals:
             raise VerifyError(f"signal '{signal}' is defined twice in the abstract model")
         name = prism_name(signal)
         encoding = encoding if encoding is not None else self.encoding(signal)
-        self.signals[signal] = Signal(signal, name, encoding)
+        if firm is not None:
+            self.formulas[f"{name}_firm"] = firm
+        self.signals[signal] = Signal(signal, name, encoding, None if firm is None else f"{name}_firm")
         self.formulas[name] = expr
         return name
 

@@ -3,7 +3,8 @@
 A condition whose shape the abstract model can carry becomes a safety property:
 
 * ``G(p)``, ``p`` without time: an invariant; its bad states are those where ``p``
-  fails;
+  fails (where a signal it reads is over-approximated and has a firm formula, its
+  witness is sought first where ``p`` fails on the firm formulas too);
 * ``G(a -> (b U[0, w] c))`` and ``G(a -> F[0, w] c)`` (the detection conditions):
   a monitor module follows the oldest pending obligation (``a`` held, ``c`` not yet),
   with ``w`` counted in whole periods (rounded down); the bad states are those
@@ -144,6 +145,9 @@ class ConditionProperties:
             try:
                 if c.shape == "invariant":
                     bad, sustained = f"!({to_prism(c.parts[0], encodings, names)})", ""
+                    firm = {v: cell.signals[ch].firm or names[v] for v, ch in c.variables.items()}
+                    if firm != names:  # (a subset of bad: the witness sought first)
+                        sustained = f"({bad}) & !({to_prism(c.parts[0], encodings, firm)})"
                 elif c.shape == "final":
                     bad, sustained = self._final(c, encodings, names), ""
                 else:

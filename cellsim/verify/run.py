@@ -17,7 +17,7 @@ from cellsim import registry
 from cellsim.verify.expressions import VerifyError
 from cellsim.verify.floor import build_floor, cut_floor
 from cellsim.verify.isolated import ProcessStopped, in_own_process
-from cellsim.verify.model import AbstractCell, Property
+from cellsim.verify.model import AbstractCell, Property, declare_for_readers
 from cellsim.verify.prism import Program
 from cellsim.verify.properties import ConditionProperties, Skipped
 from cellsim.verify.storm import (DD_MEMORY, EXPLICIT_LIMIT, Checked, ModelStats, build, build_symbolic, check,
@@ -207,6 +207,8 @@ def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset
         vocabulary, macros = _vocabulary(sf, cell)
         conditions.declare(vocabulary)
         conditions.declare_user(vocabulary, macros)
+    for part in parts:
+        declare_for_readers(part, abstract)
     times["declare"] = time.perf_counter() - start - times["cell"]
     mark = time.perf_counter()
     abstract.places = cut_floor(abstract)

@@ -47,33 +47,64 @@ class RobotAbstraction(ModuleAbstraction):
     def declare(self, cell: AbstractCell) -> None:
         """Reads its mode request and target pose (in ``build``)."""
 
+    def _samples(self, a: int, b: int) -> tuple[np.ndarray, list[int]]:
+        """The move from pose a to pose b at SAMPLES + 1 evenly spaced points of its straight joint-space line: (joint
+        positions (SAMPLES + 1, joints), the location code of the tool at each)."""
+        robot = self.system
+        start, goal = robot.poses[a], robot.poses[b]
+        configs = start + np.linspace(0.0, 1.0, SAMPLES + 1)[:, None] * (goal - start)
+        return configs, [robot.locate(robot.kinematics.tool_position(q)).code for q in configs]
+
+    def _runs(self, a: int, b: int) -> list[tuple[int, int, int]]:
+        """The move from pose a to pose b as the regions its tool passes through, in order: (location code, first
+        sample, last sample)."""
+        runs: list[list[int]] = []
+        for i, code in enumerate(self._samples(a, b)[1]):
+            if runs and runs[-1][0] == code:
+                runs[-1][2] = i
+            else:
+                runs.append([code, i, i])
+        return [tuple(run) for run in runs]
+
     def _moves(self, period: float, timed: bool) -> dict[tuple[int, int], list[tuple[int, int]]]:
         """(a, b) -> [(location code, least periods there)] along the move from pose a to pose b: timed, the periods
         the tool surely spends in the region at its fastest (its joint limits and normal cap, no acceleration), less
         one for the phase of the robot's updates against the crossing; else 0."""
         robot = self.system
         moves = {}
-        for a in range(len(robot.poses)):
-            for b in range(len(robot.poses)):
-                if a == b:
-                    continue
-                start, goal = robot.poses[a], robot.poses[b]
-                motion = robot.start_segment(start, b)
-                tool_per_s, joint_rate = float(motion[3]), float(motion[4])
-                rate = min(joint_rate, robot.normal_cap / tool_per_s)  # ds/dt at most
-                codes = [robot.locate(robot.kinematics.tool_position(start + s * (goal - start))).code
-                         for s in np.linspace(0.0, 1.0, SAMPLES + 1)]
-                runs: list[list[int]] = []
-                for code in codes:
-                    if runs and runs[-1][0] == code:
-                        runs[-1][1] += 1
-                    else:
-                        runs.append([code, 1])
-                # a crossing of T s shows in as few as floor(T / period) of the robot's updates (their phase against
-                # it), and the model asks for one more than the least (the update that leaves): one less
-                moves[(a, b)] = [(code, max(0, math.floor((count - 1) / SAMPLES / rate / period) - 1) if timed else 0)
-                                 for code, count in runs]
+        for a, b in self._pairs():
+            motion = robot.start_segment(robot.poses[a], b)
+            tool_per_s, joint_rate = float(motion[3]), float(motion[4])
+            rate = min(joint_rate, robot.normal_cap / tool_per_s)  # ds/dt at most
+            # a crossing of T s shows in as few as floor(T / period) of the robot's updates (their phase against
+            # it), and the model asks for one more than the least (the update that leaves): one less
+            moves[(a, b)] = [(code, max(0, math.floor((last - first) / SAMPLES / rate / period) - 1) if timed else 0)
+                             for code, first, last in self._runs(a, b)]
         return moves
+
+    def _pairs(self) -> list[tuple[int, int]]:
+        """Every move (a, b) between two named poses, in the order the model numbers them (after the poses)."""
+        n = len(self.system.poses)
+        return [(a, b) for a in range(n) for b in range(n) if a != b]
+
+    def stretches(self) -> list["ArmStretch"]:
+        """Where the arm may be in each state of its abstraction: at rest at each pose, on each region of each move
+        (the samples in it and one either side), and on a path not modelled (anywhere)."""
+        r, robot = self.name, self.system
+        poses, pairs = len(robot.poses), self._pairs()
+        seg, k = f"{r}_segment", f"{r}_region"
+        out = [ArmStretch(f"{seg}={p}", robot.poses[p][None, :], 0.0, 0.0, f"at rest at {robot.pose_names[p]}",
+                          robot.locate(robot.kinematics.tool_position(robot.poses[p])).code) for p in range(poses)]
+        for i, (a, b) in enumerate(pairs):
+            configs = self._samples(a, b)[0]
+            tool_per_s = float(robot.start_segment(robot.poses[a], b)[3])
+            for region, (code, first, last) in enumerate(self._runs(a, b)):
+                out.append(ArmStretch(f"{seg}={poses + i} & {k}={region}",
+                                      configs[max(first - 1, 0):last + 2], tool_per_s, 1.0 / SAMPLES,
+                                      f"on {robot.pose_names[a]} -> {robot.pose_names[b]}, "
+                                      f"{robot.locations.from_code(code).value}", code))
+        out.append(ArmStretch(f"{seg}>={poses + len(pairs)}", None, 0.0, 0.0, "on a path not modelled", None))
+        return out
 
     def build(self, cell: AbstractCell) -> None:
         r, robot, cfg = self.name, self.system, self.cfg
@@ -91,7 +122,7 @@ class RobotAbstraction(ModuleAbstraction):
         initial = robot.pose_names.index(cfg.initial_pose)
         # with its tool's speed read, the robot moves only while a cap above zero is in force; without, the
         # cap is not modelled and it may move at any time (more behaviours, and no braking countdown in the state)
-        go = self.motion_allowed() if f"{r}.tool_speed" in cell.reads else "true"
+        go = self.motion_allowed(cell) if self._enveloped(cell) else "true"
         commands: list[Command] = []
 
         def cmd(guard, update):
@@ -205,13 +236,15 @@ class RobotAbstraction(ModuleAbstraction):
         new_mode = f"({request} >= 0 & {request} != {SafetyMode.UNKNOWN.code} ? {request} : {SafetyMode.STOPPED.code})"
         initial = self._initial_mode(cell)
         cell.define(f"{r}.safety_mode", mode)
-        if f"{r}.tool_speed" not in cell.reads:
+        if not self._enveloped(cell):
             cell.add(Module(f"{r}_safety", [Var(mode, 0, len(_MODES) - 1, initial)],
                             [Command("true", (("1", {mode: new_mode}),))], comment=f"robot {r}: the requested safety mode"))
             cell.assume(f"{r} takes a requested safety mode in one period (its speed is read by nobody: not modelled)")
             return
         envelope, caps = SpeedEnvelope.of(robot, period), self._caps()
         encoding = cell.encoding(f"{r}.tool_speed")
+        limit = self._limit(cell)
+        ssmon = SafetyMode.SPEED_SEPARATION
         # one countdown per speed threshold: the periods a speed above it may still be read; one for a speed
         # at it where a cap equals it (a speed may sit at its cap, never above); one for motion itself
         countdowns = {"moving": (None, False)}
@@ -225,14 +258,27 @@ class RobotAbstraction(ModuleAbstraction):
         for suffix, (threshold, strict) in countdowns.items():
             var = f"{r}_{suffix}"
             refresh = {m.code: envelope.periods(caps[m], threshold, strict) for m in _MODES}
-            variables.append(Var(var, 0, max(refresh.values()), refresh[initial]))
-            update[var] = f"max({var} - 1, {lookup(mode, refresh, 0)})"
-            possible[suffix] = f"({var} > 0 | {set_of(mode, [c for c, n in refresh.items() if n > 0])})"
+            refill, start = lookup(mode, refresh, 0), refresh[initial]
+            can = [c for c, n in refresh.items() if n > 0]
+            if limit is not None:  # in ssmon its cap is also the monitor's limit (the region of its bound)
+                expr, regions = limit
+                by_limit = {region: envelope.periods(min(caps[ssmon], _region_cap(encoding, region)), threshold, strict)
+                            for region in range(encoding.regions)}
+                refill = f"({mode}={ssmon.code} ? {lookup(expr, by_limit, 0)} : {refill})"
+                if initial == ssmon.code:
+                    start = max(by_limit.values())
+                can = [c for c in can if c != ssmon.code]
+                limited = f" | ({mode}={ssmon.code} & {set_of(expr, [g for g, n in by_limit.items() if n > 0])})"
+            else:
+                limited = ""
+            variables.append(Var(var, 0, max(max(refresh.values()), start), start))
+            update[var] = f"max({var} - 1, {refill})"
+            possible[suffix] = f"({var} > 0 | {set_of(mode, can)}{limited})"
         cell.add(Module(f"{r}_safety", variables, [Command("true", (("1", update),))],
                         comment=f"robot {r}: the requested safety mode, and how many periods more its tool may be "
                                 "read moving above (at) each speed threshold"))
         var = f"{r}_speed"
-        commands = []
+        guards = []
         for region in range(encoding.regions):
             i = (region - 1) // 2
             if region == 0 or encoding.values[i] <= 0:
@@ -241,14 +287,30 @@ class RobotAbstraction(ModuleAbstraction):
                 guard = f"{possible[f'at{i}']} | {possible[f'over{i}']}"
             else:
                 guard = possible[f"over{i}"]
-            commands.append(Command(guard, (("1", {var: str(region)}),)))
-        cell.add(Module(f"{r}_tool_speed", [Var(var, 0, encoding.regions - 1, 0)], commands,
-                        comment=f"robot {r}: its tool's speed (m/s) as read, any value its speed envelope allows"))
-        cell.define(f"{r}.tool_speed", var, encoding)
+            guards.append(guard)
+        if f"{r}.tool_speed_bound" in cell.reads:  # the fastest region its envelope allows now: no choice made
+            bound = "0"
+            for region, guard in enumerate(guards[1:], start=1):
+                bound = f"(({guard}) ? {region} : {bound})"
+            # firm: the cap in force, braking from an earlier one not counted (the speed it keeps while it moves)
+            steady = lookup(mode, {m.code: encoding.region_of(caps[m]) for m in _MODES}, 0)
+            if limit is not None:
+                steady = f"({mode}={ssmon.code} ? min({encoding.region_of(caps[ssmon])}, {limit[0]}) : {steady})"
+            cell.define(f"{r}.tool_speed_bound", bound, encoding, firm=steady)
+        if f"{r}.tool_speed" in cell.reads:
+            cell.add(Module(f"{r}_tool_speed", [Var(var, 0, encoding.regions - 1, 0)],
+                            [Command(guard, (("1", {var: str(region)}),)) for region, guard in enumerate(guards)],
+                            comment=f"robot {r}: its tool's speed (m/s) as read, any value its speed envelope allows"))
+            cell.define(f"{r}.tool_speed", var, encoding)
         cell.assume(f"{r} takes a requested safety mode in one period; its tool's speed never exceeds the cap of its "
                     f"mode, and after a cap C ends it falls no slower than from C to zero within the braking time "
                     f"({self.cfg.braking_time:g} s), read up to {envelope.lag:g} s late (telemetry and tracking) and "
                     f"up to {envelope.tolerance:g} m/s above that line until it has settled")
+
+    def _enveloped(self, cell: AbstractCell) -> bool:
+        """Whether its speed envelope is modelled: somebody reads its tool's speed, or the fastest it may be now
+        (``<robot>.tool_speed_bound``, in the tool speed's regions: a formula of the state, no choice)."""
+        return f"{self.name}.tool_speed" in cell.reads or f"{self.name}.tool_speed_bound" in cell.reads
 
     def _caps(self) -> dict[SafetyMode, float]:
         """Each safety mode's tool speed cap (m/s); unknown: the normal one."""
@@ -256,10 +318,50 @@ class RobotAbstraction(ModuleAbstraction):
         caps[SafetyMode.UNKNOWN] = self.system.normal_cap
         return caps
 
-    def motion_allowed(self) -> str:
+    def motion_allowed(self, cell: AbstractCell) -> str:
         """The guard under which the tool may make progress along its move: it may still be moving."""
         moving = [m.code for m, cap in self._caps().items() if cap > 0]
-        return f"({self.name}_moving > 0 | {set_of(f'{self.name}_mode', moving)})"
+        limit, ssmon, mode = self._limit(cell), SafetyMode.SPEED_SEPARATION.code, f"{self.name}_mode"
+        if limit is None or ssmon not in moving:
+            return f"({self.name}_moving > 0 | {set_of(mode, moving)})"
+        encoding = cell.encoding(f"{self.name}.tool_speed")
+        free = [g for g in range(encoding.regions) if _region_cap(encoding, g) > 0]
+        return (f"({self.name}_moving > 0 | {set_of(mode, [c for c in moving if c != ssmon])} | "
+                f"({mode}={ssmon} & {set_of(limit[0], free)}))")
+
+    def _limit(self, cell: AbstractCell) -> tuple[str, int] | None:
+        """The bound its speed-limit input's monitor gives of the limit (``<monitor>.speed_limit_bound``: a formula in
+        the regions of its tool speed, the limit at most the upper end of its region), where the monitor models it;
+        None: the limit is not modelled (in ssmon, its cap alone: more speed than the twin's, never less)."""
+        source = cell.connections.get((self.name, "speed_limit"))
+        if source is None or f"{source}_bound" not in cell.reads:
+            return None
+        return cell.read(f"{source}_bound", self.name), cell.encoding(f"{self.name}.tool_speed").regions
+
+
+def _region_cap(encoding, region: int) -> float:
+    """The upper end (m/s) of a region of the tool speed's encoding: its threshold, or the next one up (inf above
+    the last)."""
+    i = region // 2
+    return encoding.values[i] if i < len(encoding.values) else math.inf
+
+
+@dataclass(frozen=True)
+class ArmStretch:
+    """Where the arm may be while the abstract robot is in the states ``guard`` (a PRISM expression)."""
+
+    guard: str
+    configs: np.ndarray | None
+    """Joint positions (rad) it passes through there, consecutive samples of a straight joint-space line (one at
+    rest); None: anywhere (a path not modelled)."""
+    tool_per_s: float
+    """Metres the tool moves per unit of the line's parameter s at most (the twin's ``start_segment``): the arm's
+    ds/dt is at most its cap-equivalent speed over this (0: at rest)."""
+    spacing: float
+    """The line's parameter s from one of ``configs`` to the next."""
+    words: str
+    location: int | None
+    """The code of the layout's region the tool is in there (None: not known)."""
 
 
 @dataclass(frozen=True)

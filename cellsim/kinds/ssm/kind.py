@@ -60,10 +60,10 @@ class SsmKind(ModuleKind):
                         f"(raise {name}.max_margin_fall)", {"speed": fastest, "max_margin_fall": cfg.max_margin_fall})]
 
     def abstraction(self, abstract, name, cfg):
-        """It only watches: nothing of it enters the abstract cell."""
-        from cellsim.verify.model import Observer
+        """Its true margin, where a property compares it with 0 (``TrueSSM``); nothing else of it."""
+        from cellsim.kinds.ssm.abstraction import SsmAbstraction
 
-        return Observer()
+        return SsmAbstraction(abstract, name, cfg)
 
 
 def build_ssm(cell, name: str, cfg: SsmConfig) -> SpeedSeparationMonitor:

@@ -106,6 +106,13 @@ class SsmParameters:
         a sensor cannot know); the person's speed is still v_h, which they may take at any instant."""
         return self.protective_distance(robot_speed, reaction) - self.allowances
 
+    def separation_for(self, limit: float) -> float:
+        """The separation d (m) whose speed limit is ``limit`` (m/s): :meth:`speed_limit`'s inverse (at 0, the
+        largest separation that allows no speed)."""
+        v_h, t_r, a = self.human_speed, self.reaction_time, self.deceleration
+        b = a * t_r + v_h
+        return limit * (limit + 2.0 * b) / (2.0 * a) + self.allowances + v_h * (t_r + self.latency)
+
     def speed_limit(self, separation: float) -> float:
         """v_max (m/s): the robot speed whose S_p is the separation d (m) less the person's approach
         over the latency; 0 when none is."""

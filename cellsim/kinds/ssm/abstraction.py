@@ -1,0 +1,224 @@
+"""The ssm kind in the abstract cell: its true margin, where a property reads it (``TrueSSM``).
+
+The true margin is, at each instant, the least over the arm's shapes and a person's body regions
+of their true distance less the protective distance S_p of the shape's true speed towards the
+region (no allowances; :mod:`cellsim.kinds.ssm.system`). The model bounds it from below, per state:
+
+* **the distance**, per place of the floor and per stretch of the arm's path (a region of a move, a
+  pose it rests at; ``RobotAbstraction.stretches``), bounded from below by spheres covering both
+  (:mod:`cellsim.verify.clearance`), measured at every pose of the floor as a sensor's reading is
+  (so places are cut where the bound crosses a threshold below);
+* **the speed**: on a straight joint-space move the arm's ds/dt is at most its cap-equivalent tool
+  speed u over the move's ``tool_per_s`` (the twin plans it so), so any point of the arm moves at most
+  u times the stretch's *rate* (its points' fastest metres per unit of s, over ``tool_per_s``); u is
+  the robot's modelled tool speed (its speed envelope: the caps, and the braking after one ends),
+  compared with 0 and each positive cap;
+* **S_p** with the whole reaction time T_r (the twin's shrinks once a stop is ordered: a larger S_p).
+
+So in each state the margin may be below 0 only if, for some person, the distance's bound at their
+place is below S_p of u's largest possible value times the rate; the model's true margin reads
+below 0 in every such state and above 0 elsewhere. A property that asks it to stay at or above 0
+(``TrueSSM``) then holds in the model only where no state of a possible dip is reachable; a witness
+goes to the twin, which judges the true margin itself. An arm on a path the model does not know
+(re-targeted mid-move) may be anywhere within its reach: there, any motion near a person is a
+possible dip. Only comparisons of the true margin with 0 are modelled.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cellsim.verify.clearance import BODY_TOLERANCE, TOLERANCE, ArmSweep, Clearance, Spheres, cover
+from cellsim.verify.expressions import Thresholds
+from cellsim.verify.model import AbstractCell, ModuleAbstraction, SensedSignal, SensorRole, context_of, lookup, prism_name
+from cellsim.kinds.ssm.system import FAR_AWAY
+from cellsim.vocabulary import SafetyMode
+
+
+class SsmAbstraction(ModuleAbstraction):
+    """The monitor's true margin (an observer otherwise: its separation, margin and limit are not modelled, and the
+    robot in ssmon is held to its mode's fixed cap, which the limit only lowers)."""
+
+    def __init__(self, cell: AbstractCell, name: str, cfg):
+        super().__init__(cell, name, cfg)
+        self.stretches = None  # (ArmStretch, its clearance thresholds (m)) once the true margin is modelled
+        self.speeds: list[float] = []
+        self.limited = False
+        """Whether its speed limit is modelled (from a sensor's separation, whose reading the model has)."""
+
+    def declare_for_readers(self, cell: AbstractCell) -> None:
+        """Where a condition compares the true margin with 0 (and nothing else): measure each stretch's clearance
+        at every pose of the floor, and read the robot's tool speed against 0 and its caps."""
+        signal = f"{self.name}.true_margin"
+        if signal not in cell.reads or cell.thresholds.get(signal, set()) != {0.0}:
+            return
+        from cellsim.kinds.robot.abstraction import RobotAbstraction
+
+        system, robot_name = self.system, self.cfg.robot
+        robot = RobotAbstraction(cell, robot_name, cell.sf.scenario.modules_of_kind("robot")[robot_name])
+        inspector = cell.cell.scene_graph.model_inspector()
+        kin = system.kinematics
+        sweep = ArmSweep(kin.plant, kin.context, [(body, inspector.GetShape(g), inspector.GetPoseInFrame(g))
+                                                   for g, body in system.bodies.items()])
+        # u is compared with 0 and the caps it may have in ssmon: its own, and the normal one it may still be braking
+        # from (above that: no cap, never read)
+        caps = robot.system.speed_caps
+        self.speeds = sorted({0.0, caps[SafetyMode.SPEED_SEPARATION], caps[SafetyMode.NORMAL]})
+        sp = self.system.parameters.true_protective_distance
+        # the stretches grouped by the layout's region the tool is in (fewer places: the floor is cut by each
+        # group's clearance), each group's rate its fastest stretch's
+        groups: dict = {}
+        fastest = 0.0
+        for stretch in robot.stretches():
+            rate = None
+            if stretch.configs is not None and stretch.tool_per_s > 0.0:
+                rate = sweep.point_rate(stretch.configs, stretch.spacing) / stretch.tool_per_s
+                fastest = max(fastest, rate)
+            groups.setdefault(stretch.location, []).append((stretch, rate))
+        clouds, modelled = [], []
+        for location, members in groups.items():
+            guard = " | ".join(f"({stretch.guard})" for stretch, _ in members)
+            if location is None:  # a path not modelled: anywhere within its reach, a sphere about its base
+                centre, radius = sweep.reach(robot.system.poses[0])
+                clouds.append(Spheres(centre[None, :], np.array([radius])))
+                modelled.append((_Group(guard, None, ()), [sp(0.0)]))
+                continue
+            parts = [sweep.stretch(stretch.configs)[0] for stretch, _ in members]
+            clouds.append(Spheres(np.vstack([p.centres for p in parts]), np.concatenate([p.radii for p in parts])))
+            rate = max(fastest if rate is None else rate for _, rate in members)  # at rest: settling, at the fastest
+            at_rest = tuple(stretch.guard for stretch, _ in members if stretch.tool_per_s == 0.0)
+            modelled.append((_Group(guard, rate, at_rest), sorted({sp(rate * u) for u in self.speeds})))
+        self.stretches = modelled
+        clearance = Clearance(clouds, [ts for _, ts in modelled], max(t for _, ts in modelled for t in ts) + 0.05)
+        bodies = _BodyCover(inspector, system.pairs.b.ids)
+        self.clearance, self.bodies, self.sweep, self.groups = clearance, bodies, sweep, groups
+        of = context_of(system)
+        signals = {}
+        for k, (_, thresholds) in enumerate(modelled):
+            port = f"clearance{k}"
+            cell.internal[f"{self.name}.{port}"] = Thresholds(tuple(thresholds))
+            signals[port] = SensedSignal(lambda distances, k=k: distances[k], None)
+            cell.read(f"{self.name}.{port}", self.name, required=False)  # (its .of_<person> formulas are read)
+        cell.add_sensor(SensorRole(self.name, signals, measure=lambda root: clearance.of(
+            bodies.at(system.query_port.Eval(of(root))))))
+        cell.read(f"{robot_name}.tool_speed_bound", self.name)
+        cell.compares(f"{robot_name}.tool_speed", self.speeds)  # (the bound is in the tool speed's regions)
+        if not system.from_geometry:  # its limit from the sensor's reading, which the model has: the robot's cap too
+            cell.read(f"{self.name}.speed_limit_bound", robot_name)
+            cell.read(self.cfg.separation, self.name)
+            parameters = system.parameters
+            cell.compares(self.cfg.separation, [parameters.separation_for(u) for u in self.speeds])
+            self.limited = True
+        self._tolerances = (TOLERANCE, BODY_TOLERANCE)
+
+    def build(self, cell: AbstractCell) -> None:
+        if self.limited:
+            self._limit(cell)
+        if self.stretches is None:
+            return
+        speed = cell.read(f"{self.cfg.robot}.tool_speed_bound", self.name)
+        steady = cell.signals[f"{self.cfg.robot}.tool_speed_bound"].firm
+        firm_dips = []
+        speed_regions = cell.encoding(f"{self.cfg.robot}.tool_speed")
+        dips = []
+        for k, (stretch, thresholds) in enumerate(self.stretches):
+            encoding = cell.encoding(f"{self.name}.clearance{k}")
+            # a clearance region -> the fastest speed region with no dip there: at most the fastest u whose S_p fits
+            table = {}
+            for region in range(encoding.regions):
+                low = encoding.values[(region - 1) // 2] if region else -np.inf  # (region 0: below every threshold)
+                fits = [u for u in self.speeds if self._sp(stretch, u, thresholds) <= low]
+                table[region] = speed_regions.region_of(max(fits)) if fits else -1
+            allowed = [lookup(prism_name(f'{self.name}.clearance{k}.of_{p.module}'), table, -1) for p in cell.people]
+            if allowed:
+                dips.append(f"({stretch.guard}) & ({' | '.join(f'{speed} > {a}' for a in allowed)})")
+                # firm: moving at the cap in force (at rest: standing still), braking from an earlier one not counted
+                firm = steady
+                if stretch.at_rest:
+                    still = " | ".join(f"({g})" for g in stretch.at_rest)
+                    firm = f"(({still}) ? {speed_regions.region_of(0.0)} : {steady})"
+                firm_dips.append(f"({stretch.guard}) & ({' | '.join(f'{firm} > {a}' for a in allowed)})")
+        dip = " | ".join(f"({d})" for d in dips) or "false"
+        firm_dip = " | ".join(f"({d})" for d in firm_dips) or "false"
+        cell.define(f"{self.name}.true_margin", f"(({dip}) ? 0 : 2)", Thresholds((0.0,)), firm=f"(({firm_dip}) ? 0 : 2)")
+        body, arm = self._tolerances[1], self._tolerances[0]
+        cell.assume(
+            f"{self.name}'s true margin is bounded from below: the arm's shapes and each body region covered by "
+            f"spheres (reaching at most {arm:g} m and {body:g} m beyond them), the arm anywhere between the samples of "
+            "its moves; its points' speed at most its cap-equivalent tool speed times each stretch's fastest point "
+            "per metre of tool path (the speed its envelope allows, compared with 0 and each cap); S_p with the "
+            "whole reaction time; an arm on a path not modelled anywhere within its reach. The margin reads below "
+            "0 wherever it may be (only a comparison with 0 is modelled)")
+
+    def _limit(self, cell: AbstractCell) -> None:
+        """``<ssm>.speed_limit_bound``: the limit it took at its last update from the separation it read, as the
+        region of the robot's tool speed holding the highest limit the separation's region allows (the limit grows
+        with the separation)."""
+        from cellsim.verify.prism import Module, Var, Command
+
+        sensed = cell.read(self.cfg.separation, self.name)
+        separation = cell.encoding(self.cfg.separation)
+        speeds = cell.encoding(f"{self.cfg.robot}.tool_speed")
+        limit = self.system.parameters.speed_limit
+        table = {}
+        for region in range(separation.regions):
+            i = region // 2  # the region's upper end: its threshold, or the next one up
+            if i < len(separation.values):
+                value = limit(separation.values[i])
+                # (a separation placed where the limit is a speed told apart gives that speed, not a rounding above)
+                value = next((u for u in speeds.values if abs(u - value) <= 1e-9 * max(1.0, u)), value)
+                table[region] = speeds.region_of(value)
+            else:
+                table[region] = speeds.regions - 1
+        var = f"{self.name}_limit"
+        start = speeds.region_of(cell.cell.modules[self.name].parameters.speed_limit(FAR_AWAY))
+        cell.add(Module(f"{self.name}_limit", [Var(var, 0, speeds.regions - 1, start)],
+                        [Command("true", (("1", {var: lookup(sensed, table, speeds.regions - 1)}),))],
+                        comment=f"{self.name}: the speed limit it took from the separation it read (the highest that "
+                                "separation's region allows, as a region of the robot's tool speed)"))
+        cell.define(f"{self.name}.speed_limit_bound", var, speeds)
+        cell.assume(f"{self.name}'s speed limit is the highest its formula gives in the separation's region read "
+                    f"({self.cfg.separation}, compared with the separations whose limit is 0 and each speed the model "
+                    "tells apart); in ssmon the robot's cap is also that limit, braking to it as from a mode's cap")
+
+    def _sp(self, stretch, u: float, thresholds: list[float]) -> float:
+        """S_p (m) of tool speed ``u`` on ``stretch``: the threshold it was measured against (in speed order)."""
+        if stretch.rate is None:
+            return thresholds[0] if u == 0.0 else float("inf")  # anywhere: only a standing arm has a known S_p
+        if len(thresholds) == 1:  # a stretch whose points do not move with the tool (rate 0)
+            return thresholds[0]
+        return thresholds[self.speeds.index(u)]
+
+
+@dataclass(frozen=True)
+class _Group:
+    """Stretches of the arm's path where its tool is in one region of the layout: the states (``guard``) and the
+    fastest any of its points moves per m/s of its cap-equivalent tool speed (None: not known, a path not
+    modelled)."""
+
+    guard: str
+    rate: float | None
+    at_rest: tuple[str, ...]
+    """The guards of its stretches where the arm rests at a pose (no motion of its own but settling)."""
+
+
+class _BodyCover:
+    """The spheres covering every person's body regions, per SceneGraph frame, posed from a QueryObject."""
+
+    def __init__(self, inspector, regions):
+        frames: dict = {}
+        for g in regions:
+            centres, radii = cover(inspector.GetShape(g), inspector.GetPoseInFrame(g), BODY_TOLERANCE)
+            frames.setdefault(inspector.GetFrameId(g), []).append((centres, radii))
+        self.frames = [(frame, np.vstack([c for c, _ in parts]), np.concatenate([r for _, r in parts]))
+                       for frame, parts in frames.items()]
+        self.radii = np.concatenate([r for _, _, r in self.frames]) if self.frames else np.zeros(0)
+
+    def at(self, query) -> Spheres:
+        out = []
+        for frame, local, _ in self.frames:
+            X = query.GetPoseInWorld(frame)
+            out.append(local @ X.rotation().matrix().T + X.translation())
+        return Spheres(np.vstack(out) if out else np.zeros((0, 3)), self.radii)
