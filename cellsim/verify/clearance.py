@@ -100,6 +100,8 @@ class ArmSweep:
             centres, radii = cover(shape, pose)
             self._local.append((body, centres, radii))
         self.radii = np.concatenate([radii for _, _, radii in self._local]) if self._local else np.zeros(0)
+        if not np.isfinite(self.radii).all():
+            raise ValueError("an arm shape cannot be covered (a box, cylinder, capsule, sphere or ellipsoid can)")
 
     def centres(self, q) -> np.ndarray:
         """World positions (m) of every covering sphere's centre with the arm at joint positions ``q``."""
@@ -152,6 +154,21 @@ class ArmSweep:
         for body, local, radii in self._local:
             extent = float((np.linalg.norm(local, axis=1) + radii).max()) if len(radii) else 0.0
             radius = max(radius, length.get(body.index(), math.inf) + extent)
+        # the joint-to-joint distances must not change with the joints (a body's origin off its joint's axis, a
+        # prismatic joint): else no chain of them bounds the reach
+        lower, upper = plant.GetPositionLowerLimits(), plant.GetPositionUpperLimits()
+        for k in range(1, 6):
+            turned = np.clip(np.asarray(q, float) + k * 0.7, np.maximum(lower, -10.0), np.minimum(upper, 10.0))
+            plant.SetPositions(context, turned)
+            for parent, child in links:
+                if parent == world:
+                    continue
+                apart = float(np.linalg.norm(plant.EvalBodyPoseInWorld(context, plant.get_body(child)).translation()
+                                             - plant.EvalBodyPoseInWorld(context, plant.get_body(parent)).translation()))
+                if abs(apart - float(np.linalg.norm(origin[child] - origin[parent]))) > 1e-9:
+                    raise ValueError(f"the distance between the origins of {plant.get_body(parent).name()} and "
+                                     f"{plant.get_body(child).name()} changes with the joints: the arm's reach cannot "
+                                     "be bounded from its joints")
         return np.asarray(origin[base], float), radius
 
     def point_rate(self, configs: np.ndarray, spacing: float) -> float:
@@ -246,7 +263,7 @@ class _Grid:
         inside = ((cells >= 0) & (cells < self.shape)).all(axis=1)
         out = np.full((len(self.values), len(centres)), np.inf)
         out[:, inside] = self.values[(slice(None), *cells[inside].T)]
-        return out
+        return out - 1e-6  # (the values are single precision: never above their exact value)
 
 
 def _voxels(centres: np.ndarray, edge: float) -> np.ndarray:

@@ -88,21 +88,32 @@ class RobotAbstraction(ModuleAbstraction):
         return [(a, b) for a in range(n) for b in range(n) if a != b]
 
     def stretches(self) -> list["ArmStretch"]:
-        """Where the arm may be in each state of its abstraction: at rest at each pose, on each region of each move
-        (the samples in it and one either side), and on a path not modelled (anywhere)."""
+        """Where the arm may be in each state of its abstraction: on each region of each move, the samples in it, the
+        one before, and as far on as the arm can go in one of its periods at its fastest (the model's region is
+        where the measured tool was at the robot's last update); at rest at each pose, there and on the end of
+        every move to it that the arm may still be settling along (``TRACKING_LAG`` at its fastest); and on a path
+        not modelled (anywhere)."""
         r, robot = self.name, self.system
         poses, pairs = len(robot.poses), self._pairs()
         seg, k = f"{r}_segment", f"{r}_region"
-        out = [ArmStretch(f"{seg}={p}", robot.poses[p][None, :], 0.0, 0.0, f"at rest at {robot.pose_names[p]}",
-                          robot.locate(robot.kinematics.tool_position(robot.poses[p])).code) for p in range(poses)]
+        spacing = 1.0 / SAMPLES
+        moves, settling = [], {p: [robot.poses[p][None, :]] for p in range(poses)}
         for i, (a, b) in enumerate(pairs):
             configs = self._samples(a, b)[0]
-            tool_per_s = float(robot.start_segment(robot.poses[a], b)[3])
+            motion = robot.start_segment(robot.poses[a], b)
+            tool_per_s, joint_rate = float(motion[3]), float(motion[4])
+            fastest = min(joint_rate, robot.normal_cap / tool_per_s)  # ds/dt at most
+            ahead = math.ceil(fastest * robot.period / spacing - 1e-9)
             for region, (code, first, last) in enumerate(self._runs(a, b)):
-                out.append(ArmStretch(f"{seg}={poses + i} & {k}={region}",
-                                      configs[max(first - 1, 0):last + 2], tool_per_s, 1.0 / SAMPLES,
-                                      f"on {robot.pose_names[a]} -> {robot.pose_names[b]}, "
-                                      f"{robot.locations.from_code(code).value}", code))
+                moves.append(ArmStretch(f"{seg}={poses + i} & {k}={region}",
+                                        [configs[max(first - 1, 0):last + 2 + ahead]], tool_per_s, spacing,
+                                        f"on {robot.pose_names[a]} -> {robot.pose_names[b]}, "
+                                        f"{robot.locations.from_code(code).value}", code))
+            behind = math.ceil(fastest * TRACKING_LAG / spacing - 1e-9)
+            settling[b].append(configs[-1 - behind:])
+        out = [ArmStretch(f"{seg}={p}", settling[p], 0.0, spacing, f"at rest at {robot.pose_names[p]}",
+                          robot.locate(robot.kinematics.tool_position(robot.poses[p])).code) for p in range(poses)]
+        out += moves
         out.append(ArmStretch(f"{seg}>={poses + len(pairs)}", None, 0.0, 0.0, "on a path not modelled", None))
         return out
 
@@ -351,14 +362,14 @@ class ArmStretch:
     """Where the arm may be while the abstract robot is in the states ``guard`` (a PRISM expression)."""
 
     guard: str
-    configs: np.ndarray | None
-    """Joint positions (rad) it passes through there, consecutive samples of a straight joint-space line (one at
-    rest); None: anywhere (a path not modelled)."""
+    lines: list[np.ndarray] | None
+    """Joint positions (rad) it passes through there, as lines of consecutive samples of a straight joint-space move
+    (on a move: one; at rest: the pose, then the end of each move to it); None: anywhere (a path not modelled)."""
     tool_per_s: float
     """Metres the tool moves per unit of the line's parameter s at most (the twin's ``start_segment``): the arm's
     ds/dt is at most its cap-equivalent speed over this (0: at rest)."""
     spacing: float
-    """The line's parameter s from one of ``configs`` to the next."""
+    """A move's parameter s from one sample of a line to the next."""
     words: str
     location: int | None
     """The code of the layout's region the tool is in there (None: not known)."""

@@ -26,6 +26,7 @@ possible dip. Only comparisons of the true margin with 0 are modelled.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +34,7 @@ import numpy as np
 from cellsim.verify.clearance import BODY_TOLERANCE, TOLERANCE, ArmSweep, Clearance, Spheres, cover
 from cellsim.verify.expressions import Thresholds
 from cellsim.verify.model import AbstractCell, ModuleAbstraction, SensedSignal, SensorRole, context_of, lookup, prism_name
+from cellsim.kinds.robot.abstraction import TRACKING_TOLERANCE
 from cellsim.kinds.ssm.system import FAR_AWAY
 from cellsim.vocabulary import SafetyMode
 
@@ -55,45 +57,50 @@ class SsmAbstraction(ModuleAbstraction):
         if signal not in cell.reads or cell.thresholds.get(signal, set()) != {0.0}:
             return
         from cellsim.kinds.robot.abstraction import RobotAbstraction
+        from cellsim.verify.expressions import VerifyError
 
         system, robot_name = self.system, self.cfg.robot
         robot = RobotAbstraction(cell, robot_name, cell.sf.scenario.modules_of_kind("robot")[robot_name])
         inspector = cell.cell.scene_graph.model_inspector()
         kin = system.kinematics
-        sweep = ArmSweep(kin.plant, kin.context, [(body, inspector.GetShape(g), inspector.GetPoseInFrame(g))
-                                                   for g, body in system.bodies.items()])
+        try:
+            sweep = ArmSweep(kin.plant, kin.context, [(body, inspector.GetShape(g), inspector.GetPoseInFrame(g))
+                                                       for g, body in system.bodies.items()])
+            bodies = _BodyCover(inspector, system.pairs.b.ids)
+            reach = sweep.reach(robot.system.poses[0])
+        except ValueError as e:
+            raise VerifyError(f"{self.name}: its true margin cannot be bounded: {e}") from None
         # u is compared with 0 and the caps it may have in ssmon: its own, and the normal one it may still be braking
         # from (above that: no cap, never read)
         caps = robot.system.speed_caps
         self.speeds = sorted({0.0, caps[SafetyMode.SPEED_SEPARATION], caps[SafetyMode.NORMAL]})
-        sp = self.system.parameters.true_protective_distance
         # the stretches grouped by the layout's region the tool is in (fewer places: the floor is cut by each
         # group's clearance), each group's rate its fastest stretch's
         groups: dict = {}
         fastest = 0.0
         for stretch in robot.stretches():
             rate = None
-            if stretch.configs is not None and stretch.tool_per_s > 0.0:
-                rate = sweep.point_rate(stretch.configs, stretch.spacing) / stretch.tool_per_s
+            if stretch.lines is not None and stretch.tool_per_s > 0.0:
+                rate = max(sweep.point_rate(line, stretch.spacing) for line in stretch.lines) / stretch.tool_per_s
                 fastest = max(fastest, rate)
             groups.setdefault(stretch.location, []).append((stretch, rate))
         clouds, modelled = [], []
         for location, members in groups.items():
             guard = " | ".join(f"({stretch.guard})" for stretch, _ in members)
             if location is None:  # a path not modelled: anywhere within its reach, a sphere about its base
-                centre, radius = sweep.reach(robot.system.poses[0])
+                centre, radius = reach
                 clouds.append(Spheres(centre[None, :], np.array([radius])))
-                modelled.append((_Group(guard, None, ()), [sp(0.0)]))
+                modelled.append((_Group(guard, None, ()), [self._sp(_Group(guard, None, ()), 0.0)]))
                 continue
-            parts = [sweep.stretch(stretch.configs)[0] for stretch, _ in members]
+            parts = [sweep.stretch(line)[0] for stretch, _ in members for line in stretch.lines]
             clouds.append(Spheres(np.vstack([p.centres for p in parts]), np.concatenate([p.radii for p in parts])))
             rate = max(fastest if rate is None else rate for _, rate in members)  # at rest: settling, at the fastest
             at_rest = tuple(stretch.guard for stretch, _ in members if stretch.tool_per_s == 0.0)
-            modelled.append((_Group(guard, rate, at_rest), sorted({sp(rate * u) for u in self.speeds})))
+            group = _Group(guard, rate, at_rest)
+            modelled.append((group, sorted({self._sp(group, u) for u in self.speeds})))
         self.stretches = modelled
         clearance = Clearance(clouds, [ts for _, ts in modelled], max(t for _, ts in modelled for t in ts) + 0.05)
-        bodies = _BodyCover(inspector, system.pairs.b.ids)
-        self.clearance, self.bodies, self.sweep, self.groups = clearance, bodies, sweep, groups
+        self.clearance, self.bodies, self.sweep, self.groups, self.clouds = clearance, bodies, sweep, groups, clouds
         of = context_of(system)
         signals = {}
         for k, (_, thresholds) in enumerate(modelled):
@@ -129,7 +136,7 @@ class SsmAbstraction(ModuleAbstraction):
             table = {}
             for region in range(encoding.regions):
                 low = encoding.values[(region - 1) // 2] if region else -np.inf  # (region 0: below every threshold)
-                fits = [u for u in self.speeds if self._sp(stretch, u, thresholds) <= low]
+                fits = [u for u in self.speeds if self._sp(stretch, u) <= low]
                 table[region] = speed_regions.region_of(max(fits)) if fits else -1
             allowed = [lookup(prism_name(f'{self.name}.clearance{k}.of_{p.module}'), table, -1) for p in cell.people]
             if allowed:
@@ -150,7 +157,10 @@ class SsmAbstraction(ModuleAbstraction):
             "its moves; its points' speed at most its cap-equivalent tool speed times each stretch's fastest point "
             "per metre of tool path (the speed its envelope allows, compared with 0 and each cap); S_p with the "
             "whole reaction time; an arm on a path not modelled anywhere within its reach. The margin reads below "
-            "0 wherever it may be (only a comparison with 0 is modelled)")
+            "0 wherever it may be (only a comparison with 0 is modelled). The distance is measured at the floor's "
+            "grid poses, as every sensor's reading is: a person between two of them, or turned between two of its "
+            "four headings, or partly reached out, may stand nearer (by up to half the grid's diagonal, and up to "
+            "0.77 times a body part's distance from the body's axis for a turn)")
 
     def _limit(self, cell: AbstractCell) -> None:
         """``<ssm>.speed_limit_bound``: the limit it took at its last update from the separation it read, as the
@@ -183,13 +193,14 @@ class SsmAbstraction(ModuleAbstraction):
                     f"({self.cfg.separation}, compared with the separations whose limit is 0 and each speed the model "
                     "tells apart); in ssmon the robot's cap is also that limit, braking to it as from a mode's cap")
 
-    def _sp(self, stretch, u: float, thresholds: list[float]) -> float:
-        """S_p (m) of tool speed ``u`` on ``stretch``: the threshold it was measured against (in speed order)."""
-        if stretch.rate is None:
-            return thresholds[0] if u == 0.0 else float("inf")  # anywhere: only a standing arm has a known S_p
-        if len(thresholds) == 1:  # a stretch whose points do not move with the tool (rate 0)
-            return thresholds[0]
-        return thresholds[self.speeds.index(u)]
+    def _sp(self, group: "_Group", u: float) -> float:
+        """S_p (m, whole reaction time) of the fastest point of ``group``'s stretches at tool speed ``u`` (m/s, a speed
+        the model tells apart): at most ``u`` and the envelope's tolerance over it (a speed above 0 may sit up to that
+        above its line while the arm settles), times its rate; a path not modelled: known only standing still."""
+        sp = self.system.parameters.true_protective_distance
+        if group.rate is None:
+            return sp(0.0) if u == 0.0 else math.inf
+        return sp(group.rate * (u + TRACKING_TOLERANCE if u > 0.0 else 0.0))
 
 
 @dataclass(frozen=True)
@@ -214,6 +225,9 @@ class _BodyCover:
             frames.setdefault(inspector.GetFrameId(g), []).append((centres, radii))
         self.frames = [(frame, np.vstack([c for c, _ in parts]), np.concatenate([r for _, r in parts]))
                        for frame, parts in frames.items()]
+        if not all(np.isfinite(radii).all() for _, _, radii in self.frames):
+            raise ValueError("a body region's shape cannot be covered (a box, cylinder, capsule, sphere or ellipsoid "
+                             "can)")
         self.radii = np.concatenate([r for _, _, r in self.frames]) if self.frames else np.zeros(0)
 
     def at(self, query) -> Spheres:
