@@ -233,6 +233,8 @@ class AbstractCell:
         self.sensors: list[SensorRole] = []
         self.assumptions: list[str] = []
         self.properties: list[Property] = []
+        self.unmodelled: dict[str, str] = {}
+        """Signal -> why its module leaves it out of the model (where that says more than 'no abstraction models it')."""
         self.internal: dict[str, Encoding] = {}
         """A signal that is no port of the cell (a sensor's raw measurement) -> its encoding."""
         self.monitors: dict[str, Module] = {}

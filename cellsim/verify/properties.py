@@ -138,7 +138,9 @@ class ConditionProperties:
         for c in self.candidates:
             undefined = sorted({v for v, ch in c.variables.items() if ch not in cell.signals})
             if undefined:
-                self.skipped.append(Skipped(c.name, f"reads {', '.join(undefined)}, which no abstraction models"))
+                why = [cell.unmodelled[c.variables[v]] for v in undefined if c.variables[v] in cell.unmodelled]
+                self.skipped.append(Skipped(c.name, f"reads {', '.join(undefined)}, which no abstraction models"
+                                            + "".join(f": {w}" for w in dict.fromkeys(why))))
                 continue
             encodings = {v: cell.signals[ch].encoding for v, ch in c.variables.items()}
             names = {v: cell.signals[ch].formula for v, ch in c.variables.items()}

@@ -21,7 +21,11 @@ below 0 in every such state and above 0 elsewhere. A property that asks it to st
 (``TrueSSM``) then holds in the model only where no state of a possible dip is reachable; a witness
 goes to the twin, which judges the true margin itself. An arm on a path the model does not know
 (re-targeted mid-move) may be anywhere within its reach: there, any motion near a person is a
-possible dip. Only comparisons of the true margin with 0 are modelled.
+possible dip. Only comparisons of the true margin with 0 are modelled, and only for a monitor fed
+by a sensor's channel, whose limit the model takes from the sensor's reading: one that measures on
+the geometry has its limit from the very distances the margin is judged on, which the model bounds
+only from below, so its arm would move at its ssmon cap near a person in the model, a dip the twin
+refutes everywhere (its true margin is left out, with that reason).
 """
 
 from __future__ import annotations
@@ -48,13 +52,24 @@ class SsmAbstraction(ModuleAbstraction):
         self.stretches = None  # (ArmStretch, its clearance thresholds (m)) once the true margin is modelled
         self.speeds: list[float] = []
         self.limited = False
-        """Whether its speed limit is modelled (from a sensor's separation, whose reading the model has)."""
+        """Whether its speed limit is modelled (with its true margin: from a sensor's separation, whose reading the
+        model has)."""
 
     def declare_for_readers(self, cell: AbstractCell) -> None:
         """Where a condition compares the true margin with 0 (and nothing else): measure each stretch's clearance
         at every pose of the floor, and read the robot's tool speed against 0 and its caps."""
         signal = f"{self.name}.true_margin"
-        if signal not in cell.reads or cell.thresholds.get(signal, set()) != {0.0}:
+        if signal not in cell.reads:
+            return
+        if cell.thresholds.get(signal, set()) != {0.0}:
+            cell.unmodelled[signal] = "only its comparison with 0 is modelled"
+            return
+        if self.system.from_geometry:
+            # its limit comes from the very distances the true margin is judged on, which the model bounds only from
+            # below: an arm held to its mode's cap would make every motion near a person a dip the twin refutes
+            cell.unmodelled[signal] = (f"{self.name} measures the separation on the geometry, and its speed limit, which "
+                                       "keeps that margin, is not in the model (an arm at its ssmon cap near a person "
+                                       "would be a dip the twin refutes)")
             return
         from cellsim.kinds.robot.abstraction import RobotAbstraction
         from cellsim.verify.expressions import VerifyError
@@ -112,12 +127,11 @@ class SsmAbstraction(ModuleAbstraction):
             bodies.at(system.query_port.Eval(of(root))))))
         cell.read(f"{robot_name}.tool_speed_bound", self.name)
         cell.compares(f"{robot_name}.tool_speed", self.speeds)  # (the bound is in the tool speed's regions)
-        if not system.from_geometry:  # its limit from the sensor's reading, which the model has: the robot's cap too
-            cell.read(f"{self.name}.speed_limit_bound", robot_name)
-            cell.read(self.cfg.separation, self.name)
-            parameters = system.parameters
-            cell.compares(self.cfg.separation, [parameters.separation_for(u) for u in self.speeds])
-            self.limited = True
+        # its limit from the sensor's reading, which the model has: the robot's cap in ssmon too
+        cell.read(f"{self.name}.speed_limit_bound", robot_name)
+        cell.read(self.cfg.separation, self.name)
+        cell.compares(self.cfg.separation, [system.parameters.separation_for(u) for u in self.speeds])
+        self.limited = True
         self._tolerances = (TOLERANCE, BODY_TOLERANCE)
 
     def build(self, cell: AbstractCell) -> None:
