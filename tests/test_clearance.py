@@ -83,17 +83,22 @@ def _exact(model, ssm, context, person_ids) -> float:
                for a in system.pairs.a.ids for b in person_ids)
 
 
+def _posable(model, ssm):
+    """(the person's role, the built cell, a context of it, its plant's context, the monitored robot's instance): to
+    stand the person and set the arm in."""
+    built = model.cell.cell
+    context = built.diagram.CreateDefaultContext()
+    built.set_initial_state(context)
+    return (model.cell.people[0], built, context, built.plant.GetMyMutableContextFromRoot(context),
+            built.robots[ssm.cfg.robot])
+
+
 def test_a_stretch_s_bound_never_exceeds_scenegraph_s_distance(tending):
     """Random poses of the floor (with and without a reach) and the arm at random points of each stretch's moves,
     between their samples: the stretch's bound is at most the exact distance, and within a few centimetres of it
     where they are near (the covering's tolerance, a voxel, the samples' step)."""
     model, ssm = tending
-    cell, built = model.cell, model.cell.cell
-    person = cell.people[0]
-    context = built.diagram.CreateDefaultContext()
-    built.set_initial_state(context)
-    plant_context = built.plant.GetMyMutableContextFromRoot(context)
-    instance = built.robots[ssm.cfg.robot]
+    person, built, context, plant_context, instance = _posable(model, ssm)
     rng = np.random.default_rng(7)
     poses = [p for p in person.poses if -2.3 < p.x < 0.6 and -1.8 < p.y < 1.8]
     person_ids = list(ssm.system.pairs.b.ids)
@@ -131,12 +136,7 @@ def test_a_stretch_s_bound_never_exceeds_scenegraph_s_distance(tending):
 def test_the_lower_bound_is_also_below_the_truth_at_the_poses_nearest_the_arm(tending):
     """The poses whose bound is least (where a dip is called): reaching onto the bench beside the pick."""
     model, ssm = tending
-    cell, built = model.cell, model.cell.cell
-    person = cell.people[0]
-    context = built.diagram.CreateDefaultContext()
-    built.set_initial_state(context)
-    plant_context = built.plant.GetMyMutableContextFromRoot(context)
-    instance = built.robots[ssm.cfg.robot]
+    person, built, context, plant_context, instance = _posable(model, ssm)
     robot = built.modules[ssm.cfg.robot]
     pick = robot.poses[robot.pose_names.index("bench_pick")]
     built.plant.SetPositions(plant_context, instance, pick)
