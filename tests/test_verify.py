@@ -63,6 +63,7 @@ def test_every_mishap_of_the_welding_cell_is_unreachable_in_the_abstract_model(w
     assert by_name["Final:Tbl"]["ending"] == by_name["Final:Cell"]["ending"] == "holds"
     assert any(a.startswith("a Final condition") and "last stop (-3.2, -2.2)" in a for a in result["assumptions"])
     assert set(skipped) == {"NoHarm", "NoClamping"}  # the harm service's signals: no abstraction models them yet
+    assert all("contact is not in the model" in skipped[name] for name in skipped)  # (and it says so)
     assert result["states"] > 0 and result["assumptions"]
 
 
