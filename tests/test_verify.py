@@ -333,6 +333,37 @@ def test_the_assembly_bench_verifies_with_both_arms_yielding_to_a_jam(tmp_path):
     assert "measures the separation on the geometry" in skipped["TrueSSM"]
 
 
+@pytest.mark.slow  # (a minute and more: the model's witness made sparse, its walk replayed)
+def test_verify_confirms_the_machine_tending_cell_s_true_ssm_violation(tmp_path):
+    """The fenceless cell's TrueSSM, which its own run violates (the scanner measures from the pedestal, so a person
+    at the bench is nearer the arm than it says): violated in the model, its firm witness (a dip whatever the arm's
+    speed, the arm moving under its cap) walked on the twin, which shows it. Its run's black box, read with sqlite3:
+    the true margin below 0 while the arm is in ssmon."""
+    import sqlite3
+
+    done = _verify(str(ROOT / "scenarios" / "machine_tending.yaml"), "--json", "--out", str(tmp_path))
+    assert done.returncode == 1, done.stdout + done.stderr  # a confirmed violation
+    result = json.loads(done.stdout)
+    by_name = {p["name"]: p for p in result["properties"]}
+    true_ssm = by_name["TrueSSM"]
+    assert true_ssm["ending"] == "violated" and true_ssm["twin"]["confirmed"] is True
+    assert by_name["NEAR:mishap"]["ending"] == "holds"
+    assert any("true margin is bounded from below" in a for a in result["assumptions"])
+    assert "TrueSSM" in true_ssm["twin"]["violated"]
+
+    def dips(run: Path) -> list[float]:
+        """When the run's true margin was below 0 with the arm in ssmon."""
+        db = sqlite3.connect(run / "blackbox.sqlite")
+        rows = {channel: [(t, json.loads(p)["value"]) for t, p in db.execute(
+            "SELECT t, payload FROM messages WHERE channel = ? ORDER BY t", (channel,))]
+            for channel in ("ssm.true_margin", "robot.safety_mode")}
+        db.close()
+        mode_at = lambda t: [m for u, m in rows["robot.safety_mode"] if u <= t][-1]  # noqa: E731
+        return [t for t, m in rows["ssm.true_margin"] if m < 0.0 and mode_at(t) == "ssmon"]
+
+    assert any(dips(Path(run)) for run in true_ssm["twin"]["runs"])
+
+
 def test_a_robot_starts_in_the_mode_its_controller_commands_from_the_first_period(tmp_path):
     """A controller whose default is ssmon: the robot's update at t = 0 takes it, so the run never shows
     another mode, and neither does the abstract model (it started every robot in normal: a one-period

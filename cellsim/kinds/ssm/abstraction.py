@@ -37,7 +37,8 @@ import numpy as np
 
 from cellsim.verify.clearance import BODY_TOLERANCE, TOLERANCE, ArmSweep, Clearance, Spheres, cover
 from cellsim.verify.expressions import Thresholds
-from cellsim.verify.model import AbstractCell, ModuleAbstraction, SensedSignal, SensorRole, context_of, lookup, prism_name
+from cellsim.verify.model import (AbstractCell, ModuleAbstraction, SensedSignal, SensorRole, context_of, lookup,
+                                  prism_name, set_of)
 from cellsim.kinds.robot.abstraction import TRACKING_TOLERANCE
 from cellsim.kinds.ssm.system import FAR_AWAY
 from cellsim.vocabulary import SafetyMode
@@ -152,15 +153,18 @@ class SsmAbstraction(ModuleAbstraction):
                 low = encoding.values[(region - 1) // 2] if region else -np.inf  # (region 0: below every threshold)
                 fits = [u for u in self.speeds if self._sp(stretch, u) <= low]
                 table[region] = speed_regions.region_of(max(fits)) if fits else -1
-            allowed = [lookup(prism_name(f'{self.name}.clearance{k}.of_{p.module}'), table, -1) for p in cell.people]
+            clearances = [prism_name(f'{self.name}.clearance{k}.of_{p.module}') for p in cell.people]
+            allowed = [lookup(c, table, -1) for c in clearances]
             if allowed:
                 dips.append(f"({stretch.guard}) & ({' | '.join(f'{speed} > {a}' for a in allowed)})")
-                # firm: moving at the cap in force (at rest: standing still), braking from an earlier one not counted
-                firm = steady
+            if allowed and stretch.rate is not None:
+                # firm: a dip whatever the arm's speed (the bound below even a still arm's S_p), the arm on a move of
+                # its own at a cap above 0 (not braking from one, nor settling at a pose): the likeliest for the twin
+                deep = [r for r, a in table.items() if a == -1]
+                moving = f"{steady} > {speed_regions.region_of(0.0)}"
                 if stretch.at_rest:
-                    still = " | ".join(f"({g})" for g in stretch.at_rest)
-                    firm = f"(({still}) ? {speed_regions.region_of(0.0)} : {steady})"
-                firm_dips.append(f"({stretch.guard}) & ({' | '.join(f'{firm} > {a}' for a in allowed)})")
+                    moving += " & !(" + " | ".join(f"({g})" for g in stretch.at_rest) + ")"
+                firm_dips.append(f"({stretch.guard}) & {moving} & ({' | '.join(set_of(c, deep) for c in clearances)})")
         dip = " | ".join(f"({d})" for d in dips) or "false"
         firm_dip = " | ".join(f"({d})" for d in firm_dips) or "false"
         cell.define(f"{self.name}.true_margin", f"(({dip}) ? 0 : 2)", Thresholds((0.0,)), firm=f"(({firm_dip}) ? 0 : 2)")
