@@ -75,14 +75,15 @@ SMALL_DD_MEMORY = 128
 """MB for the decision diagrams of a model whose variables allow at most ``SIZE_ANYWAY`` states. The shipped cells
 of that size need at most 32 MB (the assembly bench's 1.25 million states; it fills 16 MB), so this is four times
 that; a larger cap costs start-up (0.5 s more at 512 MB: the welding cell's whole build 1.1 s against 0.6 s)."""
-STATE_BY_STATE = 200_000
+STATE_BY_STATE = 500_000
 """Every property is checked on the whole cell's decision diagrams (every monitor in it), and only a group with a
 violated property is built again, with only its own monitor, for its witness (or whether its response can always
 still come): state by state when the whole cell has at most this many reachable states, else as decision diagrams
 made sparse. Storm's state-by-state builder evaluates every command's guard in every state (the assembly bench's
 1.25 million states took it 100 s, its decision diagrams 2 s); making a model sparse costs more per transition when
 the person's pace is modelled (the welding cell's paced group of 76,516 states: 4.6 s state by state, 8.9 s made
-sparse)."""
+sparse) and when its labels are intricate (the machine-tending cell's true margin, 382,299 states: 19 s state by
+state, 50 s made sparse)."""
 
 
 def dd_memory(bound: float) -> int:
