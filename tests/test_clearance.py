@@ -107,7 +107,7 @@ def test_a_stretch_s_bound_never_exceeds_scenegraph_s_distance(tending):
     fine = Clearance(ssm.clouds, [list(np.arange(-0.5, 2.5, 0.01))] * len(ssm.clouds), ssm.clearance.within)
     checked = near = 0
     gaps = []
-    for k, (location, members) in enumerate(ssm.groups.items()):
+    for k, (location, members) in enumerate(ssm.members.items()):
         if location is None:
             continue
         for _ in range(25):
@@ -140,7 +140,7 @@ def test_the_lower_bound_is_also_below_the_truth_at_the_poses_nearest_the_arm(te
     robot = built.modules[ssm.cfg.robot]
     pick = robot.poses[robot.pose_names.index("bench_pick")]
     built.plant.SetPositions(plant_context, instance, pick)
-    k = next(i for i, (group, _) in enumerate(ssm.stretches) if f"robot_segment={robot.pose_names.index('bench_pick')})" in group.guard)
+    k = next(i for i, (group, _) in enumerate(ssm.groups) if f"robot_segment={robot.pose_names.index('bench_pick')})" in group.guard)
     reaching = [p for p in person.poses if p.reach is not None and math.hypot(p.x + 0.95, p.y + 0.95) < 0.25]
     assert reaching
     for pose in reaching:
@@ -159,7 +159,7 @@ def test_a_stretch_s_rate_bounds_every_point_s_speed_along_its_path(tending):
     _, ssm = tending
     sweep = ssm.sweep
     seen = 0
-    for location, members in ssm.groups.items():
+    for location, members in ssm.members.items():
         for stretch, rate in members:
             if rate is None or stretch.tool_per_s == 0.0:
                 continue
@@ -207,7 +207,7 @@ def test_a_move_s_stretch_reaches_as_far_as_the_arm_goes_in_one_of_its_periods(t
         for region, (_, first, last) in enumerate(robot_abstraction._runs(a, b)):
             s_after = min(last / 200 + fastest * robot.period, 1.0)  # where the arm may be a period on
             q = robot.poses[a] + s_after * (robot.poses[b] - robot.poses[a])
-            stretch = next(st for group in ssm.groups.values() for st, _ in group
+            stretch = next(st for group in ssm.members.values() for st, _ in group
                            if st.guard == f"robot_segment={poses + i} & robot_region={region}")
             (line,) = stretch.lines
             reached = np.linalg.norm(line - q, axis=1).min()

@@ -272,7 +272,7 @@ class RobotAbstraction(ModuleAbstraction):
             refill, start = lookup(mode, refresh, 0), refresh[initial]
             can = [c for c, n in refresh.items() if n > 0]
             if limit is not None:  # in ssmon its cap is also the monitor's limit (the region of its bound)
-                expr, regions = limit
+                expr = limit
                 by_limit = {region: envelope.periods(min(caps[ssmon], _region_cap(encoding, region)), threshold, strict)
                             for region in range(encoding.regions)}
                 refill = f"({mode}={ssmon.code} ? {lookup(expr, by_limit, 0)} : {refill})"
@@ -306,7 +306,7 @@ class RobotAbstraction(ModuleAbstraction):
             # firm: the cap in force, braking from an earlier one not counted (the speed it keeps while it moves)
             steady = lookup(mode, {m.code: encoding.region_of(caps[m]) for m in _MODES}, 0)
             if limit is not None:
-                steady = f"({mode}={ssmon.code} ? min({encoding.region_of(caps[ssmon])}, {limit[0]}) : {steady})"
+                steady = f"({mode}={ssmon.code} ? min({encoding.region_of(caps[ssmon])}, {limit}) : {steady})"
             cell.define(f"{r}.tool_speed_bound", bound, encoding, firm=steady)
         if f"{r}.tool_speed" in cell.reads:
             cell.add(Module(f"{r}_tool_speed", [Var(var, 0, encoding.regions - 1, 0)],
@@ -338,16 +338,16 @@ class RobotAbstraction(ModuleAbstraction):
         encoding = cell.encoding(f"{self.name}.tool_speed")
         free = [g for g in range(encoding.regions) if _region_cap(encoding, g) > 0]
         return (f"({self.name}_moving > 0 | {set_of(mode, [c for c in moving if c != ssmon])} | "
-                f"({mode}={ssmon} & {set_of(limit[0], free)}))")
+                f"({mode}={ssmon} & {set_of(limit, free)}))")
 
-    def _limit(self, cell: AbstractCell) -> tuple[str, int] | None:
+    def _limit(self, cell: AbstractCell) -> str | None:
         """The bound its speed-limit input's monitor gives of the limit (``<monitor>.speed_limit_bound``: a formula in
         the regions of its tool speed, the limit at most the upper end of its region), where the monitor models it;
         None: the limit is not modelled (in ssmon, its cap alone: more speed than the twin's, never less)."""
         source = cell.connections.get((self.name, "speed_limit"))
         if source is None or f"{source}_bound" not in cell.reads:
             return None
-        return cell.read(f"{source}_bound", self.name), cell.encoding(f"{self.name}.tool_speed").regions
+        return cell.read(f"{source}_bound", self.name)
 
 
 def _region_cap(encoding, region: int) -> float:

@@ -45,20 +45,23 @@ from cellsim.vocabulary import SafetyMode
 
 
 class SsmAbstraction(ModuleAbstraction):
-    """The monitor's true margin (an observer otherwise: its separation, margin and limit are not modelled, and the
-    robot in ssmon is held to its mode's fixed cap, which the limit only lowers)."""
+    """A monitor fed by a sensor's channel: its true margin where a condition compares it with 0, and its speed limit
+    (the robot's cap in ssmon). Its sensed separation and margin are not modelled; a monitor measuring on the
+    geometry is an observer (the robot in ssmon at its mode's fixed cap, which the limit only lowers)."""
 
     def __init__(self, cell: AbstractCell, name: str, cfg):
         super().__init__(cell, name, cfg)
-        self.stretches = None  # (ArmStretch, its clearance thresholds (m)) once the true margin is modelled
+        self.groups = None
+        """[(a group of the arm's stretches, its clearance's thresholds (m))] once the true margin is modelled."""
         self.speeds: list[float] = []
         self.limited = False
         """Whether its speed limit is modelled (with its true margin: from a sensor's separation, whose reading the
         model has)."""
 
     def declare_for_readers(self, cell: AbstractCell) -> None:
-        """Where a condition compares the true margin with 0 (and nothing else): measure each stretch's clearance
-        at every pose of the floor, and read the robot's tool speed against 0 and its caps."""
+        """Where a condition compares the true margin with 0 (and nothing else): measure each group of stretches'
+        clearance at every pose of the floor, read the robot's speed bound against 0 and the caps, and model the
+        limit from the sensor's separation."""
         signal = f"{self.name}.true_margin"
         if signal not in cell.reads:
             return
@@ -114,9 +117,10 @@ class SsmAbstraction(ModuleAbstraction):
             at_rest = tuple(stretch.guard for stretch, _ in members if stretch.tool_per_s == 0.0)
             group = _Group(guard, rate, at_rest)
             modelled.append((group, sorted({self._sp(group, u) for u in self.speeds})))
-        self.stretches = modelled
+        self.groups = modelled
         clearance = Clearance(clouds, [ts for _, ts in modelled], max(t for _, ts in modelled for t in ts) + 0.05)
-        self.clearance, self.bodies, self.sweep, self.groups, self.clouds = clearance, bodies, sweep, groups, clouds
+        # (kept for the tests that hold the bounds to SceneGraph's: the stretches by location, their spheres)
+        self.clearance, self.bodies, self.sweep, self.members, self.clouds = clearance, bodies, sweep, groups, clouds
         of = context_of(system)
         signals = {}
         for k, (_, thresholds) in enumerate(modelled):
@@ -133,19 +137,18 @@ class SsmAbstraction(ModuleAbstraction):
         cell.read(self.cfg.separation, self.name)
         cell.compares(self.cfg.separation, [system.parameters.separation_for(u) for u in self.speeds])
         self.limited = True
-        self._tolerances = (TOLERANCE, BODY_TOLERANCE)
 
     def build(self, cell: AbstractCell) -> None:
         if self.limited:
             self._limit(cell)
-        if self.stretches is None:
+        if self.groups is None:
             return
         speed = cell.read(f"{self.cfg.robot}.tool_speed_bound", self.name)
         steady = cell.signals[f"{self.cfg.robot}.tool_speed_bound"].firm
         firm_dips = []
         speed_regions = cell.encoding(f"{self.cfg.robot}.tool_speed")
         dips = []
-        for k, (stretch, thresholds) in enumerate(self.stretches):
+        for k, (stretch, thresholds) in enumerate(self.groups):
             encoding = cell.encoding(f"{self.name}.clearance{k}")
             # a clearance region -> the fastest speed region with no dip there: at most the fastest u whose S_p fits
             table = {}
@@ -168,7 +171,7 @@ class SsmAbstraction(ModuleAbstraction):
         dip = " | ".join(f"({d})" for d in dips) or "false"
         firm_dip = " | ".join(f"({d})" for d in firm_dips) or "false"
         cell.define(f"{self.name}.true_margin", f"(({dip}) ? 0 : 2)", Thresholds((0.0,)), firm=f"(({firm_dip}) ? 0 : 2)")
-        body, arm = self._tolerances[1], self._tolerances[0]
+        body, arm = BODY_TOLERANCE, TOLERANCE
         cell.assume(
             f"{self.name}'s true margin is bounded from below: the arm's shapes and each body region covered by "
             f"spheres (reaching at most {arm:g} m and {body:g} m beyond them), the arm anywhere between the samples of "
