@@ -212,3 +212,43 @@ def test_a_move_s_stretch_reaches_as_far_as_the_arm_goes_in_one_of_its_periods(t
             (line,) = stretch.lines
             reached = np.linalg.norm(line - q, axis=1).min()
             assert reached <= np.linalg.norm(configs[1] - configs[0]) / 2 + 1e-12, (a, b, region)
+
+
+def _arm(joint: str, offset):
+    """A one-body 'arm' joined to the world by a ``joint`` ('prismatic' or 'revolute'), its body's origin ``offset``
+    (m) from the joint's frame, and a second body on a revolute joint at the first one's origin."""
+    from pydrake.multibody.plant import MultibodyPlant
+    from pydrake.multibody.tree import FixedOffsetFrame, PrismaticJoint, RevoluteJoint, SpatialInertia, UnitInertia
+
+    plant = MultibodyPlant(0.0)
+    inertia = SpatialInertia(1.0, np.zeros(3), UnitInertia.SolidSphere(0.1))
+    first, second = plant.AddRigidBody("first", inertia), plant.AddRigidBody("second", inertia)
+    if joint == "prismatic":
+        plant.AddJoint(PrismaticJoint("slide", plant.world_frame(), first.body_frame(), [1.0, 0.0, 0.0]))
+    else:
+        plant.AddJoint(RevoluteJoint("turn", plant.world_frame(), first.body_frame(), [0.0, 0.0, 1.0]))
+    hinge = plant.AddFrame(FixedOffsetFrame("hinge", first.body_frame(), RigidTransform([0.5, 0.0, 0.0])))
+    child = plant.AddFrame(FixedOffsetFrame("child", second.body_frame(), RigidTransform(list(offset))))
+    plant.AddJoint(RevoluteJoint("elbow", hinge, child, [0.0, 1.0, 0.0]))
+    plant.Finalize()
+    shapes = [(first, Box(0.1, 0.1, 0.1), RigidTransform()), (second, Box(0.1, 0.1, 0.1), RigidTransform())]
+    return plant, plant.CreateDefaultContext(), shapes
+
+
+@pytest.mark.parametrize("joint, offset, refused", [("revolute", (0.0, 0.0, 0.0), None),
+                                                    ("prismatic", (0.0, 0.0, 0.0), "moves with the joints"),
+                                                    ("revolute", (0.3, 0.0, 0.0), "changes with the joints")])
+def test_an_arm_whose_reach_no_chain_of_its_joints_bounds_is_refused_in_one_line(joint, offset, refused):
+    """The sphere a re-targeted arm may be anywhere in is about its base, of its joint-to-joint distances: sound only
+    where the base stays put and each body's origin lies on its joint's axis. Else one clear error, not a bound."""
+    from cellsim.verify.clearance import ArmSweep
+
+    plant, context, shapes = _arm(joint, offset)
+    sweep = ArmSweep(plant, context, shapes)
+    if refused is None:
+        centre, radius = sweep.reach(np.zeros(plant.num_positions()))
+        for q in np.random.default_rng(3).uniform(-3, 3, (50, plant.num_positions())):
+            assert (np.linalg.norm(sweep.centres(q) - centre, axis=1) + sweep.radii).max() <= radius + 1e-9
+    else:
+        with pytest.raises(ValueError, match=refused):
+            sweep.reach(np.zeros(plant.num_positions()))

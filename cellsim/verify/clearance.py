@@ -160,6 +160,11 @@ class ArmSweep:
         for k in range(1, 6):
             turned = np.clip(np.asarray(q, float) + k * 0.7, np.maximum(lower, -10.0), np.minimum(upper, 10.0))
             plant.SetPositions(context, turned)
+            moved = float(np.linalg.norm(plant.EvalBodyPoseInWorld(context, plant.get_body(base)).translation()
+                                         - origin[base]))
+            if moved > 1e-9:
+                raise ValueError(f"its base {plant.get_body(base).name()} moves with the joints: the arm's reach cannot "
+                                 "be bounded about it")
             for parent, child in links:
                 if parent == world:
                     continue
