@@ -112,18 +112,17 @@ class ArmSweep:
             out.append(local @ X.rotation().matrix().T + X.translation())
         return np.vstack(out) if out else np.zeros((0, 3))
 
-    def stretch(self, configs: np.ndarray) -> tuple[Spheres, float]:
+    def stretch(self, configs: np.ndarray) -> Spheres:
         """The spheres of the arm at each of ``configs`` (consecutive samples of one straight joint-space path), each
         grown by half the farthest any point of the arm moves from one sample to the next (so that the arm anywhere
-        between two samples is inside them); and that farthest step (m)."""
+        between two samples is inside them)."""
         positions = np.array([self.centres(q) for q in configs])  # (samples, spheres, 3)
         step = 0.0
         if len(configs) > 1:
             moved = np.linalg.norm(np.diff(positions, axis=0), axis=2)  # each centre's chord, sample to sample
             turned = np.abs(np.diff(np.asarray(configs, float), axis=0)).sum(axis=1)  # no link turns more than this
             step = float((moved + turned[:, None] * self.radii[None, :]).max())
-        radii = np.tile(self.radii, len(configs)) + 0.5 * step
-        return Spheres(positions.reshape(-1, 3), radii), step
+        return Spheres(positions.reshape(-1, 3), np.tile(self.radii, len(configs)) + 0.5 * step)
 
     def reach(self, q) -> tuple[np.ndarray, float]:
         """A sphere (centre, radius; m) holding the arm in every configuration: about the origin of the body welded to

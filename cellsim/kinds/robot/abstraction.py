@@ -70,17 +70,22 @@ class RobotAbstraction(ModuleAbstraction):
         """(a, b) -> [(location code, least periods there)] along the move from pose a to pose b: timed, the periods
         the tool surely spends in the region at its fastest (its joint limits and normal cap, no acceleration), less
         one for the phase of the robot's updates against the crossing; else 0."""
-        robot = self.system
         moves = {}
         for a, b in self._pairs():
-            motion = robot.start_segment(robot.poses[a], b)
-            tool_per_s, joint_rate = float(motion[3]), float(motion[4])
-            rate = min(joint_rate, robot.normal_cap / tool_per_s)  # ds/dt at most
+            rate = self._pace(a, b)[1]
             # a crossing of T s shows in as few as floor(T / period) of the robot's updates (their phase against
             # it), and the model asks for one more than the least (the update that leaves): one less
             moves[(a, b)] = [(code, max(0, math.floor((last - first) / SAMPLES / rate / period) - 1) if timed else 0)
                              for code, first, last in self._runs(a, b)]
         return moves
+
+    def _pace(self, a: int, b: int) -> tuple[float, float]:
+        """The move from pose a to pose b as the twin plans it (``start_segment``): (the tool's metres per unit of the
+        line's parameter s at most, the fastest ds/dt: its joint limits and the normal cap)."""
+        robot = self.system
+        motion = robot.start_segment(robot.poses[a], b)
+        tool_per_s, joint_rate = float(motion[3]), float(motion[4])
+        return tool_per_s, min(joint_rate, robot.normal_cap / tool_per_s)
 
     def _pairs(self) -> list[tuple[int, int]]:
         """Every move (a, b) between two named poses, in the order the model numbers them (after the poses)."""
@@ -100,9 +105,7 @@ class RobotAbstraction(ModuleAbstraction):
         moves, settling = [], {p: [robot.poses[p][None, :]] for p in range(poses)}
         for i, (a, b) in enumerate(pairs):
             configs = self._samples(a, b)[0]
-            motion = robot.start_segment(robot.poses[a], b)
-            tool_per_s, joint_rate = float(motion[3]), float(motion[4])
-            fastest = min(joint_rate, robot.normal_cap / tool_per_s)  # ds/dt at most
+            tool_per_s, fastest = self._pace(a, b)
             ahead = math.ceil(fastest * robot.period / spacing - 1e-9)
             for region, (code, first, last) in enumerate(self._runs(a, b)):
                 moves.append(ArmStretch(f"{seg}={poses + i} & {k}={region}",

@@ -37,6 +37,7 @@ import numpy as np
 
 from cellsim.verify.clearance import BODY_TOLERANCE, TOLERANCE, ArmSweep, Clearance, Spheres, cover
 from cellsim.verify.expressions import Thresholds
+from cellsim.verify.prism import Command, Module, Var
 from cellsim.verify.model import (AbstractCell, ModuleAbstraction, SensedSignal, SensorRole, context_of, lookup,
                                   prism_name, set_of)
 from cellsim.kinds.robot.abstraction import TRACKING_TOLERANCE
@@ -54,9 +55,6 @@ class SsmAbstraction(ModuleAbstraction):
         self.groups = None
         """[(a group of the arm's stretches, its clearance's thresholds (m))] once the true margin is modelled."""
         self.speeds: list[float] = []
-        self.limited = False
-        """Whether its speed limit is modelled (with its true margin: from a sensor's separation, whose reading the
-        model has)."""
 
     def declare_for_readers(self, cell: AbstractCell) -> None:
         """Where a condition compares the true margin with 0 (and nothing else): measure each group of stretches'
@@ -111,7 +109,7 @@ class SsmAbstraction(ModuleAbstraction):
                 clouds.append(Spheres(centre[None, :], np.array([radius])))
                 modelled.append((_Group(guard, None, ()), [self._sp(_Group(guard, None, ()), 0.0)]))
                 continue
-            parts = [sweep.stretch(line)[0] for stretch, _ in members for line in stretch.lines]
+            parts = [sweep.stretch(line) for stretch, _ in members for line in stretch.lines]
             clouds.append(Spheres(np.vstack([p.centres for p in parts]), np.concatenate([p.radii for p in parts])))
             rate = max(fastest if rate is None else rate for _, rate in members)  # at rest: settling, at the fastest
             at_rest = tuple(stretch.guard for stretch, _ in members if stretch.tool_per_s == 0.0)
@@ -136,13 +134,11 @@ class SsmAbstraction(ModuleAbstraction):
         cell.read(f"{self.name}.speed_limit_bound", robot_name)
         cell.read(self.cfg.separation, self.name)
         cell.compares(self.cfg.separation, [system.parameters.separation_for(u) for u in self.speeds])
-        self.limited = True
 
     def build(self, cell: AbstractCell) -> None:
-        if self.limited:
-            self._limit(cell)
-        if self.groups is None:
+        if self.groups is None:  # (its limit is modelled with its true margin)
             return
+        self._limit(cell)
         speed = cell.read(f"{self.cfg.robot}.tool_speed_bound", self.name)
         steady = cell.signals[f"{self.cfg.robot}.tool_speed_bound"].firm
         firm_dips = []
@@ -187,8 +183,6 @@ class SsmAbstraction(ModuleAbstraction):
         """``<ssm>.speed_limit_bound``: the limit it took at its last update from the separation it read, as the
         region of the robot's tool speed holding the highest limit the separation's region allows (the limit grows
         with the separation)."""
-        from cellsim.verify.prism import Module, Var, Command
-
         sensed = cell.read(self.cfg.separation, self.name)
         separation = cell.encoding(self.cfg.separation)
         speeds = cell.encoding(f"{self.cfg.robot}.tool_speed")
@@ -204,7 +198,7 @@ class SsmAbstraction(ModuleAbstraction):
             else:
                 table[region] = speeds.regions - 1
         var = f"{self.name}_limit"
-        start = speeds.region_of(cell.cell.modules[self.name].parameters.speed_limit(FAR_AWAY))
+        start = speeds.region_of(limit(FAR_AWAY))
         cell.add(Module(f"{self.name}_limit", [Var(var, 0, speeds.regions - 1, start)],
                         [Command("true", (("1", {var: lookup(sensed, table, speeds.regions - 1)}),))],
                         comment=f"{self.name}: the speed limit it took from the separation it read (the highest that "
