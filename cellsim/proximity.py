@@ -108,8 +108,9 @@ class NearestPair:
 
     def nearest_and_touching(self, query, within: float, groups: list[list[int]]) -> list:
         """For each group of ``these`` (their indices), its nearest pair with one of ``those`` if no farther apart
-        than ``within`` (m); and every pair touching (signed distance <= 0). SignedDistancePairs, each once, in the
-        order of ``these`` then ``those``; exact distances asked only of the pairs whose bound could be that near."""
+        than ``within`` (m); and every pair of a group touching (signed distance <= 0), looked for only in a group
+        whose nearest pair touches. SignedDistancePairs, each once, in the order of ``these`` then ``those``; exact
+        distances asked only of the pairs whose bound could be that near."""
         if not self:
             return []
         bound = self._bounds(query)
@@ -133,11 +134,13 @@ class NearestPair:
                 pair = exact(rows[row], j)
                 if pair.distance < best_distance or (best is None and pair.distance <= within):
                     best, best_distance = (rows[row], j), pair.distance
-            if best is not None:
-                keep.add(best)
-        for i, j in zip(*np.nonzero(bound <= 1e-9)):
-            if exact(int(i), int(j)).distance <= 0.0:
-                keep.add((int(i), int(j)))
+            if best is None:
+                continue
+            keep.add(best)
+            if best_distance <= 0.0:  # a group whose nearest pair is apart touches nowhere: nothing more to ask
+                for row, j in zip(*np.nonzero(bound[rows] <= 1e-9)):
+                    if exact(rows[int(row)], int(j)).distance <= 0.0:
+                        keep.add((rows[int(row)], int(j)))
         return [found[key] for key in sorted(keep)]
 
     def __call__(self, query, within: float = math.inf):
