@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Sequence
 
+from cellsim.campaign import DEFAULT_SEARCH, SEARCH_METHODS
 from cellsim.config.layout import Fixture, Layout, Region
 from cellsim.config.typed_yaml import ConfigError
 from cellsim.config.validation import Validation
@@ -48,12 +49,12 @@ if TYPE_CHECKING:
 
 __all__ = [
     "CONFIDENCE", "CampaignConfig", "CampaignError", "CellBuild", "CellDiagram", "CellSystem", "CheckError",
-    "ConfigError", "ConfigurationPoint", "EXPLICIT_LIMIT", "Fixture", "FoxgloveFeed", "Layout", "Live",
-    "OutputExistsError", "Region", "Run", "Scenario", "ScenarioFile", "Validation", "Verdict", "VerifyError",
-    "build", "check", "check_campaign", "check_duration", "check_seed", "compile_conditions",
-    "default_conditions", "export_trace", "falsify", "formula_and_description", "is_campaign", "kind_config",
-    "load_scenario", "module", "open_meshcat", "robustness", "run_campaign", "runs_folder", "runs_needed",
-    "save_scenario", "scenario_in_code", "scenario_yaml", "simulate", "verify_cell",
+    "ConfigError", "ConfigurationPoint", "DEFAULT_SEARCH", "EXPLICIT_LIMIT", "Fixture", "FoxgloveFeed", "Layout",
+    "Live", "OutputExistsError", "Region", "Run", "SEARCH_METHODS", "Scenario", "ScenarioFile", "Validation",
+    "Verdict", "VerifyError", "build", "check", "check_campaign", "check_duration", "check_seed",
+    "compile_conditions", "default_conditions", "export_trace", "falsify", "formula_and_description", "is_campaign",
+    "kind_config", "load_scenario", "module", "open_meshcat", "robustness", "run_campaign", "runs_folder",
+    "runs_needed", "save_scenario", "scenario_in_code", "scenario_yaml", "simulate", "verify_cell",
 ]
 
 Extend = Callable[["CellBuild"], None]
@@ -505,13 +506,13 @@ def run_campaign(scenario: ScenarioFile | str | os.PathLike, out: str | os.PathL
 
 
 def falsify(scenario: ScenarioFile | str | os.PathLike, out: str | os.PathLike, *, budget: int,
-            method: str = "cmaes", conditions: Sequence[str] = (), seed: int = 0, duration: float | None = None,
+            method: str = DEFAULT_SEARCH, conditions: Sequence[str] = (), seed: int = 0, duration: float | None = None,
             jobs: int = 1, batch: int | None = None, scheduler: str | None = None, overwrite: bool = False,
             progress: Callable[["SearchProgress"], None] | None = None) -> "FalsifyOutcome":
     """Search the scenario's configuration points for runs that violate ``conditions`` (default: all), as
-    ``cellsim falsify`` does, spending at most ``budget`` runs: ``method`` ``cmaes``, ``qd`` or ``random``.
-    ``progress(p)`` after every batch (``p.done``, ``p.budget``, ``p.best``, ``p.violating``). A search's runs are
-    no random sample: its results carry no bound."""
+    ``cellsim falsify`` does, spending at most ``budget`` runs: ``method`` ``qd`` (the command's default too),
+    ``cmaes`` or ``random``. ``progress(p)`` after every batch (``p.done``, ``p.budget``, ``p.best``,
+    ``p.violating``). A search's runs are no random sample: its results carry no bound."""
     from cellsim.campaign.falsify import FalsifyPlan, run_falsify
 
     path, overrides = _scenario_file(scenario)

@@ -4,7 +4,7 @@
     python scripts/api_reference.py            # rewrite docs/api.md
     python scripts/api_reference.py --check    # exit 1 if docs/api.md is not what the code says
 
-tests/test_docs.py runs the check: the reference never drifts from the code.
+tests/test_api.py runs the check: the reference never drifts from the code.
 """
 
 from __future__ import annotations

@@ -374,3 +374,21 @@ def test_a_script_with_no_main_guard_runs_a_campaign_on_two_workers(tmp_path):
     done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-2000:]
     assert "runs 2" in done.stdout and len(json.loads((tmp_path / "c" / "results.json").read_text())["runs"]) == 2
+
+
+def test_falsify_from_a_script_runs_the_search_the_command_runs_by_default(monkeypatch, tmp_path):
+    """``cellsim.falsify`` works "as ``cellsim falsify`` does": with no method named, the same search (qd)."""
+    import cellsim.campaign.falsify as search
+    from cellsim.cli import main
+
+    plans = []
+
+    def searched(plan, out, **kw):
+        plans.append(plan)
+        raise search.CampaignError("stopped here: the plan is what is asserted")
+
+    monkeypatch.setattr(search, "run_falsify", searched)
+    with pytest.raises(search.CampaignError):
+        cellsim.falsify(WELDING, tmp_path / "api", budget=4)
+    assert main(["falsify", str(WELDING), "--budget", "4", "--out", str(tmp_path / "cli"), "--quiet"]) == 2
+    assert [plan.method for plan in plans] == ["qd", "qd"]

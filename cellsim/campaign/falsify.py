@@ -57,13 +57,13 @@ from typing import Callable
 import numpy as np
 
 from cellsim.atomic import LOCK
-from cellsim.campaign import engine, runner
+from cellsim.campaign import SEARCH_METHODS, engine, runner
 from cellsim.campaign.engine import PLAN, CampaignError, CampaignPlan
 from cellsim.campaign.space import SearchSpace
 from cellsim.logic.syntax import Formula, numeric_comparisons, walk
 from cellsim.provenance import INPUTS, provenance
 
-METHODS = ("cmaes", "qd", "random")
+METHODS = SEARCH_METHODS
 NOT_A_SAMPLE = ("the runs of a falsification search are chosen by the search, not drawn at random: "
                 "no violation rate or bound follows from them (a campaign's runs give one)")
 FAILED_SCORE = 4.0

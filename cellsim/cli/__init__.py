@@ -2,7 +2,8 @@
 
 Exit codes: 0 all well; 1 a safety finding (a mishap in a run, a safety
 condition violated, inconclusive or with missing data); 2 a usage or input
-error (one line on stderr naming the file, line and key); 130 interrupted (Ctrl-C, or SIGTERM,
+error (one line on stderr naming the file, line and key); 3 (``verify`` only) nothing violated but a
+property undecided; 130 interrupted (Ctrl-C, or SIGTERM,
 which every command takes as Ctrl-C: a black box is closed, a campaign keeps its finished runs).
 
 One module per command (``cellsim.cli.simulate``, ...), each with ``add_parser(subparsers)``
@@ -99,7 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="cellsim",
         description="Scenario digital twins of collaborative robot cells: simulate them headless, "
         "record black boxes, and gather safety evidence.",
-        epilog=EXIT_CODES,
+        epilog=EXIT_CODES + " `cellsim verify` also exits 3: nothing violated, but a property undecided.",
     )
     from cellsim.version import __version__
 
