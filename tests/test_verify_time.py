@@ -133,3 +133,23 @@ def test_a_module_whose_period_is_no_multiple_of_the_step_is_refused_in_one_line
     assert "Traceback" not in done.stderr
     line = done.stderr.strip().splitlines()[-1]
     assert "range_detector updates every 0.03 s, which is no whole multiple of the model's step (0.02 s" in line
+
+
+def test_the_person_steps_to_exactly_the_floor_s_neighbouring_places(welding):
+    """A person's module takes one command per direction (its d-th neighbour a formula of the place), not one per
+    pair of places: in the built model, the places a person can be in after an update of theirs are exactly its
+    place and the floor's neighbours of it, from every place the model reaches."""
+    model, program, built = welding
+    person = model.cell.places.people[0]
+    of = _valuation_of(built, None)
+    valuation = [of(s) for s in range(built.nr_states)]
+    seen: dict[int, set[int]] = {}
+    for state in built.states:
+        here = valuation[state.id]
+        if here["tick"] != 0:  # the person updates at the even steps
+            continue
+        after = {valuation[entry.column][person.variable] for action in state.actions for entry in action.transitions}
+        seen.setdefault(here[person.variable], set()).update(after)
+    assert len(seen) == len(person.places)  # every place is reached at an update
+    for place, after in seen.items():
+        assert after == {place, *person.neighbours[place]}, place
