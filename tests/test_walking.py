@@ -161,3 +161,30 @@ def test_sight_lines_from_one_point_past_many_boxes_are_each_boxs_test_at_once()
         assert reached.tolist() == alone.tolist()
         assert 100 < (~alone).sum() < 2900
     assert SightLines(origin, []).reach(points).all() and len(SightLines(origin, boxes).reach(np.empty((0, 3)))) == 0
+
+
+def test_one_point_s_sight_line_is_the_many_points_test_mount_and_all():
+    """``SightLines.reaches`` (one point, in plain floats: the nearest point of a body region) gives what ``reach``
+    gives for it, past five boxes and out of the box the origin is mounted in, its depth limit included."""
+    import math
+
+    from cellsim.floorplan import Box3, SightLines
+
+    rng = np.random.default_rng(5)
+    for _ in range(4):
+        origin = np.array([0.1, -0.2, 0.15])
+        inside = rng.uniform(0.01, 0.05, 3)  # the origin this far inside the mount's corner
+        mount = Box3(origin - np.array([0.1, 0.1, 0.1]) + inside, np.full(3, 0.1), 0.0)
+        boxes = [mount]
+        while len(boxes) < 6:
+            box = Box3(rng.uniform(-1, 1, 3), rng.uniform(0.05, 0.5, 3),
+                       float(rng.choice([0.0, math.pi / 2, rng.uniform(-3, 3)])))
+            if not box.contains(origin, margin=0.01):
+                boxes.append(box)
+        lines = SightLines(origin, boxes, mount_depth=0.08)
+        assert lines.mounts == [mount]
+        points = rng.uniform(-2, 2, (2000, 3))
+        points[::7, 2] = origin[2]  # level with the origin
+        one = [lines.reaches(p) for p in points]
+        assert one == lines.reach(points).tolist()
+        assert 100 < sum(one) < 1900

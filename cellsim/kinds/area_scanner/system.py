@@ -76,7 +76,6 @@ class AreaScanner(GeometrySensor):
         self.mount_depth = min((float(np.min(box.half - np.abs(box.to_local(self.position)))) for box in boxes
                                 if box.contains(self.position)), default=0.0) + HEAD_RADIUS
         self.lines = SightLines(self.position, boxes, self.mount_depth)
-        self.walls = self.lines.boxes  # every fixture but the mount
         # the heights the scanner's beams sweep: from its lowest field's bottom to its highest's top
         bounds = [corner[2] for spec in cfg.fields.values() for corner in spec.corners()]
         self.band = (min(bounds) - 1e-6, max(bounds) + 1e-6)
@@ -157,9 +156,7 @@ class AreaScanner(GeometrySensor):
         one the scanner is mounted in, beyond the head's depth in it)."""
         if not self.band[0] <= point[2] <= self.band[1]:
             return False
-        if any(wall.blocks(self.position, point) for wall in self.walls):
-            return False
-        return not self.lines.mounts or bool(self.lines.reach(np.asarray(point, float)[None, :])[0])
+        return self.lines.reaches(point)
 
     def sight_points(self, query, target) -> np.ndarray:
         """The points the beams reach of a limb (a capsule), nearest the scanner first: of those along its axis
