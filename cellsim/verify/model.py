@@ -423,7 +423,11 @@ def _lookup(expr: str, cases: list[tuple[int, int]], otherwise: int) -> str:
 
 
 def lookup(expr: str, table: dict[int, int], otherwise: int) -> str:
-    """A PRISM expression mapping ``expr``'s value through ``table``, grouped by result."""
+    """A PRISM expression mapping ``expr``'s value through ``table``, grouped by result (a search tree over the
+    value where the table has many runs, :func:`_tree`)."""
+    tree = _tree(expr, {k: str(v) for k, v in table.items()}, str(otherwise))
+    if tree is not None:
+        return tree
     groups: dict[int, list[int]] = {}
     for key, value in sorted(table.items()):
         if value != otherwise:
@@ -435,9 +439,38 @@ def lookup(expr: str, table: dict[int, int], otherwise: int) -> str:
 
 
 def set_of(expr: str, keys) -> str:
-    """A PRISM condition: ``expr`` is one of ``keys``."""
+    """A PRISM condition: ``expr`` is one of ``keys`` (a search tree over the value where they make many runs)."""
     keys = sorted(set(keys))
-    return _any_of(expr, keys) if keys else "false"
+    if not keys:
+        return "false"
+    return _tree(expr, dict.fromkeys(keys, "true"), "false") or _any_of(expr, keys)
+
+
+TREE_FROM = 8
+"""Runs of equal values (keys in a row) from which a lookup or a set is written as a search tree over the key:
+Storm's state-by-state builder evaluates every test of a chain (a place's reading: a few dozen) where a tree asks
+a handful. Fewer runs keep the chain, which reads better in an exported model."""
+
+
+def _tree(expr: str, table: dict[int, str], otherwise: str) -> str | None:
+    """``table[expr]`` (``otherwise`` for any other value) as nested ``expr<k ? a : b``, one test per level; None when
+    the table has fewer than ``TREE_FROM`` runs."""
+    runs: list[tuple[int | None, str]] = [(None, otherwise)]  # (first key of the run, its value); None: from -inf
+    keys = sorted(table)
+    for k in range(keys[0], keys[-1] + 2) if keys else ():
+        value = table.get(k, otherwise)
+        if value != runs[-1][1]:
+            runs.append((k, value))
+    if len(runs) < TREE_FROM:
+        return None
+
+    def split(i: int, j: int) -> str:
+        if j - i == 1:
+            return runs[i][1]
+        middle = (i + j) // 2
+        return f"({expr}<{runs[middle][0]} ? {split(i, middle)} : {split(middle, j)})"
+
+    return split(0, len(runs))
 
 
 def _any_of(expr: str, keys: list[int]) -> str:
