@@ -43,6 +43,17 @@ class Box3:
         """Whether the segment p0-p1 passes through the box's inside (slab test in its frame).
 
         In plain floats: a line of sight is tested against every fixture for every point a scanner looks at."""
+        inside = self._inside(p0, p1)
+        return inside is not None and inside[1] - inside[0] > _EPS
+
+    def leaves_at(self, p0, p1) -> float:
+        """Where (the fraction of the way, at most 1) the segment p0-p1 from ``p0`` inside the box leaves it."""
+        inside = self._inside(p0, p1)
+        return 0.0 if inside is None else inside[1]
+
+    def _inside(self, p0, p1) -> tuple[float, float] | None:
+        """The part of the segment p0-p1 inside the box, as fractions of the way (t0, t1) within [0, 1] (slab test in
+        the box's frame); None where it misses the box."""
         c, s = math.cos(self.yaw), math.sin(self.yaw)
         cx, cy, cz = self.center
         x0, y0, z0 = p0[0] - cx, p0[1] - cy, p0[2] - cz
@@ -55,32 +66,13 @@ class Box3:
             start, d = a[axis], b[axis] - a[axis]
             if abs(d) < _EPS:
                 if not -hi < start < hi:
-                    return False
+                    return None
                 continue
             u, v = (-hi - start) / d, (hi - start) / d
             t0, t1 = max(t0, min(u, v)), min(t1, max(u, v))
             if t1 - t0 <= _EPS:
-                return False
-        return True
-
-    def leaves_at(self, p0, p1) -> float:
-        """Where (the fraction of the way, at most 1) the segment p0-p1 from ``p0`` inside the box leaves it."""
-        c, s = math.cos(self.yaw), math.sin(self.yaw)
-        cx, cy, cz = self.center
-        x0, y0, z0 = p0[0] - cx, p0[1] - cy, p0[2] - cz
-        x1, y1, z1 = p1[0] - cx, p1[1] - cy, p1[2] - cz
-        a = (c * x0 + s * y0, -s * x0 + c * y0, z0)
-        b = (c * x1 + s * y1, -s * x1 + c * y1, z1)
-        leave = 1.0
-        for axis in range(3):
-            hi = float(self.half[axis])
-            start, d = a[axis], b[axis] - a[axis]
-            if abs(d) < _EPS:
-                if not -hi < start < hi:
-                    return 0.0  # (level with a face the origin does not lie inside: it is not in the box)
-                continue
-            leave = min(leave, max((-hi - start) / d, (hi - start) / d))
-        return leave
+                return None
+        return t0, t1
 
     def footprint(self, grow: float = 0.0) -> list[np.ndarray]:
         """The box's outline on the floor, grown by ``grow`` (m) on every side, counter-clockwise."""
