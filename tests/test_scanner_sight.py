@@ -116,3 +116,36 @@ def test_what_the_scanner_sees_of_the_legs_is_what_its_beams_reach_of_them(cell)
             measured = scanner.nearest_seen(query)
             assert distance - 0.02 <= measured <= distance + 0.03 or (measured == scanner.cfg.max_range and field == 0)
     assert judged > 100 and agree >= 0.98 * judged, (agree, judged)
+
+
+def test_the_nearest_seen_is_the_least_over_every_body_region_however_few_are_looked_at(cell):
+    """``nearest_seen`` looks at the regions nearest first and stops at the first whose nearest point the beams
+    reach: at poses all round the scanner, standing and reaching, some regions hidden, its answer is the least over
+    every region of the distance to its nearest point if the beams reach it, else to the nearest of its points they
+    reach."""
+    from cellsim.kinds.sensing import HEAD_RADIUS
+    from cellsim.proximity import witness_on
+
+    sf, built, context = cell
+    scanner, person = built.modules["scanner"], built.modules["operator"]
+    own = scanner.GetMyContextFromRoot(context)
+    rng = np.random.default_rng(11)
+    hidden = 0
+    for _ in range(300):
+        reach = [rng.uniform(-1.5, 0.5), rng.uniform(-1.5, 1.5), rng.uniform(0.8, 1.2)] if rng.random() < 0.3 else None
+        x, y = scanner.position[0] + rng.uniform(-2.5, 2.5), scanner.position[1] + rng.uniform(-2.5, 2.5)
+        person.set_pose(context, [x, y, rng.uniform(-math.pi, math.pi), *([1.0, *reach] if reach else [0.0] * 4)])
+        query = scanner.query_port.Eval(own)
+        every = []
+        for target in scanner.targets:
+            pair = query.ComputeSignedDistancePairClosestPoints(scanner.head_id, target)
+            if scanner.seen(witness_on(query, pair, target)):
+                every.append(pair.distance + HEAD_RADIUS)
+                continue
+            visible = scanner.sight_points(query, target)
+            if len(visible):
+                every.append(float(np.linalg.norm(visible[0] - scanner.position)))
+        expected = min([*every, scanner.cfg.max_range])
+        hidden += len(every) < len(scanner.targets)
+        assert scanner.nearest_seen(query) == pytest.approx(expected, abs=1e-12), (x, y, reach)
+    assert hidden > 30  # poses where some region is hidden from the beams: where stopping early could go wrong
