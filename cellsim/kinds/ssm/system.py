@@ -362,6 +362,7 @@ class SpeedSeparationMonitor(CellSystem):
         lower[np.isnan(lower)] = -np.inf  # a shape no sphere holds: measured first
         flat = lower.ravel()
         columns = lower.shape[1]
+        shape_poses: dict[int, np.ndarray] = {}  # each arm shape's pose (3 x 4), taken when its first pair is measured
         for k in np.argsort(flat, kind="stable"):
             if not flat[k] < least:
                 break  # no pair from here on can have a lower margin
@@ -372,7 +373,10 @@ class SpeedSeparationMonitor(CellSystem):
             bound = protective[i, j] if pair.distance > 0.0 else sp(fastest[i, 0], reaction)
             if pair.distance - bound < least:  # its exact distance, its speed bounded: worth its witness's speed
                 on_a = pair.id_A == ids_a[i]
-                p_W = query.GetPoseInWorld(ids_a[i]) @ (pair.p_ACa if on_a else pair.p_BCb)
+                X_WA = shape_poses.get(i)
+                if X_WA is None:
+                    X_WA = shape_poses[i] = query.GetPoseInWorld(ids_a[i]).GetAsMatrix34()
+                p_W = X_WA[:, :3] @ (pair.p_ACa if on_a else pair.p_BCb) + X_WA[:, 3]
                 speed = _speed_towards(pair, on_a, p_W, centres[i], centre_v[i], motion[i][:3])
                 least = min(least, pair.distance - sp(speed, reaction))
         return least
