@@ -455,9 +455,11 @@ a handful. Fewer runs keep the chain, which reads better in an exported model.""
 def _tree(expr: str, table: dict[int, str], otherwise: str) -> str | None:
     """``table[expr]`` (``otherwise`` for any other value) as nested ``expr<k ? a : b``, one test per level; None when
     the table has fewer than ``TREE_FROM`` runs."""
-    runs: list[tuple[int | None, str]] = [(None, otherwise)]  # (first key of the run, its value); None: from -inf
     keys = sorted(table)
-    for k in range(keys[0], keys[-1] + 2) if keys else ():
+    if not keys or keys[-1] - keys[0] > 100_000:  # (codes and places span a few hundred values at most)
+        return None
+    runs: list[tuple[int | None, str]] = [(None, otherwise)]  # (first key of the run, its value); None: from -inf
+    for k in range(keys[0], keys[-1] + 2):
         value = table.get(k, otherwise)
         if value != runs[-1][1]:
             runs.append((k, value))
