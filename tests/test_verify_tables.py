@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import stormpy
 import stormpy.expressions as expressions
 
 from cellsim.verify.model import TREE_FROM, lookup, set_of
