@@ -153,3 +153,17 @@ def test_the_person_steps_to_exactly_the_floor_s_neighbouring_places(welding):
     assert len(seen) == len(person.places)  # every place is reached at an update
     for place, after in seen.items():
         assert after == {place, *person.neighbours[place]}, place
+
+
+def test_a_floor_formula_never_silently_replaces_another():
+    """The floor's own formulas (each direction's neighbour and pace) are named after the person's place variable;
+    a name some other formula took already is refused in words, not overwritten."""
+    from types import SimpleNamespace
+
+    from cellsim.verify.expressions import VerifyError
+    from cellsim.verify.floor import _formula
+
+    cell = SimpleNamespace(formulas={"operator_place_to0": "3"})
+    with pytest.raises(VerifyError, match="operator_place_to0"):
+        _formula(cell, "operator_place_to0", "(operator_place<2 ? 1 : 0)")
+    assert cell.formulas == {"operator_place_to0": "3"}

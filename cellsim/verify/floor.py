@@ -362,11 +362,11 @@ def _walks(cell: AbstractCell, person: PersonPlaces, paced, presses: dict[str, s
     moves = {p.index: sorted(person.neighbours[p.index] - {p.index}) for p in person.places}
     steps = [("true", paced.stay)]
     for d in range(max((len(there) for there in moves.values()), default=0)):
-        cell.formulas[f"{var}_to{d}"] = lookup(var, {p: there[d] for p, there in moves.items() if len(there) > d}, -1)
+        _formula(cell, f"{var}_to{d}", lookup(var, {p: there[d] for p, there in moves.items() if len(there) > d}, -1))
         may = {p: paced.step_guard(p, there[d]) for p, there in moves.items() if len(there) > d}
         guard = f"{var}_to{d}>=0"
         if any(g != "true" for g in may.values()):
-            cell.formulas[f"{var}_may{d}"] = _case(var, may)
+            _formula(cell, f"{var}_may{d}", _case(var, may))
             guard += f" & {var}_may{d}"
         steps.append((guard, {var: f"{var}_to{d}", **paced.step}))
     commands = []
@@ -379,6 +379,13 @@ def _walks(cell: AbstractCell, person: PersonPlaces, paced, presses: dict[str, s
                     where.append(spot)
             commands.append(Command(" & ".join(where) or "true", (("1", chosen),)))
     return commands
+
+
+def _formula(cell: AbstractCell, name: str, expr: str) -> None:
+    """A formula of the floor's own (no signal's), under a name nothing else has taken."""
+    if name in cell.formulas:
+        raise VerifyError(f"the abstract model names two formulas {name}: rename the module whose name makes it")
+    cell.formulas[name] = expr
 
 
 def _case(var: str, cases: dict[int, str]) -> str:
