@@ -63,7 +63,6 @@ from cellsim.campaign.space import SearchSpace
 from cellsim.logic.syntax import Formula, numeric_comparisons, walk
 from cellsim.provenance import INPUTS, provenance
 
-METHODS = SEARCH_METHODS
 NOT_A_SAMPLE = ("the runs of a falsification search are chosen by the search, not drawn at random: "
                 "no violation rate or bound follows from them (a campaign's runs give one)")
 FAILED_SCORE = 4.0
@@ -278,7 +277,7 @@ def _searcher(method: str, space: SearchSpace, seed: int, batch: int | None, sco
         return CmaesSearch(space, seed, batch)
     if method == "qd":
         return QualityDiversity(space, seed, batch, scorer, use_cases)
-    raise ValueError(f"unknown method {method!r}; one of {', '.join(METHODS)}")
+    raise ValueError(f"unknown method {method!r}; one of {', '.join(SEARCH_METHODS)}")
 
 
 # --------------------------------------------------------------------------- the search
@@ -301,8 +300,8 @@ def run_falsify(
     """
     out = Path(out)
     wall_start = time.perf_counter()
-    if plan.method not in METHODS:
-        raise ValueError(f"unknown method {plan.method!r}; one of {', '.join(METHODS)}")
+    if plan.method not in SEARCH_METHODS:
+        raise ValueError(f"unknown method {plan.method!r}; one of {', '.join(SEARCH_METHODS)}")
     runs = engine.set_up(plan.scenario, plan.overrides, plan.seed, plan.duration)
     unknown = [c for c in plan.conditions if c not in runs.case.conditions]
     if unknown:
