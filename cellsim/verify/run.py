@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from cellsim import registry
+from cellsim.verify.cone import within_cone
 from cellsim.verify.expressions import VerifyError
 from cellsim.verify.floor import build_floor, cut_floor
 from cellsim.verify.isolated import ProcessStopped, in_own_process
@@ -37,25 +38,26 @@ class AbstractModel:
     parts: list = field(default_factory=list)
     """Each module's abstraction (:class:`cellsim.verify.model.ModuleAbstraction`): who can refine what."""
 
-    def groups(self) -> list[tuple[list[Property], Program]]:
-        """The properties by the model they are checked in, and its program: the cell with no monitor (the
-        mishaps, the invariants, the user's), then the cell with each monitor alone. A monitor only its
-        property reads is left out of the others' models: the same behaviours, far fewer states."""
+    def groups(self) -> list[tuple[list[Property], Program, list[str]]]:
+        """The properties by the model they are checked in, its program and the modules it leaves out: the cell with
+        no monitor (the mishaps, the invariants, the user's), then the cell with each monitor alone. A monitor only
+        its property reads is left out of the others' models, and each model keeps only its labels' cone of
+        influence (:mod:`cellsim.verify.cone`): the same behaviours of what the properties read, fewer states."""
         cell = self.cell
         plain = [p for p in self.properties if p.name not in cell.monitors]
         groups = []
         if plain:
             theirs = {k for p in self.properties if p.name in cell.monitors for k in self._labels_of(p)}
             labels = {k: v for k, v in cell.labels.items() if k not in theirs}
-            groups.append((plain, cell.program(self.header, [], labels)))
+            groups.append((plain, *within_cone(cell.program(self.header, [], labels))))
         responses = [p for p in self.properties if p.name in cell.monitors and p.within is not None]
         if responses:  # short windows, each pending a few periods: one model for them all costs less than one each
             labels = {k: cell.labels[k] for p in responses for k in self._labels_of(p)}
-            groups.append((responses, cell.program(self.header, [p.name for p in responses], labels)))
+            groups.append((responses, *within_cone(cell.program(self.header, [p.name for p in responses], labels))))
         for prop in self.properties:
             if prop.name in cell.monitors and prop.within is None:
                 labels = {k: cell.labels[k] for k in self._labels_of(prop)}
-                groups.append(([prop], cell.program(self.header, [prop.name], labels)))
+                groups.append(([prop], *within_cone(cell.program(self.header, [prop.name], labels))))
         return groups
 
     def bound(self) -> float:
@@ -379,9 +381,10 @@ def _storm(model: AbstractModel, memory: int, say, enough=None):
     with tempfile.TemporaryDirectory(prefix="cellsim-verify-") as scratch:
         # the whole cell, every monitor in it, as decision diagrams: its size decides how it is checked
         whole = Path(scratch) / "model.prism"
-        program_now = model.cell.program(model.header)  # (without the monitors of the properties left out)
+        # (without the monitors of the properties left out, nor a module no property can observe)
+        program_now, unseen = within_cone(model.cell.program(model.header))
         whole.write_text(program_now.text())
-        say("Storm: building the state space as decision diagrams")
+        say("Storm: building the state space as decision diagrams" + _leaving_out(unseen))
         program, symbolic, whole_stats = build_symbolic(whole, memory)
         count(whole_stats)
         if whole_stats.transitions > EXPLICIT_LIMIT:
@@ -390,7 +393,7 @@ def _storm(model: AbstractModel, memory: int, say, enough=None):
             checked(program, symbolic, model.properties)
             del symbolic
             stats = largest = whole_stats
-            for props, group in model.groups():
+            for props, group, _ in model.groups():
                 again = [p for p in props if p.bad and p.within is None and results[p.name].holds is False]
                 if again:
                     _witness_held(model, group, again, results, memory, Path(scratch), say, count)
@@ -403,7 +406,7 @@ def _storm(model: AbstractModel, memory: int, say, enough=None):
             checked(program, symbolic, model.properties)
             del symbolic
             stats = replace(whole_stats, symbolic=False, made_sparse=not by_state)
-            for i, (props, group) in enumerate(model.groups()):
+            for i, (props, group, dropped) in enumerate(model.groups()):
                 # (a liveness condition's answer under fairness came from the decision diagrams: nothing to build)
                 again = [p for p in props if p.bad and results[p.name].holds is False and results[p.name].fair is None]
                 if not again:
@@ -415,13 +418,15 @@ def _storm(model: AbstractModel, memory: int, say, enough=None):
                 path = Path(scratch) / f"model{i}.prism"
                 if by_state:
                     path.write_text(group.text())
-                    say(f"Storm: the state space for {', '.join(p.name for p in again)}, state by state")
+                    say(f"Storm: the state space for {', '.join(p.name for p in again)}, state by state"
+                        + _leaving_out(dropped))
                     program, built, group_stats = build(path)
                     count(group_stats)
                     valuations = None
                 else:
                     path.write_text(group.text() + valuation_labels(group.variables()))
-                    say(f"Storm: the state space for {', '.join(p.name for p in again)}, made sparse")
+                    say(f"Storm: the state space for {', '.join(p.name for p in again)}, made sparse"
+                        + _leaving_out(dropped))
                     program, symbolic, group_stats = build_symbolic(path, memory)
                     count(group_stats)
                     mark = time.perf_counter()
@@ -436,6 +441,11 @@ def _storm(model: AbstractModel, memory: int, say, enough=None):
                     for p in again)
             largest = stats  # the whole cell, every monitor in it: no group is larger
     return results, times, stats, largest, refinable
+
+
+def _leaving_out(modules: list[str]) -> str:
+    """How a stage's message names the modules outside its properties' cone of influence."""
+    return f" (leaving out {', '.join(modules)}: no property there can observe them)" if modules else ""
 
 
 def held(program: Program, people: list) -> Program:

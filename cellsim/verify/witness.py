@@ -77,7 +77,9 @@ def walks(model, checked: Checked, shift: float) -> tuple[dict, float]:
     for person in places.people:
         runs = []  # [place, first step, last step, pose]
         for step, state in enumerate(path):
-            place = state[person.variable]
+            # a person outside the property's cone of influence (cellsim.verify.cone) is not in the witness: what
+            # they do cannot change it, so they stay where they start
+            place = state.get(person.variable, person.start)
             if runs and runs[-1][0] == place:
                 runs[-1][2] = step
             else:
