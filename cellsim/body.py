@@ -31,6 +31,9 @@ from pydrake.math import RigidTransform
 REGIONS = ("head", "face", "neck", "back", "chest", "abdomen", "pelvis", "upper_arm", "forearm", "hand", "thigh",
            "lower_leg")
 """The body regions, in the limits table's words (``back`` includes the shoulders)."""
+TRUNK = ("back", "chest", "abdomen", "pelvis")
+"""The regions that move as one block: a push on one is resisted by whatever another rests against (a chest pushed
+back is pinned by the wall the back rests on). A head, a neck or a limb turns or bends away instead."""
 
 KNEE, HIP, SHOULDER, CHIN = 0.285, 0.530, 0.818, 0.870
 """Heights of the joints as fractions of the body's height (Drillis and Contini, 1966)."""

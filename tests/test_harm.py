@@ -18,6 +18,7 @@ import yaml
 from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.systems.analysis import Simulator
 
+from cellsim.body import TRUNK
 from cellsim.diagrams.cell import build_cell
 from cellsim.kinematics import solve_tool_target
 from cellsim.scenario import load_scenario
@@ -213,6 +214,72 @@ def test_a_chest_pushed_against_a_machine_behind_the_body_is_clamped_and_beside_
         assert reading["clamping"] == (pytest.approx(fraction, rel=1e-5) if kind == "quasi_static" else 0.0)
 
 
+def _back_against_the_machine(built, context, reach=None) -> float:
+    """Step the person, facing the arm, towards the CNC behind them until some region rests against it (one of the
+    trunk's: the back or the pelvis); returns their x."""
+    cnc = next(g for g, name in built.modules["harm"].fixtures.items() if name == "cnc")
+    for x in np.arange(0.55, 0.95, 0.002):
+        stand(built, context, x, 0.0, math.pi, None if reach is None else (x - 0.45, *reach))
+        _, query = region_geometry(built, context, "chest")
+        gaps = {built.modules["operator"].regions[g]: query.ComputeSignedDistancePairClosestPoints(g, cnc).distance
+                for g in built.modules["operator"].regions}
+        if 0.0 < min(gaps.values()) <= 0.005:
+            assert min(gaps, key=gaps.get) in TRUNK
+            return x
+    raise AssertionError("the person never rests against the machine")
+
+
+@pytest.mark.parametrize("approach", [(-0.3, 0.0, 0.05), (0.0, 0.3, 0.05)], ids=["from the front", "from the side"])
+def test_a_head_is_not_pinned_by_the_machine_the_back_rests_on(cell, approach):
+    """The back against the CNC, the head clear of it: a push on the head is transient (the head turns away), so
+    harm at any speed, not judged as clamping against the quasi-static force."""
+    built, context = cell
+    _back_against_the_machine(built, context)
+    head, query = region_geometry(built, context, "head")
+    centre = query.GetPoseInWorld(head).translation()
+    touch(built, context, head, centre + approach, centre)
+    for speed in (0.0, 0.05):
+        reading, _ = reading_at(built, context, head, speed)
+        assert reading["contact_region"] in ("head", "face") and reading["contact_kind"] == "transient"
+        assert reading["severity"] >= 2.0 and reading["clamping"] == 0.0
+
+
+def test_an_outstretched_hand_is_not_pinned_by_the_machine_the_back_rests_on(cell):
+    """The back against the CNC, the right hand out in front, half a metre from anything: pushed towards the
+    machine it recoils (transient), judged against the transient limit."""
+    built, context = cell
+    _back_against_the_machine(built, context, reach=(0.45, 1.25))
+    hand, query = region_geometry(built, context, "hand", "right")
+    harm = built.modules["harm"]
+    assert min(query.ComputeSignedDistancePairClosestPoints(hand, f).distance for f in harm.fixtures) > 0.3
+    centre = query.GetPoseInWorld(hand).translation()
+    touch(built, context, hand, centre + [-0.3, 0.0, 0.0], centre, rpy=(0.0, 90.0, 0.0))
+    reading, _ = reading_at(built, context, hand, 1.0)
+    assert reading["contact_region"] == "hand" and reading["contact_kind"] == "transient"
+    assert reading["severity"] == pytest.approx(1.0 / v_max("hand", transient=True), rel=1e-5)
+
+
+def test_a_tool_welded_to_the_pushing_link_pins_nothing(cell):
+    """The wrist's last link and the tool on its flange both overlap a forearm: one rigid body, so the tool behind
+    the region moves with the push and cannot pin it against the link (transient, no clamping)."""
+    built, context = cell
+    harm = built.modules["harm"]
+    wrist, tool = (next(p for p in harm.parts.values() if p.name == f"robot_{n}") for n in ("wrist_3_link", "tool0"))
+    assert wrist.body != tool.body and wrist.rigid == tool.rigid
+    stand(built, context, 0.3, -1.15, math.pi / 2, (0.3, -0.45, 1.05))
+    plant = built.plant
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+    plant.SetPositions(plant_context, built.robots["robot"], np.array([-1.28614, -0.8009, 1.23712, 1.0778, -1.92133,
+                                                                       1.91707]))
+    plant.SetVelocities(plant_context, built.robots["robot"], np.zeros(6))
+    forearm, query = region_geometry(built, context, "forearm", "right")
+    touching = {harm.parts[g].name for g in harm.parts
+                if query.ComputeSignedDistancePairClosestPoints(g, forearm).distance < 0}
+    assert touching == {"robot_wrist_3_link", "robot_tool0"}
+    reading, part = reading_at(built, context, forearm, 0.5)
+    assert reading["contact_kind"] == "transient" and reading["clamping"] == 0.0
+
+
 def test_a_head_contact_is_harm_at_any_speed(cell):
     built, context = cell
     stand(built, context, 0.3, -1.0, math.pi / 2)
@@ -223,6 +290,9 @@ def test_a_head_contact_is_harm_at_any_speed(cell):
         reading, _ = reading_at(built, context, head, speed)
         assert reading["contact_region"] == "head" and reading["contact_kind"] == "transient"
         assert reading["severity"] == pytest.approx(2.0 + speed / v_max("head", transient=False), rel=1e-5)
+    # moving apart presses nothing: no harm, on the head as anywhere
+    reading, _ = reading_at(built, context, head, -0.05)
+    assert reading["contact_region"] == "head" and reading["severity"] == 0.0
 
 
 def test_nobody_near_reads_no_contact_and_the_cut_off(cell):

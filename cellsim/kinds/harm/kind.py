@@ -86,7 +86,9 @@ def build_harm(cell, name: str, cfg: HarmConfig):
         instance = cell.robots[robot]
         for geometry, body in geometries.items():
             part = f"{robot}_{body}"
-            parts[geometry] = Part(robot, plant.GetBodyByName(body, instance).index(), cell.arm_mass[robot], part)
+            link = plant.GetBodyByName(body, instance)
+            rigid = min(int(b.index()) for b in plant.GetBodiesWeldedTo(link))
+            parts[geometry] = Part(robot, link.index(), cell.arm_mass[robot], part, rigid)
             if part not in names:
                 names.append(part)
     people = list(cell.bodies)

@@ -102,8 +102,10 @@ def permissible_speed(limits: RegionLimits, robot_mass: float, kind: str) -> flo
 
 def severity(limits: RegionLimits, robot_mass: float, kind: str, speed: float) -> float:
     """How far a contact at relative speed ``speed`` (m/s, towards the region) goes towards the region's
-    limit: 1 is the limit, above 1 harm; a transient contact the table does not permit is at least 2 at any speed."""
-    speed = max(speed, 0.0)
+    limit: 1 is the limit, above 1 harm; a transient contact the table does not permit is at least 2 at any speed,
+    standing still included. Moving apart (``speed`` below 0) is 0 for every region: nothing is pressed."""
+    if speed < 0.0:
+        return 0.0
     v_max = permissible_speed(limits, robot_mass, kind)
     if v_max == 0.0:
         return FORBIDDEN + speed / permissible_speed(limits, robot_mass, QUASI_STATIC)

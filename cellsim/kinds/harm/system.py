@@ -33,7 +33,7 @@ from cellsim.channels import enum_type, number_type
 from cellsim.kinds.harm.config import HarmConfig
 from cellsim.proximity import NearestPair, bounding_sphere, witness_on
 from cellsim.kinds.harm.limits import QUASI_STATIC, TRANSIENT, BodyLimits, severity
-from cellsim.body import REGIONS
+from cellsim.body import REGIONS, TRUNK
 from cellsim.systems import UNCHANGED, CellSystem, write_changed
 from cellsim.vocabulary import value_set
 
@@ -54,6 +54,9 @@ class Part:
     """The plant's BodyIndex."""
     mass: float
     name: str
+    rigid: int = -1
+    """The bodies welded to ``body`` (one rigid assembly: a flange and its tool), named by the least of their
+    indices; -1: the body alone."""
 
 
 @dataclass(frozen=True)
@@ -354,7 +357,7 @@ class HarmMonitor(CellSystem):
             p_W = witness_on(query, pair, region)
             push = pair.nhat_BA_W if on_a else -pair.nhat_BA_W  # from the arm (B, or A) into the region
             speed = float((motion.of_part(part, p_W) - motion.of_region(body, p_W)) @ push)
-            pinned = self._pinned(query, body.person, p_W, pair.id_B if on_a else pair.id_A, part, push)
+            pinned = self._pinned(query, body.person, body.region, p_W, pair.id_B if on_a else pair.id_A, part, push)
             kind = QUASI_STATIC if pinned else TRANSIENT
             level = severity(self.limits.regions[body.region], part.mass, kind, speed)
             if kind == QUASI_STATIC:
@@ -367,18 +370,22 @@ class HarmMonitor(CellSystem):
             self.kind_type(kind).code, speed, self.region_type(nearest).code, *(separation[r] for r in self.robots),
         ]
 
-    def _pinned(self, query, person: int, p_W, touching, part: Part, push) -> bool:
-        """Whether the person touched at ``p_W`` is pinned: something they cannot pass (a fixture, an arm's shape on
-        another body) lies within clamp_gap of their body (any of its regions: a chest pushed against a wall touches
-        it with the back) behind the contact along the push, within clamp_angle_deg of it as seen from the contact.
-        Asked only of a region being touched: it costs nothing otherwise."""
-        regions = [g for g, b in self.bodies.items() if b.person == person]
+    def _pinned(self, query, person: int, region: str, p_W, touching, part: Part, push) -> bool:
+        """Whether the person's ``region`` touched at ``p_W`` is pinned: something they cannot pass (a fixture, an
+        arm's shape that does not move with the pushing one) lies within clamp_gap of that region, or, for a region
+        of the trunk, of any of the trunk's (:data:`cellsim.body.TRUNK`: a chest pushed against a wall touches it
+        with the back), behind the contact along the push, within clamp_angle_deg of it as seen from the contact.
+        A head, a neck or a limb resting on nothing is not pinned by what the back rests on: it turns or bends
+        away. Asked only of a region being touched: it costs nothing otherwise."""
+        resting = TRUNK if region in TRUNK else (region,)
+        regions = [g for g, b in self.bodies.items() if b.person == person and b.region in resting]
         for other in self.clamps:
             if other == touching:
                 continue
             behind = self.parts.get(other)
-            if behind is not None and behind.robot == part.robot and behind.body == part.body:
-                continue  # the same link, another of its shapes
+            if behind is not None and behind.robot == part.robot and (
+                    behind.body == part.body or (part.rigid >= 0 and behind.rigid == part.rigid)):
+                continue  # the same link, or a shape welded to it (a tool on its flange): it moves with the push
             for region in regions:
                 pair = query.ComputeSignedDistancePairClosestPoints(region, other)
                 if pair.distance > self.cfg.clamp_gap:
