@@ -264,6 +264,13 @@ class BlackBox:
         if lengths:
             raise self.corrupt(f"'{lengths[0][0]}' holds vectors of different lengths")
 
+    def check_channels(self) -> None:
+        """Every message belongs to a channel the ``channels`` table lists; else a BlackBoxError naming one that does
+        not (its messages would be read as nothing: a record lost without a word)."""
+        stray = self._query("SELECT channel FROM messages WHERE channel NOT IN (SELECT name FROM channels) LIMIT 1")
+        if stray:
+            raise self.corrupt(f"messages of channel '{stray[0][0]}', which its channels table does not list")
+
     def rows(self) -> list[tuple]:
         """The raw ``messages`` rows in publication order (for comparing runs)."""
         return self._db.execute("SELECT t, channel, source, payload FROM messages ORDER BY rowid").fetchall()

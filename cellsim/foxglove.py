@@ -147,8 +147,9 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
 
     from cellsim.version import __version__
     from cellsim.blackbox import BlackBox, BlackBoxError
-    from cellsim.validation.check import CheckError, locate_rebuildable_run
-    from cellsim.validation.traces import run_end
+    from cellsim.atomic import OverwritesInput, refuse_inputs, replacing
+    from cellsim.validation.check import CheckError, locate_rebuildable_run, run_files
+    from cellsim.validation.traces import blackbox_domains, checked_values, run_end
     from cellsim.diagrams.cell import build_cell
 
     destination = Path(destination)
@@ -158,7 +159,10 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
         blackbox, sf = locate_rebuildable_run(run, "the export rebuilds the cell from it")
     except CheckError as e:
         raise ExportError(str(e)) from None
-    partial = destination.with_name(f".{destination.name}.partial")
+    try:
+        refuse_inputs(destination, [*run_files(run), *sf.inputs()], "--mcap")
+    except OverwritesInput as e:
+        raise ExportError(str(e)) from None
     try:
         with BlackBox(blackbox) as bb:
             metadata, channels = bb.metadata(), bb.channels()
@@ -166,7 +170,7 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
             cell = build_cell(sf, seed=int(metadata.get("seed", sf.scenario.seed)), duration=max(end, 1e-3), record=False)
             wanted = sorted(f"{name}.{signal}" for name, system in cell.modules.items()
                             for signal in getattr(system, "replay_channels", ()) if f"{name}.{signal}" in channels)
-            with open(partial, "wb") as stream:
+            with replacing(destination, "wb") as stream:
                 writer = Writer(stream)
                 writer.start(profile="", library=f"cellsim {__version__}")
                 ids = {}
@@ -177,17 +181,21 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
                     ids[name] = writer.register_channel(topic=topic_of(name), message_encoding="json", schema_id=schema,
                                                         metadata={"kind": info.kind, "unit": info.unit or ""})
                 messages = 0
-                for t, name, value in bb.iter_values(list(channels)):
+                bb.check_vectors()
+                bb.check_channels()
+                for t, name, value in checked_values(bb, list(channels), blackbox_domains(bb)):
                     writer.add_message(ids[name], log_time=_ns(t), publish_time=_ns(t), sequence=messages,
                                        data=json.dumps({"t": t, "value": value}).encode())
                     messages += 1
+                if not messages:  # as check says it
+                    status = metadata.get("status")
+                    if status in ("interrupted", "running", "failed"):
+                        raise ExportError(f"{blackbox}: the run stopped ({status}) before it recorded anything")
+                    raise bb.corrupt("it holds no messages")
                 frames = _write_scene(writer, cell, bb.iter_values(wanted) if wanted else iter(()), wanted)
                 writer.finish()
-        os.replace(partial, destination)
     except BlackBoxError as e:
         raise ExportError(str(e)) from None
-    finally:
-        partial.unlink(missing_ok=True)
     return Exported(destination, len(channels), messages, frames)
 
 

@@ -277,4 +277,6 @@ def test_check_on_a_campaign_folder_points_at_its_runs(tmp_path, capsys):
     (tmp_path / "c" / "runs" / "0000" / "blackbox.sqlite").write_bytes(b"")
     assert main(["check", str(tmp_path / "c")]) == 2
     err = capsys.readouterr().err
-    assert "a campaign folder, not a run" in err and str(tmp_path / "c" / "runs" / "0000") in err
+    # runs without a plan: said so, and no report that is not there is named
+    assert "holds runs but no campaign.json" in err and str(tmp_path / "c" / "runs" / "0000") in err
+    assert "report" not in err

@@ -53,6 +53,13 @@ def run(args) -> int:
     result = checked.result
     margins = api.robustness(checked) if args.robustness else None
     if args.export_trace:
+        from cellsim.atomic import refuse_inputs
+        from cellsim.validation.check import locate_run, run_files
+
+        _, resolved = locate_run(args.run)
+        judged = sf if sf is not None else api.load_scenario(resolved) if resolved is not None else None
+        refuse_inputs(args.export_trace, [*run_files(args.run), *(judged.inputs() if judged else ())],
+                      "--export-trace")
         api.export_trace(checked, args.export_trace)
     if args.json:
         json.dump(

@@ -38,6 +38,9 @@ def run_export(args) -> int:
     if args.out is None:
         sys.stdout.write(api.scenario_yaml(sf))
     else:
+        from cellsim.atomic import refuse_inputs
+
+        refuse_inputs(args.out, sf.inputs(), "--out")
         api.save_scenario(sf, args.out)
     return EXIT_OK
 

@@ -51,13 +51,15 @@ class CheckedRun:
         return self.result.verdict
 
 
-def safety_case(sf: ScenarioFile, vocabulary_domains: dict, channels) -> SafetyCase:
-    """The scenario's validation compiled against the given channel domains."""
+def safety_case(sf: ScenarioFile, vocabulary_domains: dict, channels, recorded_in: Path | None = None) -> SafetyCase:
+    """The scenario's validation compiled against the given channel domains (those of the black box
+    ``recorded_in``, when a run's: a channel it lacks is said to be the run's)."""
     aliases = sf.scenario.validation.variables
     try:
         vocabulary = with_aliases(vocabulary_domains, aliases, channels)
     except TraceError as e:
-        raise ConfigError(*sf.locate(f"validation.variables.{e.variable}"), str(e)) from None
+        run = f"; the run {recorded_in} has none: was it made from another scenario?" if e.missing and recorded_in else ""
+        raise ConfigError(*sf.locate(f"validation.variables.{e.variable}"), f"{e}{run}") from None
     return SafetyCase.compile(judged_validation(sf, channels), vocabulary, sf.locate)
 
 
@@ -85,16 +87,27 @@ def locate_run(path: str | os.PathLike) -> tuple[Path, Path | None]:
         blackbox, scenario = path / BLACKBOX, path / RESOLVED_SCENARIO
         if not blackbox.is_file():
             runs = sorted(p.parent for p in path.glob(f"runs/*/{BLACKBOX}"))
-            if runs:  # a campaign folder: point at its runs
+            if runs:  # a campaign folder (whole, or without its plan): point at its runs
+                from cellsim.campaign.runner import PLAN, REPORT
+
                 shown = ", ".join(str(r) for r in runs[:3]) + (", ..." if len(runs) > 3 else "")
-                raise CheckError(f"{path}: a campaign folder, not a run: check one of its {len(runs)} runs ({shown}); "
-                                 f"its report is {path / 'report.html'}")
+                what = ("a campaign folder, not a run" if (path / PLAN).is_file() else
+                        f"holds runs but no {PLAN}: not a run, and not a campaign cellsim can check whole")
+                report = path / REPORT
+                raise CheckError(f"{path}: {what}: check one of its {len(runs)} runs ({shown})"
+                                 + (f"; its report is {report}" if report.is_file() else ""))
             raise CheckError(f"{path}: not a run folder (no {BLACKBOX})")
         return blackbox, scenario if scenario.is_file() else None
     if path.is_file():
         scenario = path.parent / RESOLVED_SCENARIO
         return path, scenario if scenario.is_file() else None
     raise CheckError(f"{path}: no such run folder or black box")
+
+
+def run_files(run: str | os.PathLike) -> list[Path]:
+    """Every file of the run folder of ``run`` (a run folder or its black box): what no output may replace."""
+    blackbox, _ = locate_run(run)
+    return [p for p in blackbox.parent.iterdir() if p.is_file()]
 
 
 def locate_rebuildable_run(run: str | os.PathLike, purpose: str) -> tuple[Path, ScenarioFile]:
@@ -155,7 +168,8 @@ def check(run: str | os.PathLike, sf: ScenarioFile | None = None, *, case: Safet
     started = time.perf_counter()
     with BlackBox(blackbox) as bb:
         if case is None:
-            case = safety_case(sf, blackbox_domains(bb), bb.channels())
+            bb.check_channels()  # a record the black box cannot place is its fault, not the scenario's
+            case = safety_case(sf, blackbox_domains(bb), bb.channels(), recorded_in=blackbox)
             if not case.conditions:
                 raise CheckError(f"{sf.source}: the scenario has no safety conditions (validation.conditions, or the "
                                  f"default ones of a cell with a robot and a person) to check")

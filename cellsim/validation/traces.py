@@ -47,12 +47,13 @@ Domain = EnumDomain | BoolDomain | NumberDomain
 class TraceError(Exception):
     """The black box cannot give the trace asked for (unknown channel, no messages).
 
-    ``variable`` names the alias at fault, when there is one.
+    ``variable`` names the alias at fault, when there is one; ``missing``: the channel it names is not there at all.
     """
 
-    def __init__(self, message: str, variable: str | None = None):
+    def __init__(self, message: str, variable: str | None = None, missing: bool = False):
         super().__init__(message)
         self.variable = variable
+        self.missing = missing
 
 
 def blackbox_domains(bb: BlackBox) -> dict[str, Domain]:
@@ -74,7 +75,7 @@ def with_aliases(domains: dict[str, Domain], aliases: dict[str, str], channels: 
         if channel not in channels:
             close = difflib.get_close_matches(channel, sorted(channels), n=1)
             hint = f" (did you mean '{close[0]}'?)" if close else ""
-            raise TraceError(f"there is no channel '{channel}'{hint}", variable)
+            raise TraceError(f"there is no channel '{channel}'{hint}", variable, missing=True)
         if channel not in domains:
             raise TraceError(f"channel '{channel}' is a vector, not a trace variable", variable)
         if variable in channels and variable != channel:
@@ -111,16 +112,8 @@ def trace_of_run(bb: BlackBox, aliases: dict[str, str] | None = None) -> RunTrac
 
     channels = bb.channels()
     samples: dict[str, tuple[list[float], list]] = {name: ([], []) for name in domains}
-    valid = {name: validator_of(d) for name, d in domains.items()}
     reach = 0.0  # latest t + period over all messages
-    for t, channel, value in bb.iter_values(list(samples)):
-        if isinstance(t, bool) or not isinstance(t, (int, float)) or not np.isfinite(t) or t < 0:
-            raise BlackBoxError(f"{bb.path}: corrupt black box: a '{channel}' message has time stamp {t!r}")
-        if value is not None and not valid[channel](value):
-            raise BlackBoxError(
-                f"{bb.path}: corrupt black box: '{channel}' at t = {t} has value {value!r}, "
-                f"outside its domain {_describe(domains[channel])}"
-            )
+    for t, channel, value in checked_values(bb, list(samples), domains):
         times, values = samples[channel]
         reach = max(reach, t + channels[channel].period)
         if times and t <= times[-1]:
@@ -131,6 +124,7 @@ def trace_of_run(bb: BlackBox, aliases: dict[str, str] | None = None) -> RunTrac
         times.append(t)
         values.append(value)
     bb.check_vectors()  # not trace variables, but a run's record all the same: corrupt is corrupt
+    bb.check_channels()
     metadata = bb.metadata()
     if not any(times for times, _ in samples.values()):
         if metadata.get("status") in ("interrupted", "running", "failed"):
@@ -144,6 +138,28 @@ def trace_of_run(bb: BlackBox, aliases: dict[str, str] | None = None) -> RunTrac
     for variable, channel in aliases.items():
         signals[variable] = signals[channel]
     return RunTrace(Trace(signals, 0.0, end), vocabulary, complete)
+
+
+LATEST = 1e9
+"""s: no run lasts longer (about 31 years); a later time stamp is corrupt (and beyond what MCAP can stamp)."""
+
+
+def checked_values(bb: BlackBox, channels: list[str], domains: dict[str, Domain]):
+    """``(t, channel, value)`` of ``channels`` in time order (:meth:`BlackBox.iter_values`), each checked as it is
+    read: a time stamp that is a number from 0 to ``LATEST`` s, and a value in its channel's domain (``domains``:
+    those of the scalar channels; None, no value yet, is in every one). A BlackBoxError naming the channel and the
+    time otherwise: what every reader of a black box (``check``, ``export``) refuses alike."""
+    valid = {name: validator_of(d) for name, d in domains.items()}
+    for t, channel, value in bb.iter_values(channels):
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not 0 <= t <= LATEST:
+            raise BlackBoxError(f"{bb.path}: corrupt black box: a '{channel}' message has time stamp {t!r}")
+        check = valid.get(channel)
+        if value is not None and check is not None and not check(value):
+            raise BlackBoxError(
+                f"{bb.path}: corrupt black box: '{channel}' at t = {t} has value {value!r}, "
+                f"outside its domain {_describe(domains[channel])}"
+            )
+        yield t, channel, value
 
 
 def run_end(bb: BlackBox, metadata: dict, reach: float = 0.0) -> tuple[float, bool]:
