@@ -63,11 +63,54 @@ COMMANDS = (simulate, check, verify, campaign, falsify, replay, export, modules,
 
 
 def main(argv: list[str] | None = None) -> int:
+    given = sys.stdout
+    sys.stdout = _ReaderMayLeave(given)
     try:
         return _main(argv)
     except KeyboardInterrupt:  # also while starting up: importing Drake takes a while
         print("cellsim: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    finally:
+        sys.stdout = given
+
+
+class _ReaderMayLeave:
+    """Standard output whose reader may stop reading early (``cellsim check RUN | head -1``): once the pipe is
+    closed, what is written goes nowhere, and the command still ends with its own exit code (a verdict, not an
+    error). The stream's file descriptor is pointed at the null device, so nothing fails at exit either."""
+
+    def __init__(self, stream):
+        self._stream = stream
+        self._left = False
+
+    def write(self, text: str) -> int:
+        if not self._left:
+            try:
+                return self._stream.write(text)
+            except BrokenPipeError:
+                self._leave()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self._left:
+            try:
+                self._stream.flush()
+            except BrokenPipeError:
+                self._leave()
+
+    def _leave(self) -> None:
+        import os
+
+        self._left = True
+        try:
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, self._stream.fileno())
+            os.close(null)
+        except (OSError, ValueError, AttributeError):
+            pass  # (a stream with no descriptor: nothing is left to flush at exit)
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
 
 
 def _main(argv: list[str] | None) -> int:
@@ -78,12 +121,13 @@ def _main(argv: list[str] | None) -> int:
         return EXIT_INPUT
     with _interrupt_deferred():  # pydrake's loader reports an interrupt with its own traceback
         from cellsim.api import ConfigError, OutputExistsError
+        from cellsim.atomic import OverwritesInput
         from cellsim.live.session import SessionConfigError
 
     try:
         with _terminate_as_interrupt():
             return args.handler(args)
-    except (ConfigError, OutputExistsError, InputError, SessionConfigError) as e:
+    except (ConfigError, OutputExistsError, InputError, SessionConfigError, OverwritesInput) as e:
         print(f"cellsim: error: {e}", file=sys.stderr)
         return EXIT_INPUT
     except OSError as e:  # an output path that cannot be written, a file that vanished
