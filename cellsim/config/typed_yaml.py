@@ -291,6 +291,7 @@ class _Composer:
             result = self.scalar(node, path)
             self.texts[path] = node.value
         elif isinstance(node, yaml.SequenceNode):
+            self._known_tag(node, path, "tag:yaml.org,2002:seq")  # (a list replaces its base's: !replace is moot)
             result = []
             for i, item in enumerate(node.value):
                 self.lines[_join(path, i)] = item.start_mark.line + 1
@@ -309,7 +310,16 @@ class _Composer:
         except Exception as e:  # e.g. an impossible date such as 2001-02-30
             raise self.error(node, path, f"malformed YAML: {e}") from None
 
+    def _known_tag(self, node: yaml.Node, path: str, plain: str) -> None:
+        """Refuse a tag this format does not know on a mapping or a list (a misspelt ``!replace`` would otherwise
+        be ignored, and a mapping merged over its base's where it was meant to replace it)."""
+        if node.tag not in (plain, REPLACE_TAG):
+            close = difflib.get_close_matches(node.tag.lower(), [REPLACE_TAG], n=1, cutoff=0.6)
+            hint = f" (did you mean '{REPLACE_TAG}'?)" if close else f" (the only one known here is '{REPLACE_TAG}')"
+            raise self.error(node, path, f"unknown tag '{node.tag}'{hint}")
+
     def mapping(self, node: yaml.MappingNode, path: str) -> dict[Any, Any]:
+        self._known_tag(node, path, "tag:yaml.org,2002:map")
         if node.tag == REPLACE_TAG:
             self.replace.add(path)
         merged: dict[Any, Any] = {}
