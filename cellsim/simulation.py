@@ -31,7 +31,7 @@ from cellsim.atomic import LOCK, FolderBusy, folder_lock
 from cellsim.config.typed_yaml import to_data
 from cellsim.hazards import HazardCounts, HazardPhases
 from cellsim.kind import Figure, Finding
-from cellsim.provenance import BLACKBOX, INPUTS, RESOLVED_SCENARIO, package_versions, read_inputs, write_run_scenario
+from cellsim.provenance import BLACKBOX, RESOLVED_SCENARIO, package_versions, read_inputs, write_run_scenario
 from cellsim.provenance import provenance as make_provenance
 from cellsim.scenario import ScenarioFile
 from cellsim.blackbox import BlackBox, BlackBoxWriter
@@ -91,9 +91,6 @@ class RunSummary:
         return out
 
 
-RUN_FILES = (BLACKBOX, BLACKBOX + "-wal", BLACKBOX + "-shm", BLACKBOX + "-journal", RESOLVED_SCENARIO)
-
-
 class RunFolder:
     """An exclusive claim on a run's output folder, held while the run is written.
 
@@ -102,11 +99,18 @@ class RunFolder:
     however that ends, SIGKILL included. The folder must be new, empty, or hold a
     run (replaced only with ``overwrite``); the current folder is refused, so a
     run never mixes its files with the user's.
+
+    A run that replaces another is written beside it (``writing``, a hidden folder
+    in the same parent) and takes its place only at :meth:`commit`, once written:
+    until then the old run is whole, and a run that fails or is interrupted is
+    removed, leaving the old one as it was.
     """
 
     def __init__(self, out_dir: str | os.PathLike, overwrite: bool = False):
         self.path = Path(out_dir)
         self.overwrite = overwrite
+        self.writing = self.path
+        """The folder to write the run into: ``path``, or beside it while an old run is there."""
         self._lock = contextlib.ExitStack()
 
     def __enter__(self) -> "RunFolder":
@@ -126,16 +130,32 @@ class RunFolder:
             if any((out / name).exists() for name in (BLACKBOX, RESOLVED_SCENARIO)):
                 if not self.overwrite:
                     raise OutputExistsError(f"{out} already holds a run ({BLACKBOX}); choose another --out or pass --overwrite")
-                for name in RUN_FILES:
-                    (out / name).unlink(missing_ok=True)
-                for extra in RUN_FOLDERS:
-                    shutil.rmtree(out / extra, ignore_errors=True)
+                self.writing = self._beside(out, "overwriting")
+                shutil.rmtree(self.writing, ignore_errors=True)  # (one a killed process left: ours, we hold the lock)
+                self.writing.mkdir()
         except BaseException:
             self._lock.close()
             raise
         return self
 
+    @staticmethod
+    def _beside(out: Path, what: str) -> Path:
+        return out.parent / f".{out.name}.{what}"
+
+    def commit(self) -> None:
+        """Put the run written into ``writing`` in the old run's place (nothing to do for a new folder)."""
+        if self.writing == self.path:
+            return
+        replaced = self._beside(self.path, "replaced")
+        shutil.rmtree(replaced, ignore_errors=True)
+        os.replace(self.path, replaced)
+        os.replace(self.writing, self.path)
+        self.writing = self.path
+        shutil.rmtree(replaced, ignore_errors=True)
+
     def __exit__(self, *exc) -> None:
+        if self.writing != self.path:  # not committed: the old run stays
+            shutil.rmtree(self.writing, ignore_errors=True)
         self._lock.close()
 
     @staticmethod
@@ -148,10 +168,6 @@ class RunFolder:
             raise OutputExistsError(
                 f"{out} is not empty and holds no run; choose a new or empty folder for --out"
             )
-
-
-RUN_FOLDERS: tuple[str, ...] = (INPUTS,)
-"""Sub-folders a run writes, removed with the run on ``overwrite``."""
 
 
 def simulate(
@@ -209,8 +225,15 @@ def simulate(
             before_run(cell)
         simulator = make_simulator(cell)
         inputs.check_unchanged()  # what was built is what was read, copied and hashed
-        with RunFolder(out_dir, overwrite):
-            summary = _record(cell, simulator, out_dir, seed, duration, on_progress, inputs, record)
+        with RunFolder(out_dir, overwrite) as folder:
+            try:
+                summary = _record(cell, simulator, folder.writing, seed, duration, on_progress, inputs, record)
+            except KeyboardInterrupt:
+                if cell.runs_until_stopped:  # a live run stopped on request: its record is complete
+                    folder.commit()
+                raise
+            folder.commit()
+            summary.out_dir = out_dir
     finally:
         cell.close()
     return summary

@@ -273,3 +273,31 @@ def test_a_kill_at_any_moment_loses_at_most_one_simulated_second(tmp_path, monke
     # own instant are taken by the next step, as recorded_until says: the record is complete before it)
     for until, on_disk in seen:
         assert on_disk == sum(1 for t in final if t < until - 1e-9), until
+
+
+@pytest.mark.parametrize("stop_with", [KeyboardInterrupt, RuntimeError])
+def test_an_overwriting_run_that_does_not_finish_leaves_the_old_run_whole(tmp_path, stop_with):
+    """--overwrite writes the new run beside the old one and swaps them only once it is written: interrupted or
+    failed half way, the old run's files are as they were and nothing of the new one is left behind."""
+    from cellsim.scenario import load_scenario
+    from cellsim.simulation import simulate
+
+    out = tmp_path / "run"
+    assert main(["simulate", str(WELDING_CELL), "--out", str(out), "--duration", "1", "--seed", "3", "--quiet"]) == 0
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    def stop(done, total):
+        if done >= 1.0:
+            raise stop_with("stopped half way")
+
+    with pytest.raises(stop_with):
+        simulate(load_scenario(WELDING_CELL), out, seed=9, duration=3.0, overwrite=True, on_progress=stop)
+    after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+    # finished, it takes the old run's place, and only then
+    summary = simulate(load_scenario(WELDING_CELL), out, seed=9, duration=1.0, overwrite=True)
+    assert summary.out_dir == out and summary.status == "completed"
+    with BlackBox(out / BLACKBOX) as bb:
+        assert bb.metadata()["seed"] == 9
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]

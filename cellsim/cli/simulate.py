@@ -23,7 +23,9 @@ def add_parser(subparsers) -> None:
     sim.add_argument("--duration", type=float, help="simulated seconds (default: the scenario's duration)")
     sim.add_argument("--seed", type=int, help="random seed (default: the scenario's seed)")
     sim.add_argument("--out", type=Path, help="output folder (default: runs/<scenario>-<date-time>)")
-    sim.add_argument("--overwrite", action="store_true", help="replace a run already in --out")
+    sim.add_argument("--overwrite", action="store_true",
+                     help="replace a run already in --out, once the new one is written (interrupted, it leaves the "
+                          "old one as it was)")
     _add_set(sim)
     sim.add_argument(
         "--meshcat", action="store_true",
@@ -49,7 +51,7 @@ def run(args) -> int:
         api.check_duration(sf, args.duration, "--duration")
     if args.seed is not None:
         api.check_seed(args.seed, "--seed")
-    out = args.out or Path("runs") / f"{sf.scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"
+    out = args.out or Path("runs") / f"{sf.scenario.folder_name}-{datetime.now():%Y%m%d-%H%M%S}"
     console = Console(stderr=True, quiet=args.quiet)
     meshcat = meshcat_wait = None
     if args.meshcat:
@@ -124,7 +126,8 @@ def findings_lines(summary, most: int = 6) -> list[tuple[str, str]]:
             text = f"[red]{f.text}[/red]" if f.data.get("severity", 0.0) > 1.0 or what in ("slow reaction", "fast part", "fast fall") else f.text
             rows.append((label, f"{text} ({when})" if what != "closest approach" else text))
         if len(found) > most:
-            rows.append((label, f"... and {len(found) - most} more (cellsim report, or the black box)"))
+            rows.append((label, f"... and {len(found) - most} more (in the black box's channels: `cellsim export "
+                                f"{summary.out_dir} --mcap FILE` plots them in Foxglove)"))
     rows += [("waived", f"{name}: {reason}") for name, reason in summary.waived.items()]
     return rows
 
