@@ -214,7 +214,7 @@ def simulate(scenario: ScenarioFile | str | os.PathLike, out: str | os.PathLike 
 
     sf = _checked(scenario)
     seed = sf.scenario.seed if seed is None else seed
-    out = Path(out) if out is not None else Path("runs") / f"{sf.scenario.name}-seed{seed}"
+    out = Path(out) if out is not None else Path("runs") / f"{sf.scenario.folder_name}-seed{seed}"
     args = dict(seed=seed, duration=duration, overwrite=overwrite, meshcat=meshcat, meshcat_wait=meshcat_wait,
                 on_progress=progress, io=SIMULATED if io is None else io, extend=extend)
     if not check:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Annotated
@@ -96,6 +97,14 @@ class Scenario:
                     raise FieldError(f"{section}.{name}", "module names must be identifiers (letters, digits, _)")
                 seen[name] = section
 
+    @property
+    def folder_name(self) -> str:
+        """The name as one folder's name (the default run and campaign folders are named after it): letters,
+        digits, '-', '_' and '.' kept, anything else (a '/', a space) made '_', no leading dot: a name like
+        '../x' never names a folder outside ``runs/``."""
+        safe = re.sub(r"[^A-Za-z0-9._-]", "_", self.name).lstrip(".")
+        return safe or "scenario"
+
     def modules_of_kind(self, kind: str) -> dict[str, object]:
         """Every module of kind ``kind``, by name, whatever its section."""
         found = {}
@@ -133,8 +142,24 @@ class ScenarioFile:
         return Path(self.loaded.source).resolve().parent
 
     def error(self, key: str, problem: str) -> ConfigError:
-        """A ConfigError at ``key`` (dotted path), naming the file (the scenario or a base) and line."""
+        """A ConfigError at ``key`` (dotted path), naming the file (the scenario or a base) and line; or ``--set``,
+        where an override gave the value."""
+        if self._overridden(key):
+            return ConfigError("--set", None, key, problem)
         return ConfigError(*self.loaded.where(key), key, problem)
+
+    def _overridden(self, key: str) -> bool:
+        """Whether an override (``--set``) gave ``key``'s value, or that of a mapping holding it."""
+        resolve = _shortcut(self.scenario)
+        for assignment in self.overrides:
+            parts = [p.strip() for p in assignment.partition("=")[0].split(".")]
+            try:
+                full = ".".join(str(p) for p in resolve(parts))
+            except Exception:  # noqa: BLE001 - an override that names nothing was refused when it was applied
+                continue
+            if key == full or key.startswith(full + "."):
+                return True
+        return False
 
     def locate(self, key: str) -> tuple[str, int | None, str]:
         """(file, line, key in that file) where the dotted ``key`` is written, following ``validation.file``."""
@@ -155,6 +180,17 @@ class ScenarioFile:
         if self.validation_file is not None:
             files.append(self.validation_file.source)
         return files
+
+    def inputs(self) -> list[str]:
+        """Every file a command reads for this scenario: :attr:`files` and each module's file references (a risk
+        model, a robot model, a limits table), so that no output is written over one of them."""
+        found = list(self.files)
+        for section in ("entities", "behaviours", "services"):
+            for module, cfg in getattr(self.scenario, section).items():
+                for name in kind_of(cfg).files:
+                    if getattr(cfg, name, None) is not None:
+                        found.append(str(self.file_dir(f"{section}.{module}.{name}") / getattr(cfg, name)))
+        return found
 
     def resolve_path(self, key: str, relative: str) -> Path:
         """An existing file named at ``key``, relative to the file that names it."""

@@ -59,7 +59,7 @@ def run(args) -> int:
     console = Console(stderr=True, quiet=args.quiet)
     if args.until_bound is not None:
         runs = _runs_for_bound(args, console)
-    out = args.out or Path("campaigns") / f"{sf.scenario.name}-seed{args.seed}"
+    out = args.out or Path("campaigns") / f"{sf.scenario.folder_name}-seed{args.seed}"
     try:
         with _campaign_progress(console, args.quiet, runs) as report:
             outcome = api.run_campaign(sf, out, runs=runs, seed=args.seed, duration=args.duration, jobs=args.jobs,

@@ -190,7 +190,7 @@ def _live_run(args, process: str, listen_by_default: bool, run, check=None):
     api.check_duration(sf, duration, "--duration")
     if args.seed is not None:
         api.check_seed(args.seed, "--seed")
-    out = args.out or Path("runs") / f"{sf.scenario.name}-{process}-{datetime.now():%Y%m%d-%H%M%S}"
+    out = args.out or Path("runs") / f"{sf.scenario.folder_name}-{process}-{datetime.now():%Y%m%d-%H%M%S}"
     session = _open_session(args, process, listen_by_default)
     try:
         with _terminate_as_interrupt():

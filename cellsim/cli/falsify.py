@@ -50,7 +50,7 @@ def run(args) -> int:
     from cellsim import api
 
     sf = _load_for_runs(args, {"budget": 100_000, "jobs": 256, "batch": 10_000})
-    out = args.out or Path("campaigns") / f"{sf.scenario.name}-falsify-{args.method}-seed{args.seed}"
+    out = args.out or Path("campaigns") / f"{sf.scenario.folder_name}-falsify-{args.method}-seed{args.seed}"
     console = Console(stderr=True, quiet=args.quiet)
     try:
         with _search_progress(console, args.quiet, args.budget) as report:

@@ -51,7 +51,7 @@ def run(args) -> int:
                          "--no-replay turns off")
     sf = _load(args)
     say = (lambda text: None) if args.json else (lambda text: print(f"  {text}", file=sys.stderr))
-    out = args.out or Path("runs") / f"{sf.scenario.name}-verify"
+    out = args.out or Path("runs") / f"{sf.scenario.folder_name}-verify"
     try:
         result = api.verify_cell(sf, export=args.export, timed=args.timed, replay_in=out if args.replay else None,
                                  refine=args.refine, progress=say)

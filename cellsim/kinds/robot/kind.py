@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import MultibodyPlant
 
 from cellsim.entity import TWIN_CHANNELS
 from cellsim.kinds.robot.config import RobotConfig, ToolTarget
@@ -100,7 +101,17 @@ def _add_arm(cell, name: str, cfg: RobotConfig) -> None:
     The model is read in full (strictly) to check it and to take its collision
     shapes, then added to the plant without them (see ``arm_geometry``).
     """
-    sf, plant = cell.sf, cell.plant
+    instance, shapes = _parse_arm(cell.sf, name, cfg, cell.plant)
+    cell.plant.WeldFrames(cell.plant.world_frame(), cell.plant.GetBodyByName("base_link", instance).body_frame(),
+                          robot_base_pose(cfg))
+    cell.robots[name] = instance
+    cell.prepared[name] = shapes
+
+
+def _parse_arm(sf, name: str, cfg: RobotConfig, plant):
+    """The arm's model added to ``plant`` without its collision shapes, checked: one model, Drake can read it, a
+    ``base_link``, the tool frame, six joint positions; returns (its model instance, its collision shapes). Every
+    problem is a ConfigError at the key at fault (``model`` or ``tool_frame``)."""
     key = f"entities.{name}"
     model = _model_path(sf, name, cfg)
     try:
@@ -118,9 +129,7 @@ def _add_arm(cell, name: str, cfg: RobotConfig) -> None:
     joints = sum(plant.get_joint(j).num_positions() for j in plant.GetJointIndices(instance))
     if joints != 6:
         raise sf.error(f"{key}.model", f"{cfg.model} has {joints} joint positions; a robot entity needs 6")
-    plant.WeldFrames(plant.world_frame(), plant.GetBodyByName("base_link", instance).body_frame(), robot_base_pose(cfg))
-    cell.robots[name] = instance
-    cell.prepared[name] = shapes
+    return instance, shapes
 
 
 def _check_against_model(cell, name: str, cfg: RobotConfig) -> None:
@@ -214,7 +223,8 @@ def resolve_poses(sf, name: str, cfg: RobotConfig) -> dict[str, np.ndarray]:
             seeds = tuple(dict.fromkeys(joint_poses[:1] + ([previous] if previous else []) + joint_poses[1:]))
             try:
                 solution = solve_tool_target(model, base, cfg.tool_frame, tuple(value.tool_at), value.tool_rpy_deg, seeds)
-            except Exception as e:  # noqa: BLE001 - a model Drake cannot read is reported by the build
+            except Exception as e:  # noqa: BLE001 - Drake's errors are long texts
+                _parse_arm(sf, name, cfg, MultibodyPlant(0.0))  # a model or tool frame at fault is named as such
                 raise sf.error(f"entities.{name}.named_poses.{pose}", f"inverse kinematics failed: {_first_line(e)}") from None
             if solution.q is None:
                 turned = "" if value.tool_rpy_deg is None else f" turned {list(value.tool_rpy_deg)} deg"

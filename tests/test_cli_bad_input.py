@@ -1,0 +1,177 @@
+"""Bad input and careless outputs never lose data: what a review of the commands found, each held here.
+
+Every case runs the command as the user does (``cellsim.cli.main``, or a process where the pipe matters) and reads
+the result back with the standard library: the exit code, one line on stderr naming what is at fault, and the
+files on disk.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import sqlite3
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from cellsim.atomic import write_text
+from cellsim.cli import main
+
+from conftest import ROOT, WELDING_CELL
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("runs") / "welding"
+    assert main(["simulate", str(WELDING_CELL), "--out", str(out), "--duration", "1", "--quiet"]) == 0
+    return out
+
+
+def damaged(run: Path, tmp_path: Path, sql: str) -> Path:
+    """A copy of the run whose black box ``sql`` changed."""
+    copy = tmp_path / "damaged"
+    shutil.copytree(run, copy)
+    db = sqlite3.connect(copy / "blackbox.sqlite")
+    db.executescript(sql)
+    db.commit()
+    db.close()
+    return copy
+
+
+def files_of(folder: Path) -> dict:
+    return {p.relative_to(folder): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+def one_error(capsys) -> str:
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    return err
+
+
+@pytest.mark.parametrize("command", [
+    ["export", "{run}", "--mcap", "{run}/blackbox.sqlite"],
+    ["check", "{run}", "--export-trace", "{run}/blackbox.sqlite"],
+    ["check", "{run}", "--export-trace", "{run}/scenario.yaml"],
+    ["scenario", "export", "{scenario}", "--out", "{scenario}"],
+])
+def test_an_output_that_names_an_input_is_refused_and_the_input_kept(run, tmp_path, capsys, command):
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    scenario = tmp_path / "scenario.yaml"
+    shutil.copy(WELDING_CELL, scenario)
+    shutil.copy(WELDING_CELL.parent / "welding_cell_risk_model.yaml", tmp_path)
+    shutil.copy(WELDING_CELL.parent / "welding_cell_validation.yaml", tmp_path)
+    shutil.copytree(WELDING_CELL.parent / "models", tmp_path / "models")
+    before = files_of(tmp_path)
+    argv = [part.format(run=copy, scenario=scenario) for part in command]
+    assert main(argv) == 2
+    assert "which this command reads" in one_error(capsys)
+    assert files_of(tmp_path) == before
+
+
+@pytest.mark.parametrize("sql, problem", [
+    ("UPDATE messages SET t = -5 WHERE rowid = 3", "time stamp -5"),
+    ("UPDATE messages SET t = 1e300 WHERE rowid = 3", "time stamp 1e+300"),
+    ("UPDATE messages SET t = 'abc' WHERE rowid = 3", "time stamp 'abc'"),
+    ("""UPDATE messages SET payload = '{"value": "flying"}' WHERE channel = 'robot.safety_mode'""",
+     "has value 'flying', outside its domain"),
+    ("""UPDATE messages SET payload = '{"value": NaN}' WHERE channel = 'robot.tool_speed'""", "has value nan"),
+    ("DELETE FROM messages", "it holds no messages"),
+    ("DELETE FROM channels WHERE name = 'robot.tool_speed'", "its channels table does not list"),
+])
+def test_export_refuses_a_corrupt_black_box_as_check_does_and_writes_nothing(run, tmp_path, capsys, sql, problem):
+    bad = damaged(run, tmp_path, sql)
+    mcap = tmp_path / "out.mcap"
+    assert main(["export", str(bad), "--mcap", str(mcap)]) == 2
+    err = one_error(capsys)
+    assert problem in err and "corrupt black box" in err
+    assert not mcap.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["damaged"]
+    assert main(["check", str(bad)]) == 2
+    assert problem in one_error(capsys)
+
+
+def test_a_run_checked_against_another_cells_scenario_says_so(run, capsys):
+    assert main(["check", str(run), "--scenario", str(ROOT / "scenarios" / "palletising_cell.yaml")]) == 2
+    assert f"the run {run / 'blackbox.sqlite'} has none: was it made from another scenario?" in one_error(capsys)
+
+
+def test_a_written_file_goes_through_a_link_and_into_a_pipe(tmp_path):
+    """A symbolic link keeps pointing where it did (its file replaced); a FIFO is written into, not replaced."""
+    target = tmp_path / "target.json"
+    target.write_text("old")
+    link = tmp_path / "link.json"
+    link.symlink_to(target)
+    write_text(link, "new")
+    assert link.is_symlink() and target.read_text() == "new"
+
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_text()))
+    reader.start()
+    write_text(fifo, "through the pipe")
+    reader.join(timeout=30)
+    assert got == ["through the pipe"] and fifo.is_fifo()
+
+
+def test_a_write_error_names_the_users_path_not_a_temporary_file(tmp_path, run, capsys):
+    (tmp_path / "afile").write_text("")
+    assert main(["check", str(run), "--export-trace", str(tmp_path / "afile" / "x.json")]) == 2
+    err = one_error(capsys)
+    assert "is a file, not a folder" in err and str(tmp_path / "afile") in err and ".tmp" not in err
+    assert main(["export", str(run), "--mcap", str(tmp_path / "nodir" / "x.mcap")]) == 2
+    err = one_error(capsys)
+    assert "no such folder" in err and "partial" not in err and ".tmp" not in err
+
+
+def test_a_reader_that_stops_early_leaves_the_verdict_as_the_exit_code(run):
+    """``cellsim check RUN | head -1``: the pipe closes after one line; the command still exits with its verdict
+    (0: every condition holds), not 1 (a finding) or 2 (an error)."""
+    proc = subprocess.Popen([sys.executable, "-m", "cellsim.cli", "check", str(run), "--json"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        first = proc.stdout.readline()
+        proc.stdout.close()  # the reader leaves
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert first.strip() == b"{"
+    assert proc.returncode == 0 and b"Traceback" not in err and b"Broken pipe" not in err, err
+
+
+def test_a_misspelt_replace_tag_is_refused_at_its_line(tmp_path, capsys):
+    child = tmp_path / "child.yaml"
+    child.write_text(f"base: {WELDING_CELL}\nconfiguration_points: !replac\n  {{}}\n")
+    assert main(["scenario", "check", str(child)]) == 2
+    assert f"{child}:2: configuration_points: unknown tag '!replac' (did you mean '!replace'?)" in one_error(capsys)
+
+
+def test_a_scenario_name_never_puts_the_default_run_folder_outside_runs(tmp_path, monkeypatch, capsys):
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    assert main(["simulate", str(WELDING_CELL), "--set", "name=../../escaped", "--duration", "0.2", "--quiet"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["work"]
+    (made,) = (work / "runs").iterdir()
+    assert made.name.startswith("_.._escaped-")
+
+
+def test_a_broken_robot_model_is_blamed_on_the_model_and_an_override_on_set(tmp_path, capsys):
+    cell = tmp_path / "cell"
+    shutil.copytree(ROOT / "scenarios", cell)
+    (cell / "models" / "ur10.urdf").write_text('<robot name="x"><link name="a"/>\n')
+    assert main(["scenario", "check", str(cell / "palletising_cell.yaml")]) == 2
+    assert "entities.robot.model: not a robot model Drake can read" in one_error(capsys)
+    assert main(["scenario", "check", str(WELDING_CELL), "--set", "robot.tool_frame=tcpp"]) == 2
+    assert one_error(capsys).startswith("cellsim: error: --set: entities.robot.tool_frame: ")
+
+
+def test_check_json_output_is_json(run, capsys):
+    assert main(["check", str(run), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["holds"] is True
