@@ -21,7 +21,8 @@ By task (docs/scripting.md has each as an example):
 
 Errors are exceptions with one line each: :class:`ConfigError` names the file, line and key of bad input
 (a scenario built in Python: its name and the key), :class:`CheckError`, :class:`CampaignError`,
-:class:`OutputExistsError` say what is wrong with a path.
+:class:`OutputExistsError` say what is wrong with a path, and :class:`OverwritesInput` refuses an output
+named after a file it is made from.
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ if TYPE_CHECKING:
 __all__ = [
     "CONFIDENCE", "CampaignConfig", "CampaignError", "CellBuild", "CellDiagram", "CellSystem", "CheckError",
     "ConfigError", "ConfigurationPoint", "DEFAULT_SEARCH", "EXPLICIT_LIMIT", "Fixture", "FoxgloveFeed", "Layout",
-    "Live", "OutputExistsError", "Region", "Run", "SEARCH_METHODS", "Scenario", "ScenarioFile", "Validation",
+    "Live", "OutputExistsError", "OverwritesInput", "Region", "Run", "SEARCH_METHODS", "Scenario", "ScenarioFile", "Validation",
     "Verdict", "VerifyError", "build", "check", "check_campaign", "check_duration", "check_seed",
     "compile_conditions", "default_conditions", "export_trace", "falsify", "formula_and_description", "is_campaign",
     "kind_config", "load_scenario", "module", "open_meshcat", "robustness", "run_campaign", "runs_folder",
@@ -68,6 +69,7 @@ _LOADED_WHEN_ASKED = {
     "CheckError": "cellsim.validation.check:CheckError",
     "CampaignError": "cellsim.campaign.engine:CampaignError",
     "OutputExistsError": "cellsim.simulation:OutputExistsError",
+    "OverwritesInput": "cellsim.atomic:OverwritesInput",
     "Verdict": "cellsim.validation.verdict:Verdict",
     "VerifyError": "cellsim.verify.expressions:VerifyError",
     "EXPLICIT_LIMIT": "cellsim.verify.storm:EXPLICIT_LIMIT",
@@ -114,9 +116,11 @@ def save_scenario(scenario: ScenarioFile, path: str | os.PathLike) -> Path:
     """Write ``scenario`` (resolved: overrides applied, validation inline) as YAML at ``path``, its file
     references made relative to the new file's folder; returns the path. A campaign's workers read the
     scenario from a file: save a scenario built in Python to run a campaign of it."""
-    from cellsim.atomic import write_text
+    from cellsim.atomic import refuse_inputs, write_text
 
     path = Path(path)
+    if not scenario.built_in_code:
+        refuse_inputs(path, scenario.inputs(), "the scenario")  # (OverwritesInput: never over what it read)
     write_text(path, scenario_yaml(scenario, path.resolve().parent))
     return path
 
@@ -376,9 +380,12 @@ def robustness(checked: "CheckedRun") -> dict:
 
 
 def export_trace(checked: "CheckedRun", path: str | os.PathLike) -> None:
-    """Write a checked run's trace as JSON: ``{variable: [[t, value], ...]}``."""
+    """Write a checked run's trace as JSON: ``{variable: [[t, value], ...]}``; refused (``OverwritesInput``) where
+    ``path`` is a file the check read (the run's black box, its scenario)."""
+    from cellsim.atomic import refuse_inputs
     from cellsim.validation.traces import write_trace_json
 
+    refuse_inputs(path, checked.inputs, "the trace")
     write_trace_json(checked.trace, Path(path))
 
 

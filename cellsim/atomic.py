@@ -47,14 +47,14 @@ class OverwritesInput(ValueError):
     """An output path names a file the same command reads (a run's black box, its scenario)."""
 
 
-def refuse_inputs(path: str | os.PathLike, inputs, option: str) -> None:
-    """Refuse (:class:`OverwritesInput`) to write ``path`` when it is, or links to, one of ``inputs`` (files the
-    command reads: writing it would destroy them); ``option`` names the output's option in the message."""
+def refuse_inputs(path: str | os.PathLike, inputs, what: str) -> None:
+    """Refuse (:class:`OverwritesInput`) to write ``what`` (the trace, the MCAP file) at ``path`` when it is, or
+    links to, one of ``inputs`` (the files it is made from: writing it would destroy them)."""
     target = os.path.realpath(path)
     for item in inputs:
         if item is not None and os.path.exists(item) and os.path.realpath(item) == target:
-            raise OverwritesInput(f"{option} {os.fspath(path)} is {os.fspath(item)}, which this command reads: "
-                                  "name another file")
+            raise OverwritesInput(f"will not write {what} over {os.fspath(path)}: it is {os.fspath(item)}, which "
+                                  f"{what} is made from; name another file")
 
 
 def write_text(path: str | os.PathLike, text: str, *, make_folder: bool = False) -> None:

@@ -160,7 +160,7 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
     except CheckError as e:
         raise ExportError(str(e)) from None
     try:
-        refuse_inputs(destination, [*run_files(run), *sf.inputs()], "--mcap")
+        refuse_inputs(destination, [*run_files(run), *sf.inputs()], "the MCAP file")
     except OverwritesInput as e:
         raise ExportError(str(e)) from None
     try:

@@ -52,6 +52,10 @@ BLACKBOX = "blackbox.sqlite"
 """A run folder's black box."""
 RESOLVED_SCENARIO = "scenario.yaml"
 """A run folder's resolved scenario (it re-runs the run)."""
+PLAN = "campaign.json"
+"""A campaign's (or a search's) folder: its plan, what makes the folder one."""
+REPORT = "report.html"
+"""A campaign's (or a search's) folder: its report."""
 
 
 def simulator_versions() -> dict[str, str]:

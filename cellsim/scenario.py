@@ -197,6 +197,8 @@ class ScenarioFile:
         path = Path(relative)
         if not path.is_absolute():
             path = self.file_dir(key) / path
+        if path.is_dir():
+            raise self.error(key, f"{relative} is a folder, not a file (looked for {path})")
         if not path.is_file():
             raise self.error(key, f"file not found: {relative} (looked for {path})")
         return path.resolve()

@@ -73,6 +73,25 @@ def test_a_campaign_whose_sampling_is_not_recorded_is_checked_without_a_bound(cl
     assert "overall" not in shown["bounds"] and len(shown["runs"]) == 5
 
 
+def test_runs_left_undecided_are_shown_beside_the_violating_ones(clean, tmp_path):
+    """Without a bound, a run that ended early (interrupted at 5 s of 30) decides nothing: its conditions are
+    undecided, the table says which runs, and the check does not pass (exit 1). Before, it read 0 violating and
+    exited 1 with nothing saying why."""
+    import sqlite3
+
+    _, finished = clean
+    out = shutil.copytree(finished, tmp_path / "c")
+    (out / "results.json").unlink()
+    db = sqlite3.connect(out / "runs" / "0003" / "blackbox.sqlite")
+    db.execute("UPDATE metadata SET value = '\"interrupted\"' WHERE key = 'status'")
+    db.execute("INSERT OR REPLACE INTO metadata (key, value) VALUES ('recorded_until', '5.0')")
+    db.commit()
+    db.close()
+    done = _cellsim("check", out)
+    assert done.returncode == 1, done.stderr
+    assert "undecided runs" in done.stdout and "of 5: 0003" in done.stdout
+
+
 def test_runs_a_search_chose_bound_nothing_even_when_the_folder_lost_its_plan(clean, tmp_path):
     """A run's own result records that a search chose it: such runs give no bound, whatever the folder's plan says
     (an audit bounded a search's runs once its plan.json was unreadable)."""

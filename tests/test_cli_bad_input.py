@@ -69,7 +69,7 @@ def test_an_output_that_names_an_input_is_refused_and_the_input_kept(run, tmp_pa
     before = files_of(tmp_path)
     argv = [part.format(run=copy, scenario=scenario) for part in command]
     assert main(argv) == 2
-    assert "which this command reads" in one_error(capsys)
+    assert "is made from; name another file" in one_error(capsys)
     assert files_of(tmp_path) == before
 
 
@@ -175,3 +175,14 @@ def test_a_broken_robot_model_is_blamed_on_the_model_and_an_override_on_set(tmp_
 def test_check_json_output_is_json(run, capsys):
     assert main(["check", str(run), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["holds"] is True
+
+
+def test_a_replay_refuses_a_corrupt_record_before_anything_is_opened(run, tmp_path):
+    """What replay checks, it checks before Meshcat starts: a value outside its domain too."""
+    from cellsim.visual.replay import ReplayError, check_replay
+
+    bad = damaged(run, tmp_path, """UPDATE messages SET payload = '{"value": "flying"}'
+                                    WHERE channel = 'robot.safety_mode'""")
+    with pytest.raises(ReplayError, match="has value 'flying', outside its domain"):
+        check_replay(bad)
+    assert check_replay(run)[2] == pytest.approx(1.0)

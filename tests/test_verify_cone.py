@@ -95,3 +95,18 @@ def test_a_person_outside_the_cone_stays_where_it_starts_in_the_witness_walk():
     waypoints = list(config["waypoints"].values())
     assert waypoints[-1]["position"] == [start.x, start.y]  # (before it, one grid step back: it turns to face its way)
     assert all(math.dist(w["position"], (start.x, start.y)) <= person.role.step + 1e-9 for w in waypoints)
+
+
+def test_a_probability_that_reads_a_module_keeps_it_in_the_cone():
+    """A plug-in kind's branch whose probability reads another module: that module feeds the cone."""
+    coin = Module("coin", [Var("coin_x", 0, 2)], [Command("true", (("weight_x/4", {"coin_x": "1"}),
+                                                                  ("1 - weight_x/4", {"coin_x": "2"})))])
+    weight = _counter("weight", "weight_x + 1")
+    program = Program([weight, coin], {}, {"bad": "coin_x = 1"})
+    assert cone(program) == ["weight", "coin"]
+
+
+def test_labels_that_read_no_variable_keep_the_program_whole():
+    program = _program()
+    program.labels = {"bad": "true"}
+    assert within_cone(program) == (program, [])

@@ -34,11 +34,9 @@ from cellsim.atomic import LOCK, FolderBusy, folder_lock, write_text
 from cellsim.campaign.local_pool import LocalPool
 from cellsim.config.sampling import draw_configuration, run_seed
 from cellsim.config.typed_yaml import override_value
-from cellsim.provenance import INPUTS, SnapshotError, command_line, read_inputs, snapshot_scenario
+from cellsim.provenance import INPUTS, PLAN, REPORT, SnapshotError, command_line, read_inputs, snapshot_scenario
 
-PLAN = "campaign.json"
 RESULTS = "results.json"
-REPORT = "report.html"
 RESULT = "result.json"
 TRACE = "trace.json"
 RUNS = "runs"

@@ -120,8 +120,7 @@ def _main(argv: list[str] | None) -> int:
         parser.print_help(sys.stderr)
         return EXIT_INPUT
     with _interrupt_deferred():  # pydrake's loader reports an interrupt with its own traceback
-        from cellsim.api import ConfigError, OutputExistsError
-        from cellsim.atomic import OverwritesInput
+        from cellsim.api import ConfigError, OutputExistsError, OverwritesInput
         from cellsim.live.session import SessionConfigError
 
     try:

@@ -53,13 +53,6 @@ def run(args) -> int:
     result = checked.result
     margins = api.robustness(checked) if args.robustness else None
     if args.export_trace:
-        from cellsim.atomic import refuse_inputs
-        from cellsim.validation.check import locate_run, run_files
-
-        _, resolved = locate_run(args.run)
-        judged = sf if sf is not None else api.load_scenario(resolved) if resolved is not None else None
-        refuse_inputs(args.export_trace, [*run_files(args.run), *(judged.inputs() if judged else ())],
-                      "--export-trace")
         api.export_trace(checked, args.export_trace)
     if args.json:
         json.dump(
@@ -166,6 +159,7 @@ def _report_search_runs(args, runs: list[dict], conditions: list[str], reason: s
 
     checked = [r for r in runs if r["status"] != "failed"]
     violating = {c: [r["run"] for r in checked if c in r["violations"]] for c in conditions}
+    undecided = {c: [r["run"] for r in checked if c in r["undecided"]] for c in conditions}
     if args.json:
         json.dump({"campaign": str(args.run), "bounds": {"excluded": reason}, "runs": runs}, sys.stdout, indent=2)
         sys.stdout.write("\n")
@@ -173,9 +167,14 @@ def _report_search_runs(args, runs: list[dict], conditions: list[str], reason: s
         table = Table(title=f"Safety conditions over the runs in {args.run}", title_justify="left")
         table.add_column("condition")
         table.add_column("violating runs", justify="right")
+        if any(undecided.values()):  # (runs that ended early: neither violating nor holding)
+            table.add_column("undecided runs", justify="right")
+
+        def cell(found: list[str], style: str) -> str:
+            return f"[{style}]{len(found)}[/{style}] of {len(checked)}: {', '.join(found[:8])}" if found else f"0 of {len(checked)}"
+
         for name, found in violating.items():
-            table.add_row(escape(name), f"[red]{len(found)}[/red] of {len(checked)}: {', '.join(found[:8])}" if found
-                          else f"0 of {len(checked)}")
+            table.add_row(escape(name), cell(found, "red"), *([cell(undecided[name], "yellow")] if any(undecided.values()) else []))
         console = Console()
         console.print(table)
         console.print(f"No violation rate or bound: {escape(reason)}.", highlight=False)

@@ -11,6 +11,7 @@ from cellsim.cli.common import EXIT_OK, _add_set, _load
 def add_parser(subparsers) -> None:
     scenario = subparsers.add_parser("scenario", help="inspect scenario files", description="Inspect scenario files.")
     ssub = scenario.add_subparsers(metavar="ACTION")
+    scenario.set_defaults(handler=lambda args: _usage(scenario))
     export = ssub.add_parser(
         "export",
         help="print the fully resolved scenario as YAML",
@@ -31,6 +32,14 @@ def add_parser(subparsers) -> None:
     check.set_defaults(handler=run_check)
 
 
+def _usage(parser) -> int:
+    """``cellsim scenario`` without an action: its own usage, on stderr, as a usage error."""
+    from cellsim.cli.common import EXIT_INPUT
+
+    parser.print_help(sys.stderr)
+    return EXIT_INPUT
+
+
 def run_export(args) -> int:
     from cellsim import api
 
@@ -38,9 +47,6 @@ def run_export(args) -> int:
     if args.out is None:
         sys.stdout.write(api.scenario_yaml(sf))
     else:
-        from cellsim.atomic import refuse_inputs
-
-        refuse_inputs(args.out, sf.inputs(), "--out")
         api.save_scenario(sf, args.out)
     return EXIT_OK
 

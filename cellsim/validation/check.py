@@ -18,7 +18,7 @@ from pathlib import Path
 from cellsim.config.typed_yaml import ConfigError
 from cellsim.scenario import ScenarioFile, load_scenario
 from cellsim.blackbox import BlackBox
-from cellsim.provenance import BLACKBOX, RESOLVED_SCENARIO
+from cellsim.provenance import BLACKBOX, PLAN, REPORT, RESOLVED_SCENARIO
 from cellsim.validation.conditions import CheckResult, SafetyCase
 from cellsim.validation.defaults import judged_validation
 from cellsim.validation.verdict import Verdict
@@ -44,6 +44,8 @@ class CheckedRun:
     case: SafetyCase
     timing: dict = field(default_factory=dict)
     """Seconds spent building the trace (``trace``) and evaluating it (``check``)."""
+    inputs: list = field(default_factory=list)
+    """The files the check read (the run folder's, the scenario's): what no output of it may replace."""
 
     @property
     def verdict(self) -> Verdict:
@@ -88,8 +90,6 @@ def locate_run(path: str | os.PathLike) -> tuple[Path, Path | None]:
         if not blackbox.is_file():
             runs = sorted(p.parent for p in path.glob(f"runs/*/{BLACKBOX}"))
             if runs:  # a campaign folder (whole, or without its plan): point at its runs
-                from cellsim.campaign.runner import PLAN, REPORT
-
                 shown = ", ".join(str(r) for r in runs[:3]) + (", ..." if len(runs) > 3 else "")
                 what = ("a campaign folder, not a run" if (path / PLAN).is_file() else
                         f"holds runs but no {PLAN}: not a run, and not a campaign cellsim can check whole")
@@ -99,6 +99,10 @@ def locate_run(path: str | os.PathLike) -> tuple[Path, Path | None]:
             raise CheckError(f"{path}: not a run folder (no {BLACKBOX})")
         return blackbox, scenario if scenario.is_file() else None
     if path.is_file():
+        if path.name != BLACKBOX:  # (a damaged black box is said to be corrupt when it is read)
+            with open(path, "rb") as f:
+                if f.read(16) != b"SQLite format 3\x00":
+                    raise CheckError(f"{path}: not a run folder, nor a black box (a run's {BLACKBOX})")
         scenario = path.parent / RESOLVED_SCENARIO
         return path, scenario if scenario.is_file() else None
     raise CheckError(f"{path}: no such run folder or black box")
@@ -176,4 +180,5 @@ def check(run: str | os.PathLike, sf: ScenarioFile | None = None, *, case: Safet
         trace = trace_of_run(bb, case.validation.variables)
     traced = time.perf_counter()
     result = case.check(trace.trace, complete=trace.complete)
-    return CheckedRun(trace, result, case, {"trace": traced - started, "check": time.perf_counter() - traced})
+    inputs = [*run_files(run), *(sf.inputs() if sf is not None else ())]
+    return CheckedRun(trace, result, case, {"trace": traced - started, "check": time.perf_counter() - traced}, inputs)

@@ -169,6 +169,8 @@ def run_end(bb: BlackBox, metadata: dict, reach: float = 0.0) -> tuple[float, bo
     at the committed ``recorded_until``; without that, at ``reach`` (the latest message
     time plus its channel's period).
     """
+    if "status" not in metadata:  # written when the run starts, whatever happens next
+        raise BlackBoxError(f"{bb.path}: corrupt black box: its metadata has no status")
     complete = metadata.get("status") in ("completed", "stopped")
     end = _number(bb, metadata, "duration") if complete else None
     if end is None:

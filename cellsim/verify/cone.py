@@ -47,12 +47,11 @@ def cone(program: Program) -> list[str]:
 def within_cone(program: Program) -> tuple[Program, list[str]]:
     """``program`` with only the modules in its labels' cone (:func:`cone`), and the formulas they can read (a
     formula reading a dropped module's variable is read by nobody left); returns (that program, the names of the
-    modules dropped). A program whose labels read nothing (no property) is returned whole."""
-    if not program.labels:
-        return program, []
+    modules dropped). A program whose labels read no variable (none, or constants only) is returned whole: Storm
+    needs a module to build a model at all."""
     kept = set(cone(program))
     dropped = [m.name for m in program.modules if m.name not in kept]
-    if not dropped:
+    if not kept or not dropped:
         return program, []
     modules = [m for m in program.modules if m.name in kept]
     gone = {v.name for m in program.modules if m.name not in kept for v in m.variables}

@@ -59,7 +59,8 @@ def reads(modules: list[Module], formulas: dict[str, str]) -> dict[str, set[str]
 
     result = {}
     for module in modules:
-        text = " ".join(c.guard + " " + " ".join(e for _, a in c.updates for e in a.values()) for c in module.commands)
+        text = " ".join(c.guard + " " + " ".join(f"{p} " + " ".join(a.values()) for p, a in c.updates)
+                        for c in module.commands)
         result[module.name] = {owner[v] for v in variables_in(text)} - {module.name}
     return result
 

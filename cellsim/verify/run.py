@@ -367,11 +367,13 @@ def _storm(model: AbstractModel, memory: int, say, enough=None):
     times = {"storm_parse": 0.0, "storm_build": 0.0, "storm_check": 0.0}
     still = tuple(person.variable for person in model.cell.places.people)
 
-    def checked(program, built, props, valuations=None):
+    def checked(program, built, props, valuations=None, dropped=()):
         mark = time.perf_counter()
         for prop in props:
             say(f"Storm: checking {prop.name}")
             results[prop.name] = check(program, built, prop, model.labels.get(prop.name), still, valuations)
+            if dropped:
+                results[prop.name] = replace(results[prop.name], left_out=tuple(dropped))
         times["storm_check"] += time.perf_counter() - mark
 
     def count(group_stats):
@@ -381,10 +383,11 @@ def _storm(model: AbstractModel, memory: int, say, enough=None):
     with tempfile.TemporaryDirectory(prefix="cellsim-verify-") as scratch:
         # the whole cell, every monitor in it, as decision diagrams: its size decides how it is checked
         whole = Path(scratch) / "model.prism"
-        # (without the monitors of the properties left out, nor a module no property can observe)
-        program_now, unseen = within_cone(model.cell.program(model.header))
+        # every module, even one no property observes: a state where one cannot step is refused here (the groups'
+        # models, each on its cone, rely on that)
+        program_now = model.cell.program(model.header)  # (without the monitors of the properties left out)
         whole.write_text(program_now.text())
-        say("Storm: building the state space as decision diagrams" + _leaving_out(unseen))
+        say("Storm: building the state space as decision diagrams")
         program, symbolic, whole_stats = build_symbolic(whole, memory)
         count(whole_stats)
         if whole_stats.transitions > EXPLICIT_LIMIT:
@@ -393,10 +396,10 @@ def _storm(model: AbstractModel, memory: int, say, enough=None):
             checked(program, symbolic, model.properties)
             del symbolic
             stats = largest = whole_stats
-            for props, group, _ in model.groups():
+            for props, group, dropped in model.groups():
                 again = [p for p in props if p.bad and p.within is None and results[p.name].holds is False]
                 if again:
-                    _witness_held(model, group, again, results, memory, Path(scratch), say, count)
+                    _witness_held(model, group, dropped, again, results, memory, Path(scratch), say, count)
         else:
             # every property checked on the decision diagrams; only a group with a violated one (its witness, or
             # whether its response can always still come) is built again, with only its own monitor: state by state
@@ -435,7 +438,7 @@ def _storm(model: AbstractModel, memory: int, say, enough=None):
                     del symbolic
                 if any(p.within is None for p in props) and (refinable is None or group_stats.states > refinable.states):
                     refinable = group_stats
-                checked(program, built, again, valuations)
+                checked(program, built, again, valuations, dropped)
                 settled = settled or enough is not None and any(
                     p.within is None and results[p.name].witness is not None and enough(model, results[p.name])
                     for p in again)
@@ -483,29 +486,34 @@ def with_held(witness: list[dict], people: list) -> list[dict]:
     return [{**state, **{p.variable: p.start for p in people}} for state in witness]
 
 
-def _holdings(people: list) -> list[list]:
+def _holdings(people: list, cut: bool = False) -> list[list]:
     """The sets of people to hold, in the order to try them: all but one (each in turn, as the scenario lists them),
-    then all (the cell's own choices only); none for a cell of one person but that last."""
+    then all (the cell's own choices only); none for a cell of one person but that last. ``cut``: the model is a
+    property's cone (:mod:`cellsim.verify.cone`), smaller than the whole cell: first as it is, nobody held."""
+    first = [[]] if cut else []
     if len(people) < 2:
-        return [list(people)] if people else []
-    return [[q for q in people if q is not p] for p in people] + [list(people)]
+        return first + ([list(people)] if people else [])
+    return first + [[q for q in people if q is not p] for p in people] + [list(people)]
 
 
-def _witness_held(model: AbstractModel, group: Program, props: list, results: dict, memory: int, scratch: Path, say,
-                  count) -> None:
-    """Witnesses of ``props`` (violated in the cell too large to make sparse) from the group's model with some people
-    held at their start (:func:`held`): the first such model small enough to make sparse in which a property is
-    still violated gives its witness (its value stays the whole cell's)."""
-    people = model.cell.places.people if model.cell.places is not None else []
+def _witness_held(model: AbstractModel, group: Program, dropped: list[str], props: list, results: dict, memory: int,
+                  scratch: Path, say, count) -> None:
+    """Witnesses of ``props`` (violated in the cell too large to make sparse) from the group's model (its cone,
+    ``dropped`` the modules it leaves out), as it is when it is a cut, then with some people held at their start
+    (:func:`held`): the first such model small enough to make sparse in which a property is still violated gives
+    its witness (its value stays the whole cell's). Only the people the model has are held."""
+    present = group.variables()
+    people = [p for p in (model.cell.places.people if model.cell.places is not None else []) if p.variable in present]
     wanted = list(props)
-    for i, holding in enumerate(_holdings(people)):
+    for i, holding in enumerate(_holdings(people, cut=bool(dropped))):
         if not wanted:
             return
         sub = held(group, holding)
         who = ", ".join(p.role.module for p in holding)
         path = scratch / f"held{i}.prism"
         path.write_text(sub.text() + valuation_labels(sub.variables()))
-        say(f"Storm: the state space for {', '.join(p.name for p in wanted)} with {who} held at the start")
+        say(f"Storm: the state space for {', '.join(p.name for p in wanted)}, "
+            + (f"with {who} held at the start" if holding else "its cone alone") + _leaving_out(dropped))
         program, symbolic, sub_stats = build_symbolic(path, memory)
         count(sub_stats)
         if sub_stats.transitions > EXPLICIT_LIMIT:
@@ -523,7 +531,8 @@ def _witness_held(model: AbstractModel, group: Program, props: list, results: di
             mine = check(program, built, prop, model.labels.get(prop.name), still, valuations)
             if mine.witness is not None:
                 results[prop.name] = replace(results[prop.name], witness=with_held(mine.witness, holding),
-                                             witness_from=f"the model with {who} held at the start")
+                                             witness_from=f"the model with {who} held at the start" if holding else "",
+                                             left_out=tuple(dropped))
                 wanted.remove(prop)
 
 

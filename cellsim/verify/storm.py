@@ -45,6 +45,9 @@ class Checked:
     deferred: bool = False
     """Violated, its witness not built: a refinement took up another property's witness in the same round, and the
     refined model checks this one again (``verify(..., enough=...)``); never in a round's final result."""
+    left_out: tuple[str, ...] = ()
+    """The modules outside the property's cone of influence (:mod:`cellsim.verify.cone`), when its witness came
+    from its cone: the witness's states hold none of their variables (a person left out stays at their start)."""
 
 
 @dataclass

@@ -44,7 +44,7 @@ def check_replay(run: str | Path, at: float = 0.0, speed: float = 1.0):
     ReplayError (one line) otherwise. Everything a replay checks, before anything is opened or drawn."""
     from cellsim.blackbox import BlackBox, BlackBoxError
     from cellsim.validation.check import CheckError, locate_rebuildable_run
-    from cellsim.validation.traces import run_end
+    from cellsim.validation.traces import blackbox_domains, checked_values, run_end
 
     if not (math.isfinite(speed) and 0.01 <= speed <= 100.0):
         raise ReplayError(f"--speed {speed:g}: expected from 0.01 to 100 times real time")
@@ -55,6 +55,11 @@ def check_replay(run: str | Path, at: float = 0.0, speed: float = 1.0):
     try:
         with BlackBox(blackbox) as bb:
             end, _ = run_end(bb, bb.metadata())
+            # every record read as check and export read it: a corrupt one is said now, not once Meshcat is open
+            for _ in checked_values(bb, list(bb.channels()), blackbox_domains(bb)):
+                pass
+            bb.check_vectors()
+            bb.check_channels()
     except BlackBoxError as e:
         raise ReplayError(str(e)) from None
     if end <= 0:
