@@ -438,7 +438,7 @@ def check_campaign(folder: str | os.PathLike, scenario: ScenarioFile | None = No
     import json
 
     from cellsim.campaign.falsify import NOT_A_SAMPLE, read_search
-    from cellsim.campaign.runner import RESULTS, RUNS
+    from cellsim.campaign.runner import RESULT, RESULTS, RUNS
     from cellsim.validation.bound import campaign_bounds
     from cellsim.validation.check import CheckError
 
@@ -448,9 +448,14 @@ def check_campaign(folder: str | os.PathLike, scenario: ScenarioFile | None = No
         raise CheckError(f"{folder}: a campaign folder with no runs yet")
     runs, conditions = [], {}
     for done, path in enumerate(folders, start=1):
+        if not (path / RESULT).is_file():  # stopped before it ended (Ctrl-C): the campaign runs it again
+            runs.append({"run": path.name, "status": "unfinished"})
+            if progress is not None:
+                progress(done, len(folders))
+            continue
         try:
             result = check(path, scenario).result
-        except (CheckError, ConfigError) as e:  # a run that never finished, or was damaged (its scenario too)
+        except (CheckError, ConfigError) as e:  # a run that was damaged (its scenario too)
             runs.append({"run": path.name, "status": "failed", "error": str(e)})
         else:
             conditions.update(dict.fromkeys(result.verdicts))
@@ -461,7 +466,8 @@ def check_campaign(folder: str | os.PathLike, scenario: ScenarioFile | None = No
     if read_search(folder) is not None or any(_chosen_by_search(path) for path in folders):
         return CampaignCheck(folder, runs, list(conditions), None, NOT_A_SAMPLE)  # a search chose them: no bound
     try:
-        sampling = json.loads((folder / RESULTS).read_text())["bounds"]["sampling"]
+        stored = json.loads((folder / RESULTS).read_text())["bounds"]
+        sampling = stored.get("drawn_from", stored["sampling"])  # (before the failed runs' clause: said again)
         if not isinstance(sampling, str):
             raise TypeError(sampling)
     except (OSError, ValueError, KeyError, TypeError):  # a bound is nothing without the distribution it holds under

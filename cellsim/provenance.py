@@ -198,17 +198,20 @@ def _rebase(data: bytes, relative: str, source: Path) -> bytes:
     (unchanged when it names a relative one, which the snapshot's layout keeps)."""
     import re
 
-    import yaml
+    from cellsim.config.typed_yaml import parse_yaml
+
+    def base_of(text: str):  # read as every scenario is (its !replace tags known), not by a loader that refuses them
+        try:
+            return parse_yaml(text, str(source)).get("base")
+        except (ConfigError, AttributeError):
+            return None
 
     text = data.decode("utf-8")
-    try:
-        named = yaml.safe_load(text).get("base")
-    except (yaml.YAMLError, AttributeError):
-        named = None
+    named = base_of(text)
     if not isinstance(named, str) or not os.path.isabs(named):
         return data
     rebased = re.sub(r"(?m)^base:.*$", lambda _: f"base: {json.dumps(relative)}", text, count=1)
-    if yaml.safe_load(rebased).get("base") != relative:
+    if base_of(rebased) != relative:
         raise SnapshotError(f"{source}: cannot point its base: at the snapshot's copy")
     return rebased.encode("utf-8")
 

@@ -92,6 +92,21 @@ def test_runs_left_undecided_are_shown_beside_the_violating_ones(clean, tmp_path
     assert "undecided runs" in done.stdout and "of 5: 0003" in done.stdout
 
 
+def test_a_run_the_campaign_was_stopped_in_is_left_out_of_the_bound_and_named(clean, tmp_path):
+    """Ctrl-C stops a campaign in a run: its folder has no result.json and the campaign redoes it. check counts it
+    nowhere (an audit found it counted as violating every condition: 1 of 14, exit 1) and names it."""
+    _, finished = clean
+    out = shutil.copytree(finished, tmp_path / "c")
+    (out / "runs" / "0003" / "result.json").unlink()
+    done = _cellsim("check", out)
+    assert done.returncode == 0, done.stderr
+    assert "0 of 4" in done.stdout and "0 of 5" not in done.stdout
+    assert "1 run(s) stopped before they ended" in done.stdout and ": 0003" in done.stdout
+    shown = json.loads(_cellsim("check", out, "--json").stdout)
+    assert shown["bounds"]["overall"]["runs"] == 4 and shown["bounds"]["excluded_unfinished_runs"] == 1
+    assert shown["bounds"]["sampling"].count("of the runs drawn so") == 0
+
+
 def test_runs_a_search_chose_bound_nothing_even_when_the_folder_lost_its_plan(clean, tmp_path):
     """A run's own result records that a search chose it: such runs give no bound, whatever the folder's plan says
     (an audit bounded a search's runs once its plan.json was unreadable)."""

@@ -186,3 +186,17 @@ def test_a_replay_refuses_a_corrupt_record_before_anything_is_opened(run, tmp_pa
     with pytest.raises(ReplayError, match="has value 'flying', outside its domain"):
         check_replay(bad)
     assert check_replay(run)[2] == pytest.approx(1.0)
+
+
+def test_a_scenario_with_an_absolute_base_and_a_replace_tag_campaigns(tmp_path, capsys):
+    """The campaign's snapshot points the scenario's absolute base: at its copy; it read the file with a YAML
+    loader that refuses !replace, so such a scenario (valid, simulate runs it) could not be campaigned."""
+    child = tmp_path / "child.yaml"
+    child.write_text(f"base: {WELDING_CELL}\ncampaign:\n  samplers: !replace\n"
+                     "    operator_waits: {kind: simplex, total: 10.0}\n")
+    out = tmp_path / "c"
+    assert main(["campaign", str(child), "--runs", "1", "--duration", "1", "--out", str(out), "--quiet"]) in (0, 1)
+    copy = next(p for p in (out / "inputs").rglob("child.yaml"))
+    base = copy.read_text().splitlines()[0]
+    assert base.startswith("base: ") and not base.startswith(f"base: {WELDING_CELL}")
+    assert (copy.parent / json.loads(base.removeprefix("base: "))).resolve().is_file()

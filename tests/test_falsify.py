@@ -194,6 +194,23 @@ def test_falsify_stops_at_a_violation_and_exits_1(found):
     assert len(runs) < 30  # it stopped
 
 
+def test_a_violation_of_a_condition_not_searched_is_still_a_finding(tmp_path):
+    """A search for NoHarm on the fenceless stand-off cell: its runs are checked on every condition, and TrueSSM
+    fails in some (docs/harm.md). The search found no violation of its target, but the output names the other
+    violations and the blind spots, and the exit is 1 (an audit found 'no violation', exit 0)."""
+    out = tmp_path / "search"
+    done = _cellsim("falsify", ROOT / "scenarios" / "machine_tending_standoff.yaml", "--condition", "NoHarm",
+                    "--budget", "5", "--method", "random", "--duration", "5", "--jobs", "1", "--out", out)
+    results = json.loads((out / "results.json").read_text())
+    assert results["search"]["first_violation"] is None
+    others = sorted({r["index"] for r in results["runs"] if "TrueSSM" in r["violations"]})
+    assert others, "the stand-off cell's TrueSSM failure no longer shows in 5 runs of 5 s: pick a longer search"
+    assert done.returncode == 1, done.stderr
+    assert "no violation of NoHarm in 5 runs" in done.stdout
+    assert f"TrueSSM: runs {', '.join(map(str, others))}" in done.stdout
+    assert "runs with blind spots" in done.stdout or "blind spot" in done.stdout
+
+
 @ONE_AT_A_TIME
 def test_the_violating_run_is_an_ordinary_run_folder_that_violates_again_when_checked(found):
     _, out, results = found
@@ -327,3 +344,25 @@ def test_cmaes_searches_a_space_of_one_configuration_point_and_finds_a_default_c
     violating = [r for r in results["runs"] if "TrueSSM" in r.get("violations", ())]
     standoff = "operator.waypoints.bench_south.position.1"
     assert violating and all(r["configuration"][standoff] > -1.7 for r in violating)
+
+
+def test_a_search_replacing_another_gives_it_back_whole_when_it_does_not_finish(tmp_path):
+    """--overwrite sets the earlier search aside until the new one has written its results: interrupted half way
+    (an audit found the earlier folder deleted as soon as the new search started), the earlier is back byte for
+    byte and nothing is left beside it."""
+    import cellsim
+
+    standoff = ROOT / "scenarios" / "machine_tending_standoff.yaml"
+    out = tmp_path / "search"
+    cellsim.falsify(standoff, out, budget=2, method="random", duration=2.0, conditions=["NoHarm"])
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    def stop(progress):
+        if progress.done >= 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        cellsim.falsify(standoff, out, budget=4, method="random", duration=2.0, conditions=["NoHarm"], seed=5,
+                        overwrite=True, progress=stop)
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["search"]

@@ -497,3 +497,24 @@ def test_hostile_strings_are_text_on_the_page_not_markup():
     data = script_data(page)
     assert data["runs"]["1"]["rerun"] == "rerun " + HOSTILE
     assert data["runs"]["1"]["trace"]["oloc"][1][0] == "value " + HOSTILE
+
+
+def test_a_failed_run_is_counted_apart_in_the_conditions_table_as_the_bound_leaves_it_out():
+    """An audit found a failed run in the Undecided column while the rate and bound left it out: one row read
+    Holding 2, Undecided 4 (of which 3 never ran), bound over 2. Failed runs now have their own column."""
+    conditions = section(render_report(RESULTS, {1: TIMELINE}), "conditions")
+    assert '<th class="num" title="the run could not be simulated: left out of the rate and the bound">Failed</th>' in conditions
+    rows = [[re.sub(r"<[^>]+>", "", cell).strip() for cell in re.findall(r"<td[^>]*>(.*?)</td>", row, re.S)]
+            for row in re.findall(r"<tr[^>]*>(.*?)</tr>", conditions, re.S)]
+    for name in RESULTS["campaign"]["conditions"]:
+        (cells,) = [r for r in rows if r and r[0] == name]
+        holding, violating, undecided, failed = map(int, cells[2:6])
+        assert failed == 1 and holding + violating + undecided == 2  # the failed run once, in its own column
+
+
+def test_a_campaign_with_no_coverage_criteria_shows_none_not_100_percent():
+    results = copy.deepcopy(RESULTS)
+    results["totals"]["coverage"] = {"overall": {"covered": 0, "total": 0, "fraction": 1.0}, "criteria": {}}
+    page = render_report(results, {})
+    assert 'id="coverage-figure"' not in page and "100.0%" not in section(page, "coverage")
+    assert "No coverage criteria." in section(page, "coverage")

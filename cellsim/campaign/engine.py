@@ -217,6 +217,29 @@ def discard(out: Path) -> None:
     (out / PLAN).unlink(missing_ok=True)
 
 
+def set_aside(out: Path) -> Path | None:
+    """Move what a campaign or search wrote in ``out`` (:func:`discard`'s files) into a hidden folder beside it, so
+    that a search replacing it can give it back if it does not finish (:func:`put_back`); None if there was none."""
+    names = [name for name in (PLAN, RESULTS, REPORT, RUNS, INPUTS) if (out / name).exists()]
+    if not names:
+        return None
+    aside = out.parent / f".{out.name}.replaced"
+    shutil.rmtree(aside, ignore_errors=True)
+    aside.mkdir()
+    for name in names:
+        os.replace(out / name, aside / name)
+    return aside
+
+
+def put_back(aside: Path | None, out: Path) -> None:
+    """Undo :func:`set_aside`: what the new work wrote is discarded, the old folder's files are back."""
+    discard(out)
+    if aside is not None:
+        for item in aside.iterdir():
+            os.replace(item, out / item.name)
+        aside.rmdir()
+
+
 def holds_others(out: Path) -> bool:
     """Whether ``out`` holds files no campaign wrote (its lock file aside)."""
     return out.is_dir() and not (out / PLAN).exists() and any(p.name != LOCK for p in out.iterdir())

@@ -49,6 +49,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -320,8 +321,18 @@ def run_falsify(
     engine.check_scheduler(scheduler)
     engine.check_snapshot(runs.inputs, plan.overrides)
     with engine.claimed(out, f"{out} is being written by another cellsim process; choose another --out"):
-        engine.discard(out)
-        return _search(plan, out, jobs, on_progress, batch, runs, space, wall_start, scheduler)
+        # what it replaces is set aside, not deleted, until the search has written its results: one interrupted
+        # or failing gives it back whole
+        aside = engine.set_aside(out)
+        try:
+            outcome = _search(plan, out, jobs, on_progress, batch, runs, space, wall_start, scheduler)
+        except BaseException:
+            if aside is not None:  # (a new search keeps its runs so far, as a campaign does)
+                engine.put_back(aside, out)
+            raise
+        if aside is not None:
+            shutil.rmtree(aside, ignore_errors=True)
+        return outcome
 
 
 def _search(plan: FalsifyPlan, out: Path, jobs, on_progress, batch, runs, space, wall_start,

@@ -456,7 +456,7 @@ def _summary(results: Mapping, runs: Sequence[Mapping]) -> dict:
             *_run_figures(runs),
             *_cluster_figures(_dict(results.get("cluster"))),
         ],
-        "coverage": percent(_overall(coverage)) if "overall" in coverage else None,
+        "coverage": percent(_overall(coverage)) if _has_criteria(coverage) else None,
         "timing": [(s, _seconds(timing[s])) for s in [s for s in STAGES if s in timing] + [s for s in timing if s not in STAGES]],
     }
 
@@ -492,9 +492,11 @@ def _condition_rows(results: Mapping, runs: Sequence[Mapping]) -> list[dict]:
     rows = []
     violated = [set(_violated(run)) for run in runs]  # once per run, not once per run and condition
     for name in _conditions(results):
-        holding, violating, undecided = 0, [], 0
+        holding, violating, undecided, failed = 0, [], 0, 0
         for i, run in enumerate(runs):
-            if name in violated[i]:
+            if _is_failed(run):  # never simulated: apart, as the bound leaves it out
+                failed += 1
+            elif name in violated[i]:
                 violating.append(_run_index(run, i))
             elif _status(_dict(_dict(run.get("verdicts")).get(name))) == Verdict.HOLDS.value:
                 holding += 1
@@ -502,7 +504,7 @@ def _condition_rows(results: Mapping, runs: Sequence[Mapping]) -> list[dict]:
                 undecided += 1
         rows.append({
             "name": name, "formula": formulas.get(name), "description": descriptions.get(name),
-            "holding": holding, "violating": len(violating), "undecided": undecided,
+            "holding": holding, "violating": len(violating), "undecided": undecided, "failed": failed,
             "first": violating[:FIRST_VIOLATING_SHOWN], "more": max(0, len(violating) - FIRST_VIOLATING_SHOWN),
         })
     return rows
@@ -654,6 +656,12 @@ def _heatmap(name: str, c: Mapping) -> dict | None:
     return {"name": name, "variables": variables, "columns": cols_of, "rows": rows}
 
 
+def _has_criteria(coverage: Mapping) -> bool:
+    """Whether there is an overall coverage to show: some situation to cover (no criteria is not 100 %)."""
+    total = _dict(coverage.get("overall")).get("total")
+    return "overall" in coverage and not (is_number(total) and total == 0)
+
+
 def _coverage(results: Mapping) -> dict:
     coverage = _dict(_dict(results.get("totals")).get("coverage"))
     criteria = []
@@ -669,7 +677,7 @@ def _coverage(results: Mapping) -> dict:
             "missing": _list(c.get("missing")), "heatmap": _heatmap(name, c),
         })
     overall = _overall(coverage)
-    return {"has_overall": "overall" in coverage, "bar": _bar_width(overall), "percent": percent(overall),
+    return {"has_overall": _has_criteria(coverage), "bar": _bar_width(overall), "percent": percent(overall),
             "criteria": criteria, "heatmaps": [c["heatmap"] for c in criteria if c["heatmap"]]}
 
 

@@ -148,9 +148,12 @@ def prepare(plan: CampaignPlan, out: Path, identity: dict, restart: bool = False
             sizing = []
         beyond = _finished_from(out, plan.runs, identity)
         if beyond:  # a sample is never made smaller after the fact: a run left out may be one that violated
-            raise CampaignError(f"{out} holds {len(beyond)} finished run(s) of these inputs beyond --runs {plan.runs} "
-                                f"(up to run {max(beyond) + 1}): pass --runs {max(beyond) + 1} or more to keep "
-                                f"them, or {RESTART_HINT}")
+            asked = (f"the {plan.runs} runs --until-bound {plan.until_bound:g} takes" if plan.until_bound is not None
+                     else f"--runs {plan.runs}")
+            instead = " instead of --until-bound" if plan.until_bound is not None else ""
+            raise CampaignError(f"{out} holds {len(beyond)} finished run(s) of these inputs beyond {asked} "
+                                f"(up to run {max(beyond) + 1}): pass --runs {max(beyond) + 1} or more{instead} to "
+                                f"keep them, or {RESTART_HINT}")
     out.mkdir(parents=True, exist_ok=True)
     done = []
     for index in range(plan.runs):

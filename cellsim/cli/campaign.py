@@ -21,8 +21,8 @@ def add_parser(subparsers) -> None:
         "extends it) if its inputs are unchanged: the content of the scenario and of every file it uses, "
         "the overrides, seed, duration and cellsim's version. If one changed, the campaign refuses, naming "
         "it, unless --restart. "
-        "Exits 1 if a condition does not hold on some run (violated, or missing data), 2 if a run could not be "
-        "simulated (a sampled value out of range).",
+        "Exits 1 if a condition does not hold on some run (violated, or missing data), else 2 if a run could "
+        "not be simulated (a sampled value out of range).",
     )
     camp.add_argument("scenario", type=Path, help="scenario YAML file")
     camp.add_argument("--runs", type=int, help="number of runs (default: the scenario's campaign.runs)")
@@ -79,8 +79,9 @@ def run(args) -> int:
             f"{failed[0].get('error', '?')} (all in {outcome.results_path})",
             file=sys.stderr,
         )
-        return EXIT_INPUT
-    return EXIT_FINDING if outcome.violating_runs or outcome.results["totals"]["undecided_runs"] else EXIT_OK
+    if outcome.violating_runs or outcome.results["totals"]["undecided_runs"]:
+        return EXIT_FINDING  # a safety finding outranks the runs that could not be simulated (said above)
+    return EXIT_INPUT if failed else EXIT_OK
 
 
 def _runs_for_bound(args, console) -> int:
@@ -142,7 +143,9 @@ def print_campaign(outcome) -> None:
     if bounds:
         table.add_row(f"violation rate, {percent(bounds['confidence'])} upper bound", _bound_text(bounds))
     table.add_row("use cases", ", ".join(f"{u} {n}" for u, n in totals["use_cases"].items()) or "-")
-    table.add_row("coverage", f"{percent(totals['coverage']['overall']['fraction'])} of situations")
+    overall = totals["coverage"]["overall"]
+    table.add_row("coverage", f"{percent(overall['fraction'])} of situations" if overall["total"]
+                  else "no coverage criteria")
     table.add_row("time per stage", ", ".join(f"{k} {measure(v, 's')}" for k, v in timing.items()))
     inputs = (outcome.results.get("provenance") or {}).get("inputs") or {}
     if inputs:

@@ -157,7 +157,7 @@ def _report_search_runs(args, runs: list[dict], conditions: list[str], reason: s
     from rich.markup import escape
     from rich.table import Table
 
-    checked = [r for r in runs if r["status"] != "failed"]
+    checked = [r for r in runs if r["status"] == "completed"]
     violating = {c: [r["run"] for r in checked if c in r["violations"]] for c in conditions}
     undecided = {c: [r["run"] for r in checked if c in r["undecided"]] for c in conditions}
     if args.json:
@@ -178,6 +178,7 @@ def _report_search_runs(args, runs: list[dict], conditions: list[str], reason: s
         console = Console()
         console.print(table)
         console.print(f"No violation rate or bound: {escape(reason)}.", highlight=False)
+        _say_unfinished(console, runs)
     if _uncheckable(args.run, runs):
         return EXIT_INPUT
     return EXIT_FINDING if any(r["violations"] or r["undecided"] for r in checked) else EXIT_OK
@@ -209,6 +210,19 @@ def print_bounds(folder: Path, bounds: dict, runs: list[dict]) -> None:
     failed = [r["run"] for r in runs if r["status"] == "failed"]
     if failed:
         console.print(f"[yellow]{len(failed)} run(s) left out, not checkable: {', '.join(failed[:8])}[/yellow]")
+    _say_unfinished(console, runs)
+
+
+UNFINISHED = ("stopped before they ended (no result.json): left out of the figures; the campaign finishes them when "
+              "run again")
+
+
+def _say_unfinished(console, runs: list[dict]) -> None:
+    """One line naming the runs a campaign was stopped in (Ctrl-C) before they ended, which no figure counts."""
+    unfinished = [r["run"] for r in runs if r["status"] == "unfinished"]
+    if unfinished:
+        console.print(f"[yellow]{len(unfinished)} run(s) {UNFINISHED}: {', '.join(unfinished[:8])}[/yellow]",
+                      highlight=False)
 
 
 def print_verdicts(run: Path, checked, margins: dict | None = None) -> None:

@@ -38,7 +38,8 @@ def add_parser(subparsers) -> None:
     cmd.add_argument("--seed", type=int, default=0, help="search seed: the search is a pure function of it (default 0)")
     cmd.add_argument("--out", type=Path, help="output folder (default: campaigns/<scenario>-falsify-<method>-seed<seed>)")
     cmd.add_argument("--duration", type=float, help="simulated seconds per run (default: the scenario's duration)")
-    cmd.add_argument("--overwrite", action="store_true", help="replace an earlier search or campaign in OUT")
+    cmd.add_argument("--overwrite", action="store_true", help="replace an earlier search or campaign in OUT, once the new search "
+                     "has written its results (interrupted, it leaves the earlier one as it was)")
     _add_set(cmd)
     cmd.add_argument("--quiet", action="store_true", help="print nothing but errors")
     cmd.set_defaults(handler=run)
@@ -60,7 +61,9 @@ def run(args) -> int:
     except (api.CampaignError, ValueError) as e:
         raise InputError(str(e)) from None
     except KeyboardInterrupt:
-        print(f"cellsim: interrupted; the runs so far are in {out}/runs", file=sys.stderr)
+        print(f"cellsim: interrupted; the runs so far are in {out}/runs" + (
+            " (where it was replacing an earlier search or campaign, that one is back as it was instead)"
+            if args.overwrite else ""), file=sys.stderr)
         return EXIT_INTERRUPTED
     if not args.quiet:
         print_search(outcome)
@@ -70,7 +73,10 @@ def run(args) -> int:
         print(f"cellsim: error: every run failed, e.g. run {failed[0]['index']}: {failed[0].get('error', '?')}",
               file=sys.stderr)
         return EXIT_INPUT
-    return EXIT_FINDING if outcome.first_violation is not None else EXIT_OK
+    totals = outcome.results["totals"]
+    # a violation is a finding whichever condition it is of: the search targets some, the runs are checked on all
+    found = outcome.first_violation is not None or totals["violating_runs"] or totals["undecided_runs"]
+    return EXIT_FINDING if found else EXIT_OK
 
 
 def _search_progress(console, quiet: bool, total: int) -> RunsBar:
@@ -78,6 +84,19 @@ def _search_progress(console, quiet: bool, total: int) -> RunsBar:
     return RunsBar(console, quiet, total, "best score {task.fields[best]}  violating {task.fields[violating]}",
                    dict(best="-", violating=0), lambda p: dict(completed=p.done, best=f"{p.best:.3f}" if p.done else "-", violating=p.violating),
                    eta=False)
+
+
+def _space_text(samplers: dict) -> str:
+    """The configuration points a search moved, each with its range (as results.json records the samplers)."""
+    parts = []
+    for name, s in samplers.items():
+        if s.get("kind") == "uniform":
+            parts.append(f"{name} in [{s['low']:g}, {s['high']:g}]")
+        elif s.get("kind") == "choice":
+            parts.append(f"{name}: one of {', '.join(map(str, s['values']))}")
+        else:
+            parts.append(f"{name}: values of at least {s.get('minimum', 0):g} summing to {s.get('total'):g}")
+    return "; ".join(parts) or "-"
 
 
 def print_search(outcome) -> None:
@@ -91,12 +110,13 @@ def print_search(outcome) -> None:
     table.add_column(style="bold")
     table.add_column()
     table.add_row("method", f"{search['method']}, batches of {search['batch']} runs, {search['dimension']} coordinates")
+    table.add_row("searched over", _space_text(results["campaign"].get("samplers") or {}))
     table.add_row("conditions", ", ".join(search["conditions"]))
     table.add_row("guides", ", ".join(search["guides"]) or "none (the conditions' robustness alone)")
     first = search["first_violation"]
     if first is None:
-        table.add_row("result", f"no violation in {search['runs']} runs (the budget): no evidence of safety, "
-                      "only of what this search did not find")
+        table.add_row("result", f"no violation of {', '.join(search['conditions'])} in {search['runs']} runs (the "
+                      "budget): no evidence of safety, only of what this search did not find")
     else:
         run = runs[first]
         table.add_row("result", f"[red]violation found at run {first}[/red] ({search['runs_to_first_violation']} runs): "
@@ -104,6 +124,17 @@ def print_search(outcome) -> None:
         table.add_row("its configuration", "\n".join(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}"
                                                      for k, v in run["configuration"].items()))
         table.add_row("re-run it", escape(run["rerun"]))
+    targets = set(search["conditions"])
+    others: dict[str, list] = {}
+    for r in results["runs"]:  # every run is checked on every condition: what it showed beside the targets
+        for name in r.get("violations", ()):
+            if name not in targets:
+                others.setdefault(name, []).append(r["index"])
+    if others:
+        table.add_row("other violations", "[red]" + "\n".join(f"{name}: runs {', '.join(map(str, found))}"
+                                                             for name, found in others.items()) + "[/red]")
+    for what, found in results["totals"].get("finding_runs", {}).items():  # (the report's harm section)
+        table.add_row(f"runs {what}", f"[red]{', '.join(map(str, found))}[/red] (the report's harm section)")
     best = search["best"]
     table.add_row("lowest score", f"{best['score']:.3f} (run {best['index']})")
     for cell in search.get("archive", [])[:6]:

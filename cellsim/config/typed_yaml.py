@@ -353,6 +353,12 @@ class _Composer:
         return merged
 
 
+def parse_yaml(text: str, source: str = "<text>") -> Any:
+    """A YAML document as plain data, read as scenario files are (``!replace`` known, unknown tags refused):
+    ConfigError naming ``source`` and the line otherwise."""
+    return _parse(text, source)[0]
+
+
 def _parse(text: str, source: str) -> tuple[Any, dict[str, int], dict[str, str]]:
     data, lines, texts, _ = _parse_full(text, source)
     return data, lines, texts

@@ -115,9 +115,10 @@ def counts_against(run: dict, condition: str | None = None) -> bool:
 def campaign_bounds(runs: list[dict], conditions: list[str], sampling: str, confidence: float = CONFIDENCE) -> dict:
     """The ``bounds`` block of a campaign's results: per condition and for any condition, with what they
     are counted over and under which sampling distribution they hold."""
-    completed = [r for r in runs if r.get("status") != "failed"]
+    completed = [r for r in runs if r.get("status") not in ("failed", "unfinished")]
     overall = Bound(sum(counts_against(r) for r in completed), len(completed), confidence)
-    failed = len(runs) - len(completed)
+    failed = sum(1 for r in runs if r.get("status") == "failed")
+    drawn_from = sampling
     if failed:  # the completed runs are a sample of the runs that complete, not of every run drawn
         sampling = (f"{sampling}; of the runs drawn so, only those that complete ({failed} of {len(runs)} did not: a "
                     "configuration that cannot be simulated is not covered)")
@@ -125,8 +126,10 @@ def campaign_bounds(runs: list[dict], conditions: list[str], sampling: str, conf
         "confidence": confidence,
         "method": METHOD,
         "sampling": sampling,
+        "drawn_from": drawn_from,
         "counted": COUNTING,
-        "excluded_failed_runs": len(runs) - len(completed),
+        "excluded_failed_runs": failed,
+        "excluded_unfinished_runs": sum(1 for r in runs if r.get("status") == "unfinished"),
         "overall": overall.to_json(),
         "conditions": {c: Bound(sum(counts_against(r, c) for r in completed), len(completed), confidence).to_json()
                        for c in conditions},
