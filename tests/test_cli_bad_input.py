@@ -200,3 +200,11 @@ def test_a_scenario_with_an_absolute_base_and_a_replace_tag_campaigns(tmp_path, 
     base = copy.read_text().splitlines()[0]
     assert base.startswith("base: ") and not base.startswith(f"base: {WELDING_CELL}")
     assert (copy.parent / json.loads(base.removeprefix("base: "))).resolve().is_file()
+
+
+def test_a_stray_argument_is_refused_with_the_commands_own_usage(run, capsys):
+    with pytest.raises(SystemExit) as stopped:
+        main(["scenario", "check", str(WELDING_CELL), "extra"])
+    assert stopped.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("usage: cellsim scenario check") and "unrecognized arguments: extra" in err

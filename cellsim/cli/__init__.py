@@ -115,7 +115,9 @@ class _ReaderMayLeave:
 
 def _main(argv: list[str] | None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # said by the command's own parser, with its own usage (not the top-level one)
+        _parser_of(parser, args).error(f"unrecognized arguments: {' '.join(extra)}")
     if not getattr(args, "handler", None):
         parser.print_help(sys.stderr)
         return EXIT_INPUT
@@ -138,6 +140,17 @@ def _main(argv: list[str] | None) -> int:
         return EXIT_INTERRUPTED
 
 
+def _parser_of(parser: argparse.ArgumentParser, args) -> argparse.ArgumentParser:
+    """The parser of the (sub)command ``args`` ran: ``cellsim scenario check`` -> its own."""
+    for name in ("command", "action"):
+        actions = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]  # noqa: SLF001
+        chosen = getattr(args, f"_{name}", None)
+        if not actions or chosen is None or chosen not in actions[0].choices:
+            break
+        parser = actions[0].choices[chosen]
+    return parser
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="cellsim",
@@ -148,7 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
     from cellsim.version import __version__
 
     parser.add_argument("--version", action="version", version=f"cellsim {__version__}")
-    sub = parser.add_subparsers(metavar="COMMAND")
+    sub = parser.add_subparsers(metavar="COMMAND", dest="_command")
     for command in COMMANDS:
         command.add_parser(sub)
     _end_with_exit_codes(parser)

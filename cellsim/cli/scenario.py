@@ -10,7 +10,7 @@ from cellsim.cli.common import EXIT_OK, _add_set, _load
 
 def add_parser(subparsers) -> None:
     scenario = subparsers.add_parser("scenario", help="inspect scenario files", description="Inspect scenario files.")
-    ssub = scenario.add_subparsers(metavar="ACTION")
+    ssub = scenario.add_subparsers(metavar="ACTION", dest="_action")
     scenario.set_defaults(handler=lambda args: _usage(scenario))
     export = ssub.add_parser(
         "export",
