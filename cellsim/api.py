@@ -21,8 +21,9 @@ By task (docs/scripting.md has each as an example):
 
 Errors are exceptions with one line each: :class:`ConfigError` names the file, line and key of bad input
 (a scenario built in Python: its name and the key), :class:`CheckError`, :class:`CampaignError`,
-:class:`OutputExistsError` say what is wrong with a path, and :class:`OverwritesInput` refuses an output
-named after a file it is made from.
+:class:`OutputExistsError` say what is wrong with a path, :class:`BlackBoxError` what is wrong with a recorded
+run's black box (missing, damaged), and :class:`OverwritesInput` refuses an output named after a file it is made
+from.
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ if TYPE_CHECKING:
     from cellsim.verify.run import Verification
 
 __all__ = [
-    "CONFIDENCE", "CampaignConfig", "CampaignError", "CellBuild", "CellDiagram", "CellSystem", "CheckError",
+    "BlackBoxError", "CONFIDENCE", "COUNT_LIMITS", "CampaignConfig", "CampaignError", "CellBuild", "CellDiagram", "CellSystem", "CheckError",
     "ConfigError", "ConfigurationPoint", "DEFAULT_SEARCH", "EXPLICIT_LIMIT", "Fixture", "FoxgloveFeed", "Layout",
     "Live", "OutputExistsError", "OverwritesInput", "Region", "Run", "SEARCH_METHODS", "Scenario", "ScenarioFile", "Validation",
     "Verdict", "VerifyError", "build", "check", "check_campaign", "check_duration", "check_seed",
@@ -67,6 +68,7 @@ _LOADED_WHEN_ASKED = {
     "CellBuild": "cellsim.diagrams.cell:CellBuild",
     "CellDiagram": "cellsim.diagrams.cell:CellDiagram",
     "CheckError": "cellsim.validation.check:CheckError",
+    "BlackBoxError": "cellsim.blackbox:BlackBoxError",
     "CampaignError": "cellsim.campaign.engine:CampaignError",
     "OutputExistsError": "cellsim.simulation:OutputExistsError",
     "OverwritesInput": "cellsim.atomic:OverwritesInput",
@@ -119,8 +121,7 @@ def save_scenario(scenario: ScenarioFile, path: str | os.PathLike) -> Path:
     from cellsim.atomic import refuse_inputs, write_text
 
     path = Path(path)
-    if not scenario.built_in_code:
-        refuse_inputs(path, scenario.inputs(), "the scenario")  # (OverwritesInput: never over what it read)
+    refuse_inputs(path, scenario.inputs(), "the scenario")  # (OverwritesInput: never over what it reads)
     write_text(path, scenario_yaml(scenario, path.resolve().parent))
     return path
 
@@ -165,12 +166,13 @@ def default_conditions(scenario: ScenarioFile) -> list[str]:
 
 
 def _checked(scenario: ScenarioFile | str | os.PathLike) -> ScenarioFile:
-    """A loaded scenario as given, its checks run again (a script may have changed it since it was loaded)."""
-    from cellsim.scenario import check_scenario
+    """A loaded scenario as given, its conversion and checks run again (a script may have changed it since it was
+    loaded: :func:`cellsim.scenario.check_edited`)."""
+    from cellsim.scenario import check_edited
 
     if not isinstance(scenario, ScenarioFile):
         return load_scenario(scenario)
-    check_scenario(scenario)
+    check_edited(scenario)
     return scenario
 
 
@@ -313,6 +315,13 @@ class Run:
     def finding(self) -> bool:
         """A safety finding: a hazard reached its mishap phase, or a condition does not hold (what makes
         ``cellsim simulate`` exit 1)."""
+        if self.checked is None and self.summary.mishap is False:
+            from cellsim.validation.check import CheckError
+
+            try:
+                self.check()  # (a run opened from its folder: judged now)
+            except CheckError:  # a scenario with no condition to judge: its mishaps alone say
+                return False
         return self.summary.mishap or (self.checked is not None and not self.checked.result.all_hold)
 
     @property
@@ -334,7 +343,10 @@ class Run:
         (or is undecided: its verdict says why). KeyError for a condition the run was not judged by."""
         if self.checked is None:
             self.check()
-        verdict = self.checked.result.verdicts[condition]
+        verdict = self.checked.result.verdicts.get(condition)
+        if verdict is None:
+            raise KeyError(f"no condition '{condition}' judged this run; its conditions: "
+                           f"{', '.join(self.checked.result.verdicts)}")
         if verdict.explanation is None:
             return None
         return f"violated at {verdict.violated_at:g} s: {verdict.explanation}"
@@ -491,13 +503,44 @@ def _chosen_by_search(run: Path) -> bool:
 
 # -- evidence -------------------------------------------------------------------------------------
 def _scenario_file(scenario: ScenarioFile | str | os.PathLike) -> tuple[str, tuple[str, ...]]:
-    """(the scenario's file, its overrides): what a campaign's workers load again."""
+    """(the scenario's file, its overrides): what a campaign's workers load again. A scenario built in Python, or
+    changed in code since it was loaded, is refused (ConfigError): its runs would read the file, not it."""
     if isinstance(scenario, ScenarioFile):
         if scenario.built_in_code:
             raise ConfigError(scenario.source, None, "", "a campaign's runs read their scenario from a file: save it "
                               "first (cellsim.save_scenario) and give that file")
+        _refuse_edited(scenario, "a campaign's runs read their scenario from its file")
         return str(Path(scenario.source).resolve()), tuple(scenario.overrides)
     return str(Path(scenario).resolve()), ()
+
+
+def _refuse_edited(scenario: ScenarioFile, why: str) -> None:
+    """ConfigError when ``scenario`` differs from what its file and overrides load as (a script changed it in place):
+    ``why`` says which work reads the file instead."""
+    from cellsim.config.typed_yaml import to_data
+
+    if to_data(scenario.scenario) != to_data(load_scenario(scenario.source, list(scenario.overrides)).scenario):
+        raise ConfigError(scenario.source, None, "", f"the scenario was changed in code since it was loaded, and {why}: "
+                          "save it first (cellsim.save_scenario) and give that file")
+
+
+COUNT_LIMITS = {"runs": 100_000, "budget": 100_000, "jobs": 256, "batch": 10_000}
+"""The most a campaign's or a search's ``runs``, ``budget``, ``jobs`` and ``batch`` may be (each at least 1)."""
+
+
+def _check_run_arguments(sf: ScenarioFile, seed, duration, **counts) -> None:
+    """ConfigError naming the argument unless each of ``counts`` is a whole number in [1, its limit], the seed a seed
+    and the duration (when given) a run length the scenario can take: before any folder is touched."""
+    import numbers
+
+    for name, value in counts.items():
+        most = COUNT_LIMITS[name]
+        if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Integral)
+                                  or not 1 <= value <= most):
+            raise ConfigError(name, None, "", f"must be a whole number in [1, {most:,}], got {value!r}")
+    check_seed(seed)
+    if duration is not None:
+        check_duration(sf, duration, "duration (the argument)")
 
 
 def run_campaign(scenario: ScenarioFile | str | os.PathLike, out: str | os.PathLike, *, runs: int | None = None,
@@ -513,6 +556,9 @@ def run_campaign(scenario: ScenarioFile | str | os.PathLike, out: str | os.PathL
 
     path, overrides = _scenario_file(scenario)
     sf = scenario if isinstance(scenario, ScenarioFile) else load_scenario(path)
+    if runs is not None and until_bound is not None:
+        raise ConfigError("until_bound", None, "", "sets the number of runs: give it or runs, not both")
+    _check_run_arguments(sf, seed, duration, runs=runs, jobs=jobs)
     plan = CampaignPlan(path, overrides, seed, sf.scenario.campaign.runs if runs is None else runs, duration,
                         until_bound=until_bound)
     return run(plan, out, jobs=jobs, on_progress=progress, restart=restart, scheduler=scheduler)
@@ -529,6 +575,12 @@ def falsify(scenario: ScenarioFile | str | os.PathLike, out: str | os.PathLike, 
     from cellsim.campaign.falsify import FalsifyPlan, run_falsify
 
     path, overrides = _scenario_file(scenario)
+    if isinstance(conditions, str):
+        raise ConfigError("conditions", None, "", f"is a list of condition names, got the string {conditions!r}")
+    if method not in SEARCH_METHODS:
+        raise ConfigError("method", None, "", f"{method!r} is no search method; methods: {', '.join(SEARCH_METHODS)}")
+    _check_run_arguments(scenario if isinstance(scenario, ScenarioFile) else load_scenario(path), seed, duration,
+                         budget=budget, jobs=jobs, batch=batch)
     plan = FalsifyPlan(path, overrides, seed, budget, method, duration, tuple(conditions))
     return run_falsify(plan, out, jobs=jobs, on_progress=progress, overwrite=overwrite, batch=batch,
                        scheduler=scheduler)
@@ -564,6 +616,7 @@ def verify_cell(scenario: ScenarioFile | str | os.PathLike, *, export: str | os.
     if sf.built_in_code:
         raise ConfigError(sf.source, None, "", "a witness is replayed as a scenario over the verified one's file: "
                           "save it first (cellsim.save_scenario) and give that file")
+    _refuse_edited(sf, "a witness is replayed as a scenario over its file")
     return verify_with_twin(sf, Path(replay_in), budget=DEFAULT_BUDGET if refine is None else refine, timed=timed,
                             export=export, on_stage=progress)
 

@@ -355,10 +355,12 @@ def snapshot_scenario(inputs: Inputs, dest: Path, overrides) -> tuple[Path, tupl
 
 
 def write_run_scenario(
-    sf, inputs: Inputs, out_dir: Path, name: str = "scenario.yaml", seed: int | None = None, duration: float | None = None
+    sf, inputs: Inputs, out_dir: Path, name: str = "scenario.yaml", seed: int | None = None, duration: float | None = None,
+    extended_by: str | None = None,
 ) -> None:
     """Write ``out_dir/name``, the resolved scenario with the run's ``seed`` and
-    ``duration``, and copies of the files it uses.
+    ``duration``, and copies of the files it uses; ``extended_by``: the script's function that added systems of
+    its own to the diagram (said in the file's header: the scenario alone does not re-run such a run).
 
     The copies are ``inputs/<module>/<file>`` (a robot model with the files it
     names, in their layout) and the scenario refers to them, so the folder
@@ -391,6 +393,9 @@ def write_run_scenario(
         header += "\nwith overrides: " + " ".join(sf.overrides)
     if placed:
         header += f"\nThe files it uses are copies, in {INPUTS}/, of those the run used."
+    if extended_by:
+        header += (f"\nThe run's diagram was extended by {extended_by} (systems of a script's own): this scenario "
+                   "alone builds the cell without them and does not re-run the run.")
     write_text(out_dir / name, dump_yaml(copy, header=header))
     data = {f.key: f.data for f in inputs.files}
     for key, relative in placed.items():

@@ -228,6 +228,14 @@ def load_scenario(path: str | os.PathLike, overrides: list[str] | tuple[str, ...
     return sf
 
 
+def check_edited(sf: ScenarioFile) -> None:
+    """The scenario as a script may have changed it since it was loaded (``sf.scenario...`` set in place) put through
+    the conversion and checks a file's goes through: a wrong type or a value out of range is a ConfigError naming
+    the key (its source: the scenario, as changed in code), never an error deep inside the run."""
+    from_data(Scenario, to_data(sf.scenario), f"{sf.source} (as changed in code)")
+    check_scenario(sf)
+
+
 def scenario_in_code(scenario: Scenario, base_dir: str | os.PathLike = ".") -> ScenarioFile:
     """A scenario built in Python, checked as a file's would be; raises ConfigError naming the key.
 
@@ -381,9 +389,13 @@ def check_run_length(sf: ScenarioFile, duration: float, key: str = "duration") -
         return sf.error(key, problem) if key == "duration" else ConfigError(key, None, "", problem)
 
     valid = Range(0.0, MAX_DURATION, lo_open=True, unit="s")
+    if isinstance(duration, bool) or not isinstance(duration, (int, float)):
+        raise refuse(f"{duration!r} is not a number of seconds")
     if not math.isfinite(duration) or not valid.admits(duration):
         raise refuse(f"{duration:g} is out of range: must be in {valid}")
     step = sf.scenario.time_step
+    if duration < step:
+        raise refuse(f"{duration:g} s is shorter than one plant step ({step:g} s): a run records nothing before it")
     steps = math.ceil(duration / step - 1e-9)  # a whole count: the last step may be partial
     if steps > MAX_PLANT_STEPS:
         raise refuse(
@@ -414,6 +426,11 @@ def _module_periods(sc: Scenario) -> dict[str, float]:
 
 
 def check_seed(seed: int, key: str) -> None:
+    """ConfigError naming ``key`` unless ``seed`` is a whole number in range (not a float, nor a boolean)."""
+    import numbers
+
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral):
+        raise ConfigError(key, None, "", f"{seed!r} is not a whole number: a seed is an integer in {SEEDS}")
     if not SEEDS.admits(seed):
         raise ConfigError(key, None, "", f"{seed} is out of range: must be in {SEEDS}")
 

@@ -227,7 +227,8 @@ def simulate(
         inputs.check_unchanged()  # what was built is what was read, copied and hashed
         with RunFolder(out_dir, overwrite) as folder:
             try:
-                summary = _record(cell, simulator, folder.writing, seed, duration, on_progress, inputs, record)
+                summary = _record(cell, simulator, folder.writing, seed, duration, on_progress, inputs, record,
+                                  _name_of(extend))
             except KeyboardInterrupt:
                 if cell.runs_until_stopped:  # a live run stopped on request: its record is complete
                     folder.commit()
@@ -239,11 +240,19 @@ def simulate(
     return summary
 
 
-def _record(cell, simulator, out_dir: Path, seed: int, duration: float, on_progress, inputs, record) -> RunSummary:
+def _name_of(extend) -> str | None:
+    """How a run names the script's function that extended its diagram (None: not extended)."""
+    if extend is None:
+        return None
+    return f"{getattr(extend, '__module__', None) or '?'}.{getattr(extend, '__qualname__', None) or repr(extend)}"
+
+
+def _record(cell, simulator, out_dir: Path, seed: int, duration: float, on_progress, inputs, record,
+            extended_by: str | None = None) -> RunSummary:
     """Write the resolved scenario and its input files, then simulate while recording the black box."""
     sf = cell.sf
     sc = sf.scenario
-    write_run_scenario(sf, inputs, out_dir, RESOLVED_SCENARIO, seed, duration)
+    write_run_scenario(sf, inputs, out_dir, RESOLVED_SCENARIO, seed, duration, extended_by)
 
     writer = BlackBoxWriter(out_dir / BLACKBOX)
     status = "failed"
@@ -264,6 +273,7 @@ def _record(cell, simulator, out_dir: Path, seed: int, duration: float, on_progr
             provenance=record,
             hazards=hazard_phases(cell.modules.values()),
             status="running",
+            **({"extended_by": extended_by} if extended_by else {}),
         )
         try:
             simulator.Initialize()

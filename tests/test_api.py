@@ -392,3 +392,83 @@ def test_falsify_from_a_script_runs_the_search_the_command_runs_by_default(monke
         cellsim.falsify(WELDING, tmp_path / "api", budget=4)
     assert main(["falsify", str(WELDING), "--budget", "4", "--out", str(tmp_path / "cli"), "--quiet"]) == 2
     assert [plan.method for plan in plans] == ["qd", "qd"]
+
+
+def test_a_scenario_changed_in_place_is_checked_as_a_file_before_any_folder(tmp_path):
+    """A script sets a wrong type or an out-of-range value on a loaded scenario: one ConfigError naming the key, as
+    a file would get, and no folder made (an audit found a TypeError deep in the operator, and a lock file left)."""
+    for key, value, problem in (("walking_speed", "fast", "expected a number"), ("walking_speed", -1.0, "out of range")):
+        sf = cellsim.load_scenario(WELDING)
+        setattr(sf.scenario.entities["operator"], key, value)
+        with pytest.raises(cellsim.ConfigError, match=f"as changed in code.*entities.operator.{key}: .*{problem}"):
+            cellsim.simulate(sf, tmp_path / "run", duration=1.0)
+    sf = cellsim.load_scenario(WELDING)
+    sf.scenario.time_step = 0.0
+    with pytest.raises(cellsim.ConfigError, match="time_step"):
+        cellsim.simulate(sf, tmp_path / "run", duration=1.0)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_work_that_reads_the_file_refuses_a_scenario_changed_in_code(tmp_path):
+    """A campaign's workers and a witness's replay read the scenario's file: a scenario changed in place since it was
+    loaded would be silently dropped (the audit's campaign judged the file's 16 conditions, not the script's one)."""
+    sf = cellsim.load_scenario(WELDING)
+    del sf.scenario.behaviours["safety_controller"]
+    with pytest.raises(cellsim.ConfigError, match="changed in code since it was loaded.*save it first"):
+        cellsim.run_campaign(sf, tmp_path / "c", runs=1, duration=1.0)
+    with pytest.raises(cellsim.ConfigError, match="changed in code since it was loaded.*save it first"):
+        cellsim.falsify(sf, tmp_path / "f", budget=1, duration=1.0)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda out: cellsim.run_campaign(WELDING, out, runs=0), "runs: must be a whole number in \\[1, 100,000\\], got 0"),
+    (lambda out: cellsim.run_campaign(WELDING, out, jobs=0), "jobs: must be a whole number"),
+    (lambda out: cellsim.run_campaign(WELDING, out, duration=float("nan")), "duration \\(the argument\\): nan"),
+    (lambda out: cellsim.run_campaign(WELDING, out, runs=2, until_bound=0.5), "give it or runs, not both"),
+    (lambda out: cellsim.falsify(WELDING, out, budget=0), "budget: must be a whole number"),
+    (lambda out: cellsim.falsify(WELDING, out, budget=2, conditions="NoHarm"), "a list of condition names"),
+    (lambda out: cellsim.simulate(WELDING, out, seed=1.5), "1.5 is not a whole number"),
+    (lambda out: cellsim.simulate(WELDING, out, seed=True), "True is not a whole number"),
+    (lambda out: cellsim.simulate(WELDING, out, duration=1e-9), "shorter than one plant step"),
+])
+def test_a_scripts_bad_argument_is_one_config_error_and_writes_nothing(tmp_path, call, message):
+    with pytest.raises(cellsim.ConfigError, match=message):
+        call(tmp_path / "out")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_scenario_built_in_code_is_never_saved_over_a_file_it_uses(tmp_path):
+    import shutil
+
+    from two_arm_cell import two_arm_cell
+
+    shutil.copytree(ROOT / "scenarios" / "models", tmp_path / "models")
+    before = (tmp_path / "models" / "ur10.urdf").read_bytes()
+    sf = cellsim.scenario_in_code(two_arm_cell(), base_dir=tmp_path)
+    with pytest.raises(cellsim.OverwritesInput):
+        cellsim.save_scenario(sf, tmp_path / "models" / "ur10.urdf")
+    assert (tmp_path / "models" / "ur10.urdf").read_bytes() == before
+
+
+def test_a_run_opened_from_its_folder_says_its_finding_before_its_verdicts_are_read(tmp_path):
+    run = cellsim.simulate(WELDING, tmp_path / "run", seed=0, duration=6.0)  # Final:Tbl: at the table at 6 s
+    assert run.finding
+    opened = cellsim.Run.open(tmp_path / "run")
+    assert opened.checked is None and opened.finding  # judged when asked (it read False before)
+    with pytest.raises(KeyError, match="no condition 'Nope' judged this run; its conditions: "):
+        opened.explain("Nope")
+
+
+def test_a_run_whose_diagram_a_script_extended_says_so_in_its_record(tmp_path):
+    """Its scenario.yaml alone builds the cell without the script's systems: the file and the black box say so."""
+    def extend(cell):
+        pass
+
+    run = cellsim.simulate(WELDING, tmp_path / "run", duration=1.0, extend=extend)
+    header = (run.out / "scenario.yaml").read_text().split("\n\n")[0]
+    assert "extended by test_api.test_a_run_whose_diagram_a_script_extended_says_so_in_its_record.<locals>.extend" in header
+    db = sqlite3.connect(run.out / "blackbox.sqlite")
+    (value,) = db.execute("SELECT value FROM metadata WHERE key = 'extended_by'").fetchone()
+    db.close()
+    assert json.loads(value).endswith("<locals>.extend")

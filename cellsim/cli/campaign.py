@@ -54,7 +54,7 @@ def run(args) -> int:
 
     from cellsim import api
 
-    sf = _load_for_runs(args, {"runs": 100_000, "jobs": 256})
+    sf = _load_for_runs(args, {k: api.COUNT_LIMITS[k] for k in ("runs", "jobs")})
     runs = args.runs or sf.scenario.campaign.runs
     console = Console(stderr=True, quiet=args.quiet)
     if args.until_bound is not None:

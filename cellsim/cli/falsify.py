@@ -50,7 +50,7 @@ def run(args) -> int:
 
     from cellsim import api
 
-    sf = _load_for_runs(args, {"budget": 100_000, "jobs": 256, "batch": 10_000})
+    sf = _load_for_runs(args, {k: api.COUNT_LIMITS[k] for k in ("budget", "jobs", "batch")})
     out = args.out or Path("campaigns") / f"{sf.scenario.folder_name}-falsify-{args.method}-seed{args.seed}"
     console = Console(stderr=True, quiet=args.quiet)
     try:
