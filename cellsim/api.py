@@ -608,9 +608,11 @@ def verify_cell(scenario: ScenarioFile | str | os.PathLike, *, export: str | os.
     (``result.replays[name]``). ``progress(stage)`` as each stage starts. Raises VerifyError for a
     scenario the abstraction cannot take."""
     from cellsim.verify.refine import DEFAULT_BUDGET, verify_with_twin
-    from cellsim.verify.run import verify
+    from cellsim.verify.run import export_paths, verify
 
     sf, export = _checked(scenario), None if export is None else Path(export)
+    if export is not None:
+        export_paths(export, sf)  # refused before anything is built: over an input, or the model over its props
     if replay_in is None:
         return verify(sf, export=export, timed=timed, on_stage=progress)
     if sf.built_in_code:

@@ -565,3 +565,74 @@ def test_timed_bounds_every_module_s_durations_below_and_says_so(tmp_path):
     untimed = _verify(str(WELDING_CELL), "--json", "--no-replay", "--refine", "0", "--out", str(tmp_path / "u"))
     assert json.loads(untimed.stdout)["states"] * 5 < result["states"]
     assert all(p["ending"] in ("holds", "undecided") for p in result["properties"])
+
+
+def test_the_export_after_refinement_is_the_last_rounds_model_with_every_property_printed(tmp_path):
+    """An audit found the export of a refined run holding round one's model without the properties left out of
+    later rounds (11 of 17). It is written each round before anything is left out: the last round's, whole."""
+    export = tmp_path / "m.prism"
+    done = _verify(str(WELDING_CELL), "--json", "--export", str(export), "--out", str(tmp_path / "out"))
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout)
+    assert [r["refinement"] for r in result["refinements"]] == ["operator:pace", "operator:fine"]
+    text = export.read_text()
+    assert "operator: 0.05 m" in text  # the refined grid's (the last round's) model
+    names = [re.fullmatch(r'"([^"]+)": .*;', line).group(1) for line in export.with_suffix(".props").read_text().splitlines()
+             if line and not line.startswith("//")]
+    printed = [p["name"] for p in result["properties"]]
+    assert sorted(names) == sorted(re.sub(r"\W", "_", n) for n in printed)
+    program = stormpy.parse_prism_program(str(export)).substitute_formulas()
+    model = stormpy.build_symbolic_model(program)
+    for prop in result["properties"]:
+        if prop["name"].endswith(":mishap"):
+            (formula,) = stormpy.parse_properties(f'Pmax=? [ F "{_label_of(export, prop["name"])}" ]', program)
+            check = stormpy.model_checking(model, formula, only_initial_states=True)
+            check.filter(stormpy.create_filter_initial_states(model))
+            assert check.get_max() == pytest.approx(prop["value"]), prop["name"]
+
+
+def _label_of(export, name: str) -> str:
+    """The label an exported property reads (its line in the .props file)."""
+    props = export.with_suffix(".props").read_text()
+    return re.search(rf'"{re.escape(re.sub(r"[^A-Za-z0-9_]", "_", name))}": Pmax=\? \[ F "([^"]+)" \];', props).group(1)
+
+
+def test_an_export_over_a_file_the_scenario_uses_or_over_its_own_properties_is_refused_first(tmp_path):
+    cell = tmp_path / "cell"
+    import shutil
+
+    shutil.copytree(WELDING_CELL.parent, cell)
+    scenario = cell / WELDING_CELL.name
+    before = scenario.read_bytes()
+    for export, said in ((scenario, "will not write the exported model over"), (tmp_path / "m.props", "name the model's file")):
+        done = _verify(str(scenario), "--no-replay", "--export", str(export), "--out", str(tmp_path / "out"))
+        assert done.returncode == 2 and said in done.stderr and "Storm" not in done.stderr, done.stderr
+    assert scenario.read_bytes() == before and not (tmp_path / "out").exists()
+    (tmp_path / "afile").write_text("")
+    done = _verify(str(scenario), "--out", str(tmp_path / "afile"))
+    assert done.returncode == 2 and "is a file: name a folder" in done.stderr and "Storm" not in done.stderr
+
+
+def test_ctrl_c_while_storm_builds_leaves_no_scratch_folder(tmp_path):
+    """The programs Storm reads are in a folder the verify process owns: a Storm process killed by Ctrl-C left its
+    own behind in /tmp (an audit counted 88)."""
+    import signal
+
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    proc = subprocess.Popen([sys.executable, "-m", "cellsim", "verify", str(WELDING_CELL), "--out", str(tmp_path / "out")],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "TMPDIR": str(scratch)}, preexec_fn=_in_the_background)
+    try:
+        for line in proc.stderr:  # (each stage's line as it starts: wait for Storm's, no sleep)
+            if "Storm: building" in line:
+                break
+        assert any(p.name.startswith("cellsim-verify-") for p in scratch.iterdir())
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130
+    assert [p.name for p in scratch.iterdir() if p.name.startswith("cellsim-")] == []

@@ -52,6 +52,9 @@ def run(args) -> int:
     sf = _load(args)
     say = (lambda text: None) if args.json else (lambda text: print(f"  {text}", file=sys.stderr))
     out = args.out or Path("runs") / f"{sf.scenario.folder_name}-verify"
+    if out.exists() and not out.is_dir():  # said now, not after Storm has run
+        raise InputError(f"--out {out} is a file: name a folder for the witnesses and their runs")
+
     try:
         result = api.verify_cell(sf, export=args.export, timed=args.timed, replay_in=out if args.replay else None,
                                  refine=args.refine, progress=say)

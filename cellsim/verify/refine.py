@@ -192,16 +192,13 @@ def _reached(refined) -> float:
     from cellsim.verify.run import dd_memory
     from cellsim.verify.storm import build_symbolic
 
-    def work(say):
-        with tempfile.TemporaryDirectory(prefix="cellsim-refined-") as scratch:
-            path = Path(scratch) / "refined.prism"
-            path.write_text(refined.cell.program(refined.header, [], {}).text())
-            return build_symbolic(path, dd_memory(refined.bound()))[2].states
-
-    try:
-        return float(in_own_process(work))
-    except ProcessStopped:
-        return math.inf
+    with tempfile.TemporaryDirectory(prefix="cellsim-refined-") as scratch:  # (ours: a stopped Storm leaves none)
+        path = Path(scratch) / "refined.prism"
+        path.write_text(refined.cell.program(refined.header, [], {}).text())
+        try:
+            return float(in_own_process(lambda say: build_symbolic(path, dd_memory(refined.bound()))[2].states))
+        except ProcessStopped:
+            return math.inf
 
 
 def _refinements(model, witnessed, step: int) -> list[Refinement]:

@@ -7,6 +7,7 @@ parts into one PRISM program with its properties; ``verify(sf)`` checks them.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import tempfile
 import time
@@ -292,11 +293,12 @@ def _vocabulary(sf, cell):
 
 
 def properties_text(model: AbstractModel) -> str:
-    """The properties file: one PCTL property per line, named as ``verify`` prints them."""
+    """The properties file: one PCTL property per line, named as ``verify`` prints them with each character Storm
+    does not take in a name (``:``) written ``_``, the printed name in the comment above it."""
     lines = []
     for prop in model.properties:
         text = f'Pmax=? [ F "{model.labels[prop.name]}" ]' if prop.bad else prop.pctl
-        lines.append(f"// {prop.description}")
+        lines.append(f"// {prop.name}: {prop.description}")
         lines.append(f'"{_safe(prop.name)}": {text};')
     return "\n".join(lines) + "\n"
 
@@ -322,6 +324,8 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
     say("building the abstract model")
     if model is None or model.cell.refinements != frozenset(refinements) or model.cell.timed != timed:
         model = abstract_model(sf, timed=timed, refinements=refinements)
+    if export is not None:  # every property (this round's model), before any checked already is left out
+        write_export(model, export)
     for prop in [p for p in model.properties if p.name in leave_out]:  # its monitor and labels go with it
         model.cell.monitors.pop(prop.name, None)
         label = model.labels.pop(prop.name, None)
@@ -333,20 +337,20 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
         raise VerifyError("nothing to verify: no safety controller's hazards and no validation condition of a "
                           "checkable shape" + "".join(f"; not checked: {s.name}: {s.reason}" for s in model.skipped))
     times = dict(model.times)
-    if export is not None:
-        write_export(model, export)
     memory = dd_memory(model.bound())
-    try:
-        storm = in_own_process(lambda tell: _storm(model, memory, tell, enough), say)
-    except ProcessStopped as stopped:
-        if memory >= DD_MEMORY:
-            raise VerifyError(_stopped(stopped, memory)) from None
-        say(f"Storm stopped ({stopped.how}): its decision diagrams may have outgrown {memory} MB; "
-            f"building again with {DD_MEMORY} MB")
+    # the scratch folder is this process's: a Storm process stopped (Ctrl-C kills it) leaves nothing behind
+    with tempfile.TemporaryDirectory(prefix="cellsim-verify-") as scratch:
         try:
-            storm = in_own_process(lambda tell: _storm(model, DD_MEMORY, tell, enough), say)
-        except ProcessStopped as again:
-            raise VerifyError(_stopped(again, DD_MEMORY)) from None
+            storm = in_own_process(lambda tell: _storm(model, memory, tell, enough, Path(scratch)), say)
+        except ProcessStopped as stopped:
+            if memory >= DD_MEMORY:
+                raise VerifyError(_stopped(stopped, memory)) from None
+            say(f"Storm stopped ({stopped.how}): its decision diagrams may have outgrown {memory} MB; "
+                f"building again with {DD_MEMORY} MB")
+            try:
+                storm = in_own_process(lambda tell: _storm(model, DD_MEMORY, tell, enough, Path(scratch)), say)
+            except ProcessStopped as again:
+                raise VerifyError(_stopped(again, DD_MEMORY)) from None
     results, storm_times, stats, largest, refinable = storm
     times.update(storm_times)
     results.update(checked_before or {})
@@ -357,10 +361,11 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
     return Verification(model, stats, ordered, times, largest, refinable=refinable)
 
 
-def _storm(model: AbstractModel, memory: int, say, enough=None):
+def _storm(model: AbstractModel, memory: int, say, enough=None, scratch: Path | None = None):
     """Build and check ``model`` with Storm (Sylvan's tables capped at ``memory`` MB); returns (property name ->
     Checked, the Storm stages' seconds, the stats of the model the size was judged on, of the largest model built,
-    of the largest one with a liveness condition). ``enough``: as :func:`verify` says. Run in a process of its own
+    of the largest one with a liveness condition). ``enough``: as :func:`verify` says; ``scratch``: a folder for the
+    programs Storm reads (its caller's, who removes it; else one of its own). Run in a process of its own
     (:func:`verify`)."""
     results, stats, largest, refinable = {}, None, None, None
     settled = False  # a witness was taken up (``enough``): the other witnesses wait for the refined model
@@ -380,7 +385,8 @@ def _storm(model: AbstractModel, memory: int, say, enough=None):
         times["storm_parse"] += group_stats.parse_seconds
         times["storm_build"] += group_stats.build_seconds
 
-    with tempfile.TemporaryDirectory(prefix="cellsim-verify-") as scratch:
+    with (contextlib.nullcontext(str(scratch)) if scratch is not None
+          else tempfile.TemporaryDirectory(prefix="cellsim-verify-")) as scratch:
         # the whole cell, every monitor in it, as decision diagrams: its size decides how it is checked
         whole = Path(scratch) / "model.prism"
         # every module, even one no property observes: a state where one cannot step is refused here (the groups'
@@ -547,11 +553,35 @@ FAIRNESS = ("a liveness condition whose response may take longer than its window
             "eventually do (a person free to leave does leave, a dwell that can end ends)")
 
 
+def export_paths(path: Path, sf=None) -> tuple[Path, Path]:
+    """(the PRISM program's file, its properties' beside it with ``.props``), refused (VerifyError) where the two
+    would be one file, or (``sf``: the verified scenario) one of them is a file the scenario uses."""
+    from cellsim.atomic import OverwritesInput, refuse_inputs
+
+    path = Path(path)
+    props = path.with_suffix(".props")
+    if props == path:
+        raise VerifyError(f"--export {path}: name the model's file (say {path.with_suffix('.prism')}); its "
+                          "properties are written beside it, with .props")
+    if sf is not None and not sf.built_in_code:
+        try:
+            for target in (path, props):
+                refuse_inputs(target, sf.inputs(), "the exported model")
+        except OverwritesInput as e:
+            raise VerifyError(str(e)) from None
+    for folder in path.parents:  # (a file on the way: said before anything is built, not once it is)
+        if folder.exists():
+            if not folder.is_dir():
+                raise VerifyError(f"--export {path}: {folder} is a file, not a folder to write into")
+            break
+    return path, props
+
+
 def write_export(model: AbstractModel, path: Path) -> tuple[Path, Path]:
     """``path`` (the PRISM program) and ``path`` with ``.props`` (its properties), written whole or not at all."""
     from cellsim.atomic import write_text
 
-    props = path.with_suffix(".props")
+    path, props = export_paths(path, model.cell.sf)
     write_text(path, model.text, make_folder=True)
     write_text(props, properties_text(model), make_folder=True)
     return path, props
