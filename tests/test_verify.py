@@ -636,3 +636,13 @@ def test_ctrl_c_while_storm_builds_leaves_no_scratch_folder(tmp_path):
             proc.wait()
     assert proc.returncode == 130
     assert [p.name for p in scratch.iterdir() if p.name.startswith("cellsim-")] == []
+
+
+def test_a_verify_formula_storm_cannot_read_is_refused_before_any_build_quoting_the_users_text(tmp_path):
+    scenario = tmp_path / "bad.yaml"
+    scenario.write_text(f"base: {WELDING_CELL}\nvalidation:\n  verify:\n    broken: 'Pmax=? [ F \"oloc == inCell\" '\n")
+    export = tmp_path / "m.prism"
+    done = _verify(str(scenario), "--no-replay", "--export", str(export), "--out", str(tmp_path / "out"))
+    assert done.returncode == 2 and "Storm:" not in done.stderr, done.stderr
+    assert "verify.broken: Storm cannot read 'Pmax=? [ F \"oloc == inCell\" ' as PCTL" in done.stderr
+    assert not export.exists() and not export.with_suffix(".props").exists()

@@ -33,7 +33,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("--refine", type=int, default=None, metavar="N",
                    help="where a module's abstraction finds a witness doing what the module cannot (a person crossing "
                         "a place faster than it walks...), refine the abstraction there and check again instead of "
-                        "running that witness on the twin, at most N times (default 3; 0: never)")
+                        "running that witness on the twin, at most N times (default 3, at most 20; 0: never). It "
+                        "needs the replays: with --no-replay nothing is refined")
     p.add_argument("--json", action="store_true", help="print the results as JSON on standard output")
     _add_set(p)
     p.set_defaults(handler=run)
@@ -79,7 +80,8 @@ def _json(result, replays) -> dict:
                         for r in result.refinements],
         "states": stats.states, "transitions": stats.transitions, "choices": stats.choices,
         "largest_states": (result.largest or stats).states,
-        "engine": "symbolic" if stats.symbolic else "symbolic, then sparse" if stats.made_sparse else "symbolic, then explicit",
+        "engine": ("symbolic" if stats.symbolic or not any(r.holds is False for r in result.results)
+                   else "symbolic, then sparse" if stats.made_sparse else "symbolic, then explicit"),
         "seconds": {k: round(v, 4) for k, v in result.times.items()},
         "period": result.model.cell.period,
         "assumptions": result.model.cell.assumptions,
@@ -149,12 +151,14 @@ def _print(result, replays, export) -> None:
     for s in model.skipped:
         console.print(f"  not checked: {escape(s.name)}: {escape(s.reason)}")
     times = result.times
-    shape = ("checked as decision diagrams (every monitor in one model)" if stats.symbolic
+    violated = any(r.holds is False for r in result.results)
+    shape = ("checked as decision diagrams (every monitor in one model)" if stats.symbolic or not violated
              else "checked as decision diagrams (every monitor in one model), a violated property's witness from "
                   f"its own model {'made sparse' if stats.made_sparse else 'built state by state'}")
-    console.print(f"  the cell: {stats.states:,} states, {stats.transitions:,} transitions; {shape}; "
+    last = " (the last round's)" if result.refinements else ""
+    console.print(f"  the cell{last}: {stats.states:,} states, {stats.transitions:,} transitions; {shape}; "
                   f"period {model.cell.period:g} s; floor {times.get('floor', 0):.2f} s, Storm build "
-                  f"{times.get('storm_build', 0):.2f} s, check {times.get('storm_check', 0):.2f} s")
+                  f"{times.get('storm_build', 0):.2f} s, check {times.get('storm_check', 0):.2f} s{last}")
     console.print("  assumptions:")
     for a in model.cell.assumptions:
         console.print(f"    - {escape(a)}")

@@ -221,7 +221,9 @@ class ConditionProperties:
                 cell.labels[key] = to_prism(formula, encodings, names)
                 return f'"{key}"'
 
-            out.append(Property(name, description or text, pctl=re.sub(r'"([^"]*)"', label, text)))
+            pctl = re.sub(r'"([^"]*)"', label, text)
+            _readable(name, text, pctl)
+            out.append(Property(name, description or text, pctl=pctl))
         return out
 
     def declare_user(self, vocabulary, macros) -> None:
@@ -233,6 +235,19 @@ class ConditionProperties:
                 except FormulaError as e:
                     raise VerifyError(f"verify.{name}: \"{source}\": {e.message}") from None
                 self._reads(formula, {v: self.channel(v) for v in variables_of(formula)}, f"verify.{name}")
+
+
+def _readable(name: str, text: str, pctl: str) -> None:
+    """VerifyError quoting the user's ``text`` (not its labels) when Storm cannot read ``pctl``: said before any
+    model is built, not once Storm checks it."""
+    from cellsim.verify.storm import _quiet
+
+    stormpy = _quiet()
+    try:
+        stormpy.parse_properties(pctl)  # (no program: the syntax alone)
+    except Exception as e:  # noqa: BLE001 - Storm's parser errors are one long text
+        raise VerifyError(f"verify.{name}: Storm cannot read {text!r} as PCTL: "
+                          f"{' '.join(str(e).split())[:200]}") from None
 
 
 RUN_GOES_ON = ("a liveness condition G(a -> F b) is judged as if the run went on after a response is owed (the model "
