@@ -158,11 +158,11 @@ def compile_conditions(scenario: ScenarioFile | str | os.PathLike):
     return scenario_safety_case(_checked(scenario))
 
 
-def default_conditions(scenario: ScenarioFile) -> list[str]:
+def default_conditions(scenario: ScenarioFile | str | os.PathLike) -> list[str]:
     """The names of the default conditions the scenario's modules give (``NoHarm``, ``TrueSSM``...), waived or not."""
     from cellsim.validation.defaults import default_conditions as defaults
 
-    return list(defaults(scenario.scenario))
+    return list(defaults(_checked(scenario).scenario))
 
 
 def _checked(scenario: ScenarioFile | str | os.PathLike) -> ScenarioFile:
@@ -229,6 +229,10 @@ def simulate(scenario: ScenarioFile | str | os.PathLike, out: str | os.PathLike 
     return Run(out, done.summary, done.checked)
 
 
+MOST_ROWS = 10_000_000
+"""The most rows :meth:`Run.dataframe` makes at a ``period`` (ten million: a day's run every 10 ms)."""
+
+
 @dataclass
 class Run:
     """A recorded run: its folder, what :func:`simulate` summed up, and its verdicts.
@@ -290,6 +294,10 @@ class Run:
             import pandas as pd
         except ImportError:  # pragma: no cover - pandas comes with cellsim's dependencies
             raise ImportError("Run.dataframe needs pandas: pip install 'cellsim[scripting]'") from None
+        if period is not None and not (isinstance(period, (int, float)) and math.isfinite(period) and period > 0):
+            raise ValueError(f"period must be a positive number of seconds, got {period!r}")
+        if isinstance(channels, str):
+            channels = [channels]  # one channel's name: its column alone
         with self.blackbox() as bb:
             known = bb.channels()
             names = list(channels) if channels is not None else [n for n, c in known.items() if c.kind != "vector"]
@@ -304,6 +312,9 @@ class Run:
                 columns[name] = pd.Series(values, index=s.times, dtype=object if _textual(values) else float)
         if period is not None:
             end = self.summary.sim_time
+            if end / period > MOST_ROWS:
+                raise ValueError(f"period {period:g} s would make {end / period:,.0f} rows of a {end:g} s run (at "
+                                 f"most {MOST_ROWS:,}): take a longer one")
             index = [round(k * period, 9) for k in range(int(math.floor(end / period + 1e-9)) + 1)]
         else:
             index = sorted({t for c in columns.values() for t in c.index})
@@ -363,7 +374,7 @@ def _held(column, index):
     return column[~column.index.duplicated(keep="last")].reindex(pd.Index(index), method="ffill")
 
 
-def check(run: str | os.PathLike | Run, scenario: ScenarioFile | None = None) -> "CheckedRun":
+def check(run: str | os.PathLike | Run, scenario: ScenarioFile | str | os.PathLike | None = None) -> "CheckedRun":
     """Judge a recorded run (its folder, or its black box) against ``scenario``'s conditions (default: the run's
     own scenario, recorded beside it) and the default ones, as ``cellsim check`` does.
 
@@ -376,6 +387,8 @@ def check(run: str | os.PathLike | Run, scenario: ScenarioFile | None = None) ->
     from cellsim.validation.check import check as check_run
     from cellsim.validation.traces import TraceError
 
+    if scenario is not None and not isinstance(scenario, ScenarioFile):
+        scenario = load_scenario(scenario)  # (a path, as elsewhere)
     try:
         return check_run(run.out if isinstance(run, Run) else run, scenario)
     except (BlackBoxError, TraceError) as e:

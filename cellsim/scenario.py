@@ -219,6 +219,9 @@ def _shortcut(scenario: Scenario):
 
 def load_scenario(path: str | os.PathLike, overrides: list[str] | tuple[str, ...] = ()) -> ScenarioFile:
     """Load, override and check a scenario; raises ConfigError on any bad input."""
+    if isinstance(overrides, str):
+        raise ConfigError("--set", None, "", f"the overrides are a list of PATH=VALUE strings, got the string "
+                          f"{overrides!r} (write [{overrides!r}])")
     loaded = load_file(Scenario, path, base_key="base")
     _add_default_modules(loaded.value)  # before the overrides: ``--set harm.cutoff=...`` sets the default's
     apply_overrides(loaded, list(overrides), resolve=_shortcut(loaded.value))

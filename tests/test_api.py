@@ -472,3 +472,15 @@ def test_a_run_whose_diagram_a_script_extended_says_so_in_its_record(tmp_path):
     (value,) = db.execute("SELECT value FROM metadata WHERE key = 'extended_by'").fetchone()
     db.close()
     assert json.loads(value).endswith("<locals>.extend")
+
+
+def test_a_runs_readers_take_what_a_script_most_likely_gives_and_refuse_the_rest_in_words(tmp_path):
+    run = cellsim.simulate(WELDING, tmp_path / "run", duration=1.0)
+    assert list(run.dataframe("ground_truth.separation").columns) == ["ground_truth.separation"]  # one name
+    for period in (0.0, -1.0, float("nan"), 1e-12):
+        with pytest.raises(ValueError, match="period"):
+            run.dataframe(["ground_truth.separation"], period=period)
+    assert cellsim.check(tmp_path / "run", WELDING).result.verdicts  # a scenario's path, as elsewhere
+    assert "NoHarm" in cellsim.default_conditions(WELDING)
+    with pytest.raises(cellsim.ConfigError, match="a list of PATH=VALUE strings"):
+        cellsim.load_scenario(WELDING, "seed=3")
