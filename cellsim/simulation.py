@@ -129,7 +129,8 @@ class RunFolder:
             self._refuse_foreign(out)  # again, now that nobody else writes it
             if any((out / name).exists() for name in (BLACKBOX, RESOLVED_SCENARIO)):
                 if not self.overwrite:
-                    raise OutputExistsError(f"{out} already holds a run ({BLACKBOX}); choose another --out or pass --overwrite (overwrite=True in a script)")
+                    raise OutputExistsError(f"{out} already holds a run ({BLACKBOX}); choose another --out or pass "
+                                            "--overwrite (overwrite=True in a script)")
                 self.writing = self._beside(out, "overwriting")
                 shutil.rmtree(self.writing, ignore_errors=True)  # (one a killed process left: ours, we hold the lock)
                 self.writing.mkdir()
