@@ -146,8 +146,9 @@ class LinkTrust:
     masquerade_after: int = 3
     masquerade_window: float = 1.0
     clear_after: int = 16
-    anomalies: int = 0
-    anomaly_since: float | None = None
+    anomaly_times: tuple = ()
+    """When the latest anomalies came (s), those within ``masquerade_window`` of the last, at most
+    ``masquerade_after``: the window slides with each anomaly."""
     masquerade: bool = False
     clean_run: int = 0
     last_content: float | None = None
@@ -195,7 +196,7 @@ class LinkTrust:
             self._anomaly(now)
         self.clean_run = self.clean_run + 1 if delta == 1 else 0
         if self.masquerade and self.clean_run >= self.clear_after:
-            self.masquerade, self.anomalies, self.anomaly_since = False, 0, None  # one sender's stable run
+            self.masquerade, self.anomaly_times = False, ()  # one sender's stable run
         self.last_seq = seq  # resynchronise on it, whether it is taken or not
         if self.masquerade:
             return Fault.MASQUERADE
@@ -203,11 +204,22 @@ class LinkTrust:
             return Fault.COUNTER
         return None
 
+    @property
+    def anomalies(self) -> int:
+        """How many anomalies came within ``masquerade_window`` up to the latest (that one included)."""
+        return len(self.anomaly_times)
+
+    @property
+    def anomaly_since(self) -> float | None:
+        """When the earliest of :attr:`anomalies` came (s); None without one."""
+        return self.anomaly_times[0] if self.anomaly_times else None
+
     def _anomaly(self, now: float) -> None:
-        if self.anomaly_since is None or now - self.anomaly_since > self.masquerade_window:
-            self.anomaly_since, self.anomalies = now, 0
-        self.anomalies += 1
-        if self.anomalies >= self.masquerade_after:
+        """An anomaly at ``now``: ``masquerade_after`` of them within any ``masquerade_window`` (both ends included)
+        latch the masquerade, wherever the window starts (it slides: no edge to time bursts across)."""
+        recent = [t for t in self.anomaly_times if now - t <= self.masquerade_window]
+        self.anomaly_times = tuple([*recent, now][-self.masquerade_after:])
+        if len(self.anomaly_times) >= self.masquerade_after:
             self.masquerade = True  # (the message that made the anomaly also restarts the clean run)
 
     def receive(self, now: float, seq: int, content: float | None = None, *, stamp: float | None = None,
@@ -215,7 +227,10 @@ class LinkTrust:
         """Judge a message that passed its integrity checks, in the rule's one order: its ``stamp`` (the
         sender's wall clock, against the receiver's ``wall``; when it carries one), its sequence ``seq``
         (``content``: a hash, telling a repeat from another sender), then ``in_range(values)`` (a fault for
-        values it may not carry, or None); fails (or refuses) it on the first fault, else it is good."""
+        values it may not carry, or None); fails (or refuses) it on the first fault, else it is good. A silence
+        longer than ``timeout`` before it is judged first (:meth:`watchdog`): the link went stale in it, whenever
+        the caller's own watchdog call comes, so this message starts the recovery rather than being trusted."""
+        self.watchdog(now)
         fault = self.stamp(stamp, wall) if stamp is not None else None
         fault = fault or self.sequence(seq, now, content)
         if fault is None and in_range is not None:
@@ -223,7 +238,8 @@ class LinkTrust:
         return self.fail(fault, now) if fault is not None else self.good(now, values)
 
     def good(self, now: float, values=None) -> Judgement:
-        """A good message arrived at ``now``."""
+        """A good message arrived at ``now`` (after a silence longer than ``timeout``: one of the recovery's)."""
+        self.watchdog(now)
         self.last_good = now
         self.timed_out_at = None
         self.good_in_a_row += 1
@@ -266,32 +282,31 @@ class LinkTrust:
         self.counts[fault.value] = self.counts.get(fault.value, 0) + 1
 
     # -- state in a Drake context ---------------------------------------------------
-    STATE_SIZE = 11
-
     def state(self) -> np.ndarray:
         """The rule's state as numbers: [link code, good in a row, last good, last seq, timed out at, last heard,
-        anomalies, anomaly since, masquerade, clean run, last content]."""
+        masquerade, clean run, last content, then ``masquerade_after`` anomaly times (-inf: none)]."""
+        times = [*self.anomaly_times, *[-np.inf] * (self.masquerade_after - len(self.anomaly_times))]
         return np.array([
             float(self.link.code), float(self.good_in_a_row),
             -np.inf if self.last_good is None else self.last_good,
             -1.0 if self.last_seq is None else float(self.last_seq),
             -np.inf if self.timed_out_at is None else self.timed_out_at,
             -np.inf if self.last_heard is None else self.last_heard,
-            float(self.anomalies), -np.inf if self.anomaly_since is None else self.anomaly_since,
             1.0 if self.masquerade else 0.0, float(self.clean_run),
             np.nan if self.last_content is None else self.last_content,
+            *times,
         ])
 
     def restore(self, state) -> "LinkTrust":
-        (code, good, last_good, last_seq, timed_out_at, last_heard, anomalies, anomaly_since, masquerade, clean_run,
-         last_content) = (float(x) for x in state)
+        values = [float(x) for x in state]
+        (code, good, last_good, last_seq, timed_out_at, last_heard, masquerade, clean_run, last_content) = values[:9]
+        self.anomaly_times = tuple(t for t in values[9:] if t != -np.inf)
         self.link = PhysicalLink.from_code(code)
         self.good_in_a_row = int(good)
         self.last_good = None if last_good == -np.inf else last_good
         self.last_seq = None if last_seq < 0 else int(last_seq)
         self.timed_out_at = None if timed_out_at == -np.inf else timed_out_at
         self.last_heard = None if last_heard == -np.inf else last_heard
-        self.anomalies, self.clean_run, self.masquerade = int(anomalies), int(clean_run), masquerade > 0.5
-        self.anomaly_since = None if anomaly_since == -np.inf else anomaly_since
+        self.clean_run, self.masquerade = int(clean_run), masquerade > 0.5
         self.last_content = None if math.isnan(last_content) else last_content
         return self

@@ -52,12 +52,17 @@ class BlackBoxReplay(LeafSystem):
     its ChannelType (to encode enum names back into codes). Output
     ``physical_sample`` is ``[t, link, *fields]``: ``t`` now and link ok once every
     field has a recorded value at or before ``t - time_offset`` (the replayed twin's
-    whole state is known at every instant), link stale before that.
+    whole state is known at every instant), link stale before that, and after the
+    record's end (its last values are no news: a replay that ran out is a silent device).
     """
 
     def __init__(self, blackbox: BlackBox, fields: list[tuple[str, int, ChannelType]], period: float, time_offset: float = 0.0):
+        from cellsim.validation.traces import run_end
+
         super().__init__()
         self.time_offset = time_offset
+        self.end = run_end(blackbox, blackbox.metadata())[0]
+        """s: where the record ends, on its own clock."""
         self._series = []
         for channel, element, ctype in fields:
             series = blackbox.series(channel)
@@ -70,6 +75,9 @@ class BlackBoxReplay(LeafSystem):
     def _update(self, context, xd):
         t = context.get_time() - self.time_offset
         sample = np.zeros(2 + len(self._series))
+        if t > self.end + 1e-9:
+            xd.get_mutable_vector(self._state).SetFromVector(no_sample(len(sample)))
+            return
         sample[0], sample[1] = context.get_time(), _OK
         for i, (times, codes) in enumerate(self._series):
             k = int(np.searchsorted(times, t, side="right")) - 1

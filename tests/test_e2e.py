@@ -145,10 +145,11 @@ def test_a_retransmitted_frame_is_no_masquerade():
 
 # Known-good frames of ScannerState, written out byte for byte: computed once with cantools' own
 # AUTOSAR profile 2 (cantools.autosar.end_to_end.compute_profile2_crc, polynomial 0x2F) over bytes 1..5
-# and the data ID (0x120 + counter) mod 256, not with cellsim.bridges.e2e.
+# and the data ID (base + counter) mod 256, the base 0xd2 that same CRC over the frame id's bytes 01 20, not
+# with cellsim.bridges.e2e.
 KNOWN_GOOD = [
-    (5, {"Range": "near", "Distance": 1.5}, "4f15dc050000"),  # data ID 0x25
-    (15, {"Range": "close", "Distance": 60.0}, "ae2f60ea0000"),  # data ID 0x2f; Distance at its DBC maximum
+    (5, {"Range": "near", "Distance": 1.5}, "c915dc050000"),  # data ID 0xd7
+    (15, {"Range": "close", "Distance": 60.0}, "1e2f60ea0000"),  # data ID 0xe1; Distance at its DBC maximum
 ]
 
 
@@ -317,3 +318,45 @@ def test_a_stream_of_any_faulty_frames_keeps_the_device_corrupt_while_it_comes(s
         assert checker.check(faulty(i), 0.04 * i).fault is not None
         assert checker.watchdog(0.04 * i + 0.01) is None and checker.link.value == "corrupt", (spoil, i)
     assert checker.watchdog(0.5).fault is Fault.TIMEOUT
+
+
+def test_messages_whose_ids_differ_only_above_the_low_byte_never_check_as_each_other():
+    """The data ID's base takes every bit of the 11-bit id: an audit found 0x110 (the light curtain) and 0x210 (a
+    welder command), both 4 bytes, sharing every data ID, so a command frame passed as 'curtain clear'."""
+    curtain, command = DBC.get_message_by_name("LightCurtainState"), DBC.get_message_by_name("WelderCommand")
+    assert curtain.frame_id % 256 == command.frame_id % 256 and curtain.length == command.length
+    frame = protect(command, {name: 0 for name in (s.name for s in command.signals) if name not in ("Crc", "Counter")}, 2)
+    assert DeviceChecker(message=curtain, timeout=0.1).check(frame, 0.0).fault is Fault.CRC
+    from cellsim.bridges.e2e import sharing_data_ids
+
+    assert sharing_data_ids(DBC.messages) is None  # the cell's DBC has no two sharing
+
+
+def test_a_bridge_whose_dbc_gives_two_messages_one_data_id_list_is_refused(tmp_path):
+    """A DBC where two mapped messages of one length share their data IDs: the loader names them."""
+    import re
+    import shutil
+
+    from cellsim.bridges.config import load_bridge
+    from cellsim.bridges.e2e import data_id_base
+    from cellsim.config.typed_yaml import ConfigError
+    from cellsim.scenario import load_scenario
+
+    curtain = DBC.get_message_by_name("LightCurtainStateAuthenticated")  # (messages the shipped bridge maps)
+    welder = DBC.get_message_by_name("WelderCommandAuthenticated")
+    twin = next(i for i in range(0x300, 0x800) if data_id_base(i) == data_id_base(curtain.frame_id))
+    for name in ("welding_cell.yaml", "welding_cell.dbc"):
+        shutil.copy(ROOT / "bridges" / name, tmp_path / name)
+    dbc = tmp_path / "welding_cell.dbc"
+    dbc.write_text(re.sub(rf"\b{welder.frame_id}\b", str(twin), dbc.read_text()))
+    said = f"has the data IDs of 'LightCurtainStateAuthenticated' (0x{curtain.frame_id:x})"
+    with pytest.raises(ConfigError, match=re.escape(said)):
+        load_bridge(tmp_path / "welding_cell.yaml", load_scenario(ROOT / "scenarios" / "welding_cell.yaml"))
+
+
+def test_a_watchdog_the_alive_counter_can_outrun_unseen_is_refused():
+    from cellsim.bridges.config import DeviceMapping
+    from cellsim.config.typed_yaml import FieldError
+
+    with pytest.raises(FieldError, match="shorter than 14 cycles"):
+        DeviceMapping(message="ScannerState", fields={}, cycle_time=0.01, watchdog=0.2)

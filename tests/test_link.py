@@ -193,9 +193,10 @@ def test_a_jump_of_exactly_max_gap_is_no_anomaly_and_one_more_is():
     assert _take(link, seq + 3, t + 0.01) is Fault.COUNTER and link.anomalies == 1
 
 
-def test_anomalies_count_within_their_window_exactly_and_start_afresh_after_it():
-    """Three anomalies within masquerade_window (1 s, both ends included) latch; an anomaly later than the window
-    after the first starts a new count from one. At times far from zero, as a live clock's are."""
+def test_anomalies_count_within_a_sliding_window_exactly():
+    """Three anomalies within any masquerade_window (1 s, both ends included) latch, wherever the window starts: an
+    anomaly counts with those of the last second before it. At times far from zero, as a live clock's are. (An
+    audit found the window anchored at its first anomaly: 0.90, 1.05, 1.10 s after it never latched.)"""
     def jumps(times):
         link = LinkTrust(timeout=100.0, recover_after=1, max_gap=2, masquerade_window=1.0)
         seq = 0
@@ -207,9 +208,10 @@ def test_anomalies_count_within_their_window_exactly_and_start_afresh_after_it()
 
     assert jumps([1000.0, 1000.5, 1001.0]).masquerade  # the last exactly the window after the first: within
     late = jumps([1000.0, 1000.5, 1001.25])
-    assert not late.masquerade and late.anomalies == 1 and late.anomaly_since == 1001.25
-    assert not jumps([1000.0, 1002.0, 1002.5]).masquerade  # after a fresh start, two are not three
+    assert not late.masquerade and late.anomalies == 2 and late.anomaly_since == 1000.5  # the first fell out
+    assert not jumps([1000.0, 1002.0, 1002.5]).masquerade  # two within a second are not three
     assert jumps([1000.0, 1002.0, 1002.5, 1002.75]).masquerade
+    assert jumps([1000.0, 1000.9, 1001.05, 1001.1]).masquerade  # three in 0.2 s across the first one's second
 
 
 def test_a_refused_message_is_not_trusted_and_changes_nothing_else():
@@ -245,9 +247,21 @@ def test_silence_is_judged_at_any_time_of_a_live_clock():
     assert link.sequence(1, 1000.5) is None  # silent, stale: a restarted sender
 
 
+def test_a_message_after_a_silence_longer_than_the_timeout_starts_a_recovery_whenever_the_watchdog_is_called():
+    """The twin judges its inbox, then calls the watchdog: a gap of more than the timeout between two messages was
+    never seen, and the message after it trusted at once (an audit). It is judged on arrival now."""
+    link = LinkTrust(timeout=0.5, recover_after=3)
+    for k in range(4):
+        link.good(k * 0.04)
+    assert link.link is PhysicalLink.OK
+    after = link.receive(0.12 + 0.52, 4)  # 0.52 s of silence, no watchdog call in it
+    assert after.trusted is False and after.recovering and link.counts["timeout"] == 1
+    assert [link.receive(0.64 + 0.04 * k, 5 + k).trusted for k in range(1, 3)] == [False, True]
+
+
 def test_every_field_of_the_rule_survives_a_round_trip_through_its_state():
     fields = ("link", "good_in_a_row", "last_good", "last_seq", "timed_out_at", "last_heard", "anomalies",
-              "anomaly_since", "masquerade", "clean_run", "last_content")
+              "anomaly_since", "anomaly_times", "masquerade", "clean_run", "last_content")
     fresh = LinkTrust(timeout=0.1)
     copy = LinkTrust(timeout=0.1).restore(fresh.state())
     assert {f: getattr(copy, f) for f in fields} == {f: getattr(fresh, f) for f in fields}

@@ -189,3 +189,18 @@ def test_a_change_at_the_last_update_before_a_run_stops_is_recorded(tmp_path):
     mode = bb.series("light_barrier.twin_mode")
     assert mode.values == ["model", "shadow"] and mode.times[1] == 1.0
     assert bb.series("light_barrier.physical_link").value_at(1.0) == "stale"
+
+
+def test_a_replayed_physical_twin_that_ran_out_goes_stale_and_the_entity_fails_safe(tmp_path):
+    """A recording of 3 s shadowed for 6: after its end its last values are no news (an audit found them held
+    trusted forever). The link goes stale and the shadowed sensors read their safe values."""
+    run(place_operator(welding_cell(), start=(-4.0, -3.0)), tmp_path / "physical", duration=3.0)
+    sf = place_operator(welding_cell(), start=(-4.0, -3.0))
+    for sensor in ("light_barrier", "range_detector"):
+        sf.scenario.entities[sensor].twin.mode = TwinMode.SHADOW
+    replay = Replayed(tmp_path / "physical" / "blackbox.sqlite", entities=("light_barrier", "range_detector"))
+    bb = run(sf, tmp_path / "shadowed", duration=6.0, io=replay)
+    link = bb.series("light_barrier.physical_link")
+    assert link.value_at(2.0) == "ok" and link.value_at(4.0) == "stale"
+    assert bb.series("light_barrier.broken").value_at(2.0) is False and bb.series("light_barrier.broken").value_at(4.0) is True
+    assert bb.series("range_detector.range").value_at(4.0) == "close"

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Literal
 
+from cellsim.bridges.e2e import COUNTER_MODULO, MAX_GAP, sharing_data_ids
 from cellsim.bridges.signals import NONE, SignalMap
 from cellsim.config.typed_yaml import ConfigError, FieldError, Range, load_file
 from cellsim.codec import FieldCodec
@@ -62,6 +63,13 @@ class DeviceMapping:
     def __post_init__(self):
         if self.watchdog <= self.cycle_time:
             raise FieldError("watchdog", "the watchdog must be longer than the cycle time")
+        # the alive counter runs modulo 16: frames lost for 16 cycles bring it round to where it was, unseen, so the
+        # watchdog must fire first
+        most = (COUNTER_MODULO - MAX_GAP) * self.cycle_time
+        if self.watchdog >= most:
+            raise FieldError("watchdog", f"the watchdog must be shorter than {COUNTER_MODULO - MAX_GAP} cycles "
+                             f"({most:g} s): frames lost for {COUNTER_MODULO} cycles bring the alive counter round "
+                             "unseen")
 
 
 @dataclass
@@ -443,6 +451,12 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
             if caps is None:
                 raise error(f"robots.{name}.rtde", f"'{name}' has no speed_limits: the speed slider follows them")
             programs[name] = _program(robot, caps, samples[name], commands[name])
+    shared = sharing_data_ids([messages[name] for name in used])
+    if shared:
+        first, second = shared
+        raise error(used[second.name] + ".message", f"'{second.name}' (0x{second.frame_id:x}) has the data IDs of "
+                    f"'{first.name}' (0x{first.frame_id:x}), also {first.length} bytes: a frame of one would check as "
+                    "the other's; give one of them another frame id")
     frames = {}
     for name, device in cfg.devices.items():
         frames[device.message] = SignalMap.of_device(messages[device.message], device.fields,

@@ -7,9 +7,11 @@ profile 2, as ``cantools.autosar.end_to_end`` computes it:
 * byte 0, signal ``Crc``: CRC-8 (SAE J1850, polynomial 0x2F) over bytes 1.. of
   the frame followed by the frame's *data ID* for the current counter;
 * byte 1, low nibble, signal ``Counter``: an alive counter, 0..15, one up per frame;
-* the data ID for counter c is ``(frame id + c) mod 256`` (profile 2's DataIDList,
-  here derived from the frame id so that a frame of one message never checks as
-  another's).
+* the data ID for counter c is ``(base + c) mod 256`` (profile 2's DataIDList),
+  its base the same CRC-8 over the frame id's two bytes: every bit of the 11-bit
+  id counts (the id alone mod 256 made 0x110 and 0x210 one list). Two protected
+  messages of one length with one base would check as each other: the bridge's
+  loader refuses such a DBC (:func:`sharing_data_ids`).
 
 :func:`protect` builds a frame; :class:`DeviceChecker` judges the frames of one
 device: length, CRC, counter continuity (a repeated counter, or one that jumps
@@ -36,11 +38,30 @@ from cantools.autosar.end_to_end import compute_profile2_crc
 from cellsim.link import Fault, Judgement, LinkTrust
 
 COUNTER_MODULO = 16
+MAX_GAP = 2
+"""How far a device's alive counter may jump (one lost frame tolerated): its frames' checks' default."""
+
+
+def data_id_base(frame_id: int) -> int:
+    """The base of a message's data IDs: CRC-8 (profile 2's polynomial) over its frame id's two bytes."""
+    return compute_profile2_crc(b"\x00" + frame_id.to_bytes(2, "big"), 0)
 
 
 def data_id(frame_id: int, counter: int) -> int:
     """Profile 2's data ID for a frame of ``frame_id`` carrying ``counter``."""
-    return (frame_id + counter) % 256
+    return (data_id_base(frame_id) + counter) % 256
+
+
+def sharing_data_ids(messages) -> tuple | None:
+    """Two protected messages (cantools Messages) of one length whose data IDs are the same for every counter, so
+    that a frame of one checks as the other's; None when there are none."""
+    seen: dict[tuple[int, int], object] = {}
+    for message in messages:
+        key = (message.length, data_id_base(message.frame_id))
+        if key in seen:
+            return seen[key], message
+        seen[key] = message
+    return None
 
 
 def protect(message, values: dict, counter: int, authenticator=None) -> bytes:
@@ -70,7 +91,7 @@ class DeviceChecker(LinkTrust):
     (``cellsim.link``: its alive counter as a sequence modulo 16, the watchdog, recover-after)."""
 
     message: object = None
-    max_gap: int = 2
+    max_gap: int = MAX_GAP
     """How far the counter may jump (1: no frame lost; 2: one lost frame tolerated)."""
     modulo: int = COUNTER_MODULO
     faults: tuple = E2E_FAULTS
