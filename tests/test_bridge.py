@@ -796,3 +796,17 @@ def test_a_configuration_on_a_base_elsewhere_finds_the_bases_scenario_and_dbc_be
     own.write_text(f"base: {SHIPPED}\nrecover_after: 5\n")
     loaded = load_bridge(own)
     assert loaded.cell == "welding_cell" and loaded.config.recover_after == 5 and loaded.database.messages
+
+
+def test_the_bridges_ros_key_is_one_the_access_control_grants_and_no_cellsim_key_is():
+    """The grant was **/joint_states, which matches cellsim/<cell>/command/joint_states (only the twin may publish
+    command/**). It is joint_states under at most one namespace, and the loader refuses a ROS key outside it."""
+    from cellsim.bridges.config import RobotLinkConfig, _key_matches
+    from cellsim.config.typed_yaml import FieldError
+    from cellsim.live.access import ROS_JOINT_STATE_KEYS
+
+    for key in ("cellsim/welding_cell/command/joint_states", "cellsim/x/twin/robot/joint_states"):
+        assert not any(_key_matches(p, key) for p in ROS_JOINT_STATE_KEYS)
+    assert any(_key_matches(p, "welding_cell/joint_states") for p in ROS_JOINT_STATE_KEYS)
+    with pytest.raises(FieldError, match="not one the twin's access control lets a bridge publish"):
+        RobotLinkConfig(joints=[f"j{i}" for i in range(6)], ros_topic="/command/joint_states", ros_namespace="/cellsim/x")

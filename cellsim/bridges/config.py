@@ -172,6 +172,13 @@ class RobotLinkConfig:
         for key, name in (("ros_topic", self.ros_topic), ("ros_namespace", self.ros_namespace)):
             if name and not all(part.replace("_", "a").isalnum() for part in name.strip("/").split("/")):
                 raise FieldError(key, f"'{name}' is not a ROS 2 name (letters, digits, _ and /)")
+        from cellsim.live.access import ROS_JOINT_STATE_KEYS
+
+        key = self.ros_key
+        if key is not None and not any(_key_matches(pattern, key) for pattern in ROS_JOINT_STATE_KEYS):
+            raise FieldError("ros_topic", f"the ROS key {key} is not one the twin's access control lets a bridge "
+                             f"publish ({' or '.join(ROS_JOINT_STATE_KEYS)}: a topic joint_states, under at most one "
+                             "namespace)")
 
     @property
     def ros_key(self) -> str | None:
@@ -466,6 +473,12 @@ def load_bridge(path: str | Path, sf=None) -> LoadedBridge:
             frames[mapping.message] = SignalMap.of_command(messages[mapping.message], mapping.fields, safe[name],
                                                            dict(zip(commands[name].names, commands[name].types)))
     return LoadedBridge(cfg, database, path, sf.scenario.name, samples, commands, safe, programs, frames)
+
+
+def _key_matches(pattern: str, key: str) -> bool:
+    """Whether the Zenoh key ``key`` matches ``pattern`` (chunks equal, ``*`` any one chunk; no ``**``)."""
+    parts, chunks = pattern.split("/"), key.split("/")
+    return len(parts) == len(chunks) and all(p == "*" or p == c for p, c in zip(parts, chunks))
 
 
 def relative_to_its_file(loaded, key: str, value: str) -> Path:

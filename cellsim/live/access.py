@@ -48,6 +48,9 @@ class Grant:
 
 
 _WATCH = ("twin/**", "status/**", "diagnostics/**", "physical/**")
+ROS_JOINT_STATE_KEYS = ("joint_states", "*/joint_states")
+"""The keys outside ``cellsim/`` a bridge may publish a robot's ROS joint state on: ``joint_states`` under no or
+one namespace (``**/joint_states`` let it publish ``cellsim/<cell>/command/joint_states``, the twin's)."""
 
 GRANTS: dict[str, Grant] = {
     "twin": Grant(
@@ -57,7 +60,7 @@ GRANTS: dict[str, Grant] = {
     "bridge": Grant(
         publish=("physical/**", "diagnostics/**", "controller/*/request"),
         subscribe=("command/**", "twin/*/twin_mode", "controller/*/state"),
-        token=("alive/bridge",), watch_alive=True, other_keys=("**/joint_states",),
+        token=("alive/bridge",), watch_alive=True, other_keys=ROS_JOINT_STATE_KEYS,
     ),
     "emulator": Grant(
         publish=("physical/**", "controller/*/state", "status/emulator"),
