@@ -810,3 +810,47 @@ def test_the_bridges_ros_key_is_one_the_access_control_grants_and_no_cellsim_key
     assert any(_key_matches(p, "welding_cell/joint_states") for p in ROS_JOINT_STATE_KEYS)
     with pytest.raises(FieldError, match="not one the twin's access control lets a bridge publish"):
         RobotLinkConfig(joints=[f"j{i}" for i in range(6)], ros_topic="/command/joint_states", ros_namespace="/cellsim/x")
+
+
+def test_a_frame_is_judged_and_stamped_at_its_arrival_not_when_the_daemon_takes_it(tmp_path):
+    """A frame held 0.3 s in the daemon's inbox (its thread busy): judged at the daemon-clock time it arrived and
+    stamped with the wall time it arrived, so the twin's late check sees its age (an audit found it judged and
+    stamped fresh when taken, past the watchdog)."""
+    import time
+    from types import SimpleNamespace
+
+    from cellsim.bridges.daemon import Bridge
+    from cellsim.bridges.e2e import protect
+
+    text = (ROOT / "bridges" / "welding_cell.yaml").read_text()
+    text = text.replace("scenario: ../scenarios/welding_cell.yaml", f"scenario: {ROOT / 'scenarios' / 'welding_cell.yaml'}")
+    text = text.replace("dbc: welding_cell.dbc", f"dbc: {ROOT / 'bridges' / 'welding_cell.dbc'}")
+    text = text.replace("    message: ScannerStateAuthenticated\n", "    message: ScannerState\n    e2e_only: test\n")
+    config = tmp_path / "bridge.yaml"
+    config.write_text(text)
+    loaded = load_bridge(config)
+    published: dict[str, list] = {}
+
+    class Session:  # what the daemon asks of a Zenoh session, recorded
+        def declare_publisher(self, key, **_):
+            published[key] = []
+            return SimpleNamespace(put=published[key].append)
+
+        def declare_subscriber(self, *_, **__):
+            return SimpleNamespace(undeclare=lambda: None)
+
+        def liveliness(self):
+            return SimpleNamespace(declare_token=lambda key: SimpleNamespace(undeclare=lambda: None),
+                                   declare_subscriber=lambda *_, **__: SimpleNamespace(undeclare=lambda: None))
+
+    clock, wall = [1000.0], [2.0e9]
+    bridge = Bridge(loaded, Session(), clock=lambda: clock[0], wall_clock=lambda: wall[0], can_key=bytes(16))
+    scanner = loaded.database.get_message_by_name("ScannerState")
+    frame = SimpleNamespace(arbitration_id=scanner.frame_id, data=protect(scanner, {"Range": "far", "Distance": 5.0}, 0))
+    bridge.inbox.put(("frame", None, frame, time.perf_counter() - 0.3))  # arrived 0.3 s before it is taken
+    bridge.take_inbox()
+    checker = bridge.devices[scanner.frame_id].checker
+    assert checker.last_good == pytest.approx(1000.0 - 0.3, abs=0.05)
+    (key,) = [k for k in published if k.endswith("physical/range_detector")]
+    stamp = json.loads(published[key][-1])["t"]
+    assert stamp == pytest.approx(2.0e9 - 0.3, abs=0.05)

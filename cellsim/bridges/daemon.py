@@ -198,9 +198,10 @@ class Bridge:
                              self.wall_clock)
 
     # -- in --------------------------------------------------------------------------
-    def handle(self, frame_id: int, data: bytes, now: float | None = None) -> Judgement | None:
-        """Check one received frame (at ``now``, the daemon's clock) and publish what it means for the twin:
-        its sample, or a link failure; a refused frame (a repeated counter) publishes nothing."""
+    def handle(self, frame_id: int, data: bytes, now: float | None = None, wall: float | None = None) -> Judgement | None:
+        """Check one received frame (that arrived at ``now``, the daemon's clock, and ``wall``, the wall clock's
+        time then) and publish what it means for the twin: its sample, stamped ``wall``, or a link failure; a
+        refused frame (a repeated counter) publishes nothing."""
         now = self.clock() if now is None else now
         device = self.devices.get(frame_id)
         if device is None:
@@ -209,7 +210,8 @@ class Bridge:
         device.diagnostics.frame()
         judgement = device.checker.check(bytes(data), now)
         if judgement.good:
-            self._publish(device, codec.encode_fields(time.time(), self._next(device), device.signals.fields(judgement.values)))
+            self._publish(device, codec.encode_fields(time.time() if wall is None else wall, self._next(device),
+                                                      device.signals.fields(judgement.values)))
         elif judgement.fault not in REFUSALS:
             self._publish_failure(device, judgement.fault)
         return judgement
@@ -291,9 +293,10 @@ class Bridge:
     def take(self, item: tuple) -> None:
         """Take in one item of the inbox: a frame, a robot state, a command, a twin mode, the twin's liveliness."""
         kind, entity, payload, arrived = item
-        if kind == "frame":
-            self.handle(payload.arbitration_id, bytes(payload.data))
-            self.frame_latencies.append(time.perf_counter() - arrived)
+        if kind == "frame":  # judged, and stamped, at its arrival, not when it is taken off the inbox
+            age = time.perf_counter() - arrived
+            self.handle(payload.arbitration_id, bytes(payload.data), self.clock() - age, self.wall_clock() - age)
+            self.frame_latencies.append(age)
             return
         if kind == "plc":
             self.plc.take(*payload, self.clock())
