@@ -569,8 +569,14 @@ def run_campaign(scenario: ScenarioFile | str | os.PathLike, out: str | os.PathL
 
     path, overrides = _scenario_file(scenario)
     sf = scenario if isinstance(scenario, ScenarioFile) else load_scenario(path)
-    if runs is not None and until_bound is not None:
-        raise ConfigError("until_bound", None, "", "sets the number of runs: give it or runs, not both")
+    if until_bound is not None:
+        if not (isinstance(until_bound, (int, float)) and 0.0 < until_bound < 1.0):
+            raise ConfigError("until_bound", None, "", f"must be a probability in (0, 1), got {until_bound!r}")
+        needed = runs_needed(until_bound)
+        if runs is not None and runs != needed:
+            raise ConfigError("until_bound", None, "", f"{until_bound:g} takes {needed:,} runs without a violation, "
+                              f"not the {runs:,} given: give runs=None (or {needed:,})")
+        runs = needed
     _check_run_arguments(sf, seed, duration, runs=runs, jobs=jobs)
     plan = CampaignPlan(path, overrides, seed, sf.scenario.campaign.runs if runs is None else runs, duration,
                         until_bound=until_bound)
