@@ -79,7 +79,8 @@ def replacing(path: str | os.PathLike, mode: str = "w", *, make_folder: bool = F
     path = os.fspath(path)
     if os.path.isdir(path):
         raise IsADirectoryError(errno.EISDIR, "is a folder; name a file to write", path)
-    if os.path.exists(path) and not stat.S_ISREG(os.stat(path).st_mode):  # a device or a pipe, links followed
+    if os.path.exists(path) and (not stat.S_ISREG(os.stat(path).st_mode) or path.startswith("/dev/")):
+        # a device or a pipe, links followed; or /dev/stdout sent to a file (>> appends to it: written into)
         with open(path, mode, **({} if "b" in mode else {"encoding": "utf-8"})) as f:
             yield f
         return

@@ -31,7 +31,7 @@ from cellsim.atomic import LOCK, FolderBusy, folder_lock
 from cellsim.config.typed_yaml import to_data
 from cellsim.hazards import HazardCounts, HazardPhases
 from cellsim.kind import Figure, Finding
-from cellsim.provenance import BLACKBOX, RESOLVED_SCENARIO, package_versions, read_inputs, write_run_scenario
+from cellsim.provenance import BLACKBOX, INPUTS, RESOLVED_SCENARIO, package_versions, read_inputs, write_run_scenario
 from cellsim.provenance import provenance as make_provenance
 from cellsim.scenario import ScenarioFile
 from cellsim.blackbox import BlackBox, BlackBoxWriter
@@ -131,7 +131,7 @@ class RunFolder:
                 if not self.overwrite:
                     raise OutputExistsError(f"{out} already holds a run ({BLACKBOX}); choose another --out or pass "
                                             "--overwrite (overwrite=True in a script)")
-                self.writing = self._beside(out, "overwriting")
+                self.writing = self._beside(Path(os.path.realpath(out)), "overwriting")
                 shutil.rmtree(self.writing, ignore_errors=True)  # (one a killed process left: ours, we hold the lock)
                 self.writing.mkdir()
         except BaseException:
@@ -144,13 +144,19 @@ class RunFolder:
         return out.parent / f".{out.name}.{what}"
 
     def commit(self) -> None:
-        """Put the run written into ``writing`` in the old run's place (nothing to do for a new folder)."""
+        """Put the run written into ``writing`` in the old run's place (nothing to do for a new folder): the folder
+        ``path`` names (a link's target, the link kept), with the files beside the old run that no run wrote (the
+        user's: an export, notes) moved into it."""
         if self.writing == self.path:
             return
-        replaced = self._beside(self.path, "replaced")
+        real = Path(os.path.realpath(self.path))
+        for item in real.iterdir():
+            if item.name not in (BLACKBOX, RESOLVED_SCENARIO, LOCK, INPUTS) and not item.name.startswith(BLACKBOX):
+                os.replace(item, self.writing / item.name)
+        replaced = self._beside(real, "replaced")
         shutil.rmtree(replaced, ignore_errors=True)
-        os.replace(self.path, replaced)
-        os.replace(self.writing, self.path)
+        os.replace(real, replaced)
+        os.replace(self.writing, real)
         self.writing = self.path
         shutil.rmtree(replaced, ignore_errors=True)
 
@@ -230,8 +236,8 @@ def simulate(
             try:
                 summary = _record(cell, simulator, folder.writing, seed, duration, on_progress, inputs, record,
                                   _name_of(extend))
-            except KeyboardInterrupt:
-                if cell.runs_until_stopped:  # a live run stopped on request: its record is complete
+            except BaseException:
+                if cell.runs_until_stopped:  # a live run's record, stopped or failed, is what happened: kept
                     folder.commit()
                 raise
             folder.commit()

@@ -128,15 +128,21 @@ def test_a_write_error_names_the_users_path_not_a_temporary_file(tmp_path, run, 
     assert "no such folder" in err and "partial" not in err and ".tmp" not in err
 
 
-def test_a_reader_that_stops_early_leaves_the_verdict_as_the_exit_code(run):
-    """``cellsim check RUN | head -1``: the pipe closes after one line; the command still exits with its verdict
-    (0: every condition holds), not 1 (a finding) or 2 (an error)."""
+@pytest.mark.parametrize("buffered", [False, True], ids=["line by line", "buffered to the end"])
+def test_a_reader_that_stops_early_leaves_the_verdict_as_the_exit_code(run, buffered):
+    """``cellsim check RUN | head -1``: the pipe closes early; the command still exits with its verdict (0: every
+    condition holds), not 1 (a finding), 2 (an error) or 120 (Python failing to flush at exit). Unbuffered, the
+    reader leaves after the first line; buffered (as outside this sandbox), before anything is flushed."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+    if not buffered:
+        env["PYTHONUNBUFFERED"] = "1"
     proc = subprocess.Popen([sys.executable, "-m", "cellsim.cli", "check", str(run), "--json"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
     try:
-        first = proc.stdout.readline()
+        first = b"{" if buffered else proc.stdout.readline()
         proc.stdout.close()  # the reader leaves
-        _, err = proc.communicate(timeout=120)
+        err = proc.stderr.read()
+        proc.wait(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -208,3 +214,19 @@ def test_a_stray_argument_is_refused_with_the_commands_own_usage(run, capsys):
     assert stopped.value.code == 2
     err = capsys.readouterr().err
     assert err.startswith("usage: cellsim scenario check") and "unrecognized arguments: extra" in err
+
+
+def test_an_earlier_export_beside_the_run_is_the_users_to_replace(run, tmp_path, capsys):
+    """Only the run's own files are protected: an MCAP exported into the run folder before may be exported again."""
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    for _ in range(2):
+        assert main(["export", str(copy), "--mcap", str(copy / "run.mcap")]) == 0
+    assert main(["check", str(copy), "--export-trace", str(copy / "trace.json")]) == 0
+    assert main(["check", str(copy), "--export-trace", str(copy / "trace.json")]) == 0
+
+
+def test_a_stray_argument_to_a_keys_action_gets_that_actions_usage(tmp_path, capsys):
+    with pytest.raises(SystemExit) as stopped:
+        main(["keys", "show", str(tmp_path), "--bogus"])
+    assert stopped.value.code == 2 and capsys.readouterr().err.startswith("usage: cellsim keys show")

@@ -360,3 +360,13 @@ def test_a_watchdog_the_alive_counter_can_outrun_unseen_is_refused():
 
     with pytest.raises(FieldError, match="shorter than 14 cycles"):
         DeviceMapping(message="ScannerState", fields={}, cycle_time=0.01, watchdog=0.2)
+
+
+def test_an_extended_id_has_data_ids_and_a_command_watchdog_the_counter_outruns_is_refused():
+    from cellsim.bridges.config import CommandMapping
+    from cellsim.bridges.e2e import data_id_base
+    from cellsim.config.typed_yaml import FieldError
+
+    assert 0 <= data_id_base(0x18FF1234) < 256 and data_id_base(0x18FF1234) != data_id_base(0x1234)
+    with pytest.raises(FieldError, match="shorter than 14 cycles"):
+        CommandMapping(message="WelderCommand", fields={}, cycle_time=0.02, watchdog=0.5)

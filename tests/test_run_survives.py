@@ -301,3 +301,21 @@ def test_an_overwriting_run_that_does_not_finish_leaves_the_old_run_whole(tmp_pa
     with BlackBox(out / BLACKBOX) as bb:
         assert bb.metadata()["seed"] == 9
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
+def test_an_overwrite_through_a_linked_out_keeps_the_link_and_the_users_files(tmp_path):
+    """--out a symbolic link to the run's folder: the run is replaced in the folder it names, the link stays (the
+    first version swapped the link itself away and every later overwrite failed at its end); files beside the run
+    that no run wrote (an export, notes) stay with it."""
+    target = tmp_path / "run-1"
+    link = tmp_path / "latest"
+    assert main(["simulate", str(WELDING_CELL), "--out", str(target), "--duration", "0.5", "--quiet"]) == 0
+    link.symlink_to(target)
+    (target / "notes.txt").write_text("mine")
+    for seed in (4, 5):
+        assert main(["simulate", str(WELDING_CELL), "--out", str(link), "--duration", "0.5", "--seed", str(seed),
+                     "--overwrite", "--quiet"]) == 0
+        assert link.is_symlink() and (target / "notes.txt").read_text() == "mine"
+        with BlackBox(target / BLACKBOX) as bb:
+            assert bb.metadata()["seed"] == seed
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["latest", "run-1"]

@@ -63,13 +63,16 @@ class DeviceMapping:
     def __post_init__(self):
         if self.watchdog <= self.cycle_time:
             raise FieldError("watchdog", "the watchdog must be longer than the cycle time")
-        # the alive counter runs modulo 16: frames lost for 16 cycles bring it round to where it was, unseen, so the
-        # watchdog must fire first
-        most = (COUNTER_MODULO - MAX_GAP) * self.cycle_time
-        if self.watchdog >= most:
-            raise FieldError("watchdog", f"the watchdog must be shorter than {COUNTER_MODULO - MAX_GAP} cycles "
-                             f"({most:g} s): frames lost for {COUNTER_MODULO} cycles bring the alive counter round "
-                             "unseen")
+        _counter_cannot_wrap(self.watchdog, self.cycle_time)
+
+
+def _counter_cannot_wrap(watchdog: float, cycle_time: float) -> None:
+    """The alive counter runs modulo 16: frames lost for 16 cycles bring it round to where it was, unseen, so the
+    watchdog of the frames' receiver must fire first (FieldError otherwise)."""
+    most = (COUNTER_MODULO - MAX_GAP) * cycle_time
+    if watchdog >= most:
+        raise FieldError("watchdog", f"the watchdog must be shorter than {COUNTER_MODULO - MAX_GAP} cycles "
+                         f"({most:g} s): frames lost for {COUNTER_MODULO} cycles bring the alive counter round unseen")
 
 
 @dataclass
@@ -88,6 +91,9 @@ class CommandMapping:
     e2e_only: str | None = None
     """Why this frame is not authenticated (its device cannot check a MAC): required for a message without
     ``Freshness`` and ``Mac`` signals, said by the daemon at start; none otherwise."""
+
+    def __post_init__(self):
+        _counter_cannot_wrap(self.watchdog, self.cycle_time)  # (a device checks these frames with this watchdog)
 
 
 Register = Annotated[int, Range(0, 47)]

@@ -298,9 +298,10 @@ class Bridge:
             self.handle(payload.arbitration_id, bytes(payload.data), self.clock() - age, self.wall_clock() - age)
             self.frame_latencies.append(age)
             return
-        if kind == "plc":
-            self.plc.take(*payload, self.clock())
-            self.plc_latencies.append(time.perf_counter() - arrived)
+        if kind == "plc":  # as a frame: judged and stamped at its arrival
+            age = time.perf_counter() - arrived
+            self.plc.take(*payload, self.clock() - age, age)
+            self.plc_latencies.append(age)
             return
         if kind == "robot":
             self.handle_robot(entity, payload)

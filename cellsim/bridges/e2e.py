@@ -43,8 +43,9 @@ MAX_GAP = 2
 
 
 def data_id_base(frame_id: int) -> int:
-    """The base of a message's data IDs: CRC-8 (profile 2's polynomial) over its frame id's two bytes."""
-    return compute_profile2_crc(b"\x00" + frame_id.to_bytes(2, "big"), 0)
+    """The base of a message's data IDs: CRC-8 (profile 2's polynomial) over its frame id's two bytes (four for an
+    extended, 29-bit id)."""
+    return compute_profile2_crc(b"\x00" + frame_id.to_bytes(2 if frame_id <= 0xFFFF else 4, "big"), 0)
 
 
 def data_id(frame_id: int, counter: int) -> int:

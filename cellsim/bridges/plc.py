@@ -118,6 +118,7 @@ class PlcLink:
         self._writing: asyncio.Lock | None = None  # one write at a time (made on the loop)
         self.refused: set[str] = set()
         """Entities whose last command the PLC refused (a node it would not take): while any is, no heartbeat."""
+        self._age = 0.0  # how long ago the notification being taken arrived (s): :meth:`take`
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="opcua-plc", daemon=True)
 
@@ -125,8 +126,20 @@ class PlcLink:
         self._thread.start()
 
     # -- in (the daemon's thread) ----------------------------------------------------------
-    def take(self, node: str, value, good: bool, now: float) -> None:
-        """One notification: the PLC's heartbeat, or a node of an entity's sample, with its status."""
+    def take(self, node: str, value, good: bool, now: float, age: float = 0.0) -> None:
+        """One notification: the PLC's heartbeat, or a node of an entity's sample, with its status; ``now``: when it
+        arrived (the daemon's clock), ``age`` (s) how long ago that was, so what it publishes is stamped then."""
+        self._age = age
+        try:
+            self._take(node, value, good, now)
+        finally:
+            self._age = 0.0
+
+    def _wall(self) -> float:
+        """The wall-clock time the notification being taken arrived (now, outside :meth:`take`)."""
+        return time.time() - self._age
+
+    def _take(self, node: str, value, good: bool, now: float) -> None:
         if node == HEARTBEAT:
             if not good or isinstance(value, bool) or not isinstance(value, int):
                 fault = Fault.CORRUPT if not good else Fault.RANGE
@@ -178,13 +191,13 @@ class PlcLink:
         judgement = link.trust.receive(now, link.seq)
         if judgement.good:
             link.published += 1
-            link.publisher.put(codec.encode_fields(time.time(), link.seq, dict(link.values)))
+            link.publisher.put(codec.encode_fields(self._wall(), link.seq, dict(link.values)))
 
     def _fail(self, link: PlcEntityLink, fault: Fault, now: float | None) -> None:
         link.trust.fail(fault, now)
         link.seq += 1
         link.failures_published += 1
-        link.publisher.put(codec.encode_failure(time.time(), link.seq, fault))
+        link.publisher.put(codec.encode_failure(self._wall(), link.seq, fault))
 
     def check_watchdog(self, now: float) -> None:
         for link in self.entities.values():

@@ -71,6 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         print("cellsim: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     finally:
+        sys.stdout.flush()  # (through the wrapper: a reader gone by now is no error at exit either)
         sys.stdout = given
 
 
@@ -142,9 +143,9 @@ def _main(argv: list[str] | None) -> int:
 
 def _parser_of(parser: argparse.ArgumentParser, args) -> argparse.ArgumentParser:
     """The parser of the (sub)command ``args`` ran: ``cellsim scenario check`` -> its own."""
-    for name in ("command", "action"):
+    for name in ("_command", "_action|action"):
         actions = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]  # noqa: SLF001
-        chosen = getattr(args, f"_{name}", None)
+        chosen = next((getattr(args, n) for n in name.split("|") if getattr(args, n, None) is not None), None)
         if not actions or chosen is None or chosen not in actions[0].choices:
             break
         parser = actions[0].choices[chosen]

@@ -34,7 +34,7 @@ def add_parser(subparsers) -> None:
                    help="where a module's abstraction finds a witness doing what the module cannot (a person crossing "
                         "a place faster than it walks...), refine the abstraction there and check again instead of "
                         "running that witness on the twin, at most N times (default 3, at most 20; 0: never). It "
-                        "needs the replays: with --no-replay nothing is refined")
+                        "needs the replays: --no-replay refines nothing, and refuses a --refine above 0")
     p.add_argument("--json", action="store_true", help="print the results as JSON on standard output")
     _add_set(p)
     p.set_defaults(handler=run)

@@ -109,9 +109,17 @@ def locate_run(path: str | os.PathLike) -> tuple[Path, Path | None]:
 
 
 def run_files(run: str | os.PathLike) -> list[Path]:
-    """Every file of the run folder of ``run`` (a run folder or its black box): what no output may replace."""
-    blackbox, _ = locate_run(run)
-    return [p for p in blackbox.parent.iterdir() if p.is_file()]
+    """The files of the run ``run`` (a run folder or its black box): its black box (and SQLite's files beside it),
+    its scenario and the copies of its inputs: what no output may replace. (Other files beside them, an export made
+    earlier say, are the user's to replace.)"""
+    from cellsim.provenance import INPUTS
+
+    blackbox, scenario = locate_run(run)
+    own = [blackbox, *(blackbox.with_name(blackbox.name + suffix) for suffix in ("-wal", "-shm", "-journal"))]
+    if scenario is not None:
+        own.append(scenario)
+        own += [p for p in (scenario.parent / INPUTS).rglob("*") if p.is_file()]
+    return [p for p in own if p.is_file()]
 
 
 def locate_rebuildable_run(run: str | os.PathLike, purpose: str) -> tuple[Path, ScenarioFile]:

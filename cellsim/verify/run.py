@@ -324,7 +324,7 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
     say("building the abstract model")
     if model is None or model.cell.refinements != frozenset(refinements) or model.cell.timed != timed:
         model = abstract_model(sf, timed=timed, refinements=refinements)
-    if export is not None:  # every property (this round's model), before any checked already is left out
+    if export is not None and model.properties:  # every property (this round's model), before any is left out
         write_export(model, export)
     for prop in [p for p in model.properties if p.name in leave_out]:  # its monitor and labels go with it
         model.cell.monitors.pop(prop.name, None)
