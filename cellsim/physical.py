@@ -44,6 +44,18 @@ def replay_fields(entity, blackbox: BlackBox) -> list[tuple[str, int, ChannelTyp
     return fields
 
 
+def _record_end(blackbox: BlackBox) -> float:
+    """Where a black box's record ends (s): a completed (or stopped) run's duration, else what it committed
+    (``recorded_until``), else its last message."""
+    metadata = blackbox.metadata()
+    for key in (("duration",) if metadata.get("status") in ("completed", "stopped") else ()) + ("recorded_until",):
+        value = metadata.get(key)
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0:
+            return float(value)
+    times = [m.t for m in blackbox.messages()]
+    return max(times, default=0.0)
+
+
 class BlackBoxReplay(LeafSystem):
     """Replays recorded channels as an entity's physical samples.
 
@@ -57,11 +69,9 @@ class BlackBoxReplay(LeafSystem):
     """
 
     def __init__(self, blackbox: BlackBox, fields: list[tuple[str, int, ChannelType]], period: float, time_offset: float = 0.0):
-        from cellsim.validation.traces import run_end
-
         super().__init__()
         self.time_offset = time_offset
-        self.end = run_end(blackbox, blackbox.metadata())[0]
+        self.end = _record_end(blackbox)
         """s: where the record ends, on its own clock."""
         self._series = []
         for channel, element, ctype in fields:

@@ -414,10 +414,11 @@ def test_every_command_of_the_shipped_cell_refuses_a_forgery_from_its_first_fram
 
 # Known-good authenticated frames, written out byte for byte (key bytes 0..15, wall clock T0 + 0.123 s, 0.01 s
 # ticks): the curtain's was checked against the standard primitives above (KBKDF-CMAC, AES-CMAC, cantools'
-# profile 2 CRC), the welder command's likewise when it was written down.
+# profile 2 CRC), the welder command's likewise when it was written down. Byte 0, the CRC, was computed again
+# with cantools' profile 2 CRC when the data IDs took every bit of the frame id (base: that CRC over its 2 bytes).
 KNOWN_FRAMES = [
-    ("LightCurtainStateAuthenticated", {"Broken": 1}, 7, "071700000c45217e"),
-    ("WelderCommandAuthenticated", {"ActivityRequest": "welding", "Weld": 1}, 12, "cb5c00000c00f52f"),
+    ("LightCurtainStateAuthenticated", {"Broken": 1}, 7, "901700000c45217e"),
+    ("WelderCommandAuthenticated", {"ActivityRequest": "welding", "Weld": 1}, 12, "b75c00000c00f52f"),
 ]
 
 

@@ -93,6 +93,8 @@ class CommandMapping:
     ``Freshness`` and ``Mac`` signals, said by the daemon at start; none otherwise."""
 
     def __post_init__(self):
+        if self.watchdog <= self.cycle_time:
+            raise FieldError("watchdog", "the watchdog must be longer than the cycle time")
         _counter_cannot_wrap(self.watchdog, self.cycle_time)  # (a device checks these frames with this watchdog)
 
 

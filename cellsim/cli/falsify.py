@@ -18,11 +18,12 @@ def add_parser(subparsers) -> None:
         "choices and simplexes) for a run that violates a safety condition, choosing each run from the scores "
         "of those before it: the conditions' robustness (how far a run was from violating them) and the "
         "validation section's guides (two situations whose meeting stresses the controller). Stops at the first "
-        "violation or after --budget runs. Every run is an ordinary run folder under OUT/runs (its place in "
+        "violation of a condition searched for (--condition) or after --budget runs. Every run is an ordinary run folder under OUT/runs (its place in "
         "the search in its result.json); OUT/results.json and OUT/report.html report the search. The runs are "
         "chosen, not drawn at random, so no violation rate or bound is given: for a bound, run a campaign. "
-        "Exits 1 when a violation was found, 0 when the budget ran out without one (which is no evidence "
-        "of safety), 2 for bad input. See docs/falsify.md.",
+        "Exits 1 when a run violated any condition (every run is checked on all) or left one undecided, 0 "
+        "when the budget ran out without one (which is no evidence of safety), 2 for bad input. See "
+        "docs/falsify.md.",
     )
     cmd.add_argument("scenario", type=Path, help="scenario YAML file")
     cmd.add_argument("--budget", type=int, default=100, help="most runs to spend (default 100)")
