@@ -30,6 +30,7 @@ before the counter, so a forgery never moves the sequence.
 
 from __future__ import annotations
 
+import functools
 import zlib
 from dataclasses import dataclass
 
@@ -42,6 +43,7 @@ MAX_GAP = 2
 """How far a device's alive counter may jump (one lost frame tolerated): its frames' checks' default."""
 
 
+@functools.lru_cache(maxsize=4096)
 def data_id_base(frame_id: int) -> int:
     """The base of a message's data IDs: CRC-8 (profile 2's polynomial) over its frame id's two bytes (four for an
     extended, 29-bit id)."""
