@@ -289,3 +289,30 @@ class BlackBox:
             times.append(t)
             values.append(json.loads(p)["value"])
         return {c: Series(c, np.array(ts, float), vs) for c, (ts, vs) in grouped.items()}
+
+
+def run_end(bb: BlackBox, metadata: dict, reach: float = 0.0) -> tuple[float, bool]:
+    """Where a run's record ends (s), and whether the run completed.
+
+    A completed run (or a live one stopped on request) ends at its duration; otherwise
+    at the committed ``recorded_until``; without that, at ``reach`` (the latest message
+    time plus its channel's period).
+    """
+    if "status" not in metadata:  # written when the run starts, whatever happens next
+        raise BlackBoxError(f"{bb.path}: corrupt black box: its metadata has no status")
+    complete = metadata.get("status") in ("completed", "stopped")
+    end = _number(bb, metadata, "duration") if complete else None
+    if end is None:
+        complete = False
+        end = _number(bb, metadata, "recorded_until") or reach
+    return end, complete
+
+
+def _number(bb: BlackBox, metadata: dict, key: str) -> float | None:
+    """A positive finite number from the metadata, None when absent; corrupt otherwise."""
+    value = metadata.get(key)
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
+        raise BlackBoxError(f"{bb.path}: corrupt black box: metadata '{key}' is {value!r}, not a time in seconds")
+    return float(value) if value > 0 else None

@@ -149,7 +149,8 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
     from cellsim.blackbox import BlackBox, BlackBoxError
     from cellsim.atomic import OverwritesInput, refuse_inputs, replacing
     from cellsim.validation.check import CheckError, locate_rebuildable_run, run_files
-    from cellsim.validation.traces import blackbox_domains, checked_values, run_end
+    from cellsim.blackbox import run_end
+    from cellsim.validation.traces import blackbox_domains, checked_values
     from cellsim.diagrams.cell import build_cell
 
     destination = Path(destination)

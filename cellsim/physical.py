@@ -17,7 +17,7 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from cellsim.channels import ChannelType
-from cellsim.blackbox import BlackBox
+from cellsim.blackbox import BlackBox, run_end
 from cellsim.vocabulary import PhysicalLink
 
 _OK, _STALE = float(PhysicalLink.OK.code), float(PhysicalLink.STALE.code)
@@ -44,18 +44,6 @@ def replay_fields(entity, blackbox: BlackBox) -> list[tuple[str, int, ChannelTyp
     return fields
 
 
-def _record_end(blackbox: BlackBox) -> float:
-    """Where a black box's record ends (s): a completed (or stopped) run's duration, else what it committed
-    (``recorded_until``), else its last message."""
-    metadata = blackbox.metadata()
-    for key in (("duration",) if metadata.get("status") in ("completed", "stopped") else ()) + ("recorded_until",):
-        value = metadata.get(key)
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0:
-            return float(value)
-    times = [m.t for m in blackbox.messages()]
-    return max(times, default=0.0)
-
-
 class BlackBoxReplay(LeafSystem):
     """Replays recorded channels as an entity's physical samples.
 
@@ -71,7 +59,7 @@ class BlackBoxReplay(LeafSystem):
     def __init__(self, blackbox: BlackBox, fields: list[tuple[str, int, ChannelType]], period: float, time_offset: float = 0.0):
         super().__init__()
         self.time_offset = time_offset
-        self.end = _record_end(blackbox)
+        self.end = run_end(blackbox, blackbox.metadata())[0]
         """s: where the record ends, on its own clock."""
         self._series = []
         for channel, element, ctype in fields:

@@ -39,7 +39,7 @@ from cellsim.atomic import write_text
 from cellsim.logic.syntax import BoolDomain, EnumDomain, NumberDomain
 from cellsim.logic.trace import Signal, Trace
 from cellsim.channels import logic_domain
-from cellsim.blackbox import BlackBox, BlackBoxError
+from cellsim.blackbox import BlackBox, BlackBoxError, run_end
 
 Domain = EnumDomain | BoolDomain | NumberDomain
 
@@ -160,33 +160,6 @@ def checked_values(bb: BlackBox, channels: list[str], domains: dict[str, Domain]
                 f"outside its domain {_describe(domains[channel])}"
             )
         yield t, channel, value
-
-
-def run_end(bb: BlackBox, metadata: dict, reach: float = 0.0) -> tuple[float, bool]:
-    """Where a run's record ends (s), and whether the run completed.
-
-    A completed run (or a live one stopped on request) ends at its duration; otherwise
-    at the committed ``recorded_until``; without that, at ``reach`` (the latest message
-    time plus its channel's period).
-    """
-    if "status" not in metadata:  # written when the run starts, whatever happens next
-        raise BlackBoxError(f"{bb.path}: corrupt black box: its metadata has no status")
-    complete = metadata.get("status") in ("completed", "stopped")
-    end = _number(bb, metadata, "duration") if complete else None
-    if end is None:
-        complete = False
-        end = _number(bb, metadata, "recorded_until") or reach
-    return end, complete
-
-
-def _number(bb: BlackBox, metadata: dict, key: str) -> float | None:
-    """A positive finite number from the metadata, None when absent; corrupt otherwise."""
-    value = metadata.get(key)
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
-        raise BlackBoxError(f"{bb.path}: corrupt black box: metadata '{key}' is {value!r}, not a time in seconds")
-    return float(value) if value > 0 else None
 
 
 def validator_of(domain: Domain):

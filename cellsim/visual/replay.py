@@ -44,7 +44,8 @@ def check_replay(run: str | Path, at: float = 0.0, speed: float = 1.0):
     ReplayError (one line) otherwise. Everything a replay checks, before anything is opened or drawn."""
     from cellsim.blackbox import BlackBox, BlackBoxError
     from cellsim.validation.check import CheckError, locate_rebuildable_run
-    from cellsim.validation.traces import blackbox_domains, checked_values, run_end
+    from cellsim.blackbox import run_end
+    from cellsim.validation.traces import blackbox_domains, checked_values
 
     if not (math.isfinite(speed) and 0.01 <= speed <= 100.0):
         raise ReplayError(f"--speed {speed:g}: expected from 0.01 to 100 times real time")
