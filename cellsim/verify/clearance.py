@@ -273,3 +273,68 @@ class _Grid:
 def _voxels(centres: np.ndarray, edge: float) -> np.ndarray:
     """One point per cube of ``edge`` (m) holding any of ``centres``: the cube's centre."""
     return (np.unique(np.floor(centres / edge), axis=0) + 0.5) * edge
+
+
+@dataclass(frozen=True)
+class ArmGroup:
+    """Stretches of an arm's path where its tool is in one region of the layout: the states (``guard``), the fastest any
+    of its points moves per m/s of its cap-equivalent tool speed (None: not known, a path not modelled), and the spheres
+    holding the arm anywhere on them."""
+
+    guard: str
+    rate: float | None
+    at_rest: tuple[str, ...]
+    """The guards of its stretches where the arm rests at a pose (no motion of its own but settling)."""
+    spheres: Spheres
+
+
+def arm_groups(sweep: ArmSweep, stretches: list, reach: tuple[np.ndarray, float]) -> tuple[list[ArmGroup], dict]:
+    """An arm's stretches (``RobotAbstraction.stretches``) grouped by the layout's region its tool is in (fewer places:
+    the floor is cut by each group's clearance), each group's rate its fastest stretch's (at rest: settling, at the
+    arm's fastest), a path not modelled held by ``reach`` (a sphere about its base, :meth:`ArmSweep.reach`). Returns
+    (the groups, location -> [(stretch, its rate)])."""
+    members: dict = {}
+    fastest = 0.0
+    for stretch in stretches:
+        rate = None
+        if stretch.lines is not None and stretch.tool_per_s > 0.0:
+            rate = max(sweep.point_rate(line, stretch.spacing) for line in stretch.lines) / stretch.tool_per_s
+            fastest = max(fastest, rate)
+        members.setdefault(stretch.location, []).append((stretch, rate))
+    groups = []
+    for location, found in members.items():
+        guard = " | ".join(f"({stretch.guard})" for stretch, _ in found)
+        if location is None:  # a path not modelled: anywhere within its reach
+            centre, radius = reach
+            groups.append(ArmGroup(guard, None, (), Spheres(centre[None, :], np.array([radius]))))
+            continue
+        parts = [sweep.stretch(line) for stretch, _ in found for line in stretch.lines]
+        rate = max(fastest if rate is None else rate for _, rate in found)
+        at_rest = tuple(stretch.guard for stretch, _ in found if stretch.tool_per_s == 0.0)
+        groups.append(ArmGroup(guard, rate, at_rest, Spheres(np.vstack([p.centres for p in parts]),
+                                                             np.concatenate([p.radii for p in parts]))))
+    return groups, members
+
+
+class BodyCover:
+    """The spheres covering every person's body regions (``regions``: GeometryIds), per SceneGraph frame, posed from a
+    QueryObject."""
+
+    def __init__(self, inspector, regions):
+        frames: dict = {}
+        for g in regions:
+            centres, radii = cover(inspector.GetShape(g), inspector.GetPoseInFrame(g), BODY_TOLERANCE)
+            frames.setdefault(inspector.GetFrameId(g), []).append((centres, radii))
+        self.frames = [(frame, np.vstack([c for c, _ in parts]), np.concatenate([r for _, r in parts]))
+                       for frame, parts in frames.items()]
+        if not all(np.isfinite(radii).all() for _, _, radii in self.frames):
+            raise ValueError("a body region's shape cannot be covered (a box, cylinder, capsule, sphere or ellipsoid "
+                             "can)")
+        self.radii = np.concatenate([r for _, _, r in self.frames]) if self.frames else np.zeros(0)
+
+    def at(self, query) -> Spheres:
+        out = []
+        for frame, local, _ in self.frames:
+            X = query.GetPoseInWorld(frame)
+            out.append(local @ X.rotation().matrix().T + X.translation())
+        return Spheres(np.vstack(out) if out else np.zeros((0, 3)), self.radii)

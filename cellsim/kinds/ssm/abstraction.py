@@ -31,11 +31,10 @@ refutes everywhere (its true margin is left out, with that reason).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
-from cellsim.verify.clearance import BODY_TOLERANCE, TOLERANCE, ArmSweep, Clearance, Spheres, cover
+from cellsim.verify.clearance import BODY_TOLERANCE, TOLERANCE, ArmGroup, ArmSweep, BodyCover, Clearance, arm_groups
 from cellsim.verify.expressions import Thresholds
 from cellsim.verify.prism import Command, Module, Var
 from cellsim.verify.model import (AbstractCell, ModuleAbstraction, SensedSignal, SensorRole, context_of, lookup,
@@ -83,7 +82,7 @@ class SsmAbstraction(ModuleAbstraction):
         try:
             sweep = ArmSweep(kin.plant, kin.context, [(body, inspector.GetShape(g), inspector.GetPoseInFrame(g))
                                                        for g, body in system.bodies.items()])
-            bodies = _BodyCover(inspector, system.pairs.b.ids)
+            bodies = BodyCover(inspector, system.pairs.b.ids)
             reach = sweep.reach(robot.system.poses[0])
         except ValueError as e:
             raise VerifyError(f"{self.name}: its true margin cannot be bounded: {e}") from None
@@ -91,34 +90,15 @@ class SsmAbstraction(ModuleAbstraction):
         # from (above that: no cap, never read)
         caps = robot.system.speed_caps
         self.speeds = sorted({0.0, caps[SafetyMode.SPEED_SEPARATION], caps[SafetyMode.NORMAL]})
-        # the stretches grouped by the layout's region the tool is in (fewer places: the floor is cut by each
-        # group's clearance), each group's rate its fastest stretch's
-        groups: dict = {}
-        fastest = 0.0
-        for stretch in robot.stretches():
-            rate = None
-            if stretch.lines is not None and stretch.tool_per_s > 0.0:
-                rate = max(sweep.point_rate(line, stretch.spacing) for line in stretch.lines) / stretch.tool_per_s
-                fastest = max(fastest, rate)
-            groups.setdefault(stretch.location, []).append((stretch, rate))
-        clouds, modelled = [], []
-        for location, members in groups.items():
-            guard = " | ".join(f"({stretch.guard})" for stretch, _ in members)
-            if location is None:  # a path not modelled: anywhere within its reach, a sphere about its base
-                centre, radius = reach
-                clouds.append(Spheres(centre[None, :], np.array([radius])))
-                modelled.append((_Group(guard, None, ()), [self._sp(_Group(guard, None, ()), 0.0)]))
-                continue
-            parts = [sweep.stretch(line) for stretch, _ in members for line in stretch.lines]
-            clouds.append(Spheres(np.vstack([p.centres for p in parts]), np.concatenate([p.radii for p in parts])))
-            rate = max(fastest if rate is None else rate for _, rate in members)  # at rest: settling, at the fastest
-            at_rest = tuple(stretch.guard for stretch, _ in members if stretch.tool_per_s == 0.0)
-            group = _Group(guard, rate, at_rest)
-            modelled.append((group, sorted({self._sp(group, u) for u in self.speeds})))
+        groups, self.members = arm_groups(sweep, robot.stretches(), reach)
+        modelled = [(group, [self._sp(group, 0.0)] if group.rate is None else sorted({self._sp(group, u)
+                                                                                     for u in self.speeds}))
+                    for group in groups]
+        clouds = [group.spheres for group in groups]
         self.groups = modelled
         clearance = Clearance(clouds, [ts for _, ts in modelled], max(t for _, ts in modelled for t in ts) + 0.05)
         # (kept for the tests that hold the bounds to SceneGraph's: the stretches by location, their spheres)
-        self.clearance, self.bodies, self.sweep, self.members, self.clouds = clearance, bodies, sweep, groups, clouds
+        self.clearance, self.bodies, self.sweep, self.clouds = clearance, bodies, sweep, clouds
         of = context_of(system)
         signals = {}
         for k, (_, thresholds) in enumerate(modelled):
@@ -208,7 +188,7 @@ class SsmAbstraction(ModuleAbstraction):
                     f"({self.cfg.separation}, compared with the separations whose limit is 0 and each speed the model "
                     "tells apart); in ssmon the robot's cap is also that limit, braking to it as from a mode's cap")
 
-    def _sp(self, group: "_Group", u: float) -> float:
+    def _sp(self, group: ArmGroup, u: float) -> float:
         """S_p (m, whole reaction time) of the fastest point of ``group``'s stretches at tool speed ``u`` (m/s, a speed
         the model tells apart): at most ``u`` and the envelope's tolerance over it (a speed above 0 may sit up to that
         above its line while the arm settles), times its rate; a path not modelled: known only standing still."""
@@ -216,38 +196,3 @@ class SsmAbstraction(ModuleAbstraction):
         if group.rate is None:
             return sp(0.0) if u == 0.0 else math.inf
         return sp(group.rate * (u + TRACKING_TOLERANCE if u > 0.0 else 0.0))
-
-
-@dataclass(frozen=True)
-class _Group:
-    """Stretches of the arm's path where its tool is in one region of the layout: the states (``guard``) and the
-    fastest any of its points moves per m/s of its cap-equivalent tool speed (None: not known, a path not
-    modelled)."""
-
-    guard: str
-    rate: float | None
-    at_rest: tuple[str, ...]
-    """The guards of its stretches where the arm rests at a pose (no motion of its own but settling)."""
-
-
-class _BodyCover:
-    """The spheres covering every person's body regions, per SceneGraph frame, posed from a QueryObject."""
-
-    def __init__(self, inspector, regions):
-        frames: dict = {}
-        for g in regions:
-            centres, radii = cover(inspector.GetShape(g), inspector.GetPoseInFrame(g), BODY_TOLERANCE)
-            frames.setdefault(inspector.GetFrameId(g), []).append((centres, radii))
-        self.frames = [(frame, np.vstack([c for c, _ in parts]), np.concatenate([r for _, r in parts]))
-                       for frame, parts in frames.items()]
-        if not all(np.isfinite(radii).all() for _, _, radii in self.frames):
-            raise ValueError("a body region's shape cannot be covered (a box, cylinder, capsule, sphere or ellipsoid "
-                             "can)")
-        self.radii = np.concatenate([r for _, _, r in self.frames]) if self.frames else np.zeros(0)
-
-    def at(self, query) -> Spheres:
-        out = []
-        for frame, local, _ in self.frames:
-            X = query.GetPoseInWorld(frame)
-            out.append(local @ X.rotation().matrix().T + X.translation())
-        return Spheres(np.vstack(out) if out else np.zeros((0, 3)), self.radii)
