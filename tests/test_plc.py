@@ -459,6 +459,68 @@ def test_the_daemons_heartbeat_goes_to_the_plc_only_once_it_took_every_command_n
     asyncio.run(run())
 
 
+def test_a_plc_slower_than_the_command_cycle_gets_the_newest_command_next_never_a_backlog(tmp_path):
+    """The audit's case: each write took 30 ms against a 40 ms cycle of two writes, so the commands piled up and the
+    twin's safe command reached the PLC 2 s after the twin was lost, under a heartbeat that kept moving. While a write
+    is under way, each entity's newest command replaces the one waiting: the next write is the safe command."""
+    import asyncio
+    import threading
+
+    loaded, link = _unit_link(tmp_path)
+    heartbeat = loaded.config.plc.command_heartbeat
+    mode_node = loaded.config.plc.entities["welder"].commands["safety_mode_request"]
+    writes, started = [], threading.Event()
+    loop = asyncio.new_event_loop()
+    release = asyncio.Event()
+
+    class Client:
+        def get_node(self, node):
+            return node
+
+        async def write_values(self, nodes, values):
+            started.set()
+            await release.wait()  # the PLC is slow: held until the test lets it take the writes
+            writes.append({n: v.Value.Value for n, v in zip(nodes, values)})
+
+    thread = threading.Thread(target=loop.run_forever, daemon=True)
+    thread.start()
+    try:
+        link._loop, link._client, link.connected = loop, Client(), True
+        working = {"safety_mode_request": "normal", "activity_request": "welding", "command": 1.0}
+        link.send("welder", working)
+        assert started.wait(10.0)  # the first write is under way, held
+        for _ in range(50):
+            link.send("welder", working)  # 2 s of the twin's commands at 0.04 s, behind it
+        link.send("welder", None)  # the twin is lost: the safe command
+        loop.call_soon_threadsafe(release.set)
+        done = asyncio.run_coroutine_threadsafe(_written(link), loop)
+        done.result(10.0)
+    finally:
+        loop.call_soon_threadsafe(loop.stop)
+        thread.join(10.0)
+    commands = [w for w in writes if heartbeat not in w]
+    beats = [w[heartbeat] for w in writes if heartbeat in w]
+    safe = link.commands["welder"].types[link.commands["welder"].names.index("safety_mode_request")]
+    assert len(commands) == 2  # the one under way, then only the newest: the safe command
+    assert commands[1][mode_node] == to_node_code(safe, loaded.safe["welder"]["safety_mode_request"])
+    assert commands[0][mode_node] != commands[1][mode_node]
+    assert beats == [1, 2]  # the heartbeat counts one per command written, none for those replaced
+
+
+async def _written(link) -> None:
+    """Until nothing waits to be written and no drain runs (polled on the loop, each step yielding to the writes)."""
+    import asyncio
+
+    while link._draining or link._pending:
+        await asyncio.sleep(0)
+
+
+def to_node_code(ctype, value):
+    from cellsim.bridges.opcua import to_node
+
+    return to_node(ctype, value)
+
+
 def test_the_plcs_certificate_given_alone_is_trusted_as_it_is_and_never_replaced(tmp_path):
     """docs/security.md gives the daemon's machine the PLC's certificate, not its key: it is the one trusted, byte for
     byte (a pair was made over it before, so the daemon pinned a certificate nobody had); the daemon's own certificate

@@ -116,6 +116,10 @@ class PlcLink:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._client = None
         self._writing: asyncio.Lock | None = None  # one write at a time (made on the loop)
+        self._pending: dict[str, list] = {}
+        """Entity -> its newest command not yet written (node, value, type): a newer one replaces it."""
+        self._pending_lock = threading.Lock()
+        self._draining = False  # a drain of ``_pending`` is scheduled or running on the loop
         self.refused: set[str] = set()
         """Entities whose last command the PLC refused (a node it would not take): while any is, no heartbeat."""
         self._age = 0.0  # how long ago the notification being taken arrived (s): :meth:`take`
@@ -227,7 +231,9 @@ class PlcLink:
         self._command(entity, None)
 
     def _command(self, entity: str, fields: dict | None) -> None:
-        self._heartbeat_out = (self._heartbeat_out + 1) % 2**31
+        """Hand the entity's command to the loop's writer. Only the newest command of each entity waits to be written:
+        a PLC slower to take a write than the command cycle gets the latest command one write late, never a backlog
+        of old ones ahead of it (the twin's safe command among them), and the heartbeat moves only with it."""
         types = dict(zip(self.commands[entity].names, self.commands[entity].types))
 
         def value(name: str):
@@ -238,8 +244,32 @@ class PlcLink:
         values = [(node, value(name), variant_type(types[name]))
                   for name, node in self.settings.entities[entity].commands.items()]
         loop = self._loop
-        if loop is not None and self.connected:
-            asyncio.run_coroutine_threadsafe(self._write(entity, values, self._heartbeat_out), loop)
+        if loop is None or not self.connected:
+            return
+        with self._pending_lock:
+            self._pending.pop(entity, None)  # (the newest goes last: entities are written in the order they asked)
+            self._pending[entity] = values
+            if self._draining:
+                return
+            self._draining = True
+        asyncio.run_coroutine_threadsafe(self._drain(), loop)
+
+    async def _drain(self) -> None:
+        """Write the waiting commands, each entity's newest, until none waits; the heartbeat counts one per write."""
+        try:
+            while True:
+                with self._pending_lock:
+                    if not self._pending:
+                        self._draining = False
+                        return
+                    entity = next(iter(self._pending))
+                    values = self._pending.pop(entity)
+                self._heartbeat_out = (self._heartbeat_out + 1) % 2**31
+                await self._write(entity, values, self._heartbeat_out)
+        except BaseException:
+            with self._pending_lock:  # (the loop is closing): a later command schedules a drain of its own
+                self._draining = False
+            raise
 
     async def _write(self, entity: str, values: list, heartbeat: int) -> None:
         """Write an entity's command nodes, then, only once the PLC took every one of them and every entity's last
