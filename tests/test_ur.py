@@ -166,6 +166,9 @@ def test_a_command_goes_out_as_the_slider_at_its_modes_cap_and_codes_the_program
     ("      registers: {safety_mode_request: 18, activity_request: 18}\n", "robots.robot.rtde.registers.safety_mode_request"),
     ("      registers: {heartbeat: 48}\n", "robots.robot.rtde.registers.heartbeat"),
     ("      port: 0\n", "robots.robot.rtde.port"),
+    # (the audit's: a name with an empty part raised UnicodeError in the RTDE thread, which died, dialling no more)
+    ("      host: 192.168.10..20\n", "robots.robot.rtde.host"),
+    ("      host: ''\n", "robots.robot.rtde.host"),
 ])
 def test_a_bad_rtde_setting_is_one_error_naming_its_key(tmp_path, extra, key):
     path = tmp_path / "bridge.yaml"
@@ -540,6 +543,8 @@ def test_the_emulated_controller_refuses_what_rtde_has_no_place_for():
     (["emulate", "scenarios/welding_cell.yaml", "--rtde", "30004"], "names 0 robots over RTDE"),
     (["bridge", "bridges/welding_cell.yaml", "--rtde", "30004"], "names 0 robots over RTDE"),
     (["bridge", "bridges/welding_cell_ur_plc.yaml", "--rtde", "host:"], "expected [HOST:]PORT"),
+    (["bridge", "bridges/welding_cell_ur_plc.yaml", "--rtde", "192.168.10..20:30004"], "is not a host name"),
+    (["bridge", "bridges/welding_cell_ur_plc.yaml", "--opcua", "opc.tcp://127.0.0.1:48x0"], "its port is not a number"),
 ])
 def test_bad_rtde_arguments_are_one_line_exit_2(args, expected):
     import subprocess

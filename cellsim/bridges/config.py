@@ -132,6 +132,42 @@ class UrRegisters:
             raise FieldError("safety_mode", "the output registers must differ from one another")
 
 
+def bad_host(host: str) -> str | None:
+    """Why ``host`` is no address a socket can dial (a name with an empty or overlong label, spaces, nothing), or
+    None: checked when the configuration is read, not found by the connection's thread."""
+    import ipaddress
+
+    if not host or host != host.strip() or any(c.isspace() for c in host):
+        return f"'{host}' is not a host name or IP address"
+    try:
+        ipaddress.ip_address(host)
+        return None
+    except ValueError:
+        pass
+    try:
+        host.encode("idna")
+    except UnicodeError:
+        return f"'{host}' is not a host name or IP address (an empty or overlong part between dots)"
+    return None
+
+
+def bad_endpoint(endpoint: str) -> str | None:
+    """Why ``endpoint`` is no ``opc.tcp://HOST:PORT`` a client can dial, or None."""
+    from urllib.parse import urlsplit
+
+    if not endpoint.startswith("opc.tcp://"):
+        return f"'{endpoint}' is not an opc.tcp://HOST:PORT endpoint"
+    try:
+        parts = urlsplit(endpoint)
+        port = parts.port
+    except ValueError:
+        return f"'{endpoint}': its port is not a number from 1 to 65535"
+    if port is not None and not 1 <= port <= 65535:
+        return f"'{endpoint}': its port is not a number from 1 to 65535"
+    why = bad_host(parts.hostname or "")
+    return None if why is None else f"'{endpoint}': {why}"
+
+
 @dataclass
 class RtdeSettings:
     """A Universal Robots controller over RTDE (``cellsim.ur``): where it is and the program's registers."""
@@ -143,6 +179,11 @@ class RtdeSettings:
     registers: UrRegisters = field(default_factory=UrRegisters)
     reconnect_after: Seconds = 1.0
     """How long (s) the daemon waits before dialling a lost or refusing controller again."""
+
+    def __post_init__(self):
+        why = bad_host(self.host)
+        if why is not None:
+            raise FieldError("host", why)
 
 
 @dataclass
@@ -239,8 +280,9 @@ class PlcSettings:
     """How long (s) the daemon waits before dialling a lost PLC again."""
 
     def __post_init__(self):
-        if not self.endpoint.startswith("opc.tcp://"):
-            raise FieldError("endpoint", f"'{self.endpoint}' is not an opc.tcp://HOST:PORT endpoint")
+        why = bad_endpoint(self.endpoint)
+        if why is not None:
+            raise FieldError("endpoint", why)
         if self.security == "none" and not (self.insecure_because or "").strip():
             raise FieldError("security", "a PLC read without security must say why: insecure_because: REASON")
         if self.security != "none" and self.insecure_because is not None:

@@ -44,9 +44,14 @@ def add_parser(subparsers) -> None:
 def _rtde_address(text: str) -> tuple[str | None, int]:
     import argparse
 
+    from cellsim.bridges.config import bad_host
+
     host, sep, port = text.rpartition(":")
     if not port.isdigit() or not 1 <= int(port) <= 65535 or (sep and not host):
         raise argparse.ArgumentTypeError(f"expected [HOST:]PORT, e.g. 127.0.0.1:30004, got {text!r}")
+    why = bad_host(host) if host else None
+    if why is not None:
+        raise argparse.ArgumentTypeError(why)
     return (host or None), int(port)
 
 
@@ -66,8 +71,11 @@ def run(args) -> int:
     if args.opcua is not None:
         if loaded.config.plc is None:
             raise InputError(f"--opcua: {args.bridge_config} names no PLC")
-        if not args.opcua.startswith("opc.tcp://"):
-            raise InputError(f"--opcua {args.opcua!r}: expected opc.tcp://HOST:PORT")
+        from cellsim.bridges.config import bad_endpoint
+
+        why = bad_endpoint(args.opcua)
+        if why is not None:
+            raise InputError(f"--opcua: {why}")
         loaded.config.plc.endpoint = args.opcua
     plc_certificates = _plc_certificates(args, loaded, "bridge")
     default = (loaded.config.can.interface, loaded.config.can.channel)
