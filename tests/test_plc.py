@@ -388,6 +388,33 @@ def test_a_restarted_plc_is_heard_at_once_and_a_bad_heartbeat_fails_every_entity
     assert samples()[-1]["fields"] == {"broken": False} and len(samples()) == before + 1
 
 
+def test_after_a_reconnect_nothing_from_before_the_outage_is_published_as_a_fresh_sample(tmp_path):
+    """The audit's case: the new connection's first heartbeat taken before the entity nodes' first values published
+    the values from before the outage, stamped now, as a good sample. A new session forgets them: a scan publishes an
+    entity again only once every one of its nodes was heard on the new connection."""
+    from cellsim.bridges.plc import HEARTBEAT, NEW_SESSION, PlcLink
+
+    loaded = load_bridge(plc_config(tmp_path, 4840, "none", "  insecure_because: a unit test\n"))
+    published = []
+
+    class Session:
+        def declare_publisher(self, key):
+            return type("P", (), {"put": lambda self, payload: published.append((key, json.loads(payload)))})()
+
+    link = PlcLink("welding_cell", loaded.config.plc, Session(), loaded.samples, loaded.commands, loaded.safe, queue.Queue())
+    broken = loaded.config.plc.entities["light_barrier"].fields["broken"].replace(" ", "")
+    samples = lambda: [m for k, m in published if k.endswith("physical/light_barrier") and "fields" in m]  # noqa: E731
+    link.take(broken, False, True, 0.0)
+    link.take(HEARTBEAT, 1, True, 0.01)
+    assert samples()[-1]["fields"] == {"broken": False}
+    link.take(NEW_SESSION, None, True, 1.0)  # the connection was lost and is made again
+    link.take(HEARTBEAT, 2, True, 1.01)  # its heartbeat first: the curtain not heard yet on it
+    assert len(samples()) == 1
+    link.take(broken, True, True, 1.02)  # what the curtain is now: published at once, and with each scan
+    link.take(HEARTBEAT, 3, True, 1.03)
+    assert [m["fields"] for m in samples()[1:]] == [{"broken": True}, {"broken": True}]
+
+
 def test_one_publishs_values_keep_each_nodes_order_and_interleave_by_their_stamps():
     """The OPC UA client's hand-over: values of one publish, listed node by node, reach the daemon sorted by source
     timestamp across nodes, while each node's own values keep the server's order whatever their stamps (a clock

@@ -56,6 +56,9 @@ log = logging.getLogger("cellsim.bridge")
 PLC_FAULTS = (Fault.CORRUPT, Fault.REPEATED, Fault.RANGE, Fault.TIMEOUT)
 HEARTBEAT = "heartbeat"
 """The inbox's name for the PLC's heartbeat node."""
+NEW_SESSION = "new session"
+"""The inbox's word that a new connection to the PLC begins: what the entity nodes held before it is forgotten, so a
+scan heard on the new connection before its first values publishes nothing from before the outage."""
 QUEUE_SIZE = 64
 """Values the PLC keeps per entity node between two publishes (the oldest dropped past it): a PLC scanning every
 millisecond with a 20 ms publishing interval takes at most 20 (a server may keep fewer: it revises the size)."""
@@ -144,6 +147,11 @@ class PlcLink:
         return time.time() - self._age
 
     def _take(self, node: str, value, good: bool, now: float) -> None:
+        if node == NEW_SESSION:
+            for link in self.entities.values():
+                link.values.clear()
+                link.bad.clear()
+            return
         if node == HEARTBEAT:
             if not good or isinstance(value, bool) or not isinstance(value, int):
                 fault = Fault.CORRUPT if not good else Fault.RANGE
@@ -360,6 +368,8 @@ class PlcLink:
                 RequestedMaxKeepAliveCount=max(1, int(settings.watchdog / settings.publishing_interval / 2)),
                 MaxNotificationsPerPublish=0, PublishingEnabled=True, Priority=0)
             subscription = await client.create_subscription(params, Handler())
+            # before any item is monitored: every notification of this connection comes after it in the inbox
+            put(("plc", None, (NEW_SESSION, None, True), time.perf_counter()))
             watched = [heartbeat, *self._node_field]
             handles = await subscription.subscribe_data_change([client.get_node(heartbeat)], queuesize=1,
                                                                sampling_interval=0)
