@@ -365,6 +365,13 @@ def test_the_slider_a_controller_may_show_is_the_last_it_had_time_to_take_or_any
     assert falling.slider_allowed(now) == pytest.approx(1.0 - 0.03 * newest_old)
     falling.wrote_slider(None, now)
     assert falling.slider_allowed(now + 1.0) is None
+    # (the audit's: only a package reaching the slider check trimmed them; a controller sending corrupt ones for an
+    # hour kept 180,000) the writes are trimmed as they are made, to the grace's worth
+    silent = RtdeStateChecker(timeout=1.0)
+    for k in range(5000):
+        silent.wrote_slider(0.5, 30.0 + 0.02 * k)
+    assert len(silent._written) <= SLIDER_GRACE / 0.02 + 2
+    assert silent.slider_allowed(30.0 + 0.02 * 4999) == 0.5
 
 
 def test_a_frozen_or_lost_controller_goes_stale_and_is_dialled_again(sessions, tmp_path, program):  # noqa: F811

@@ -84,14 +84,21 @@ class RtdeStateChecker(JointStateChecker):
             self._written.clear()
         else:
             self._written.append((now, fraction))
+            self._forget(now)  # (also while no package is judged: a controller sending bad ones stays connected)
+
+    def _forget(self, now: float) -> None:
+        """Drop the sliders written before the newest one the controller must show by ``now``: at most the grace's
+        worth is kept, however long no package reaches the slider check."""
+        written = self._written
+        while len(written) >= 2 and written[1][0] <= now - SLIDER_GRACE:
+            written.popleft()
 
     def slider_allowed(self, now: float) -> float | None:
         """The fastest slider the controller may show at ``now``: the newest one written at least ``SLIDER_GRACE``
         before, or any written since (it may have taken a later one already); None while nothing written is that
         old."""
         written = self._written
-        while len(written) >= 2 and written[1][0] <= now - SLIDER_GRACE:
-            written.popleft()
+        self._forget(now)
         if not written or written[0][0] > now - SLIDER_GRACE:
             return None
         return max(fraction for _, fraction in written)
