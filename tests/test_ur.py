@@ -6,6 +6,7 @@ import contextlib
 import itertools
 import json
 import queue
+import select
 import struct
 import threading
 import time
@@ -501,6 +502,43 @@ def test_a_twin_command_with_no_safety_mode_goes_out_as_the_kinds_safe_mode(sess
         values = _commanding(twin.command, itertools.count(1), fields, controller,
                              lambda v: v[f"input_int_register_{r.target_pose}"] == 2)  # the twin's, not the safe hold
         assert values[f"input_int_register_{r.safety_mode_request}"] == 5 and values["speed_slider_fraction"] == 0.0
+
+
+def test_a_client_that_asks_and_never_reads_is_dropped_and_never_blocks_the_emulated_cell():
+    """The audit's case: a reply was sent with a blocking sendall under the lock the emulated cell's publish takes, so a
+    client sending requests and reading none of its replies held the cell's publish until it went away. Replies are
+    sent as packages are: one that does not fit drops the client."""
+    import socket
+    import threading
+    import time
+
+    server = RtdeServer("127.0.0.1", 0)
+    sock = socket.create_connection(server.address, timeout=5)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        reader = rtde.PackageReader()
+        for kind, payload in ((rtde.SETUP_OUTPUTS, struct.pack(">d", 500.0) + b"timestamp"), (rtde.START, b"")):
+            sock.sendall(rtde.package(kind, payload))
+            while not any(got == kind for got, _ in reader.feed(sock.recv(4096))):
+                pass  # (its reply: the server serves this client, streaming)
+        assert server.clients == 1
+        flood = rtde.package(rtde.GET_URCONTROL_VERSION) * 20000  # 60 kB of requests: 380 kB of replies, never read
+        sock.setblocking(False)
+        deadline = time.monotonic() + 20.0
+        while server.clients and time.monotonic() < deadline:  # until the server drops the client (or the deadline)
+            try:
+                sock.send(flood)
+            except BlockingIOError:
+                select.select([], [sock], [], 0.05)  # (wait for room to send more, with a deadline)
+            except OSError:
+                break  # reset: dropped
+        published = threading.Event()
+        threading.Thread(target=lambda: (server.publish({"timestamp": 1.0}), published.set()), daemon=True).start()
+        assert published.wait(10.0)  # the cell's publish was not held
+        assert server.clients == 0
+    finally:
+        sock.close()
+        server.close()
 
 
 def test_the_emulated_controller_refuses_what_rtde_has_no_place_for():

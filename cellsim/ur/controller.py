@@ -54,11 +54,11 @@ class _Client:
         self.history: deque = deque(maxlen=60)
 
     def send(self, data: bytes) -> None:
-        with self.lock:
-            self.sock.sendall(data)
+        """A reply: never blocking while it holds the lock that :meth:`stream` (the emulated cell's publish) takes."""
+        self.stream(data)
 
     def stream(self, data: bytes) -> None:
-        """A state package, never blocking the emulated cell: a client that does not read its packages is dropped
+        """A package, never blocking the emulated cell: a client that does not read its packages is dropped
         (OSError), as a controller drops one whose buffer is full."""
         with self.lock:
             if self.sock.send(data, socket.MSG_DONTWAIT) != len(data):
