@@ -264,6 +264,29 @@ class BlackBox:
         if lengths:
             raise self.corrupt(f"'{lengths[0][0]}' holds vectors of different lengths")
 
+    def check_vector_sizes(self, sizes: dict[str, int]) -> None:
+        """Each vector channel of ``sizes`` (channel -> the length the rebuilt cell's channel has) holds vectors of
+        that length; else a BlackBoxError naming the channel (a record of another cell, or a corrupt one, would pose
+        an arm or a body with the wrong number of values). Vectors of one length per channel: :meth:`check_vectors`."""
+        recorded = self.channels()
+        for name, size in sorted(sizes.items()):
+            if name not in recorded or recorded[name].kind != "vector":
+                continue
+            found = self._query("SELECT t, json_array_length(payload, '$.value') FROM messages WHERE channel = ? "
+                                "AND json_array_length(payload, '$.value') != ? ORDER BY rowid LIMIT 1", [name, size])
+            if found:
+                t, length = found[0]
+                raise self.corrupt(f"'{name}' at t = {t} holds {length} number{'s' if length != 1 else ''} where the scenario's cell has {size}: "
+                                   "a record of another cell, or a corrupt one")
+
+    def recorded_seed(self, default: int) -> int:
+        """The simulation seed the metadata names (``default`` where it names none); a BlackBoxError for one that is
+        no non-negative integer."""
+        seed = self.metadata().get("seed", default)
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise self.corrupt(f"its metadata's seed is {json.dumps(seed)}, not a non-negative integer")
+        return seed
+
     def check_channels(self) -> None:
         """Every message belongs to a channel the ``channels`` table lists; else a BlackBoxError naming one that does
         not (its messages would be read as nothing: a record lost without a word)."""

@@ -156,6 +156,10 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
     destination = Path(destination)
     if destination.is_dir():
         raise ExportError(f"{destination} is a folder; name the MCAP file to write")
+    if str(destination).startswith("/dev/") or (destination.exists() and not destination.is_file()):
+        # (a pipe cannot seek; /dev/stdout sent to a file shares its offset with what the command prints)
+        raise ExportError(f"{destination} is no regular file: MCAP's writer seeks back over what it wrote to index it; "
+                          "name a file to write")
     try:
         blackbox, sf = locate_rebuildable_run(run, "the export rebuilds the cell from it")
     except CheckError as e:
@@ -168,7 +172,8 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
         with BlackBox(blackbox) as bb:
             metadata, channels = bb.metadata(), bb.channels()
             end, _ = run_end(bb, metadata)
-            cell = build_cell(sf, seed=int(metadata.get("seed", sf.scenario.seed)), duration=max(end, 1e-3), record=False)
+            cell = build_cell(sf, seed=bb.recorded_seed(sf.scenario.seed), duration=max(end, 1e-3), record=False)
+            bb.check_vector_sizes(cell.vector_sizes())
             wanted = sorted(f"{name}.{signal}" for name, system in cell.modules.items()
                             for signal in getattr(system, "replay_channels", ()) if f"{name}.{signal}" in channels)
             with replacing(destination, "wb") as stream:

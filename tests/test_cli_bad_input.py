@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import sqlite3
 import subprocess
@@ -92,6 +93,45 @@ def test_export_refuses_a_corrupt_black_box_as_check_does_and_writes_nothing(run
     assert not mcap.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["damaged"]
     assert main(["check", str(bad)]) == 2
     assert problem in one_error(capsys)
+
+
+@pytest.mark.parametrize("sql, problem", [
+    # (the audit's: SetPositions failed in Drake, exit 1, or an IndexError traceback)
+    ("""UPDATE messages SET payload = json_remove(payload, '$.value[5]') WHERE channel = 'robot.joint_positions'""",
+     "'robot.joint_positions' at t = 0.0 holds 5 numbers where the scenario's cell has 6"),
+    ("""UPDATE messages SET payload = '{"value": [1.0]}' WHERE channel = 'operator.position'""",
+     "'operator.position' at t = 0.0 holds 1 number where the scenario's cell has 2"),
+    ("""UPDATE metadata SET value = '"abc"' WHERE key = 'seed'""", "its metadata's seed is \"abc\""),
+    ("""UPDATE metadata SET value = 'null' WHERE key = 'seed'""", "its metadata's seed is null"),
+])
+def test_export_and_replay_refuse_a_record_the_rebuilt_cell_cannot_pose(run, tmp_path, capsys, sql, problem):
+    from cellsim.visual.replay import ReplayError, replay
+    from cellsim.visual.serve import open_meshcat
+
+    bad = damaged(run, tmp_path, sql)
+    mcap = tmp_path / "out.mcap"
+    assert main(["export", str(bad), "--mcap", str(mcap)]) == 2
+    err = one_error(capsys)
+    assert problem in err and "corrupt black box" in err
+    assert not mcap.exists()
+
+    meshcat = open_meshcat()  # (on localhost; closed with it)
+    try:
+        with pytest.raises(ReplayError, match=re.escape(problem)):
+            replay(bad, meshcat)
+    finally:
+        del meshcat
+
+
+def test_export_refuses_a_pipe_or_device_as_its_mcap_file(run, tmp_path, capsys):
+    """The audit's case: MCAP's writer seeks back to index what it wrote. Into /dev/stdout sent to a file, the summary
+    line overwrote the file's start (exit 0, an MCAP no reader opens); into a pipe it failed with 'Illegal seek'
+    naming no file."""
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    for target in (fifo, Path("/dev/stdout")):
+        assert main(["export", str(run), "--mcap", str(target)]) == 2
+        assert f"{target} is no regular file" in one_error(capsys)
 
 
 def test_a_run_checked_against_another_cells_scenario_says_so(run, capsys):

@@ -90,6 +90,10 @@ class CellDiagram:
         """1 when the cell runs paced to the wall clock (live, emulated, shown in Meshcat), else 0."""
         return 1.0 if paced(self.io) or self.meshcat_visualizer is not None else 0.0
 
+    def vector_sizes(self) -> dict[str, int]:
+        """Each vector channel's length (a recorded run of this cell holds vectors of these lengths)."""
+        return {name: spec.type.size for name, (spec, _) in self.channels.items() if spec.type.kind == "vector"}
+
     @property
     def runs_until_stopped(self) -> bool:
         """A live or emulated cell runs until it is stopped: its record then ends there, complete."""

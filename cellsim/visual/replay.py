@@ -82,9 +82,8 @@ def replay(run: str | Path, meshcat, *, at: float = 0.0, speed: float = 1.0) -> 
     blackbox, sf, end = check_replay(run, at, speed)
     try:
         with BlackBox(blackbox) as bb:
-            metadata = bb.metadata()
-            seed = metadata.get("seed", sf.scenario.seed)
-            cell = build_cell(sf, seed=int(seed), duration=end, record=False, meshcat=meshcat)
+            cell = build_cell(sf, seed=bb.recorded_seed(sf.scenario.seed), duration=end, record=False, meshcat=meshcat)
+            bb.check_vector_sizes(cell.vector_sizes())
             wanted = set(cell.cue_visualizer.drawer.channels)
             for name, system in cell.modules.items():
                 wanted.update(f"{name}.{signal}" for signal in getattr(system, "replay_channels", ()))
