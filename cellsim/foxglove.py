@@ -8,8 +8,8 @@
 * ``/tf``: the links of every robot as ``foxglove.FrameTransforms`` (frame ``<robot>/<link>`` in
   ``world``) at each recorded joint state;
 * ``/scene``: the cell as ``foxglove.SceneUpdate``: every box, cylinder, sphere and capsule
-  SceneGraph holds (fixtures, sensor volumes, the arms' shapes, people's body regions), the still
-  ones once, the moving ones at each recorded pose; a module with a ``recolour(values)`` hook
+  SceneGraph holds (fixtures, sensor volumes, the arms' shapes, people's body regions), the whole
+  scene at each recorded pose (after a seek Foxglove draws a topic's latest message alone); a module with a ``recolour(values)`` hook
   colours geometry by its recorded channels (the harm service: a body region in contact, amber
   within its limit and red above it).
 
@@ -206,27 +206,26 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
 
 
 def scene_shapes(scene_graph) -> list[tuple]:
-    """(GeometryId, moves, primitive kind, its fields) of every geometry Foxglove can draw."""
+    """(GeometryId, primitive kind, its fields) of every geometry Foxglove can draw."""
     inspector = scene_graph.model_inspector()
-    world = inspector.world_frame_id()
     shapes = []
     for g in inspector.GetAllGeometryIds():
         if inspector.GetProximityProperties(g) is None and inspector.GetIllustrationProperties(g) is None:
             continue  # perception-only geometry
         primitive = _primitive(inspector, g)
         if primitive is not None:
-            shapes.append((g, inspector.GetFrameId(g) != world, *primitive))
+            shapes.append((g, *primitive))
     return shapes
 
 
-def scene_update(t: float, shapes: list[tuple], query, moving_only: bool, colours: dict | None = None) -> dict:
-    """A foxglove.SceneUpdate of ``shapes`` (all, or only those that move) posed by ``query``; ``colours``: GeometryId ->
+def scene_update(t: float, shapes: list[tuple], query, colours: dict | None = None) -> dict:
+    """A foxglove.SceneUpdate of ``shapes`` posed by ``query``; ``colours``: GeometryId ->
     (r, g, b, a) drawn instead of a shape's own (a body region in contact)."""
     colours = colours or {}
     return {"deletions": [], "entities": [
         _entity(t, g, kind, fields if g not in colours else {**fields, "color": dict(zip("rgba", colours[g]))},
                 query.GetPoseInWorld(g))
-        for g, moving, kind, fields in shapes if moving or not moving_only]}
+        for g, kind, fields in shapes]}
 
 
 def frame_transforms(t: float, plant, robots: dict, pose_of) -> dict:
@@ -242,7 +241,7 @@ def frame_transforms(t: float, plant, robots: dict, pose_of) -> dict:
 
 
 def _write_scene(writer, cell, recorded, wanted: list[str] = ()) -> int:
-    """/scene: the still geometry once, then the moving geometry at each moment the modules' recorded state
+    """/scene: the whole scene at t = 0 and at each moment the modules' recorded state
     (``wanted``: joint positions, people's positions) changes; /tf: the arms' frames once per recorded joint
     state (at t = 0 only if no robot's state is recorded)."""
     ids, kinds = {}, {"/tf": FRAME_TRANSFORMS, "/scene": SCENE_UPDATE}
@@ -265,10 +264,10 @@ def _write_scene(writer, cell, recorded, wanted: list[str] = ()) -> int:
                            data=encoded(kinds[topic], message))
         sequence[0] += 1
 
-    def moment(t: float, moving_only: bool, tf: bool) -> None:
+    def moment(t: float, tf: bool) -> None:
         query = scene_graph.get_query_output_port().Eval(sg_context)
         colours = {g: rgba for system in recolouring for g, rgba in system.recolour(values).items()}
-        emit("/scene", t, scene_update(t, shapes, query, moving_only, colours))
+        emit("/scene", t, scene_update(t, shapes, query, colours))
         if tf:
             emit("/tf", t, frame_transforms(t, plant, cell.robots,
                                             lambda body: plant.EvalBodyPoseInWorld(plant_context, body)))
@@ -276,11 +275,13 @@ def _write_scene(writer, cell, recorded, wanted: list[str] = ()) -> int:
     def shown(t: float, tf: bool) -> None:  # the recorded state up to t, drawn
         for system in showing:
             system.show_recorded(cell, context, values)
-        moment(t, moving_only=True, tf=tf)
+        # the whole scene each time, as the live feed sends it: after a seek Foxglove draws only the latest message
+        # of a topic, which would otherwise hold the moving entities alone (no fixtures, no sensor volumes)
+        moment(t, tf=tf)
 
     robot_states = {name for name in wanted if name.partition(".")[0] in cell.robots}
     values: dict = {}
-    moment(0.0, moving_only=False, tf=not robot_states)
+    moment(0.0, tf=not robot_states)
     frames, pending, joints_moved = 1, None, False
     for t, name, value in recorded:
         if pending is not None and t > pending:
@@ -332,7 +333,7 @@ def _entity(t: float, g, kind: str, fields: dict, X) -> dict:
 
 # -- live: the same on Foxglove's WebSocket ---------------------------------------------
 SCENE_PERIOD = 0.1
-"""s: how often the live feed sends the arms' frames and the moving geometry (the recorded rate)."""
+"""s: how often the live feed sends the arms' frames and the scene (the recorded rate)."""
 
 
 class FoxgloveFeed:
@@ -444,7 +445,7 @@ class FoxgloveFeedSystem(LeafSystem):
         t = context.get_time()
         # the whole scene every time: a client that connects late sees the still geometry too
         query = self.query_port.Eval(context)
-        self.scene.log(_message(SCENE_UPDATE, scene_update(t, self.shapes, query, moving_only=False)), log_time=_ns(t))
+        self.scene.log(_message(SCENE_UPDATE, scene_update(t, self.shapes, query)), log_time=_ns(t))
         poses = self.poses_port.Eval(context)
         transforms = frame_transforms(t, self.plant, self.robots, lambda body: poses[int(body.index())])
         self.tf.log(_message(FRAME_TRANSFORMS, transforms), log_time=_ns(t))
