@@ -144,6 +144,11 @@ def _file(tmp_path, text: str):
     # issue 32's attack: the --insecure listener on every interface, given in a file instead of --listen
     (True, '{ listen: { endpoints: ["tcp/0.0.0.0:7447"] } }', "listen/endpoints 'tcp/0.0.0.0:7447': --insecure allows plain tcp/ on loopback only"),
     (True, '{ listen: { endpoints: { router: ["tcp/0.0.0.0:7447"] } } }', "--insecure allows plain tcp/ on loopback only"),
+    # the audit's: an endpoint equal to Zenoh's default for its mode was no change the check saw, and one other entry
+    # kept cellsim from replacing the list (a plain listener on every interface)
+    (True, '{ listen: { endpoints: { router: ["tcp/[::]:7447"], client: ["tcp/127.0.0.1:7448"] } } }',
+     "listen/endpoints 'tcp/[::]:7447'"),
+    (True, '{ mode: "peer", listen: { endpoints: { peer: ["tcp/[::]:0"], client: [] } } }', "listen/endpoints 'tcp/[::]:0'"),
     (False, '{ listen: { endpoints: ["tcp/127.0.0.1:7447"] } }', "tcp/ has no encryption or authentication"),
     (False, '{ connect: { endpoints: ["udp/127.0.0.1:7447"] } }', "udp/ has no encryption or authentication"),
     (False, '{ connect: { endpoints: ["tls/127.0.0.1:7447#root_ca_certificate=/tmp/x"] } }', "not a Zenoh endpoint"),

@@ -103,7 +103,7 @@ def session_config(
         except Exception as e:  # noqa: BLE001 - zenoh raises its own ZError with a multi-line text
             raise SessionConfigError(f"{path}: not a usable Zenoh configuration ({_one_line(e)})") from None
         user = _set_by_file(config)
-        _check_file(path, user, insecure=insecure, role=role)
+        _check_file(path, user, config, insecure=insecure, role=role)
     else:
         config = zenoh.Config()
     if "mode" not in user:
@@ -135,7 +135,7 @@ def session_config(
             "close_link_on_expiration": True,
         }.items():
             config.insert_json5(f"transport/link/tls/{key}", json.dumps(value))
-    listens = bool(listen or _endpoints(user, "listen/endpoints"))
+    listens = bool(listen or (_listed(config, "listen/endpoints") if _under(user, "listen/endpoints") else []))
     if files is not None and listens:  # whoever listens enforces the rules
         from cellsim.live.access import access_control
 
@@ -181,13 +181,16 @@ def _leaves(value, default, prefix: str):
         yield prefix.rstrip("/"), value
 
 
-def _check_file(path: Path, user: dict, *, insecure: bool, role: str) -> None:
+def _check_file(path: Path, user: dict, config, *, insecure: bool, role: str) -> None:
     for key in user:
         if key not in _TUNABLE and any(_within(key, reserved) for reserved in RESERVED):
             raise SessionConfigError(f"{path}: {key}: set by cellsim, not by a configuration file (TLS, keys and "
                                      "access control follow --keys and --insecure)")
     for name, listens in (("listen/endpoints", True), ("connect/endpoints", False)):
-        check_endpoints(_endpoints(user, name), f"{path}: {name}", insecure=insecure, role=role, listens=listens)
+        # every endpoint the file leaves in force, those equal to Zenoh's defaults included (a per-mode list of its
+        # own replaces cellsim's, so 'peer: [tcp/[::]:0]' would listen on every interface unchecked)
+        listed = _listed(config, name) if _under(user, name) else []
+        check_endpoints(listed, f"{path}: {name}", insecure=insecure, role=role, listens=listens)
     if insecure:
         for key in ("scouting/multicast/enabled", "scouting/gossip/enabled"):
             if user.get(key):
@@ -200,6 +203,16 @@ def _within(key: str, prefix: str) -> bool:
 
 def _under(user: dict, prefix: str) -> bool:
     return any(_within(key, prefix) for key in user)
+
+
+def _listed(config, prefix: str) -> list[str]:
+    """Every endpoint ``config`` lists under ``prefix`` (``listen/endpoints``), as a list or per mode, whether a file
+    set it or it is Zenoh's default."""
+    value = json.loads(str(config))
+    for part in prefix.split("/"):
+        value = value.get(part) if isinstance(value, dict) else None
+    values = list(value.values()) if isinstance(value, dict) else [value]
+    return [e for v in values for e in (v if isinstance(v, list) else [v] if isinstance(v, str) else [])]
 
 
 def _endpoints(user: dict, prefix: str) -> list[str]:
