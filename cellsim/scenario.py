@@ -60,10 +60,15 @@ class CampaignConfig:
     """Configuration point name -> sampler (``uniform``, ``choice`` or ``simplex``)."""
 
 
+KEY_SPECIAL = ("/", "*", "$", "?", "#")
+"""What a scenario's name may not hold: Zenoh's separator and wildcards ('x*' would be no key at all; '*' would read
+every cell's physical samples), docs/live.md."""
+
+
 @dataclass
 class Scenario:
     name: str
-    """The scenario's name (run and campaign folders are named after it)."""
+    """The scenario's name (run and campaign folders are named after it, and the live twin's keys: none of / * $ ? #)."""
     layout: Layout
     """The cell's fixtures and named volumes."""
     entities: dict[str, EntityModule]
@@ -88,6 +93,9 @@ class Scenario:
     """The robot plant's discrete step (s): 2 ms, the 500 Hz of a UR controller's joint loop."""
 
     def __post_init__(self):
+        if not self.name.strip() or any(c in self.name for c in KEY_SPECIAL):
+            raise FieldError("name", f"{self.name!r}: a scenario's name is its cell's name in the live twin's keys "
+                             f"(cellsim/<name>/...): not empty, and none of {' '.join(KEY_SPECIAL)}")
         seen: dict[str, str] = {}
         for section in ("entities", "behaviours", "services"):
             for name in getattr(self, section):

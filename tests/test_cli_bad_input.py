@@ -202,10 +202,19 @@ def test_a_scenario_name_never_puts_the_default_run_folder_outside_runs(tmp_path
     work = tmp_path / "work"
     work.mkdir()
     monkeypatch.chdir(work)
-    assert main(["simulate", str(WELDING_CELL), "--set", "name=../../escaped", "--duration", "0.2", "--quiet"]) == 0
+    assert main(["simulate", str(WELDING_CELL), "--set", "name=../../escaped", "--duration", "0.2", "--quiet"]) == 2
+    assert "name: '../../escaped': a scenario's name is its cell's name in the live twin's keys" in one_error(capsys)
+    assert main(["simulate", str(WELDING_CELL), "--set", "name=.. cell", "--duration", "0.2", "--quiet"]) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["work"]
     (made,) = (work / "runs").iterdir()
-    assert made.name.startswith("_.._escaped-")
+    assert made.name.startswith("_cell-")
+
+
+@pytest.mark.parametrize("name", ["x*", '"*"', "a/b", '"$*"', '"  "'])  # (as --set reads YAML)
+def test_a_scenario_name_that_is_no_zenoh_key_is_one_error_before_anything_starts(name, capsys):
+    """The audit's: 'x*' ended the live twin in a zenoh.ZError traceback; '*' ran a twin reading every cell's samples."""
+    assert main(["scenario", "check", str(WELDING_CELL), "--set", f"name={name}"]) == 2
+    assert "a scenario's name is its cell's name in the live twin's keys" in one_error(capsys)
 
 
 def test_a_broken_robot_model_is_blamed_on_the_model_and_an_override_on_set(tmp_path, capsys):
