@@ -279,3 +279,10 @@ def test_a_stray_argument_to_a_keys_action_gets_that_actions_usage(tmp_path, cap
     with pytest.raises(SystemExit) as stopped:
         main(["keys", "show", str(tmp_path), "--bogus"])
     assert stopped.value.code == 2 and capsys.readouterr().err.startswith("usage: cellsim keys show")
+
+
+@pytest.mark.parametrize("timeout", ["nan", "inf", "0", "-1"])
+def test_twin_mode_refuses_a_timeout_it_cannot_wait_as_one_line(timeout, capsys):
+    """The audit's: nan and inf ended in a ValueError and an OverflowError traceback (exit 1) building Zenoh's config."""
+    assert main(["twin-mode", "robot", "shadow", "--insecure", "--timeout", timeout]) == 2
+    assert f"--timeout {float(timeout):g}: expected more than 0 and at most 3600 seconds" in one_error(capsys)

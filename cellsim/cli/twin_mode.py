@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 
 from cellsim.cli.common import EXIT_INPUT, EXIT_OK, InputError, _add_network_args, _network_security, _open_session
@@ -26,6 +27,8 @@ def run(args) -> int:
     from cellsim import codec
     from cellsim.live import keys
 
+    if not (math.isfinite(args.timeout) and 0.0 < args.timeout <= 3600.0):
+        raise InputError(f"--timeout {args.timeout:g}: expected more than 0 and at most 3600 seconds")
     security = _network_security(args, "engineer")  # a keys problem is said as it is, not as an absent twin
     try:
         session = _open_session(args, "engineer", listen_by_default=False, wait=args.timeout, security=security)
