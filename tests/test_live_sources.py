@@ -305,3 +305,25 @@ def test_the_twin_measures_its_reaction_to_a_sample_and_reports_one_slower_than_
         assert 0.3 <= found[0].start <= 0.4 and found[0].data["exceeded"] == 1
         (label, text), = findings_lines(SimpleNamespace(findings=found, waived={}))
         assert label == "slow reaction" and "1 of 2 changed samples decided on slower than the 60 ms" in text
+
+
+def test_a_flood_is_dropped_unread_and_the_link_fails_safe_for_the_period_then_recovers():
+    """The audit's case: a drain read its inbox until it was empty, so a sender publishing faster than messages are
+    judged kept one update running for good (the twin stopped pacing and publishing). A drain takes only what waited
+    when it began; more than FLOOD of them is a flood: dropped unread, the link stale for the period."""
+    from cellsim.live.systems import FLOOD
+
+    source, simulator = _source()
+    now = time.time()
+    source.deliver(encode_fields(now, 1, {"broken": False}))
+    assert _after(source, simulator, 0.05)[1:].tolist() == [OK, 0.0]
+    flood = encode_fields(now, 2, {"broken": True})
+    for _ in range(FLOOD + 1):
+        source.deliver(flood)
+    assert _after(source, simulator, 0.09)[1] == STALE and source.rejected == 1
+    assert source.inbox.waiting() == 0  # (dropped, not left for the next drain)
+    source.deliver(encode_fields(time.time(), 3, {"broken": True}))
+    assert _after(source, simulator, 0.13)[1:].tolist() == [OK, 1.0]
+    source.deliver(encode_fields(time.time(), 4, {"broken": False}))
+    source.deliver(encode_fields(time.time(), 5, {"broken": True}))
+    assert _after(source, simulator, 0.17)[1:].tolist() == [OK, 1.0]  # (up to FLOOD waiting: every one taken)
