@@ -327,3 +327,17 @@ def test_a_flood_is_dropped_unread_and_the_link_fails_safe_for_the_period_then_r
     source.deliver(encode_fields(time.time(), 4, {"broken": False}))
     source.deliver(encode_fields(time.time(), 5, {"broken": True}))
     assert _after(source, simulator, 0.17)[1:].tolist() == [OK, 1.0]  # (up to FLOOD waiting: every one taken)
+
+
+def test_a_failure_message_refused_for_its_stamp_or_its_order_is_counted_as_refused():
+    """The audit's: a failure message from the future, or repeated, was refused without a word or a count."""
+    source, simulator = _source()
+    now = time.time()
+    source.deliver(encode_fields(now, 1, {"broken": False}))
+    assert _after(source, simulator, 0.05)[1] == OK
+    source.deliver(encode_failure(now + 1e6, 2, Fault.CRC))  # stamped a million seconds ahead: refused
+    assert _after(source, simulator, 0.09)[1] == OK and source.rejected == 1
+    failure = encode_failure(now, 3, Fault.CRC)
+    source.deliver(failure)  # the link's failure, taken
+    source.deliver(failure)  # the same again: refused
+    assert _after(source, simulator, 0.13)[1] == CORRUPT and source.rejected == 2

@@ -39,7 +39,7 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from cellsim.channels import NO_VALUE
-from cellsim.link import Fault, LinkTrust
+from cellsim.link import REFUSALS, Fault, LinkTrust
 from cellsim import codec
 from cellsim.codec import CodecError, FieldCodec
 from cellsim.vocabulary import PhysicalLink, TwinMode
@@ -186,7 +186,7 @@ class _LinkSource(LeafSystem):
                                           values=message, in_range=self.carried_fault)
                 if judgement.good:
                     self.take(message, arrival, judgement, state)
-                elif message.failure is None:
+                elif message.failure is None or judgement.fault in REFUSALS:
                     self.refused(judgement.fault.value)  # the message itself: its stamp or its order
                 elif self.failure_refused:
                     self.refused("a failure in place of a command")
