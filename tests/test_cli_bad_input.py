@@ -43,6 +43,18 @@ def damaged(run: Path, tmp_path: Path, sql: str) -> Path:
     return copy
 
 
+def export_refused(run: Path, tmp_path: Path, capsys, sql: str, problem: str) -> Path:
+    """A copy of the run damaged by ``sql``, which export refuses as a corrupt black box saying ``problem``, writing
+    nothing."""
+    bad = damaged(run, tmp_path, sql)
+    mcap = tmp_path / "out.mcap"
+    assert main(["export", str(bad), "--mcap", str(mcap)]) == 2
+    err = one_error(capsys)
+    assert problem in err and "corrupt black box" in err
+    assert not mcap.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["damaged"]
+    return bad
+
+
 def files_of(folder: Path) -> dict:
     return {p.relative_to(folder): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
 
@@ -85,12 +97,7 @@ def test_an_output_that_names_an_input_is_refused_and_the_input_kept(run, tmp_pa
     ("DELETE FROM channels WHERE name = 'robot.tool_speed'", "its channels table does not list"),
 ])
 def test_export_refuses_a_corrupt_black_box_as_check_does_and_writes_nothing(run, tmp_path, capsys, sql, problem):
-    bad = damaged(run, tmp_path, sql)
-    mcap = tmp_path / "out.mcap"
-    assert main(["export", str(bad), "--mcap", str(mcap)]) == 2
-    err = one_error(capsys)
-    assert problem in err and "corrupt black box" in err
-    assert not mcap.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["damaged"]
+    bad = export_refused(run, tmp_path, capsys, sql, problem)
     assert main(["check", str(bad)]) == 2
     assert problem in one_error(capsys)
 
@@ -108,13 +115,7 @@ def test_export_and_replay_refuse_a_record_the_rebuilt_cell_cannot_pose(run, tmp
     from cellsim.visual.replay import ReplayError, replay
     from cellsim.visual.serve import open_meshcat
 
-    bad = damaged(run, tmp_path, sql)
-    mcap = tmp_path / "out.mcap"
-    assert main(["export", str(bad), "--mcap", str(mcap)]) == 2
-    err = one_error(capsys)
-    assert problem in err and "corrupt black box" in err
-    assert not mcap.exists()
-
+    bad = export_refused(run, tmp_path, capsys, sql, problem)
     meshcat = open_meshcat()  # (on localhost; closed with it)
     try:
         with pytest.raises(ReplayError, match=re.escape(problem)):

@@ -358,16 +358,10 @@ def test_a_client_with_another_certificate_is_refused_and_the_daemon_refuses_ano
 def test_a_restarted_plc_is_heard_at_once_and_a_bad_heartbeat_fails_every_entity(tmp_path):
     """The heartbeat: any change is a scan (a PLC restarting counts from 0 again, a counter wraps), a repeat is not;
     a heartbeat the PLC itself marks bad, or that is no integer, fails every entity of the PLC."""
-    from cellsim.bridges.plc import HEARTBEAT, PlcLink
+    from cellsim.bridges.plc import HEARTBEAT
 
-    loaded = load_bridge(plc_config(tmp_path, 4840, "none", "  insecure_because: a unit test\n"))
     published = []
-
-    class Session:
-        def declare_publisher(self, key):
-            return type("P", (), {"put": lambda self, payload: published.append((key, json.loads(payload)))})()
-
-    link = PlcLink("welding_cell", loaded.config.plc, Session(), loaded.samples, loaded.commands, loaded.safe, queue.Queue())
+    loaded, link = _unit_link(tmp_path, published)
     nodes = {name: node for name, node in loaded.config.plc.entities["light_barrier"].fields.items()}
     link.take(nodes["broken"].replace(" ", ""), False, True, 0.0)
     samples = lambda: [m for k, m in published if k.endswith("physical/light_barrier") and "fields" in m]  # noqa: E731
@@ -392,16 +386,10 @@ def test_after_a_reconnect_nothing_from_before_the_outage_is_published_as_a_fres
     """The audit's case: the new connection's first heartbeat taken before the entity nodes' first values published
     the values from before the outage, stamped now, as a good sample. A new session forgets them: a scan publishes an
     entity again only once every one of its nodes was heard on the new connection."""
-    from cellsim.bridges.plc import HEARTBEAT, NEW_SESSION, PlcLink
+    from cellsim.bridges.plc import HEARTBEAT, NEW_SESSION
 
-    loaded = load_bridge(plc_config(tmp_path, 4840, "none", "  insecure_because: a unit test\n"))
     published = []
-
-    class Session:
-        def declare_publisher(self, key):
-            return type("P", (), {"put": lambda self, payload: published.append((key, json.loads(payload)))})()
-
-    link = PlcLink("welding_cell", loaded.config.plc, Session(), loaded.samples, loaded.commands, loaded.safe, queue.Queue())
+    loaded, link = _unit_link(tmp_path, published)
     broken = loaded.config.plc.entities["light_barrier"].fields["broken"].replace(" ", "")
     samples = lambda: [m for k, m in published if k.endswith("physical/light_barrier") and "fields" in m]  # noqa: E731
     link.take(broken, False, True, 0.0)
@@ -441,15 +429,17 @@ def test_one_publishs_values_keep_each_nodes_order_and_interleave_by_their_stamp
     assert [v for n, v in delivered if n == "A"] == [1, 2, 3] and [v for n, v in delivered if n == "B"] == ["x", "y", "z"]
 
 
-def _unit_link(tmp_path):
-    """A PlcLink on the test's configuration with no PLC behind it: what it publishes, in a list."""
+def _unit_link(tmp_path, published: list | None = None):
+    """A PlcLink on the test's configuration with no PLC behind it; what it publishes, (key, message) in
+    ``published``."""
     from cellsim.bridges.plc import PlcLink
 
     loaded = load_bridge(plc_config(tmp_path, 4840, "none", "  insecure_because: a unit test\n"))
+    published = [] if published is None else published
 
     class Session:
         def declare_publisher(self, key):
-            return type("P", (), {"put": lambda self, payload: None})()
+            return type("P", (), {"put": lambda self, payload: published.append((key, json.loads(payload)))})()
 
     return loaded, PlcLink("welding_cell", loaded.config.plc, Session(), loaded.samples, loaded.commands, loaded.safe,
                            queue.Queue())
