@@ -478,6 +478,12 @@ def check_campaign(folder: str | os.PathLike, scenario: ScenarioFile | None = No
             if progress is not None:
                 progress(done, len(folders))
             continue
+        recorded = _recorded_failure(path / RESULT)
+        if recorded is not None:  # the campaign counted it nowhere: neither does its check
+            runs.append({"run": path.name, "status": "failed", "error": recorded})
+            if progress is not None:
+                progress(done, len(folders))
+            continue
         try:
             result = check(path, scenario).result
         except (CheckError, ConfigError) as e:  # a run that was damaged (its scenario too)
@@ -500,6 +506,22 @@ def check_campaign(folder: str | os.PathLike, scenario: ScenarioFile | None = No
                              f"{folder / RESULTS} is missing or records no sampling distribution: what the runs were "
                              "drawn from is not known, so no violation rate or bound follows from them")
     return CampaignCheck(folder, runs, list(conditions), campaign_bounds(runs, list(conditions), sampling))
+
+
+def _recorded_failure(result_file: Path) -> str | None:
+    """Why the campaign recorded a run as not completed (a simulation that failed, a check that did), or None for a
+    run it completed: such a run is in no bound of the campaign, and a check of the folder keeps it out too."""
+    import json
+
+    try:
+        result = json.loads(result_file.read_text())
+        status = result.get("status")
+    except (OSError, ValueError, AttributeError) as e:
+        return f"its {result_file.name} cannot be read ({e})"
+    if status == "completed":
+        return None
+    error = result.get("error")
+    return f"the campaign recorded it {status}" + (f": {error}" if error else "")
 
 
 def _chosen_by_search(run: Path) -> bool:

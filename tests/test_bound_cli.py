@@ -107,6 +107,25 @@ def test_a_run_the_campaign_was_stopped_in_is_left_out_of_the_bound_and_named(cl
     assert shown["bounds"]["sampling"].count("of the runs drawn so") == 0
 
 
+def test_a_run_the_campaign_recorded_as_failed_is_counted_nowhere_by_its_check_either(clean, tmp_path):
+    """An audit found check re-judged a run whose result.json says failed (a simulation that crashed part-way, its
+    black box kept): counted completed, its conditions undecided, in the bound's runs and failures, where the
+    campaign's own bound left it out."""
+    _, finished = clean
+    out = shutil.copytree(finished, tmp_path / "c")
+    result = out / "runs" / "0003" / "result.json"
+    recorded = json.loads(result.read_text())
+    recorded.update(status="failed", error="RuntimeError: the solver diverged")
+    result.write_text(json.dumps(recorded))
+    done = _cellsim("check", out, "--json")
+    assert done.returncode == 2  # (left out of the figures: the check does not pass)
+    shown = json.loads(done.stdout)
+    assert shown["bounds"]["overall"]["runs"] == 4 and shown["bounds"]["excluded_failed_runs"] == 1
+    (failed,) = [r for r in shown["runs"] if r["status"] == "failed"]
+    assert failed["run"] == "0003" and "the campaign recorded it failed: RuntimeError: the solver diverged" in failed["error"]
+    assert "0003: the campaign recorded it failed" in done.stderr
+
+
 def test_runs_a_search_chose_bound_nothing_even_when_the_folder_lost_its_plan(clean, tmp_path):
     """A run's own result records that a search chose it: such runs give no bound, whatever the folder's plan says
     (an audit bounded a search's runs once its plan.json was unreadable)."""
