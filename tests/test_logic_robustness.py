@@ -32,6 +32,21 @@ def test_a_speed_limit_held_by_5_cm_per_second_and_broken_by_10():
     assert robustness(limit, below).time == math.inf  # no deadline to move
 
 
+@pytest.mark.parametrize("formula, values, expected", [
+    # the audit's: where the verdict changes just past the largest distance (or the only value sits on the
+    # threshold), the search saw no change and said +-inf, the farthest score a search can get
+    ("G(speed <= 0.5)", [0.45], 0.05),  # (docs/condition-language.md 5.8's own example)
+    ("G(speed <= 0.5)", [0.5], 0.0),
+    ("F(speed >= 0.1)", [0.0, 0.5], 0.4),
+    ("G(speed < 0.25)", [0.0, 0.6], -0.35),
+    ("G(speed <= 0.25)", [0.0, 0.6], -0.35),
+])
+def test_the_margin_is_found_where_the_verdict_changes_just_past_the_largest_distance(formula, values, expected):
+    f = parse(formula, {"speed": NumberDomain()})
+    trace = _trace(end=5.0, speed=[(float(k), v) for k, v in enumerate(values)])
+    assert robustness(f, trace).space == pytest.approx(expected, abs=1e-9)
+
+
 def test_a_detection_with_0_3_s_to_spare_and_one_0_2_s_late():
     detected = parse("G(e -> (e U[0, 0.5s] h == act))", {"e": BoolDomain(), "h": EnumDomain(("inact", "act"))})
     on_time = _trace(e=[(0, False), (1.0, True), (1.6, False)], h=[(0, "inact"), (1.2, "act"), (1.7, "inact")])

@@ -126,27 +126,30 @@ def robustness(formula: Formula, trace: Trace) -> Robustness:
 
 
 def _space(formula: Formula, trace: Trace, holds, verdict: bool) -> float:
-    """Searched over the only moves at which a verdict can change: the distances from each threshold
-    to the values its variable took."""
-    moves = sorted(_distances(formula, trace))
+    """Searched over the only moves at which a verdict can change: the distances from each threshold to the values its
+    variable took (0 too: a value on its threshold). The verdict changes at a move (a strict comparison) or just after
+    it (a non-strict one), so each move is tried, and a point between it and the next (past the largest: beyond it);
+    tightening a held formula (loosening a violated one) never brings its verdict back, so the first change is
+    bisected for."""
+    moves = sorted(_distances(formula, trace) | {0.0})
     sign = 1.0 if verdict else -1.0  # held: how far it can be tightened; violated: loosened
 
     def same(r: float) -> bool:
         return holds(space=sign * r) == verdict
 
-    low, high = 0, len(moves)  # the first move at which the verdict is no longer the same
+    points = []  # (a move to try, the robustness if the verdict has changed there)
+    for k, move in enumerate(moves):
+        points.append((move, move))
+        after = 0.5 * (move + moves[k + 1]) if k + 1 < len(moves) else move + max(1.0, move)
+        points.append((after, move))
+    low, high = 0, len(points)  # the first point at which the verdict is no longer the same
     while low < high:
         middle = (low + high) // 2
-        if same(moves[middle]):
+        if same(points[middle][0]):
             low = middle + 1
         else:
             high = middle
-    if low == len(moves):
-        return sign * math.inf
-    before = moves[low - 1] if low else 0.0
-    # between two moves the verdict is constant: it changes just after `before` or at moves[low]
-    at = moves[low] if same(0.5 * (before + moves[low])) else before
-    return sign * at
+    return sign * (math.inf if low == len(points) else points[low][1])
 
 
 def _distances(formula: Formula, trace: Trace) -> set[float]:
