@@ -166,3 +166,20 @@ def test_a_campaign_s_size_is_said_to_follow_its_outcomes_only_where_it_did():
     assert "--until-bound stops" in chosen_as_they_came([bounded], any_against=True)
     after_a_stop = {"runs": 6, "until_bound": None, "finished_before": 5, "against_before": 1}
     assert "extended after runs counted against it" in chosen_as_they_came([bounded, after_a_stop], any_against=True)
+
+
+def test_until_bound_with_failed_runs_says_the_same_command_cannot_reach_it_and_what_would():
+    """An audit found one failed run of 2995 left the bound at 0.00100008 (shown as "0.001") and the hint "run the
+    same command to go on", which adds nothing: the failed run is kept and counted nowhere, and --runs cannot be
+    given with --until-bound. The campaign's line says what would reach it."""
+    from cellsim.cli.campaign import _until_bound_text
+
+    one_failed = {"overall": {"failures": 0, "runs": 2994, "upper_bound": 0.0010000781698466697},
+                  "excluded_failed_runs": 1}
+    text = _until_bound_text(one_failed, 1e-3, 2995)
+    assert "not reached: 0.00100008 after 2994 runs; 1 failed and count nowhere" in text
+    assert "--runs 2996 instead of --until-bound" in text and "run the same command" not in text
+    still_to_do = {"overall": {"failures": 0, "runs": 1000, "upper_bound": 0.003}, "excluded_failed_runs": 1}
+    assert "run the same command to go on" in _until_bound_text(still_to_do, 1e-3, 2995)
+    assert "reached: 0.000999" in _until_bound_text(
+        {"overall": {"failures": 0, "runs": 2995, "upper_bound": 0.000999}, "excluded_failed_runs": 0}, 1e-3, 2995)

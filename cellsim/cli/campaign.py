@@ -139,7 +139,7 @@ def print_campaign(outcome) -> None:
     bounds = outcome.results.get("bounds")
     target = outcome.results["campaign"].get("until_bound")
     if bounds and target is not None:
-        table.add_row("--until-bound", _until_bound_text(bounds["overall"], target))
+        table.add_row("--until-bound", _until_bound_text(bounds, target, outcome.results["campaign"].get("runs")))
     if bounds:
         table.add_row(f"violation rate, {percent(bounds['confidence'])} upper bound", _bound_text(bounds))
     table.add_row("use cases", ", ".join(f"{u} {n}" for u, n in totals["use_cases"].items()) or "-")
@@ -159,14 +159,22 @@ def print_campaign(outcome) -> None:
                       highlight=False, markup=False)
 
 
-def _until_bound_text(overall: dict, target: float) -> str:
-    """Whether ``--until-bound`` reached its target, stopped at a violation, or has runs still to do."""
+def _until_bound_text(bounds: dict, target: float, planned: int | None) -> str:
+    """Whether ``--until-bound`` reached its target, stopped at a violation, has runs still to do, or cannot reach it
+    with the runs it takes (some failed: they are counted nowhere)."""
+    overall = bounds["overall"]
     upper, failures, runs = overall["upper_bound"], overall["failures"], overall["runs"]
     if failures:
         return f"[red]not reached: {failures} violating run(s) in {runs}; the violation is the finding, not the bound[/red]"
     if upper < target:
         return f"[green]reached: {upper:.3g} < {target:g}[/green]"
-    return f"not reached yet: {upper:.3g} after {runs} runs (run the same command to go on)"
+    failed = bounds.get("excluded_failed_runs", 0)
+    shown = f"{upper:.6g}"  # (enough digits to tell it from the target it missed)
+    if failed and planned is not None and runs + failed >= planned:
+        # every run it takes is done and the failed ones are not redone: the same command would add nothing
+        return (f"[red]not reached: {shown} after {runs} runs; {failed} failed and count nowhere. --runs "
+                f"{planned + failed} instead of --until-bound adds as many (these are kept)[/red]")
+    return f"not reached yet: {shown} after {runs} runs (run the same command to go on)"
 
 
 def _bound_text(bounds: dict) -> str:
