@@ -100,6 +100,50 @@ def test_a_campaign_on_the_cluster_survives_a_killed_worker_and_gives_the_local_
     assert f"{runs} ({runs} resumed" in again.stdout
 
 
+def test_two_campaigns_on_one_scheduler_each_run_their_own_inputs(cluster, tmp_path):
+    """An audit found the inputs scattered under their files' names: a second campaign whose welding_cell.yaml differs
+    ran the first's on the cluster (its operator's waits summed to 20 s where its own file says 8). Each campaign's
+    runs on the cluster are now its own local runs."""
+    import shutil
+
+    address, _, _ = cluster
+    folders = {}
+    for name, total in (("first", "20.0"), ("second", "8.0")):
+        folder = tmp_path / name
+        shutil.copytree(WELDING_CELL.parent, folder, ignore=shutil.ignore_patterns("*.md"))
+        text = (folder / WELDING_CELL.name).read_text()
+        assert "operator_waits: {kind: simplex, total: 20.0}" in text
+        (folder / WELDING_CELL.name).write_text(text.replace("operator_waits: {kind: simplex, total: 20.0}",
+                                                             f"operator_waits: {{kind: simplex, total: {total}}}"))
+        folders[name] = folder / WELDING_CELL.name
+    # the first campaign still holds its inputs on the cluster while the second runs
+    first = subprocess.Popen([sys.executable, "-m", "cellsim", "campaign", str(folders["first"]), "--runs", "6",
+                              "--seed", "5", "--scheduler", address, "--out", str(tmp_path / "first-cluster"),
+                              "--quiet"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not list((tmp_path / "first-cluster" / "runs").glob("*/result.json")):  # under way on the cluster
+            assert first.poll() is None, first.communicate()
+            assert time.monotonic() < deadline, "no run of the first campaign came back"
+            threading.Event().wait(0.05)
+        done = _cellsim("campaign", folders["second"], "--runs", "2", "--seed", "5", "--scheduler", address,
+                        "--out", tmp_path / "second-cluster", "--quiet")
+        assert done.returncode in (0, 1), done.stderr
+        _, stderr = first.communicate(timeout=600)
+        assert first.returncode in (0, 1), stderr
+    finally:
+        if first.poll() is None:
+            first.kill()
+            first.wait()
+    local = _cellsim("campaign", folders["second"], "--runs", "2", "--seed", "5", "--jobs", "1",
+                     "--out", tmp_path / "second-local", "--quiet")
+    assert local.returncode in (0, 1), local.stderr
+    remote = json.loads((tmp_path / "second-cluster" / "results.json").read_text())
+    assert _rows(remote) == _rows(json.loads((tmp_path / "second-local" / "results.json").read_text()))
+    waits = [sum(v for k, v in r["configuration"].items() if k.endswith(".wait")) for r in remote["runs"]]
+    assert waits == [pytest.approx(8.0)] * 2
+
+
 def test_a_search_on_the_cluster_is_the_search_run_locally(cluster, tmp_path):
     address, _, _ = cluster
     args = ["falsify", TWO_OPERATORS, "--budget", "20", "--seed", "3", "--quiet"]

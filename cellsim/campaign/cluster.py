@@ -5,10 +5,12 @@ a Dask scheduler instead of the local pool. A worker shares nothing with the
 campaign but the scheduler:
 
 * **inputs**: the campaign's snapshot (``OUT/inputs``) is read once, as bytes, and
-  scattered to every worker (``broadcast``), keyed by the SHA-256 of its content.
-  A worker writes it once into its own local directory
-  (``<worker dir>/cellsim-inputs/<digest>``) and every run it is given is made
-  from there. A worker that joins later fetches it from a peer.
+  travels with each run (tens of kilobytes for the shipped cells). A worker writes it
+  once into its own local directory, named by the SHA-256 of its content
+  (``<worker dir>/cellsim-inputs/<digest>``), and every run it is given is made from
+  there. Not scattered: data scattered under its files' names was shared by every
+  campaign on the scheduler (an audit saw one campaign run another's scenario), and
+  lost with the last worker holding it (the campaign then failed where it retries).
 * **outputs**: the worker simulates and checks the run in a scratch folder of its
   own, exactly as a local worker does (:func:`cellsim.campaign.engine.execute_run`),
   and returns the run folder's files. The campaign writes them under
@@ -169,7 +171,7 @@ class ClusterPool:
         self.version = simulator_versions()
         self.inputs_dir = str(inputs_dir.resolve())
         self.digest, snapshot = read_snapshot(inputs_dir)
-        self.snapshot = self.client.scatter(snapshot, broadcast=True, hash=False)
+        self.snapshot = snapshot  # (sent with each run: see the module docstring)
         self._tasks: list = []
         self._lock = threading.Lock()
 
