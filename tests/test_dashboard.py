@@ -321,3 +321,17 @@ def test_a_refresh_that_fires_as_the_dashboard_closes_draws_nothing_and_raises_n
     shown, app = asyncio.run(drive())
     assert "welding_cell" in shown
     app.refresh_views()  # its screens are gone: as the timer's last tick finds them
+
+
+def test_a_replay_shows_the_default_conditions_the_cell_is_judged_by(welding_run):
+    """An audit found the dashboard compiled only the scenario's own conditions: NoHarm, NoClamping (and TrueSSM
+    where a monitor is) never showed, live or replayed, though check judges every cell by them."""
+    screen = TmuxScreen(["dashboard", "--replay", str(welding_run), "--start", "5", "--speed", "4"])
+    try:
+        screen.wait_for(lambda s: _row(s, "NoHarm")[1:3] == ["holds", "so"], 30, "NoHarm holding so far")
+        screen.keys("c")  # every condition in full (the panel shows as many as fit)
+        full = screen.wait_for(lambda s: "Safety conditions over the trace so far" in s, 10, "the conditions in full")
+        assert "No robot pins a person's body region against something beyond its quasi-static limit" in " ".join(
+            full.split())
+    finally:
+        screen.stop()

@@ -354,14 +354,19 @@ class CellModel:
         from cellsim.config.typed_yaml import from_data
         from cellsim.validation.conditions import SafetyCase
         from cellsim.config.validation import Validation
+        from cellsim.scenario import Scenario
+        from cellsim.validation.defaults import default_conditions, with_defaults
         from cellsim.validation.traces import with_aliases
 
         data = self.scenario.get("validation") or {}
-        if not data.get("conditions"):
-            self._case_error = "no safety conditions"
-            return None
         try:
-            validation = from_data(Validation, data, "the twin's scenario")
+            # the cell's own conditions and the default ones it is judged by (NoHarm, NoClamping, TrueSSM), as check
+            validation = with_defaults(from_data(Validation, data, "the twin's scenario"),
+                                       default_conditions(from_data(Scenario, self.scenario, "the twin's scenario")),
+                                       self.channels)
+            if not validation.conditions:
+                self._case_error = "no safety conditions"
+                return None
             domains = {n: d for n, d in self._domains.items() if d is not None}
             vocabulary = with_aliases(domains, validation.variables, self.channels)
             self._case = SafetyCase.compile(validation, vocabulary, lambda key: ("the twin's scenario", None, key))

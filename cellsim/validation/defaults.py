@@ -59,8 +59,15 @@ def judged_validation(sf, channels) -> Validation:
             raise sf.error(f"validation.conditions.{condition}",
                            f"'{condition}' is a default condition every cell is judged by; name yours otherwise "
                            f"(or waive the default in validation.waive, with a reason)")
+    return with_defaults(validation, defaults, channels)
+
+
+def with_defaults(validation: Validation, defaults: dict[str, Described], channels) -> Validation:
+    """``validation`` with each of ``defaults`` it does not waive added, where ``channels`` has what it reads (the
+    one rule for which defaults judge a cell: its check, its campaign, its dashboard)."""
     added = {name: d for name, d in defaults.items()
-             if name not in validation.waive and set(CHANNEL.findall(formula_of(d))) <= set(channels)}
+             if name not in validation.waive and name not in validation.conditions
+             and set(CHANNEL.findall(formula_of(d))) <= set(channels)}
     if not added:
         return validation
     judged = copy.copy(validation)
