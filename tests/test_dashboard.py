@@ -335,3 +335,22 @@ def test_a_replay_shows_the_default_conditions_the_cell_is_judged_by(welding_run
             full.split())
     finally:
         screen.stop()
+
+
+def test_a_replay_of_an_interrupted_run_ends_where_its_record_does(welding_run, tmp_path):
+    """An audit found the replay played on to the planned duration (an interrupted 5000 s run to t = 5000 s, a killed
+    twin started without --duration to a day): it ends where check and replay end the record."""
+    import shutil
+    import sqlite3
+
+    from cellsim.dashboard.feeds import ReplayFeed
+
+    copy = shutil.copytree(welding_run, tmp_path / "interrupted")
+    db = sqlite3.connect(copy / "blackbox.sqlite")
+    db.execute("UPDATE metadata SET value = '\"interrupted\"' WHERE key = 'status'")
+    db.execute("INSERT OR REPLACE INTO metadata (key, value) VALUES ('recorded_until', '5.0')")
+    db.commit()
+    db.close()
+    feed = ReplayFeed(copy)
+    assert feed.end == 5.0 and not feed.complete
+    assert ReplayFeed(welding_run).end == BlackBox(welding_run / "blackbox.sqlite").metadata()["duration"]

@@ -26,16 +26,16 @@ class ReplayFeed:
     """A recorded run played back at ``speed`` times real time, from ``start`` (s)."""
 
     def __init__(self, run: str | Path, speed: float = 1.0, start: float = 0.0, clock=time.monotonic):
-        from cellsim.blackbox import BlackBox
+        from cellsim.blackbox import BlackBox, run_end
         from cellsim.validation.check import locate_run
 
         blackbox, _ = locate_run(run)
         with BlackBox(blackbox) as bb:
             self.model = CellModel.from_blackbox(bb)
             self.messages = list(bb.iter_values(list(bb.channels())))
-            metadata = bb.metadata()
-        self.end = float(metadata.get("duration") or metadata.get("recorded_until") or (self.messages[-1][0] if self.messages else 0.0))
-        self.complete = metadata.get("status") in ("completed", "stopped")
+            # where the record ends, as check and replay have it: an interrupted or killed run at what it recorded,
+            # not at the duration it was planned for
+            self.end, self.complete = run_end(bb, bb.metadata(), self.messages[-1][0] if self.messages else 0.0)
         self.speed, self.start, self.clock = speed, start, clock
         self.source = Path(run).name
         self._next = 0
