@@ -161,3 +161,22 @@ def test_faults_name_an_unknown_entity_before_rates_do():
     with pytest.raises(FaultError, match="no entity named 'robto' "):
         check_entities([parse_fault("robot=silence")], {"robto": 5.0}, ENTITIES)
     check_entities([parse_fault("robot=silence")], {"robot": 500.0}, ENTITIES)
+
+
+def test_a_freeze_or_a_replay_sends_an_old_message_or_none_never_a_fresh_one():
+    """An audit found the emulator's replay fault sent good, new samples until 50 had been sent (a fault early in a
+    run was no fault at all), and a freeze before any sample did the same."""
+    from cellsim.live.emulator import REPLAYED, ZenohOutlet
+
+    sent = []
+    outlet = ZenohOutlet(type("P", (), {"put": lambda self, payload: sent.append(payload)})())
+    assert outlet.send({"broken": False}, "replay", 0.0) == 0 and outlet.send({"broken": False}, "freeze", 0.0) == 0
+    for k in range(3):
+        outlet.send({"broken": k % 2 == 1}, None, 0.04 * k)
+    fresh = list(sent)
+    assert outlet.send({"broken": True}, "replay", 0.2) == 1 and sent[-1] == fresh[0]  # the oldest kept: fewer than 50
+    assert outlet.send({"broken": True}, "freeze", 0.24) == 1 and sent[-1] == fresh[-1]
+    for k in range(60):
+        outlet.send({"broken": False}, None, 0.3 + 0.04 * k)
+    outlet.send({"broken": True}, "replay", 3.0)
+    assert sent[-1] == outlet.history[-REPLAYED] and outlet.seq == 63  # (no fault made a new message)

@@ -42,6 +42,10 @@ from cellsim import codec
 
 
 
+REPLAYED = 50
+"""How many samples back the ``replay`` fault goes (the oldest kept, while fewer were sent)."""
+
+
 class ZenohOutlet:
     """An entity's samples as Zenoh messages on one key, with the Zenoh faults.
 
@@ -58,17 +62,19 @@ class ZenohOutlet:
 
     def send(self, fields: dict, fault: str | None, sim_time: float) -> int:
         """Send one sample (or what ``fault`` makes of it); the number of messages sent."""
-        if fault == "silence":
+        payload = None if fault == "silence" else self._payload(fields, fault, sim_time)
+        if payload is None:
             return 0
-        self.publisher.put(self._payload(fields, fault, sim_time))
+        self.publisher.put(payload)
         return 1
 
-    def _payload(self, fields: dict, fault: str | None, sim_time: float) -> bytes:
+    def _payload(self, fields: dict, fault: str | None, sim_time: float) -> bytes | None:
+        """The message to send; None where the fault has nothing to send (a freeze or a replay before any sample)."""
         history = self.history
-        if fault == "freeze" and history:
-            return history[-1]
-        if fault == "replay" and len(history) > 50:
-            return history[-50]
+        if fault in ("freeze", "replay"):  # an old message again, never a new one (nothing yet: nothing sent)
+            if not history:
+                return None
+            return history[-1] if fault == "freeze" else history[max(0, len(history) - REPLAYED)]
         if fault == "corrupt":
             return b'{"t": "soon", "fields": [1, 2'
         self.seq += 1
