@@ -259,6 +259,19 @@ def test_the_bridge_daemons_diagnostics_set_an_entitys_link_level_and_are_logged
     model.apply_diagnostics("light_barrier", {"level": "ERROR", "message": "failed: crc 1", "counts": {"crc": 1}})
     assert row()["level"] == "ERROR" and row()["diagnostics"] == "ERROR"  # the worse of the twin's and the daemon's
     assert model.events[-1].text == "light_barrier: link OK -> ERROR (failed: crc 1)"
+    # (the audit's: a daemon gone, a twin gone, their last levels stood as fresh) no word for three of its periods:
+    # its level is stale; the twin gone: the link it last saw is too
+    now = [100.0]
+    model.clock = lambda: now[0]
+    model.apply_diagnostics("light_barrier", {"level": "OK", "message": "trusted", "counts": {}, "every_s": 1.0})
+    now[0] += 2.9
+    assert model.diagnostics_level("light_barrier") == "OK" and row()["level"] == "OK"
+    now[0] += 0.2
+    assert model.diagnostics_level("light_barrier") == "STALE" and row()["level"] == "STALE"
+    model.apply_diagnostics("light_barrier", {"level": "OK", "message": "trusted", "counts": {}, "every_s": 1.0})
+    assert row()["level"] == "OK"
+    model.set_twin("gone")
+    assert row()["level"] == "STALE"
 
 
 def test_a_twin_slower_than_its_scenario_assumes_is_shown_in_the_header_and_logged_once(welding_run):

@@ -101,7 +101,7 @@ class DeviceDiagnostics:
         due = self._window_start is not None and now - self._window_start >= every
         if not due and self.last and self._assess(now)[0] == self.level:
             return
-        status = self.status(now)
+        status = {**self.status(now), "every_s": every}  # (a reader takes it as stale after a few missed)
         if status["level"] != self.level:
             log.log(logging.INFO if status["level"] == "OK" else logging.WARNING, "%s (%s): %s -> %s, %s",
                     self.entity, self.device, self.level, status["level"], status["message"])

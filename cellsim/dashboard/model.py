@@ -24,6 +24,7 @@ unfinished run (docs/condition-language.md):
 from __future__ import annotations
 
 import math
+import time
 from collections import deque
 from dataclasses import dataclass
 
@@ -36,6 +37,9 @@ from cellsim.channels import value_text
 from cellsim.numbers import instant, measure
 
 LEVELS = ("OK", "WARN", "ERROR", "STALE")
+DIAGNOSTICS_MISSED = 3
+"""Diagnostics periods (the status's ``every_s``, else 1 s) with no word from a device after which its last level is
+shown STALE: a daemon that died, or a link to it lost, leaves no level standing as if fresh."""
 """Link health, as ROS diagnostics name it (a group shows its worst member)."""
 LINK_LEVEL = {"ok": "OK", "recovering": "WARN", "corrupt": "ERROR", "stale": "STALE"}
 CONDITIONS_EVERY = 0.5
@@ -83,6 +87,9 @@ class CellModel:
         self.slower: set[str] = set()
         """Entities the twin said it reacts to slower than its scenario assumes."""
         self.diagnostics: dict[str, dict] = {}
+        self._heard: dict[str, float] = {}  # device -> when its last diagnostics came (``clock``)
+        self.clock = time.monotonic
+        """The dashboard's clock (s): how long ago a device's diagnostics came."""
         self.twin = "waiting"
         """waiting (no twin yet), running, gone (its liveliness token went), replay, ended."""
         self.events: deque[Event] = deque(maxlen=500)
@@ -183,9 +190,22 @@ class CellModel:
             return
         previous = self.diagnostics.get(device, {}).get("level")
         self.diagnostics[device] = status
+        self._heard[device] = self.clock()
         level = status.get("level")
         if device != "bridge" and level != previous and previous is not None:
             self.log(f"{device}: link {previous} -> {level} ({status.get('message', '')})", level)
+
+    def diagnostics_level(self, device: str) -> str | None:
+        """A device's diagnostics level as shown now: its last, or STALE once ``DIAGNOSTICS_MISSED`` of its periods
+        passed with no word (None: never heard)."""
+        status = self.diagnostics.get(device)
+        if status is None:
+            return None
+        every = status.get("every_s")
+        every = every if isinstance(every, (int, float)) and math.isfinite(every) and every > 0 else 1.0
+        if self.clock() - self._heard.get(device, -math.inf) > DIAGNOSTICS_MISSED * every:
+            return "STALE"
+        return str(status.get("level"))
 
     def set_twin(self, state: str) -> None:
         if state != self.twin:
@@ -261,7 +281,9 @@ class CellModel:
             mode = self.values.get(f"{entity}.twin_mode")
             link = self.values.get(f"{entity}.physical_link")
             level = "-" if mode in (None, "model") else LINK_LEVEL.get(link, "STALE")
-            diagnostics = self.diagnostics.get(entity, {}).get("level")
+            if self.twin == "gone" and level != "-":
+                level = "STALE"  # the link as the twin last saw it: nobody sees it now
+            diagnostics = self.diagnostics_level(entity)
             if diagnostics is not None and level != "-":
                 level = worst([level, diagnostics])
             twin_text, physical_text, diverges = self._compare(entity)
