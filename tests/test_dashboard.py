@@ -367,3 +367,56 @@ def test_a_replay_of_an_interrupted_run_ends_where_its_record_does(welding_run, 
     feed = ReplayFeed(copy)
     assert feed.end == 5.0 and not feed.complete
     assert ReplayFeed(welding_run).end == BlackBox(welding_run / "blackbox.sqlite").metadata()["duration"]
+
+
+def test_a_twin_that_comes_back_is_a_new_run_its_description_asked_again(welding_run):
+    """An audit restarted the twin under a running dashboard: its header stayed at the old run's last time, hazards
+    read their old ages and every event was stamped 44.9 s. A twin that goes and comes back is a new run: the
+    dashboard asks its description again and starts its values and times afresh, its log kept."""
+    import threading
+    import time
+    from types import SimpleNamespace
+
+    from cellsim import codec
+    from cellsim.dashboard.feeds import LiveFeed
+    from cellsim.dashboard.model import CellModel
+
+    with BlackBox(welding_run / "blackbox.sqlite") as bb:
+        first = CellModel.from_blackbox(bb)
+    description = {"scenario": first.scenario, "channels": first.channels, "hazards": {}}
+    asked = []
+
+    class Session:  # what the feed asks of Zenoh: the description, subscribers that hold nothing yet
+        def get(self, key, timeout=None, payload=None):
+            asked.append(key)
+            return [SimpleNamespace(ok=SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: codec.dumps(description))))]
+
+        def declare_subscriber(self, key, handler):
+            return SimpleNamespace(try_recv=lambda: None, undeclare=lambda: None)
+
+        def liveliness(self):
+            return SimpleNamespace(declare_subscriber=lambda key, callback, history=True: SimpleNamespace(undeclare=lambda: None))
+
+    def model_of(feed):
+        deadline = time.monotonic() + 30
+        while feed.model is None:  # (found on the feed's own thread)
+            assert time.monotonic() < deadline, "no model"
+            threading.Event().wait(0.01)
+        return feed.model
+
+    feed = LiveFeed(Session(), cell="welding_cell")
+    try:
+        old = model_of(feed)
+        old.apply_channel("light_barrier.broken", 44.9, True)
+        assert old.sim_time == 44.9 and len(asked) == 1
+        feed._alive.append(False)
+        feed.drain()
+        assert old.twin == "gone"
+        feed._alive.append(True)  # its liveliness token again: a new run
+        feed.drain()
+        new = model_of(feed)
+        assert new is not old and new.sim_time == 0.0 and new.twin == "running" and len(asked) == 2
+        texts = [e.text for e in new.events]
+        assert "the twin is gone" in texts and texts[-2].startswith("a new run of the twin")
+    finally:
+        feed.close()

@@ -88,6 +88,7 @@ class LiveFeed:
         self._channels: list = []
         self._alive: deque = deque()
         self._subscribers = []
+        self._carried: list = []  # the log of the twin's earlier runs, carried into the next run's model
         self.source = "the running twin"
         # Finding the twin (opening the session, its liveliness token, its describe answer) blocks for
         # seconds while no twin runs: a thread of its own does it, and the screen keeps saying it waits.
@@ -141,7 +142,24 @@ class LiveFeed:
             except codec.CodecError:
                 model.dropped += 1
         while self._alive:
-            model.set_twin("running" if self._alive.popleft() else "gone")
+            alive = self._alive.popleft()
+            if alive and model.twin == "gone":  # a twin again after one went: a new run, from t = 0
+                self._new_run(model)
+                return
+            model.set_twin("running" if alive else "gone")
+
+    def _new_run(self, previous: CellModel) -> None:
+        """The twin came back after it went (restarted, or another run of the cell): forget the last run's values,
+        times and description, and find the new one as at the start (its description asked again), its log kept."""
+        import threading
+
+        self._undeclare()
+        self._channels, self._inbox, self._alive = [], deque(), deque()
+        self._carried = list(previous.events)
+        self.model = None
+        self._finding.join(timeout=5)  # (finished: it made the previous model)
+        self._finding = threading.Thread(target=self._find, args=(None,), daemon=True)
+        self._finding.start()
 
     def _connect(self) -> None:
         """Find the twin (its liveliness token), ask what it runs, subscribe to everything it says."""
@@ -162,6 +180,9 @@ class LiveFeed:
         if not isinstance(description, dict):
             return
         model = CellModel(description)
+        if self._carried:  # (a new run of the twin: the log goes on, the values and times start again)
+            model.events.extend(self._carried)
+            model.log("a new run of the twin: its values and times start again from its description")
         model.set_twin("running")
         import zenoh
 
@@ -184,12 +205,16 @@ class LiveFeed:
                 return codec.decode_answer(reply.ok.payload.to_bytes())
         return {"accepted": False, "reason": f"no answer from the twin within {timeout:g} s"}
 
-    def close(self) -> None:
+    def _undeclare(self) -> None:
         for subscriber in self._subscribers:
             try:
                 subscriber.undeclare()
             except Exception:  # noqa: BLE001 - closing anyway
                 pass
+        self._subscribers = []
+
+    def close(self) -> None:
+        self._undeclare()
         self._closed.set()
         self._finding.join(timeout=5)
         if self._owns_session and self.session is not None:
