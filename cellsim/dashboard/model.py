@@ -381,11 +381,14 @@ class CellModel:
         from cellsim.validation.traces import with_aliases
 
         data = self.scenario.get("validation") or {}
+        try:  # the default conditions it is judged by (NoHarm, NoClamping, TrueSSM), as check judges it
+            defaults = default_conditions(from_data(Scenario, self.scenario, "the twin's scenario"))
+        except Exception as e:  # noqa: BLE001 - (a kind not installed here): its own conditions still shown
+            defaults = {}
+            self.log(f"the default conditions cannot be read from the twin's scenario ({e}): its own alone shown",
+                     "WARN")
         try:
-            # the cell's own conditions and the default ones it is judged by (NoHarm, NoClamping, TrueSSM), as check
-            validation = with_defaults(from_data(Validation, data, "the twin's scenario"),
-                                       default_conditions(from_data(Scenario, self.scenario, "the twin's scenario")),
-                                       self.channels)
+            validation = with_defaults(from_data(Validation, data, "the twin's scenario"), defaults, self.channels)
             if not validation.conditions:
                 self._case_error = "no safety conditions"
                 return None
