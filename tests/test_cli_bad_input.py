@@ -11,6 +11,7 @@ import json
 import os
 import re
 import shutil
+import signal
 import sqlite3
 import subprocess
 import sys
@@ -287,3 +288,32 @@ def test_twin_mode_refuses_a_timeout_it_cannot_wait_as_one_line(timeout, capsys)
     """The audit's: nan and inf ended in a ValueError and an OverflowError traceback (exit 1) building Zenoh's config."""
     assert main(["twin-mode", "robot", "shadow", "--insecure", "--timeout", timeout]) == 2
     assert f"--timeout {float(timeout):g}: expected more than 0 and at most 3600 seconds" in one_error(capsys)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_command_waiting_for_the_twin_stops_at_once_on_ctrl_c_or_sigterm(sig, tmp_path):
+    """An audit found a client waiting for the twin (Zenoh connecting, up to --timeout) ignored SIGTERM and Ctrl-C
+    until the wait ended (17.5 s of 20; with --timeout 1e20, never): the native call held off Python's handlers."""
+    import time
+
+    from live_processes import free_port
+
+    log = (tmp_path / "twin-mode.log").open("w")
+    # (a fresh session: Ctrl-C reaches the child as a terminal's would, not ignored as a background job's)
+    proc = subprocess.Popen([sys.executable, "-m", "cellsim", "twin-mode", "robot", "shadow", "--insecure", "--connect",
+                             f"tcp/127.0.0.1:{free_port()}", "--timeout", "60"], cwd=ROOT, stdout=log, stderr=log,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60
+        while "--insecure" not in (tmp_path / "twin-mode.log").read_text():  # (its warning: it waits for the twin now)
+            assert proc.poll() is None and time.monotonic() < deadline
+            threading.Event().wait(0.05)
+        threading.Event().wait(0.5)  # (inside the connecting call)
+        proc.send_signal(sig)
+        assert proc.wait(timeout=10) == 130
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        log.close()
+    assert "cellsim: interrupted" in (tmp_path / "twin-mode.log").read_text()

@@ -171,10 +171,34 @@ def _open_session(args, role: str, listen_by_default: bool, wait: float = 30.0, 
     )
     warn_insecure(security)
     try:
-        return zenoh.open(config)
+        return _interruptible(lambda: zenoh.open(config))
     except Exception as e:  # noqa: BLE001 - zenoh raises ZError with a long text
         raise InputError(f"cannot open a Zenoh session as {role} (is the twin running, and are this process's keys "
                          f"from the twin's CA?): {' '.join(str(e).split())[:200]}") from None
+
+
+def _interruptible(call):
+    """``call()`` on a thread of its own, this thread waiting for it: a native call that waits (Zenoh connecting for
+    up to its timeout) holds off Python's signal handlers on the thread that makes it, so Ctrl-C and SIGTERM are
+    taken here at once instead of when it returns."""
+    import threading
+
+    done, outcome = threading.Event(), {}
+
+    def run() -> None:
+        try:
+            outcome["value"] = call()
+        except BaseException as e:  # noqa: BLE001 - handed to the waiting thread
+            outcome["error"] = e
+        finally:
+            done.set()
+
+    threading.Thread(target=run, name="zenoh-open", daemon=True).start()
+    while not done.wait(0.2):
+        pass
+    if "error" in outcome:
+        raise outcome["error"]
+    return outcome["value"]
 
 
 def _live_run(args, process: str, listen_by_default: bool, run, check=None):
