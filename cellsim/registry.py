@@ -13,6 +13,7 @@ import only fails the scenarios that use it (with one line naming the plug-in).
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import importlib.metadata
 from typing import Any
@@ -75,8 +76,49 @@ def get(name: str) -> ModuleKind:
                         "cellsim.kind.ModuleKind")
     if kind.name != name:
         raise KindError(f"kind '{name}': {ep.value} declares the kind '{kind.name}'")
+    why = _malformed(kind)
+    if why is not None:
+        raise KindError(f"kind '{name}' from {ep.value} is not a usable kind: {why}")
     _loaded[name] = kind
     return kind
+
+
+def _malformed(kind: ModuleKind) -> str | None:
+    """What a loaded kind lacks of what the core asks of every kind (its section, a dataclass config, a default module
+    whose config needs nothing the scenario did not write), or None."""
+    import dataclasses
+
+    section = getattr(kind, "section", None)
+    if section not in SECTIONS:
+        return f"its section is {section!r}, not one of {', '.join(SECTIONS)}"
+    config = getattr(kind, "config", None)
+    if not (isinstance(config, type) and dataclasses.is_dataclass(config)):
+        return f"its config is {config!r}, not a dataclass"
+    if getattr(kind, "default_module", None):
+        try:
+            config(kind=kind.name)
+        except Exception as e:  # noqa: BLE001 - the plug-in's to mend
+            return (f"it adds the module '{kind.default_module}' to every scenario, but its config cannot be made "
+                    f"from defaults ({type(e).__name__}: {_one_line(e)})")
+    return None
+
+
+@contextlib.contextmanager
+def plugin_failures(kind: ModuleKind, module: str, what: str, make_error, passes: tuple[type, ...]):
+    """Within the block a plug-in's kind does ``what`` (check, build) for ``module``: an exception of ``passes`` (the
+    scenario errors it raises on purpose, naming the key) goes on as it is; any other becomes ``make_error(message)``,
+    one line naming the kind and the plug-in. cellsim's own kinds are not wrapped: their failures are cellsim's bugs,
+    shown whole."""
+    if type(kind).__module__.split(".")[0] == "cellsim":
+        yield
+        return
+    try:
+        yield
+    except passes:
+        raise
+    except Exception as e:  # noqa: BLE001 - a plug-in's failure is that plug-in's, said in one line
+        raise make_error(f"the kind '{kind.name}' (plug-in {type(kind).__module__}) failed to {what} module "
+                         f"'{module}': {type(e).__name__}: {_one_line(e)}") from None
 
 
 def kind_of(config: Any) -> ModuleKind:

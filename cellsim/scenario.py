@@ -35,6 +35,7 @@ from cellsim.config.typed_yaml import (
     to_data,
 )
 from cellsim.config.sampling import Sampler
+from cellsim import registry
 from cellsim.registry import BehaviourModule, EntityModule, KindError, ServiceModule, kind_of
 from cellsim.config.validation import Validation
 from cellsim.config.layout import Layout
@@ -308,7 +309,10 @@ def check_scenario(sf: ScenarioFile) -> None:
     sc = sf.scenario
     for section in ("entities", "behaviours", "services"):
         for name, cfg in getattr(sc, section).items():
-            _kind(sf, f"{section}.{name}", cfg).check(sf, name, cfg)
+            kind = _kind(sf, f"{section}.{name}", cfg)
+            with registry.plugin_failures(kind, name, "check", lambda text, key=f"{section}.{name}": sf.error(key, text),
+                                          (ConfigError,)):
+                kind.check(sf, name, cfg)
             period = getattr(cfg, "period", None)
             if isinstance(period, float) and not _whole_steps(period, sc.time_step):
                 raise sf.error(

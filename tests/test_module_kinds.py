@@ -55,6 +55,39 @@ class BeaconKind(ModuleKind):
 
     def build(self, cell, name, cfg):
         return cell.add(name, Beacon(name, cfg))
+
+
+@dataclass
+class PlainConfig:
+    kind: str = "boom"
+
+
+class Boom(ModuleKind):  # its build fails
+    name, section, config, summary = "boom", "behaviours", PlainConfig, "Fails to build."
+
+    def build(self, cell, name, cfg):
+        raise RuntimeError("my build blew up")
+
+
+class CheckBoom(Boom):  # its check fails
+    name = "check_boom"
+
+    def check(self, sf, name, cfg):
+        raise RuntimeError("my check blew up")
+
+
+class NoSection(Boom):  # no section of the scenario's
+    name, section = "no_section", None
+
+
+@dataclass
+class NeedsConfig:
+    level: float
+    kind: str = "needs_arg"
+
+
+class NeedsArg(Boom):  # adds a module to every scenario whose config cannot be made from defaults
+    name, section, config, default_module = "needs_arg", "services", NeedsConfig, "needs_arg"
 '''
 
 
@@ -69,6 +102,8 @@ def site(tmp_path_factory) -> Path:
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: cellsim-beacon\nVersion: 0.1\n")
     (info / "entry_points.txt").write_text(
         "[cellsim.modules]\nbeacon = cellsim_beacon:BeaconKind\nbroken = cellsim_beacon.missing:KIND\n"
+        "boom = cellsim_beacon:Boom\ncheck_boom = cellsim_beacon:CheckBoom\nno_section = cellsim_beacon:NoSection\n"
+        "needs_arg = cellsim_beacon:NeedsArg\n"
     )
     return site
 
@@ -115,6 +150,33 @@ def test_a_scenario_using_a_broken_plugin_is_one_line_naming_it(site, tmp_path):
     assert len(err.splitlines()) == 1 and "Traceback" not in err
     assert f"{scenario}:" in err and "behaviours.broken_one.kind" in err and "cellsim_beacon.missing:KIND" in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("kind, command, said", [
+    # (the audit's: each was a traceback, exit 1, the plug-in named nowhere)
+    ("boom", "simulate", "the kind 'boom' (plug-in cellsim_beacon) failed to build module 'extra': RuntimeError: "
+                         "my build blew up"),
+    ("check_boom", "check", "the kind 'check_boom' (plug-in cellsim_beacon) failed to check module 'extra': "
+                            "RuntimeError: my check blew up"),
+    ("no_section", "check", "its section is None"),
+    ("needs_arg", "check", "its config cannot be made from defaults"),
+])
+def test_a_plugin_that_fails_or_is_malformed_is_one_line_naming_it(site, tmp_path, kind, command, said):
+    scenario = scenario_with(tmp_path, "extra", {"kind": kind})
+    out = tmp_path / "run"
+    args = ["simulate", str(scenario), "--out", str(out), "--duration", "1"] if command == "simulate" else \
+        ["scenario", "check", str(scenario)]
+    done = cellsim(site, *args)
+    err = done.stderr.strip()
+    assert done.returncode == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert said in err and "behaviours.extra" in err
+    assert not out.exists()
+
+
+def test_a_malformed_plugin_fails_only_the_scenarios_that_use_it(site):
+    """The audit's: one plug-in adding a default module whose config needs a value crashed every scenario."""
+    done = cellsim(site, "scenario", "check", str(WELDING_CELL))
+    assert done.returncode == 0, done.stderr
 
 
 def test_an_unknown_kind_suggests_the_nearest(tmp_path, capsys):

@@ -47,6 +47,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, Outpu
 from cellsim import registry
 from cellsim.cell_io import SIMULATED, CellIO, Emulated, Live, Replayed, Simulated, paced
 from cellsim.channels import ChannelSpec
+from cellsim.config.typed_yaml import ConfigError
 from cellsim.entity import EntitySystem
 from cellsim.scenario import ScenarioFile
 from cellsim.recorder import Recorder
@@ -328,7 +329,9 @@ def build_cell(
             cell._run_hooks()
             extend(cell)
             extend = None
-        kind.build(cell, name, cfg)
+        with registry.plugin_failures(kind, name, "build", lambda text, key=f"{section}.{name}": sf.error(key, text),
+                                      (ConfigError,)):
+            kind.build(cell, name, cfg)
         if isinstance(io, Live) and section == "behaviours":  # before the recorder: their channels' offsets change
             _decide_after_takes(cell, name)
     cell._run_hooks()
