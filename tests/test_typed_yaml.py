@@ -465,7 +465,7 @@ def test_override_resolve_shortcut(loaded) -> None:
      "no such configuration point ('entities.operator.waypoints.bench.reach' is not set (null))"),
     ("entities.operator.speed=abc", "entities.operator.speed", "expected a number, got 'abc'"),
     ("entities.operator.speed=[1", "entities.operator.speed",
-     "malformed value '[1': expected ',' or ']', but got '<stream end>'"),
+     "malformed value '[1': while parsing a flow sequence; did not find expected ',' or ']'"),
     ("entities.operator.mode=shadw", "entities.operator.mode",
      "'shadw' is not one of: model, shadow, twin"),
     ("entities.operator.waypoints.bench.position=[1, 2]",
@@ -619,3 +619,35 @@ def test_a_file_too_long_is_refused_without_reading_it_whole(tmp_path, monkeypat
     path.write_text("free: 1\n" + "# comment\n" * 20)
     with pytest.raises(ConfigError, match="file too long: more than 100 characters"):
         load_file(Ranged, path)
+
+
+def test_a_set_value_is_read_as_the_file_reads_it():
+    """The audit's: --set read values as YAML 1.1 (PyYAML), so 'off' and 'yes' were booleans on the command line only
+    ('expected a string, got false', where the same word is accepted in the file)."""
+    from cellsim.scenario import load_scenario
+
+    from conftest import ROOT
+
+    tending = ROOT / "scenarios" / "machine_tending.yaml"
+    sc = load_scenario(tending, ["robot.activities=[idle, fetching, loading, off]"]).scenario
+    assert sc.entities["robot"].activities[-1] == "off"
+    sc = load_scenario(tending, ["robot.activities=\n- idle\n- fetching\n- loading\n- yes"]).scenario  # (a block)
+    assert sc.entities["robot"].activities == ["idle", "fetching", "loading", "yes"]
+
+
+def test_a_file_not_utf8_is_named_at_its_line_and_a_base_that_is_a_folder_says_so(tmp_path):
+    """The audit's: a Latin-1 file gave a byte offset in a decoding buffer, no line; a base naming a folder said
+    'file not found'."""
+    from cellsim.scenario import load_scenario
+
+    latin = tmp_path / "latin.yaml"
+    latin.write_bytes(b"name: x\n# " + b"a" * 20000 + b"\n\ndescription: caf\xe9\n")
+    with pytest.raises(ConfigError) as e:
+        load_scenario(latin)
+    assert (e.value.line, e.value.problem) == (4, "not UTF-8 text: byte 0xe9 cannot be read (save the file as UTF-8)")
+    (tmp_path / "folder.yaml").mkdir()
+    child = tmp_path / "child.yaml"
+    child.write_text("base: folder.yaml\nname: x\n")
+    with pytest.raises(ConfigError) as e:
+        load_scenario(child)
+    assert e.value.key == "base" and "folder.yaml is a folder, not a base file" in e.value.problem

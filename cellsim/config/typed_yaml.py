@@ -724,9 +724,19 @@ def _read(source: str) -> str:
     try:
         with open(source, encoding="utf-8") as f:
             text = f.read(MAX_FILE_CHARS + 1)
-    except (OSError, UnicodeDecodeError) as e:
-        reason = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
-        raise ConfigError(source, None, "", f"cannot read file: {reason}") from None
+    except UnicodeDecodeError:  # said at the line it is on, not at a byte offset in a buffer
+        with open(source, "rb") as f:
+            data = f.read(4 * MAX_FILE_CHARS + 4)
+        try:
+            data.decode("utf-8")
+            at = len(data)  # (only cut off at the end: said there)
+        except UnicodeDecodeError as e:
+            at = e.start
+        raise ConfigError(source, data[:at].count(b"\n") + 1, "", "not UTF-8 text"
+                          + (f": byte 0x{data[at]:02x} cannot be read" if at < len(data) else "")
+                          + " (save the file as UTF-8)") from None
+    except OSError as e:
+        raise ConfigError(source, None, "", f"cannot read file: {e.strerror or e}") from None
     if len(text) > MAX_FILE_CHARS:
         raise ConfigError(source, None, "", f"file too long: more than {MAX_FILE_CHARS:,} characters")
     return text
@@ -745,6 +755,8 @@ def _parse_with_bases(source: str, base_key: str, chain: list[str]):
     here = os.path.realpath(source)
     if os.path.realpath(base_path) in chain + [here]:
         raise ConfigError(source, lines.get(base_key), base_key, f"{base} is a base of itself (bases form a cycle)")
+    if os.path.isdir(base_path):
+        raise ConfigError(source, lines.get(base_key), base_key, f"{base} is a folder, not a base file ({base_path})")
     if not os.path.isfile(base_path):
         raise ConfigError(source, lines.get(base_key), base_key, f"file not found: {base} (looked for {base_path})")
     lines.pop(base_key, None)
@@ -953,13 +965,15 @@ def _parse_override(value: Any, assignment: str, resolve) -> tuple[list[Any], An
         _check_size(value_text, "--set")  # an alias bomb or deep nesting: bounded, as in a file
     except ConfigError as e:
         raise ConfigError("--set", None, full, e.problem.replace("malformed YAML", "malformed value")) from None
+    # read as a file reads a value (YAML 1.2: 'off' and 'yes' are words, as in the scenario file; PyYAML's own
+    # reading made them booleans on the command line only): the value indented under a key of its own
+    wrapped = "v:\n" + "\n".join("  " + line for line in value_text.splitlines())
     try:
-        raw = yaml.safe_load(value_text)
+        raw = parse_yaml(wrapped, "--set")["v"]
     except RecursionError:
         raise ConfigError("--set", None, full, "malformed value: nested too deeply") from None
-    except yaml.YAMLError as e:
-        problem = getattr(e, "problem", None) or e
-        raise ConfigError("--set", None, full,
-                          f"malformed value '{value_text.strip()}': {problem}") from None
+    except ConfigError as e:
+        raise ConfigError("--set", None, full, f"malformed value '{value_text.strip()}': "
+                          f"{e.problem.removeprefix('malformed YAML: ')}") from None
     keys, tp = _locate(value, [str(p) for p in parts])
     return keys, _Converter("--set").convert(tp, raw, full), full
