@@ -276,8 +276,9 @@ class BlackBox:
                                 "AND json_array_length(payload, '$.value') != ? ORDER BY rowid LIMIT 1", [name, size])
             if found:
                 t, length = found[0]
-                raise self.corrupt(f"'{name}' at t = {t} holds {length} number{'s' if length != 1 else ''} where the scenario's cell has {size}: "
-                                   "a record of another cell, or a corrupt one")
+                numbers = f"{length} number{'s' if length != 1 else ''}"
+                raise self.corrupt(f"'{name}' at t = {t} holds {numbers} where the scenario's cell has {size}: a record "
+                                   "of another cell, or a corrupt one")
 
     def recorded_seed(self, default: int) -> int:
         """The simulation seed the metadata names (``default`` where it names none); a BlackBoxError for one that is

@@ -9,9 +9,9 @@
   ``world``) at each recorded joint state;
 * ``/scene``: the cell as ``foxglove.SceneUpdate``: every box, cylinder, sphere and capsule
   SceneGraph holds (fixtures, sensor volumes, the arms' shapes, people's body regions), the whole
-  scene at each recorded pose (after a seek Foxglove draws a topic's latest message alone); a module with a ``recolour(values)`` hook
-  colours geometry by its recorded channels (the harm service: a body region in contact, amber
-  within its limit and red above it).
+  scene at each recorded pose (after a seek Foxglove draws a topic's latest message alone); a
+  module with a ``recolour(values)`` hook colours geometry by its recorded channels (the harm
+  service: a body region in contact, amber within its limit and red above it).
 
 ``/tf`` and ``/scene`` are Foxglove's official messages, declared with the official schemas and encoded as
 foxglove-sdk gives them (protobuf): any Foxglove, or any reader with those schemas, reads them.

@@ -104,21 +104,23 @@ def _malformed(kind: ModuleKind) -> str | None:
 
 
 @contextlib.contextmanager
-def plugin_failures(kind: ModuleKind, module: str, what: str, make_error, passes: tuple[type, ...]):
-    """Within the block a plug-in's kind does ``what`` (check, build) for ``module``: an exception of ``passes`` (the
-    scenario errors it raises on purpose, naming the key) goes on as it is; any other becomes ``make_error(message)``,
-    one line naming the kind and the plug-in. cellsim's own kinds are not wrapped: their failures are cellsim's bugs,
-    shown whole."""
+def plugin_failures(kind: ModuleKind, sf, key: str, what: str):
+    """Within the block a plug-in's kind does ``what`` (prepare, check, build) for the module at ``key``
+    (``section.name``) of the scenario file ``sf``: the scenario errors it raises on purpose (ConfigError, naming their
+    key) go on as they are; any other failure becomes ``sf.error(key, ...)``, one line naming the kind and the
+    plug-in. cellsim's own kinds are not wrapped: their failures are cellsim's bugs, shown whole."""
+    from cellsim.config.typed_yaml import ConfigError
+
     if type(kind).__module__.split(".")[0] == "cellsim":
         yield
         return
     try:
         yield
-    except passes:
+    except ConfigError:
         raise
     except Exception as e:  # noqa: BLE001 - a plug-in's failure is that plug-in's, said in one line
-        raise make_error(f"the kind '{kind.name}' (plug-in {type(kind).__module__}) failed to {what} module "
-                         f"'{module}': {type(e).__name__}: {_one_line(e)}") from None
+        raise sf.error(key, f"the kind '{kind.name}' (plug-in {type(kind).__module__}) failed to {what} module "
+                            f"'{key.split('.', 1)[1]}': {type(e).__name__}: {_one_line(e)}") from None
 
 
 def kind_of(config: Any) -> ModuleKind:

@@ -69,7 +69,8 @@ every cell's physical samples), docs/live.md."""
 @dataclass
 class Scenario:
     name: str
-    """The scenario's name (run and campaign folders are named after it, and the live twin's keys: none of / * $ ? #)."""
+    """The scenario's name (run and campaign folders are named after it, and so are the live twin's keys: none of
+    / * $ ? #)."""
     layout: Layout
     """The cell's fixtures and named volumes."""
     entities: dict[str, EntityModule]
@@ -310,8 +311,7 @@ def check_scenario(sf: ScenarioFile) -> None:
     for section in ("entities", "behaviours", "services"):
         for name, cfg in getattr(sc, section).items():
             kind = _kind(sf, f"{section}.{name}", cfg)
-            with registry.plugin_failures(kind, name, "check", lambda text, key=f"{section}.{name}": sf.error(key, text),
-                                          (ConfigError,)):
+            with registry.plugin_failures(kind, sf, f"{section}.{name}", "check"):
                 kind.check(sf, name, cfg)
             period = getattr(cfg, "period", None)
             if isinstance(period, float) and not _whole_steps(period, sc.time_step):

@@ -76,6 +76,13 @@ class CheckBoom(Boom):  # its check fails
         raise RuntimeError("my check blew up")
 
 
+class PrepBoom(Boom):  # its prepare (before the plant is finalised) fails
+    name = "prep_boom"
+
+    def prepare(self, cell, name, cfg):
+        raise RuntimeError("my prepare blew up")
+
+
 class NoSection(Boom):  # no section of the scenario's
     name, section = "no_section", None
 
@@ -103,6 +110,7 @@ def site(tmp_path_factory) -> Path:
     (info / "entry_points.txt").write_text(
         "[cellsim.modules]\nbeacon = cellsim_beacon:BeaconKind\nbroken = cellsim_beacon.missing:KIND\n"
         "boom = cellsim_beacon:Boom\ncheck_boom = cellsim_beacon:CheckBoom\nno_section = cellsim_beacon:NoSection\n"
+        "prep_boom = cellsim_beacon:PrepBoom\n"
         "needs_arg = cellsim_beacon:NeedsArg\n"
     )
     return site
@@ -158,6 +166,8 @@ def test_a_scenario_using_a_broken_plugin_is_one_line_naming_it(site, tmp_path):
                          "my build blew up"),
     ("check_boom", "check", "the kind 'check_boom' (plug-in cellsim_beacon) failed to check module 'extra': "
                             "RuntimeError: my check blew up"),
+    ("prep_boom", "simulate", "the kind 'prep_boom' (plug-in cellsim_beacon) failed to prepare module 'extra': "
+                              "RuntimeError: my prepare blew up"),
     ("no_section", "check", "its section is None"),
     ("needs_arg", "check", "its config cannot be made from defaults"),
 ])

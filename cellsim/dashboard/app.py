@@ -273,7 +273,8 @@ class Dashboard(App):
                 continue
             errors = sum(v for v in (status.get("counts") or {}).values() if isinstance(v, int))
             rate = status.get("rate_hz")
-            rows.append((device, _level(model.diagnostics_level(device)), "-" if rate is None else f"{rate:.0f} Hz", str(errors)))
+            rows.append((device, _level(model.diagnostics_level(device)), "-" if rate is None else f"{rate:.0f} Hz",
+                         str(errors)))
         self._show("links", rows or [("(no bridge daemon)", "-", "", "")],
                    lambda rows: _grid("bridge diagnostics", ("device", "level", "rate", "errors"), rows))
 

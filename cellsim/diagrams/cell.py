@@ -47,7 +47,6 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, Outpu
 from cellsim import registry
 from cellsim.cell_io import SIMULATED, CellIO, Emulated, Live, Replayed, Simulated, paced
 from cellsim.channels import ChannelSpec
-from cellsim.config.typed_yaml import ConfigError
 from cellsim.entity import EntitySystem
 from cellsim.scenario import ScenarioFile
 from cellsim.recorder import Recorder
@@ -313,8 +312,9 @@ def build_cell(
         for section in registry.SECTIONS
         for name, cfg in getattr(sc, section).items()
     ]
-    for kind, _, name, cfg in modules:
-        kind.prepare(cell, name, cfg)
+    for kind, section, name, cfg in modules:
+        with registry.plugin_failures(kind, sf, f"{section}.{name}", "prepare"):
+            kind.prepare(cell, name, cfg)
     plant.Finalize()
 
     hooks_run = False
@@ -329,8 +329,7 @@ def build_cell(
             cell._run_hooks()
             extend(cell)
             extend = None
-        with registry.plugin_failures(kind, name, "build", lambda text, key=f"{section}.{name}": sf.error(key, text),
-                                      (ConfigError,)):
+        with registry.plugin_failures(kind, sf, f"{section}.{name}", "build"):
             kind.build(cell, name, cfg)
         if isinstance(io, Live) and section == "behaviours":  # before the recorder: their channels' offsets change
             _decide_after_takes(cell, name)
