@@ -272,6 +272,9 @@ def test_the_bridge_daemons_diagnostics_set_an_entitys_link_level_and_are_logged
     assert row()["level"] == "OK"
     model.set_twin("gone")
     assert row()["level"] == "STALE"
+    model.apply_diagnostics("robot", {"level": "OK", "counts": {}, "every_s": 1e9})  # a period no bridge can have
+    now[0] += 181.0
+    assert model.diagnostics_level("robot") == "STALE"
 
 
 def test_a_twin_slower_than_its_scenario_assumes_is_shown_in_the_header_and_logged_once(welding_run):

@@ -202,7 +202,8 @@ class CellModel:
         if status is None:
             return None
         every = status.get("every_s")
-        every = every if isinstance(every, (int, float)) and math.isfinite(every) and every > 0 else 1.0
+        # (at most the longest period a bridge configuration allows: a status claiming more keeps nothing fresh longer)
+        every = min(every, 60.0) if isinstance(every, (int, float)) and math.isfinite(every) and every > 0 else 1.0
         if self.clock() - self._heard.get(device, -math.inf) > DIAGNOSTICS_MISSED * every:
             return "STALE"
         return str(status.get("level"))
