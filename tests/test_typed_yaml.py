@@ -651,3 +651,32 @@ def test_a_file_not_utf8_is_named_at_its_line_and_a_base_that_is_a_folder_says_s
     with pytest.raises(ConfigError) as e:
         load_scenario(child)
     assert e.value.key == "base" and "folder.yaml is a folder, not a base file" in e.value.problem
+
+
+@dataclass
+class Aim:
+    at: tuple[float, float, float]
+
+
+@dataclass
+class Poses:
+    poses: dict[str, list[float] | Aim] = field(default_factory=dict)
+    either: int | str = 0
+
+
+@pytest.mark.parametrize(
+    "text, line, key, problem",
+    [
+        # a list is meant as the list member, a mapping as the dataclass: the error is inside it
+        ("poses:\n  home:\n    - 1\n    - x\n", 4, "poses.home.1", "expected a number, got 'x'"),
+        ("poses:\n  home: {at: [1, 2]}\n", 2, "poses.home.at", "expected a list of 3 items, got 2"),
+        ("poses:\n  home: {aim: [1, 2, 3]}\n", 2, "poses.home.aim", "unknown key 'aim' (expected one of: at)"),
+        # a value of no member's shape, or of several members' shape, is named at its own key
+        ("poses:\n  home: 7\n", 2, "poses.home", "expected a list or a mapping, got '7'"),
+        ("either: [1]\n", 1, "either", "expected an integer or a string, got a list"),
+    ],
+)
+def test_a_bad_value_inside_a_union_member_is_named_where_it_is(text, line, key, problem) -> None:
+    with pytest.raises(ConfigError) as e:
+        load_text(Poses, text, source="p.yaml")
+    assert (e.value.line, e.value.key) == (line, key) and problem in e.value.problem, str(e.value)

@@ -220,6 +220,25 @@ def _is_dataclass_type(tp: Any) -> bool:
     return isinstance(tp, type) and dataclasses.is_dataclass(tp)
 
 
+def _shape_of(data: Any) -> str:
+    """What a YAML value is: a list, a mapping or a scalar."""
+    return "list" if isinstance(data, (list, tuple)) else "mapping" if isinstance(data, dict) else "scalar"
+
+
+def _shape_of_type(tp: Any) -> str | None:
+    """What a type takes: a list, a mapping or a scalar; None for a type that may take any (a union, Any)."""
+    if typing.get_origin(tp) is typing.Annotated:
+        return _shape_of_type(typing.get_args(tp)[0])
+    origin = typing.get_origin(tp) or tp
+    if origin in (list, tuple):
+        return "list"
+    if origin is dict or _is_dataclass_type(tp):
+        return "mapping"
+    if tp is Any or tp is object or _union_args(tp) is not None:
+        return None
+    return "scalar"
+
+
 def _union_args(tp: Any) -> tuple[Any, ...] | None:
     """Members of a ``Union``/``X | Y`` type, or ``None`` if ``tp`` is not one."""
     if typing.get_origin(tp) in (typing.Union, types.UnionType):
@@ -599,11 +618,15 @@ class _Converter:
             return self.convert(arms[0], data, path)
         if all(_is_dataclass_type(a) and _kind_of(a) is not None for a in arms):
             return self.by_kind(arms, data, path)
+        fitting = []  # each member whose shape (a list, a mapping, a scalar) the value has, with why it refused it
         for arm in arms:  # general union: first member that accepts the value wins
             try:
                 return self.convert(arm, data, path)
-            except ConfigError:
-                pass
+            except ConfigError as refused:
+                if _shape_of_type(arm) in (_shape_of(data), None):
+                    fitting.append(refused)
+        if len(fitting) == 1:  # the value is meant as that member: say what is wrong inside it (``home.2``)
+            raise fitting[0]
         names = " or ".join(_type_name(m) for m in members)
         raise self.error(path, f"expected {names}, got {self.describe(data, path)}")
 
