@@ -55,8 +55,21 @@ def test_a_transient_head_contact_is_harm_at_any_speed_and_worse_the_faster():
     assert severity(HEAD, ROBOT, TRANSIENT, -1.0) == 0.0  # moving apart presses nothing, as on every region
     assert severity(HEAD, ROBOT, TRANSIENT, v_qs) == pytest.approx(3.0, rel=1e-12)
     assert severity(HEAD, ROBOT, TRANSIENT, 0.1) < severity(HEAD, ROBOT, TRANSIENT, 0.2)
-    # pinned (quasi-static), the head has a limit like any region
-    assert severity(HEAD, ROBOT, QUASI_STATIC, 0.5 * v_qs) == pytest.approx(0.5, rel=1e-12)
+
+
+def test_a_pinned_contact_begins_as_an_impact_so_pinning_never_lowers_a_severity():
+    """An audit found a head pinned against a machine judged by the quasi-static force alone: 0.28 at 5 cm/s where the
+    same touch on a free head was 2.28. A clamp starts with an impact: its severity is the larger of the two."""
+    v_qs = permissible_speed(HEAD, ROBOT, QUASI_STATIC)
+    for speed in (0.0, 0.05, 0.5 * v_qs, v_qs, 3.0 * v_qs):
+        assert severity(HEAD, ROBOT, QUASI_STATIC, speed) == pytest.approx(2.0 + speed / v_qs, rel=1e-12)
+        assert severity(HEAD, ROBOT, QUASI_STATIC, speed) == severity(HEAD, ROBOT, TRANSIENT, speed)
+    # where transient contact is permitted, its limit is the higher: the quasi-static one decides a clamp
+    v_hand = permissible_speed(HAND, ROBOT, QUASI_STATIC)
+    for speed in (0.0, 0.3 * v_hand, v_hand, 2.0 * v_hand):
+        assert severity(HAND, ROBOT, QUASI_STATIC, speed) == pytest.approx(speed / v_hand, rel=1e-12)
+        assert severity(HAND, ROBOT, QUASI_STATIC, speed) >= severity(HAND, ROBOT, TRANSIENT, speed)
+    assert severity(HEAD, ROBOT, QUASI_STATIC, -0.1) == 0.0  # parting presses nothing
 
 
 def test_the_shipped_table_names_its_source_and_every_region(tmp_path):

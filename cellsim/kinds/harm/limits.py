@@ -13,11 +13,14 @@ relative motion, mu v^2 / 2, with mu = 1 / (1/m_H + 1/m_R) the reduced mass::
 
 with F the quasi-static force for a quasi-static contact (clamping) and the transient force
 (F times the region's factor) for a transient one; m_R is the robot's effective mass, half its
-moving links' mass plus the payload. The contact's severity is ``v_rel / v_max``: above 1, the
+moving links' mass plus its tooling's (shapes welded to a moving link, as a tool is to the flange)
+and the payload, which move with the contact point whole. The contact's severity is ``v_rel / v_max``: above 1, the
 contact transfers more than the region may take, and it is harm. A transient contact with a
 region where none is permitted (the head, the face) is harm at any speed: its severity is
 ``2 + v_rel / v_max`` (v_max of the quasi-static force), at least 2 however slowly it happens,
-and the larger the faster.
+and the larger the faster. A quasi-static contact begins as an impact: its severity is the larger
+of its own and the transient one's (the transient one is the smaller wherever the table permits
+transient contact), so a head or face pinned against a machine is harm at any speed as well.
 
 Pressure needs the contact's area, which the shapes here do not give: it is in the table for
 the user's own analysis, and not judged.
@@ -103,10 +106,14 @@ def permissible_speed(limits: RegionLimits, robot_mass: float, kind: str) -> flo
 def severity(limits: RegionLimits, robot_mass: float, kind: str, speed: float) -> float:
     """How far a contact at relative speed ``speed`` (m/s, towards the region) goes towards the region's
     limit: 1 is the limit, above 1 harm; a transient contact the table does not permit is at least 2 at any speed,
-    standing still included. Moving apart (``speed`` below 0) is 0 for every region: nothing is pressed."""
+    standing still included. A quasi-static contact (the region pinned) begins as an impact: its severity is the
+    larger of the two kinds', so a pinned head or face is harm at any speed too. Moving apart (``speed`` below 0)
+    is 0 for every region: nothing is pressed."""
+    if kind not in (TRANSIENT, QUASI_STATIC):
+        raise ValueError(f"a contact's kind is {TRANSIENT} or {QUASI_STATIC}, not {kind!r}")
     if speed < 0.0:
         return 0.0
-    v_max = permissible_speed(limits, robot_mass, kind)
-    if v_max == 0.0:
-        return FORBIDDEN + speed / permissible_speed(limits, robot_mass, QUASI_STATIC)
-    return speed / v_max
+    v_pinned = permissible_speed(limits, robot_mass, QUASI_STATIC)
+    v_free = permissible_speed(limits, robot_mass, TRANSIENT)
+    impact = FORBIDDEN + speed / v_pinned if v_free == 0.0 else speed / v_free
+    return max(impact, speed / v_pinned) if kind == QUASI_STATIC else impact
