@@ -29,11 +29,16 @@ LIMITS = yaml.safe_load((ROOT / "cellsim" / "kinds" / "harm" / "body_limits.yaml
 
 
 def robot_mass() -> float:
-    """m_R by hand: half the UR10's links but its base, plus the cell's 2 kg payload."""
+    """m_R by hand (Annex A's M/2 + m_L): half the UR10's jointed links but its base, plus whole the links fixed to
+    a moving one (the tool flange, tooling) and the cell's 2 kg payload."""
     tree = ElementTree.parse(ROOT / "scenarios" / "models" / "ur10.urdf")
     masses = {link.get("name"): float(link.find("inertial/mass").get("value"))
               for link in tree.iter("link") if link.find("inertial/mass") is not None}
-    return 0.5 * sum(m for name, m in masses.items() if name != "base_link") + 2.0
+    fixed = {joint.find("child").get("link") for joint in tree.iter("joint") if joint.get("type") == "fixed"}
+    tooling = fixed - {"base_link"}
+    assert tooling == {"tool0", "tcp"}, tooling  # what this hand computation takes the UR10 model to be
+    jointed = sum(m for name, m in masses.items() if name != "base_link" and name not in tooling)
+    return 0.5 * jointed + sum(masses.get(name, 0.0) for name in tooling) + 2.0
 
 
 def v_max(region: str, transient: bool) -> float:

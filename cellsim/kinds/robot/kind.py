@@ -163,20 +163,25 @@ def _first_line(error: Exception) -> str:
 
 
 def effective_mass(plant, instance, payload: float) -> float:
-    """m_R of ISO/TS 15066 Annex A (kg): half the mass of the arm's moving links (its bodies not welded to the
-    world) plus the payload."""
+    """m_R of ISO/TS 15066 Annex A (kg): M/2 + m_L, half the mass of the arm's moving links (its bodies not welded
+    to the world) plus the whole mass of its tooling (bodies welded to a moving link, as a tool is to the flange:
+    they move with the contact point as the payload does) and of the payload."""
     from pydrake.multibody.tree import JointIndex
 
+    welds = [plant.get_joint(JointIndex(j)) for j in range(plant.num_joints())]
+    welds = [joint for joint in welds if joint.num_velocities() == 0]
     welded, grown = {plant.world_body().index()}, True
     while grown:  # follow weld joints out from the world
         grown = False
-        for j in range(plant.num_joints()):
-            joint = plant.get_joint(JointIndex(j))
-            if joint.num_velocities() == 0 and joint.parent_body().index() in welded and joint.child_body().index() not in welded:
+        for joint in welds:
+            if joint.parent_body().index() in welded and joint.child_body().index() not in welded:
                 welded.add(joint.child_body().index())
                 grown = True
-    moving = sum(plant.get_body(b).default_mass() for b in plant.GetBodyIndices(instance) if b not in welded)
-    return 0.5 * moving + payload
+    tooling = {joint.child_body().index() for joint in welds if joint.child_body().index() not in welded}
+    moving = [b for b in plant.GetBodyIndices(instance) if b not in welded]
+    links = sum(plant.get_body(b).default_mass() for b in moving if b not in tooling)
+    tools = sum(plant.get_body(b).default_mass() for b in moving if b in tooling)
+    return 0.5 * links + tools + payload
 
 
 def build_robot(cell, name: str, cfg: RobotConfig) -> Robot:
