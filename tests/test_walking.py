@@ -188,3 +188,51 @@ def test_one_point_s_sight_line_is_the_many_points_test_mount_and_all():
         one = [lines.reaches(p) for p in points]
         assert one == lines.reach(points).tolist()
         assert 100 < sum(one) < 1900
+
+
+def _hand_points(built, context, times):
+    """The world positions (m) of the operator's hands' geometry at each update time in ``times``."""
+    from cellsim.kinds.operator.system import pose_at
+
+    operator = built.modules["operator"]
+    hands = [g for g, region in operator.regions.items() if region == "hand"]
+    inspector = built.scene_graph.model_inspector()
+    frames = [inspector.GetFrameId(g) for g in hands]
+    placed = [inspector.GetPoseInFrame(g).translation() for g in hands]
+    out = []
+    for t in times:
+        pose = operator._pose_vector(pose_at(operator.legs, operator.start_yaw, t, operator.turns))
+        poses = operator.frame_poses(tuple(pose))
+        out.append(np.array([poses.value(f) @ p for f, p in zip(frames, placed)]))
+    return out
+
+
+@pytest.mark.parametrize("cell", ["welding_cell", "machine_tending", "palletising_cell"])
+def test_a_person_turns_at_their_turn_rate_so_no_hand_jumps_through_an_arm_in_one_update(cell):
+    """An audit found a turn taken in one update swung a hand 0.5 m (12 m/s): the harm service, which sees the body
+    where each update puts it, could miss a hand passing through a robot part, or judge a touch at 12 m/s. A person
+    now turns at most turn_rate; a hand moves at most ~8 cm per update, less than a hand (9 cm) and the UR10's
+    thinnest part (6 cm) are thick together."""
+    from pathlib import Path
+
+    from cellsim.diagrams.cell import build_cell
+    from pydrake.systems.analysis import Simulator
+
+    sf = load_scenario(Path(WELDING_CELL).parent / f"{cell}.yaml")
+    built = build_cell(sf, seed=3, duration=1.0, record=False)
+    context = Simulator(built.diagram).get_mutable_context()
+    operator = built.modules["operator"]
+    period, rate = operator.period, operator.cfg.turn_rate
+    times = np.arange(0.0, sf.scenario.duration, period)
+    yaws = [operator.turns.yaw_at(t) for t in times]
+    turned = np.abs((np.diff(yaws) + np.pi) % (2 * np.pi) - np.pi)
+    assert turned.max() <= rate * period + 1e-9
+    assert turned.max() > 0.9 * rate * period  # the person does turn, as fast as allowed
+    hands = _hand_points(built, context, times)
+    jumps = [float(np.linalg.norm(b - a, axis=1).max()) for a, b in zip(hands, hands[1:])]
+    assert max(jumps) < 0.1, max(jumps)
+    # and each turn ends facing its aim: where a person reaches, they face the reach point by the time the arm is out
+    for leg in operator.legs:
+        if leg.reach is not None and leg.leave - leg.arrive > np.pi / rate:
+            at = leg.arrive + np.pi / rate
+            assert abs((operator.turns.yaw_at(at) - leg.facing + np.pi) % (2 * np.pi) - np.pi) < 1e-9

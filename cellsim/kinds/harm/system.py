@@ -3,8 +3,9 @@
 A look finds the pairs of a robot part (an arm's collision shape) and a body region
 (:mod:`cellsim.body`) nearer than ``cutoff`` (bounding spheres first, then SceneGraph's exact distance of each
 pair they leave, :class:`cellsim.proximity.NearestPair`): every ``far_period``, and one plant step after
-each person's update, while it returns none (a body moves only at its updates, and no robot part closes
-the cut-off in between, see ``HarmConfig.far_period``), and at every plant step while it returns some or
+each person's update, while it returns none (a body moves only at its updates, a few centimetres at most
+(``OperatorConfig.turn_rate``): it is seen where each update puts it, not on its way there; and no robot part
+closes the cut-off in between, see ``HarmConfig.far_period``), and at every plant step while it returns some or
 a robot part moves faster than half ``max_part_speed``. A cell where nobody is near an arm costs one
 query per ``far_period``. For each robot part touching a region (signed distance <= 0):
 

@@ -7,7 +7,8 @@ and the harm service judges.
 The digital behaviour walks the scenario's waypoints in order at a walking speed
 drawn per leg from the run's seed, waits at each, and while waiting at a
 waypoint with a ``reach`` point swings the arm towards that point (0.5 s to
-extend and 0.5 s to withdraw). Each leg is the shortest way around the layout's
+extend and 0.5 s to withdraw), turning at most ``turn_rate`` towards each new
+direction or reach point. Each leg is the shortest way around the layout's
 fixtures (their footprints grown by the body's radius and ``CLEARANCE``;
 fixtures overhead, above the person's height, do not count). The whole walk is
 planned when the system is built, so the operator's pose is a pure function of
@@ -16,7 +17,10 @@ time; a waypoint inside a fixture, or one that cannot be reached, is a load erro
 
 from __future__ import annotations
 
+import bisect
+import dataclasses
 import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -163,8 +167,52 @@ def plan_walk(cfg: OperatorConfig, seed: int, salt: int = 0, layout: Layout | No
     return legs
 
 
-def pose_at(legs: list[Leg], start_yaw: float, t: float) -> OperatorPose:
-    """Where the operator is at time ``t``."""
+class Turns:
+    """The body's yaw over time: it turns towards each new aim (the start's, each stretch's walking direction, a
+    reach point's) at most ``rate`` rad/s, the short way round, from the time the aim is taken."""
+
+    def __init__(self, legs: list[Leg], start_yaw: float, rate: float):
+        aims = [(0.0, start_yaw)]
+        for leg in legs:
+            points = [leg.start, *leg.corners, leg.end]
+            lengths = [float(np.linalg.norm(b - a)) for a, b in zip(points, points[1:])]
+            total, t = sum(lengths), leg.depart
+            for a, b, length in zip(points, points[1:], lengths):
+                if length > 1e-9:
+                    aims.append((t, float(np.arctan2(b[1] - a[1], b[0] - a[0]))))
+                    t += length / total * (leg.arrive - leg.depart)
+            if leg.reach is not None:
+                aims.append((leg.arrive, leg.facing))
+                if leg.heading is not None:
+                    aims.append((leg.leave, leg.heading))  # the arm withdrawn, back to the way it walked
+        self.rate = rate
+        self.times = [t for t, _ in aims]
+        self.aims = [aim for _, aim in aims]
+        self.starts = [start_yaw]  # the yaw as each aim is taken
+        for i in range(1, len(aims)):
+            self.starts.append(self._towards(self.starts[-1], self.aims[i - 1], self.times[i] - self.times[i - 1]))
+
+    def _towards(self, yaw: float, aim: float, seconds: float) -> float:
+        """``yaw`` turned towards ``aim`` for ``seconds`` (rad, in (-pi, pi])."""
+        left = (aim - yaw + math.pi) % (2.0 * math.pi) - math.pi
+        turn = self.rate * max(seconds, 0.0)
+        if abs(left) <= turn:
+            return aim
+        return (yaw + math.copysign(turn, left) + math.pi) % (2.0 * math.pi) - math.pi
+
+    def yaw_at(self, t: float) -> float:
+        """The yaw (rad) at time ``t``."""
+        i = max(bisect.bisect_right(self.times, t) - 1, 0)
+        return self._towards(self.starts[i], self.aims[i], t - self.times[i])
+
+
+def pose_at(legs: list[Leg], start_yaw: float, t: float, turns: Turns | None = None) -> OperatorPose:
+    """Where the operator is at time ``t``; turned as ``turns`` says (None: at once, each aim as it is taken)."""
+    pose = _placed_at(legs, start_yaw, t)
+    return pose if turns is None else dataclasses.replace(pose, yaw=turns.yaw_at(t))
+
+
+def _placed_at(legs: list[Leg], start_yaw: float, t: float) -> OperatorPose:
     yaw, xy = start_yaw, legs[0].start if legs else np.zeros(2)
     waypoint = -1
     for leg in legs:
@@ -218,12 +266,13 @@ class Operator(EntitySystem):
         self.legs = plan_walk(cfg, seed, salt, layout)
         first = self.legs[0].end - np.array(cfg.start) if self.legs else np.array([1.0, 0.0])
         self.start_yaw = float(np.arctan2(first[1], first[0]))
+        self.turns = Turns(self.legs, self.start_yaw, cfg.turn_rate)
         self.waypoints = value_set(f"{module}_waypoint", ["start", *cfg.waypoints])
         # what the cell can tell this person, in its own words
         self.notification_type = value_set(f"{module}_notification", cfg.notifications)
         self.notification_port = self.declare_input("notification", ctype=enum_type(self.notification_type), default=0.0)
         self.alert_ports = [self.declare_input(name, ctype=BOOL, default=0.0) for name in cfg.alerts]
-        initial = pose_at(self.legs, self.start_yaw, 0.0)
+        initial = pose_at(self.legs, self.start_yaw, 0.0, self.turns)
         self._pose = self.declare_state("pose", self._pose_vector(initial))
         self._previous_pose = self.declare_state("previous_pose", self._pose_vector(initial))
         self.pose_port = self.DeclareStateOutputPort("pose", self._pose)
@@ -388,7 +437,7 @@ class Operator(EntitySystem):
         view = self.consult_physical(context, xd)
         current = context.get_discrete_state(self._pose).get_value().tolist()
         if view.mode is TwinMode.MODEL:
-            pose = pose_at(self.legs, self.start_yaw, context.get_time())
+            pose = pose_at(self.legs, self.start_yaw, context.get_time(), self.turns)
             vector, waypoint = self._pose_vector(pose), pose.waypoint
         elif view.sample is None:  # stale or corrupt: hold the last known pose
             vector, waypoint = current, None
