@@ -131,6 +131,12 @@ def test_a_witness_is_written_as_a_scenario_over_the_verified_one_and_run_on_the
         assert set(written.scenario.entities) == set(load_scenario(WELDING_CELL).scenario.entities)
         # each scenario tried was simulated into a run folder of its own
         assert all((out / "runs" / Path(s).stem / "blackbox.sqlite").is_file() for s in twin["scenarios"])
+    # a refuted one is undecided, and what blocks it is the budget: the refinement offered next is named
+    refuted = [p for p in violated if p["twin"]["confirmed"] is False]
+    assert refuted, "with no refinement, the any-pace witnesses are refuted by the twin"
+    for p in refuted:
+        assert p["ending"] == "undecided", p
+        assert "the refinement budget (--refine 0) is spent: operator:pace was next (" in p["reason"], p
 
 
 def test_a_state_where_a_module_cannot_step_is_refused_not_quietly_looped(tmp_path):

@@ -105,7 +105,13 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
 
             _run_skipped(result, skipped, waited, confirmed, rebuild, on_stage)
             refuted = any(not result.replays[name].confirmed for name in to_run)
-            if refuted and len(done) < budget and not result.not_refined:
+            if refuted and len(done) >= budget:
+                offered = next(iter(_refinements(result.model, open_, len(done) + 1)), None)
+                if offered is not None:  # what blocks the verdict is the budget: say what it would refine next
+                    spent = f"the refinement budget (--refine {budget}) is spent: {offered.key} was next ({offered.why})"
+                    result.not_refined = "; ".join(filter(None, (result.not_refined, spent)))
+                    say(spent)
+            elif refuted and not result.not_refined:
                 say("no module's abstraction finds where the refuted witnesses depart from the cell: "
                     "nothing to refine")
             return result
