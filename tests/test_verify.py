@@ -653,3 +653,47 @@ def test_a_verify_formula_storm_cannot_read_is_refused_before_any_build_quoting_
     assert done.returncode == 2 and "Storm:" not in done.stderr, done.stderr
     assert "verify.broken: Storm cannot read 'Pmax=? [ F \"oloc == inCell\" ' as PCTL" in done.stderr
     assert not export.exists() and not export.with_suffix(".props").exists()
+
+
+@pytest.mark.parametrize("formula, said", [
+    # an audit found this one HOLDS, exit 0, where the person cannot reach the cell within 20 steps
+    ('Pmax>0 [ F<=20 "oloc == inCell" ]', "claims something can happen"),
+    ('P>=1 [ F "oloc == inCell" ]', "claims something can happen"),
+    ('Pmin<=0 [ F "oloc == inCell" ]', "claims some way of the model's choices avoids it"),
+    ('LRAmax=? [ "oloc == inCell" ]', "is not a probability"),
+    ('P<=0 [ F<=0.5 "oloc == inCell" ]', "not a whole number of steps"),
+])
+def test_a_verify_formula_whose_answer_would_not_carry_over_to_the_cell_is_refused_before_any_build(tmp_path, formula, said):
+    """The model allows more than the cell does: only an upper bound over every way its choices go (P<=p) carries
+    over, and a value (Pmax=?) is the model's. Anything else is one line naming the property, exit 2 (an audit found
+    Storm's refusals of some reaching the user as a traceback, exit 1, the code of a confirmed violation)."""
+    scenario = tmp_path / "user.yaml"
+    scenario.write_text(f"base: {WELDING_CELL}\nvalidation:\n  verify:\n    mine: '{formula}'\n")
+    done = _verify(str(scenario), "--no-replay", "--out", str(tmp_path / "out"))
+    errors = [line for line in done.stderr.splitlines() if "error" in line]
+    assert done.returncode == 2 and len(errors) == 1 and "Traceback" not in done.stderr, done.stderr
+    assert f"verify.mine: {formula!r}" in errors[0] and said in errors[0], done.stderr
+
+
+def test_a_verify_formula_storm_cannot_check_is_one_error_naming_it_not_a_traceback(tmp_path):
+    scenario = tmp_path / "user.yaml"
+    scenario.write_text(f"base: {WELDING_CELL}\nvalidation:\n  verify:\n    mine: 'Pmax=? [ G F \"oloc == inCell\" ]'\n")
+    done = _verify(str(scenario), "--no-replay", "--refine", "0", "--out", str(tmp_path / "out"))
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert "verify.mine: Storm cannot check" in done.stderr, done.stderr
+
+
+def test_a_users_own_property_violated_in_the_model_is_undecided_saying_it_is_not_run_on_the_twin(tmp_path):
+    """An audit found P<=0 [ F "oloc == inCell" ] (the scenario's own walk goes in) ending 'no witness', which the docs
+    tie to decision diagrams: it is the model's violation alone, and says so."""
+    scenario = tmp_path / "user.yaml"
+    scenario.write_text(f"base: {WELDING_CELL}\nvalidation:\n  verify:\n    never_in: 'P<=0 [ F \"oloc == inCell\" ]'\n"
+                        "    not_at_once: 'P<0.5 [ F<=0 \"oloc == inCell\" ]'\n")
+    done = _verify(str(scenario), "--json", "--refine", "0", "--out", str(tmp_path / "out"))
+    result = json.loads(done.stdout)
+    mine = {p["name"]: p for p in result["properties"] if p["name"] in ("never_in", "not_at_once")}
+    assert mine["never_in"]["holds"] is False and mine["never_in"]["ending"] == "undecided"
+    assert "judged in the model only: no witness of it is run on the twin" in mine["never_in"]["reason"]
+    # an upper bound the model meets holds for the cell: the person does not start in it
+    assert mine["not_at_once"]["holds"] is True and mine["not_at_once"]["ending"] == "holds"
+    assert done.returncode == 3

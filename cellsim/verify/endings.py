@@ -76,6 +76,10 @@ def _ending(checked, replay, replayed: bool, symbolic: bool, refinements) -> Fin
         return Final(name, Ending.UNDECIDED, f"{slower}, and the abstraction reaches a state from which it can never "
                      "come: no witness of that is built or run on the twin yet")
     tried = f"; refinement: {', '.join(refinements)}" if refinements else ""
+    if checked.prop.condition is None and checked.prop.hazard is None:
+        return Final(name, Ending.UNDECIDED, "a PCTL property of your own is judged in the model only: no witness of it "
+                     "is run on the twin, so its violation is the model's, not confirmed (a condition of the validation "
+                     "file, G(...), gets its witness run on the twin)")
     if checked.witness is None:
         why = ("no witness: the model was checked as decision diagrams, which give none" if symbolic
                else "no witness")

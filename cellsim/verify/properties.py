@@ -238,16 +238,46 @@ class ConditionProperties:
 
 
 def _readable(name: str, text: str, pctl: str) -> None:
-    """VerifyError quoting the user's ``text`` (not its labels) when Storm cannot read ``pctl``: said before any
-    model is built, not once Storm checks it."""
+    """VerifyError quoting the user's ``text`` (not its labels) when Storm cannot read ``pctl``, or when it is no
+    property the abstraction can answer for the cell (:func:`_unsound`): said before any model is built, not once
+    Storm checks it."""
     from cellsim.verify.storm import _quiet
 
     stormpy = _quiet()
     try:
-        stormpy.parse_properties(pctl)  # (no program: the syntax alone)
+        read = stormpy.parse_properties(pctl)  # (no program: the syntax alone)
     except Exception as e:  # noqa: BLE001 - Storm's parser errors are one long text
         raise VerifyError(f"verify.{name}: Storm cannot read {text!r} as PCTL: "
                           f"{' '.join(str(e).split())[:200]}") from None
+    if len(read) != 1:
+        raise VerifyError(f"verify.{name}: {text!r} is {len(read)} properties: write one per name")
+    why = _unsound(read[0].get_raw_formula())
+    if why:
+        raise VerifyError(f"verify.{name}: {text!r} {why}")
+
+
+def _unsound(formula) -> str:
+    """Why a user's PCTL ``formula`` (stormpy's) is not checked, or "": the abstract model allows every behaviour of
+    the cell and more, so a bound it meets carries over to the cell only when it is an upper bound over every way
+    the model's choices go (``P<=p``, ``P<p``, ``Pmax<=p``); a value (``P=?``, ``Pmax=?``, ``Pmin=?``) is reported
+    as the model's. A time bound counts the model's steps, a whole number."""
+    from stormpy.logic import ComparisonType, OptimizationDirection
+
+    usage = ("(write P<=p [ ... ], nothing of it happens beyond p whatever the people do, or ask Pmax=? [ ... ] for "
+             "the model's value)")
+    if not formula.is_probability_operator_formula:
+        return f"is not a probability: only P<=p [ ... ] is judged and P=? [ ... ] reported {usage}"
+    if formula.has_bound:
+        if formula.comparison_type not in (ComparisonType.LEQ, ComparisonType.LESS):
+            return ("claims something can happen: holding in the model, which allows more than the cell does, says "
+                    f"nothing of the cell {usage}")
+        if formula.has_optimality_type and formula.optimality_type != OptimizationDirection.MAXIMIZE:
+            return ("claims some way of the model's choices avoids it (Pmin): holding in the model, which allows more "
+                    f"than the cell does, says nothing of the cell {usage}")
+    path = formula.subformula
+    if path.is_bounded_until_formula and "/" in str(path):
+        return "has a time bound that is not a whole number of steps (one step is the model's period)"
+    return ""
 
 
 RUN_GOES_ON = ("a liveness condition G(a -> F b) is judged as if the run went on after a response is owed (the model "

@@ -209,7 +209,14 @@ def check(program, model, prop: Property, bad_label: str | None, still: tuple[st
         (formula,) = stormpy.parse_properties(text, program)
     except Exception as e:  # noqa: BLE001
         raise VerifyError(f"property {prop.name}: Storm cannot read {prop.pctl or text!r}: {' '.join(str(e).split())[:300]}") from None
-    value = _initial_value(stormpy, model, formula)
+    try:
+        value = _initial_value(stormpy, model, formula)
+    except Exception as e:  # noqa: BLE001 - Storm refuses what it cannot check (G F in a PCTL of an MDP) in many ways
+        if bad_label:
+            raise
+        said = " ".join(str(e).split())[:300] or type(e).__name__
+        raise VerifyError(f"verify.{prop.name}: Storm cannot check {prop.description or prop.pctl!r} on this model: "
+                          f"{said}") from None
     seconds = time.perf_counter() - start
     if bad_label:
         value = float(value)
