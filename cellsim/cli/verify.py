@@ -55,6 +55,11 @@ def run(args) -> int:
     out = args.out or Path("runs") / f"{sf.scenario.folder_name}-verify"
     if out.exists() and not out.is_dir():  # said now, not after Storm has run
         raise InputError(f"--out {out} is a file: name a folder for the witnesses and their runs")
+    for folder in Path(out).parents:  # (a file on the way, too)
+        if folder.exists():
+            if not folder.is_dir():
+                raise InputError(f"--out {out}: {folder} is a file, not a folder to write into")
+            break
 
     try:
         result = api.verify_cell(sf, export=args.export, timed=args.timed, replay_in=out if args.replay else None,

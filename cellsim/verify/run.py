@@ -569,7 +569,10 @@ def export_paths(path: Path, sf=None) -> tuple[Path, Path]:
                 refuse_inputs(target, sf.inputs(), "the exported model")
         except OverwritesInput as e:
             raise VerifyError(str(e)) from None
-    for folder in path.parents:  # (a file on the way: said before anything is built, not once it is)
+    for target in (path, props):  # (said before anything is built, not once it is)
+        if target.is_dir():
+            raise VerifyError(f"--export {path}: {target} is a folder; name a file to write")
+    for folder in path.parents:  # (a file on the way)
         if folder.exists():
             if not folder.is_dir():
                 raise VerifyError(f"--export {path}: {folder} is a file, not a folder to write into")
@@ -579,9 +582,11 @@ def export_paths(path: Path, sf=None) -> tuple[Path, Path]:
 
 def write_export(model: AbstractModel, path: Path) -> tuple[Path, Path]:
     """``path`` (the PRISM program) and ``path`` with ``.props`` (its properties), written whole or not at all."""
-    from cellsim.atomic import write_text
+    from cellsim.atomic import replacing
 
     path, props = export_paths(path, model.cell.sf)
-    write_text(path, model.text, make_folder=True)
-    write_text(props, properties_text(model), make_folder=True)
+    # both written into temporaries first: an error in either leaves the two files as they were
+    with replacing(path, make_folder=True) as program, replacing(props, make_folder=True) as properties:
+        program.write(model.text)
+        properties.write(properties_text(model))
     return path, props
