@@ -261,12 +261,13 @@ def _record(cell, simulator, out_dir: Path, seed: int, duration: float, on_progr
     sc = sf.scenario
     write_run_scenario(sf, inputs, out_dir, RESOLVED_SCENARIO, seed, duration, extended_by)
 
-    writer = BlackBoxWriter(out_dir / BLACKBOX)
+    writer = None
     status = "failed"
     started = time.perf_counter()
     context = simulator.get_mutable_context()
     sim_time = 0.0
     try:
+        writer = BlackBoxWriter(out_dir / BLACKBOX)  # (in the try: stopped as it opens, it is closed all the same)
         if cell.recorder is not None:
             cell.recorder.attach(writer)
         writer.set_metadata(
@@ -308,15 +309,20 @@ def _record(cell, simulator, out_dir: Path, seed: int, duration: float, on_progr
             # a live run goes until it is stopped: its record is then complete, ending now
             status = "stopped" if cell.runs_until_stopped else "interrupted"
             raise
+    except KeyboardInterrupt:  # before simulated time began (the record being opened): interrupted all the same
+        if status == "failed":
+            status = "interrupted"
+        raise
     finally:
         wall = time.perf_counter() - started
         sim_time = context.get_time()
-        if cell.recorder is not None:
-            cell.recorder.drain(context, final=True)  # and what was logged before an interruption
-        writer.set_metadata(**cell.metadata())
-        if status == "stopped":
-            writer.set_metadata(duration=sim_time)
-        writer.close(status)
+        if writer is not None:  # (None: stopped before the black box was opened, nothing to close)
+            if cell.recorder is not None:
+                cell.recorder.drain(context, final=True)  # and what was logged before an interruption
+            writer.set_metadata(**cell.metadata())
+            if status == "stopped":
+                writer.set_metadata(duration=sim_time)
+            writer.close(status)
     return summarise(out_dir, seed, status, sim_time, wall, figures_of(sf), sf)
 
 

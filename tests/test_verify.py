@@ -697,3 +697,53 @@ def test_a_users_own_property_violated_in_the_model_is_undecided_saying_it_is_no
     # an upper bound the model meets holds for the cell: the person does not start in it
     assert mine["not_at_once"]["holds"] is True and mine["not_at_once"]["ending"] == "holds"
     assert done.returncode == 3
+
+
+def test_an_export_or_out_path_that_cannot_be_written_is_refused_before_any_build_and_nothing_is_left(tmp_path):
+    """An audit found a .props that is a folder refused only after the model was written (the .prism left behind),
+    an --export that is a folder and an --out under a file each refused only after the model was built and checked."""
+    (tmp_path / "m.props").mkdir()
+    done = _verify(str(WELDING_CELL), "--no-replay", "--export", str(tmp_path / "m.prism"), "--out", str(tmp_path / "o"))
+    assert done.returncode == 2 and "m.props is a folder" in done.stderr, done.stderr
+    assert "building the abstract model" not in done.stderr and not (tmp_path / "m.prism").exists()
+    done = _verify(str(WELDING_CELL), "--no-replay", "--export", str(tmp_path), "--out", str(tmp_path / "o"))
+    assert done.returncode == 2 and "is a folder" in done.stderr and "building" not in done.stderr, done.stderr
+    (tmp_path / "file").write_text("x")
+    done = _verify(str(WELDING_CELL), "--out", str(tmp_path / "file" / "w"))
+    assert done.returncode == 2 and "is a file, not a folder to write into" in done.stderr, done.stderr
+    assert "building" not in done.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "m.props"]
+
+
+def test_ctrl_c_while_the_twin_replays_a_witness_leaves_each_run_closed_and_marked_interrupted(tmp_path):
+    """An audit found Ctrl-C during the replays killing the twin's runs outright (SIGKILL): their black boxes were
+    left open (a -wal file beside each) with no status. The runs are now asked to stop as a run at the command line
+    is, and each is closed, marked interrupted."""
+    import signal
+    import sqlite3
+    import time
+
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "cellsim", "verify", str(WELDING_CELL), "--refine", "0", "--out", str(out)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, preexec_fn=_in_the_background)
+    try:
+        for line in proc.stderr:  # (each stage's line as it starts, no sleep)
+            if "twin: simulating" in line:
+                break
+        deadline = time.monotonic() + 60
+        while not list(out.glob("runs/*/blackbox.sqlite-wal")):  # a run under way: its black box open
+            assert time.monotonic() < deadline and proc.poll() is None, "no witness run opened its black box"
+            time.sleep(0.01)
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130
+    boxes = list(out.glob("runs/*/blackbox.sqlite"))
+    assert boxes and not list(out.glob("runs/*/blackbox.sqlite-wal"))
+    for box in boxes:
+        with sqlite3.connect(box) as db:
+            status = dict(db.execute("select key, value from metadata"))["status"]
+        assert json.loads(status) in ("interrupted", "completed"), (box, status)

@@ -61,9 +61,8 @@ def side_by_side(works: list, at_once: int | None = None) -> list:
                 results.append(_collect(child, None))
             except BaseException:
                 for pid, readable in started[i + 1:]:  # the batch's others go too: nothing is left running
-                    os.kill(pid, signal.SIGKILL)
-                    os.waitpid(pid, 0)
                     os.close(readable)
+                    _stop(pid)
                 raise
     return results
 
@@ -79,6 +78,7 @@ def _start(work) -> tuple[int, int]:
     pid = os.fork()
     if pid == 0:  # the child: report, then leave without running the parent's exit handlers
         os.close(readable)
+        signal.signal(signal.SIGTERM, _interrupt)  # stopped (:func:`_stop`): a simulation closes its record
         status = 0
         try:
             with os.fdopen(writable, "wb") as pipe:
@@ -89,7 +89,9 @@ def _start(work) -> tuple[int, int]:
                 try:
                     message = ("result", work(tell))
                 except BaseException as e:  # noqa: BLE001 - carried to the parent, which raises it
-                    message = ("error", e)
+                    # without its frames, which go now: what they held open (a black box half opened) is closed
+                    # before the child leaves by os._exit, which runs no clean-up
+                    message = ("error", e.with_traceback(None))
                 try:
                     pickle.dump(message, pipe)
                 except Exception as e:  # noqa: BLE001 - an exception that does not pickle: said in words
@@ -119,8 +121,7 @@ def _collect(child: tuple[int, int], say) -> object:
                 else:
                     outcome = (kind, value)
     except BaseException:
-        os.kill(pid, signal.SIGKILL)  # interrupted: the child goes with us
-        os.waitpid(pid, 0)
+        _stop(pid)  # interrupted: the child goes with us
         raise
     _, status = os.waitpid(pid, 0)
     if outcome is None:
@@ -131,3 +132,42 @@ def _collect(child: tuple[int, int], say) -> object:
     if kind == "error":
         raise value
     return value
+
+
+STOP_GRACE = 5.0
+"""Seconds a child asked to stop has to end on its own (a twin's run closing its black box) before it is killed."""
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _stop(pid: int, grace: float = STOP_GRACE) -> None:
+    """End child ``pid`` and reap it: asked first (SIGTERM, which a child takes as Ctrl-C: a simulation records its
+    run as interrupted and closes its black box, as a run stopped at the command line does), killed if it has not
+    ended within ``grace`` seconds (Storm deep in a build hears no signal until it returns to Python)."""
+    try:
+        os.kill(pid, signal.SIGTERM)
+    except ProcessLookupError:
+        pass
+    if not _ends_within(pid, grace):
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    os.waitpid(pid, 0)
+
+
+def _ends_within(pid: int, seconds: float) -> bool:
+    """Whether child ``pid`` ends within ``seconds``: waited for as an event (its pidfd turning readable)."""
+    import select
+
+    try:
+        handle = os.pidfd_open(pid)
+    except (AttributeError, OSError):  # no pidfd here (an old kernel): it is not waited for
+        return False
+    try:
+        readable, _, _ = select.select([handle], [], [], seconds)
+        return bool(readable)
+    finally:
+        os.close(handle)
