@@ -190,8 +190,13 @@ def build(scenario: ScenarioFile | str | os.PathLike, *, seed: int | None = None
     from the scenario first (``del sf.scenario.behaviours["safety_controller"]``): inputs nothing drives take
     their defaults."""
     from cellsim.diagrams.cell import build_cell
+    from cellsim.scenario import check_run_length, check_seed
 
     sf = _checked(scenario)
+    if seed is not None:
+        check_seed(seed, "seed argument")
+    if duration is not None:
+        check_run_length(sf, duration, "duration argument")
     return build_cell(sf, seed=sf.scenario.seed if seed is None else seed,
                       duration=sf.scenario.duration if duration is None else duration,
                       record=record, meshcat=meshcat, extend=extend)
@@ -216,9 +221,14 @@ def simulate(scenario: ScenarioFile | str | os.PathLike, out: str | os.PathLike 
     """
     from cellsim.cell_io import SIMULATED
     from cellsim.validation.check import simulate_and_check
+    from cellsim.scenario import check_run_length
     from cellsim.simulation import simulate as simulate_run
 
     sf = _checked(scenario)
+    if seed is not None:
+        check_seed(seed, "seed argument")
+    if duration is not None:  # (a script's argument, named as one: not the command line's --duration)
+        check_run_length(sf, duration, "duration argument")
     seed = sf.scenario.seed if seed is None else seed
     out = Path(out) if out is not None else Path("runs") / f"{sf.scenario.folder_name}-seed{seed}"
     args = dict(seed=seed, duration=duration, overwrite=overwrite, meshcat=meshcat, meshcat_wait=meshcat_wait,
@@ -325,13 +335,14 @@ class Run:
     @property
     def finding(self) -> bool:
         """A safety finding: a hazard reached its mishap phase, or a condition does not hold (what makes
-        ``cellsim simulate`` exit 1)."""
+        ``cellsim simulate`` exit 1). CheckError for a run that cannot be judged (a failed or damaged one): it is
+        not taken for one without a finding."""
         if self.checked is None and self.summary.mishap is False:
-            from cellsim.validation.check import CheckError
+            from cellsim.validation.check import NoConditions
 
             try:
-                self.check()  # (a run opened from its folder: judged now)
-            except CheckError:  # a scenario with no condition to judge: its mishaps alone say
+                self.check()  # (a run opened from its folder: judged now; CheckError: it cannot be judged)
+            except NoConditions:  # a scenario with no condition to judge: its mishaps alone say
                 return False
         return self.summary.mishap or (self.checked is not None and not self.checked.result.all_hold)
 

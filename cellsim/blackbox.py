@@ -226,7 +226,14 @@ class BlackBox:
             rows = self._db.execute(
                 "SELECT t, channel, source, payload FROM messages WHERE channel = ? ORDER BY rowid", (channel,)
             )
-        return [Message(t, c, s, json.loads(p)["value"]) for t, c, s, p in rows]
+        return [Message(t, c, s, self._value(c, t, p)) for t, c, s, p in rows]
+
+    def _value(self, channel: str, t, payload):
+        """A message's value from its JSON ``payload`` (BlackBoxError when it is no cellsim message)."""
+        try:
+            return json.loads(payload)["value"]
+        except (json.JSONDecodeError, KeyError, TypeError) as e:
+            raise self.corrupt(f"the payload of a '{channel}' message at t = {t} is not a cellsim message ({e})") from None
 
     def iter_values(self, channels: list[str]):
         """``(t, channel, value)`` of the messages of ``channels``, in time order (publication order within an
@@ -237,11 +244,7 @@ class BlackBox:
         try:
             cursor = self._db.execute(query, list(channels))
             for t, channel, payload in cursor:  # row by row: memory stays flat however long the run
-                try:
-                    value = json.loads(payload)["value"]
-                except (json.JSONDecodeError, KeyError, TypeError) as e:
-                    raise self.corrupt(f"the payload of a '{channel}' message at t = {t} is not a cellsim message ({e})") from None
-                yield t, channel, value
+                yield t, channel, self._value(channel, t, payload)
         except sqlite3.DatabaseError as e:
             raise self.corrupt(str(e)) from None
 

@@ -368,9 +368,15 @@ def summarise(out_dir: Path, seed: int, status: str, sim_time: float, wall_time:
     with BlackBox(out_dir / BLACKBOX) as bb:
         channels, metadata = bb.channels(), bb.metadata()
         summary = RunSummary(out_dir, seed, status, sim_time, wall_time)
-        for name, phases in (metadata.get("hazards") or {}).items():
+        hazards = metadata.get("hazards") or {}
+        if not isinstance(hazards, dict):
+            raise bb.corrupt(f"its metadata's hazards are {type(hazards).__name__}, not channels and their phases")
+        for name, phases in hazards.items():
             values = bb.series(name).values if name in channels else []
-            summary.hazards[name] = HazardPhases.of(phases).counts(values)
+            try:
+                summary.hazards[name] = HazardPhases.of(phases).counts(values)
+            except (TypeError, KeyError, ValueError, AttributeError) as e:
+                raise bb.corrupt(f"its metadata's phases of hazard '{name}' are not a risk model's ({e})") from None
         for figure in figures:
             values = bb.series(figure.channel).values if figure.channel in channels else []
             last = values[-1] if values else None

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import ast
 import json
+import re
+import shutil
 import sqlite3
 import subprocess
 import sys
@@ -208,6 +210,12 @@ def test_a_scripts_system_added_as_a_module_is_recorded(tmp_path):
             cell.module_input("robot.throttle")
         with pytest.raises(ValueError, match="carries 6 numbers"):
             cell.code_of("robot.joint_positions", 0.0)
+        # an audit found these handed out, then ending the process at Build (Drake's check is no exception)
+        with pytest.raises(KeyError, match="'robot.safety_mode_request' is driven already, by safety_controller."):
+            cell.module_input("robot.safety_mode_request")
+        for name in ("light_barrier", "ticks"):
+            with pytest.raises(KeyError, match=f"already has a module or system named '{name}'"):
+                cell.add(name, Ticks(number))
 
     run = cellsim.simulate(cellsim.load_scenario(WELDING), tmp_path / "ticks", duration=2.0, extend=extend)
     assert "ticks.count" in run.channels()  # recorded like any module's channel
@@ -485,3 +493,90 @@ def test_a_runs_readers_take_what_a_script_most_likely_gives_and_refuse_the_rest
     assert "NoHarm" in cellsim.default_conditions(WELDING)
     with pytest.raises(cellsim.ConfigError, match="a list of PATH=VALUE strings"):
         cellsim.load_scenario(WELDING, "seed=3")
+
+
+def test_a_system_a_script_forgot_to_wire_is_a_config_error_before_the_run_folder_is_touched(tmp_path):
+    """An audit found Drake noticing an unconnected input only once the run had started, its folder written and
+    marked failed (and then refused for the fixed script as holding a run)."""
+    from pydrake.systems.framework import LeafSystem
+
+    class Gate(LeafSystem):
+        def __init__(self):
+            super().__init__()
+            self.DeclareVectorInputPort("curtain", 1)
+            self.DeclareVectorOutputPort("mode", 1, lambda context, out: out.SetAtIndex(0, 0.0))
+
+    def extend(cell):
+        cell.builder.AddNamedSystem("gate", Gate())  # its own input connected to nothing
+
+    with pytest.raises(cellsim.ConfigError, match="input 'curtain' of system 'gate' is connected to nothing"):
+        cellsim.simulate(cellsim.load_scenario(WELDING), tmp_path / "run", duration=1.0, extend=extend)
+    assert not (tmp_path / "run").exists()
+
+
+
+def test_a_run_that_cannot_be_judged_is_no_run_without_a_finding(tmp_path):
+    """An audit found Run.finding False for a run that failed before it recorded anything: every CheckError was taken
+    for 'no conditions'. Only that case is; a run that cannot be judged says so."""
+    from pydrake.systems.framework import LeafSystem
+
+    from cellsim.validation.check import CheckError
+
+    class Breaks(LeafSystem):
+        def __init__(self):
+            super().__init__()
+            self.DeclareInitializationPublishEvent(self._fail)
+
+        def _fail(self, context):
+            raise RuntimeError("a script's system broke")
+
+    def extend(cell):
+        cell.builder.AddNamedSystem("breaks", Breaks())
+
+    with pytest.raises(RuntimeError, match="broke"):
+        cellsim.simulate(cellsim.load_scenario(WELDING), tmp_path / "run", duration=1.0, extend=extend)
+    assert cellsim.Run.open(tmp_path / "run").finding  # what it recorded (t = 0) is judged: inconclusive, no pass
+    with sqlite3.connect(tmp_path / "run" / "blackbox.sqlite") as db:  # as a run killed before its first commit
+        db.execute("DELETE FROM messages")
+    run = cellsim.Run.open(tmp_path / "run")
+    assert run.summary.status == "failed"
+    with pytest.raises(CheckError, match="before it recorded anything"):
+        run.finding
+
+
+@pytest.mark.parametrize("args, said", [
+    (dict(seed=-1), "seed argument: -1 is out of range"),
+    (dict(seed="x"), "seed argument: 'x' is not a whole number"),
+    (dict(duration=-5), "duration argument: -5 is out of range"),
+    (dict(duration=float("nan")), "duration argument: nan is out of range"),
+])
+def test_a_scripts_bad_seed_or_duration_is_a_config_error_naming_its_argument(tmp_path, args, said):
+    """An audit found build() passing a bad seed to numpy (ValueError) and a negative duration through, and simulate()
+    naming a script's argument as the command line's --duration."""
+    with pytest.raises(cellsim.ConfigError, match=re.escape(said)):
+        cellsim.build(cellsim.load_scenario(WELDING), **args)
+    with pytest.raises(cellsim.ConfigError, match=re.escape(said)):
+        cellsim.simulate(cellsim.load_scenario(WELDING), tmp_path / "run", **args)
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_damaged_black_box_read_from_a_script_is_a_black_box_error(tmp_path):
+    """An audit found Run.open, series and dataframe raising TypeError, JSONDecodeError or AttributeError on a damaged
+    black box, where the docs promise BlackBoxError (and cellsim check says 'corrupt black box')."""
+    run = cellsim.simulate(cellsim.load_scenario(WELDING), tmp_path / "good", duration=1.0)
+    box = run.out / "blackbox.sqlite"
+    for damage, reader in [
+        ("UPDATE messages SET payload = 'null' WHERE channel = 'robot.safety_mode'", "open"),
+        ("UPDATE messages SET payload = '[1, 2]' WHERE channel = 'robot.joint_positions'", "series"),
+        ("UPDATE messages SET payload = '{bad' WHERE channel = 'robot.safety_mode'", "open"),
+        ("UPDATE metadata SET value = '[1, 2]' WHERE key = 'hazards'", "open"),
+    ]:
+        copy = tmp_path / f"damaged-{reader}-{abs(hash(damage))}"
+        shutil.copytree(run.out, copy)
+        with sqlite3.connect(copy / "blackbox.sqlite") as db:
+            db.execute(damage)
+        with pytest.raises(cellsim.BlackBoxError, match="corrupt black box"):
+            opened = cellsim.Run.open(copy)
+            opened.series("robot.joint_positions")
+            opened.dataframe()
+    assert box.exists()

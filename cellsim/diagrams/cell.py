@@ -38,6 +38,7 @@ from pydrake.geometry import (
     MeshcatVisualizer,
     MeshcatVisualizerParams,
     Role,
+    SceneGraph,
 )
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig
@@ -47,6 +48,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem, Outpu
 from cellsim import registry
 from cellsim.cell_io import SIMULATED, CellIO, Emulated, Live, Replayed, Simulated, paced
 from cellsim.channels import ChannelSpec
+from cellsim.config.typed_yaml import ConfigError
 from cellsim.entity import EntitySystem
 from cellsim.scenario import ScenarioFile
 from cellsim.recorder import Recorder
@@ -192,7 +194,12 @@ class CellBuild:
         return self.sf.scenario
 
     def add(self, name: str, system: LeafSystem) -> LeafSystem:
-        """Add a module's system to the diagram under the module's name."""
+        """Add a module's system to the diagram under the module's name; KeyError when a module, or a system of
+        the diagram, already has that name (or the system's own)."""
+        taken = {other.get_name() for other in self.builder.GetSystems()}
+        for clash in (name, system.get_name()):
+            if clash in self.modules or clash in taken:
+                raise KeyError(f"the cell already has a module or system named '{clash}'; name yours otherwise")
         self.builder.AddSystem(system)
         self.modules[name] = system
         if isinstance(system, EntitySystem):
@@ -268,7 +275,13 @@ class CellBuild:
         if not system.HasInputPort(port):
             names = [system.get_input_port(i).get_name() for i in range(system.num_input_ports())]
             raise KeyError(f"module '{module}' has no input '{port}'; inputs: {', '.join(names)}")
-        return system.GetInputPort(port)
+        found = system.GetInputPort(port)
+        if self.builder.IsConnectedOrExported(found):
+            driver = next((f"{source.get_name()}.{source.get_output_port(int(out)).get_name()}"
+                           for (sink, index), (source, out) in self.builder.connection_map().items()
+                           if sink is system and int(index) == found.get_index()), "the diagram's own input")
+            raise KeyError(f"input '{name}' is driven already, by {driver}: remove that module to drive it yourself")
+        return found
 
     def _run_hooks(self) -> None:
         hooks, self._hooks = self._hooks, []
@@ -357,6 +370,7 @@ def build_cell(
         case _:
             raise TypeError(f"not an I/O choice: {io!r}")
     fixed_inputs += _unconnected_inputs(builder, cell.modules)
+    _refuse_dangling_inputs(sf, builder, fixed_inputs)
     channels = cell.channels()
     for spec, port in channels.values():  # the same ports whichever I/O
         builder.ExportOutput(port, spec.name)
@@ -629,6 +643,22 @@ def _channels(modules: dict[str, LeafSystem]) -> dict[str, tuple[ChannelSpec, Ou
         for spec, port in getattr(system, "channels", []):
             found[spec.name] = (spec, port)
     return found
+
+
+def _refuse_dangling_inputs(sf, builder: DiagramBuilder, fixed: list[tuple]) -> None:
+    """A ConfigError naming an input no system drives and no value is given (a script's system not wired up):
+    Drake would say so only once the run's folder is written, when the input is first read. The plant's and
+    SceneGraph's inputs may be left so (they read an unconnected input as none)."""
+    given = {(port.get_system().get_name(), int(port.get_index())) for port, _ in fixed}  # (names are unique)
+    for system in builder.GetSystems():
+        if isinstance(system, (MultibodyPlant, SceneGraph)):
+            continue
+        for i in range(system.num_input_ports()):
+            port = system.get_input_port(i)
+            if not builder.IsConnectedOrExported(port) and (system.get_name(), i) not in given:
+                raise ConfigError(str(sf.source), None, "extend", f"input '{port.get_name()}' of system "
+                                  f"'{system.get_name()}' is connected to nothing: connect it (builder.Connect) or "
+                                  "leave the system out")
 
 
 def _unconnected_inputs(builder: DiagramBuilder, modules: dict[str, LeafSystem]) -> list[tuple]:

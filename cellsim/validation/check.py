@@ -37,6 +37,10 @@ class CheckError(Exception):
     """The run cannot be checked: the path is not a run, or there are no conditions."""
 
 
+class NoConditions(CheckError):
+    """The run's scenario has no safety conditions to judge it by (its mishaps alone say whether it harmed)."""
+
+
 @dataclass
 class CheckedRun:
     trace: RunTrace
@@ -183,7 +187,7 @@ def check(run: str | os.PathLike, sf: ScenarioFile | None = None, *, case: Safet
             bb.check_channels()  # a record the black box cannot place is its fault, not the scenario's
             case = safety_case(sf, blackbox_domains(bb), bb.channels(), recorded_in=blackbox)
             if not case.conditions:
-                raise CheckError(f"{sf.source}: the scenario has no safety conditions (validation.conditions, or the "
+                raise NoConditions(f"{sf.source}: the scenario has no safety conditions (validation.conditions, or the "
                                  f"default ones of a cell with a robot and a person) to check")
         trace = trace_of_run(bb, case.validation.variables)
     traced = time.perf_counter()
