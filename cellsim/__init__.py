@@ -17,7 +17,7 @@ first used: ``import cellsim`` does not import Drake until a name that needs it 
 
 from cellsim.version import __version__  # noqa: F401
 
-from cellsim.api import __all__  # noqa: E402  (the public names; each loaded when first used)
+from cellsim.names import PUBLIC as __all__  # noqa: E402  (the public names; each loaded when first used)
 
 
 def __getattr__(name: str):

@@ -49,15 +49,7 @@ if TYPE_CHECKING:
     from cellsim.validation.check import CheckedRun
     from cellsim.verify.run import Verification
 
-__all__ = [
-    "BlackBoxError", "CONFIDENCE", "COUNT_LIMITS", "CampaignConfig", "CampaignError", "CellBuild", "CellDiagram", "CellSystem", "CheckError",
-    "ConfigError", "ConfigurationPoint", "DEFAULT_SEARCH", "EXPLICIT_LIMIT", "Fixture", "FoxgloveFeed", "Layout",
-    "Live", "OutputExistsError", "OverwritesInput", "Region", "Run", "SEARCH_METHODS", "Scenario", "ScenarioFile", "Validation",
-    "Verdict", "VerifyError", "build", "check", "check_campaign", "check_duration", "check_seed",
-    "compile_conditions", "default_conditions", "export_trace", "falsify", "formula_and_description", "is_campaign",
-    "kind_config", "load_scenario", "module", "open_meshcat", "robustness", "run_campaign", "runs_folder",
-    "runs_needed", "save_scenario", "scenario_in_code", "scenario_yaml", "simulate", "verify_cell",
-]
+from cellsim.names import PUBLIC as __all__  # noqa: E402  (listed apart: cellsim reads them without this module)
 
 Extend = Callable[["CellBuild"], None]
 """A script's hook on the diagram being built: ``extend(cell)`` (:func:`build`)."""

@@ -204,3 +204,15 @@ def test_the_walk_finds_a_circle_hidden_in_a_function():
     graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
     assert circles(graph) == [["a", "b", "c"]]
     assert circles({"a": {"b"}, "b": set()}) == []
+
+
+def test_the_command_line_imports_nothing_heavy_before_its_signal_handlers():
+    """An audit found Ctrl-C in the first 0.6 s of a command a traceback from numpy, and SIGTERM then killing it (exit
+    143, not 130): ``import cellsim`` loaded the API (numpy, the scenario's schema) to read its public names, before
+    any command's handlers existed. The names are listed apart now; the API loads once the handlers are in place."""
+    import subprocess
+    import sys
+
+    probe = "import sys, cellsim.cli; print(sorted(m for m in ('numpy', 'cellsim.api', 'pydrake') if m in sys.modules))"
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and done.stdout.strip() == "[]", done.stdout + done.stderr

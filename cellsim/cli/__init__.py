@@ -66,7 +66,8 @@ def main(argv: list[str] | None = None) -> int:
     given = sys.stdout
     sys.stdout = _ReaderMayLeave(given)
     try:
-        return _main(argv)
+        with _terminate_as_interrupt():  # from the start: SIGTERM while the command is being set up is Ctrl-C too
+            return _main(argv)
     except KeyboardInterrupt:  # also while starting up: importing Drake takes a while
         print("cellsim: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

@@ -6,7 +6,7 @@ import os
 import sys
 from pathlib import Path
 
-from cellsim.api import DEFAULT_SEARCH, SEARCH_METHODS
+import cellsim
 from cellsim.cli.common import EXIT_FINDING, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, InputError, RunsBar, _add_set, _load_for_runs, add_scheduler_argument
 
 
@@ -27,7 +27,7 @@ def add_parser(subparsers) -> None:
     )
     cmd.add_argument("scenario", type=Path, help="scenario YAML file")
     cmd.add_argument("--budget", type=int, default=100, help="most runs to spend (default 100)")
-    cmd.add_argument("--method", choices=SEARCH_METHODS, default=DEFAULT_SEARCH,
+    cmd.add_argument("--method", choices=cellsim.SEARCH_METHODS, default=cellsim.DEFAULT_SEARCH,
                      help="qd: quality diversity (CMA-ME), the most critical run per cell of use cases x situation "
                      "(default: the fastest in scripts/bench_falsify.py); cmaes: CMA-ES on the score; random: the "
                      "campaign's own distribution, the baseline")
