@@ -353,3 +353,48 @@ def test_a_far_period_between_plant_steps_looks_sooner_not_later():
     built = build_cell(load_scenario(CELL, ["harm.far_period=0.035"]), seed=0, duration=1.0, record=False)
     harm = built.modules["harm"]
     assert harm.far_every == 17 and harm.reach == pytest.approx(harm.cfg.max_part_speed * 0.034)
+
+
+@pytest.mark.parametrize("push, pinned", [
+    ((0.0, 0.0, -1.0), True),  # straight down onto the floor it stands on
+    ((0.5, 0.0, -0.866), True),  # 30 degrees off the vertical: within clamp_angle_deg (60)
+    ((0.866, 0.0, -0.5), False),  # 60 degrees off and more: it slides aside
+    ((1.0, 0.0, 0.0), False),  # level: the leg is swept aside, nothing behind it
+])
+def test_a_lower_leg_pushed_down_onto_the_floor_is_pinned(cell, push, pinned):
+    """An audit found the floor no blocker: a foot or shin pressed down under the arm was judged transient. The floor
+    (z = 0) now pins a region resting on it (the lower legs stand on it) as a fixture does; a person standing clear
+    of the layout's fixtures, so only the floor can pin. (The arm cannot reach a standing shin from above past the
+    thigh, so the rule is asked here directly, at the ankle.)"""
+    built, context = cell
+    harm = built.modules["harm"]
+    stand(built, context, 0.3, -1.0, math.pi / 2)
+    leg, query = region_geometry(built, context, "lower_leg", "right")
+    ankle = query.GetPoseInWorld(leg).translation() + [0.0, 0.0, -0.15]
+    part_id, part = next(iter(harm.parts.items()))
+    person = harm.bodies[leg].person
+    assert harm._pinned(query, person, "lower_leg", ankle, part_id, part, np.array(push)) is pinned
+    # a hand held out at the waist touches no floor, pushed down or not
+    hand, _ = region_geometry(built, context, "hand", "left")
+    wrist = query.GetPoseInWorld(hand).translation()
+    assert not harm._pinned(query, person, "hand", wrist, part_id, part, np.array([0.0, 0.0, -1.0]))
+
+
+def test_the_lowest_point_of_each_body_shape_is_found_however_it_is_turned():
+    from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
+    from pydrake.math import RigidTransform, RotationMatrix
+
+    from cellsim.kinds.harm.system import lowest_point_z
+
+    upright = RigidTransform([0.0, 0.0, 1.0])
+    tilted = RigidTransform(RotationMatrix.MakeYRotation(math.pi / 2), [0.0, 0.0, 1.0])  # its z axis lying along x
+    assert lowest_point_z(Sphere(0.1), upright) == pytest.approx(0.9)
+    assert lowest_point_z(Capsule(0.1, 0.6), upright) == pytest.approx(0.6)
+    assert lowest_point_z(Capsule(0.1, 0.6), tilted) == pytest.approx(0.9)
+    assert lowest_point_z(Cylinder(0.1, 0.6), upright) == pytest.approx(0.7)
+    assert lowest_point_z(Cylinder(0.1, 0.6), tilted) == pytest.approx(0.9)
+    assert lowest_point_z(Box(0.2, 0.4, 0.6), upright) == pytest.approx(0.7)
+    assert lowest_point_z(Box(0.2, 0.4, 0.6), tilted) == pytest.approx(0.9)
+    assert lowest_point_z(Ellipsoid(0.1, 0.2, 0.3), tilted) == pytest.approx(0.9)
+    quarter = RigidTransform(RotationMatrix.MakeXRotation(math.pi / 4), [0.0, 0.0, 1.0])
+    assert lowest_point_z(Box(0.2, 0.4, 0.6), quarter) == pytest.approx(1.0 - 0.5 * (0.4 + 0.6) * math.sqrt(0.5))

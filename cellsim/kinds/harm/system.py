@@ -156,6 +156,7 @@ class HarmMonitor(CellSystem):
         self.fixtures = dict(fixtures)
         self.parts = dict(parts)
         self.bodies = {g: RegionGeometry(p, region, inspector.GetFrameId(g)) for g, (p, region) in bodies.items()}
+        self._shapes = {g: inspector.GetShape(g) for g in self.bodies}  # for how near the floor each region is
         self.clamps = [*fixtures, *parts]  # what a region can be pinned against: fixtures, every arm's shapes
         self._pairs = NearestPair(inspector, list(self.parts), list(self.bodies))  # every robot part and body region
         parts = list(self.parts.values())
@@ -391,11 +392,41 @@ class HarmMonitor(CellSystem):
                 pair = query.ComputeSignedDistancePairClosestPoints(region, other)
                 if pair.distance > self.cfg.clamp_gap:
                     continue
-                towards = witness_on(query, pair, other) - p_W  # towards the blocker's point
-                length = float(np.linalg.norm(towards))
-                if length == 0.0 or float(towards @ push) >= self.cos_clamp * length:
+                if self._behind(witness_on(query, pair, other) - p_W, push):
                     return True
+        # the floor (z = 0, the layout's ground) is a blocker too: a foot or a shin pushed down onto it is pinned
+        for region in regions:
+            lowest = lowest_point_z(self._shapes[region], query.GetPoseInWorld(region))
+            if lowest is not None and lowest <= self.cfg.clamp_gap and self._behind(
+                    np.array([0.0, 0.0, lowest - float(p_W[2])]), push):
+                return True
         return False
+
+    def _behind(self, towards, push) -> bool:
+        """Whether a blocker's point ``towards`` away from the contact (m) lies behind it along the ``push``, within
+        clamp_angle_deg as seen from the contact."""
+        length = float(np.linalg.norm(towards))
+        return length == 0.0 or float(towards @ push) >= self.cos_clamp * length
+
+
+def lowest_point_z(shape, X_WG) -> float | None:
+    """The height (m, world z) of the lowest point of ``shape`` posed at ``X_WG``; None for a shape this does not
+    know (a mesh: not taken to rest on the floor)."""
+    from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
+
+    R, z = X_WG.rotation().matrix(), float(X_WG.translation()[2])
+    up = R[2]  # the world's z axis in the shape's frame: how far each of its axes reaches down
+    if isinstance(shape, Sphere):
+        return z - shape.radius()
+    if isinstance(shape, Capsule):
+        return z - 0.5 * shape.length() * abs(up[2]) - shape.radius()
+    if isinstance(shape, Cylinder):
+        return z - 0.5 * shape.length() * abs(up[2]) - shape.radius() * math.sqrt(max(0.0, 1.0 - up[2] ** 2))
+    if isinstance(shape, Box):
+        return z - 0.5 * (shape.width() * abs(up[0]) + shape.depth() * abs(up[1]) + shape.height() * abs(up[2]))
+    if isinstance(shape, Ellipsoid):
+        return z - math.sqrt((shape.a() * up[0]) ** 2 + (shape.b() * up[1]) ** 2 + (shape.c() * up[2]) ** 2)
+    return None
 
 
 class _Motion:
