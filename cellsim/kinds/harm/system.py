@@ -12,7 +12,7 @@ query per ``far_period``. For each robot part touching a region (signed distance
 * the relative speed along the contact normal, ``v_rel``: the arm's point towards the region
   (the plant's body velocity at the contact point) less the region's point towards the arm
   (its motion over the person's last update period);
-* its kind: *quasi-static* (clamping) when a fixture, another robot or another part of the arm
+* its kind: *quasi-static* (clamping) when a fixture, the floor, another robot or another part of the arm
   lies within ``clamp_gap`` on the far side of the region (within ``clamp_angle_deg`` of the
   push), else *transient*;
 * its severity against the limits table (:mod:`cellsim.kinds.harm.limits`): above 1 is harm.
