@@ -34,6 +34,10 @@ REGIONS = ("head", "face", "neck", "back", "chest", "abdomen", "pelvis", "upper_
 TRUNK = ("back", "chest", "abdomen", "pelvis")
 """The regions that move as one block: a push on one is resisted by whatever another rests against (a chest pushed
 back is pinned by the wall the back rests on). A head, a neck or a limb turns or bends away instead."""
+SKULL = ("head", "face")
+"""The head's regions, one block too: a face pushed while the back of the head rests on a machine is pinned."""
+BLOCKS = (TRUNK, SKULL)
+"""The regions that move together; every other region moves alone."""
 
 KNEE, HIP, SHOULDER, CHIN = 0.285, 0.530, 0.818, 0.870
 """Heights of the joints as fractions of the body's height (Drillis and Contini, 1966)."""

@@ -398,3 +398,34 @@ def test_the_lowest_point_of_each_body_shape_is_found_however_it_is_turned():
     assert lowest_point_z(Ellipsoid(0.1, 0.2, 0.3), tilted) == pytest.approx(0.9)
     quarter = RigidTransform(RotationMatrix.MakeXRotation(math.pi / 4), [0.0, 0.0, 1.0])
     assert lowest_point_z(Box(0.2, 0.4, 0.6), quarter) == pytest.approx(1.0 - 0.5 * (0.4 + 0.6) * math.sqrt(0.5))
+
+
+def test_a_face_pushed_while_the_back_of_the_head_rests_on_a_shelf_is_pinned():
+    """An audit found a blocker looked for near the touched region alone: a face pushed back while the back of the
+    head rested on something read as transient, no clamping. The skull moves as one block, as the trunk does."""
+    from cellsim.config.layout import Fixture
+
+    sf = load_scenario(CELL)
+    person_x, person_y = 0.3, -1.0  # facing +y (yaw pi/2): the back of the head towards -y
+    sf.scenario.layout.fixtures["shelf"] = Fixture(size=(0.4, 0.1, 0.1), center=(person_x, -1.2, 1.62))
+    built = build_cell(sf, seed=0, duration=1.0, record=False)
+    simulator = Simulator(built.diagram)
+    built.set_initial_state(simulator.get_mutable_context())
+    context = simulator.get_mutable_context()
+    harm = built.modules["harm"]
+    shelf = next(g for g, name in harm.fixtures.items() if name == "shelf")
+    for y in np.arange(-1.06, -0.8, 0.002):  # step away from the shelf until the head is just clear of it
+        stand(built, context, person_x, y, math.pi / 2)
+        head, query = region_geometry(built, context, "head")
+        gap = query.ComputeSignedDistancePairClosestPoints(head, shelf).distance
+        if 0.0 < gap <= harm.cfg.clamp_gap:
+            break
+    else:
+        raise AssertionError("the back of the head never rests by the shelf")
+    face, query = region_geometry(built, context, "face")
+    assert query.ComputeSignedDistancePairClosestPoints(face, shelf).distance > harm.cfg.clamp_gap
+    front = query.GetPoseInWorld(face).translation() + [0.0, 0.03, 0.0]
+    part_id, part = next(iter(harm.parts.items()))
+    person = harm.bodies[face].person
+    assert harm._pinned(query, person, "face", front, part_id, part, np.array([0.0, -1.0, 0.0]))  # pushed back
+    assert not harm._pinned(query, person, "face", front, part_id, part, np.array([1.0, 0.0, 0.0]))  # sideways

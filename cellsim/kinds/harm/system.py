@@ -34,7 +34,7 @@ from cellsim.channels import enum_type, number_type
 from cellsim.kinds.harm.config import HarmConfig
 from cellsim.proximity import NearestPair, bounding_sphere, witness_on
 from cellsim.kinds.harm.limits import QUASI_STATIC, TRANSIENT, BodyLimits, severity
-from cellsim.body import REGIONS, TRUNK
+from cellsim.body import BLOCKS, REGIONS
 from cellsim.systems import UNCHANGED, CellSystem, write_changed
 from cellsim.vocabulary import value_set
 
@@ -374,12 +374,13 @@ class HarmMonitor(CellSystem):
 
     def _pinned(self, query, person: int, region: str, p_W, touching, part: Part, push) -> bool:
         """Whether the person's ``region`` touched at ``p_W`` is pinned: something they cannot pass (a fixture, an
-        arm's shape that does not move with the pushing one) lies within clamp_gap of that region, or, for a region
-        of the trunk, of any of the trunk's (:data:`cellsim.body.TRUNK`: a chest pushed against a wall touches it
-        with the back), behind the contact along the push, within clamp_angle_deg of it as seen from the contact.
-        A head, a neck or a limb resting on nothing is not pinned by what the back rests on: it turns or bends
-        away. Asked only of a region being touched: it costs nothing otherwise."""
-        resting = TRUNK if region in TRUNK else (region,)
+        arm's shape that does not move with the pushing one, the floor) lies within clamp_gap of that region, or, for
+        a region of a block that moves as one (:data:`cellsim.body.BLOCKS`: the trunk, the skull), of any of the
+        block's (a chest pushed against a wall touches it with the back; a face, with the back of the head), behind the
+        contact along the push, within clamp_angle_deg of it as seen from the contact. A head, a neck or a limb
+        resting on nothing is not pinned by what the back rests on: it turns or bends away. Asked only of a region
+        being touched: it costs nothing otherwise."""
+        resting = next((block for block in BLOCKS if region in block), (region,))
         regions = [g for g, b in self.bodies.items() if b.person == person and b.region in resting]
         for other in self.clamps:
             if other == touching:
