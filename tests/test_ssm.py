@@ -336,3 +336,21 @@ def test_each_arm_yields_for_as_long_as_its_controller_demands_it(tmp_path, wait
     verdicts = {name: v.status.name for name, v in done.checked.result.verdicts.items()}
     assert done.summary.hazards["safety_controller.JAM"].raised == 1  # one stint, the field never clear between
     assert verdicts["JamYields"] == ("HOLDS" if waits_on == "its controller" else "VIOLATED")
+
+
+def test_a_stale_sensor_gives_the_monitor_no_separation_and_a_stopped_arm_no_margin_violation(tmp_path):
+    """An audit found a stale scanner (read as 0 m, failing safe) giving the monitor a separation of 0 and a margin of
+    -S_p, so SensedMargin was violated for the whole outage by an arm standing still. The monitor now takes its sensor's
+    reading as no value while the sensor's link is not ok; the machine-tending cell's SensedMargin is written as what
+    the sensed margin must never show (not margin < 0)."""
+    sf = load_scenario(ROOT / "scenarios" / "machine_tending.yaml", ["entities.scanner.twin.mode=shadow"])
+    done = simulate_and_check(sf, tmp_path / "stale", seed=0, duration=4.0)
+    with BlackBox(tmp_path / "stale" / "blackbox.sqlite") as bb:
+        assert set(bb.series("scanner.physical_link").values) == {"stale"}  # from the start, throughout
+        separation = bb.series("ssm.separation")
+        assert all(v is None for t, v in zip(separation.times, separation.values) if t > 0.0)
+        limit, speed = bb.series("ssm.speed_limit"), bb.series("robot.tool_speed")
+        assert all(v == 0.0 for t, v in zip(limit.times, limit.values) if t > 0.0)
+        assert max(v for t, v in zip(speed.times, speed.values) if t > 1.0) < 0.01  # the arm stands still
+    verdicts = {name: v.status.value for name, v in done.checked.result.verdicts.items()}
+    assert verdicts["SensedMargin"] == "holds", verdicts

@@ -99,6 +99,10 @@ def build_ssm(cell, name: str, cfg: SsmConfig) -> SpeedSeparationMonitor:
             raise cell.sf.error(where, f"'{cfg.separation}' is not a distance in m ({spec.type.kind}, "
                                 f"{spec.type.unit or 'no unit'})")
         cell.builder.Connect(port, system.separation_port)
+        sensor = cfg.separation.partition(".")[0]
+        if sensor in cell.entities:  # its reading has no value while its link is not ok (stale, corrupt, recovering)
+            (link,) = system.watch_links([sensor])
+            cell.builder.Connect(cell.modules[sensor].GetOutputPort("physical_link"), link)
     return system
 
 

@@ -222,9 +222,9 @@ class SpeedSeparationMonitor(CellSystem):
         self.pairs = NearestPair(inspector, list(arm), people)
 
     def watch_links(self, entities: list[str]) -> list:
-        """Declare an input of the physical link of each of ``entities`` (the robot and the people, by module name);
-        returns the ports to connect to their ``physical_link`` channels. On the geometry, the separation has no
-        value (and the limit is 0) while one is not ok or unused."""
+        """Declare an input of the physical link of each of ``entities`` (on the geometry, the robot and the people;
+        from a sensor, the sensor), by module name; returns the ports to connect to their ``physical_link`` channels.
+        The separation has no value (and the limit is 0) while one is not ok or unused."""
         self.link_ports = [self.declare_input(f"{entity}_link", default=PhysicalLink.UNUSED.code) for entity in entities]
         return self.link_ports
 
@@ -292,7 +292,9 @@ class SpeedSeparationMonitor(CellSystem):
         kin = self.kinematics
         kin.plant.SetPositionsAndVelocities(kin.context, self.robot_state_port.Eval(context))
         if not self.from_geometry or not self.bodies_trusted(context):
-            d = self.separation_port.Eval(context)[0] if not self.from_geometry else math.nan
+            # a sensor's reading, unless its link is not ok (a stale sensor reads 0 m, failing safe: no value here)
+            d = self.separation_port.Eval(context)[0] if not self.from_geometry and self.bodies_trusted(context) \
+                else math.nan
             tool_velocity = kin.tool.CalcSpatialVelocityInWorld(kin.context).translational()
             return (d if math.isfinite(d) else math.nan), float(np.linalg.norm(tool_velocity))  # (inf: no value)
         return self.truth(context)
