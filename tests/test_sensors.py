@@ -271,3 +271,31 @@ def test_a_cell_replayed_as_its_own_physical_twin_has_the_blind_spots_of_its_mod
 
     assert blind(replayed) == blind(model)
     assert bool(blind(model)) is (scenario == "machine_tending")
+
+
+@pytest.mark.parametrize("name, nearby, sample_seen, sample_free", [
+    ("range_detector", "range", [Range.CLOSE.code, 0.4], [Range.FAR.code, 3.0]),
+    ("light_barrier", "beams", [1.0], [0.0]),
+])
+def test_a_person_a_recovered_sensor_reports_free_at_once_is_in_its_blind_spot(shadowed, name, nearby, sample_seen, sample_free):
+    """An audit found the range detector forgetting the truth while its link was stale (judged as nobody there), so a
+    sensor coming back reporting free someone who had stood there all along showed no blind spot at its first update
+    back; the light barrier kept the truth. Both keep it now."""
+    from cellsim.vocabulary import PhysicalLink
+
+    built, context = shadowed
+    system = built.modules[name]
+    own = system.GetMyMutableContextFromRoot(context)
+    if name == "range_detector":
+        put_operator(built, context, *(np.array(system.cfg.position[:2]) - [0.5, 0.0]))  # truly close, throughout
+    else:
+        put_operator(built, context, x=-1.37, y=0.6)  # in the beams, throughout
+
+    def step(link, sample) -> str:
+        system.physical_sample_port.FixValue(own, np.array([own.get_time(), float(link.code), *sample]))
+        own.get_mutable_discrete_state().SetFrom(system.EvalUniquePeriodicDiscreteUpdate(own))
+        return system.unseen_readings.from_code(own.get_discrete_state(system.group("unseen"))[0]).value
+
+    assert step(PhysicalLink.OK, sample_seen) == "none"
+    assert step(PhysicalLink.STALE, sample_seen) == "none"  # failing safe: the reading shows them
+    assert step(PhysicalLink.OK, sample_free) != "none"  # back, reporting free: a blind spot at once

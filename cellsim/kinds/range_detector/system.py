@@ -108,8 +108,9 @@ class RangeDetector(GeometrySensor):
             true_distance = self.true_distance(context)
             distance = self._noisy(context, true_distance)
             reading = self.classify(distance)
-        elif view.sample is None:
-            true_distance, distance, reading = None, 0.0, Range.CLOSE
+        elif view.sample is None:  # failing safe: close (and the truth kept for the next update's judgement)
+            distance, reading = 0.0, Range.CLOSE
+            true_distance = self.true_distance(context) if self.query_port.HasValue(context) else None
         else:
             reading, distance = Range.from_code(view.sample[0]), view.sample[1]
             true_distance = self.true_distance(context) if self.query_port.HasValue(context) else None
