@@ -34,11 +34,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Sequence
 
-from cellsim.campaign import DEFAULT_SEARCH, SEARCH_METHODS
-from cellsim.config.layout import Fixture, Layout, Region
+from cellsim.campaign import DEFAULT_SEARCH, SEARCH_METHODS  # noqa: F401 - public names (cellsim.names)
+from cellsim.config.layout import Fixture, Layout, Region  # noqa: F401 - public names (cellsim.names)
 from cellsim.config.typed_yaml import ConfigError
-from cellsim.config.validation import Validation
-from cellsim.scenario import CampaignConfig, ConfigurationPoint, Scenario, ScenarioFile, load_scenario, scenario_in_code
+from cellsim.config.validation import Validation  # noqa: F401 - public names (cellsim.names)
+from cellsim.scenario import CampaignConfig, ConfigurationPoint, Scenario, ScenarioFile, load_scenario, scenario_in_code  # noqa: F401 - public names (cellsim.names)
 
 if TYPE_CHECKING:
     from cellsim.blackbox import BlackBox, Series
@@ -452,6 +452,8 @@ class CampaignCheck:
     """Per condition and for any condition: violating runs, rate and exact upper bound, with the sampling
     distribution they hold under; None for a search's runs (:attr:`not_a_sample` says why)."""
     not_a_sample: str | None = None
+    waived: dict = None
+    """The default conditions the runs' scenario waives, with its reasons (none judged them)."""
 
     @property
     def uncheckable(self) -> list[dict]:
@@ -474,7 +476,7 @@ def check_campaign(folder: str | os.PathLike, scenario: ScenarioFile | None = No
     folders = sorted(p for p in (folder / RUNS).glob("*") if p.is_dir())
     if not folders:
         raise CheckError(f"{folder}: a campaign folder with no runs yet")
-    runs, conditions = [], {}
+    runs, conditions, waived = [], {}, {}
     for done, path in enumerate(folders, start=1):
         if not (path / RESULT).is_file():  # stopped before it ended (Ctrl-C): the campaign runs it again
             runs.append({"run": path.name, "status": "unfinished"})
@@ -488,17 +490,19 @@ def check_campaign(folder: str | os.PathLike, scenario: ScenarioFile | None = No
                 progress(done, len(folders))
             continue
         try:
-            result = check(path, scenario).result
+            judged = check(path, scenario)
         except (CheckError, ConfigError) as e:  # a run that was damaged (its scenario too)
             runs.append({"run": path.name, "status": "failed", "error": str(e)})
         else:
+            result = judged.result
+            waived.update(judged.case.validation.waive)
             conditions.update(dict.fromkeys(result.verdicts))
             runs.append({"run": path.name, "status": "completed", "violations": result.violations,
                          "undecided": result.undecided})
         if progress is not None:
             progress(done, len(folders))
     if read_search(folder) is not None or any(_chosen_by_search(path) for path in folders):
-        return CampaignCheck(folder, runs, list(conditions), None, NOT_A_SAMPLE)  # a search chose them: no bound
+        return CampaignCheck(folder, runs, list(conditions), None, NOT_A_SAMPLE, waived)  # a search chose them: no bound
     try:
         stored = json.loads((folder / RESULTS).read_text())["bounds"]
         sampling = stored.get("drawn_from", stored["sampling"])  # (before the failed runs' clause: said again)
@@ -507,8 +511,9 @@ def check_campaign(folder: str | os.PathLike, scenario: ScenarioFile | None = No
     except (OSError, ValueError, KeyError, TypeError):  # a bound is nothing without the distribution it holds under
         return CampaignCheck(folder, runs, list(conditions), None,
                              f"{folder / RESULTS} is missing or records no sampling distribution: what the runs were "
-                             "drawn from is not known, so no violation rate or bound follows from them")
-    return CampaignCheck(folder, runs, list(conditions), campaign_bounds(runs, list(conditions), sampling))
+                             "drawn from is not known, so no violation rate or bound follows from them", waived)
+    return CampaignCheck(folder, runs, list(conditions), campaign_bounds(runs, list(conditions), sampling),
+                         waived=waived)
 
 
 def _recorded_failure(result_file: Path) -> str | None:

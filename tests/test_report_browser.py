@@ -476,7 +476,8 @@ def test_the_harm_section_shows_contacts_severities_and_blind_spots(browser, ten
     rows = section.locator("#harm-severity tbody tr")
     counts = {rows.nth(i).locator("th").inner_text(): int(rows.nth(i).locator("td").first.inner_text())
               for i in range(rows.count())}
-    assert sum(counts.values()) == 4 and counts["no contact"] == sum(r["worst_severity"] == 0 for r in results["runs"])
+    untouched = sum(not any(f["what"] == "contact" for f in r["findings"]) for r in results["runs"])
+    assert sum(counts.values()) == 4 and counts["no contact"] == untouched
     blind = section.locator("#blind-spots tbody tr")
     shown = {(blind.nth(i).locator("td").nth(0).inner_text(), blind.nth(i).locator("td").nth(1).inner_text())
              for i in range(blind.count())}
@@ -485,6 +486,72 @@ def test_the_harm_section_shows_contacts_severities_and_blind_spots(browser, ten
     conditions = page.locator("#conditions").inner_text()
     assert "TrueSSM" in conditions and "NoHarm" in conditions and "NoClamping" in conditions
     opened.close(screenshot=out / "harm.png")
+
+
+@pytest.fixture(scope="module")
+def touching(tmp_path_factory):
+    """Three runs of the machine-tending cell with the person's reach put into the arm's pick point (the arm touches
+    their hand, then their forearm), NoClamping waived with a reason."""
+    folder = tmp_path_factory.mktemp("touching")
+    scenario = folder / "touching.yaml"
+    scenario.write_text(f"base: {ROOT / 'scenarios' / 'machine_tending.yaml'}\n"
+                        "validation:\n  waive:\n    NoClamping: REASON the bench is padded\n")
+    out = folder / "campaign"
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "cellsim", "campaign", str(scenario), "--runs", "3", "--jobs", "2",
+                           "--duration", "8", "--out", str(out), "--set",
+                           "operator.waypoints.bench_south.reach=[-0.75,-0.25,1.05]"],
+                          capture_output=True, text=True, timeout=600)
+    checked = subprocess.run([sys.executable, "-m", "cellsim", "check", str(out)], capture_output=True, text=True,
+                             timeout=600)
+    return out, done, checked, json.loads((out / "results.json").read_text())
+
+
+def test_each_contact_and_each_runs_closest_approach_are_shown_and_harm_is_red(browser, touching):
+    """An audit found a contact moving from the hand to the forearm folded into one (the forearm in no table), a run
+    whose only contact was at severity 0 counted under "no contact", no run's own contacts or closest approach in
+    the report, harm drawn in the green of 'holds', and a waived condition's reason missing from the campaign's and
+    its check's output."""
+    out, done, checked, results = touching
+    runs = results["runs"]
+    contacts = [(r["index"], f) for r in runs for f in r["findings"] if f["what"] == "contact"]
+    assert {f["region"] for _, f in contacts} >= {"hand", "forearm"}, contacts
+    # each contact is one region, one person, one part: consecutive ones differ in one of them
+    for run in runs:
+        mine = [f for f in run["findings"] if f["what"] == "contact"]
+        for a, b in zip(mine, mine[1:]):
+            assert a["end"] is not None and a["end"] <= b["start"]
+            if a["end"] == b["start"]:
+                assert (a["region"], a["person"], a["part"]) != (b["region"], b["person"], b["part"])
+    opened = Opened(browser, out / "report.html", "#harm")
+    page = opened.page
+    regions = page.locator("#harm-regions tbody tr")
+    shown = {regions.nth(i).locator("td").first.inner_text() for i in range(regions.count())}
+    assert shown == {f["region"].replace("_", " ") for _, f in contacts}
+    rows = page.locator("#harm-severity tbody tr")
+    counts = {rows.nth(i).locator("th").inner_text(): int(rows.nth(i).locator("td").first.inner_text())
+              for i in range(rows.count())}
+    assert counts["no contact"] == sum(not any(f["what"] == "contact" for f in r["findings"]) for r in runs)
+    harm_bar = page.locator("#harm-severity tr:has(th:text('1 to 2 (harm)')) .bar span")
+    within_bar = page.locator("#harm-severity tr:has(th:text('up to 0.5')) .bar span")
+    assert harm_bar.evaluate("e => getComputedStyle(e).backgroundColor") == "rgb(229, 57, 53)"
+    assert within_bar.evaluate("e => getComputedStyle(e).backgroundColor") == "rgb(67, 160, 71)"
+    # each run's own closest approach and contacts, in the runs table
+    header = page.locator("#runs-table thead th")
+    column = [header.nth(i).inner_text().strip() for i in range(header.count())].index("Harm")
+    for run in runs:
+        cell = page.locator(f"#runs-table tr[data-run='{run['index']}'] td").nth(column).inner_text()
+        mine = [f for f in run["findings"] if f["what"] == "contact"]
+        if mine:
+            worst = max(f["severity"] for f in mine)
+            assert f"{len(mine)} contact" in cell and f"worst severity {worst:.3g}" in cell, cell
+        assert "closest" in cell or "touched" in cell, cell
+    assert "NoClamping (REASON the bench is padded)" in page.locator("#waived").inner_text()
+    opened.close(screenshot=out / "harm.png")
+    assert "waived" in done.stdout and "NoClamping: REASON the bench is padded" in done.stdout, done.stdout
+    assert "waived: NoClamping (REASON the bench is padded)" in checked.stdout, checked.stdout
 
 
 def test_a_measurement_outrun_between_looks_is_named_per_run_in_the_harm_section(browser, tmp_path):

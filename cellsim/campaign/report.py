@@ -510,9 +510,10 @@ def _condition_rows(results: Mapping, runs: Sequence[Mapping]) -> list[dict]:
     return rows
 
 
-SEVERITY_BINS = ((0.0, 0.0, "no contact"), (0.0, 0.5, "up to 0.5"), (0.5, 1.0, "0.5 to 1 (within the limit)"),
+SEVERITY_BINS = ((None, None, "no contact"), (-math.inf, 0.5, "up to 0.5"), (0.5, 1.0, "0.5 to 1 (within the limit)"),
                  (1.0, 2.0, "1 to 2 (harm)"), (2.0, math.inf, "2 and above (harm)"))
-"""The bins of the worst contact severity per run: (above, at most, label); the first is exactly 0."""
+"""The bins of the worst contact severity per run: (above, at most, label); the first, the runs with no contact at
+all (a contact at severity 0, parting or standing, is a contact: up to 0.5)."""
 
 
 def _harm(results: Mapping, runs: Sequence[Mapping]) -> dict:
@@ -551,8 +552,11 @@ def _harm(results: Mapping, runs: Sequence[Mapping]) -> dict:
             elif f.get("what") == "closest approach" and is_number(f.get("distance")):
                 if closest is None or f["distance"] < closest["distance"]:
                     closest = {**f, "run": index}
-    worst = [r.get("worst_severity") for r in completed if is_number(r.get("worst_severity"))]
-    bins = [{"label": label, "runs": sum(1 for w in worst if (w == 0.0 if hi == 0.0 else lo < w <= hi))}
+    measured = [r for r in completed if is_number(r.get("worst_severity"))]
+    worst = [r["worst_severity"] for r in measured]
+    touched_worst = [r["worst_severity"] for r in measured if _contacts(r)]
+    bins = [{"label": label, "harm": lo is not None and lo >= 1.0,
+             "runs": (len(measured) - len(touched_worst)) if lo is None else sum(1 for w in touched_worst if lo < w <= hi)}
             for lo, hi, label in SEVERITY_BINS]
     for b in bins:
         b["width"] = _bar_width(b["runs"] / len(worst)) if worst else "0%"
@@ -747,6 +751,32 @@ def _configurations(results: Mapping, runs: Sequence[Mapping]) -> dict:
     return {"sampled": keys, "histograms": [p for p in plots if p]}
 
 
+def _contacts(run: Mapping) -> list[dict]:
+    """A run's contacts with anybody (its ``contact`` findings)."""
+    return [_dict(f) for f in _list(run.get("findings")) if _dict(f).get("what") == "contact"]
+
+
+def _harm_cell(run: Mapping) -> dict:
+    """What the runs table says of a run's harm: its closest approach (distance, region, time) and its contacts (how
+    many, the worst's severity and region); ``worst``: that severity, for sorting (-1: no contact)."""
+    found = [_dict(f) for f in _list(run.get("findings"))]
+    closest = next((f for f in found if f.get("what") == "closest approach" and is_number(f.get("distance"))), None)
+    contacts = _contacts(run)
+    parts = []
+    if closest is not None:
+        where = str(closest.get("region") or "").replace("_", " ")
+        when = f" at {sig3(closest['start'])} s" if is_number(closest.get("start")) else ""
+        near = f", {where}" if where and where != "none" else ""
+        parts.append(f"touched{near}{when}, {sig3(-closest['distance'])} m deep" if closest["distance"] <= 0
+                     else f"closest {sig3(closest['distance'])} m{near}{when}")
+    worst = max((c for c in contacts if is_number(c.get("severity"))), key=lambda c: c["severity"], default=None)
+    if worst is not None:
+        parts.append(f"{len(contacts)} contact{'s' if len(contacts) != 1 else ''}, worst severity {sig3(worst['severity'])}"
+                     f" ({str(worst.get('region', '')).replace('_', ' ')}, {sig3(worst.get('speed'))} m/s)")
+    return {"text": "; ".join(parts), "worst": worst["severity"] if worst is not None else -1.0,
+            "harm": worst is not None and worst["severity"] > 1.0}
+
+
 def _runs_table(results: Mapping, runs: Sequence[Mapping]) -> dict:
     """The runs table: its configuration columns and one row per run, ready to print."""
     keys = _config_keys(runs)
@@ -768,6 +798,7 @@ def _runs_table(results: Mapping, runs: Sequence[Mapping]) -> dict:
             "config": [sig3(config[k]) if k in config else "" for k in keys],
             "use_cases": ", ".join(_fmt(u) for u in _list(run.get("use_cases"))),
             "violated": ", ".join(_violated(run)),
+            "harm": _harm_cell(run),
             "wall": run.get("wall_time", ""),
             "wall_text": _seconds(run.get("wall_time")),
             "folder": out.rstrip("/") if isinstance(out, str) and out else None,

@@ -112,6 +112,7 @@ def _campaign_progress(console, quiet: bool, total: int) -> RunsBar:
 
 def print_campaign(outcome) -> None:
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     totals, timing = outcome.results["totals"], outcome.timing
@@ -136,6 +137,9 @@ def print_campaign(outcome) -> None:
         )
     for what, runs in totals.get("finding_runs", {}).items():  # what the verdicts do not say (cellsim.campaign.report)
         table.add_row(f"runs {what}", f"[red]{_run_list(runs)}[/red] (the report's harm section)")
+    waived = outcome.results["campaign"].get("waived") or {}
+    if waived:  # default conditions no run was judged by: said with the scenario's reasons
+        table.add_row("waived", "\n".join(f"{escape(name)}: {escape(reason)}" for name, reason in waived.items()))
     bounds = outcome.results.get("bounds")
     target = outcome.results["campaign"].get("until_bound")
     if bounds and target is not None:

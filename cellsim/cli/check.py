@@ -127,12 +127,14 @@ def check_campaign(args) -> int:
         if bar is not None:
             bar.stop()
     if found.bounds is None:  # a search chose these runs, or what they were drawn from is unknown: no bound
-        return _report_search_runs(args, found.runs, found.conditions, found.not_a_sample)
+        return _report_search_runs(args, found.runs, found.conditions, found.not_a_sample, found.waived or {})
     if args.json:
-        json.dump({"campaign": str(args.run), "bounds": found.bounds, "runs": found.runs}, sys.stdout, indent=2)
+        json.dump({"campaign": str(args.run), "bounds": found.bounds, "runs": found.runs, "waived": found.waived or {}},
+                  sys.stdout, indent=2)
         sys.stdout.write("\n")
     else:
         print_bounds(args.run, found.bounds, found.runs)
+        _say_waived(found.waived or {})
     if _uncheckable(args.run, found.runs):
         return EXIT_INPUT
     return EXIT_FINDING if found.bounds["overall"]["failures"] else EXIT_OK
@@ -148,7 +150,16 @@ def _uncheckable(folder: Path, runs: list[dict]) -> bool:
     return bool(failed)
 
 
-def _report_search_runs(args, runs: list[dict], conditions: list[str], reason: str) -> int:
+def _say_waived(waived: dict) -> None:
+    """Each default condition the runs' scenario waives, and its reason: no figure above judged it."""
+    from rich.console import Console
+    from rich.markup import escape
+
+    for name, reason in waived.items():
+        Console().print(f"waived: {escape(name)} ({escape(reason)})", highlight=False)
+
+
+def _report_search_runs(args, runs: list[dict], conditions: list[str], reason: str, waived: dict) -> int:
     """Runs re-checked that bound nothing (a falsification search's, or a campaign's whose sampling distribution is
     not recorded): which violate what, and no bound (``reason``)."""
     import json
@@ -161,7 +172,8 @@ def _report_search_runs(args, runs: list[dict], conditions: list[str], reason: s
     violating = {c: [r["run"] for r in checked if c in r["violations"]] for c in conditions}
     undecided = {c: [r["run"] for r in checked if c in r["undecided"]] for c in conditions}
     if args.json:
-        json.dump({"campaign": str(args.run), "bounds": {"excluded": reason}, "runs": runs}, sys.stdout, indent=2)
+        json.dump({"campaign": str(args.run), "bounds": {"excluded": reason}, "runs": runs, "waived": waived}, sys.stdout,
+                  indent=2)
         sys.stdout.write("\n")
     else:
         table = Table(title=f"Safety conditions over the runs in {args.run}", title_justify="left")
@@ -179,6 +191,7 @@ def _report_search_runs(args, runs: list[dict], conditions: list[str], reason: s
         console.print(table)
         console.print(f"No violation rate or bound: {escape(reason)}.", highlight=False)
         _say_unfinished(console, runs)
+        _say_waived(waived)
     if _uncheckable(args.run, runs):
         return EXIT_INPUT
     return EXIT_FINDING if any(r["violations"] or r["undecided"] for r in checked) else EXIT_OK

@@ -22,16 +22,18 @@ def harm_findings(name: str, bb, max_part_speed: float | None = None) -> list[Fi
     others = {key: _series(bb, f"{name}.{key}") for key in ("severity", "contact_person", "contact_part", "contact_kind",
                                                             "contact_speed", "nearest_region")}
     found = []
-    start = None
-    for i, (t, value) in enumerate(zip(region.times.tolist(), region.values)):
-        if value != NONE and start is None:
-            start = t
-        if value == NONE and start is not None:
+    touching = [region] + [others[key] for key in ("contact_person", "contact_part") if others[key] is not None]
+    start, held = None, None  # the contact under way: when it began, and its (region, person, part)
+    for t in sorted({float(t) for series in touching for t in series.times.tolist()}):
+        now = tuple(series.value_at(t) for series in touching)
+        if now == held:
+            continue
+        if start is not None:  # another region, person or part is another contact (a hand, then its forearm)
             found.append(_contact(name, others, region, start, t))
-            start = None
+        start, held = (t, now) if now[0] != NONE else (None, None)
     if start is not None:
         found.append(_contact(name, others, region, start, None))
-    approach = _closest(name, bb, others)
+    approach = _closest(name, bb, others, [f for f in found if f.what == "contact"])
     fast = _too_fast(name, bb, max_part_speed)
     return ([approach] if approach is not None else []) + found + ([fast] if fast is not None else [])
 
@@ -78,7 +80,10 @@ def _contact(name, others, region, start, end) -> Finding:
     return Finding(name, "contact", start, end, text, data)
 
 
-def _closest(name, bb, others) -> Finding | None:
+def _closest(name, bb, others, contacts: list[Finding] = ()) -> Finding | None:
+    """The least separation of any robot from anybody, where and when; a touch (0 or less) with the speed and
+    severity of the contact it belongs to at that contact's worst (at the deepest overlap itself the region may be
+    parting: severity 0)."""
     best = None
     for channel in bb.channels():
         if not channel.startswith(f"{name}.separation_"):
@@ -96,9 +101,16 @@ def _closest(name, bb, others) -> Finding | None:
     if region in (None, NONE):
         return Finding(name, "closest approach", t, None, f"no robot came within {distance:.3g} m of anybody",
                        {"distance": distance, "robot": robot})
-    severity = others["severity"].value_at(t) or 0.0
+    data = {"distance": distance, "robot": robot, "region": region, "severity": 0.0}
     text = f"{robot} came within {distance:.3g} m of a person's {region.replace('_', ' ')} at {t:.3f} s"
-    if distance <= 0:
-        text = f"{robot} touched a person's {region.replace('_', ' ')} at {t:.3f} s (severity {severity:.3g})"
-    return Finding(name, "closest approach", t, None, text,
-                   {"distance": distance, "robot": robot, "region": region, "severity": float(severity)})
+    during = next((c for c in contacts if c.start <= t and (c.end is None or t < c.end)), None) if distance <= 0 else None
+    if during is not None:
+        worst = during.data
+        data.update(severity=worst["severity"], speed=worst["speed"], person=worst["person"], region=worst["region"],
+                    worst_at=worst["worst_at"])
+        text = (f"{robot} touched {worst['person']}'s {worst['region'].replace('_', ' ')} at {t:.3f} s, "
+                f"{-distance:.3g} m deep: at its worst ({worst['worst_at']:.3f} s) {worst['speed']:.3g} m/s, "
+                f"severity {worst['severity']:.3g}")
+    elif distance <= 0:
+        text = f"{robot} touched a person's {region.replace('_', ' ')} at {t:.3f} s"
+    return Finding(name, "closest approach", t, None, text, data)
