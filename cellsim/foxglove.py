@@ -78,7 +78,9 @@ def _message(kind: str, value):
                          for p in value.get(name, [])] for name, make in primitives.items()}
         return m.SceneEntity(timestamp=_message("time", value["timestamp"]), frame_id=value["frame_id"], id=value["id"],
                              lifetime=m.Duration(value["lifetime"]["sec"], value["lifetime"]["nsec"]),
-                             frame_locked=value["frame_locked"], **shapes)
+                             frame_locked=value["frame_locked"],
+                             metadata=[m.KeyValuePair(key=p["key"], value=p["value"]) for p in value.get("metadata", [])],
+                             **shapes)
     if kind == "time":
         return m.Timestamp(value["sec"], value["nsec"])
     if kind == "pose":
@@ -206,7 +208,9 @@ def export_mcap(run: str | os.PathLike, destination: str | os.PathLike) -> Expor
 
 
 def scene_shapes(scene_graph) -> list[tuple]:
-    """(GeometryId, primitive kind, its fields) of every geometry Foxglove can draw."""
+    """(GeometryId, primitive kind, its fields) of every geometry Foxglove can draw; the fields carry the geometry's
+    SceneGraph name (``operator/hand_right/15``, ``fixture/bench``) as the entity's metadata, so that Foxglove's
+    entity list tells a hand from a forearm."""
     inspector = scene_graph.model_inspector()
     shapes = []
     for g in inspector.GetAllGeometryIds():
@@ -214,7 +218,8 @@ def scene_shapes(scene_graph) -> list[tuple]:
             continue  # perception-only geometry
         primitive = _primitive(inspector, g)
         if primitive is not None:
-            shapes.append((g, *primitive))
+            kind, fields = primitive
+            shapes.append((g, kind, {**fields, "metadata": [{"key": "name", "value": inspector.GetName(g)}]}))
     return shapes
 
 
@@ -327,8 +332,10 @@ def _primitive(inspector, g):
 
 
 def _entity(t: float, g, kind: str, fields: dict, X) -> dict:
+    shape = {key: value for key, value in fields.items() if key != "metadata"}
     return {"timestamp": _stamp(t), "frame_id": "world", "id": f"geometry/{g.get_value()}",
-            "lifetime": {"sec": 0, "nsec": 0}, "frame_locked": False, kind: [{"pose": _pose(X), **fields}]}
+            "lifetime": {"sec": 0, "nsec": 0}, "frame_locked": False, "metadata": fields.get("metadata", []),
+            kind: [{"pose": _pose(X), **shape}]}
 
 
 # -- live: the same on Foxglove's WebSocket ---------------------------------------------

@@ -115,6 +115,9 @@ def test_the_arms_links_are_frame_transforms_and_the_cell_a_scene_update(exporte
     xy = [json.loads(p)["value"] for (p,) in db.execute("SELECT payload FROM messages WHERE channel = 'operator.position'")]
     ids = {e["id"] for e in scene[0]["entities"]}
     assert all({e["id"] for e in later["entities"]} == ids for later in scene)
+    # each entity says which geometry it is (an audit found Foxglove's entity list naming none of the body regions)
+    names = {m["value"] for e in scene[0]["entities"] for m in e.get("metadata", []) if m["key"] == "name"}
+    assert {"operator/hand_right", "operator/forearm_left", "fixture/bench"} <= {n.rsplit("/", 1)[0] for n in names} | names
     positions = [[c["pose"]["position"][k] for k in "xy"] for e in scene[-1]["entities"]
                  for c in e.get("cylinders", []) + e.get("spheres", [])]
     assert any(p == pytest.approx(xy[-1], abs=0.35) for p in positions)
