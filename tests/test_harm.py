@@ -429,3 +429,33 @@ def test_a_face_pushed_while_the_back_of_the_head_rests_on_a_shelf_is_pinned():
     person = harm.bodies[face].person
     assert harm._pinned(query, person, "face", front, part_id, part, np.array([0.0, -1.0, 0.0]))  # pushed back
     assert not harm._pinned(query, person, "face", front, part_id, part, np.array([1.0, 0.0, 0.0]))  # sideways
+
+
+def test_a_hand_is_pinned_only_by_what_rests_against_that_hand_not_the_other():
+    """An audit found a limb's blockers looked for by region name: the left hand resting against a post pinned a
+    push on the right hand. A limb is pinned only by what rests against that very limb."""
+    from cellsim.config.layout import Fixture
+
+    sf = load_scenario(CELL)
+    sf.scenario.layout.fixtures["post"] = Fixture(size=(0.1, 0.3, 1.2), center=(-0.2, -1.0, 0.6))
+    built = build_cell(sf, seed=0, duration=1.0, record=False)
+    simulator = Simulator(built.diagram)
+    built.set_initial_state(simulator.get_mutable_context())
+    context = simulator.get_mutable_context()
+    harm = built.modules["harm"]
+    post = next(g for g, name in harm.fixtures.items() if name == "post")
+    for x in np.arange(0.2, 0.0, -0.002):  # facing +y, the left side towards the post (-x): step towards it
+        stand(built, context, x, -1.0, math.pi / 2)
+        left, query = region_geometry(built, context, "hand", "left")
+        if 0.0 < query.ComputeSignedDistancePairClosestPoints(left, post).distance <= harm.cfg.clamp_gap:
+            break
+    else:
+        raise AssertionError("the left hand never rests by the post")
+    right, query = region_geometry(built, context, "hand", "right")
+    assert query.ComputeSignedDistancePairClosestPoints(right, post).distance > 0.3
+    p_W = query.GetPoseInWorld(right).translation()
+    part_id, part = next(iter(harm.parts.items()))
+    person = harm.bodies[right].person
+    towards_post = np.array([-1.0, 0.0, 0.0])
+    assert not harm._pinned(query, person, "hand", p_W, part_id, part, towards_post, right)
+    assert harm._pinned(query, person, "hand", query.GetPoseInWorld(left).translation(), part_id, part, towards_post, left)

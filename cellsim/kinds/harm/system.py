@@ -359,7 +359,8 @@ class HarmMonitor(CellSystem):
             p_W = witness_on(query, pair, region)
             push = pair.nhat_BA_W if on_a else -pair.nhat_BA_W  # from the arm (B, or A) into the region
             speed = float((motion.of_part(part, p_W) - motion.of_region(body, p_W)) @ push)
-            pinned = self._pinned(query, body.person, body.region, p_W, pair.id_B if on_a else pair.id_A, part, push)
+            pinned = self._pinned(query, body.person, body.region, p_W, pair.id_B if on_a else pair.id_A, part, push,
+                                  region)
             kind = QUASI_STATIC if pinned else TRANSIENT
             level = severity(self.limits.regions[body.region], part.mass, kind, speed)
             if kind == QUASI_STATIC:
@@ -372,16 +373,20 @@ class HarmMonitor(CellSystem):
             self.kind_type(kind).code, speed, self.region_type(nearest).code, *(separation[r] for r in self.robots),
         ]
 
-    def _pinned(self, query, person: int, region: str, p_W, touching, part: Part, push) -> bool:
+    def _pinned(self, query, person: int, region: str, p_W, touching, part: Part, push, touched=None) -> bool:
         """Whether the person's ``region`` touched at ``p_W`` is pinned: something they cannot pass (a fixture, an
         arm's shape that does not move with the pushing one, the floor) lies within clamp_gap of that region, or, for
         a region of a block that moves as one (:data:`cellsim.body.BLOCKS`: the trunk, the skull), of any of the
         block's (a chest pushed against a wall touches it with the back; a face, with the back of the head), behind the
         contact along the push, within clamp_angle_deg of it as seen from the contact. A head, a neck or a limb
         resting on nothing is not pinned by what the back rests on: it turns or bends away. Asked only of a region
-        being touched: it costs nothing otherwise."""
-        resting = next((block for block in BLOCKS if region in block), (region,))
-        regions = [g for g, b in self.bodies.items() if b.person == person and b.region in resting]
+        being touched: it costs nothing otherwise. ``touched``: the region's geometry the robot touches; a limb is
+        pinned only by what rests against that very limb (not the other hand: default, every shape of the region)."""
+        block = next((block for block in BLOCKS if region in block), None)
+        if block is None and touched is not None:
+            regions = [touched]
+        else:
+            regions = [g for g, b in self.bodies.items() if b.person == person and b.region in (block or (region,))]
         for other in self.clamps:
             if other == touching:
                 continue
