@@ -76,7 +76,7 @@ def _ending(checked, replay, replayed: bool, symbolic: bool, refinements) -> Fin
         return Final(name, Ending.UNDECIDED, f"{slower}, and the abstraction reaches a state from which it can never "
                      "come: no witness of that is built or run on the twin yet")
     tried = f"; refinement: {', '.join(refinements)}" if refinements else ""
-    if checked.prop.condition is None and checked.prop.hazard is None:
+    if getattr(checked.prop, "pctl", ""):  # the user's own PCTL (a condition's or a hazard's property has none)
         return Final(name, Ending.UNDECIDED, "a PCTL property of your own is judged in the model only: no witness of it "
                      "is run on the twin, so its violation is the model's, not confirmed (a condition of the validation "
                      "file, G(...), gets its witness run on the twin)")
