@@ -32,7 +32,6 @@ class GeometrySensor(EntitySystem):
         self.query_port = self.DeclareAbstractInputPort("geometry_query", AbstractValue.Make(QueryObject()))
         self.targets: tuple = ()
         self.target_set: frozenset = frozenset()
-        self._nearest: dict = {}  # the sensor's geometry -> the nearest-pair finder to the targets (:meth:`nearest`)
         self._truth_before = self.declare_state("truth_before", [0.0])  # the truth at the last update (its code)
         self._reading_before = self.declare_state("reading_before", [0.0])  # the reading then (its code)
 
@@ -72,18 +71,6 @@ class GeometrySensor(EntitySystem):
         """The geometries this sensor detects (people)."""
         self.targets = tuple(geometry_ids)
         self.target_set = frozenset(self.targets)
-        self._nearest = {}
-
-    def nearest(self, query, geometry, within: float):
-        """The targets' pair (SignedDistancePair) nearest the sensor's ``geometry`` if within ``within`` (m), else None:
-        by bounding spheres first, then SceneGraph's exact distance of the few pairs they leave
-        (:class:`cellsim.proximity.NearestPair`), not every target's pair."""
-        from cellsim.proximity import NearestPair
-
-        finder = self._nearest.get(geometry)
-        if finder is None:
-            finder = self._nearest[geometry] = NearestPair(query.inspector(), [geometry], list(self.targets))
-        return finder(query, within)
 
 
 def add_sensor(cell, name: str, sensor: GeometrySensor) -> GeometrySensor:

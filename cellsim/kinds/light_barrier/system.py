@@ -84,8 +84,12 @@ class LightBarrier(GeometrySensor):
         return [self.beam_id]
 
     def measure(self, context) -> bool:
-        """Whether a person's body meets the beams (a pair of the beams and a body region at distance 0 or less)."""
-        return self.nearest(self.query_port.Eval(context), self.beam_id, 0.0) is not None
+        """Whether a person's body meets the beams: one broadphase query of the pairs overlapping now."""
+        query = self.query_port.Eval(context)
+        beam, targets = self.beam_id, self.target_set
+        return any(pair.distance <= 0.0 and ((pair.id_A == beam and pair.id_B in targets)
+                                             or (pair.id_B == beam and pair.id_A in targets))
+                   for pair in query.ComputeSignedDistancePairwiseClosestPoints(0.0))
 
     def update(self, context, xd):
         view = self.consult_physical(context, xd)

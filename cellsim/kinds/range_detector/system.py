@@ -86,8 +86,13 @@ class RangeDetector(GeometrySensor):
     def true_distance(self, context) -> float:
         """The distance (m) from the sensor's point to the nearest target, up to ``reach``, with no noise. The
         distance from the point is the distance from the sensor head (a sphere around it) plus its radius."""
-        found = self.nearest(self.query_port.Eval(context), self.head_id, self.reach - HEAD_RADIUS)
-        return self.reach if found is None else found.distance + HEAD_RADIUS
+        query = self.query_port.Eval(context)
+        nearest = self.reach
+        for target in self.targets:
+            distance = query.ComputeSignedDistancePairClosestPoints(self.head_id, target).distance + HEAD_RADIUS
+            if distance < nearest:
+                nearest = distance
+        return nearest
 
     def sample_is_valid(self, sample) -> bool:
         """A range code, and a distance it is the class of, within ``SAMPLE_ROUNDING`` (a sample whose two fields
