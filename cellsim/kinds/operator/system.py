@@ -18,7 +18,6 @@ time; a waypoint inside a fixture, or one that cannot be reached, is a load erro
 from __future__ import annotations
 
 import bisect
-import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -208,11 +207,7 @@ class Turns:
 
 def pose_at(legs: list[Leg], start_yaw: float, t: float, turns: Turns | None = None) -> OperatorPose:
     """Where the operator is at time ``t``; turned as ``turns`` says (None: at once, each aim as it is taken)."""
-    pose = _placed_at(legs, start_yaw, t)
-    return pose if turns is None else dataclasses.replace(pose, yaw=turns.yaw_at(t))
-
-
-def _placed_at(legs: list[Leg], start_yaw: float, t: float) -> OperatorPose:
+    turned = None if turns is None else turns.yaw_at(t)
     yaw, xy = start_yaw, legs[0].start if legs else np.zeros(2)
     waypoint = -1
     for leg in legs:
@@ -223,12 +218,13 @@ def _placed_at(legs: list[Leg], start_yaw: float, t: float) -> OperatorPose:
         waypoint = leg.index
         if t < leg.arrive:
             xy, heading = leg.point_at((t - leg.depart) / (leg.arrive - leg.depart))
-            return OperatorPose(xy, yaw if heading is None else heading, 0.0, _NO_REACH, waypoint)
+            yaw = yaw if heading is None else heading
+            return OperatorPose(xy, yaw if turned is None else turned, 0.0, _NO_REACH, waypoint)
         xy = leg.end
         if leg.reach is not None and t < leg.leave:
             fraction = min((t - leg.arrive) / REACH_TIME, (leg.leave - t) / REACH_TIME, 1.0)
-            return OperatorPose(xy, leg.facing, max(fraction, 0.0), leg.reach, waypoint)
-    return OperatorPose(np.asarray(xy, float), yaw, 0.0, _NO_REACH, waypoint)
+            return OperatorPose(xy, leg.facing if turned is None else turned, max(fraction, 0.0), leg.reach, waypoint)
+    return OperatorPose(np.asarray(xy, float), yaw if turned is None else turned, 0.0, _NO_REACH, waypoint)
 
 
 _NO_REACH = np.zeros(3)
