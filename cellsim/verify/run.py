@@ -550,7 +550,9 @@ def _stopped(stopped: ProcessStopped, memory: int) -> str:
 
 FAIRNESS = ("a liveness condition whose response may take longer than its window is judged under fairness: "
             "whatever the abstraction lets the people, the robots' pace and the processes do again and again, they "
-            "eventually do (a person free to leave does leave, a dwell that can end ends)")
+            "eventually do (a person free to leave does leave, a dwell that can end ends), and the cell can do it too "
+            "(the way to the response is found in the abstraction, which allows more than the cell; no witness of it "
+            "is run on the twin)")
 
 
 def export_paths(path: Path, sf=None) -> tuple[Path, Path]:
