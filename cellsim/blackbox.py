@@ -56,7 +56,11 @@ class BlackBoxWriter:
             raise FileExistsError(f"{self.path} already exists")
         self._rows: list[tuple] = []
         self._db = sqlite3.connect(self.path)
-        self._db.executescript("PRAGMA journal_mode=WAL; PRAGMA synchronous=NORMAL;" + SCHEMA)
+        try:
+            self._db.executescript("PRAGMA journal_mode=WAL; PRAGMA synchronous=NORMAL;" + SCHEMA)
+        except BaseException:  # (Ctrl-C as it opens, too): no connection is left open behind a writer never made
+            self._db.close()
+            raise
         self.rows_written = 0
 
     def set_metadata(self, **values) -> None:

@@ -316,7 +316,10 @@ def _record(cell, simulator, out_dir: Path, seed: int, duration: float, on_progr
     finally:
         wall = time.perf_counter() - started
         sim_time = context.get_time()
-        if writer is not None:  # (None: stopped before the black box was opened, nothing to close)
+        if writer is None:  # stopped as the black box was being opened: it holds nothing, and goes
+            for leftover in (out_dir / BLACKBOX, *(out_dir / f"{BLACKBOX}{end}" for end in ("-wal", "-shm", "-journal"))):
+                leftover.unlink(missing_ok=True)
+        else:
             if cell.recorder is not None:
                 cell.recorder.drain(context, final=True)  # and what was logged before an interruption
             writer.set_metadata(**cell.metadata())

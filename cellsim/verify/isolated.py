@@ -44,7 +44,7 @@ def in_own_process(work, say=None):
     say = say or (lambda text: None)
     if not hasattr(os, "fork"):
         return work(say)
-    return _collect(_start(work), say)
+    return _result(_collect(_start(work), say))
 
 
 def side_by_side(works: list, at_once: int | None = None) -> list:
@@ -53,18 +53,17 @@ def side_by_side(works: list, at_once: int | None = None) -> list:
     if not hasattr(os, "fork") or len(works) < 2:
         return [work(lambda text: None) for work in works]
     at_once = at_once or cores()
-    results = []
+    outcomes = []
     for first in range(0, len(works), at_once):
         started = [_start(work) for work in works[first:first + at_once]]
         for i, child in enumerate(started):
             try:
-                results.append(_collect(child, None))
-            except BaseException:
-                for pid, readable in started[i + 1:]:  # the batch's others go too: nothing is left running
+                outcomes.append(_collect(child, None, others=[pid for pid, _ in started[i + 1:]]))
+            except BaseException:  # interrupted: _collect has stopped this batch's others too
+                for _, readable in started[i + 1:]:
                     os.close(readable)
-                    _stop(pid)
                 raise
-    return results
+    return [_result(outcome) for outcome in outcomes]
 
 
 def cores() -> int:
@@ -78,7 +77,10 @@ def _start(work) -> tuple[int, int]:
     pid = os.fork()
     if pid == 0:  # the child: report, then leave without running the parent's exit handlers
         os.close(readable)
-        signal.signal(signal.SIGTERM, _interrupt)  # stopped (:func:`_stop`): a simulation closes its record
+        # stopped (:func:`_stop`), or Ctrl-C at the terminal (the whole group hears it, then the parent stops it):
+        # taken once, as Ctrl-C; a second signal must not cut short the clean-up it starts (a black box closing)
+        signal.signal(signal.SIGTERM, _interrupt_once)
+        signal.signal(signal.SIGINT, _interrupt_once)
         status = 0
         try:
             with os.fdopen(writable, "wb") as pipe:
@@ -99,13 +101,20 @@ def _start(work) -> tuple[int, int]:
         except BaseException:  # noqa: BLE001 - the pipe is gone (the parent was interrupted)
             status = 1
         finally:
-            os._exit(status)
+            import gc
+
+            try:
+                gc.collect()  # what a cut-short work left in reference cycles (a black box's connection) is closed now
+            finally:
+                os._exit(status)
     os.close(writable)
     return pid, readable
 
 
-def _collect(child: tuple[int, int], say) -> object:
-    """The child's stages (to ``say``) and its result, once it has ended."""
+def _collect(child: tuple[int, int], say, others: list[int] = ()) -> tuple[str, object]:
+    """The child's stages (to ``say``) and its outcome once it has ended and is reaped, for :func:`_result`:
+    ("result", value), ("error", exception) or ("stopped", how). Interrupted meanwhile, the child and ``others``
+    (children started beside it, not collected yet) are stopped and reaped."""
     pid, readable = child
     say = say or (lambda text: None)
     outcome = None
@@ -121,14 +130,21 @@ def _collect(child: tuple[int, int], say) -> object:
                 else:
                     outcome = (kind, value)
     except BaseException:
-        _stop(pid)  # interrupted: the child goes with us
+        _stop([pid, *others])  # interrupted: the child goes with us, and the others not collected yet, at once
         raise
     _, status = os.waitpid(pid, 0)
     if outcome is None:
-        how = (f"signal {signal.Signals(os.WTERMSIG(status)).name}" if os.WIFSIGNALED(status)
-               else f"exit status {os.WEXITSTATUS(status)}")
-        raise ProcessStopped(how)
+        return "stopped", (f"signal {signal.Signals(os.WTERMSIG(status)).name}" if os.WIFSIGNALED(status)
+                           else f"exit status {os.WEXITSTATUS(status)}")
+    return outcome
+
+
+def _result(outcome: tuple[str, object]):
+    """What a child's outcome (:func:`_collect`) gives: its value, or its error raised (ProcessStopped for a child
+    that ended without either)."""
     kind, value = outcome
+    if kind == "stopped":
+        raise ProcessStopped(value)
     if kind == "error":
         raise value
     return value
@@ -138,24 +154,44 @@ STOP_GRACE = 5.0
 """Seconds a child asked to stop has to end on its own (a twin's run closing its black box) before it is killed."""
 
 
-def _interrupt(signum, frame):
+def _interrupt_once(signum, frame):
+    """A child's first SIGTERM or SIGINT: KeyboardInterrupt, and no more of either (the clean-up it starts runs to its
+    end; the parent kills a child that takes longer than STOP_GRACE)."""
+    # (a Python handler that does nothing, not SIG_IGN: one already on its way would then raise OSError, "ignored
+    # due to race condition", in the middle of the clean-up)
+    signal.signal(signal.SIGTERM, _ignore)
+    signal.signal(signal.SIGINT, _ignore)
     raise KeyboardInterrupt
 
 
-def _stop(pid: int, grace: float = STOP_GRACE) -> None:
-    """End child ``pid`` and reap it: asked first (SIGTERM, which a child takes as Ctrl-C: a simulation records its
-    run as interrupted and closes its black box, as a run stopped at the command line does), killed if it has not
-    ended within ``grace`` seconds (Storm deep in a build hears no signal until it returns to Python)."""
-    try:
-        os.kill(pid, signal.SIGTERM)
-    except ProcessLookupError:
-        pass
-    if not _ends_within(pid, grace):
+def _ignore(signum, frame):
+    """A child's later SIGTERM or SIGINT: nothing (its first one's clean-up runs on)."""
+
+
+def _stop(pids: list[int], grace: float = STOP_GRACE) -> None:
+    """End the children ``pids`` and reap them: each asked at once (SIGTERM, which a child takes as Ctrl-C: a
+    simulation records its run as interrupted and closes its black box, as a run stopped at the command line does),
+    then waited for together until ``grace`` seconds have passed, and killed if still there (Storm deep in a build
+    hears no signal until it returns to Python). A second interrupt while waiting cuts the wait short, never the
+    killing and reaping."""
+    import time
+
+    for pid in pids:
         try:
-            os.kill(pid, signal.SIGKILL)
+            os.kill(pid, signal.SIGTERM)
         except ProcessLookupError:
             pass
-    os.waitpid(pid, 0)
+    deadline = time.monotonic() + grace
+    try:
+        for pid in pids:
+            _ends_within(pid, max(0.0, deadline - time.monotonic()))
+    finally:
+        for pid in pids:
+            try:
+                os.kill(pid, signal.SIGKILL)  # (one that has ended is a zombie until reaped: no error)
+            except ProcessLookupError:
+                pass
+            os.waitpid(pid, 0)
 
 
 def _ends_within(pid: int, seconds: float) -> bool:
