@@ -38,7 +38,6 @@ from pydrake.geometry import (
     MeshcatVisualizer,
     MeshcatVisualizerParams,
     Role,
-    SceneGraph,
 )
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig
@@ -330,6 +329,7 @@ def build_cell(
             kind.prepare(cell, name, cfg)
     plant.Finalize()
 
+    extended = extend is not None
     hooks_run = False
     on_arrival: dict[str, float] = {}  # the live twin's entities that take each sample on arrival -> how often
     for kind, section, name, cfg in sorted(modules, key=lambda m: m[0].stage):  # stable: scenario order within a stage
@@ -370,7 +370,7 @@ def build_cell(
         case _:
             raise TypeError(f"not an I/O choice: {io!r}")
     fixed_inputs += _unconnected_inputs(builder, cell.modules)
-    _refuse_dangling_inputs(sf, builder, fixed_inputs)
+    _refuse_dangling_inputs(sf, builder, fixed_inputs, cell.modules, extended)
     channels = cell.channels()
     for spec, port in channels.values():  # the same ports whichever I/O
         builder.ExportOutput(port, spec.name)
@@ -645,20 +645,24 @@ def _channels(modules: dict[str, LeafSystem]) -> dict[str, tuple[ChannelSpec, Ou
     return found
 
 
-def _refuse_dangling_inputs(sf, builder: DiagramBuilder, fixed: list[tuple]) -> None:
-    """A ConfigError naming an input no system drives and no value is given (a script's system not wired up):
-    Drake would say so only once the run's folder is written, when the input is first read. The plant's and
-    SceneGraph's inputs may be left so (they read an unconnected input as none)."""
+def _refuse_dangling_inputs(sf, builder: DiagramBuilder, fixed: list[tuple], modules: dict, extended: bool) -> None:
+    """A ConfigError naming an input of a system written in Python (a module's, a plug-in's, a script's) that no
+    system drives and no value is given: Drake would say so only once the run's folder is written, when the input
+    is first read. Drake's own systems are left alone: their documented optional inputs (the plant's, SceneGraph's,
+    a point cloud's pose) read an unconnected input as none."""
     given = {(port.get_system().get_name(), int(port.get_index())) for port, _ in fixed}  # (names are unique)
+    module_of = {system.get_name(): name for name, system in modules.items()}
     for system in builder.GetSystems():
-        if isinstance(system, (MultibodyPlant, SceneGraph)):
+        if type(system).__module__.startswith("pydrake."):
             continue
         for i in range(system.num_input_ports()):
             port = system.get_input_port(i)
             if not builder.IsConnectedOrExported(port) and (system.get_name(), i) not in given:
-                raise ConfigError(str(sf.source), None, "extend", f"input '{port.get_name()}' of system "
-                                  f"'{system.get_name()}' is connected to nothing: connect it (builder.Connect) or "
-                                  "leave the system out")
+                module = module_of.get(system.get_name())
+                key = module or ("extend" if extended else system.get_name())
+                raise ConfigError(str(sf.source), None, key, f"input '{port.get_name()}' of system "
+                                  f"'{system.get_name()}' is connected to nothing: connect it (builder.Connect; a "
+                                  "ConstantVectorSource for a fixed value) or leave the system out")
 
 
 def _unconnected_inputs(builder: DiagramBuilder, modules: dict[str, LeafSystem]) -> list[tuple]:
