@@ -662,6 +662,8 @@ def test_a_verify_formula_storm_cannot_read_is_refused_before_any_build_quoting_
     ('Pmin<=0 [ F "oloc == inCell" ]', "claims some way of the model's choices avoids it"),
     ('LRAmax=? [ "oloc == inCell" ]', "is not a probability"),
     ('P<=0 [ F<=0.5 "oloc == inCell" ]', "not a whole number of steps"),
+    # a review found a nested bound let through: the model meets P>=0.9 in fewer states than the cell may
+    ('P<=0.1 [ F (P>=0.9 [ G "oloc == inCell" ]) ]', "has an operator inside another"),
 ])
 def test_a_verify_formula_whose_answer_would_not_carry_over_to_the_cell_is_refused_before_any_build(tmp_path, formula, said):
     """The model allows more than the cell does: only an upper bound over every way its choices go (P<=p) carries

@@ -274,9 +274,12 @@ def _unsound(formula) -> str:
         if formula.has_optimality_type and formula.optimality_type != OptimizationDirection.MAXIMIZE:
             return ("claims some way of the model's choices avoids it (Pmin): holding in the model, which allows more "
                     f"than the cell does, says nothing of the cell {usage}")
-    path = formula.subformula
-    if path.is_bounded_until_formula and "/" in str(path):
-        return "has a time bound that is not a whole number of steps (one step is the model's period)"
+    path = str(formula.subformula)
+    if re.search(r"\b(P|R|LRA|T|S)(max|min)?\s*(\{[^}]*\})?\s*(<|<=|>|>=|=)", path):
+        return ("has an operator inside another: a nested probability the model meets in fewer states than the cell "
+                "does would make the outer bound prove what the cell may not show; write one bound over quoted formulas")
+    if "/" in path:
+        return "has a bound that is not a whole number of steps (one step is the model's period)"
     return ""
 
 
