@@ -231,8 +231,25 @@ def test_a_person_turns_at_their_turn_rate_so_no_hand_jumps_through_an_arm_in_on
     hands = _hand_points(built, context, times)
     jumps = [float(np.linalg.norm(b - a, axis=1).max()) for a, b in zip(hands, hands[1:])]
     assert max(jumps) < 0.1, max(jumps)
-    # and each turn ends facing its aim: where a person reaches, they face the reach point by the time the arm is out
+    # and each turn ends facing its aim: where a person reaches, they face the reach point within half a turn's time
+    # of arriving (they turn and reach at once: the arm may be out first, pointing at the reach point all the same)
     for leg in operator.legs:
         if leg.reach is not None and leg.leave - leg.arrive > np.pi / rate:
             at = leg.arrive + np.pi / rate
             assert abs((operator.turns.yaw_at(at) - leg.facing + np.pi) % (2 * np.pi) - np.pi) < 1e-9
+
+
+def test_after_a_reach_at_the_spot_the_person_stands_on_they_turn_back_to_the_way_they_walked():
+    """A review found a reach at a waypoint where the person already stood (a leg of no length, no heading of its own)
+    leaving them facing the reach point for good, where the instant rule and verify's end pose turn them back to the
+    way they last walked."""
+    from cellsim.kinds.operator.system import Leg, Turns
+
+    here, there = np.array([0.0, 0.0]), np.array([1.0, 0.0])  # walk east, then reach north from the same spot
+    legs = [Leg(0, here, there, 0.0, 1.0, 1.0, None, 0.0, None),
+            Leg(1, there, there, 1.0, 1.0, 3.0, np.array([1.0, 1.0, 1.0]), None, np.pi / 2)]
+    turns = Turns(legs, 0.0, np.pi)
+    assert turns.yaw_at(2.0) == pytest.approx(np.pi / 2)  # facing the reach point
+    assert turns.yaw_at(3.25) == pytest.approx(np.pi / 4)  # turning back, at pi rad/s
+    assert turns.yaw_at(10.0) == pytest.approx(0.0)  # the way they walked
+    assert pose_at(legs, 0.0, 10.0).yaw == pytest.approx(0.0)  # as the instant rule has it

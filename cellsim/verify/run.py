@@ -583,12 +583,13 @@ def export_paths(path: Path, sf=None) -> tuple[Path, Path]:
 
 
 def write_export(model: AbstractModel, path: Path) -> tuple[Path, Path]:
-    """``path`` (the PRISM program) and ``path`` with ``.props`` (its properties), written whole or not at all."""
+    """``path`` (the PRISM program) and ``path`` with ``.props`` (its properties): each written whole or not at all,
+    both into temporaries first, then put in place one after the other (the program first)."""
     from cellsim.atomic import replacing
 
     path, props = export_paths(path, model.cell.sf)
     # both written into temporaries first: an error in either leaves the two files as they were
-    with replacing(path, make_folder=True) as program, replacing(props, make_folder=True) as properties:
+    with replacing(props, make_folder=True) as properties, replacing(path, make_folder=True) as program:
         program.write(model.text)
         properties.write(properties_text(model))
     return path, props

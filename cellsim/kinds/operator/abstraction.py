@@ -85,6 +85,10 @@ class PersonAbstraction(ModuleAbstraction):
         legs = plan_walk(dataclasses.replace(cfg, speed_jitter=0.0), 0, layout=self.layout)
         slowest = 1.0 - cfg.speed_jitter
         over = cfg.start_delay + sum((leg.arrive - leg.depart) / slowest + (leg.leave - leg.arrive) for leg in legs)
+        # and the last turn (at most half a turn at turn_rate): after a last reach, back to the way it walked; else
+        # to the last stretch's way, taken by the arrival at the last stop, before its wait
+        last = legs[-1]
+        over = max(over, over - (0.0 if last.reach is not None else last.leave - last.arrive) + math.pi / cfg.turn_rate)
         # the run's last record of the person is its last update before the end (none is made at the end itself)
         last_update = (math.ceil(duration / cfg.period - 1e-9) - 1) * cfg.period
         if over > last_update + 1e-9:

@@ -53,10 +53,12 @@ class OperatorConfig:
     """Radius of the torso's capsule (m)."""
     arm_length: Annotated[float, Range(0.15, 2.0, unit="m")] = 0.7
     """Reach of the arm from the shoulder (m)."""
-    turn_rate: Annotated[float, Range(0.5, 20.0, unit="rad/s")] = 3.14
+    turn_rate: Annotated[float, Range(0.5, 6.3, unit="rad/s")] = 3.14
     """How fast the body turns (rad/s) to a new walking direction or towards a reach point: a turn takes time, as
-    a person's does (half a turn in a second by default), so a hand swings at most this times its distance from the
-    body's axis (about 2.4 m/s), never half a metre in one update."""
+    a person's does (half a turn in a second by default, a whole one at most), so a hand swings at most this times
+    its distance from the body's axis (up to about 1 m, reaching out) per second: at the default and a 0.04 s
+    period, 13 cm per update at most, where a turn in one update swung a hand half a metre. The harm service sees
+    the body where each update puts it (docs/harm.md): a longer period or a faster turn moves it farther between."""
     avoid_fixtures: bool = True
     """Walk around the layout's fixtures (their footprints grown by body_radius + 5 cm), by the
     shortest way; false: straight lines, through them."""

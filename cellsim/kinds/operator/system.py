@@ -172,6 +172,7 @@ class Turns:
 
     def __init__(self, legs: list[Leg], start_yaw: float, rate: float):
         aims = [(0.0, start_yaw)]
+        walked = start_yaw  # the way the person last walked
         for leg in legs:
             points = [leg.start, *leg.corners, leg.end]
             lengths = [float(np.linalg.norm(b - a)) for a, b in zip(points, points[1:])]
@@ -180,10 +181,10 @@ class Turns:
                 if length > 1e-9:
                     aims.append((t, float(np.arctan2(b[1] - a[1], b[0] - a[0]))))
                     t += length / total * (leg.arrive - leg.depart)
+            walked = walked if leg.heading is None else leg.heading
             if leg.reach is not None:
                 aims.append((leg.arrive, leg.facing))
-                if leg.heading is not None:
-                    aims.append((leg.leave, leg.heading))  # the arm withdrawn, back to the way it walked
+                aims.append((leg.leave, walked))  # the arm withdrawn, back to the way it walked (here or before)
         self.rate = rate
         self.times = [t for t, _ in aims]
         self.aims = [aim for _, aim in aims]
