@@ -400,20 +400,26 @@ def test_the_lowest_point_of_each_body_shape_is_found_however_it_is_turned():
     assert lowest_point_z(Box(0.2, 0.4, 0.6), quarter) == pytest.approx(1.0 - 0.5 * (0.4 + 0.6) * math.sqrt(0.5))
 
 
-def test_a_face_pushed_while_the_back_of_the_head_rests_on_a_shelf_is_pinned():
-    """An audit found a blocker looked for near the touched region alone: a face pushed back while the back of the
-    head rested on something read as transient, no clamping. The skull moves as one block, as the trunk does."""
+def _with_fixture(name: str, size, center):
+    """The machine-tending cell with a fixture of its own (a box of ``size`` at ``center``, m), built at its initial
+    state: (the cell, its context, the fixture's GeometryId)."""
     from cellsim.config.layout import Fixture
 
     sf = load_scenario(CELL)
-    person_x, person_y = 0.3, -1.0  # facing +y (yaw pi/2): the back of the head towards -y
-    sf.scenario.layout.fixtures["shelf"] = Fixture(size=(0.4, 0.1, 0.1), center=(person_x, -1.2, 1.62))
+    sf.scenario.layout.fixtures[name] = Fixture(size=size, center=center)
     built = build_cell(sf, seed=0, duration=1.0, record=False)
     simulator = Simulator(built.diagram)
     built.set_initial_state(simulator.get_mutable_context())
-    context = simulator.get_mutable_context()
+    geometry = next(g for g, fixture in built.modules["harm"].fixtures.items() if fixture == name)
+    return built, simulator.get_mutable_context(), geometry
+
+
+def test_a_face_pushed_while_the_back_of_the_head_rests_on_a_shelf_is_pinned():
+    """An audit found a blocker looked for near the touched region alone: a face pushed back while the back of the
+    head rested on something read as transient, no clamping. The skull moves as one block, as the trunk does."""
+    person_x = 0.3  # facing +y (yaw pi/2): the back of the head towards -y
+    built, context, shelf = _with_fixture("shelf", (0.4, 0.1, 0.1), (person_x, -1.2, 1.62))
     harm = built.modules["harm"]
-    shelf = next(g for g, name in harm.fixtures.items() if name == "shelf")
     for y in np.arange(-1.06, -0.8, 0.002):  # step away from the shelf until the head is just clear of it
         stand(built, context, person_x, y, math.pi / 2)
         head, query = region_geometry(built, context, "head")
@@ -434,16 +440,8 @@ def test_a_face_pushed_while_the_back_of_the_head_rests_on_a_shelf_is_pinned():
 def test_a_hand_is_pinned_only_by_what_rests_against_that_hand_not_the_other():
     """An audit found a limb's blockers looked for by region name: the left hand resting against a post pinned a
     push on the right hand. A limb is pinned only by what rests against that very limb."""
-    from cellsim.config.layout import Fixture
-
-    sf = load_scenario(CELL)
-    sf.scenario.layout.fixtures["post"] = Fixture(size=(0.1, 0.3, 1.2), center=(-0.2, -1.0, 0.6))
-    built = build_cell(sf, seed=0, duration=1.0, record=False)
-    simulator = Simulator(built.diagram)
-    built.set_initial_state(simulator.get_mutable_context())
-    context = simulator.get_mutable_context()
+    built, context, post = _with_fixture("post", (0.1, 0.3, 1.2), (-0.2, -1.0, 0.6))
     harm = built.modules["harm"]
-    post = next(g for g, name in harm.fixtures.items() if name == "post")
     for x in np.arange(0.2, 0.0, -0.002):  # facing +y, the left side towards the post (-x): step towards it
         stand(built, context, x, -1.0, math.pi / 2)
         left, query = region_geometry(built, context, "hand", "left")

@@ -620,28 +620,42 @@ def test_an_export_over_a_file_the_scenario_uses_or_over_its_own_properties_is_r
     assert done.returncode == 2 and "is a file: name a folder" in done.stderr and "Storm" not in done.stderr
 
 
-def test_ctrl_c_while_storm_builds_leaves_no_scratch_folder(tmp_path):
-    """The programs Storm reads are in a folder the verify process owns: a Storm process killed by Ctrl-C left its
-    own behind in /tmp (an audit counted 88)."""
+def _interrupted_verify(args: list[str], stage: str, ready, env=None, to_group: bool = False) -> int:
+    """``cellsim verify`` of the welding cell with ``args``, sent Ctrl-C (SIGINT) once its stderr says ``stage`` and
+    ``ready()`` returns (to the process alone, or ``to_group``: to every process of its group, as a terminal sends
+    it); its exit code. The process is stopped by its PID, whatever happens."""
     import signal
 
-    scratch = tmp_path / "tmp"
-    scratch.mkdir()
-    proc = subprocess.Popen([sys.executable, "-m", "cellsim", "verify", str(WELDING_CELL), "--out", str(tmp_path / "out")],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "TMPDIR": str(scratch)}, preexec_fn=_in_the_background)
+    proc = subprocess.Popen([sys.executable, "-m", "cellsim", "verify", str(WELDING_CELL), *args],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env,
+                            preexec_fn=_in_the_background, start_new_session=True)
     try:
-        for line in proc.stderr:  # (each stage's line as it starts: wait for Storm's, no sleep)
-            if "Storm: building" in line:
+        for line in proc.stderr:  # (each stage's line as it starts: no sleep)
+            if stage in line:
                 break
-        assert any(p.name.startswith("cellsim-verify-") for p in scratch.iterdir())
-        proc.send_signal(signal.SIGINT)
-        proc.wait(timeout=60)
+        ready()
+        if to_group:
+            os.killpg(proc.pid, signal.SIGINT)
+        else:
+            proc.send_signal(signal.SIGINT)
+        return proc.wait(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert proc.returncode == 130
+
+
+def test_ctrl_c_while_storm_builds_leaves_no_scratch_folder(tmp_path):
+    """The programs Storm reads are in a folder the verify process owns: a Storm process killed by Ctrl-C left its
+    own behind in /tmp (an audit counted 88)."""
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    def scratch_in_use() -> None:
+        assert any(p.name.startswith("cellsim-verify-") for p in scratch.iterdir())
+
+    code = _interrupted_verify(["--out", str(tmp_path / "out")], "Storm: building", scratch_in_use,
+                               env={**os.environ, "TMPDIR": str(scratch)})
+    assert code == 130
     assert [p.name for p in scratch.iterdir() if p.name.startswith("cellsim-")] == []
 
 
@@ -723,32 +737,19 @@ def test_ctrl_c_while_the_twin_replays_a_witness_leaves_each_run_closed_and_mark
     left open (a -wal file beside each) with no status. The runs are now asked to stop as a run at the command line
     is, and each is closed, marked interrupted; a review found a terminal's Ctrl-C, which every process of the group
     hears, then cut short by the parent's own stop: a child takes the first signal only."""
-    import signal
     import sqlite3
     import time
 
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "cellsim", "verify", str(WELDING_CELL), "--refine", "0", "--out", str(out)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, preexec_fn=_in_the_background,
-                            start_new_session=True)
-    try:
-        for line in proc.stderr:  # (each stage's line as it starts, no sleep)
-            if "twin: simulating" in line:
-                break
+
+    def a_run_under_way() -> None:  # its black box open
         deadline = time.monotonic() + 60
-        while not list(out.glob("runs/*/blackbox.sqlite-wal")):  # a run under way: its black box open
-            assert time.monotonic() < deadline and proc.poll() is None, "no witness run opened its black box"
+        while not list(out.glob("runs/*/blackbox.sqlite-wal")):
+            assert time.monotonic() < deadline, "no witness run opened its black box"
             time.sleep(0.01)
-        if to_group:
-            os.killpg(proc.pid, signal.SIGINT)
-        else:
-            proc.send_signal(signal.SIGINT)
-        proc.wait(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert proc.returncode == 130
+
+    assert _interrupted_verify(["--refine", "0", "--out", str(out)], "twin: simulating", a_run_under_way,
+                               to_group=to_group) == 130
     boxes = list(out.glob("runs/*/blackbox.sqlite"))  # (one stopped as it was being opened holds nothing, and goes)
     assert not list(out.glob("runs/*/blackbox.sqlite-wal"))
     for box in boxes:
