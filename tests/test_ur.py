@@ -377,9 +377,14 @@ def test_the_slider_a_controller_may_show_is_the_last_it_had_time_to_take_or_any
 
 def test_a_frozen_or_lost_controller_goes_stale_and_is_dialled_again(sessions, tmp_path, program):  # noqa: F811
     with daemon_beside_controller(sessions, tmp_path, program) as (controller, bridge, link, twin):
-        for _ in range(5):
+        deadline = time.monotonic() + 10
+        while True:  # good packages until the twin hears one (under load the first few may come before the daemon reads)
             controller.publish()
-        twin.next_sample(lambda m: "fields" in m)
+            try:
+                twin.next_sample(lambda m: "fields" in m, timeout=0.05)
+                break
+            except queue.Empty:
+                assert time.monotonic() < deadline, "the twin heard no sample of the controller's"
         for _ in range(5):
             controller.publish(fault="freeze")  # the same package again: its timestamp repeats, refused
         assert twin.next_sample(lambda m: "failed" in m)["failed"] == "timeout"  # then the watchdog
