@@ -512,6 +512,13 @@ def test_a_system_a_script_forgot_to_wire_is_a_config_error_before_the_run_folde
     with pytest.raises(cellsim.ConfigError, match="input 'curtain' of system 'gate' is connected to nothing"):
         cellsim.simulate(cellsim.load_scenario(WELDING), tmp_path / "run", duration=1.0, extend=extend)
     assert not (tmp_path / "run").exists()
+    # a Drake system too (a review found Drake's own skipped altogether): a log of nothing
+    from pydrake.systems.primitives import VectorLogSink
+
+    with pytest.raises(cellsim.ConfigError, match="extend: input 'data' of system 'log' is connected to nothing"):
+        cellsim.simulate(cellsim.load_scenario(WELDING), tmp_path / "run", duration=1.0,
+                         extend=lambda cell: cell.builder.AddNamedSystem("log", VectorLogSink(1)))
+    assert not (tmp_path / "run").exists()
 
 
 

@@ -742,17 +742,28 @@ def test_ctrl_c_while_the_twin_replays_a_witness_leaves_each_run_closed_and_mark
 
     out = tmp_path / "out"
 
-    def a_run_under_way() -> None:  # its black box open
+    running = []
+
+    def status_of(box) -> str | None:
+        db = sqlite3.connect(box)
+        try:
+            found = dict(db.execute("select key, value from metadata")).get("status")
+        except sqlite3.Error:  # (being created)
+            return None
+        finally:
+            db.close()
+        return None if found is None else json.loads(found)
+
+    def a_run_under_way() -> None:  # a run recording: its black box says so
         deadline = time.monotonic() + 60
-        while not list(out.glob("runs/*/blackbox.sqlite-wal")):
-            assert time.monotonic() < deadline, "no witness run opened its black box"
+        while not running:
+            running.extend(box for box in out.glob("runs/*/blackbox.sqlite") if status_of(box) == "running")
+            assert time.monotonic() < deadline, "no witness run began recording"
             time.sleep(0.01)
 
     assert _interrupted_verify(["--refine", "0", "--out", str(out)], "twin: simulating", a_run_under_way,
                                to_group=to_group) == 130
-    boxes = list(out.glob("runs/*/blackbox.sqlite"))  # (one stopped as it was being opened holds nothing, and goes)
     assert not list(out.glob("runs/*/blackbox.sqlite-wal"))
-    for box in boxes:
-        with sqlite3.connect(box) as db:
-            status = dict(db.execute("select key, value from metadata"))["status"]
-        assert json.loads(status) in ("interrupted", "completed"), (box, status)
+    assert running[0].exists() and status_of(running[0]) == "interrupted"  # the run seen recording: kept, closed
+    for box in out.glob("runs/*/blackbox.sqlite"):  # (one stopped as it was being opened holds nothing, and goes)
+        assert status_of(box) in ("interrupted", "completed"), box

@@ -38,6 +38,7 @@ from pydrake.geometry import (
     MeshcatVisualizer,
     MeshcatVisualizerParams,
     Role,
+    SceneGraph,
 )
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig
@@ -645,18 +646,25 @@ def _channels(modules: dict[str, LeafSystem]) -> dict[str, tuple[ChannelSpec, Ou
     return found
 
 
+OPTIONAL_INPUTS = {("MeshcatPointCloudVisualizer", "X_ParentCloud")}
+"""(Drake system class, input) pairs Drake documents as optional beyond the plant's and SceneGraph's: left unconnected,
+they read as none (the identity pose)."""
+
+
 def _refuse_dangling_inputs(sf, builder: DiagramBuilder, fixed: list[tuple], modules: dict, extended: bool) -> None:
-    """A ConfigError naming an input of a system written in Python (a module's, a plug-in's, a script's) that no
-    system drives and no value is given: Drake would say so only once the run's folder is written, when the input
-    is first read. Drake's own systems are left alone: their documented optional inputs (the plant's, SceneGraph's,
-    a point cloud's pose) read an unconnected input as none."""
+    """A ConfigError naming an input (of a module's system, a plug-in's or a script's) that no system drives and no
+    value is given: Drake would say so only once the run's folder is written, when the input is first read. The
+    inputs Drake documents as optional are left alone (:data:`OPTIONAL_INPUTS`; every input of the plant and of
+    SceneGraph): they read an unconnected input as none."""
     given = {(port.get_system().get_name(), int(port.get_index())) for port, _ in fixed}  # (names are unique)
     module_of = {system.get_name(): name for name, system in modules.items()}
     for system in builder.GetSystems():
-        if type(system).__module__.startswith("pydrake."):
+        if isinstance(system, (MultibodyPlant, SceneGraph)):
             continue
         for i in range(system.num_input_ports()):
             port = system.get_input_port(i)
+            if (type(system).__name__, port.get_name()) in OPTIONAL_INPUTS:
+                continue
             if not builder.IsConnectedOrExported(port) and (system.get_name(), i) not in given:
                 module = module_of.get(system.get_name())
                 key = module or ("extend" if extended else system.get_name())

@@ -25,9 +25,12 @@ their results in order.
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import os
 import pickle
 import signal
+import time
 
 
 class ProcessStopped(Exception):
@@ -44,7 +47,7 @@ def in_own_process(work, say=None):
     say = say or (lambda text: None)
     if not hasattr(os, "fork"):
         return work(say)
-    return _result(_collect(_start(work), say))
+    return side_by_side_outcomes([work], 1, say)[0]
 
 
 def side_by_side(works: list, at_once: int | None = None) -> list:
@@ -52,17 +55,31 @@ def side_by_side(works: list, at_once: int | None = None) -> list:
     cores this process may use); their results in order (the first error raised, once every child has ended)."""
     if not hasattr(os, "fork") or len(works) < 2:
         return [work(lambda text: None) for work in works]
-    at_once = at_once or cores()
+    return side_by_side_outcomes(works, at_once or cores())
+
+
+def side_by_side_outcomes(works: list, at_once: int, say=None) -> list:
+    """The work of :func:`side_by_side` (``say``: the first child's stages, for a batch of one). Interrupted (Ctrl-C,
+    SIGTERM), every child not yet reaped is stopped and reaped before the interrupt goes on: a PID is signalled only
+    while its child is unreaped (never one the system may have given to another process), and the moments when a
+    child is forked or reaped, or the children are killed, hold the two signals off until they are done."""
     outcomes = []
     for first in range(0, len(works), at_once):
-        started = [_start(work) for work in works[first:first + at_once]]
-        for i, child in enumerate(started):
-            try:
-                outcomes.append(_collect(child, None, others=[pid for pid, _ in started[i + 1:]]))
-            except BaseException:  # interrupted: _collect has stopped this batch's others too
-                for _, readable in started[i + 1:]:
+        waiting: list[tuple[int, int]] = []  # the children whose pipes are not read yet
+        unreaped: list[int] = []
+        try:
+            with _signals_held():  # each child forked and known before an interrupt can come
+                for work in works[first:first + at_once]:
+                    waiting.append(_start(work))
+                    unreaped.append(waiting[-1][0])
+            while waiting:
+                outcomes.append(_collect(waiting.pop(0), say if not outcomes else None, unreaped))
+        except BaseException:
+            with _signals_held():  # the clean-up runs to its end (its wait alone can be cut short)
+                for _, readable in waiting:
                     os.close(readable)
-                raise
+                _stop(unreaped)  # the child interrupted and the others not reaped yet, at once
+            raise
     return [_result(outcome) for outcome in outcomes]
 
 
@@ -72,17 +89,21 @@ def cores() -> int:
 
 
 def _start(work) -> tuple[int, int]:
-    """Fork a child running ``work``: (its pid, the pipe its stages and result come through)."""
+    """Fork a child running ``work``: (its pid, the pipe its stages and result come through). Called with SIGINT and
+    SIGTERM held (:func:`_signals_held`): the child acts on them only once inside the ``try`` that ends it by
+    ``os._exit``, so it never runs its parent's code (a caller's ``except`` or ``finally``, the command's exit)."""
     readable, writable = os.pipe()
     pid = os.fork()
     if pid == 0:  # the child: report, then leave without running the parent's exit handlers
-        os.close(readable)
-        # stopped (:func:`_stop`), or Ctrl-C at the terminal (the whole group hears it, then the parent stops it):
-        # taken once, as Ctrl-C; a second signal must not cut short the clean-up it starts (a black box closing)
-        signal.signal(signal.SIGTERM, _interrupt_once)
-        signal.signal(signal.SIGINT, _interrupt_once)
-        status = 0
+        status = 1
         try:
+            os.close(readable)
+            # stopped (:func:`_stop`), or Ctrl-C at the terminal (the whole group hears it, then the parent stops
+            # it): taken once, as Ctrl-C; a second signal must not cut short the clean-up the first starts
+            signal.signal(signal.SIGTERM, _interrupt_once)
+            signal.signal(signal.SIGINT, _interrupt_once)
+            if _HEARD:  # one came between the fork and these handlers: acted on now, inside the try
+                _interrupt_once(_HEARD[0], None)
             with os.fdopen(writable, "wb") as pipe:
                 def tell(text: str) -> None:
                     pickle.dump(("stage", text), pipe)
@@ -98,11 +119,10 @@ def _start(work) -> tuple[int, int]:
                     pickle.dump(message, pipe)
                 except Exception as e:  # noqa: BLE001 - an exception that does not pickle: said in words
                     pickle.dump(("error", RuntimeError(f"{type(e).__name__}: {e}")), pipe)
+            status = 0
         except BaseException:  # noqa: BLE001 - the pipe is gone (the parent was interrupted)
             status = 1
         finally:
-            import gc
-
             try:
                 gc.collect()  # what a cut-short work left in reference cycles (a black box's connection) is closed now
             finally:
@@ -111,28 +131,34 @@ def _start(work) -> tuple[int, int]:
     return pid, readable
 
 
-def _collect(child: tuple[int, int], say, others: list[int] = ()) -> tuple[str, object]:
-    """The child's stages (to ``say``) and its outcome once it has ended and is reaped, for :func:`_result`:
-    ("result", value), ("error", exception) or ("stopped", how). Interrupted meanwhile, the child and ``others``
-    (children started beside it, not collected yet) are stopped and reaped."""
+def _collect(child: tuple[int, int], say, unreaped: list[int]) -> tuple[str, object]:
+    """The child's stages (to ``say``) and its outcome once it has ended and is reaped (its pid then taken out of
+    ``unreaped``, with the signals held), for :func:`_result`: ("result", value), ("error", exception) or ("stopped",
+    how). An interrupt while it runs or ends propagates with the child unreaped (the caller stops it)."""
     pid, readable = child
     say = say or (lambda text: None)
     outcome = None
-    try:
-        with os.fdopen(readable, "rb") as pipe:
-            while True:
-                try:
-                    kind, value = pickle.load(pipe)
-                except EOFError:
-                    break
-                if kind == "stage":
-                    say(value)
-                else:
-                    outcome = (kind, value)
-    except BaseException:
-        _stop([pid, *others])  # interrupted: the child goes with us, and the others not collected yet, at once
-        raise
-    _, status = os.waitpid(pid, 0)
+    with os.fdopen(readable, "rb") as pipe:
+        while True:
+            try:
+                kind, value = pickle.load(pipe)
+            except EOFError:
+                break
+            except Exception as e:  # noqa: BLE001 - a message that does not unpickle (an exception whose arguments
+                # differ from its __init__'s): said in words, the rest of the stream (unreadable now) read to its end
+                # so that the child can end, and the others still collected
+                outcome = ("error", RuntimeError(f"a child's message could not be read: {type(e).__name__}: {e}"))
+                pipe.read()
+                break
+            if kind == "stage":
+                say(value)
+            else:
+                outcome = (kind, value)
+    while _ends_within(pid, 1.0) is False:  # (its pipe closed, it ends: waited for interruptibly, not reaped)
+        pass
+    with _signals_held():
+        _, status = os.waitpid(pid, 0)
+        unreaped.remove(pid)
     if outcome is None:
         return "stopped", (f"signal {signal.Signals(os.WTERMSIG(status)).name}" if os.WIFSIGNALED(status)
                            else f"exit status {os.WEXITSTATUS(status)}")
@@ -169,39 +195,68 @@ def _ignore(signum, frame):
 
 
 def _stop(pids: list[int], grace: float = STOP_GRACE) -> None:
-    """End the children ``pids`` and reap them: each asked at once (SIGTERM, which a child takes as Ctrl-C: a
-    simulation records its run as interrupted and closes its black box, as a run stopped at the command line does),
-    then waited for together until ``grace`` seconds have passed, and killed if still there (Storm deep in a build
-    hears no signal until it returns to Python). A second interrupt while waiting cuts the wait short, never the
-    killing and reaping."""
-    import time
-
+    """End the children ``pids`` (none of them reaped yet) and reap them, called with SIGINT and SIGTERM held
+    (:func:`_signals_held`): each asked at once (SIGTERM, which a child takes as Ctrl-C: a simulation records its run
+    as interrupted and closes its black box, as a run stopped at the command line does), then waited for together
+    until ``grace`` seconds have passed, and killed if still there (Storm deep in a build hears no signal until it
+    returns to Python). Another interrupt cuts the wait short, never the asking, killing or reaping."""
     for pid in pids:
-        try:
+        with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGTERM)
-        except ProcessLookupError:
-            pass
     deadline = time.monotonic() + grace
+    waiting = list(pids)
+    while waiting and not _HEARD and time.monotonic() < deadline:  # another interrupt cuts the wait short
+        if _ends_within(waiting[0], min(0.1, max(0.0, deadline - time.monotonic()))) is not False:
+            waiting.pop(0)  # ended (or no pidfd to wait on: killed below at once)
+    for pid in list(pids):
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)  # (one that has ended is a zombie until reaped: no error)
+        os.waitpid(pid, 0)
+        pids.remove(pid)
+
+
+_STOPPING = (signal.SIGINT, signal.SIGTERM)
+_HEARD: list[int] = []
+"""The signals heard while they are held (:func:`_signals_held`), in order."""
+
+
+@contextlib.contextmanager
+def _signals_held():
+    """SIGINT and SIGTERM held off in the block: heard (in ``_HEARD``), not acted on; once it ends, the handlers in
+    force before are put back and the first one heard is raised again for them. Handlers, not the signal mask: Python
+    runs its handlers in the main thread whichever thread the system gives a signal to. Only the main thread has
+    handlers: elsewhere the block holds nothing."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    del _HEARD[:]
+    before = {sig: signal.signal(sig, _hear) for sig in _STOPPING}
     try:
-        for pid in pids:
-            _ends_within(pid, max(0.0, deadline - time.monotonic()))
+        yield
     finally:
-        for pid in pids:
-            try:
-                os.kill(pid, signal.SIGKILL)  # (one that has ended is a zombie until reaped: no error)
-            except ProcessLookupError:
-                pass
-            os.waitpid(pid, 0)
+        for sig, handler in before.items():
+            signal.signal(sig, handler)
+        heard = list(_HEARD)
+        del _HEARD[:]
+        if heard:
+            signal.raise_signal(heard[0])
 
 
-def _ends_within(pid: int, seconds: float) -> bool:
-    """Whether child ``pid`` ends within ``seconds``: waited for as an event (its pidfd turning readable)."""
+def _hear(signum, frame):
+    _HEARD.append(signum)
+
+
+def _ends_within(pid: int, seconds: float) -> bool | None:
+    """Whether child ``pid`` ends within ``seconds``, waited for as an event (its pidfd turning readable; an ended
+    child stays unreaped); None where there is no pidfd (an old kernel): not waited for."""
     import select
 
     try:
         handle = os.pidfd_open(pid)
-    except (AttributeError, OSError):  # no pidfd here (an old kernel): it is not waited for
-        return False
+    except (AttributeError, OSError):
+        return None
     try:
         readable, _, _ = select.select([handle], [], [], seconds)
         return bool(readable)
