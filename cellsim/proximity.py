@@ -51,6 +51,26 @@ def bounding_sphere(shape, pose) -> tuple[np.ndarray, float]:
     return np.asarray(pose.translation(), float), radius
 
 
+def lowest_point_z(shape, X_WG) -> float | None:
+    """The height (m, world z) of the lowest point of ``shape`` posed at ``X_WG``; None for a shape this does not
+    know (a mesh: not taken to rest on the floor)."""
+    from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
+
+    R, z = X_WG.rotation().matrix(), float(X_WG.translation()[2])
+    up = R[2]  # the world's z axis in the shape's frame: how far each of its axes reaches down
+    if isinstance(shape, Sphere):
+        return z - shape.radius()
+    if isinstance(shape, Capsule):
+        return z - 0.5 * shape.length() * abs(up[2]) - shape.radius()
+    if isinstance(shape, Cylinder):
+        return z - 0.5 * shape.length() * abs(up[2]) - shape.radius() * math.sqrt(max(0.0, 1.0 - up[2] ** 2))
+    if isinstance(shape, Box):
+        return z - 0.5 * (shape.width() * abs(up[0]) + shape.depth() * abs(up[1]) + shape.height() * abs(up[2]))
+    if isinstance(shape, Ellipsoid):
+        return z - math.sqrt((shape.a() * up[0]) ** 2 + (shape.b() * up[1]) ** 2 + (shape.c() * up[2]) ** 2)
+    return None
+
+
 class _Spheres:
     """Bounding spheres of a set of geometries, grouped by the frame each is fixed to."""
 

@@ -384,7 +384,7 @@ def test_the_lowest_point_of_each_body_shape_is_found_however_it_is_turned():
     from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
     from pydrake.math import RigidTransform, RotationMatrix
 
-    from cellsim.kinds.harm.system import lowest_point_z
+    from cellsim.proximity import lowest_point_z
 
     upright = RigidTransform([0.0, 0.0, 1.0])
     tilted = RigidTransform(RotationMatrix.MakeYRotation(math.pi / 2), [0.0, 0.0, 1.0])  # its z axis lying along x

@@ -47,7 +47,7 @@ def in_own_process(work, say=None):
     say = say or (lambda text: None)
     if not hasattr(os, "fork"):
         return work(say)
-    return side_by_side_outcomes([work], 1, say)[0]
+    return _side_by_side([work], 1, say)[0]
 
 
 def side_by_side(works: list, at_once: int | None = None) -> list:
@@ -55,10 +55,10 @@ def side_by_side(works: list, at_once: int | None = None) -> list:
     cores this process may use); their results in order (the first error raised, once every child has ended)."""
     if not hasattr(os, "fork") or len(works) < 2:
         return [work(lambda text: None) for work in works]
-    return side_by_side_outcomes(works, at_once or cores())
+    return _side_by_side(works, at_once or cores())
 
 
-def side_by_side_outcomes(works: list, at_once: int, say=None) -> list:
+def _side_by_side(works: list, at_once: int, say=None) -> list:
     """The work of :func:`side_by_side` (``say``: the first child's stages, for a batch of one). Interrupted (Ctrl-C,
     SIGTERM), every child not yet reaped is stopped and reaped before the interrupt goes on: a PID is signalled only
     while its child is unreaped (never one the system may have given to another process), and the moments when a
