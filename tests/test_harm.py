@@ -163,22 +163,24 @@ def test_severity_crosses_one_at_the_hand_computed_permissible_speed(cell, regio
     assert reading["contact_region"] == region and reading["severity"] == 0.0
 
 
-def test_a_hand_pressed_onto_the_bench_is_clamped(cell):
-    """The hand on the bench's top, the tool pressing down on it: quasi-static, judged by the quasi-static force."""
-    built, context = cell
-    bench_top = 0.9
-    # the person at the bench's south end reaches onto it; lower the reach until the hand rests on the top
-    hand = None
+def hand_on_the_bench(built, context):
+    """The person at the bench's south end, their right hand resting on its top: (the hand's geometry, its centre)."""
+    # lower the reach until the hand rests on the top
     for z in np.arange(1.05, 0.85, -0.005):
         stand(built, context, -0.95, -0.95, math.pi / 2, (-0.95, -0.45, z))
         hand, query = region_geometry(built, context, "hand", "right")
         bench = next(g for g, name in built.modules["harm"].fixtures.items() if name == "bench")
         gap = query.ComputeSignedDistancePairClosestPoints(hand, bench).distance
         if 0.0 < gap <= 0.01:
-            break
-    else:
-        raise AssertionError("the hand never rests on the bench")
-    centre = query.GetPoseInWorld(hand).translation()
+            return hand, query.GetPoseInWorld(hand).translation()
+    raise AssertionError("the hand never rests on the bench")
+
+
+def test_a_hand_pressed_onto_the_bench_is_clamped(cell):
+    """The hand on the bench's top, the tool pressing down on it: quasi-static, judged by the quasi-static force."""
+    built, context = cell
+    bench_top = 0.9
+    hand, centre = hand_on_the_bench(built, context)
     touch(built, context, hand, centre + [0.0, 0.0, 0.25], centre, rpy=(0.0, 180.0, 0.0))
     assert centre[2] > bench_top
     limit = v_max("hand", transient=False)
@@ -187,6 +189,50 @@ def test_a_hand_pressed_onto_the_bench_is_clamped(cell):
         assert reading["contact_region"] == "hand" and reading["contact_kind"] == "quasi_static"
         assert reading["severity"] == pytest.approx(fraction, rel=1e-5)
         assert reading["clamping"] == pytest.approx(fraction, rel=1e-5)
+
+
+def measured(built, context) -> dict:
+    """The harm service's channels after one of its updates measuring at a plant step (decoded), its state kept."""
+    from cellsim.kinds.harm.system import NEAR
+
+    harm = built.modules["harm"]
+    own = harm.GetMyMutableContextFromRoot(context)
+    own.get_mutable_discrete_state(harm.group("near")).SetAtIndex(0, NEAR)  # measuring at every plant step
+    own.SetDiscreteState(harm.EvalUniquePeriodicDiscreteUpdate(own))
+    return {spec.signal: spec.type.decode([own.get_discrete_state(harm.group(spec.signal)).GetAtIndex(0)])
+            for spec, _ in harm.channels}
+
+
+def test_a_press_that_sinks_into_the_hand_is_judged_along_its_push_at_onset(cell):
+    """The twin's hand does not give way: the tool pressing down on it sinks in, until the direction of least overlap
+    turns sideways. The press is still judged along the push it began with, at its speed, and it ends when the tool
+    is lifted clear (the next contact starts afresh)."""
+    built, context = cell
+    hand, centre = hand_on_the_bench(built, context)
+    touch(built, context, hand, centre + [0.0, 0.0, 0.25], centre, rpy=(0.0, 180.0, 0.0))
+    first = nearest_part(built, context, hand)[0]
+    speed = 0.9 * v_max("hand", transient=False)
+    down = np.array([0.0, 0.0, -1.0])
+    tool = built.modules["robot"].kinematics.tool_position
+    q = built.plant.GetPositions(built.plant.GetMyContextFromRoot(context), built.robots["robot"])
+    top = tool(q)
+    turned = False
+    for sunk in np.arange(0.0, 0.07, 0.005):  # the tool sinks 7 cm into the hand, pushing down all the while
+        tool_at(built, context, top + sunk * down, rpy=(0.0, 180.0, 0.0))
+        distance, pair, part = nearest_part(built, context, hand)
+        now = pair.nhat_BA_W if pair.id_A == hand else -pair.nhat_BA_W
+        turned = turned or now @ down < 0.5
+        drive(built, context, part.body, speed * down)
+        reading = measured(built, context)
+        assert distance <= first
+        assert reading["contact_region"] == "hand" and reading["contact_kind"] == "quasi_static", sunk
+        assert reading["severity"] == pytest.approx(0.9, rel=1e-3), sunk
+        assert reading["contact_speed"] == pytest.approx(speed, rel=1e-3), sunk
+    assert turned, "the tool never sank far enough for the direction of least overlap to turn"
+    tool_at(built, context, top + [0.0, 0.0, 0.25], rpy=(0.0, 180.0, 0.0))
+    assert measured(built, context)["contact_region"] == "none"
+    harm = built.modules["harm"]
+    assert not harm.GetMyContextFromRoot(context).get_discrete_state(harm.group("onset")).get_value().any()
 
 
 @pytest.mark.parametrize("yaw, approach, kind", [

@@ -9,7 +9,8 @@ closes the cut-off in between, see ``HarmConfig.far_period``), and at every plan
 a robot part moves faster than half ``max_part_speed``. A cell where nobody is near an arm costs one
 query per ``far_period``. For each robot part touching a region (signed distance <= 0):
 
-* the relative speed along the contact normal, ``v_rel``: the arm's point towards the region
+* the relative speed along the contact's push (its normal at onset, see :meth:`HarmMonitor.measure`), ``v_rel``:
+  the arm's point towards the region
   (the plant's body velocity at the contact point) less the region's point towards the arm
   (its motion over the person's last update period);
 * its kind: *quasi-static* (clamping) when a fixture, the floor, another robot or another part of the arm
@@ -78,7 +79,7 @@ class HarmMonitor(CellSystem):
       clamping (channel): the worst quasi-static (clamping) contact's severity now (0: none).
       contact_region, contact_person, contact_part, contact_kind (channels): the worst contact's body region,
         person, robot part and kind (none: no contact).
-      contact_speed (channel, m/s): its relative speed along the contact normal.
+      contact_speed (channel, m/s): its relative speed along its push (the contact normal at its onset).
       separation_<robot> (channel, m): the robot's least true distance to any body region (negative:
         overlapping), read up to ``cutoff``.
       nearest_region (channel): the body region nearest to any robot within ``cutoff``, else none.
@@ -125,7 +126,7 @@ class HarmMonitor(CellSystem):
             self.declare_channel("contact_person", enum_type(self.person_type), NONE, description="Person of the worst contact"),
             self.declare_channel("contact_part", enum_type(self.part_type), NONE, description="Robot part of the worst contact"),
             self.declare_channel("contact_kind", enum_type(self.kind_type), NONE, description="Transient or quasi-static (clamping)"),
-            self.declare_channel("contact_speed", speed, 0.0, description="Worst contact's relative speed along its normal"),
+            self.declare_channel("contact_speed", speed, 0.0, description="Worst contact's relative speed along its push"),
             self.declare_channel("nearest_region", enum_type(self.region_type), NONE, description="Body region nearest a robot"),
             *(self.declare_channel(f"separation_{robot}", m, cfg.cutoff, description=f"True least distance from {robot} to a body")
               for robot in self.robots),
@@ -159,6 +160,9 @@ class HarmMonitor(CellSystem):
         self._shapes = {g: inspector.GetShape(g) for g in self.bodies}  # for how near the floor each region is
         self.clamps = [*fixtures, *parts]  # what a region can be pinned against: fixtures, every arm's shapes
         self._pairs = NearestPair(inspector, list(self.parts), list(self.bodies))  # every robot part and body region
+        # each pair's push at the onset of its contact (3 per pair, zero while it does not touch): see measure()
+        self._pair_index = {(a, b): i for i, (a, b) in enumerate((a, b) for a in self.parts for b in self.bodies)}
+        self._onset = self.declare_state("onset", np.zeros(3 * len(self._pair_index)))
         parts = list(self.parts.values())
         self._robot_rows = [[i for i, part in enumerate(parts) if part.robot == robot] for robot in self.robots]
         # each arm body's shapes within a sphere about a point fixed to it: (body index, centre in its frame, radius)
@@ -290,6 +294,7 @@ class HarmMonitor(CellSystem):
             previous = [context.get_discrete_state(g).GetAtIndex(0) for g in self._outputs]
             if previous != self._clear:
                 write_changed(xd, self._outputs, self._clear, previous)
+                self._write_onsets(context, xd, {})
             elif not wrote:
                 return UNCHANGED
             return None
@@ -312,7 +317,8 @@ class HarmMonitor(CellSystem):
         if fast is None:
             fast = self._note_speed(context, xd)[0] if look else state == FAST
         query = self.query_port.Eval(context)
-        pairs, values = self._look(context, query, self.cfg.cutoff if look else self.reach)
+        pairs, values, onsets = self._look(context, query, self.cfg.cutoff if look else self.reach)
+        self._write_onsets(context, xd, onsets)
         now = FAST if fast else NEAR if any(p.distance <= self.reach for p in pairs) else FAR
         if now != state:
             xd.get_mutable_vector(self._near).SetAtIndex(0, now)
@@ -324,20 +330,40 @@ class HarmMonitor(CellSystem):
         write_changed(xd, self._outputs, values, previous)
         return None
 
+    def _write_onsets(self, context, xd, onsets: dict) -> None:
+        """Keep the pushes of the contacts going on now (``onsets``: pair index -> push), zero every other pair's."""
+        before = context.get_discrete_state(self._onset).get_value()
+        if not onsets and not before.any():
+            return
+        after = np.zeros_like(before)
+        for k, push in onsets.items():
+            after[3 * k:3 * k + 3] = push
+        if not np.array_equal(after, before):
+            xd.get_mutable_vector(self._onset).SetFromVector(after)
+
     def reading(self, context) -> dict:
         """What the service measures at ``context``'s instant (its own context), channel by channel, decoded: the
         worst contact's severity, region, person, part, kind and speed, and each robot's separation."""
-        _, values = self._look(context, self.query_port.Eval(context), self.cfg.cutoff)
+        _, values, _ = self._look(context, self.query_port.Eval(context), self.cfg.cutoff)
         return {spec.signal: spec.type.decode([value]) for (spec, _), value in zip(self.channels, values)}
 
-    def _look(self, context, query, within: float) -> tuple[list, list[float]]:
+    def _look(self, context, query, within: float) -> tuple[list, list[float], dict]:
         """(the robot-part/body-region pairs that decide the channels: each robot's nearest within ``within`` (m), and
-        every one touching; the channels' values they give)."""
+        every one touching; the channels' values they give; the pushes of the contacts, see :meth:`measure`)."""
         pairs = self._pairs.nearest_and_touching(query, within, self._robot_rows)
-        return pairs, (self.measure(context, query, pairs) if pairs else list(self._clear))
+        return (pairs, *self.measure(context, query, pairs)) if pairs else (pairs, list(self._clear), {})
 
-    def measure(self, context, query, pairs) -> list[float]:
-        """The channels' values for the pairs a look found near."""
+    def measure(self, context, query, pairs) -> tuple[list[float], dict]:
+        """The channels' values for the pairs a look found near, and the push of each contact (pair index -> unit
+        vector from the arm into the region, in the world).
+
+        A contact is judged along its push at its onset, the contact normal at the instant the pair began to
+        touch (kept in the ``onset`` state while it goes on): the arm keeps pressing that way. The body does not
+        give way in the twin, so the arm can sink into a region; past about the region's half-width, the
+        direction of least overlap turns (sideways, or back out), and the normal of that instant would read a
+        press going on as no push at all."""
+        onset = context.get_discrete_state(self._onset).get_value()
+        onsets = {}
         separation = dict.fromkeys(self.robots, self.cfg.cutoff)
         nearest, nearest_distance = NONE, self.cfg.cutoff
         touching = []
@@ -349,18 +375,21 @@ class HarmMonitor(CellSystem):
             if pair.distance < nearest_distance:
                 nearest, nearest_distance = self.bodies[region].region, pair.distance
             if pair.distance <= 0.0:
-                touching.append((pair, region, part))
+                touching.append((pair, region, other, part))
         worst = (0.0, NONE, NONE, NONE, NONE, 0.0)  # severity, region, person, part, kind, speed
         clamping = 0.0
         motion = _Motion(self, context)
-        for pair, region, part in touching:
+        for pair, region, other, part in touching:
             body = self.bodies[region]
             on_a = pair.id_A == region
             p_W = witness_on(query, pair, region)
-            push = pair.nhat_BA_W if on_a else -pair.nhat_BA_W  # from the arm (B, or A) into the region
+            k = self._pair_index[(other, region)]
+            push = onset[3 * k:3 * k + 3]
+            if not push.any():  # its first instant: the arm pushes along the contact normal, from it into the region
+                push = pair.nhat_BA_W if on_a else -pair.nhat_BA_W
+            onsets[k] = push
             speed = float((motion.of_part(part, p_W) - motion.of_region(body, p_W)) @ push)
-            pinned = self._pinned(query, body.person, body.region, p_W, pair.id_B if on_a else pair.id_A, part, push,
-                                  region)
+            pinned = self._pinned(query, body.person, body.region, p_W, other, part, push, region)
             kind = QUASI_STATIC if pinned else TRANSIENT
             level = severity(self.limits.regions[body.region], part.mass, kind, speed)
             if kind == QUASI_STATIC:
@@ -371,7 +400,7 @@ class HarmMonitor(CellSystem):
         return [
             level, clamping, self.region_type(region).code, self.person_type(person).code, self.part_type(part).code,
             self.kind_type(kind).code, speed, self.region_type(nearest).code, *(separation[r] for r in self.robots),
-        ]
+        ], onsets
 
     def _pinned(self, query, person: int, region: str, p_W, touching, part: Part, push, touched=None) -> bool:
         """Whether the person's ``region`` touched at ``p_W`` is pinned: something they cannot pass (a fixture, an
