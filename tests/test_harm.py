@@ -503,3 +503,36 @@ def test_a_hand_is_pinned_only_by_what_rests_against_that_hand_not_the_other():
     towards_post = np.array([-1.0, 0.0, 0.0])
     assert not harm._pinned(query, person, "hand", p_W, part_id, part, towards_post, right)
     assert harm._pinned(query, person, "hand", query.GetPoseInWorld(left).translation(), part_id, part, towards_post, left)
+
+
+def test_the_nearest_region_is_named_with_whose_it_is_when_two_people_are_in_the_cell():
+    """Two people, one at a time near the arm's tool: the nearest region's person is the one standing there."""
+    built = build_cell(load_scenario(ROOT / "scenarios" / "two_operators.yaml"), seed=0, duration=1.0, record=False)
+    simulator = Simulator(built.diagram)
+    built.set_initial_state(simulator.get_mutable_context())
+    context = simulator.get_mutable_context()
+    harm = built.modules["harm"]
+    tool_at(built, context, (0.6, -0.2, 1.1))
+    near, far = [0.6, -0.65, math.pi / 2, 0.0, 0.0, 0.0, 0.0], [-3.4, -2.4, 0.0, 0.0, 0.0, 0.0, 0.0]
+    for there, elsewhere in (("operator", "visitor"), ("visitor", "operator")):
+        built.modules[there].set_pose(context, near)
+        built.modules[elsewhere].set_pose(context, far)
+        reading = harm.reading(harm.GetMyContextFromRoot(context))
+        assert reading["nearest_person"] == there and reading["nearest_region"] != "none"
+        assert reading["separation_robot"] < harm.cfg.cutoff
+
+
+def test_a_runs_closest_approach_names_the_person_and_their_region(tmp_path):
+    """The run summary's closest approach, read from the black box: within the cut-off, whose region it was."""
+    import sqlite3
+
+    from cellsim.api import simulate
+
+    run = simulate(CELL, tmp_path / "run", seed=0, duration=20.0)
+    closest = next(f for f in run.summary.findings if f.what == "closest approach")
+    assert closest.data["distance"] < 0.5 and closest.data["person"] == "operator"
+    assert f"operator's {closest.data['region'].replace('_', ' ')}" in closest.text
+    # the channel the finding read, straight from the file
+    db = sqlite3.connect(tmp_path / "run" / "blackbox.sqlite")
+    assert db.execute("SELECT count(*) FROM channels WHERE name = 'harm.nearest_person'").fetchone()[0] == 1
+    db.close()

@@ -548,6 +548,10 @@ def test_each_contact_and_each_runs_closest_approach_are_shown_and_harm_is_red(b
             worst = max(f["severity"] for f in mine)
             assert f"{len(mine)} contact" in cell and f"worst severity {worst:.3g}" in cell, cell
         assert "closest" in cell or "touched" in cell, cell
+        closest = next(f for f in run["findings"] if f["what"] == "closest approach")
+        if closest.get("region"):  # whose region it was, where one was within the cut-off
+            assert f"{closest['person']}'s {closest['region'].replace('_', ' ')}" in cell, cell
+    assert any(f["what"] == "closest approach" and f.get("person") == "operator" for r in runs for f in r["findings"])
     assert "NoClamping (REASON the bench is padded)" in page.locator("#waived").inner_text()
     opened.close(screenshot=out / "harm.png")
     assert "waived" in done.stdout and "NoClamping: REASON the bench is padded" in done.stdout, done.stdout

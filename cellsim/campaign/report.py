@@ -766,7 +766,8 @@ def _harm_cell(run: Mapping) -> dict:
     if closest is not None:
         where = str(closest.get("region") or "").replace("_", " ")
         when = f" at {sig3(closest['start'])} s" if is_number(closest.get("start")) else ""
-        near = f", {where}" if where and where != "none" else ""
+        whose = f"{closest['person']}'s " if closest.get("person") else ""
+        near = f", {whose}{where}" if where and where != "none" else ""
         parts.append(f"touched{near}{when}, {sig3(-closest['distance'])} m deep" if closest["distance"] <= 0
                      else f"closest {sig3(closest['distance'])} m{near}{when}")
     worst = max((c for c in contacts if is_number(c.get("severity"))), key=lambda c: c["severity"], default=None)

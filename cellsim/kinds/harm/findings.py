@@ -20,7 +20,7 @@ def harm_findings(name: str, bb, max_part_speed: float | None = None) -> list[Fi
     if region is None:
         return []
     others = {key: _series(bb, f"{name}.{key}") for key in ("severity", "contact_person", "contact_part", "contact_kind",
-                                                            "contact_speed", "nearest_region")}
+                                                            "contact_speed", "nearest_region", "nearest_person")}
     found = []
     touching = [region] + [others[key] for key in ("contact_person", "contact_part") if others[key] is not None]
     start, held = None, None  # the contact under way: when it began, and its (region, person, part)
@@ -101,8 +101,11 @@ def _closest(name, bb, others, contacts: list[Finding] = ()) -> Finding | None:
     if region in (None, NONE):
         return Finding(name, "closest approach", t, None, f"no robot came within {distance:.3g} m of anybody",
                        {"distance": distance, "robot": robot})
-    data = {"distance": distance, "robot": robot, "region": region, "severity": 0.0}
-    text = f"{robot} came within {distance:.3g} m of a person's {region.replace('_', ' ')} at {t:.3f} s"
+    person = others["nearest_person"].value_at(t) if others["nearest_person"] is not None else NONE
+    whose = "a person's" if person == NONE else f"{person}'s"  # (a black box from before the channel: no person)
+    data = {"distance": distance, "robot": robot, "region": region, "severity": 0.0,
+            **({"person": person} if person != NONE else {})}
+    text = f"{robot} came within {distance:.3g} m of {whose} {region.replace('_', ' ')} at {t:.3f} s"
     during = next((c for c in contacts if c.start <= t and (c.end is None or t < c.end)), None) if distance <= 0 else None
     if during is not None:
         worst = during.data
@@ -112,5 +115,5 @@ def _closest(name, bb, others, contacts: list[Finding] = ()) -> Finding | None:
                 f"{-distance:.3g} m deep: at its worst ({worst['worst_at']:.3f} s) {worst['speed']:.3g} m/s, "
                 f"severity {worst['severity']:.3g}")
     elif distance <= 0:
-        text = f"{robot} touched a person's {region.replace('_', ' ')} at {t:.3f} s"
+        text = f"{robot} touched {whose} {region.replace('_', ' ')} at {t:.3f} s"
     return Finding(name, "closest approach", t, None, text, data)

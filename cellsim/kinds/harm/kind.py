@@ -26,6 +26,7 @@ class HarmKind(ModuleKind):
         ("contact_kind", "enum", "transient or quasi_static (clamping) (none: no contact)"),
         ("contact_speed", "number, m/s", "the worst contact's relative speed along its push (its normal at onset)"),
         ("nearest_region", "enum", "body region nearest to a robot within cutoff (none: nobody that near)"),
+        ("nearest_person", "enum", "the person whose region is nearest to a robot within cutoff (none: nobody that near)"),
         ("separation_<robot>", "number, m", "per robot: its least true distance to any body region, up to cutoff"),
         ("unwatched_part_speed", "number, m/s",
          "the fastest a robot part's point moved at a look ending an interval watched only at looks"),

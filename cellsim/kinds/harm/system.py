@@ -82,7 +82,8 @@ class HarmMonitor(CellSystem):
       contact_speed (channel, m/s): its relative speed along its push (the contact normal at its onset).
       separation_<robot> (channel, m): the robot's least true distance to any body region (negative:
         overlapping), read up to ``cutoff``.
-      nearest_region (channel): the body region nearest to any robot within ``cutoff``, else none.
+      nearest_region, nearest_person (channels): the body region nearest to any robot within ``cutoff``, and whose it
+        is, else none.
       unwatched_part_speed (channel, m/s): the fastest any point of a robot part moved at a look ending an interval
         the service watched only at its looks (above ``max_part_speed``: a contact in it may have been missed).
     """
@@ -128,6 +129,7 @@ class HarmMonitor(CellSystem):
             self.declare_channel("contact_kind", enum_type(self.kind_type), NONE, description="Transient or quasi-static (clamping)"),
             self.declare_channel("contact_speed", speed, 0.0, description="Worst contact's relative speed along its push"),
             self.declare_channel("nearest_region", enum_type(self.region_type), NONE, description="Body region nearest a robot"),
+            self.declare_channel("nearest_person", enum_type(self.person_type), NONE, description="Person nearest a robot"),
             *(self.declare_channel(f"separation_{robot}", m, cfg.cutoff, description=f"True least distance from {robot} to a body")
               for robot in self.robots),
         ]
@@ -136,8 +138,8 @@ class HarmMonitor(CellSystem):
             description="Fastest a robot part's point moved at a look ending an interval watched only at looks")
         # nobody near: no contact (codes 0: none), each separation at the cut-off
         self._clear = [0.0] * (len(self._outputs) - len(self.robots)) + [cfg.cutoff] * len(self.robots)
-        # nearest_region and the separations (the last channels): measured to the cut-off at each far look
-        self._first_far = len(self._outputs) - len(self.robots) - 1
+        # nearest_region, nearest_person and the separations (the last channels): measured to the cut-off at each far look
+        self._first_far = len(self._outputs) - len(self.robots) - 2
 
     def add_person(self, name: str, system) -> tuple:
         """Declare a person's pose inputs; returns the (pose, previous pose) ports to connect. The person's body must
@@ -365,7 +367,7 @@ class HarmMonitor(CellSystem):
         onset = context.get_discrete_state(self._onset).get_value()
         onsets = {}
         separation = dict.fromkeys(self.robots, self.cfg.cutoff)
-        nearest, nearest_distance = NONE, self.cfg.cutoff
+        nearest, nearest_distance = None, self.cfg.cutoff
         touching = []
         for pair in pairs:  # distances alone first: most near pairs touch nothing
             region, other = (pair.id_A, pair.id_B) if pair.id_A in self.bodies else (pair.id_B, pair.id_A)
@@ -373,7 +375,7 @@ class HarmMonitor(CellSystem):
             if pair.distance < separation[part.robot]:
                 separation[part.robot] = pair.distance
             if pair.distance < nearest_distance:
-                nearest, nearest_distance = self.bodies[region].region, pair.distance
+                nearest, nearest_distance = self.bodies[region], pair.distance
             if pair.distance <= 0.0:
                 touching.append((pair, region, other, part))
         worst = (0.0, NONE, NONE, NONE, NONE, 0.0)  # severity, region, person, part, kind, speed
@@ -399,8 +401,14 @@ class HarmMonitor(CellSystem):
         level, region, person, part, kind, speed = worst
         return [
             level, clamping, self.region_type(region).code, self.person_type(person).code, self.part_type(part).code,
-            self.kind_type(kind).code, speed, self.region_type(nearest).code, *(separation[r] for r in self.robots),
+            self.kind_type(kind).code, speed, *self._nearest_codes(nearest), *(separation[r] for r in self.robots),
         ], onsets
+
+    def _nearest_codes(self, nearest: RegionGeometry | None) -> tuple[float, float]:
+        """The nearest_region and nearest_person channels' codes for the region geometry ``nearest`` (None: nobody)."""
+        if nearest is None:
+            return float(self.region_type(NONE).code), float(self.person_type(NONE).code)
+        return float(self.region_type(nearest.region).code), float(self.person_type(self.people[nearest.person]).code)
 
     def _pinned(self, query, person: int, region: str, p_W, touching, part: Part, push, touched=None) -> bool:
         """Whether the person's ``region`` touched at ``p_W`` is pinned: something they cannot pass (a fixture, an
