@@ -51,6 +51,22 @@ def bounding_sphere(shape, pose) -> tuple[np.ndarray, float]:
     return np.asarray(pose.translation(), float), radius
 
 
+def inradius(shape) -> float:
+    """How deep (m) another shape can reach into ``shape`` before passing its middle: the radius of the largest ball
+    inside it (its half-thickness); 0 for a shape this does not know (a mesh)."""
+    from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
+
+    if isinstance(shape, (Sphere, Capsule)):
+        return shape.radius()
+    if isinstance(shape, Cylinder):
+        return min(shape.radius(), shape.length() / 2)
+    if isinstance(shape, Box):
+        return min(shape.width(), shape.depth(), shape.height()) / 2
+    if isinstance(shape, Ellipsoid):
+        return min(shape.a(), shape.b(), shape.c())
+    return 0.0
+
+
 def lowest_point_z(shape, X_WG) -> float | None:
     """The height (m, world z) of the lowest point of ``shape`` posed at ``X_WG``; None for a shape this does not
     know (a mesh: not taken to rest on the floor)."""

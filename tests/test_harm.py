@@ -203,11 +203,27 @@ def measured(built, context) -> dict:
             for spec, _ in harm.channels}
 
 
-def test_a_press_that_sinks_into_the_hand_is_judged_along_its_push_at_onset(cell):
+def pushes(built, context) -> list[np.ndarray]:
+    """The harm service's kept pushes of the contacts going on (its ``onset`` state)."""
+    harm = built.modules["harm"]
+    kept = harm.GetMyContextFromRoot(context).get_discrete_state(harm.group("onset")).get_value()
+    return [kept[k:k + 3].copy() for k in range(0, len(kept), 3) if kept[k:k + 3].any()]
+
+
+@pytest.fixture
+def forgetting(cell):
+    """The module's cell, its harm service's kept pushes cleared after the test, whatever it left."""
+    yield cell
+    built, context = cell
+    harm = built.modules["harm"]
+    harm.GetMyMutableContextFromRoot(context).get_mutable_discrete_state(harm.group("onset")).SetZero()
+
+
+def test_a_press_that_sinks_into_the_hand_is_judged_along_its_push_at_onset(forgetting):
     """The twin's hand does not give way: the tool pressing down on it sinks in, until the direction of least overlap
     turns sideways. The press is still judged along the push it began with, at its speed, and it ends when the tool
     is lifted clear (the next contact starts afresh)."""
-    built, context = cell
+    built, context = forgetting
     hand, centre = hand_on_the_bench(built, context)
     touch(built, context, hand, centre + [0.0, 0.0, 0.25], centre, rpy=(0.0, 180.0, 0.0))
     first = nearest_part(built, context, hand)[0]
@@ -230,9 +246,30 @@ def test_a_press_that_sinks_into_the_hand_is_judged_along_its_push_at_onset(cell
         assert reading["contact_speed"] == pytest.approx(speed, rel=1e-3), sunk
     assert turned, "the tool never sank far enough for the direction of least overlap to turn"
     tool_at(built, context, top + [0.0, 0.0, 0.25], rpy=(0.0, 180.0, 0.0))
-    assert measured(built, context)["contact_region"] == "none"
-    harm = built.modules["harm"]
-    assert not harm.GetMyContextFromRoot(context).get_discrete_state(harm.group("onset")).get_value().any()
+    assert measured(built, context)["contact_region"] == "none" and not pushes(built, context)
+
+
+def test_a_tool_that_slides_over_the_hand_and_then_presses_is_judged_along_the_press(forgetting):
+    """A review found the push kept from the first instant stale: the tool touching the side of the hand, sliding over
+    its top (never parting, a few millimetres deep) and pressing down read severity 0, where the same press on a
+    fresh contact reads 0.9. While the overlap is shallow the push follows the contact normal."""
+    built, context = forgetting
+    hand, centre = hand_on_the_bench(built, context)
+    speed = 0.9 * v_max("hand", transient=False)
+    down = np.array([0.0, 0.0, -1.0])
+    for degrees in range(0, 91, 10):  # from the hand's side (horizontal) to its top, touching all the way
+        theta = math.radians(degrees)
+        side = np.array([math.cos(theta), 0.0, math.sin(theta)])
+        touch(built, context, hand, centre + 0.25 * side, centre, rpy=(0.0, 180.0, 0.0))
+        assert measured(built, context)["contact_region"] != "none", degrees
+        distance, pair, _ = nearest_part(built, context, hand)
+        assert distance < 0.0
+        normal = pair.nhat_BA_W if pair.id_A == hand else -pair.nhat_BA_W
+        assert any(np.allclose(kept, normal) for kept in pushes(built, context)), degrees  # shallow: it follows
+    drive(built, context, nearest_part(built, context, hand)[2].body, speed * down)
+    reading = measured(built, context)
+    assert reading["contact_region"] == "hand" and reading["contact_kind"] == "quasi_static"
+    assert reading["severity"] == pytest.approx(0.9, rel=1e-3) and reading["clamping"] == pytest.approx(0.9, rel=1e-3)
 
 
 @pytest.mark.parametrize("yaw, approach, kind", [

@@ -113,3 +113,15 @@ def test_each_groups_nearest_and_every_touching_pair_are_those_measuring_every_p
         assert set(keys) == expected
         for key, pair in zip(keys, found):
             assert pair.distance == pytest.approx(every[key].distance, abs=1e-12)
+
+
+def test_the_inradius_is_the_half_thickness_of_each_shape_and_zero_for_a_mesh():
+    """How deep the harm service takes an overlap to stay shallow: the largest ball inside the shape."""
+    from pydrake.geometry import Mesh
+
+    from cellsim.proximity import inradius
+
+    assert inradius(Sphere(0.1)) == 0.1 and inradius(Capsule(0.045, 0.3)) == 0.045
+    assert inradius(Cylinder(0.2, 0.1)) == 0.05 and inradius(Cylinder(0.04, 0.3)) == 0.04
+    assert inradius(Box(0.3, 0.1, 0.5)) == 0.05 and inradius(Ellipsoid(0.2, 0.3, 0.1)) == 0.1
+    assert inradius(Mesh("/nonexistent.obj")) == 0.0

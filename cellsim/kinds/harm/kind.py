@@ -24,7 +24,7 @@ class HarmKind(ModuleKind):
         ("contact_person", "enum", "person of the worst contact (none: no contact)"),
         ("contact_part", "enum", "robot part of the worst contact, <robot>_<link> (none: no contact)"),
         ("contact_kind", "enum", "transient or quasi_static (clamping) (none: no contact)"),
-        ("contact_speed", "number, m/s", "the worst contact's relative speed along its push (its normal at onset)"),
+        ("contact_speed", "number, m/s", "the worst contact's relative speed along its push (docs/harm.md)"),
         ("nearest_region", "enum", "body region nearest to a robot within cutoff (none: nobody that near)"),
         ("nearest_person", "enum", "the person whose region is nearest to a robot within cutoff (none: nobody that near)"),
         ("separation_<robot>", "number, m", "per robot: its least true distance to any body region, up to cutoff"),

@@ -9,10 +9,9 @@ closes the cut-off in between, see ``HarmConfig.far_period``), and at every plan
 a robot part moves faster than half ``max_part_speed``. A cell where nobody is near an arm costs one
 query per ``far_period``. For each robot part touching a region (signed distance <= 0):
 
-* the relative speed along the contact's push (its normal at onset, see :meth:`HarmMonitor.measure`), ``v_rel``:
-  the arm's point towards the region
-  (the plant's body velocity at the contact point) less the region's point towards the arm
-  (its motion over the person's last update period);
+* the relative speed along the contact's push (its normal while the overlap is shallow, see
+  :meth:`HarmMonitor.measure`), ``v_rel``: the arm's point towards the region (the plant's body velocity at the
+  contact point) less the region's point towards the arm (its motion over the person's last update period);
 * its kind: *quasi-static* (clamping) when a fixture, the floor, another robot or another part of the arm
   lies within ``clamp_gap`` on the far side of the region (within ``clamp_angle_deg`` of the
   push), else *transient*;
@@ -33,7 +32,7 @@ from pydrake.geometry import QueryObject
 
 from cellsim.channels import enum_type, number_type
 from cellsim.kinds.harm.config import HarmConfig
-from cellsim.proximity import NearestPair, bounding_sphere, lowest_point_z, witness_on
+from cellsim.proximity import NearestPair, bounding_sphere, inradius, lowest_point_z, witness_on
 from cellsim.kinds.harm.limits import QUASI_STATIC, TRANSIENT, BodyLimits, severity
 from cellsim.body import BLOCKS, REGIONS
 from cellsim.systems import UNCHANGED, CellSystem, write_changed
@@ -42,6 +41,9 @@ from cellsim.vocabulary import value_set
 NONE = "none"
 """What the contact channels read while no robot part touches anybody."""
 CONTACT_KINDS = (NONE, TRANSIENT, QUASI_STATIC)
+SHALLOW = 0.5
+"""An overlap is shallow while it is less deep than this fraction of the thinner shape's half-thickness (its inradius):
+short of the middle of either shape, where the direction of least overlap can turn (:meth:`HarmMonitor.measure`)."""
 FAR, NEAR, FAST = 0.0, 1.0, 2.0
 """The service's state: measuring only at the looks of its schedule; at every plant step, while a pair is within reach
 of a contact, or while a robot part moves faster than half ``max_part_speed``."""
@@ -79,7 +81,7 @@ class HarmMonitor(CellSystem):
       clamping (channel): the worst quasi-static (clamping) contact's severity now (0: none).
       contact_region, contact_person, contact_part, contact_kind (channels): the worst contact's body region,
         person, robot part and kind (none: no contact).
-      contact_speed (channel, m/s): its relative speed along its push (the contact normal at its onset).
+      contact_speed (channel, m/s): its relative speed along its push (:meth:`measure`).
       separation_<robot> (channel, m): the robot's least true distance to any body region (negative:
         overlapping), read up to ``cutoff``.
       nearest_region, nearest_person (channels): the body region nearest to any robot within ``cutoff``, and whose it
@@ -162,9 +164,12 @@ class HarmMonitor(CellSystem):
         self._shapes = {g: inspector.GetShape(g) for g in self.bodies}  # for how near the floor each region is
         self.clamps = [*fixtures, *parts]  # what a region can be pinned against: fixtures, every arm's shapes
         self._pairs = NearestPair(inspector, list(self.parts), list(self.bodies))  # every robot part and body region
-        # each pair's push at the onset of its contact (3 per pair, zero while it does not touch): see measure()
+        # each touching pair's push, its normal while the overlap was last shallow (3 per pair, zero while it does
+        # not touch), and how deep its overlap is still shallow (m): see measure()
         self._pair_index = {(a, b): i for i, (a, b) in enumerate((a, b) for a in self.parts for b in self.bodies)}
         self._onset = self.declare_state("onset", np.zeros(3 * len(self._pair_index)))
+        self._shallow = [SHALLOW * min(inradius(inspector.GetShape(a)), inradius(inspector.GetShape(b)))
+                         for a, b in self._pair_index]
         parts = list(self.parts.values())
         self._robot_rows = [[i for i, part in enumerate(parts) if part.robot == robot] for robot in self.robots]
         # each arm body's shapes within a sphere about a point fixed to it: (body index, centre in its frame, radius)
@@ -356,14 +361,16 @@ class HarmMonitor(CellSystem):
         return (pairs, *self.measure(context, query, pairs)) if pairs else (pairs, list(self._clear), {})
 
     def measure(self, context, query, pairs) -> tuple[list[float], dict]:
-        """The channels' values for the pairs a look found near, and the push of each contact (pair index -> unit
-        vector from the arm into the region, in the world).
+        """The channels' values for the pairs a look found near, and each contact's push (pair index -> unit vector
+        from the arm into the region, in the world), kept in the ``onset`` state while the pair touches.
 
-        A contact is judged along its push at its onset, the contact normal at the instant the pair began to
-        touch (kept in the ``onset`` state while it goes on): the arm keeps pressing that way. The body does not
-        give way in the twin, so the arm can sink into a region; past about the region's half-width, the
-        direction of least overlap turns (sideways, or back out), and the normal of that instant would read a
-        press going on as no push at all."""
+        The body does not give way in the twin, so an arm that keeps pressing sinks into a region; deep in it, past
+        either shape's middle, the direction of least overlap turns (sideways, or back out), and the contact normal of
+        that instant would read a press that goes on as no push at all. So a contact's push is its normal while the
+        overlap is shallow (:data:`SHALLOW`), following the arm as it slides over the region, and once deeper the
+        last shallow one's; it is judged along that push and along the normal of the instant, whichever reads worse
+        (an edge of a box turns the normal at once, however shallow). An arm drawing back out of deep within a region
+        may so read as pushing (the normal of the instant points back the way it came): the reading errs on harm."""
         onset = context.get_discrete_state(self._onset).get_value()
         onsets = {}
         separation = dict.fromkeys(self.robots, self.cfg.cutoff)
@@ -386,16 +393,20 @@ class HarmMonitor(CellSystem):
             on_a = pair.id_A == region
             p_W = witness_on(query, pair, region)
             k = self._pair_index[(other, region)]
+            normal = pair.nhat_BA_W if on_a else -pair.nhat_BA_W  # from the arm into the region, now
             push = onset[3 * k:3 * k + 3]
-            if not push.any():  # its first instant: the arm pushes along the contact normal, from it into the region
-                push = pair.nhat_BA_W if on_a else -pair.nhat_BA_W
+            if not push.any() or -pair.distance <= self._shallow[k]:
+                push = normal
             onsets[k] = push
-            speed = float((motion.of_part(part, p_W) - motion.of_region(body, p_W)) @ push)
-            pinned = self._pinned(query, body.person, body.region, p_W, other, part, push, region)
-            kind = QUASI_STATIC if pinned else TRANSIENT
-            level = severity(self.limits.regions[body.region], part.mass, kind, speed)
-            if kind == QUASI_STATIC:
-                clamping = max(clamping, level)
+            relative = motion.of_part(part, p_W) - motion.of_region(body, p_W)
+            judged = []  # (severity, speed, kind) along the push, and along the normal of the instant where it differs
+            for direction in (push,) if push is normal else (push, normal):
+                speed = float(relative @ direction)
+                pinned = self._pinned(query, body.person, body.region, p_W, other, part, direction, region)
+                kind = QUASI_STATIC if pinned else TRANSIENT
+                judged.append((severity(self.limits.regions[body.region], part.mass, kind, speed), speed, kind))
+            level, speed, kind = max(judged, key=lambda found: found[:2])
+            clamping = max([clamping, *(found[0] for found in judged if found[2] == QUASI_STATIC)])
             if level > worst[0] or worst[1] == NONE:
                 worst = (level, body.region, self.people[body.person], part.name, kind, max(speed, 0.0))
         level, region, person, part, kind, speed = worst
