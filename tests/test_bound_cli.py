@@ -215,3 +215,20 @@ def test_until_bound_stops_at_the_first_violation_and_says_the_violation_is_the_
 def test_a_bad_until_bound_is_one_line_and_exit_2(tmp_path, args, message):
     done = _cellsim("campaign", WELDING_CELL, *args, "--out", tmp_path / "c")
     assert done.returncode == 2 and message in done.stderr and not (tmp_path / "c").exists()
+
+
+def test_until_bound_keeps_the_same_runs_with_two_workers_as_with_one(tmp_path):
+    """An audit found --until-bound counting a second run with two workers: the run in flight when run 0 violated
+    was kept (1 of 1 with one worker, 2 of 2 with two). The campaign is the runs up to the first violation, as one
+    worker makes it; one in flight past it is left out, its folder removed."""
+    tending = ROOT / "scenarios" / "machine_tending.yaml"
+    made = {}
+    for jobs in (1, 2):
+        out = tmp_path / f"jobs{jobs}"
+        done = _cellsim("campaign", tending, "--until-bound", "0.5", "--duration", "10", "--seed", "3", "--jobs", jobs,
+                        "--out", out)
+        assert done.returncode == 1, done.stderr
+        results = json.loads((out / "results.json").read_text())
+        made[jobs] = ([r["index"] for r in results["runs"]], results["bounds"]["overall"]["failures"],
+                      sorted(p.name for p in (out / "runs").iterdir()))
+    assert made[2] == made[1] == ([0], 1, ["0000"])

@@ -366,3 +366,22 @@ def test_a_search_replacing_another_gives_it_back_whole_when_it_does_not_finish(
                         overwrite=True, progress=stop)
     assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["search"]
+
+
+@ONE_AT_A_TIME
+def test_a_search_stopped_at_its_first_violation_keeps_the_same_runs_with_two_workers_as_with_one(tmp_path):
+    """An audit found a search keeping the run a second worker had in flight when the first violation came: six runs
+    with two workers, five with one. The search is a pure function of its seed, method, batch and budget."""
+    tending = ROOT / "scenarios" / "machine_tending.yaml"
+    made = {}
+    for jobs in (1, 2):
+        out = tmp_path / f"jobs{jobs}"
+        done = _cellsim("falsify", tending, "--condition", "TrueSSM", "--budget", "6", "--duration", "10", "--jobs",
+                        jobs, "--out", out)
+        assert done.returncode == 1, done.stderr
+        results = json.loads((out / "results.json").read_text())
+        first = results["search"]["first_violation"]
+        made[jobs] = (first, [(r["index"], r["seed"], r["search"]["score"]) for r in results["runs"]],
+                      sorted(p.name for p in (out / "runs").iterdir()))
+        assert [index for index, _, _ in made[jobs][1]] == list(range(first + 1))
+    assert made[2] == made[1]

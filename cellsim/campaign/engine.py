@@ -380,13 +380,28 @@ Task = tuple[int, "dict | None", "dict | None"]
 """A run to make: (index, configuration or None to draw it, its place in a search or None)."""
 
 
+def keep_before(out: Path, results: dict[int, dict], limit: int | None, made: Iterable[int] | None = None) -> list[int]:
+    """Leave out of ``results`` (index -> result) every run from index ``limit`` on among those just ``made`` (default:
+    all), and remove its folder: a campaign or search that stops at a run (``run_all``'s ``cutoff``) is the runs
+    before it, as one worker running them in order would make it, whatever runs other workers had in flight. (A run
+    an earlier command made stays: one extended past the stop with ``--runs``.) Returns the indices left out."""
+    if limit is None:
+        return []
+    dropped = sorted(i for i in (results if made is None else made) if i >= limit and i in results)
+    for index in dropped:
+        del results[index]
+        shutil.rmtree(run_dir(out, index), ignore_errors=True)
+    return dropped
+
+
 def run_all(workers: "Workers", plan: CampaignPlan, out: Path, tasks: Iterable[Task], origin: dict,
             on_result: Callable[[dict], None], cutoff: Callable[[], int | None] = lambda: None,
             lost: str = "the finished runs are kept in {out}: run the same command again to resume") -> None:
     """Make ``tasks`` on ``workers``, in index order, handing each result to ``on_result`` as it comes back.
 
     ``cutoff()``, asked after every result: an index from which runs are no longer started (None: go on);
-    runs already started finish and are handed on. A dead worker is a CampaignError saying what became of
+    runs already started finish and are handed on (the caller leaves out those past the cutoff: ``keep_before``,
+    so that what is kept does not depend on how many ran at once). A dead worker is a CampaignError saying what became of
     the runs (``lost``, with ``{out}`` the folder).
     """
     tasks = list(tasks)

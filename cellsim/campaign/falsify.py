@@ -394,7 +394,8 @@ def _search(plan: FalsifyPlan, out: Path, jobs, on_progress, batch, runs, space,
 
 def _evaluate(workers, plan: CampaignPlan, out: Path, tasks, origin, scorer: Scorer) -> dict[int, dict]:
     """Run one batch; runs after the first that violates a targeted condition are not started (those before
-    it, and those running, finish)."""
+    it finish), and one running when it came is left out (``engine.keep_before``): the search's runs do not depend on
+    how many ran at once."""
     done: dict[int, dict] = {}
 
     def take(result: dict) -> None:
@@ -405,6 +406,7 @@ def _evaluate(workers, plan: CampaignPlan, out: Path, tasks, origin, scorer: Sco
         return min(violating) + 1 if violating else None
 
     engine.run_all(workers, plan, out, tasks, origin, take, cutoff, lost="the runs so far are in {out}")
+    engine.keep_before(out, done, cutoff())
     return done
 
 

@@ -68,6 +68,7 @@ from cellsim.campaign.engine import (
     discard,
     execute_run,
     holds_others,
+    keep_before,
     origin_of,
     run_all,
     run_dir,
@@ -285,20 +286,29 @@ def _run_locked(plan, out: Path, jobs, on_progress, restart, runs, wall_start, s
             on_progress(Progress(len(done), plan.runs, sum(1 for r in done if r.get("violations")),
                                  sum(1 for r in done if r.get("status") == "failed"), coverage))
 
+    made: list[int] = []  # the runs this command makes
+
     def take(result: dict) -> None:
         results[result["index"]] = result
+        made.append(result["index"])
         report_progress()
 
-    # --until-bound: once a run counts against the bound, no run is started
+    # --until-bound: the campaign ends at the first run that counts against the bound: no later run is started, and
+    # one in flight when it came is left out (the runs are those one worker would have made, in order)
     bounded = plan.until_bound is not None
-    cutoff = lambda: 0 if bounded and any(counts_against(r) for r in results.values()) else None  # noqa: E731
+
+    def cutoff() -> int | None:
+        against = [i for i, r in results.items() if counts_against(r)] if bounded else []
+        return min(against) + 1 if against else None
+
     report_progress()
-    todo = [(i, None, None) for i in range(plan.runs) if i not in results]
+    todo = [(i, None, None) for i in range(plan.runs) if i not in results and (cutoff() is None or i < cutoff())]
     cluster = None
-    if todo and cutoff() is None:
+    if todo:
         with worker_pool(jobs, scheduler, out / INPUTS) as workers:
             run_all(workers, worker_plan, out, todo, origin_of(out, plan.scenario, runs.identity), take, cutoff)
             cluster = workers.record()
+    keep_before(out, results, cutoff(), made)
     done = [results[i] for i in range(plan.runs) if i in results]
     return finish(plan, out, runs.scenario, case, done, resumed, wall_start, provenance(runs.identity), cluster=cluster)
 
