@@ -468,7 +468,7 @@ def check_campaign(folder: str | os.PathLike, scenario: ScenarioFile | None = No
     import json
 
     from cellsim.campaign.falsify import NOT_A_SAMPLE, read_search
-    from cellsim.campaign.runner import RESULT, RESULTS, RUNS
+    from cellsim.campaign.runner import PLAN, RESULT, RESULTS, RUNS, sampled_bounds
     from cellsim.validation.bound import campaign_bounds
     from cellsim.validation.check import CheckError
 
@@ -505,14 +505,26 @@ def check_campaign(folder: str | os.PathLike, scenario: ScenarioFile | None = No
         return CampaignCheck(folder, runs, list(conditions), None, NOT_A_SAMPLE, waived)  # a search chose them: no bound
     try:
         stored = json.loads((folder / RESULTS).read_text())["bounds"]
-        sampling = stored.get("drawn_from", stored["sampling"])  # (before the failed runs' clause: said again)
-        if not isinstance(sampling, str):
-            raise TypeError(sampling)
+        distribution = stored.get("distribution")
+        if distribution is None:  # (a folder from before the distribution was kept apart: its statement, as it was)
+            sampling = stored.get("drawn_from", stored["sampling"])  # (before the failed runs' clause: said again)
+            if not isinstance(sampling, str):
+                raise TypeError(sampling)
+            return CampaignCheck(folder, runs, list(conditions), campaign_bounds(runs, list(conditions), sampling),
+                                 waived=waived)
+        if not isinstance(distribution, str):
+            raise TypeError(distribution)
     except (OSError, ValueError, KeyError, TypeError):  # a bound is nothing without the distribution it holds under
         return CampaignCheck(folder, runs, list(conditions), None,
                              f"{folder / RESULTS} is missing or records no sampling distribution: what the runs were "
                              "drawn from is not known, so no violation rate or bound follows from them", waived)
-    return CampaignCheck(folder, runs, list(conditions), campaign_bounds(runs, list(conditions), sampling),
+    # how the number of runs was decided, said of the runs counted now (campaign.json keeps each command's sizing: an
+    # extension stopped before it wrote its results leaves them stale)
+    try:
+        sizing = json.loads((folder / PLAN).read_text()).get("sizing") or []
+    except (OSError, ValueError, AttributeError):
+        sizing = []
+    return CampaignCheck(folder, runs, list(conditions), sampled_bounds(runs, list(conditions), distribution, sizing),
                          waived=waived)
 
 

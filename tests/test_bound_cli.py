@@ -232,3 +232,39 @@ def test_until_bound_keeps_the_same_runs_with_two_workers_as_with_one(tmp_path):
         made[jobs] = ([r["index"] for r in results["runs"]], results["bounds"]["overall"]["failures"],
                       sorted(p.name for p in (out / "runs").iterdir()))
     assert made[2] == made[1] == ([0], 1, ["0000"])
+
+
+def test_check_of_an_extension_stopped_before_its_results_says_the_bound_is_approximate(tmp_path):
+    """An audit found check taking its statement from the results.json the extension had not yet written again: the
+    campaign extended after runs counted against it, and stopped, was bounded as exact. The statement of how the
+    number of runs was decided now comes from campaign.json's sizing, for the runs check counts."""
+    import os
+    import signal
+    import time
+
+    tending = ROOT / "scenarios" / "machine_tending.yaml"
+    out = tmp_path / "c"
+    first = _cellsim("campaign", tending, "--runs", "2", "--duration", "10", "--seed", "3", "--jobs", "1", "--out", out)
+    assert first.returncode == 1, first.stderr  # runs count against the bound (TrueSSM, in this cell)
+    assert "approximate" not in json.loads((out / "results.json").read_text())["bounds"]["sampling"]
+    child = subprocess.Popen([sys.executable, "-m", "cellsim", "campaign", str(tending), "--runs", "6", "--duration", "10",
+                              "--seed", "3", "--jobs", "1", "--out", str(out), "--quiet"],
+                             stdin=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=ROOT, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120.0
+        while not (out / "runs" / "0002" / "result.json").exists():  # the extension's first run, on disk
+            assert child.poll() is None, child.stderr.read()
+            assert time.monotonic() < deadline, "the extension finished no run in 120 s"
+            time.sleep(0.05)
+        child.send_signal(signal.SIGINT)
+        child.communicate(timeout=60)
+    finally:
+        if child.poll() is None:
+            os.killpg(child.pid, signal.SIGKILL)
+        child.wait()
+    assert child.returncode == 130
+    shown = json.loads(_cellsim("check", out, "--json").stdout)
+    counted = shown["bounds"]["overall"]["runs"]
+    assert counted >= 3 and len(json.loads((out / "results.json").read_text())["runs"]) == 2  # results.json: stale
+    assert "the campaign was extended after runs counted against it" in shown["bounds"]["sampling"]
+    assert "approximate" in shown["bounds"]["sampling"]

@@ -173,6 +173,19 @@ def prepare(plan: CampaignPlan, out: Path, identity: dict, restart: bool = False
     return done
 
 
+def sampled_bounds(runs: list[dict], conditions: list[str], distribution: str, sizing: list[dict]) -> dict:
+    """The ``bounds`` block of a campaign's results (:func:`cellsim.validation.bound.campaign_bounds`) for runs drawn
+    from ``distribution`` (in words), their number decided as ``sizing`` (``campaign.json``) says: the one rule for
+    the campaign and for a check of its folder. The distribution is kept apart (``distribution``), so a check counting
+    other runs says how their number was decided afresh."""
+    from cellsim.validation.bound import campaign_bounds, counts_against
+
+    completed = [r for r in runs if r.get("status") not in ("failed", "unfinished")]
+    how = chosen_as_they_came(sizing, any(counts_against(r) for r in completed))
+    return {**campaign_bounds(runs, conditions, "; ".join(filter(None, [distribution, how]))),
+            "distribution": distribution}
+
+
 def chosen_as_they_came(sizing: list[dict], any_against: bool) -> str | None:
     """How the number of runs depended on the runs' outcomes, in words, or None where it did not: ``--until-bound``
     that stopped at a run counted against the bound (``any_against``: one did; with none, its runs went to the number
@@ -319,9 +332,7 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
     campaign's provenance (:func:`cellsim.provenance.provenance`); ``search``, the
     falsification search's record when a search chose the runs (then no bound is given)."""
     from cellsim.campaign.report import finding_runs, write_report
-    from cellsim.validation.bound import counts_against
     from cellsim.scenario import unit_of
-    from cellsim.validation.bound import campaign_bounds
 
     sc = sf.scenario
     try:
@@ -367,11 +378,9 @@ def finish(plan, out: Path, sf, case, runs: list[dict], resumed: int, wall_start
             "coverage": coverage.to_json(),
             "finding_runs": finding_runs(runs),
         },
-        "bounds": {"excluded": search["not_a_sample"]} if search else campaign_bounds(runs, conditions, "; ".join(
-            filter(None, [describe_sampling(
-                sc.campaign.samplers, {name: point.paths for name, point in sc.configuration_points.items()},
-                plan.duration if plan.duration is not None else sc.duration, tuple(plan.overrides)),
-                chosen_as_they_came(sizing, any(counts_against(r) for r in completed))]))),
+        "bounds": {"excluded": search["not_a_sample"]} if search else sampled_bounds(runs, conditions, describe_sampling(
+            sc.campaign.samplers, {name: point.paths for name, point in sc.configuration_points.items()},
+            plan.duration if plan.duration is not None else sc.duration, tuple(plan.overrides)), sizing),
         "timing": {
             "simulate": stage("simulate"),
             "trace": stage("trace"),

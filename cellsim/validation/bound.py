@@ -120,8 +120,8 @@ def campaign_bounds(runs: list[dict], conditions: list[str], sampling: str, conf
     failed = sum(1 for r in runs if r.get("status") == "failed")
     drawn_from = sampling
     if failed:  # the completed runs are a sample of the runs that complete, not of every run drawn
-        sampling = (f"{sampling}; of the runs drawn so, only those that complete ({failed} of {len(runs)} did not: a "
-                    "configuration that cannot be simulated is not covered)")
+        sampling = (f"{sampling}; of the runs drawn so, only those that complete ({failed} of {len(runs)} did not "
+                    "complete or could not be read: a configuration that cannot be simulated is not covered)")
     return {
         "confidence": confidence,
         "method": METHOD,
