@@ -54,18 +54,22 @@ class Figure:
     """The channel read (``process_controller.cycles_completed``)."""
 
 
+OUTRUN = ("fast part", "fast fall", "region jump")
+"""The findings of a measurement outrun between two looks (a run's verdicts on it may have missed something)."""
+
+
 @dataclass(frozen=True)
 class Finding:
     """What a run showed that its summary and report name with times and places, read back from its black box
     by the module's kind (:meth:`ModuleKind.findings`): a contact with a person, the closest approach, a blind spot,
-    a robot part faster than the harm service's looks assume, a true SSM margin falling faster than its monitor's
-    watch assumes;
+    a robot part faster than the harm service's looks assume, a body region jumping farther in one update than they
+    can see, a true SSM margin falling faster than its monitor's watch assumes (:data:`OUTRUN`);
     and, of a live twin's run, an entity whose samples it decided on slower than its scenario assumes
     (:func:`cellsim.live.reaction.reaction_findings`)."""
 
     subject: str
     """The module that measured it (``harm``, ``scanner``)."""
-    what: Literal["contact", "closest approach", "blind spot", "slow reaction", "fast part", "fast fall"]
+    what: Literal["contact", "closest approach", "blind spot", "slow reaction", "fast part", "fast fall", "region jump"]
     start: float
     """When it began (s)."""
     end: float | None
@@ -74,6 +78,11 @@ class Finding:
     """One line for people: what, where, how hard."""
     data: dict = field(default_factory=dict)
     """Its values, for reports (SI units; ``severity``, ``region``, ``field``...)."""
+
+    @property
+    def outrun(self) -> bool:
+        """Whether it is a measurement outrun between two looks (:data:`OUTRUN`): the run may have missed something."""
+        return self.what in OUTRUN
 
     def to_json(self) -> dict:
         return {"subject": self.subject, "what": self.what, "start": self.start, "end": self.end, "text": self.text,

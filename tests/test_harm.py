@@ -191,14 +191,19 @@ def test_a_hand_pressed_onto_the_bench_is_clamped(cell):
         assert reading["clamping"] == pytest.approx(fraction, rel=1e-5)
 
 
-def measured(built, context) -> dict:
-    """The harm service's channels after one of its updates measuring at a plant step (decoded), its state kept."""
+def measured(built, context, look: bool = False) -> dict:
+    """The harm service's channels after one of its updates measuring at a plant step (decoded), its state kept;
+    ``look``: at a look of its schedule (where it also measures what lies farther, to the cut-off)."""
     from cellsim.kinds.harm.system import NEAR
 
     harm = built.modules["harm"]
     own = harm.GetMyMutableContextFromRoot(context)
     own.get_mutable_discrete_state(harm.group("near")).SetAtIndex(0, NEAR)  # measuring at every plant step
+    steps, looks = harm._looks
+    step = next(k for k in range(steps) if looks[k] == look)
+    context.SetTime(step * harm.period)
     own.SetDiscreteState(harm.EvalUniquePeriodicDiscreteUpdate(own))
+    context.SetTime(0.0)
     return {spec.signal: spec.type.decode([own.get_discrete_state(harm.group(spec.signal)).GetAtIndex(0)])
             for spec, _ in harm.channels}
 
@@ -216,7 +221,8 @@ def forgetting(cell):
     yield cell
     built, context = cell
     harm = built.modules["harm"]
-    harm.GetMyMutableContextFromRoot(context).get_mutable_discrete_state(harm.group("onset")).SetZero()
+    for kept in ("onset", "region_jump"):
+        harm.GetMyMutableContextFromRoot(context).get_mutable_discrete_state(harm.group(kept)).SetZero()
 
 
 def test_a_press_that_sinks_into_the_hand_is_judged_along_its_push_at_onset(forgetting):
@@ -573,3 +579,36 @@ def test_a_runs_closest_approach_names_the_person_and_their_region(tmp_path):
     db = sqlite3.connect(tmp_path / "run" / "blackbox.sqlite")
     assert db.execute("SELECT count(*) FROM channels WHERE name = 'harm.nearest_person'").fetchone()[0] == 1
     db.close()
+
+
+def test_a_hand_swung_farther_in_one_update_than_it_and_a_part_are_thick_is_a_finding(forgetting, tmp_path):
+    """The service sees a body where each update puts it: a hand that moves farther in one update than it and the
+    thinnest robot part are thick together may pass through the part unseen. Near a robot, that is measured
+    (region_jump) and is a finding of the run; the shipped cells' people never do it."""
+    built, context = forgetting
+    harm = built.modules["harm"]
+    tool_at(built, context, (0.3, -0.5, 1.05))
+    reach = [1.0, 0.3, -0.45, 1.05]  # the arm stretched out towards the tool
+    operator = built.modules["operator"]
+    operator.set_pose(context, [0.3, -1.15, math.pi / 2, *reach])
+    assert measured(built, context, look=True)["region_jump"] == 0.0  # standing still: nothing moved
+    own = operator.GetMyMutableContextFromRoot(context)
+    own.get_mutable_discrete_state(operator.group("previous_pose")).SetFromVector(
+        [0.3, -1.15, math.pi / 2 - 0.4, 1.0, 0.75, -0.45, 1.05])  # in one update: turned, the hand swung from 0.45 m away
+    between = measured(built, context, look=False)["region_jump"]
+    jumped = measured(built, context, look=True)["region_jump"]
+    assert between == 0.0 and jumped > 0.1  # (looked at at a look of the schedule: one follows every update)
+    from cellsim.kinds.harm.findings import _jumped
+
+    class Box:  # the black box's view the findings read: the channel's series
+        def channels(self):
+            return ["harm.region_jump"]
+
+        def series(self, channel):
+            from cellsim.blackbox import Series
+
+            return Series(channel, np.array([0.0, 2.0]), [0.0, jumped])
+
+    found = _jumped("harm", Box())
+    assert found is not None and found.what == "region jump" and found.start == 2.0
+    assert f"{jumped:.3g} m farther" in found.text

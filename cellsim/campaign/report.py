@@ -70,6 +70,7 @@ import numpy as np
 from markupsafe import Markup
 
 from cellsim.atomic import write_text
+from cellsim.kind import OUTRUN
 from cellsim.numbers import instant, is_number, measure, percent, sig3
 from cellsim.validation.verdict import RUN_GROUPS, Verdict
 
@@ -398,7 +399,7 @@ FINDING_RUNS = {
     "with blind spots": lambda f: f.get("what") == "blind spot",
     "with harm above its limits": lambda f: f.get("what") == "contact" and is_number(f.get("severity"))
     and f["severity"] > 1.0,
-    "outrunning a measurement": lambda f: f.get("what") in ("fast part", "fast fall"),
+    "outrunning a measurement": lambda f: f.get("what") in OUTRUN,
 }
 """What runs can show beside the conditions' verdicts, each a badge of the report's header and a line of the
 campaign's summary: blind spots, contacts above their limits (a waived NoHarm's too), a measurement outrun between
@@ -547,7 +548,7 @@ def _harm(results: Mapping, runs: Sequence[Mapping]) -> dict:
                 end = f.get("end") if is_number(f.get("end")) else _dict(results.get("campaign")).get("duration")
                 if is_number(end) and is_number(f.get("start")):
                     entry["seconds"] += end - f["start"]
-            elif f.get("what") in ("fast part", "fast fall"):
+            elif f.get("what") in OUTRUN:
                 fast.append({"run": index, "text": str(f.get("text", ""))})
             elif f.get("what") == "closest approach" and is_number(f.get("distance")):
                 if closest is None or f["distance"] < closest["distance"]:

@@ -14,8 +14,9 @@ def _series(bb, channel):
 
 def harm_findings(name: str, bb, max_part_speed: float | None = None) -> list[Finding]:
     """The contacts (each interval the worst contact's region is not none, with its worst severity), the closest
-    approach (the least separation of any robot, where and when), and a robot part seen faster than
-    ``max_part_speed`` (m/s), the service's assumption between two looks."""
+    approach (the least separation of any robot, where and when), and where the service's assumptions between two
+    looks broke: a robot part seen faster than ``max_part_speed`` (m/s), a body region that jumped farther than it and
+    a part are thick."""
     region = _series(bb, f"{name}.contact_region")
     if region is None:
         return []
@@ -34,8 +35,25 @@ def harm_findings(name: str, bb, max_part_speed: float | None = None) -> list[Fi
     if start is not None:
         found.append(_contact(name, others, region, start, None))
     approach = _closest(name, bb, others, [f for f in found if f.what == "contact"])
-    fast = _too_fast(name, bb, max_part_speed)
-    return ([approach] if approach is not None else []) + found + ([fast] if fast is not None else [])
+    unseen = [f for f in (_too_fast(name, bb, max_part_speed), _jumped(name, bb)) if f is not None]
+    return ([approach] if approach is not None else []) + found + unseen
+
+
+def _jumped(name, bb) -> Finding | None:
+    """When a body region first moved farther in one of its person's updates, near a robot, than it and the thinnest
+    robot part are thick together (``region_jump`` above 0), and the most it did."""
+    seen = _series(bb, f"{name}.region_jump")
+    if seen is None or not len(seen):
+        return None
+    beyond = np.array([v if isinstance(v, (int, float)) else np.inf for v in seen.values], float)
+    if not beyond[-1] > 0.0:
+        return None
+    first = int(np.argmax(beyond > 0.0))
+    most = float(beyond[-1])
+    text = (f"a body region moved {most:.3g} m farther in one of its person's updates, near a robot, than it and the "
+            f"thinnest robot part are thick together: the harm service sees it where each update puts it, so it may "
+            f"have passed through a part unseen (lower the person's turn_rate or period; docs/harm.md)")
+    return Finding(name, "region jump", float(seen.times[first]), None, text, {"beyond": most})
 
 
 def _too_fast(name, bb, max_part_speed) -> Finding | None:

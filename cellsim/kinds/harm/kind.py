@@ -28,6 +28,8 @@ class HarmKind(ModuleKind):
         ("nearest_region", "enum", "body region nearest to a robot within cutoff (none: nobody that near)"),
         ("nearest_person", "enum", "the person whose region is nearest to a robot within cutoff (none: nobody that near)"),
         ("separation_<robot>", "number, m", "per robot: its least true distance to any body region, up to cutoff"),
+        ("region_jump", "number, m", "the most a body region moved in one update near a robot beyond it and the thinnest "
+         "robot part's thickness (the largest yet; above 0: it may have passed through a part unseen)"),
         ("unwatched_part_speed", "number, m/s",
          "the fastest a robot part's point moved at a look ending an interval watched only at looks"),
     )

@@ -86,6 +86,9 @@ class HarmMonitor(CellSystem):
         overlapping), read up to ``cutoff``.
       nearest_region, nearest_person (channels): the body region nearest to any robot within ``cutoff``, and whose it
         is, else none.
+      region_jump (channel, m): the most a body region moved in one of its person's updates, while a robot part was
+        within ``cutoff``, beyond its own thickness and the thinnest robot part's together (the largest yet; above 0:
+        it may have passed through a part unseen, between two looks).
       unwatched_part_speed (channel, m/s): the fastest any point of a robot part moved at a look ending an interval
         the service watched only at its looks (above ``max_part_speed``: a contact in it may have been missed).
     """
@@ -135,6 +138,9 @@ class HarmMonitor(CellSystem):
             *(self.declare_channel(f"separation_{robot}", m, cfg.cutoff, description=f"True least distance from {robot} to a body")
               for robot in self.robots),
         ]
+        self._jump = self.declare_channel(
+            "region_jump", m, 0.0,
+            description="Most a body region moved in one update near a robot, beyond it and the thinnest part's thickness")
         self._unwatched = self.declare_channel(
             "unwatched_part_speed", speed, 0.0,
             description="Fastest a robot part's point moved at a look ending an interval watched only at looks")
@@ -186,6 +192,14 @@ class HarmMonitor(CellSystem):
             raise ValueError(f"{self.module}: the shape of robot part {unbounded[0]} cannot be bounded (a box, cylinder, "
                              "sphere, capsule, ellipsoid or mesh can): its speed could not be measured")
         self._looks = self._schedule()
+        # each person's regions by frame: (frame, their centres in it (m), how far each may move in one update unseen)
+        thinnest = 2.0 * min(inradius(inspector.GetShape(g)) for g in self.parts)
+        grouped: dict = {}
+        for g, body in self.bodies.items():
+            grouped.setdefault((body.person, body.frame), []).append(
+                (inspector.GetPoseInFrame(g).translation(), 2.0 * inradius(self._shapes[g]) + thinnest))
+        self._moving = [[(frame, np.array([c for c, _ in found]), np.array([a for _, a in found]))
+                         for (p, frame), found in grouped.items() if p == person] for person in range(len(self.people))]
 
     def _schedule(self) -> tuple[int, np.ndarray]:
         """When the service looks while nothing is near: one plant step after each person's update, where the body
@@ -329,6 +343,8 @@ class HarmMonitor(CellSystem):
         now = FAST if fast else NEAR if any(p.distance <= self.reach for p in pairs) else FAR
         if now != state:
             xd.get_mutable_vector(self._near).SetAtIndex(0, now)
+        if look and pairs:
+            self._note_jump(context, xd)
         previous = [context.get_discrete_state(g).GetAtIndex(0) for g in self._outputs]
         if not look:  # what lies beyond reach (nothing found within it) stays as the last look saw it
             for i in range(self._first_far, len(values)):
@@ -336,6 +352,25 @@ class HarmMonitor(CellSystem):
                     values[i] = previous[i]
         write_changed(xd, self._outputs, values, previous)
         return None
+
+    def _note_jump(self, context, xd) -> None:
+        """At a look finding a robot part within the cut-off: how far each body region moved at its person's last
+        update (where the update put it against where the one before did), beyond its own thickness and the thinnest
+        robot part's; the largest yet is ``region_jump``. A region that moves farther than that in one update may pass
+        through a part between two looks unseen (docs/harm.md)."""
+        worst = context.get_discrete_state(self._jump).GetAtIndex(0)
+        found = worst
+        for person, ((now_port, before_port), system) in enumerate(zip(self.pose_ports, self.person_systems)):
+            now, before = now_port.Eval(context), before_port.Eval(context)
+            if np.array_equal(now, before):
+                continue
+            X_now, X_before = system.frame_poses(tuple(now)), system.frame_poses(tuple(before))
+            for frame, centres, allowed in self._moving[person]:
+                a, b = X_now.value(frame).GetAsMatrix34(), X_before.value(frame).GetAsMatrix34()
+                moved = np.linalg.norm(centres @ (a[:, :3] - b[:, :3]).T + (a[:, 3] - b[:, 3]), axis=1)
+                found = max(found, float((moved - allowed).max()))
+        if found > worst:
+            xd.get_mutable_vector(self._jump).SetAtIndex(0, found)
 
     def _write_onsets(self, context, xd, onsets: dict) -> None:
         """Keep the pushes of the contacts going on now (``onsets``: pair index -> push), zero every other pair's."""
