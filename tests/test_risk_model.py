@@ -477,6 +477,14 @@ hazards:
     ("near: {safmod: ssmon, alarm: true}", "near: {alarm: 1}", "20: hazards.H.demands.near.alarm: 1 is not a value of alarm (False, True)"),
     ("near: {safmod: ssmon, alarm: true}", "near: {safmod: 2}",
      "20: hazards.H.demands.near.safmod: 2 is not a value of safmod (normal, ssmon, stopped)"),
+    # an audit: a value listed twice ranked a controlled one's restrictiveness twice (the less safe demand won)
+    ("safmod: {values: [normal, ssmon, stopped], default: normal}",
+     "safmod: {values: [stopped, normal, ssmon, stopped], default: normal}",
+     "6: controlled.safmod.values: each value once: stopped repeated"),
+    ("mode: {values: [normal, slow, stopped]}", "mode: {values: [normal, slow, slow]}",
+     "4: monitored.mode.values: each value once: slow repeated"),
+    # and a hazard named as a controlled variable ended in Drake's error, exit 1
+    ("  H:\n", "  safmod:\n", "14: hazards: hazard names must differ from variables and macros: safmod"),
     ("  sep: {type: number, unit: m}\n", "  sep: {type: number, unit: m}\n  speed: {type: number, unit: m/s}\n",
      "19: hazards.H.transitions.1.when: cannot compare sep (numeric, in m) with speed (numeric, in m/s): the domains differ"),
 ])
@@ -701,3 +709,61 @@ def test_the_controller_is_the_cells_module_of_its_name_and_the_recorder_taps_it
     assert cell.recorder.name == "blackbox"
     logs = [system.get_name() for system in cell.diagram.GetSystems() if system.get_name().startswith("blackbox.log")]
     assert logs and cell.diagram.HasSubsystemNamed("safety_controller.monitors")  # a log per period of the channels
+
+
+def test_what_the_initial_phases_demand_is_commanded_from_the_start_as_verify_models_it(tmp_path):
+    """An audit found a hazard's initial phase's demand ignored by the twin until some phase changed (it commanded the
+    default, normal, while its initial 'unverified' demanded stopped), where verify's model commands it from the
+    start: a 'holds' resting on it would not be the twin's. Both now command it from t = 0."""
+    from cellsim.verify.risk import risk_modules
+
+    path = tmp_path / "unverified.yaml"
+    path.write_text("""name: unverified
+monitored:
+  ok: {type: bool}
+controlled:
+  safmod: {values: [normal, ssmon, stopped], default: normal}
+phases: {values: [unverified, inact, act, mis], initial: unverified, mishap: mis}
+hazards:
+  H:
+    transitions:
+      - {phase: unverified, to: inact, when: ok}
+      - {phase: inact, to: act, when: not ok}
+    demands:
+      unverified: {safmod: stopped}
+      act: {safmod: stopped}
+""")
+    model = load_risk_model(path)
+    system = SafetyController("sc", 0.02, model, {"ok": BOOL}, {"safmod": enum_type(SafetyMode)})
+    context = system.CreateDefaultContext()
+    commanded = lambda: SafetyMode.from_code(system.GetOutputPort("safmod").Eval(context)[0]).value  # noqa: E731
+    assert commanded() == "stopped"  # before any update
+    system.monitored_port.FixValue(context, system.encode_monitored({"ok": False}))
+    context.SetDiscreteState(system.EvalUniquePeriodicDiscreteUpdate(context))
+    assert commanded() == "stopped"  # not verified yet: still stopped
+    system.monitored_port.FixValue(context, system.encode_monitored({"ok": True}))
+    context.SetDiscreteState(system.EvalUniquePeriodicDiscreteUpdate(context))
+    assert commanded() == "normal"  # verified: the default
+    # verify's model: the command a function of the phases, the initial one's demand included
+    formula = next(f for name, f in risk_modules(model, 0.02).formulas.items() if "safmod" in name)
+    assert "H = 0" in formula and system.commanded(["unverified"]) == {"safmod": "stopped"}
+
+
+def test_a_monitored_channel_value_the_risk_model_does_not_list_is_refused_at_its_key(tmp_path):
+    """An audit found a risk model without 'unknown' in safmod accepted: a stale robot's 'unknown' then made every guard
+    on it false, which read as no hazard (HS inactive, the arm commanded normal, where the shipped model mitigates).
+    A value the channel carries and the model does not list is one error at the monitor's key."""
+    from cellsim.diagrams.cell import build_cell
+    from cellsim.scenario import load_scenario
+
+    text = RISK_MODEL.read_text()
+    listed = "safmod: {values: [normal, hguid, ssmon, pflim, srmst, stopped, unknown]"
+    assert listed in text
+    model = tmp_path / "no_unknown.yaml"
+    model.write_text(text.replace(listed, "safmod: {values: [normal, hguid, ssmon, pflim, srmst, stopped]").replace(
+        "permissive: safmod in {normal, hguid, ssmon, pflim, unknown}", "permissive: safmod in {normal, hguid, ssmon, pflim}"))
+    sf = load_scenario(ROOT / "scenarios" / "welding_cell.yaml", [f"behaviours.safety_controller.risk_model={model}"])
+    with pytest.raises(ConfigError) as e:
+        build_cell(sf, seed=0, duration=1.0, record=False)
+    assert e.value.key == "behaviours.safety_controller.monitors.safmod"
+    assert "also carries unknown, which the risk model's safmod does not list" in e.value.problem

@@ -71,7 +71,7 @@ def build_safety_controller(cell, name: str, cfg: SafetyControllerConfig) -> Saf
             ctype = getattr(system, "input_types", {}).get(port_name)
             if ctype is None:
                 raise sf.error(where, f"'{target}' is not a command input")
-            _check_domain(sf, where, var, risk_model.controlled[var], ctype)
+            _check_domain(sf, where, var, risk_model.controlled[var], ctype, monitored=False)
             if var in command_types and command_types[var] != ctype:
                 raise sf.error(where, f"'{target}' expects a different type than the other inputs of {var}")
             if builder.IsConnectedOrExported(system.GetInputPort(port_name)):
@@ -96,7 +96,7 @@ def build_safety_controller(cell, name: str, cfg: SafetyControllerConfig) -> Saf
             sources[var] = channels[channel][1]
         else:
             raise sf.error(where, f"no channel '{channel}'{suggest(channel, channels)}")
-        _check_domain(sf, where, var, risk_model.monitored[var], ctype)
+        _check_domain(sf, where, var, risk_model.monitored[var], ctype, monitored=True)
         monitor_types[var] = ctype
 
     controller = cell.add(name, SafetyController(name, cfg.period, risk_model, monitor_types, command_types))
@@ -113,8 +113,10 @@ def build_safety_controller(cell, name: str, cfg: SafetyControllerConfig) -> Saf
     return controller
 
 
-def _check_domain(sf, where: str, var: str, variable, ctype: ChannelType) -> None:
-    """The channel bound to a risk-model variable must carry its values (a number: in its unit)."""
+def _check_domain(sf, where: str, var: str, variable, ctype: ChannelType, monitored: bool) -> None:
+    """The channel bound to a risk-model variable must carry its values (a number: in its unit); a ``monitored`` one's
+    values must also be all the channel carries: a value the model does not list (a stale robot's ``unknown``) would
+    make every guard on it false, which reads as no hazard."""
     if variable.type == "number":
         if ctype.kind != "number":
             raise sf.error(where, f"{var} is a number but the channel carries {ctype.domain()}")
@@ -130,6 +132,10 @@ def _check_domain(sf, where: str, var: str, variable, ctype: ChannelType) -> Non
         ok = False
     if not ok:
         raise sf.error(where, f"{var} takes {list(values)} but the channel carries {ctype.domain()}")
+    unlisted = [v for v in ctype.domain() if v not in values] if monitored and ctype.kind == "enum" else []
+    if unlisted:
+        raise sf.error(where, f"the channel also carries {', '.join(map(str, unlisted))}, which the risk model's {var} "
+                              "does not list: every guard on it would be false there, as if no hazard (list them)")
 
 
 def _check(sf, name: str, cfg: SafetyControllerConfig) -> None:

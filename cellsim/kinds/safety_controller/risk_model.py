@@ -57,6 +57,9 @@ class Variable:
             raise FieldError("values", f"a {self.type} variable has no values list")
         if self.type != "number" and self.unit is not None:
             raise FieldError("unit", "only a number variable has a unit")
+        repeated = sorted({str(v) for v in self.values if self.values.count(v) > 1})
+        if repeated:  # (a controlled variable's order is its restrictiveness: a value twice would rank it twice)
+            raise FieldError("values", f"each value once: {', '.join(repeated)} repeated")
 
     @property
     def domain(self) -> tuple:
@@ -188,7 +191,7 @@ def compile_risk_model(loaded: Loaded[RiskModelFile]) -> RiskModel:
         if var.default is not None and not _is_value(var.default, var):
             raise error(f"controlled.{name}.default", f"{var.default!r} is not a value of {name}")
     hazard_names = set(rm.hazards)
-    clash = hazard_names & (set(rm.monitored) | set(rm.macros))
+    clash = hazard_names & (set(rm.monitored) | set(rm.controlled) | set(rm.macros))
     if clash:
         raise error("hazards", f"hazard names must differ from variables and macros: {', '.join(sorted(clash))}")
     phases = rm.phases.values

@@ -58,9 +58,11 @@ class SafetyController(CellSystem):
             for h in self.hazards
         ]
         self._commands = []
+        # from the start, what the initial phases demand (a model may start every hazard in a phase that stops the arm)
+        initially = self.commanded([risk_model.phases.initial] * len(self.hazards))
         for name, var in risk_model.controlled.items():
-            ctype = replace(command_types[name], optional=var.default is None)
-            group = self.declare_channel(name, ctype, var.default, description=f"Commanded {name}")
+            ctype = replace(command_types[name], optional=initially[name] is None)
+            group = self.declare_channel(name, ctype, initially[name], description=f"Commanded {name}")
             self._commands.append((name, var, group, self._encoder(ctype)))
         # each hazard's transitions by the phase they leave, in the order listed
         self._leaving = [
@@ -140,12 +142,20 @@ class SafetyController(CellSystem):
         xd.get_mutable_vector(self._since).SetFromVector(since)
         return held, timing
 
-    def _write_commands(self, xd, phases: list[str]) -> None:
-        """Commands are a function of the phases alone: the most restrictive demand, or the default."""
-        for name, var, group, encode in self._commands:
+    def commanded(self, phases: list[str]) -> dict:
+        """Each controlled variable's command when the hazards are in ``phases``: the most restrictive demand of
+        theirs, or its default (None: no request). Commands are a function of the phases alone."""
+        commands = {}
+        for name, var in self.risk_model.controlled.items():
             demanded = None
             for hazard, phase in zip(self.hazards, phases):
                 value = hazard.demands.get(phase, {}).get(name)
                 if value is not None and (demanded is None or var.domain.index(value) > var.domain.index(demanded)):
                     demanded = value
-            write_scalar(xd, group, encode(var.default if demanded is None else demanded))
+            commands[name] = var.default if demanded is None else demanded
+        return commands
+
+    def _write_commands(self, xd, phases: list[str]) -> None:
+        commands = self.commanded(phases)
+        for name, _, group, encode in self._commands:
+            write_scalar(xd, group, encode(commands[name]))
