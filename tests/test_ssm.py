@@ -354,3 +354,30 @@ def test_a_stale_sensor_gives_the_monitor_no_separation_and_a_stopped_arm_no_mar
         assert max(v for t, v in zip(speed.times, speed.values) if t > 1.0) < 0.01  # the arm stands still
     verdicts = {name: v.status.value for name, v in done.checked.result.verdicts.items()}
     assert verdicts["SensedMargin"] == "holds", verdicts
+
+
+@pytest.mark.parametrize("cell", ["welding_cell", "machine_tending"])
+def test_the_default_deceleration_is_what_the_arm_brakes_at_its_paths_fastest_point(cell):
+    """An audit found the default deceleration, speed_limits.normal / braking_time (2.0 m/s^2), above what the arm
+    delivers: it plans 0.04 m/s below the cap and its path's speed 5 % over its samples, so it brakes at 1.83 at the
+    path's fastest point. The default is now that, on every segment between named poses the normal cap limits, and
+    a segment its joints limit brakes slower (docs/ssm.md)."""
+    from cellsim.diagrams.cell import build_cell
+    from cellsim.kinds.robot.system import PATH_MARGIN, braking_deceleration
+    from cellsim.kinds.ssm.system import parameters_of
+
+    sf = load_scenario(ROOT / "scenarios" / f"{cell}.yaml")
+    robot = build_cell(sf, seed=0, duration=1.0, record=False).modules["robot"]
+    a = braking_deceleration(robot.cfg)
+    assert a == pytest.approx((robot.cfg.speed_limits.normal - 0.04) / (1.05 * robot.cfg.braking_time))
+    for module in sf.scenario.behaviours.values():
+        if getattr(module, "kind", None) == "ssm" and module.deceleration is None:
+            assert parameters_of(module, robot.cfg).deceleration == a
+    delivered = []
+    for i in range(len(robot.poses)):
+        for j in range(len(robot.poses)):
+            if i != j:
+                _, _, _, tool_per_s, joint_rate = robot.start_segment(robot.poses[i], j)[:5]
+                full = min(joint_rate, (robot.cfg.speed_limits.normal - 0.04) / tool_per_s)  # the planner's ds/dt
+                delivered.append(full / robot.cfg.braking_time * tool_per_s / PATH_MARGIN)  # at the fastest point
+    assert min(delivered) <= a + 1e-9 and max(delivered) == pytest.approx(a)  # none brakes harder; where the cap limits, a

@@ -63,7 +63,11 @@ class RobotConfig:
     initial_pose: str = "home"
     """The named pose the arm starts in."""
     speed_limits: SpeedLimits = field(default_factory=SpeedLimits)
-    """Tool speed cap per moving safety mode (m/s): a limit, never exceeded (the arm plans 0.04 m/s below it)."""
+    """Tool speed cap per moving safety mode (m/s): a limit the tool (its tool_frame) keeps in that mode (the arm plans
+    0.04 m/s below it), once braked to it: the mode reads the new one as soon as it is requested, while the arm brakes
+    from its speed at its own rate (braking_time from full speed), so after a change to a slower mode the tool is above
+    the new cap for up to braking_time x (old - new) / normal. Other points of the arm may move somewhat faster than
+    the tool (the harm service and ssm measure every shape's own speed)."""
     payload: Annotated[float, Range(0.0, 1000.0, unit="kg")] = 0.0
     """Mass the tool carries (kg): with half the moving links' mass, the robot's effective mass in a contact
     (ISO/TS 15066 Annex A), which the harm service judges contacts by."""

@@ -56,6 +56,16 @@ TRACKING_ALLOWANCE = 0.04
 """The arm plans its tool speed this far below a mode's speed cap (m/s): the joint controller
 overshoots a planned speed by up to about that much as an acceleration ends, and the measured
 speed must never exceed the cap (a safety-rated reduced speed is a limit, not a target)."""
+PATH_MARGIN = 1.05
+"""A segment's tool metres per unit of its path (``tool_per_s``) are its sampled points' fastest stretch times this,
+for the tool's speed between two samples."""
+
+
+def braking_deceleration(cfg) -> float:
+    """The tool's braking deceleration (m/s^2) the arm delivers at its path's fastest point on a segment its normal
+    cap limits: it plans that segment at ``speed_limits.normal`` less ``TRACKING_ALLOWANCE``, over ``PATH_MARGIN``, and
+    brakes from there to standstill in ``braking_time``. A segment its joints limit (planned slower) brakes slower."""
+    return (cfg.speed_limits.normal - TRACKING_ALLOWANCE) / (PATH_MARGIN * cfg.braking_time)
 
 
 def _shell(r: float, g: float, b: float) -> Rgba:
@@ -323,7 +333,7 @@ class Robot(EntitySystem):
             return np.concatenate([[target, 1.0, 0.0, 0.0, 0.0], start, goal])
         joint_rate = float(np.min(self.kinematics.velocity_limits / np.maximum(np.abs(delta), 1e-12)))
         points = [self.kinematics.tool_position(start + k / _SEGMENT_SAMPLES * delta) for k in range(_SEGMENT_SAMPLES + 1)]
-        tool_per_s = 1.05 * float(np.linalg.norm(np.diff(points, axis=0), axis=1).max()) * _SEGMENT_SAMPLES
+        tool_per_s = PATH_MARGIN * float(np.linalg.norm(np.diff(points, axis=0), axis=1).max()) * _SEGMENT_SAMPLES
         return np.concatenate([[target, 0.0, 0.0, max(tool_per_s, 1e-9), joint_rate], start, goal])
 
     def _advance(self, motion: np.ndarray, mode: SafetyMode, target: float, speed_limit: float = math.inf,

@@ -31,8 +31,9 @@ class SsmConfig:
     """T_r: from the person's measured position to the robot starting to brake (s): the sensor's
     response, this module's period and the robot controller's."""
     deceleration: Annotated[float, Range(0.0, 100.0, lo_open=True, unit="m/s^2")] | None = None
-    """a: the robot's guaranteed braking deceleration at the tool (m/s^2); null: its
-    speed_limits.normal / braking_time (full speed to standstill in braking_time)."""
+    """a: the robot's guaranteed braking deceleration at the tool (m/s^2); null: what it delivers on a segment its normal
+    cap limits, (speed_limits.normal - 0.04) / (1.05 braking_time) (its planned full speed to standstill in
+    braking_time). A segment its joints limit brakes slower: measure it and set it here."""
     intrusion_distance: Margin = 0.0
     """C: how far a body part may reach past what the sensor detects (m); ISO 13855 gives it per sensor."""
     sensor_uncertainty: Margin = 0.05

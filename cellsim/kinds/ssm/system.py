@@ -449,9 +449,12 @@ def _speed_towards(pair, arm_is_a: bool, p_W, c_W, v_c, w) -> float:
 
 
 def parameters_of(cfg: SsmConfig, robot_cfg) -> SsmParameters:
-    """The formula's terms; the deceleration defaults to the robot's full speed over its braking time."""
+    """The formula's terms; the deceleration defaults to what the robot delivers braking from its planned full speed
+    (:func:`cellsim.kinds.robot.system.braking_deceleration`)."""
+    from cellsim.kinds.robot.system import braking_deceleration
+
     deceleration = cfg.deceleration
     if deceleration is None:
-        deceleration = robot_cfg.speed_limits.normal / robot_cfg.braking_time
+        deceleration = braking_deceleration(robot_cfg)
     return SsmParameters(cfg.human_speed, cfg.reaction_time, deceleration, cfg.intrusion_distance,
                          cfg.sensor_uncertainty, cfg.robot_uncertainty, latency=cfg.period + robot_cfg.period)
