@@ -61,7 +61,8 @@ class OperatorConfig:
     the body where each update puts it (docs/harm.md): a longer period or a faster turn moves it farther between."""
     avoid_fixtures: bool = True
     """Walk around the layout's fixtures (their footprints grown by body_radius + 5 cm), by the
-    shortest way; false: straight lines, through them."""
+    shortest way; false: straight lines, through them. Only fixtures are walked round: a robot whose base stands
+    on the floor with no fixture for it (a pedestal) is walked through, so give each base a fixture."""
     period: Period = 0.04
     """Update period (s): how often the body moves in the twin."""
     twin: TwinSettings = field(default_factory=TwinSettings)
