@@ -55,6 +55,8 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
     skipped: dict = {}  # property -> [(its checked result, that round's model, its folder)]: witnesses refined, not run
     waited: dict = {}  # property -> (that round's refinements, its folder): a witness deferred, never built
     once: dict = {}  # liveness conditions' stronger responses (no witness run, nothing to refine): checked in round 1
+    grown_from = None  # the states of the largest model checked so far (a refined round's tables are sized on it)
+    measured: dict = {}  # what the rounds' models read on the floor, pose by pose: each round measures only new poses
     while True:
         keys = frozenset(r.key for r in done)
         # a witness a module faults settles the round: the others wait for the refined model (while one may come)
@@ -64,14 +66,15 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
         # build), unless the model is exported, which keeps every monitor
         before = {**once, **({} if export is not None else {name: c for name, (c, _) in confirmed.items()})}
         result = verify(sf, export=export, timed=timed, refinements=keys, on_stage=on_stage, checked_before=before,
-                        model=built, enough=enough)
+                        model=built, enough=enough, grown_from=grown_from, measured=measured)
         once = once or {r.prop.name: r for r in result.results if r.prop.within is not None}
+        grown_from = max(grown_from or 0, (result.largest or result.stats).states)
         open_ = _witnessed(result, done, confirmed)
         found = None
         for tried, candidate in enumerate(_refinements(result.model, open_, len(done) + 1) if len(done) < budget else ()):
             if tried == TRIES:
                 break
-            could, built = _could_reach(sf, result, timed, [*(r.key for r in done), candidate.key])
+            could, built = _could_reach(sf, result, timed, [*(r.key for r in done), candidate.key], measured)
             if could <= STATE_BUDGET:
                 found = candidate
                 break
@@ -84,7 +87,8 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
         if found is None and any(r.deferred for r in result.results):  # the last round after all: build them
             not_refined = result.not_refined
             result = verify(sf, export=export, timed=timed, refinements=keys, on_stage=on_stage,
-                            checked_before={r.prop.name: r for r in result.results if not r.deferred})
+                            checked_before={r.prop.name: r for r in result.results if not r.deferred},
+                            grown_from=grown_from, measured=measured)
             result.not_refined = not_refined
             open_ = _witnessed(result, done, confirmed)
         # the witnesses the refinement takes up are not run: the refined model checks their properties again
@@ -101,7 +105,8 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
         if found is None:
             def rebuild(keys, names):  # the deferred properties' witnesses, in the model of the round they waited in
                 others = {r.prop.name: r for r in result.results if r.prop.name not in names}
-                return verify(sf, timed=timed, refinements=keys, on_stage=on_stage, checked_before=others)
+                return verify(sf, timed=timed, refinements=keys, on_stage=on_stage, checked_before=others,
+                              grown_from=grown_from, measured=measured)
 
             _run_skipped(result, skipped, waited, confirmed, rebuild, on_stage)
             refuted = any(not result.replays[name].confirmed for name in to_run)
@@ -175,19 +180,19 @@ def _witnessed(result, done: list, confirmed: dict) -> list:
             and r.prop.within is None]
 
 
-def _could_reach(sf, result, timed: bool, keys: list[str]):
+def _could_reach(sf, result, timed: bool, keys: list[str], measured: dict | None = None):
     """(States the model with refinements ``keys`` could reach: the largest model checked so far, times how much the
     refinement widens its variables' ranges (the product of their numbers of values), a quick upper bound; where that
     is over the budget, the states the refined cell really reaches (:func:`_reached`); that model, to check next)."""
     from cellsim.verify.run import abstract_model
 
-    refined = abstract_model(sf, timed=timed, refinements=frozenset(keys))
+    refined = abstract_model(sf, timed=timed, refinements=frozenset(keys), measured=measured)
     largest = (result.refinable or result.largest or result.stats).states
     could = largest * refined.bound() / max(result.model.bound(), 1.0)
-    return (could if could <= STATE_BUDGET else _reached(refined)), refined
+    return (could if could <= STATE_BUDGET else _reached(refined, largest)), refined
 
 
-def _reached(refined) -> float:
+def _reached(refined, grown_from: int) -> float:
     """The states the refined cell (no monitor) reaches, built as decision diagrams in a process of its own: seconds,
     where the quick bound can be a hundredfold too high (the assembly bench's pace: 337,208 states against an
     estimated 130 million); infinite when Storm stops (its tables full)."""
@@ -196,15 +201,18 @@ def _reached(refined) -> float:
 
     from cellsim.verify.isolated import ProcessStopped, in_own_process
     from cellsim.verify.run import dd_memory
-    from cellsim.verify.storm import build_symbolic
+    from cellsim.verify.storm import DD_MEMORY, build_symbolic
 
     with tempfile.TemporaryDirectory(prefix="cellsim-refined-") as scratch:  # (ours: a stopped Storm leaves none)
         path = Path(scratch) / "refined.prism"
         path.write_text(refined.cell.program(refined.header, [], {}).text())
-        try:
-            return float(in_own_process(lambda say: build_symbolic(path, dd_memory(refined.bound()))[2].states))
-        except ProcessStopped:
-            return math.inf
+        small = dd_memory(refined.bound(), grown_from)
+        for memory in dict.fromkeys([small, DD_MEMORY]):  # tables that prove too small: built again with the large
+            try:
+                return float(in_own_process(lambda say: build_symbolic(path, memory)[2].states))
+            except ProcessStopped:
+                continue
+        return math.inf
 
 
 def _refinements(model, witnessed, step: int) -> list[Refinement]:

@@ -89,11 +89,24 @@ sparse) and when its labels are intricate (the machine-tending cell's true margi
 state, 50 s made sparse; 12 s state by state since a person's moves are a command per direction)."""
 
 
-def dd_memory(bound: float) -> int:
+REFINED_GROWTH = 10
+"""How many times the states of a refinement's round may grow on the largest model checked before it, and its decision
+diagrams still start in ``SMALL_DD_MEMORY`` (:func:`dd_memory`): the shipped cells' refinements grow it 1.5 to 3
+times (the welding cell's 12,931 states to 19,665, then 38,694)."""
+SMALL_DD_STATES = 1_250_000
+"""States that fit ``SMALL_DD_MEMORY``'s tables with room to spare (the assembly bench's 1.25 million fill 16 MB)."""
+
+
+def dd_memory(bound: float, grown_from: int | None = None) -> int:
     """MB for the decision diagrams' tables (:func:`cellsim.verify.storm.build_symbolic`). Sylvan takes its tables
     at start (the cap costs start-up: 0.5 s at 256 MB, 1.8 s at 2048) and stops the process when they are full, so
     the cap follows what the model's variables allow: ``SMALL_DD_MEMORY`` up to ``SIZE_ANYWAY`` states, else
-    ``DD_MEMORY``."""
+    ``DD_MEMORY``; and, in a refinement's round (``grown_from``: the largest model checked before it), small while
+    ``REFINED_GROWTH`` times that fits ``SMALL_DD_STATES`` (a refinement's counters widen the variables' ranges far
+    more than the states they reach: the welding cell's pace, 700 times the bound for 1.5 times the states). Tables
+    that prove too small are a build again with ``DD_MEMORY`` (:func:`verify`)."""
+    if grown_from is not None and grown_from * REFINED_GROWTH <= SMALL_DD_STATES:
+        return SMALL_DD_MEMORY
     return SMALL_DD_MEMORY if bound <= SIZE_ANYWAY else DD_MEMORY
 
 
@@ -179,8 +192,10 @@ def twin_mode_assumptions(configs: dict) -> list[str]:
     return said
 
 
-def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset = frozenset()) -> AbstractModel:
-    """The abstract model of the scenario's cell (its diagram built once, without recording)."""
+def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset = frozenset(),
+                   measured: dict | None = None) -> AbstractModel:
+    """The abstract model of the scenario's cell (its diagram built once, without recording); ``measured``: what an
+    earlier model of it read on the floor, kept and added to (:func:`cellsim.verify.floor.cut_floor`)."""
     from cellsim.diagrams.cell import build_cell
     from cellsim.validation.check import cell_safety_case
 
@@ -215,7 +230,7 @@ def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset
         declare_for_readers(part, abstract)
     times["declare"] = time.perf_counter() - start - times["cell"]
     mark = time.perf_counter()
-    abstract.places = cut_floor(abstract)
+    abstract.places = cut_floor(abstract, measured)
     build_floor(abstract, abstract.places)
     times["floor"] = time.perf_counter() - mark
     mark = time.perf_counter()
@@ -309,7 +324,7 @@ def _safe(name: str) -> str:
 
 def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: frozenset = frozenset(),
            on_stage=None, checked_before: dict | None = None, model: AbstractModel | None = None,
-           enough=None) -> Verification:
+           enough=None, grown_from: int | None = None, measured: dict | None = None) -> Verification:
     """Build and check the abstract model; ``export``: also write it there (and its .props beside it);
     ``refinements``: the modules' refinements to switch on (:class:`cellsim.verify.model.AbstractCell`);
     ``checked_before``: property name -> its result from an earlier round, taken as it is (a refinement round's
@@ -318,12 +333,14 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
     size: :func:`cellsim.verify.refine.verify_with_twin`), which this call then owns;
     ``enough(model, checked)``: whether a witness just built settles the round (a module's refinement takes it up):
     once one does, the properties whose witnesses are still to be built (not a liveness condition's, whose answer
-    under fairness is kept for good) are left violated without one, ``deferred``."""
+    under fairness is kept for good) are left violated without one, ``deferred``; ``grown_from``: the states of the
+    largest model an earlier round checked (a refinement's round), which sizes the decision diagrams' tables
+    (:func:`dd_memory`); ``measured``: as :func:`abstract_model` says."""
     leave_out = frozenset(checked_before or ())
     say = on_stage or (lambda text: None)
     say("building the abstract model")
     if model is None or model.cell.refinements != frozenset(refinements) or model.cell.timed != timed:
-        model = abstract_model(sf, timed=timed, refinements=refinements)
+        model = abstract_model(sf, timed=timed, refinements=refinements, measured=measured)
     if export is not None and model.properties:  # every property (this round's model), before any is left out
         write_export(model, export)
     for prop in [p for p in model.properties if p.name in leave_out]:  # its monitor and labels go with it
@@ -337,7 +354,7 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
         raise VerifyError("nothing to verify: no safety controller's hazards and no validation condition of a "
                           "checkable shape" + "".join(f"; not checked: {s.name}: {s.reason}" for s in model.skipped))
     times = dict(model.times)
-    memory = dd_memory(model.bound())
+    memory = dd_memory(model.bound(), grown_from)
     # the scratch folder is this process's: a Storm process stopped (Ctrl-C kills it) leaves nothing behind
     with tempfile.TemporaryDirectory(prefix="cellsim-verify-") as scratch:
         try:

@@ -1,0 +1,70 @@
+"""What a refinement's round reuses of the rounds before it, and what its model leaves out, none of it changing an
+answer: the floor's measurements (a pace measures no pose again, a finer grid only the new ones), a pace's counter
+that stops where no step's guard counts further, and the decision diagrams' tables sized on the states reached."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from conftest import ROOT
+from cellsim.scenario import load_scenario
+from cellsim.verify.run import DD_MEMORY, SMALL_DD_MEMORY, abstract_model, dd_memory
+
+WELDING = ROOT / "scenarios" / "welding_cell.yaml"
+PACE = frozenset({"operator:pace"})
+FINE = frozenset({"operator:pace", "operator:fine"})
+
+
+@pytest.fixture(scope="module")
+def welding():
+    return load_scenario(WELDING)
+
+
+def test_a_refined_round_measures_only_the_poses_no_earlier_round_did_and_builds_the_same_model(welding):
+    measured: dict = {}
+    first = abstract_model(welding, measured=measured)
+    assert first.cell.places.poses_measured > 0 and measured
+    paced = abstract_model(welding, refinements=PACE, measured=measured)
+    assert paced.cell.places.poses_measured == 0  # the same grid: nothing to measure again
+    fine = abstract_model(welding, refinements=FINE, measured=measured)
+    fresh = abstract_model(welding, refinements=FINE)
+    assert 0 < fine.cell.places.poses_measured < fresh.cell.places.poses_measured  # the finer grid's new poses only
+    for reused, anew in ((paced, abstract_model(welding, refinements=PACE)), (fine, fresh)):
+        assert reused.cell.program(reused.header).text() == anew.cell.program(anew.header).text()
+
+
+def test_a_pace_counts_no_further_than_a_step_from_where_the_person_stands_asks_and_every_answer_is_the_same(
+        welding, tmp_path):
+    """The counter of periods a person has stayed in a place stops at the most any step from that place (for where
+    they came from) counts to: past it every guard reads the same. The welding cell's refined model reaches a fifth of
+    the states, each property's value unchanged (built again here with the counter going on to its top)."""
+    import stormpy
+
+    from cellsim.verify.storm import _initial_value, _quiet
+
+    _quiet()
+    model = abstract_model(welding, refinements=FINE)
+    text = model.cell.program(model.header).text()
+    counted = re.search(r"operator_place_dwell : \[0\.\.(\d+)\]", text)
+    assert counted and "min(operator_place_dwell+1, operator_place_dwell_enough)" in text
+    uncapped = text.replace("min(operator_place_dwell+1, operator_place_dwell_enough)",
+                            f"min(operator_place_dwell+1, {counted.group(1)})")
+    props = "\n".join(f'"p{i}": Pmax=? [ F "{label}" ];' for i, label in enumerate(sorted(model.labels.values())))
+    found = {}
+    for name, program in (("capped", text), ("uncapped", uncapped)):
+        path = tmp_path / f"{name}.prism"
+        path.write_text(program)
+        parsed = stormpy.parse_prism_program(str(path))
+        formulas = stormpy.parse_properties(props, parsed)
+        built = stormpy.build_symbolic_model(parsed.substitute_formulas(), formulas)
+        found[name] = (built.nr_states, [_initial_value(stormpy, built, f.get_raw_formula()) for f in formulas])
+    assert found["capped"][1] == found["uncapped"][1] and len(found["capped"][1]) >= 17
+    assert found["capped"][0] * 4 < found["uncapped"][0]
+
+
+def test_a_refined_round_of_a_small_cell_starts_small_tables_whatever_its_counters_widen():
+    assert dd_memory(1e20) == DD_MEMORY and dd_memory(1e16) == SMALL_DD_MEMORY
+    assert dd_memory(1e20, grown_from=12_931) == SMALL_DD_MEMORY  # the welding cell's pace: 1e20 allowed, 19,665 reached
+    assert dd_memory(1e20, grown_from=5_325_640) == DD_MEMORY  # the palletising cell's
