@@ -341,3 +341,46 @@ def test_a_failure_message_refused_for_its_stamp_or_its_order_is_counted_as_refu
     source.deliver(failure)  # the link's failure, taken
     source.deliver(failure)  # the same again: refused
     assert _after(source, simulator, 0.13)[1] == CORRUPT and source.rejected == 2
+
+
+def test_a_twin_behind_the_wall_sees_a_silent_sensor_stale_on_the_walls_clock():
+    """An audit slowed a live twin 1.5-1.9 s behind the wall and silenced the light curtain: the twin saw it stale
+    after 2.5 s (its simulated clock's stale_after, plus the lag), commanding the welder all along. The watchdog now
+    judges a silence on the wall's clock too."""
+    spec = SimpleNamespace(signal="broken", type=BOOL)
+    entity = SimpleNamespace(module="light_barrier", sample_fields=("broken",), channels=[(spec, None)], period=0.04,
+                             twin=SimpleNamespace(stale_after=0.5, recover_after=1))
+    clock = LiveClock()
+    clock.start()
+    source = ZenohSampleSource(entity, clock, time_step=0.002)
+    simulator = Simulator(source)  # not paced: as far behind as it falls
+    simulator.Initialize()
+    source.deliver(encode_fields(time.time(), 1, {"broken": False}))  # the curtain's last sample
+    assert _after(source, simulator, 0.05)[1] == OK
+    clock.mono_at_zero -= 1.0  # a second of the wall goes by that the twin does not simulate: it falls behind
+    assert _after(source, simulator, 0.09)[1] == STALE  # 0.09 s of simulated time, but silent for a second
+
+
+def test_a_twin_behind_the_wall_stamps_its_commands_with_the_time_it_decided_them():
+    """The same audit found commands stamped when sent, so a twin 2 s behind the wall kept its devices on two-second-
+    old decisions, each arriving 'fresh'. A command carries the wall time of the instant it was decided for, and a
+    receiver's one link rule takes it as late."""
+    from cellsim.codec import FieldCodec
+    from cellsim.link import LinkTrust
+    from cellsim.live.systems import CommandPublisher
+
+    sent = []
+    entity = SimpleNamespace(module="welder", command_fields=("activity",), input_types={"activity": BOOL})
+    clock = LiveClock()
+    clock.start()
+    clock.mono_at_zero -= 2.0
+    clock.wall_at_zero -= 2.0
+    publisher = CommandPublisher(entity, SimpleNamespace(put=sent.append), 0.002, clock=clock)
+    simulator = Simulator(publisher)  # not paced: as far behind as it is
+    publisher.command_port.FixValue(simulator.get_mutable_context(), [1.0, 1.0])  # in twin mode, commanding 'true'
+    simulator.AdvanceTo(0.05)
+    assert len(sent) == 1  # decided at its first look, one plant step in
+    message = FieldCodec.commands_of(entity).decode(sent[0])
+    assert message.t == pytest.approx(clock.wall_at_zero + 0.002)  # about 2 s before now
+    trust = LinkTrust(timeout=0.5, recover_after=1)
+    assert not trust.receive(0.0, message.seq, stamp=message.t, wall=time.time()).good

@@ -499,7 +499,7 @@ def _live(builder: DiagramBuilder, cell: CellBuild, io: Live, on_arrival: dict[s
     for entity_name, entity in cell.entities.items():
         commands = builder.AddSystem(CommandPublisher(
             entity, session.declare_publisher(keys.command(name, entity_name)), step, _decided_every(builder, entity, step),
-            look))
+            look, clock))
         builder.Connect(entity.physical_command_port, commands.command_port)
     control = builder.AddSystem(TwinModeControl(cell.entities))
     for entity_name, entity in cell.entities.items():

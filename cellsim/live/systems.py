@@ -82,6 +82,16 @@ class LiveClock:
         """How far (s) simulated time ``t`` is behind the wall."""
         return time.monotonic() - self.mono_at_zero - t
 
+    def now(self, t: float) -> float:
+        """The later of simulated time ``t`` and the wall's (once started), on the simulation's clock: a watchdog
+        judges a silence by it, so a twin that falls behind the wall does not take longer to see a sample stale."""
+        return max(t, self.sim_time(time.monotonic())) if self.started else t
+
+    def wall_of(self, t: float) -> float:
+        """The UNIX time simulated time ``t`` stands for (once started; before, the wall's now): a command decided at
+        ``t`` is stamped with it, so one that a twin behind the wall sends late reads as late where it arrives."""
+        return self.wall_at_zero + t if self.started else time.time()
+
 
 class Inbox:
     """What a network thread hands a system: (payload, monotonic arrival, wall arrival)."""
@@ -192,7 +202,7 @@ class _LinkSource(LeafSystem):
                     self.refused("a failure in place of a command")
             if trust.link in _FAILURES:
                 failed = trust.link
-        trust.watchdog(context.get_time())
+        trust.watchdog(self.clock.now(context.get_time()))
         self.settle(trust, state, xd, trust.link if trust.link in _FAILURES else failed)
         xd.get_mutable_vector(self._trust).SetFromVector(trust.state())
         self.drained(context.get_time())
@@ -382,12 +392,16 @@ class CommandPublisher(LeafSystem):
       physical_command (input): the entity's ``physical_command`` ([active, *command codes]).
     """
 
-    def __init__(self, entity, publisher, time_step: float, period: float | None = None, look: float | None = None):
+    def __init__(self, entity, publisher, time_step: float, period: float | None = None, look: float | None = None,
+                 clock: LiveClock | None = None):
         """``period``: how often a change is looked for (s): the period at which the cell's modules may update
         (default: every plant step); ``look``: when within it (s; default one step): after those updates (the
-        deciding modules' too, which may come one step after the others), when they are in the state."""
+        deciding modules' too, which may come one step after the others), when they are in the state; ``clock``:
+        the run's, whose wall time of the decision stamps each command (:meth:`LiveClock.wall_of`; default: the
+        wall's when sent)."""
         super().__init__()
         self.set_name(f"{entity.module}.command_publisher")
+        self.clock = clock or LiveClock()
         period = time_step if period is None else period
         self.codec = FieldCodec.commands_of(entity)
         self.publisher = publisher
@@ -406,7 +420,7 @@ class CommandPublisher(LeafSystem):
             return
         self._last = (codes, t)
         self._seq += 1
-        self.publisher.put(self.codec.encode_codes(time.time(), self._seq, codes))
+        self.publisher.put(self.codec.encode_codes(self.clock.wall_of(t), self._seq, codes))
 
 
 class SampleOutlet(LeafSystem):
