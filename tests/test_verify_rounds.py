@@ -68,3 +68,4 @@ def test_a_refined_round_of_a_small_cell_starts_small_tables_whatever_its_counte
     assert dd_memory(1e20) == DD_MEMORY and dd_memory(1e16) == SMALL_DD_MEMORY
     assert dd_memory(1e20, grown_from=12_931) == SMALL_DD_MEMORY  # the welding cell's pace: 1e20 allowed, 19,665 reached
     assert dd_memory(1e20, grown_from=5_325_640) == DD_MEMORY  # the palletising cell's
+

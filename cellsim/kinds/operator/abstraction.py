@@ -62,7 +62,10 @@ class PersonAbstraction(ModuleAbstraction):
         pace = f"no faster than {self.max_speed:.3g} m/s (its walking speed and jitter)" if paced else "at any pace"
         cell.assume(f"{self.name} may walk anywhere on the floor {pace}, reach towards "
                     f"{'the points its waypoints reach for' if any(w.reach for w in cfg.waypoints.values()) else 'nothing'} "
-                    "and press its buttons where its waypoints press them; its arm is either down or fully reached out")
+                    "and press its buttons where its waypoints press them; its arm is either down or fully reached out; "
+                    "each sensor reads it facing one of four headings (and each reach point, reaching): turned between "
+                    "them it may read a few centimetres differently (a range detector 0.075 m nearer in the welding "
+                    "cell), which neither the grid's slack nor a pace's bound counts")
 
     @property
     def max_speed(self) -> float:
