@@ -88,9 +88,11 @@ class LiveClock:
         return max(t, self.sim_time(time.monotonic())) if self.started else t
 
     def wall_of(self, t: float) -> float:
-        """The UNIX time simulated time ``t`` stands for (once started; before, the wall's now): a command decided at
-        ``t`` is stamped with it, so one that a twin behind the wall sends late reads as late where it arrives."""
-        return self.wall_at_zero + t if self.started else time.time()
+        """The UNIX time simulated time ``t`` stands for: the wall's now, less how far ``t`` is behind it (on the
+        monotonic clock, so a step of the host's wall clock moves it as it moves every other stamp; never ahead of
+        the wall). A command decided at ``t`` is stamped with it, so one that a twin behind the wall sends late reads
+        as late where it arrives."""
+        return time.time() - max(0.0, self.lag(t)) if self.started else time.time()
 
 
 class Inbox:
@@ -182,7 +184,7 @@ class _LinkSource(LeafSystem):
         if waiting > FLOOD:
             dropped = sum(1 for _ in self.inbox.take(waiting))
             self.refused(f"a flood: {dropped} messages waiting at one drain (at most {FLOOD}), dropped unread", "flood")
-            trust.fail(Fault.TIMEOUT, context.get_time())
+            trust.fail(Fault.TIMEOUT, self.clock.now(context.get_time()))
             failed, waiting = trust.link, 0
         for payload, mono, wall in self.inbox.take(waiting):
             arrival = self.clock.sim_time(mono)

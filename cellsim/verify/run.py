@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import tempfile
 import time
 from dataclasses import dataclass, field, replace
@@ -354,7 +355,8 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
         raise VerifyError("nothing to verify: no safety controller's hazards and no validation condition of a "
                           "checkable shape" + "".join(f"; not checked: {s.name}: {s.reason}" for s in model.skipped))
     times = dict(model.times)
-    memory = dd_memory(model.bound(), grown_from)
+    # (where Storm cannot have a process of its own, tables it outgrows would end this one: no small start there)
+    memory = dd_memory(model.bound(), grown_from if hasattr(os, "fork") else None)
     # the scratch folder is this process's: a Storm process stopped (Ctrl-C kills it) leaves nothing behind
     with tempfile.TemporaryDirectory(prefix="cellsim-verify-") as scratch:
         try:
