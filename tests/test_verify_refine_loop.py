@@ -228,5 +228,29 @@ def test_a_refinement_too_large_gives_way_to_the_next_one_offered(monkeypatch, t
     result = refine.verify_with_twin(None, tmp_path, budget=3, on_stage=said.append)
     assert [(r.step, r.key) for r in result.refinements] == [(1, "robot:timed")]
     assert said[0].startswith("refinement 1: operator:pace not tried: the refined model could reach about")
-    assert [r for r in replays if r[0] != "verify"] == []  # A holds once the robot's moves are timed
+    # the timing's model could reach thousands of times the states: A's witness is run first, the twin refutes it,
+    # and the timing is refined; A holds once the robot's moves are timed
+    assert [r for r in replays if r[0] != "verify"] == [(0, "A")]
     assert {f.name: f.ending for f in result.endings()} == {"A": Ending.HOLDS}
+
+
+def test_a_refinement_that_would_grow_the_model_far_runs_the_witness_first_and_the_twin_may_spare_it(monkeypatch,
+                                                                                                   tmp_path):
+    """The machine-tending cell's pace, once its counter stopped at its guards, fit the state budget: refining
+    took its verify from 60 s to 150 s for a TrueSSM witness the twin confirms anyway. A refinement whose model could
+    reach more than COSTLY_GROWTH times the largest checked runs the witnesses it would take up first; the twin
+    confirming them all, nothing is refined (a refuted one is refined, as before)."""
+    costly = refine.COSTLY_GROWTH * Stats().states * 10.0
+    replays = scripted(monkeypatch, {frozenset(): {"A": "fast", "B": "slow"}, PACE: {"A": "slow", "B": "slow"}},
+                       confirms={(0, "A"), (0, "B")}, could=costly)
+    said = []
+    result = refine.verify_with_twin(None, tmp_path, budget=3, on_stage=said.append)
+    assert result.refinements == [] and replays == [("verify", 0, ("A",)), (0, "A"), ("verify", 0, ("B",)), (0, "B")]
+    assert any("operator:pace not needed: the twin confirms the witness of A" in s for s in said)
+    assert {f.name: f.ending for f in result.endings()} == {"A": Ending.VIOLATED, "B": Ending.VIOLATED}
+    # refuted, the witness is refined after all
+    replays = scripted(monkeypatch, {frozenset(): {"A": "fast"}, PACE: {"A": "slow"}}, confirms={(1, "A")},
+                       could=costly)
+    result = refine.verify_with_twin(None, tmp_path, budget=3)
+    assert [(r.key, r.prop) for r in result.refinements] == [("operator:pace", "A")]
+    assert replays[:2] == [("verify", 0, ("A",)), (0, "A")] and (1, "A") in replays
