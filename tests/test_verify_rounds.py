@@ -69,3 +69,20 @@ def test_a_refined_round_of_a_small_cell_starts_small_tables_whatever_its_counte
     assert dd_memory(1e20, grown_from=12_931) == SMALL_DD_MEMORY  # the welding cell's pace: 1e20 allowed, 19,665 reached
     assert dd_memory(1e20, grown_from=5_325_640) == DD_MEMORY  # the palletising cell's
 
+
+
+def test_a_paced_person_held_where_they_start_builds_as_decision_diagrams(welding, tmp_path):
+    """The stay counter's limit reads where the person came from, which a person held at their start (a witness of
+    a model too large to make sparse, cellsim.verify.run.held) never changes: Storm folded it into a constant and
+    could not translate the limit (the two-operator cell's verify failed). Held, it is the start's constant too."""
+    from cellsim.verify.run import held
+    from cellsim.verify.storm import build_symbolic, to_sparse, valuation_labels
+
+    model = abstract_model(welding, refinements=PACE)
+    program = held(model.cell.program(model.header), model.cell.places.people)
+    path = tmp_path / "held.prism"
+    path.write_text(program.text() + valuation_labels(program.variables()))  # made sparse, as a witness's model is
+    _, symbolic, stats = build_symbolic(path, SMALL_DD_MEMORY)
+    sparse, _ = to_sparse(symbolic, program.variables())
+    assert sparse.nr_states == stats.states > 0
+    assert "operator_place_from" not in program.text()

@@ -479,14 +479,19 @@ def _leaving_out(modules: list[str]) -> str:
 def held(program: Program, people: list) -> Program:
     """``program`` with ``people`` (``PersonPlaces``) held where they start: each floor module keeps only the commands
     that leave its person's place as it is, and the place is no longer a variable but the start place's number
-    wherever it is read (Storm folds a variable nothing changes into a constant, and would then not know it when the
-    model is made sparse). Every path of it is a path of ``program`` (only choices of where to walk are taken away),
+    wherever it is read, nor, for a paced person, where they came from (Storm folds a variable nothing changes into a
+    constant, and would then not know it when the model is made sparse). Every path of it is a path of ``program`` (only choices of where to walk are taken away),
     so a witness found in it is one of ``program``, each held person at its start (:func:`with_held`)."""
     import re
     from dataclasses import replace as copy
 
+    from cellsim.verify.floor import ENTERED_AT_START
+
     floors = {f"{p.role.module}_floor": p.variable for p in people}
     starts = {p.variable: str(p.start) for p in people}
+    # a paced person held where they start never came from elsewhere: where they came from is a constant too
+    variables = {v.name for m in program.modules for v in m.variables}
+    starts.update({f"{p.variable}_from": str(ENTERED_AT_START) for p in people if f"{p.variable}_from" in variables})
     pattern = re.compile(r"\b(" + "|".join(map(re.escape, starts)) + r")\b") if starts else None
 
     def fixed(expr: str) -> str:
