@@ -108,7 +108,8 @@ def scripted(monkeypatch, rounds: dict, confirms: set[tuple[int, str]], could=10
     monkeypatch.setattr(run, "verify", fake_verify)
     monkeypatch.setattr(witness, "replay", fake_replay)
     monkeypatch.setattr(refine, "_could_reach",
-                        lambda sf, result, timed, keys, measured=None: (could(keys) if callable(could) else could, None))
+                        lambda sf, result, timed, keys, measured=None: (
+                            could(keys) if callable(could) else could, None, True))
     return replays
 
 

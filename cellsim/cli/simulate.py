@@ -123,7 +123,8 @@ def findings_lines(summary, most: int = 6) -> list[tuple[str, str]]:
             found.sort(key=lambda f: -f.data.get("severity", 0.0))
         for f in found[:most]:
             when = f"{f.start:.2f} s to the end" if f.end is None else f"{f.start:.2f}-{f.end:.2f} s"
-            text = f"[red]{f.text}[/red]" if f.data.get("severity", 0.0) > 1.0 or what == "slow reaction" or f.outrun else f.text
+            alarming = f.data.get("severity", 0.0) > 1.0 or what == "slow reaction" or f.outrun
+            text = f"[red]{f.text}[/red]" if alarming else f.text
             rows.append((what, f"{text} ({when})" if what != "closest approach" else text))
         if len(found) > most:
             rows.append((what, f"... and {len(found) - most} more (in the black box's channels: `cellsim export "

@@ -78,7 +78,7 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
         for tried, candidate in enumerate(_refinements(result.model, open_, len(done) + 1) if len(done) < budget else ()):
             if tried == TRIES:
                 break
-            could, built = _could_reach(sf, result, timed, [*(r.key for r in done), candidate.key], measured)
+            could, built, exact = _could_reach(sf, result, timed, [*(r.key for r in done), candidate.key], measured)
             if could <= STATE_BUDGET:
                 found = candidate
                 break
@@ -86,6 +86,8 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
                          f"(over {STATE_BUDGET:,})")
             result.not_refined = "; ".join(filter(None, (result.not_refined, too_large)))
             say(f"refinement {candidate.step}: {too_large}")
+        if found is not None and could > COSTLY_GROWTH * grown_from and not exact:
+            could = _reached(built, grown_from)  # the quick bound can be hundreds of times too high: measure it
         if found is not None and could > COSTLY_GROWTH * grown_from:
             # a refinement that grows the model this much costs more than running the witnesses it would take up on
             # the twin: they run first, and the twin confirming every one leaves it nothing to do
@@ -198,13 +200,16 @@ def _witnessed(result, done: list, confirmed: dict) -> list:
 def _could_reach(sf, result, timed: bool, keys: list[str], measured: dict | None = None):
     """(States the model with refinements ``keys`` could reach: the largest model checked so far, times how much the
     refinement widens its variables' ranges (the product of their numbers of values), a quick upper bound; where that
-    is over the budget, the states the refined cell really reaches (:func:`_reached`); that model, to check next)."""
+    is over the budget, the states the refined cell really reaches (:func:`_reached`); that model, to check next;
+    whether the states are those it reaches, not the bound)."""
     from cellsim.verify.run import abstract_model
 
     refined = abstract_model(sf, timed=timed, refinements=frozenset(keys), measured=measured)
     largest = (result.refinable or result.largest or result.stats).states
     could = largest * refined.bound() / max(result.model.bound(), 1.0)
-    return (could if could <= STATE_BUDGET else _reached(refined, largest)), refined
+    if could <= STATE_BUDGET:
+        return could, refined, False
+    return _reached(refined, largest), refined, True
 
 
 def _reached(refined, grown_from: int) -> float:
