@@ -401,3 +401,22 @@ def test_a_commands_stamp_follows_a_step_of_the_hosts_wall_clock(monkeypatch):
         monkeypatch.setattr(systems.time, "time", lambda step=step, real=real: real() + step)
         assert clock.wall_of(0.1) - systems.time.time() == pytest.approx(-0.2, abs=0.02)
         monkeypatch.undo()
+
+
+def test_an_emulator_behind_the_wall_stamps_its_samples_as_old_as_they_are():
+    """A review found the emulator stamping its samples when sent: one behind the wall reported old state as fresh,
+    the pattern the twin's commands had. A device stamps a sample when it takes it; the emulator's Zenoh outlet stamps
+    it with the wall time of its simulated instant, and the twin's one link rule takes an old one as late."""
+    from cellsim.codec import loads, stamp
+    from cellsim.link import LinkTrust
+    from cellsim.live.emulator import ZenohOutlet
+
+    sent = []
+    clock = LiveClock()
+    clock.start()
+    clock.mono_at_zero -= 2.0  # 2 s of the wall gone by, the emulator at 0.1 s
+    outlet = ZenohOutlet(SimpleNamespace(put=sent.append), wall_of=clock.wall_of)
+    assert outlet.send({"broken": False}, None, 0.1) == 1
+    t, seq = stamp(loads(sent[0]))
+    assert time.time() - t == pytest.approx(1.9, abs=0.05)
+    assert not LinkTrust(timeout=0.5, recover_after=1).receive(0.0, seq, stamp=t, wall=time.time()).good

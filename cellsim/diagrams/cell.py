@@ -573,7 +573,7 @@ def _emulated(builder: DiagramBuilder, cell: CellBuild, io: Emulated):
     outlets = {}
     for entity_name, entity in cell.entities.items():
         outlet = (devices.outlet(entity_name, entity) if devices is not None else None) or ZenohOutlet(
-            session.declare_publisher(keys.physical(name, entity_name)))
+            session.declare_publisher(keys.physical(name, entity_name)), wall_of=clock.wall_of)
         period = 1.0 / rates[entity_name] if entity_name in rates else entity.period
         period = max(step, round(period / step) * step)
         outlets[entity_name] = builder.AddSystem(SampleOutlet(entity, outlet, period, io.faults, step))

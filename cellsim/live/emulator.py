@@ -50,13 +50,16 @@ class ZenohOutlet:
     """An entity's samples as Zenoh messages on one key, with the Zenoh faults.
 
     ``encode(t, seq, fields, sim_time)`` makes a message of a sample (``t``: wall clock, s;
-    ``sim_time``: the emulator's simulated time of the sample, s).
+    ``sim_time``: the emulator's simulated time of the sample, s); ``wall_of(sim_time)``: the wall time a sample of
+    that simulated time is stamped with (``LiveClock.wall_of``: an emulator behind the wall stamps its samples as old
+    as they are, as a device stamps its own when it takes them; default: the wall's now).
     """
 
     faults = ZENOH_FAULTS
 
-    def __init__(self, publisher, encode=lambda t, seq, fields, sim_time: codec.encode_fields(t, seq, fields)):
-        self.publisher, self.encode = publisher, encode
+    def __init__(self, publisher, encode=lambda t, seq, fields, sim_time: codec.encode_fields(t, seq, fields),
+                 wall_of=lambda sim_time: time.time()):
+        self.publisher, self.encode, self.wall_of = publisher, encode, wall_of
         self.seq = 0
         self.history: list[bytes] = []
 
@@ -78,7 +81,7 @@ class ZenohOutlet:
         if fault == "corrupt":
             return b'{"t": "soon", "fields": [1, 2'
         self.seq += 1
-        payload = self.encode(time.time() - (1.0 if fault == "delay" else 0.0), self.seq, fields, sim_time)
+        payload = self.encode(self.wall_of(sim_time) - (1.0 if fault == "delay" else 0.0), self.seq, fields, sim_time)
         history.append(payload)
         del history[:-100]
         return payload
