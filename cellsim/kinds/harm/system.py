@@ -315,7 +315,6 @@ class HarmMonitor(CellSystem):
             previous = [context.get_discrete_state(g).GetAtIndex(0) for g in self._outputs]
             if previous != self._clear:
                 write_changed(xd, self._outputs, self._clear, previous)
-                self._write_onsets(context, xd, {})
             elif not wrote:
                 return UNCHANGED
             return None
