@@ -247,7 +247,8 @@ def test_check_of_an_extension_stopped_before_its_results_says_the_bound_is_appr
     first = _cellsim("campaign", tending, "--runs", "2", "--duration", "10", "--seed", "3", "--jobs", "1", "--out", out)
     assert first.returncode == 1, first.stderr  # runs count against the bound (TrueSSM, in this cell)
     assert "approximate" not in json.loads((out / "results.json").read_text())["bounds"]["sampling"]
-    child = subprocess.Popen([sys.executable, "-m", "cellsim", "campaign", str(tending), "--runs", "6", "--duration", "10",
+    # 40: far more than can finish before Ctrl-C lands (CI once saw six end first, exit 1)
+    child = subprocess.Popen([sys.executable, "-m", "cellsim", "campaign", str(tending), "--runs", "40", "--duration", "10",
                               "--seed", "3", "--jobs", "1", "--out", str(out), "--quiet"],
                              stdin=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=ROOT, start_new_session=True)
     try:
@@ -257,12 +258,12 @@ def test_check_of_an_extension_stopped_before_its_results_says_the_bound_is_appr
             assert time.monotonic() < deadline, "the extension finished no run in 120 s"
             time.sleep(0.05)
         child.send_signal(signal.SIGINT)
-        child.communicate(timeout=60)
+        _, err = child.communicate(timeout=60)
     finally:
         if child.poll() is None:
             os.killpg(child.pid, signal.SIGKILL)
         child.wait()
-    assert child.returncode == 130
+    assert child.returncode == 130, err
     shown = json.loads(_cellsim("check", out, "--json").stdout)
     counted = shown["bounds"]["overall"]["runs"]
     assert counted >= 3 and len(json.loads((out / "results.json").read_text())["runs"]) == 2  # results.json: stale

@@ -394,6 +394,40 @@ def keep_before(out: Path, results: dict[int, dict], limit: int | None, made: It
     return dropped
 
 
+@contextlib.contextmanager
+def interrupts_remembered():
+    """The block's Ctrl-C and SIGTERM, remembered (the list yielded) as well as acted on as before.
+
+    A run made in this process is interrupted by the KeyboardInterrupt its signal handler raises, but Python
+    drops an exception raised while a finaliser runs (a run's objects are freed in the middle of the next
+    one): the caller checks the list between runs, so an interruption is never lost. Only the main thread
+    can handle signals; elsewhere (and for a signal that is ignored or left to its default) nothing changes."""
+    import signal
+    import threading
+
+    heard: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield heard
+        return
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    def remembering(handler):
+        def on_signal(sig, frame):
+            heard.append(sig)
+            handler(sig, frame)
+        return on_signal
+
+    for sig, handler in previous.items():
+        if callable(handler):
+            signal.signal(sig, remembering(handler))
+    try:
+        yield heard
+    finally:
+        for sig, handler in previous.items():
+            if callable(handler):
+                signal.signal(sig, handler)
+
+
 def run_all(workers: "Workers", plan: CampaignPlan, out: Path, tasks: Iterable[Task], origin: dict,
             on_result: Callable[[dict], None], cutoff: Callable[[], int | None] = lambda: None,
             lost: str = "the finished runs are kept in {out}: run the same command again to resume") -> None:
@@ -405,33 +439,39 @@ def run_all(workers: "Workers", plan: CampaignPlan, out: Path, tasks: Iterable[T
     the runs (``lost``, with ``{out}`` the folder).
     """
     tasks = list(tasks)
-    if workers.submit is None:
-        for index, configuration, place in tasks:
-            limit = cutoff()
-            if limit is not None and index >= limit:
-                break
-            on_result(execute_run(plan, out, index, origin, configuration, place))
-        return
-    waiting = list(reversed(tasks))
-    slots = workers.slots if callable(workers.slots) else (lambda: workers.slots or len(tasks))
-    index_of: dict = {}
-    try:
-        while waiting or index_of:
-            limit = cutoff()
-            if limit is not None:
-                waiting = [t for t in waiting if t[0] < limit]
-                for future, index in index_of.items():
-                    if index >= limit:
-                        future.cancel()  # not started yet: dropped; a running one finishes
-            while waiting and len(index_of) < max(1, slots()):
-                index, configuration, place = waiting.pop()
-                index_of[workers.submit(execute_run, plan, out, index, origin, configuration, place)] = index
-            if not index_of:
-                break
-            finished, _ = wait(index_of, return_when=FIRST_COMPLETED)
-            for future in finished:
-                del index_of[future]
-                if not future.cancelled():
-                    on_result(future.result())
-    except BrokenProcessPool as e:
-        raise CampaignError(f"a worker process died ({e}); {lost.format(out=out)}") from None
+    with interrupts_remembered() as heard:
+        def take(result: dict) -> None:
+            on_result(result)
+            if heard:  # an interrupt whose KeyboardInterrupt was lost (in a run made here): stop all the same
+                raise KeyboardInterrupt
+
+        if workers.submit is None:
+            for index, configuration, place in tasks:
+                limit = cutoff()
+                if limit is not None and index >= limit:
+                    break
+                take(execute_run(plan, out, index, origin, configuration, place))
+            return
+        waiting = list(reversed(tasks))
+        slots = workers.slots if callable(workers.slots) else (lambda: workers.slots or len(tasks))
+        index_of: dict = {}
+        try:
+            while waiting or index_of:
+                limit = cutoff()
+                if limit is not None:
+                    waiting = [t for t in waiting if t[0] < limit]
+                    for future, index in index_of.items():
+                        if index >= limit:
+                            future.cancel()  # not started yet: dropped; a running one finishes
+                while waiting and len(index_of) < max(1, slots()):
+                    index, configuration, place = waiting.pop()
+                    index_of[workers.submit(execute_run, plan, out, index, origin, configuration, place)] = index
+                if not index_of:
+                    break
+                finished, _ = wait(index_of, return_when=FIRST_COMPLETED)
+                for future in finished:
+                    del index_of[future]
+                    if not future.cancelled():
+                        take(future.result())
+        except BrokenProcessPool as e:
+            raise CampaignError(f"a worker process died ({e}); {lost.format(out=out)}") from None
