@@ -255,3 +255,17 @@ def test_a_refinement_that_would_grow_the_model_far_runs_the_witness_first_and_t
     result = refine.verify_with_twin(None, tmp_path, budget=3)
     assert [(r.key, r.prop) for r in result.refinements] == [("operator:pace", "A")]
     assert replays[:2] == [("verify", 0, ("A",)), (0, "A")] and (1, "A") in replays
+
+
+def test_a_witness_run_before_a_costly_refinement_is_not_run_again_at_the_end(monkeypatch, tmp_path):
+    """A witness the twin refuted before a costly refinement was taken up stays refuted: when the refined round's
+    own witness is refuted too, the end does not run the coarser one a second time (seconds of the twin's, and a
+    second folder for one replay), and its ending still names both refutations."""
+    costly = refine.COSTLY_GROWTH * Stats().states * 10.0
+    replays = scripted(monkeypatch, {frozenset(): {"A": "fast"}, PACE: {"A": "slow"}}, confirms=set(), could=costly)
+    result = refine.verify_with_twin(None, tmp_path, budget=3)
+    assert [r for r in replays if r[0] != "verify"] == [(0, "A"), (1, "A")]
+    (final,) = result.endings()
+    assert final.ending is Ending.UNDECIDED
+    assert "the witness of the model before any refinement was run too, and the twin refutes it" in final.reason
+

@@ -56,7 +56,8 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
     done: list[Refinement] = []
     built = None  # the next round's abstract model, built to judge its size
     confirmed: dict = {}  # property -> (its checked result, its replay) from the round whose witness the twin confirmed
-    skipped: dict = {}  # property -> [(its checked result, that round's model, its folder)]: witnesses refined, not run
+    skipped: dict = {}  # property -> [(its checked result, that round's model, its folder, its replay if it ran first)]:
+    # witnesses refined (run first, where the refinement was costly: the twin refuted them)
     waited: dict = {}  # property -> (that round's refinements, its folder): a witness deferred, never built
     once: dict = {}  # liveness conditions' stronger responses (no witness run, nothing to refine): checked in round 1
     grown_from = None  # the states of the largest model checked so far (a refined round's tables are sized on it)
@@ -88,6 +89,7 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
             say(f"refinement {candidate.step}: {too_large}")
         if found is not None and could > COSTLY_GROWTH * grown_from and not exact:
             could = _reached(built, grown_from)  # the quick bound can be hundreds of times too high: measure it
+        tried_first: dict = {}  # property -> the replay of its witness, run before a costly refinement
         if found is not None and could > COSTLY_GROWTH * grown_from:
             # a refinement that grows the model this much costs more than running the witnesses it would take up on
             # the twin: they run first, and the twin confirming every one leaves it nothing to do
@@ -139,7 +141,8 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
             return result
         for checked in open_:
             if checked.prop.name in faulted:
-                skipped.setdefault(checked.prop.name, []).append((checked, result.model, where))
+                skipped.setdefault(checked.prop.name, []).append(
+                    (checked, result.model, where, tried_first.get(checked.prop.name)))
         for checked in result.results:
             if checked.deferred and checked.prop.name not in skipped:
                 waited.setdefault(checked.prop.name, (keys, where))
@@ -160,8 +163,9 @@ def _run_skipped(result, skipped: dict, waited: dict, confirmed: dict, rebuild, 
         return (name not in confirmed and checked.holds is False and checked.prop.within is None
                 and not (name in result.replays and result.replays[name].confirmed))
 
-    def confirm(i, earlier, model, where) -> bool:
-        ran = replay(model, earlier, where, on_stage=on_stage)
+    def confirm(i, earlier, model, where, ran=None) -> bool:
+        if ran is None:  # (one run before its refinement is not run again)
+            ran = replay(model, earlier, where, on_stage=on_stage)
         if ran.confirmed:
             confirmed[earlier.prop.name] = (earlier, ran)
             result.results[i], result.replays[earlier.prop.name] = earlier, ran
@@ -175,7 +179,7 @@ def _run_skipped(result, skipped: dict, waited: dict, confirmed: dict, rebuild, 
     index = {r.prop.name: i for i, r in enumerate(result.results)}
     for name, runs in skipped.items():
         if name in index and unsettled(result.results[index[name]]):
-            any(confirm(index[name], earlier, model, where) for earlier, model, where in runs)
+            any(confirm(index[name], *run) for run in runs)
     by_round: dict = {}
     for name, (keys, where) in waited.items():
         if name in index and unsettled(result.results[index[name]]):
