@@ -22,6 +22,17 @@ def witness_on(query, pair, geometry) -> np.ndarray:
     return query.GetPoseInWorld(geometry) @ (pair.p_ACa if pair.id_A == geometry else pair.p_BCb)
 
 
+def nearest_on_box(shape, X_WG, p_W) -> np.ndarray | None:
+    """The point of a Box ``shape`` posed at ``X_WG`` nearest the world point ``p_W`` (``p_W`` itself inside it), in
+    the world (m); None for another shape."""
+    from pydrake.geometry import Box
+
+    if not isinstance(shape, Box):
+        return None
+    half = 0.5 * np.array([shape.width(), shape.depth(), shape.height()])
+    return np.asarray(X_WG @ np.clip(X_WG.inverse() @ np.asarray(p_W, float), -half, half), float)
+
+
 def bounding_sphere(shape, pose) -> tuple[np.ndarray, float]:
     """(centre in the frame, radius) of a sphere holding ``shape`` posed at ``pose`` in its frame (m); an infinite
     radius for a shape this does not know (every pair with it is then measured exactly). A mesh is bounded by its

@@ -93,6 +93,8 @@ def test_a_limits_table_of_ones_own_replaces_cellsims(tmp_path):
     (lambda t: t["regions"].pop("face"), "regions"),
     (lambda t: t["regions"]["hand"].update(force=-1), "regions.hand.force"),
     (lambda t: t.update(source=" "), "source"),
+    # a review found a row for no region of the body (a misspelling, another table's name) read by nobody
+    (lambda t: t["regions"].update(lower_arm=t["regions"]["forearm"]), "regions.lower_arm"),
 ])
 def test_a_bad_limits_table_is_one_line_naming_its_file_and_key(tmp_path, edit, key):
     import yaml

@@ -11,16 +11,20 @@ relative motion, mu v^2 / 2, with mu = 1 / (1/m_H + 1/m_R) the reduced mass::
 
     v_max = F / sqrt(k mu)
 
-with F the quasi-static force for a quasi-static contact (clamping) and the transient force
-(F times the region's factor) for a transient one; m_R is the robot's effective mass, half its
-moving links' mass plus its tooling's (shapes welded to a moving link, as a tool is to the flange)
-and the payload, which move with the contact point whole. The contact's severity is ``v_rel / v_max``: above 1, the
-contact transfers more than the region may take, and it is harm. A transient contact with a
-region where none is permitted (the head, the face) is harm at any speed: its severity is
-``2 + v_rel / v_max`` (v_max of the quasi-static force), at least 2 however slowly it happens,
-and the larger the faster. A quasi-static contact begins as an impact: its severity is the larger
-of its own and the transient one's (the transient one is the smaller wherever the table permits
-transient contact), so a head or face pinned against a machine is harm at any speed as well.
+with F the transient force (the quasi-static force times the region's factor) for a transient
+contact, where the region can recoil. A quasi-static contact (clamping) pins the region: it cannot
+move away, so its effective mass is unbounded and mu is the robot's own, m_R: the arm's whole
+kinetic energy goes into the region, against the quasi-static force (cellsim's reading of the
+model for a pinned region: with the two-mass mu, a hand pressed onto a table would be allowed five
+times the speed). m_R is the robot's effective mass, half its moving links' mass plus its
+tooling's (shapes welded to a moving link, as a tool is to the flange) and the payload, which move
+with the contact point whole. The contact's severity is ``v_rel / v_max``: above 1, the contact
+transfers more than the region may take, and it is harm. A contact with a region where no
+transient contact is permitted (the head, the face) is harm at any speed: its severity is
+``2 + v_rel / v_max`` (v_max of the quasi-static force, v_rel taken as 0 where the two draw apart),
+at least 2 however slowly it happens, and the larger the faster. A quasi-static contact begins as
+an impact: its severity is the larger of its own and the transient one's (the quasi-static one is
+the larger wherever the table permits transient contact).
 
 Pressure needs the contact's area, which the shapes here do not give: it is in the table for
 the user's own analysis, and not judged.
@@ -81,6 +85,10 @@ def load_limits(path: str | Path = SHIPPED, regions: tuple[str, ...] = ()) -> Lo
     if missing:
         raise ConfigError(str(path), loaded.line_of("regions"), "regions",
                           f"no limits for the body region{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
+    unknown = [r for r in table.regions if regions and r not in regions]
+    if unknown:  # a misspelt row would be read by nobody, and its region judged by nothing
+        raise ConfigError(str(path), loaded.line_of(f"regions.{unknown[0]}"), f"regions.{unknown[0]}",
+                          f"no body region is called '{unknown[0]}' (the body's regions: {', '.join(regions)})")
     return loaded
 
 
@@ -90,30 +98,30 @@ def reduced_mass(human: float, robot: float) -> float:
 
 
 def permissible_speed(limits: RegionLimits, robot_mass: float, kind: str) -> float:
-    """v_max (m/s) of a contact of ``kind`` with the region, for a robot of effective mass ``robot_mass`` (kg);
-    0 for a transient contact the table does not permit."""
+    """v_max (m/s) of a contact of ``kind`` with the region, for a robot of effective mass ``robot_mass`` (kg):
+    a transient one against the reduced mass of the two, a quasi-static one (the region pinned, unable to move away)
+    against the robot's mass alone; 0 for a transient contact the table does not permit."""
     if kind not in (TRANSIENT, QUASI_STATIC):
         raise ValueError(f"a contact's kind is {TRANSIENT} or {QUASI_STATIC}, not {kind!r}")
-    force = limits.force
-    if kind == TRANSIENT:
-        if limits.transient_factor is None:
-            return 0.0
-        force *= limits.transient_factor
     k = limits.spring_constant * 1000.0  # N/mm -> N/m
-    return force / math.sqrt(k * reduced_mass(limits.effective_mass, robot_mass))
+    if kind == QUASI_STATIC:
+        return limits.force / math.sqrt(k * robot_mass)
+    if limits.transient_factor is None:
+        return 0.0
+    return limits.force * limits.transient_factor / math.sqrt(k * reduced_mass(limits.effective_mass, robot_mass))
 
 
 def severity(limits: RegionLimits, robot_mass: float, kind: str, speed: float) -> float:
     """How far a contact at relative speed ``speed`` (m/s, towards the region) goes towards the region's
-    limit: 1 is the limit, above 1 harm; a transient contact the table does not permit is at least 2 at any speed,
-    standing still included. A quasi-static contact (the region pinned) begins as an impact: its severity is the
-    larger of the two kinds', so a pinned head or face is harm at any speed too. Moving apart (``speed`` below 0)
-    is 0 for every region: nothing is pressed."""
+    limit: 1 is the limit, above 1 harm. A contact with a region where the table permits no transient contact (the
+    head, the face) is at least 2 at any speed: standing still, or drawing apart (a stopped arm's solver noise reads a
+    speed of -1e-7 m/s; a head that stepped into an arm backing away touched it all the same). A quasi-static contact
+    (the region pinned) begins as an impact: its severity is the larger of the two kinds'. Elsewhere, drawing apart
+    (``speed`` below 0) is 0: nothing is pressed."""
     if kind not in (TRANSIENT, QUASI_STATIC):
         raise ValueError(f"a contact's kind is {TRANSIENT} or {QUASI_STATIC}, not {kind!r}")
-    if speed < 0.0:
-        return 0.0
+    pressing = max(speed, 0.0)
     v_pinned = permissible_speed(limits, robot_mass, QUASI_STATIC)
     v_free = permissible_speed(limits, robot_mass, TRANSIENT)
-    impact = FORBIDDEN + speed / v_pinned if v_free == 0.0 else speed / v_free
-    return max(impact, speed / v_pinned) if kind == QUASI_STATIC else impact
+    impact = FORBIDDEN + pressing / v_pinned if v_free == 0.0 else pressing / v_free
+    return max(impact, pressing / v_pinned) if kind == QUASI_STATIC else impact

@@ -32,7 +32,7 @@ from pydrake.geometry import QueryObject
 
 from cellsim.channels import enum_type, number_type
 from cellsim.kinds.harm.config import HarmConfig
-from cellsim.proximity import NearestPair, bounding_sphere, inradius, lowest_point_z, witness_on
+from cellsim.proximity import NearestPair, bounding_sphere, inradius, lowest_point_z, nearest_on_box, witness_on
 from cellsim.kinds.harm.limits import QUASI_STATIC, TRANSIENT, BodyLimits, severity
 from cellsim.body import BLOCKS, REGIONS
 from cellsim.systems import UNCHANGED, CellSystem, write_changed
@@ -169,6 +169,7 @@ class HarmMonitor(CellSystem):
         self.bodies = {g: RegionGeometry(p, region, inspector.GetFrameId(g)) for g, (p, region) in bodies.items()}
         self._shapes = {g: inspector.GetShape(g) for g in self.bodies}  # for how near the floor each region is
         self.clamps = [*fixtures, *parts]  # what a region can be pinned against: fixtures, every arm's shapes
+        self._blocker_shapes = {g: inspector.GetShape(g) for g in self.clamps}
         self._pairs = NearestPair(inspector, list(self.parts), list(self.bodies))  # every robot part and body region
         # each touching pair's push, its normal while the overlap was last shallow (3 per pair, zero while it does
         # not touch), and how deep its overlap is still shallow (m): see measure()
@@ -482,6 +483,8 @@ class HarmMonitor(CellSystem):
                     continue
                 if self._behind(witness_on(query, pair, other) - p_W, push):
                     return True
+                if block is None and self._beneath(query, other, region, p_W, push):
+                    return True
         # the floor (z = 0, the layout's ground) is a blocker too: a foot or a shin pushed down onto it is pinned
         for region in regions:
             lowest = lowest_point_z(self._shapes[region], query.GetPoseInWorld(region))
@@ -489,6 +492,19 @@ class HarmMonitor(CellSystem):
                     np.array([0.0, 0.0, lowest - float(p_W[2])]), push):
                 return True
         return False
+
+    def _beneath(self, query, blocker, region, p_W, push) -> bool:
+        """Whether the ``blocker``'s point nearest the contact ``p_W`` itself lies behind it along the ``push``, no
+        farther than the touched limb is thick (``region``) and clamp_gap: a limb lying along a surface (a forearm on
+        a shelf) touches it over its length, and the pair's one witness point may sit at its far end, off the push's
+        line (a review found a press straight down at the elbow end read free). Fixtures are boxes; another blocker
+        shape is left to the witness alone."""
+        nearest = nearest_on_box(self._blocker_shapes[blocker], query.GetPoseInWorld(blocker), p_W)
+        if nearest is None:
+            return False
+        towards = nearest - p_W
+        return (float(np.linalg.norm(towards)) <= 2.0 * inradius(self._shapes[region]) + self.cfg.clamp_gap
+                and self._behind(towards, push))
 
     def _behind(self, towards, push) -> bool:
         """Whether a blocker's point ``towards`` away from the contact (m) lies behind it along the ``push``, within
