@@ -606,6 +606,11 @@ def test_a_runs_closest_approach_names_the_person_and_their_region(tmp_path):
     closest = next(f for f in run.summary.findings if f.what == "closest approach")
     assert closest.data["distance"] < 0.5 and closest.data["person"] == "operator"
     assert f"operator's {closest.data['region'].replace('_', ' ')}" in closest.text
+    # a near miss says how fast the arm went then (an audit found no speed but a touch's): the tool's, at that instant
+    if closest.data["distance"] > 0:
+        tool = run.blackbox().series("robot.tool_speed")
+        assert closest.data["tool_speed"] == pytest.approx(tool.value_at(closest.start))
+        assert f"its tool at {closest.data['tool_speed']:.3g} m/s" in closest.text
     # the channel the finding read, straight from the file
     db = sqlite3.connect(tmp_path / "run" / "blackbox.sqlite")
     assert db.execute("SELECT count(*) FROM channels WHERE name = 'harm.nearest_person'").fetchone()[0] == 1

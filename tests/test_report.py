@@ -518,3 +518,18 @@ def test_a_campaign_with_no_coverage_criteria_shows_none_not_100_percent():
     page = render_report(results, {})
     assert 'id="coverage-figure"' not in page and "100.0%" not in section(page, "coverage")
     assert "No coverage criteria." in section(page, "coverage")
+
+
+def test_a_runs_closest_approach_reads_as_what_it_was():
+    """An audit found nobody within the cut-off shown as "closest 0.500 m at 0 s" (the cut-off, at the channel's
+    first sample), a stray comma after "touched", and neither a near miss's speed nor a touch's severity."""
+    from cellsim.campaign.report import _harm_cell
+
+    def cell(closest):
+        return _harm_cell({"findings": [{"what": "closest approach", "start": 4.882, **closest}]})["text"]
+
+    assert cell({"distance": 0.5, "robot": "robot"}) == "closest: nobody within 0.500 m"
+    assert cell({"distance": 0.124, "region": "hand", "person": "operator", "tool_speed": 0.35}) == (
+        "closest 0.124 m, operator's hand at 4.88 s, tool at 0.350 m/s")
+    assert cell({"distance": -0.0484, "region": "hand", "person": "operator", "speed": 0.3, "severity": 0.321}) == (
+        "touched operator's hand at 4.88 s, 0.0484 m deep, 0.300 m/s, severity 0.321")

@@ -514,6 +514,8 @@ def test_each_contact_and_each_runs_closest_approach_are_shown_and_harm_is_red(b
     whose only contact was at severity 0 counted under "no contact", no run's own contacts or closest approach in
     the report, harm drawn in the green of 'holds', and a waived condition's reason missing from the campaign's and
     its check's output."""
+    from cellsim.numbers import sig3
+
     out, done, checked, results = touching
     runs = results["runs"]
     contacts = [(r["index"], f) for r in runs for f in r["findings"] if f["what"] == "contact"]
@@ -547,7 +549,17 @@ def test_each_contact_and_each_runs_closest_approach_are_shown_and_harm_is_red(b
         if mine:
             worst = max(f["severity"] for f in mine)
             assert f"{len(mine)} contact" in cell and f"worst severity {worst:.3g}" in cell, cell
+            # an audit found only the worst named: each one is listed, opened from the cell
+            details = page.locator(f"#runs-table tr[data-run='{run['index']}'] details.contacts")
+            details.locator("summary").click()
+            listed = details.locator("li")
+            assert listed.count() == len(mine)
+            for i, f in enumerate(mine):
+                item = listed.nth(i).inner_text()
+                assert item.startswith(f"{sig3(f['start'])} s: ") and f["part"] in item, item
+                assert f"severity {sig3(f['severity'])}" in item, item
         assert "closest" in cell or "touched" in cell, cell
+        assert not cell.startswith("touched,"), cell
         closest = next(f for f in run["findings"] if f["what"] == "closest approach")
         if closest.get("region"):  # whose region it was, where one was within the cut-off
             assert f"{closest['person']}'s {closest['region'].replace('_', ' ')}" in cell, cell

@@ -758,25 +758,46 @@ def _contacts(run: Mapping) -> list[dict]:
 
 
 def _harm_cell(run: Mapping) -> dict:
-    """What the runs table says of a run's harm: its closest approach (distance, region, time) and its contacts (how
-    many, the worst's severity and region); ``worst``: that severity, for sorting (-1: no contact)."""
+    """What the runs table says of a run's harm: its closest approach (distance, whose region, time, and the speed
+    and severity of a touch or the tool's speed at a near miss), its contacts (how many, the worst's severity and
+    region) and each contact in words (``contacts``); ``worst``: that severity, for sorting (-1: no contact)."""
     found = [_dict(f) for f in _list(run.get("findings"))]
     closest = next((f for f in found if f.get("what") == "closest approach" and is_number(f.get("distance"))), None)
     contacts = _contacts(run)
     parts = []
     if closest is not None:
-        where = str(closest.get("region") or "").replace("_", " ")
-        when = f" at {sig3(closest['start'])} s" if is_number(closest.get("start")) else ""
-        whose = f"{closest['person']}'s " if closest.get("person") else ""
-        near = f", {whose}{where}" if where and where != "none" else ""
-        parts.append(f"touched{near}{when}, {sig3(-closest['distance'])} m deep" if closest["distance"] <= 0
-                     else f"closest {sig3(closest['distance'])} m{near}{when}")
+        parts.append(_closest_text(closest))
     worst = max((c for c in contacts if is_number(c.get("severity"))), key=lambda c: c["severity"], default=None)
     if worst is not None:
         parts.append(f"{len(contacts)} contact{'s' if len(contacts) != 1 else ''}, worst severity {sig3(worst['severity'])}"
                      f" ({str(worst.get('region', '')).replace('_', ' ')}, {sig3(worst.get('speed'))} m/s)")
     return {"text": "; ".join(parts), "worst": worst["severity"] if worst is not None else -1.0,
-            "harm": worst is not None and worst["severity"] > 1.0}
+            "harm": worst is not None and worst["severity"] > 1.0, "contacts": [_contact_text(c) for c in contacts]}
+
+
+def _closest_text(closest: Mapping) -> str:
+    """A run's closest approach in the runs table: nobody within the cut-off, a near miss, or a touch."""
+    region = str(closest.get("region") or "none")
+    if region == "none":  # nobody came within the harm service's cut-off: its value, not a person's distance
+        return f"closest: nobody within {sig3(closest['distance'])} m"
+    when = f" at {sig3(closest['start'])} s" if is_number(closest.get("start")) else ""
+    whose = f"{closest['person']}'s " if closest.get("person") else ""
+    where = f"{whose}{region.replace('_', ' ')}"
+    if closest["distance"] <= 0:
+        how = (f", {sig3(closest['speed'])} m/s, severity {sig3(closest['severity'])}"
+               if is_number(closest.get("speed")) and is_number(closest.get("severity")) else "")
+        return f"touched {where}{when}, {sig3(-closest['distance'])} m deep{how}"
+    tool = f", tool at {sig3(closest['tool_speed'])} m/s" if is_number(closest.get("tool_speed")) else ""
+    return f"closest {sig3(closest['distance'])} m, {where}{when}{tool}"
+
+
+def _contact_text(contact: Mapping) -> str:
+    """One contact in words: when, whose region, by which part, its kind, speed and severity."""
+    whose = f"{contact['person']}'s " if contact.get("person") else ""
+    when = f"{sig3(contact['start'])} s" if is_number(contact.get("start")) else "?"
+    kind = str(contact.get("kind") or "").replace("_", "-")
+    return (f"{when}: {whose}{str(contact.get('region', '')).replace('_', ' ')} by {contact.get('part', '?')}, {kind}, "
+            f"{sig3(contact.get('speed'))} m/s, severity {sig3(contact.get('severity'))}")
 
 
 def _runs_table(results: Mapping, runs: Sequence[Mapping]) -> dict:

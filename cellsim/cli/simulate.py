@@ -112,21 +112,21 @@ class _progress:
             self.bar.stop()
 
 
-def findings_lines(summary, most: int = 6) -> list[tuple[str, str]]:
-    """(label, text) rows of the run's findings: its closest approach, its contacts (the worst first) and blind spots,
-    at most ``most`` of each kind (and how many more), and the default conditions it waives with its reasons."""
+def findings_lines(summary, most: int | None = None) -> list[tuple[str, str]]:
+    """(label, text) rows of the run's findings: its closest approach, every contact (the worst first) and blind spot
+    (or at most ``most`` of each kind, and how many more), and the default conditions it waives with its reasons."""
     rows = []
     outrun = [f.what for f in summary.findings if f.outrun]  # (a measurement outrun between two looks: in red)
     for what in ("closest approach", "contact", "blind spot", "slow reaction", *dict.fromkeys(outrun)):
         found = [f for f in summary.findings if f.what == what]
         if what == "contact":
             found.sort(key=lambda f: -f.data.get("severity", 0.0))
-        for f in found[:most]:
+        for f in found[:most]:  # (None: all)
             when = f"{f.start:.2f} s to the end" if f.end is None else f"{f.start:.2f}-{f.end:.2f} s"
             alarming = f.data.get("severity", 0.0) > 1.0 or what == "slow reaction" or f.outrun
             text = f"[red]{f.text}[/red]" if alarming else f.text
             rows.append((what, f"{text} ({when})" if what != "closest approach" else text))
-        if len(found) > most:
+        if most is not None and len(found) > most:
             rows.append((what, f"... and {len(found) - most} more (in the black box's channels: `cellsim export "
                                 f"{summary.out_dir} --mcap FILE` plots them in Foxglove)"))
     rows += [("waived", f"{name}: {reason}") for name, reason in summary.waived.items()]

@@ -124,6 +124,12 @@ def _closest(name, bb, others, contacts: list[Finding] = ()) -> Finding | None:
     data = {"distance": distance, "robot": robot, "region": region, "severity": 0.0,
             **({"person": person} if person != NONE else {})}
     text = f"{robot} came within {distance:.3g} m of {whose} {region.replace('_', ' ')} at {t:.3f} s"
+    tool = f"{robot}.tool_speed"
+    if distance > 0 and tool in bb.channels():  # a near miss: how fast the arm was going then
+        series = bb.series(tool)
+        if len(series):
+            data["tool_speed"] = float(series.value_at(t))
+            text += f", its tool at {data['tool_speed']:.3g} m/s"
     during = next((c for c in contacts if c.start <= t and (c.end is None or t < c.end)), None) if distance <= 0 else None
     if during is not None:
         worst = during.data
