@@ -184,22 +184,24 @@ def test_two_operators_break_the_single_operator_assumption_and_the_twin_confirm
 
 
 def test_a_model_too_large_to_build_state_by_state_is_checked_as_decision_diagrams_with_the_same_values(monkeypatch):
-    """Above the size limits the model is checked by Storm's dd engine alone, every monitor in one model:
-    the welding cell forced down that path gets the values it gets with its witnesses' groups built state by state
-    (where the violated values come from), and no witness."""
+    """Above the size limits a witness is sought by Storm's dd engine alone, with people held: the welding cell forced
+    down that path gets the values it gets with its witnesses' groups built state by state, and a witness only where
+    a model with a person held has the violation."""
     import cellsim.verify.run as run
 
     sf = load_scenario(WELDING_CELL)
     explicit = run.verify(sf)
     monkeypatch.setattr(run, "SIZE_ANYWAY", 0)
+    monkeypatch.setattr(run, "STATE_BY_STATE", 0)
     monkeypatch.setattr(run, "EXPLICIT_LIMIT", 0)
     monkeypatch.setenv("COLUMNS", "200")  # a row to a line
     symbolic = run.verify(sf)
     assert symbolic.stats.symbolic and not explicit.stats.symbolic
-    assert symbolic.stats.states >= explicit.largest.states  # every monitor at once
+    assert symbolic.stats.states == explicit.stats.states  # the whole cell, built without monitors either way
+    assert explicit.largest.states > explicit.stats.states  # a witness's model carries its monitor
     assert {r.prop.name: r.value for r in symbolic.results} == {r.prop.name: r.value for r in explicit.results}
     assert any(r.holds is False for r in symbolic.results)
-    assert all(r.witness is None for r in symbolic.results)
+    assert all(r.witness is None or r.witness_from for r in symbolic.results)
     assert any(r.witness for r in explicit.results if r.holds is False)
 
 
@@ -266,9 +268,9 @@ def test_two_operators_too_large_to_make_sparse_take_a_witness_from_the_cell_wit
     person is the point of the cell), so no held model has them violated and they keep none."""
     import cellsim.verify.run as run
 
-    monkeypatch.setattr(run, "EXPLICIT_LIMIT", 10_000_000)  # the whole cell has some 15 million transitions
+    monkeypatch.setattr(run, "EXPLICIT_LIMIT", 1_000_000)  # each detection's own model has 1 to 5 million transitions
     result = run.verify(load_scenario(ROOT / "scenarios" / "two_operators.yaml"))
-    assert result.stats.symbolic and result.stats.transitions > 10_000_000
+    assert result.stats.symbolic and result.largest.transitions > 1_000_000
     violated = {r.prop.name: r for r in result.results if r.holds is False and r.prop.within is None}
     assert set(violated) >= {"HRW:detected", "HS:detected", "HC:detected"}
     witnessed = violated["HRW:detected"]
@@ -475,6 +477,7 @@ def test_a_cell_checked_as_decision_diagrams_alone_asks_no_witness_of_a_response
     import cellsim.verify.run as run
     from cellsim.cli import main
 
+    monkeypatch.setattr(run, "STATE_BY_STATE", 0)
     monkeypatch.setattr(run, "EXPLICIT_LIMIT", 0)
     monkeypatch.setenv("COLUMNS", "200")  # a row to a line
     code = main(["verify", str(WELDING_CELL), "--no-replay", "--refine", "0", "--out", str(tmp_path / "w")])

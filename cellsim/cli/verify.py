@@ -157,9 +157,11 @@ def _print(result, replays, export) -> None:
         console.print(f"  not checked: {escape(s.name)}: {escape(s.reason)}")
     times = result.times
     violated = any(r.holds is False for r in result.results)
-    shape = ("checked as decision diagrams (every monitor in one model)" if stats.symbolic or not violated
-             else "checked as decision diagrams (every monitor in one model), a violated property's witness from "
-                  f"its own model {'made sparse' if stats.made_sparse else 'built state by state'}")
+    how = [*(["built state by state"] if not stats.symbolic and not stats.made_sparse else []),
+           *(["made sparse"] if stats.made_sparse else []),
+           *(["sought with people held, its own model too large to make sparse"] if stats.symbolic else [])]
+    shape = ("checked as decision diagrams (without monitors: each obligation as a nested formula)"
+             + ("" if not violated else f", a violated property's witness from its own model {' or '.join(how)}"))
     last = " (the last round's)" if result.refinements else ""
     console.print(f"  the cell{last}: {stats.states:,} states, {stats.transitions:,} transitions; {shape}; "
                   f"period {model.cell.period:g} s; floor {times.get('floor', 0):.2f} s, Storm build "
@@ -177,9 +179,10 @@ def _print(result, replays, export) -> None:
             console.print(f"  {escape(name)}: the twin refutes the witness in {len(rp.runs)} runs "
                           f"({escape(str(rp.scenarios[0]))} and later starts): the abstract model allows a behaviour "
                           "the twin does not show; a finding about the model, not the cell")
-    if stats.symbolic and not result.holds:
-        console.print(f"  no witness: {stats.transitions:,} transitions are too many to build state by state "
-                      f"(over {EXPLICIT_LIMIT:,}), and a witness cannot be read from decision diagrams; "
-                      "the violations are the abstract model's, not yet tried on the twin")
+    if stats.symbolic and any(r.holds is False and r.witness is None and r.prop.within is None for r in result.results):
+        console.print(f"  no witness: a property's own model has too many transitions to make sparse (over "
+                      f"{EXPLICIT_LIMIT:,}), a witness cannot be read from decision diagrams, and no model with people "
+                      "held at their start has the violation; the violations are the abstract model's, not yet tried "
+                      "on the twin")
     if export is not None:
         console.print(f"  wrote {escape(str(export))} and {escape(str(export.with_suffix('.props')))}")

@@ -163,6 +163,10 @@ class Property:
     response: tuple[str, str] | None = None
     """A liveness condition's ``a`` and ``b`` (PRISM expressions): whether ``b`` can still come from every state
     reachable from ``a`` without it (:func:`cellsim.verify.storm.always_answerable`)."""
+    obligation: tuple[str, str, str, int] | None = None
+    """A bounded obligation ``G(a -> (b U[0, n] c))`` (``a``, ``b``, ``c`` PRISM expressions, ``n`` periods) whose bad
+    states a monitor module follows (``bad`` reads it): the whole cell's decision diagrams, built without monitors,
+    check it as a nested formula instead (:func:`cellsim.verify.storm.obligation_formula`)."""
     ends: int = 1
     """A liveness condition: how many labels ``<label>_end<k>`` say where the people may stand when a run ends, each
     one way they may stand there (:func:`cellsim.verify.storm.owed_at_the_end`); 0: too many ways to ask."""

@@ -144,6 +144,7 @@ class ConditionProperties:
                 continue
             encodings = {v: cell.signals[ch].encoding for v, ch in c.variables.items()}
             names = {v: cell.signals[ch].formula for v, ch in c.variables.items()}
+            obligation = None
             try:
                 if c.shape == "invariant":
                     bad, sustained = f"!({to_prism(c.parts[0], encodings, names)})", ""
@@ -153,7 +154,7 @@ class ConditionProperties:
                 elif c.shape == "final":
                     bad, sustained = self._final(c, encodings, names), ""
                 else:
-                    bad, sustained = self._monitor(c, encodings, names)
+                    bad, sustained, obligation = self._monitor(c, encodings, names)
             except VerifyError as e:
                 self.skipped.append(Skipped(c.name, str(e)))
                 continue
@@ -165,7 +166,8 @@ class ConditionProperties:
                     self._response_assumed = True
                     cell.assume(RUN_GOES_ON)
             cell.properties.append(Property(c.name, c.description, bad=bad, condition=c.name, sustained=sustained,
-                                            within=within, response=response, final=c.shape == "final"))
+                                            within=within, response=response, final=c.shape == "final",
+                                            obligation=obligation))
 
     def _final(self, c: Candidate, encodings, names) -> str:
         """``F G p`` (how a run ends): its bad states are those where every person stands where its script leaves it
@@ -183,7 +185,10 @@ class ConditionProperties:
         at_end = [f"{p.variable} = {p.end}" for p in people if p.end is not None]
         return f"{' & '.join(at_end) + ' & ' if at_end else ''}!({to_prism(c.parts[0], encodings, names)})"
 
-    def _monitor(self, c: Candidate, encodings, names) -> tuple[str, str]:
+    def _monitor(self, c: Candidate, encodings, names) -> tuple[str, str, tuple[str, str, str, int]]:
+        """The monitor of ``G(a -> (b U[0, w] c))``; returns its bad states, its sustained ones, and the obligation
+        (a, b, c, w in periods) as the whole cell's decision diagrams check it without the monitor
+        (:func:`cellsim.verify.storm.obligation_formula`)."""
         a, b, cc, w = c.parts
         pa, pb, pc = (to_prism(f, encodings, names) for f in (a, b, cc))
         n = RESPONSE_PERIODS if c.shape == "response" else math.floor(w / self.cell.period + 1e-9)
@@ -197,7 +202,7 @@ class ConditionProperties:
             ident, [Var(age, 0, n + 1, 0)], [Command("true", (("1", {age: f"(!{pending} | {pc} | {fails} ? 0 : {older} + 2)"}),))],
             comment=f"monitor of {c.name}: periods since its oldest pending obligation (+1); "
                     "the obligation fails in a state where it is pending and its window ran out or its 'while' part broke")
-        return fails, sustained
+        return fails, sustained, (pa, pb, pc, n)
 
     def user_properties(self, vocabulary, macros) -> list[Property]:
         """The user's PCTL, each quoted formula of the condition language a label of its own."""

@@ -62,6 +62,13 @@ class AbstractModel:
                 groups.append(([prop], *within_cone(cell.program(self.header, [prop.name], labels))))
         return groups
 
+    def unmonitored_labels(self) -> dict[str, str]:
+        """Every label but those that read a monitor (an obligation's bad and sustained states): the whole cell's
+        decision diagrams are built without monitors, and check each obligation on the labels of its parts."""
+        reading = {key for prop in self.properties if prop.obligation and prop.name in self.labels
+                   for key in (self.labels[prop.name], sustained_label(self.labels[prop.name]))}
+        return {key: text for key, text in self.cell.labels.items() if key not in reading}
+
     def bound(self) -> float:
         """The product of the cell's variables' numbers of values (the monitors left out): no more
         states than this can be reached."""
@@ -111,9 +118,15 @@ def dd_memory(bound: float, grown_from: int | None = None) -> int:
     return SMALL_DD_MEMORY if bound <= SIZE_ANYWAY else DD_MEMORY
 
 
+OBLIGATION_PARTS = ("oa", "ob", "oc")
+"""The suffixes of the labels of an obligation's parts ``a``, ``b``, ``c`` (:attr:`Property.obligation`)."""
+
+
 def labels_of(prop: Property, label: str) -> list[str]:
-    """The labels a property's check reads: its bad states', its sustained violation's, its response's a and b."""
+    """The labels a property's check reads: its bad states', its sustained violation's, its obligation's parts, its
+    response's a and b."""
     return [label, *([sustained_label(label)] if prop.sustained else []),
+            *([f"{label}_{key}" for key in OBLIGATION_PARTS] if prop.obligation else []),
             *([f"{label}_a", f"{label}_b", *(f"{label}_end{k}" for k in range(prop.ends))] if prop.response else [])]
 
 
@@ -254,6 +267,9 @@ def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset
             abstract.labels[f"bad{i}"] = prop.bad
             if prop.sustained:
                 abstract.labels[sustained_label(f"bad{i}")] = prop.sustained
+            if prop.obligation:
+                for key, expression in zip(OBLIGATION_PARTS, prop.obligation):
+                    abstract.labels[f"bad{i}_{key}"] = expression
             if prop.response:
                 abstract.labels[f"bad{i}_a"], abstract.labels[f"bad{i}_b"] = prop.response
                 ends = _at_the_end(abstract)
@@ -391,11 +407,11 @@ def _storm(model: AbstractModel, memory: int, say, enough=None, scratch: Path | 
     times = {"storm_parse": 0.0, "storm_build": 0.0, "storm_check": 0.0}
     still = tuple(person.variable for person in model.cell.places.people)
 
-    def checked(program, built, props, valuations=None, dropped=()):
+    def checked(program, built, props, valuations=None, dropped=(), monitored=True):
         mark = time.perf_counter()
         for prop in props:
             say(f"Storm: checking {prop.name}")
-            results[prop.name] = check(program, built, prop, model.labels.get(prop.name), still, valuations)
+            results[prop.name] = check(program, built, prop, model.labels.get(prop.name), still, valuations, monitored)
             if dropped:
                 results[prop.name] = replace(results[prop.name], left_out=tuple(dropped))
         times["storm_check"] += time.perf_counter() - mark
@@ -406,69 +422,91 @@ def _storm(model: AbstractModel, memory: int, say, enough=None, scratch: Path | 
 
     with (contextlib.nullcontext(str(scratch)) if scratch is not None
           else tempfile.TemporaryDirectory(prefix="cellsim-verify-")) as scratch:
-        # the whole cell, every monitor in it, as decision diagrams: its size decides how it is checked
+        # the whole cell as decision diagrams, without monitors (each obligation checked as a nested formula): its
+        # size decides how it is checked
         whole = Path(scratch) / "model.prism"
         # every module, even one no property observes: a state where one cannot step is refused here (the groups'
         # models, each on its cone, rely on that)
-        program_now = model.cell.program(model.header)  # (without the monitors of the properties left out)
+        program_now = model.cell.program(model.header, [], model.unmonitored_labels())
         whole.write_text(program_now.text())
         say("Storm: building the state space as decision diagrams")
         program, symbolic, whole_stats = build_symbolic(whole, memory)
         count(whole_stats)
-        if whole_stats.transitions > EXPLICIT_LIMIT:
-            say(f"Storm: {whole_stats.states:,} states, {whole_stats.transitions:,} transitions: "
-                "checked as decision diagrams")
-            checked(program, symbolic, model.properties)
-            del symbolic
-            stats = largest = whole_stats
-            for props, group, dropped in model.groups():
-                again = [p for p in props if p.bad and p.within is None and results[p.name].holds is False]
-                if again:
-                    _witness_held(model, group, dropped, again, results, memory, Path(scratch), say, count)
-        else:
-            # every property checked on the decision diagrams; only a group with a violated one (its witness, or
-            # whether its response can always still come) is built again, with only its own monitor: state by state
-            # when the cell is small, else as decision diagrams made sparse
-            by_state = whole_stats.states <= STATE_BY_STATE
-            say(f"Storm: {whole_stats.states:,} states, {whole_stats.transitions:,} transitions, as decision diagrams")
-            checked(program, symbolic, model.properties)
-            del symbolic
-            stats = replace(whole_stats, symbolic=False, made_sparse=not by_state)
-            for i, (props, group, dropped) in enumerate(model.groups()):
-                # (a liveness condition's answer under fairness came from the decision diagrams: nothing to build)
-                again = [p for p in props if p.bad and results[p.name].holds is False and results[p.name].fair is None]
-                if not again:
-                    continue
-                if settled and all(p.within is None for p in again):
-                    for prop in again:
-                        results[prop.name] = replace(results[prop.name], deferred=True)
-                    continue
-                path = Path(scratch) / f"model{i}.prism"
-                if by_state:
-                    path.write_text(group.text())
-                    say(f"Storm: the state space for {', '.join(p.name for p in again)}, state by state"
-                        + _leaving_out(dropped))
-                    program, built, group_stats = build(path)
-                    count(group_stats)
-                    valuations = None
-                else:
-                    path.write_text(group.text() + valuation_labels(group.variables()))
-                    say(f"Storm: the state space for {', '.join(p.name for p in again)}, made sparse"
-                        + _leaving_out(dropped))
-                    program, symbolic, group_stats = build_symbolic(path, memory)
-                    count(group_stats)
-                    mark = time.perf_counter()
-                    built, valuations = to_sparse(symbolic, group.variables())
-                    times["storm_build"] += time.perf_counter() - mark
+        say(f"Storm: {whole_stats.states:,} states, {whole_stats.transitions:,} transitions, as decision diagrams")
+        checked(program, symbolic, model.properties, monitored=False)
+        del symbolic
+        # only a group with a violated property is built again, with its own monitors: for its witness, or whether
+        # its response can always still come (a liveness condition's answer under fairness came from the decision
+        # diagrams: nothing to build)
+        pending = []
+        for i, (props, group, dropped) in enumerate(model.groups()):
+            again = [p for p in props if p.bad and results[p.name].holds is False and results[p.name].fair is None]
+            if again:
+                pending.append((i, props, group, dropped, again))
+        stats = largest = whole_stats
+        engines = set()  # how the groups were built: "state", "sparse", "held"
+        for i, props, group, dropped, again in pending:
+            if settled and all(p.within is None for p in again):
+                for prop in again:
+                    results[prop.name] = replace(results[prop.name], deferred=True)
+                continue
+            path = Path(scratch) / f"model{i}.prism"
+            # state by state when it is small: surely so where the whole cell times what the group's monitors add
+            # (their ages' values) is; else its size is found as decision diagrams first, and the model made
+            # sparse from them (or, small after all, built state by state; too large, sought with people held)
+            by_state = whole_stats.states * _monitors_growth(group, model.cell.monitors) <= STATE_BY_STATE
+            if not by_state:
+                path.write_text(group.text() + valuation_labels(group.variables()))
+                say(f"Storm: the state space for {', '.join(p.name for p in again)}, as decision diagrams"
+                    + _leaving_out(dropped))
+                program, symbolic, group_stats = build_symbolic(path, memory)
+                count(group_stats)
+                if group_stats.states <= STATE_BY_STATE and group_stats.transitions <= EXPLICIT_LIMIT:
                     del symbolic
-                if any(p.within is None for p in props) and (refinable is None or group_stats.states > refinable.states):
-                    refinable = group_stats
-                checked(program, built, again, valuations, dropped)
-                settled = settled or enough is not None and any(
-                    p.within is None and results[p.name].witness is not None and enough(model, results[p.name])
-                    for p in again)
-            largest = stats  # the whole cell, every monitor in it: no group is larger
+                    by_state = True
+            if by_state:
+                path.write_text(group.text())
+                say(f"Storm: the state space for {', '.join(p.name for p in again)}, state by state"
+                    + _leaving_out(dropped))
+                program, built, group_stats = build(path)
+                count(group_stats)
+                valuations = None
+                engines.add("state")
+            else:
+                if group_stats.states > largest.states:
+                    largest = group_stats
+                if group_stats.transitions > EXPLICIT_LIMIT:
+                    del symbolic
+                    say(f"Storm: {group_stats.transitions:,} transitions: too many to make sparse")
+                    engines.add("held")
+                    witnessed = [p for p in again if p.within is None]
+                    if witnessed:
+                        _witness_held(model, group, dropped, witnessed, results, memory, Path(scratch), say, count,
+                                      cone_measured=True)
+                    continue
+                mark = time.perf_counter()
+                built, valuations = to_sparse(symbolic, group.variables())
+                times["storm_build"] += time.perf_counter() - mark
+                del symbolic
+                engines.add("sparse")
+            if any(p.within is None for p in props) and (refinable is None or group_stats.states > refinable.states):
+                refinable = group_stats
+            if group_stats.states > largest.states:  # (a group carries its monitors, which the whole cell did not)
+                largest = group_stats
+            checked(program, built, again, valuations, dropped)
+            settled = settled or enough is not None and any(
+                p.within is None and results[p.name].witness is not None and enough(model, results[p.name])
+                for p in again)
+        # (symbolic: some witness came from the decision diagrams alone, with people held, or none)
+        stats = replace(whole_stats, symbolic="held" in engines, made_sparse="sparse" in engines)
     return results, times, stats, largest, refinable
+
+
+def _monitors_growth(group: Program, monitors: dict) -> int:
+    """How many times the monitors in ``group`` can multiply the states of the cell without them: the product of
+    their variables' numbers of values."""
+    names = {module.name for module in monitors.values()}
+    return math.prod(v.high - v.low + 1 for m in group.modules if m.name in names for v in m.variables)
 
 
 def _leaving_out(modules: list[str]) -> str:
@@ -527,15 +565,16 @@ def _holdings(people: list, cut: bool = False) -> list[list]:
 
 
 def _witness_held(model: AbstractModel, group: Program, dropped: list[str], props: list, results: dict, memory: int,
-                  scratch: Path, say, count) -> None:
+                  scratch: Path, say, count, cone_measured: bool = False) -> None:
     """Witnesses of ``props`` (violated in the cell too large to make sparse) from the group's model (its cone,
     ``dropped`` the modules it leaves out), as it is when it is a cut, then with some people held at their start
     (:func:`held`): the first such model small enough to make sparse in which a property is still violated gives
-    its witness (its value stays the whole cell's). Only the people the model has are held."""
+    its witness (its value stays the whole cell's). Only the people the model has are held. ``cone_measured``: the
+    group's model itself was built and found too large (it is not built again)."""
     present = group.variables()
     people = [p for p in (model.cell.places.people if model.cell.places is not None else []) if p.variable in present]
     wanted = list(props)
-    for i, holding in enumerate(_holdings(people, cut=bool(dropped))):
+    for i, holding in enumerate(_holdings(people, cut=bool(dropped) and not cone_measured)):
         if not wanted:
             return
         sub = held(group, holding)

@@ -197,13 +197,26 @@ def _initial_value(stormpy, model, formula):
     return result.get_value(initial) if hasattr(result, "get_value") else bool(result.get_truth_values_vector()[initial])
 
 
+def obligation_formula(label: str, periods: int) -> str:
+    """The largest probability of reaching a state where an obligation ``G(a -> (b U[0, n] c))`` starts (``a``) and
+    some path breaks it (not every path has ``c`` within ``periods`` steps, ``b`` until then), on the labels of its
+    parts (``<label>_oa``, ``_ob``, ``_oc``): its value without its monitor. The monitor follows the oldest pending
+    obligation (:mod:`cellsim.verify.properties`), and the oldest breaks whenever a younger one does (its window ends
+    first, and ``b`` must hold over a longer stretch), so the two reach a violation on the same paths."""
+    return (f'Pmax=? [ F ("{label}_oa" & !(Pmin>=1 [ "{label}_ob" U<={periods} "{label}_oc" ])) ]')
+
+
 def check(program, model, prop: Property, bad_label: str | None, still: tuple[str, ...] = (),
-          valuations: LabelledValuations | None = None) -> Checked:
+          valuations: LabelledValuations | None = None, monitored: bool = True) -> Checked:
     """``still``: the people's place variables, which a witness moves as little as it can; ``valuations``: the
     states' valuations of a model made sparse from decision diagrams (:func:`to_sparse`; a model built state by
-    state keeps its own)."""
+    state keeps its own); ``monitored``: whether the program has the monitors (else an obligation is checked by
+    :func:`obligation_formula`)."""
     stormpy = _quiet()
-    text = f'Pmax=? [ F "{bad_label}" ]' if bad_label else prop.pctl
+    if bad_label and getattr(prop, "obligation", None) and not monitored:
+        text = obligation_formula(bad_label, prop.obligation[3])
+    else:
+        text = f'Pmax=? [ F "{bad_label}" ]' if bad_label else prop.pctl
     start = time.perf_counter()
     try:
         (formula,) = stormpy.parse_properties(text, program)
