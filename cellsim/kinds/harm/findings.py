@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from cellsim.kind import Finding
@@ -125,10 +127,11 @@ def _closest(name, bb, others, contacts: list[Finding] = ()) -> Finding | None:
             **({"person": person} if person != NONE else {})}
     text = f"{robot} came within {distance:.3g} m of {whose} {region.replace('_', ' ')} at {t:.3f} s"
     tool = f"{robot}.tool_speed"
-    if distance > 0 and tool in bb.channels():  # a near miss: how fast the arm was going then
-        series = bb.series(tool)
-        if len(series):
-            data["tool_speed"] = float(series.value_at(t))
+    if distance > 0 and tool in bb.channels():  # a near miss: how fast the arm was going then, where it is known
+        series = bb.series(tool)  # (a physical robot gone silent: unknown)
+        speed = series.value_at(t) if len(series) else None
+        if isinstance(speed, (int, float)) and math.isfinite(speed):
+            data["tool_speed"] = float(speed)
             text += f", its tool at {data['tool_speed']:.3g} m/s"
     during = next((c for c in contacts if c.start <= t and (c.end is None or t < c.end)), None) if distance <= 0 else None
     if during is not None:
