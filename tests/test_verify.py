@@ -192,8 +192,7 @@ def test_a_model_too_large_to_build_state_by_state_is_checked_as_decision_diagra
     sf = load_scenario(WELDING_CELL)
     explicit = run.verify(sf)
     monkeypatch.setattr(run, "SIZE_ANYWAY", 0)
-    monkeypatch.setattr(run, "STATE_BY_STATE", 0)
-    monkeypatch.setattr(run, "EXPLICIT_LIMIT", 0)
+    monkeypatch.setattr(run, "EXPLICIT_LIMIT", 0)  # (a review found a model estimated small built state by state whatever its transitions)
     monkeypatch.setenv("COLUMNS", "200")  # a row to a line
     symbolic = run.verify(sf)
     assert symbolic.stats.symbolic and not explicit.stats.symbolic
@@ -477,7 +476,6 @@ def test_a_cell_checked_as_decision_diagrams_alone_asks_no_witness_of_a_response
     import cellsim.verify.run as run
     from cellsim.cli import main
 
-    monkeypatch.setattr(run, "STATE_BY_STATE", 0)
     monkeypatch.setattr(run, "EXPLICIT_LIMIT", 0)
     monkeypatch.setenv("COLUMNS", "200")  # a row to a line
     code = main(["verify", str(WELDING_CELL), "--no-replay", "--refine", "0", "--out", str(tmp_path / "w")])

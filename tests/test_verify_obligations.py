@@ -57,3 +57,21 @@ def test_the_welding_cells_obligations_read_the_same_with_their_monitors_and_wit
                             _value(*without[:2], obligation_formula(label, prop.obligation[3])))
     assert all(a == b for a, b in found.values()), found
     assert {a for a, _ in found.values()} == {0.0, 1.0}, found  # both verdicts compared
+
+
+def test_a_cell_with_a_probabilistic_update_keeps_its_monitors_in_the_whole_cell(tmp_path):
+    """A review showed the nested formula counting every path from a state where a violation is merely possible: with
+    a probabilistic update its value exceeds the monitor's (1.0 against 0.5 here). No shipped kind's update has a
+    probability, but a plug-in's may: such a cell is checked with its monitors in the whole cell."""
+    from cellsim.verify.prism import Command, Module, Program, Var
+    from cellsim.verify.run import _probabilistic
+
+    coin = Module("m", [Var("s", 0, 2, 0)], [Command("s = 0", (("0.5", {"s": "1"}), ("0.5", {"s": "2"}))),
+                                             Command("s > 0", (("1", {}),))])
+    certain = Module("m", [Var("s", 0, 2, 0)], [Command("s < 2", (("1", {"s": "s + 1"}),)), Command("s = 2", (("1", {}),))])
+    assert _probabilistic(Program([coin], {}, {})) and not _probabilistic(Program([certain], {}, {}))
+    path = tmp_path / "coin.prism"
+    path.write_text("mdp\nmodule m\n  s : [0..2] init 0;\n  [] s = 0 -> 0.5:(s'=1) + 0.5:(s'=2);\n  [] s > 0 -> true;\n"
+                    "endmodule\n" 'label "o_oa" = s = 0;\nlabel "o_ob" = s <= 1;\nlabel "o_oc" = s = 1;\n')
+    parsed, model, _ = build_symbolic(path, 32)
+    assert _value(parsed, model, obligation_formula("o", 2)) == 1.0  # the monitor's: 0.5 (only the s = 2 branch breaks it)

@@ -85,8 +85,8 @@ def _json(result, replays) -> dict:
                         for r in result.refinements],
         "states": stats.states, "transitions": stats.transitions, "choices": stats.choices,
         "largest_states": (result.largest or stats).states,
-        "engine": ("symbolic" if stats.symbolic or not any(r.holds is False for r in result.results)
-                   else "symbolic, then sparse" if stats.made_sparse else "symbolic, then explicit"),
+        "engine": ", then ".join(["symbolic", *(["explicit"] if stats.by_state else []),
+                                  *(["sparse"] if stats.made_sparse else []), *(["held"] if stats.symbolic else [])]),
         "seconds": {k: round(v, 4) for k, v in result.times.items()},
         "period": result.model.cell.period,
         "assumptions": result.model.cell.assumptions,
@@ -134,7 +134,7 @@ def _print(result, replays, export) -> None:
         ending = endings[r.prop.name].ending
         twin = ""
         if r.holds is False and r.witness is None and ending is not None and ending.value != "holds":
-            twin = "no witness (decision diagrams)" if stats.symbolic else ""  # (a response that holds under
+            twin = "no witness (decision diagrams)" if stats.symbolic and r.prop.bad else ""  # (a response that holds under
             # fairness wants none: its window's violation is no violation of the condition)
         if r.prop.name in replays:
             rp = replays[r.prop.name]
@@ -156,12 +156,10 @@ def _print(result, replays, export) -> None:
     for s in model.skipped:
         console.print(f"  not checked: {escape(s.name)}: {escape(s.reason)}")
     times = result.times
-    violated = any(r.holds is False for r in result.results)
-    how = [*(["built state by state"] if not stats.symbolic and not stats.made_sparse else []),
-           *(["made sparse"] if stats.made_sparse else []),
+    how = [*(["built state by state"] if stats.by_state else []), *(["made sparse"] if stats.made_sparse else []),
            *(["sought with people held, its own model too large to make sparse"] if stats.symbolic else [])]
     shape = ("checked as decision diagrams (without monitors: each obligation as a nested formula)"
-             + ("" if not violated else f", a violated property's witness from its own model {' or '.join(how)}"))
+             + (f", a violated property's witness from its own model {' or '.join(how)}" if how else ""))
     last = " (the last round's)" if result.refinements else ""
     console.print(f"  the cell{last}: {stats.states:,} states, {stats.transitions:,} transitions; {shape}; "
                   f"period {model.cell.period:g} s; floor {times.get('floor', 0):.2f} s, Storm build "
@@ -179,7 +177,8 @@ def _print(result, replays, export) -> None:
             console.print(f"  {escape(name)}: the twin refutes the witness in {len(rp.runs)} runs "
                           f"({escape(str(rp.scenarios[0]))} and later starts): the abstract model allows a behaviour "
                           "the twin does not show; a finding about the model, not the cell")
-    if stats.symbolic and any(r.holds is False and r.witness is None and r.prop.within is None for r in result.results):
+    if stats.symbolic and any(r.holds is False and r.witness is None and r.prop.within is None and r.prop.bad
+                              for r in result.results):
         console.print(f"  no witness: a property's own model has too many transitions to make sparse (over "
                       f"{EXPLICIT_LIMIT:,}), a witness cannot be read from decision diagrams, and no model with people "
                       "held at their start has the violation; the violations are the abstract model's, not yet tried "

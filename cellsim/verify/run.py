@@ -427,13 +427,17 @@ def _storm(model: AbstractModel, memory: int, say, enough=None, scratch: Path | 
         whole = Path(scratch) / "model.prism"
         # every module, even one no property observes: a state where one cannot step is refused here (the groups'
         # models, each on its cone, rely on that)
-        program_now = model.cell.program(model.header, [], model.unmonitored_labels())
+        # (where some update is probabilistic the nested formula would count every path from a state where a violation
+        # is possible, more than the monitor's paths: the monitors are then in the whole cell, as they once always were)
+        nested = not _probabilistic(model.cell.program(model.header, [], {}))
+        program_now = (model.cell.program(model.header, [], model.unmonitored_labels()) if nested
+                       else model.cell.program(model.header))
         whole.write_text(program_now.text())
         say("Storm: building the state space as decision diagrams")
         program, symbolic, whole_stats = build_symbolic(whole, memory)
         count(whole_stats)
         say(f"Storm: {whole_stats.states:,} states, {whole_stats.transitions:,} transitions, as decision diagrams")
-        checked(program, symbolic, model.properties, monitored=False)
+        checked(program, symbolic, model.properties, monitored=not nested)
         del symbolic
         # only a group with a violated property is built again, with its own monitors: for its witness, or whether
         # its response can always still come (a liveness condition's answer under fairness came from the decision
@@ -454,7 +458,9 @@ def _storm(model: AbstractModel, memory: int, say, enough=None, scratch: Path | 
             # state by state when it is small: surely so where the whole cell times what the group's monitors add
             # (their ages' values) is; else its size is found as decision diagrams first, and the model made
             # sparse from them (or, small after all, built state by state; too large, sought with people held)
-            by_state = whole_stats.states * _monitors_growth(group, model.cell.monitors) <= STATE_BY_STATE
+            growth = _monitors_growth(group, model.cell.monitors) if nested else 1
+            by_state = (whole_stats.states * growth <= STATE_BY_STATE
+                        and whole_stats.transitions * growth <= EXPLICIT_LIMIT)
             if not by_state:
                 path.write_text(group.text() + valuation_labels(group.variables()))
                 say(f"Storm: the state space for {', '.join(p.name for p in again)}, as decision diagrams"
@@ -498,8 +504,16 @@ def _storm(model: AbstractModel, memory: int, say, enough=None, scratch: Path | 
                 p.within is None and results[p.name].witness is not None and enough(model, results[p.name])
                 for p in again)
         # (symbolic: some witness came from the decision diagrams alone, with people held, or none)
-        stats = replace(whole_stats, symbolic="held" in engines, made_sparse="sparse" in engines)
+        stats = replace(whole_stats, symbolic="held" in engines, made_sparse="sparse" in engines,
+                        by_state="state" in engines)
     return results, times, stats, largest, refinable
+
+
+def _probabilistic(program: Program) -> bool:
+    """Whether some update of ``program`` is taken with a probability other than 1 (no shipped kind's is: the model's
+    choices are the people's, the robots' pace and the processes', all nondeterministic)."""
+    return any(len(command.updates) > 1 or command.updates[0][0] not in ("1", "1.0")
+               for module in program.modules for command in module.commands)
 
 
 def _monitors_growth(group: Program, monitors: dict) -> int:

@@ -59,10 +59,13 @@ class ModelStats:
     parse_seconds: float
     deadlocks: int = 0
     symbolic: bool = False
-    """Checked on decision diagrams alone (too many transitions for a sparse form): no witnesses."""
+    """A model built as decision diagrams; the whole cell's in a verification: some violated property's own model had
+    too many transitions to make sparse (its witness sought with people held)."""
     made_sparse: bool = False
-    """Checked on decision diagrams, every monitor in one model, and a violated property again on its group's model
-    as decision diagrams made sparse (:func:`to_sparse`), for its witness."""
+    """(the whole cell's in a verification) some violated property's own model was built as decision diagrams and made
+    sparse (:func:`to_sparse`), for its witness."""
+    by_state: bool = False
+    """(the whole cell's in a verification) some violated property's own model was built state by state."""
 
 
 def _quiet():
@@ -202,7 +205,9 @@ def obligation_formula(label: str, periods: int) -> str:
     some path breaks it (not every path has ``c`` within ``periods`` steps, ``b`` until then), on the labels of its
     parts (``<label>_oa``, ``_ob``, ``_oc``): its value without its monitor. The monitor follows the oldest pending
     obligation (:mod:`cellsim.verify.properties`), and the oldest breaks whenever a younger one does (its window ends
-    first, and ``b`` must hold over a longer stretch), so the two reach a violation on the same paths."""
+    first, and ``b`` must hold over a longer stretch), so where every update is certain the two reach a violation on
+    the same paths. (With a probabilistic update this counts every path from a state where a violation is merely
+    possible: more than the monitor. Such a cell keeps its monitors: :func:`cellsim.verify.run._probabilistic`.)"""
     return (f'Pmax=? [ F ("{label}_oa" & !(Pmin>=1 [ "{label}_ob" U<={periods} "{label}_oc" ])) ]')
 
 
