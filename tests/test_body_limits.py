@@ -119,9 +119,12 @@ def test_a_table_with_a_row_for_no_body_region_is_refused_naming_the_row(tmp_pat
     from cellsim.body import REGIONS
 
     table = yaml.safe_load(SHIPPED.read_text())
-    table["regions"]["lower_arm"] = table["regions"]["forearm"]
+    table["regions"]["lower_arm"] = dict(table["regions"]["forearm"])
     path = tmp_path / "limits.yaml"
     path.write_text(yaml.safe_dump(table))
-    with pytest.raises(ConfigError, match="regions.lower_arm.*no body region is called 'lower_arm'"):
+    with pytest.raises(ConfigError) as refused:
         load_limits(path, REGIONS)
+    line = next(n for n, text in enumerate(path.read_text().splitlines(), 1) if text.strip() == "lower_arm:")
+    assert (refused.value.source, refused.value.line, refused.value.key) == (str(path), line, "regions.lower_arm")
+    assert refused.value.problem == f"no body region is called 'lower_arm' (the body's regions: {', '.join(REGIONS)})"
     assert set(load_limits(SHIPPED, REGIONS).value.regions) == set(REGIONS)  # the shipped table: every row a region
