@@ -487,8 +487,7 @@ def _storm(model: AbstractModel, memory: int, say, enough=None, scratch: Path | 
                     engines.add("held")
                     witnessed = [p for p in again if p.within is None]
                     if witnessed:
-                        _witness_held(model, group, dropped, witnessed, results, memory, Path(scratch), say, count,
-                                      cone_measured=True)
+                        _witness_held(model, group, dropped, witnessed, results, memory, Path(scratch), say, count)
                     continue
                 mark = time.perf_counter()
                 built, valuations = to_sparse(symbolic, group.variables())
@@ -568,35 +567,32 @@ def with_held(witness: list[dict], people: list) -> list[dict]:
     return [{**state, **{p.variable: p.start for p in people}} for state in witness]
 
 
-def _holdings(people: list, cut: bool = False) -> list[list]:
+def _holdings(people: list) -> list[list]:
     """The sets of people to hold, in the order to try them: all but one (each in turn, as the scenario lists them),
-    then all (the cell's own choices only); none for a cell of one person but that last. ``cut``: the model is a
-    property's cone (:mod:`cellsim.verify.cone`), smaller than the whole cell: first as it is, nobody held."""
-    first = [[]] if cut else []
+    then all (the cell's own choices only); none for a cell of one person but that last."""
     if len(people) < 2:
-        return first + ([list(people)] if people else [])
-    return first + [[q for q in people if q is not p] for p in people] + [list(people)]
+        return [list(people)] if people else []
+    return [[q for q in people if q is not p] for p in people] + [list(people)]
 
 
 def _witness_held(model: AbstractModel, group: Program, dropped: list[str], props: list, results: dict, memory: int,
-                  scratch: Path, say, count, cone_measured: bool = False) -> None:
-    """Witnesses of ``props`` (violated in the cell too large to make sparse) from the group's model (its cone,
-    ``dropped`` the modules it leaves out), as it is when it is a cut, then with some people held at their start
-    (:func:`held`): the first such model small enough to make sparse in which a property is still violated gives
-    its witness (its value stays the whole cell's). Only the people the model has are held. ``cone_measured``: the
-    group's model itself was built and found too large (it is not built again)."""
+                  scratch: Path, say, count) -> None:
+    """Witnesses of ``props`` from the group's model (its cone, ``dropped`` the modules it leaves out), found too large
+    to make sparse, with some people held at their start (:func:`held`): the first such model small enough to make
+    sparse in which a property is still violated gives its witness (its value stays the whole cell's). Only the
+    people the model has are held."""
     present = group.variables()
     people = [p for p in (model.cell.places.people if model.cell.places is not None else []) if p.variable in present]
     wanted = list(props)
-    for i, holding in enumerate(_holdings(people, cut=bool(dropped) and not cone_measured)):
+    for i, holding in enumerate(_holdings(people)):
         if not wanted:
             return
         sub = held(group, holding)
         who = ", ".join(p.role.module for p in holding)
         path = scratch / f"held{i}.prism"
         path.write_text(sub.text() + valuation_labels(sub.variables()))
-        say(f"Storm: the state space for {', '.join(p.name for p in wanted)}, "
-            + (f"with {who} held at the start" if holding else "its cone alone") + _leaving_out(dropped))
+        say(f"Storm: the state space for {', '.join(p.name for p in wanted)}, with {who} held at the start"
+            + _leaving_out(dropped))
         program, symbolic, sub_stats = build_symbolic(path, memory)
         count(sub_stats)
         if sub_stats.transitions > EXPLICIT_LIMIT:
@@ -614,7 +610,7 @@ def _witness_held(model: AbstractModel, group: Program, dropped: list[str], prop
             mine = check(program, built, prop, model.labels.get(prop.name), still, valuations)
             if mine.witness is not None:
                 results[prop.name] = replace(results[prop.name], witness=with_held(mine.witness, holding),
-                                             witness_from=f"the model with {who} held at the start" if holding else "",
+                                             witness_from=f"the model with {who} held at the start",
                                              left_out=tuple(dropped))
                 wanted.remove(prop)
 
