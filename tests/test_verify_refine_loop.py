@@ -138,6 +138,7 @@ def test_a_faulted_witness_is_refined_unrun_and_the_others_are_run_in_the_same_r
     assert reason.startswith("the twin refutes the witness in 1 runs")
     assert "the witness of the model before any refinement was run too, and the twin refutes it in 1 runs" in reason
     assert any("nothing to refine" in s for s in said)  # C's refuted witness: no module faults it
+    assert "nothing to refine (no module's abstraction finds where" in reason  # and its ending says so
 
 
 def test_with_the_budget_spent_a_faulted_witness_is_run_on_the_twin(monkeypatch, tmp_path):

@@ -135,7 +135,9 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
                     spent = f"the refinement budget (--refine {budget}) is spent: {offered.key} was next ({offered.why})"
                     result.not_refined = "; ".join(filter(None, (result.not_refined, spent)))
                     say(spent)
-            elif refuted and not result.not_refined:
+            elif refuted and not result.not_refined:  # what blocks the verdict, in each refuted property's reason too
+                result.not_refined = ("nothing to refine (no module's abstraction finds where the refuted witnesses "
+                                      "depart from the cell)")
                 say("no module's abstraction finds where the refuted witnesses depart from the cell: "
                     "nothing to refine")
             return result
