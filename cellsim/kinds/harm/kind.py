@@ -31,7 +31,7 @@ class HarmKind(ModuleKind):
         ("region_jump", "number, m", "the most a body region moved in one update near a robot beyond it and the thinnest "
          "robot part's thickness (the largest yet; above 0: it may have passed through a part unseen)"),
         ("unwatched_part_speed", "number, m/s",
-         "the fastest a robot part's point moved at a look ending an interval watched only at looks"),
+         "the fastest a robot part's point moved at a look ending an interval watched only at looks (the largest yet)"),
     )
 
     def build(self, cell, name, cfg):

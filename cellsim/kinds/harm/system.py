@@ -143,7 +143,8 @@ class HarmMonitor(CellSystem):
             description="Most a body region moved in one update near a robot, beyond it and the thinnest part's thickness")
         self._unwatched = self.declare_channel(
             "unwatched_part_speed", speed, 0.0,
-            description="Fastest a robot part's point moved at a look ending an interval watched only at looks")
+            description="Fastest a robot part's point moved at a look ending an interval watched only at looks, "
+                        "the largest yet")
         # nobody near: no contact (codes 0: none), each separation at the cut-off
         self._clear = [0.0] * (len(self._outputs) - len(self.robots)) + [cfg.cutoff] * len(self.robots)
         # nearest_region, nearest_person and the separations (the last channels): measured to the cut-off at each far look
