@@ -33,11 +33,15 @@ REGIONS = ("head", "face", "neck", "back", "chest", "abdomen", "pelvis", "upper_
 """The body regions, in the limits table's words (``back`` includes the shoulders)."""
 TRUNK = ("back", "chest", "abdomen", "pelvis")
 """The regions that move as one block: a push on one is resisted by whatever another rests against (a chest pushed
-back is pinned by the wall the back rests on). A head, a neck or a limb turns or bends away instead."""
+back is pinned by the wall the back rests on). A head or a limb turns or bends away instead."""
 SKULL = ("head", "face")
 """The head's regions, one block too: a face pushed while the back of the head rests on a machine is pinned."""
-BLOCKS = (TRUNK, SKULL)
-"""The regions that move together; every other region moves alone."""
+NECK = ("neck", *TRUNK, *SKULL)
+"""The neck joins the trunk to the skull: pushed, it is pinned by whatever either rests against (a throat pushed back
+while the back rests on a wall cannot move away: the spine behind it does not)."""
+BLOCKS = (TRUNK, SKULL, NECK)
+"""The regions whose pushes are resisted together, each block by what any of its regions rests against (the first
+block a region is in is its own); every other region moves alone."""
 
 KNEE, HIP, SHOULDER, CHIN = 0.285, 0.530, 0.818, 0.870
 """Heights of the joints as fractions of the body's height (Drillis and Contini, 1966)."""

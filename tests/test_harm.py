@@ -340,6 +340,25 @@ def test_a_head_is_not_pinned_by_the_machine_the_back_rests_on(cell, approach):
         assert reading["severity"] >= 2.0 and reading["clamping"] == 0.0
 
 
+def test_a_throat_pushed_back_while_the_back_rests_on_the_machine_is_pinned(cell):
+    """A review found the neck judged alone: with the back against the CNC, the throat pushed back towards it read
+    transient (twice the speed allowed), though the spine behind it cannot move away. Pushed sideways, away from
+    anything, it is free."""
+    built, context = cell
+    built.set_initial_state(context)  # the arm where the cell starts it, not where an earlier test left it
+    _back_against_the_machine(built, context)
+    harm = built.modules["harm"]
+    neck, query = region_geometry(built, context, "neck")
+    cnc = next(g for g, name in harm.fixtures.items() if name == "cnc")
+    assert query.ComputeSignedDistancePairClosestPoints(neck, cnc).distance > harm.cfg.clamp_gap  # not resting itself
+    throat = query.GetPoseInWorld(neck).translation() + [-0.06, 0.0, 0.0]  # facing -x: the front of the neck
+    part_id, part = next(iter(harm.parts.items()))
+    person = harm.bodies[neck].person
+    assert harm._pinned(query, person, "neck", throat, part_id, part, np.array([1.0, 0.0, 0.0]), neck)  # back
+    # sideways, to the side away from the arm (whose links beside the trunk pin a push towards them)
+    assert not harm._pinned(query, person, "neck", throat, part_id, part, np.array([0.0, -1.0, 0.0]), neck)
+
+
 def test_an_outstretched_hand_is_not_pinned_by_the_machine_the_back_rests_on(cell):
     """The back against the CNC, the right hand out in front, half a metre from anything: pushed towards the
     machine it recoils (transient), judged against the transient limit."""
