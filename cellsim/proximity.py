@@ -81,20 +81,42 @@ def inradius(shape) -> float:
 def lowest_point_z(shape, X_WG) -> float | None:
     """The height (m, world z) of the lowest point of ``shape`` posed at ``X_WG``; None for a shape this does not
     know (a mesh: not taken to rest on the floor)."""
+    span = height_span(shape, X_WG)
+    return None if span is None else span[0]
+
+
+def height_span(shape, X_WG) -> tuple[float, float] | None:
+    """(lowest, highest) heights (m, world z) of the points of ``shape`` posed at ``X_WG``; None for a shape this does
+    not know (a mesh)."""
+    reach = vertical_reach(shape)
+    if reach is None:
+        return None
+    u0, u1, u2, z = X_WG.GetAsMatrix34()[2].tolist()
+    height = reach(u0, u1, u2)
+    return z - height, z + height
+
+
+def vertical_reach(shape):
+    """How far (m) ``shape`` reaches above and below its centre, as a function of the world's z axis in the shape's
+    frame (its three components); None for a shape this does not know (a mesh). Found once per shape, so that a caller
+    asking at every pose pays only the arithmetic."""
     from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
 
-    R, z = X_WG.rotation().matrix(), float(X_WG.translation()[2])
-    up = R[2]  # the world's z axis in the shape's frame: how far each of its axes reaches down
     if isinstance(shape, Sphere):
-        return z - shape.radius()
+        radius = shape.radius()
+        return lambda u0, u1, u2: radius
     if isinstance(shape, Capsule):
-        return z - 0.5 * shape.length() * abs(up[2]) - shape.radius()
+        half, radius = 0.5 * shape.length(), shape.radius()
+        return lambda u0, u1, u2: half * abs(u2) + radius
     if isinstance(shape, Cylinder):
-        return z - 0.5 * shape.length() * abs(up[2]) - shape.radius() * math.sqrt(max(0.0, 1.0 - up[2] ** 2))
+        half, radius = 0.5 * shape.length(), shape.radius()
+        return lambda u0, u1, u2: half * abs(u2) + radius * math.sqrt(max(0.0, 1.0 - u2 * u2))
     if isinstance(shape, Box):
-        return z - 0.5 * (shape.width() * abs(up[0]) + shape.depth() * abs(up[1]) + shape.height() * abs(up[2]))
+        x, y, z = 0.5 * shape.width(), 0.5 * shape.depth(), 0.5 * shape.height()
+        return lambda u0, u1, u2: x * abs(u0) + y * abs(u1) + z * abs(u2)
     if isinstance(shape, Ellipsoid):
-        return z - math.sqrt((shape.a() * up[0]) ** 2 + (shape.b() * up[1]) ** 2 + (shape.c() * up[2]) ** 2)
+        a, b, c = shape.a(), shape.b(), shape.c()
+        return lambda u0, u1, u2: math.sqrt((a * u0) ** 2 + (b * u1) ** 2 + (c * u2) ** 2)
     return None
 
 

@@ -512,6 +512,27 @@ def test_the_lowest_point_of_each_body_shape_is_found_however_it_is_turned():
     assert lowest_point_z(Box(0.2, 0.4, 0.6), quarter) == pytest.approx(1.0 - 0.5 * (0.4 + 0.6) * math.sqrt(0.5))
 
 
+def test_the_heights_a_shape_spans_are_found_however_it_is_turned():
+    """What an area scanner asks to pass over a body region wholly above or below its beams (``height_span``)."""
+    from pydrake.geometry import Box, Capsule, Convex, Cylinder, Ellipsoid, Sphere
+    from pydrake.math import RigidTransform, RotationMatrix
+
+    from cellsim.proximity import height_span
+
+    upright = RigidTransform([0.0, 0.0, 1.0])
+    tilted = RigidTransform(RotationMatrix.MakeYRotation(math.pi / 2), [0.0, 0.0, 1.0])
+    quarter = RigidTransform(RotationMatrix.MakeXRotation(math.pi / 4), [0.0, 0.0, 1.0])
+    assert height_span(Sphere(0.1), upright) == pytest.approx((0.9, 1.1))
+    assert height_span(Capsule(0.1, 0.6), upright) == pytest.approx((0.6, 1.4))
+    assert height_span(Capsule(0.1, 0.6), tilted) == pytest.approx((0.9, 1.1))
+    assert height_span(Cylinder(0.1, 0.6), quarter) == pytest.approx(
+        (1.0 - 0.3 * math.sqrt(0.5) - 0.1 * math.sqrt(0.5), 1.0 + 0.3 * math.sqrt(0.5) + 0.1 * math.sqrt(0.5)))
+    half = 0.5 * (0.4 + 0.6) * math.sqrt(0.5)
+    assert height_span(Box(0.2, 0.4, 0.6), quarter) == pytest.approx((1.0 - half, 1.0 + half))
+    assert height_span(Ellipsoid(0.1, 0.2, 0.3), tilted) == pytest.approx((0.9, 1.1))
+    assert height_span(Convex(str(ROOT / "models" / "no_such.obj")), upright) is None  # not known: may be anywhere
+
+
 def _with_fixture(name: str, size, center):
     """The machine-tending cell with a fixture of its own (a box of ``size`` at ``center``, m), built at its initial
     state: (the cell, its context, the fixture's GeometryId)."""

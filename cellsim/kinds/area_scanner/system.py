@@ -40,7 +40,7 @@ from cellsim.kinds.area_scanner.config import AreaScannerConfig
 from cellsim.kinds.sensing import HEAD_RADIUS, SAMPLE_ROUNDING, GeometrySensor
 from cellsim.entity import valid_code
 from cellsim.floorplan import Box3, SightLines
-from cellsim.proximity import witness_on
+from cellsim.proximity import vertical_reach, witness_on
 from cellsim.systems import write_changed
 from cellsim.vocabulary import TwinMode, value_set
 
@@ -82,6 +82,7 @@ class AreaScanner(GeometrySensor):
         self.field_ids: list[list] = []
         self.cfg_fields = list(cfg.fields.values())
         self._limbs: dict | None = None  # each target that is a capsule (a limb) -> its shape (sight_points)
+        self._reaches: dict | None = None  # each target -> its vertical_reach (nearest_seen: which can meet the beams)
         self._sight: dict = {}  # (target, its pose) -> its sight points
         self.field_of: dict = {}
         """Each field piece's GeometryId -> the field's index (0: innermost)."""
@@ -239,6 +240,8 @@ class AreaScanner(GeometrySensor):
         (usually the first looked at), where looking in a fixed order tests most of them."""
         pairs = []
         for target in self.targets:
+            if not self._may_meet_band(query, target):
+                continue  # wholly above or below the beams: no point of it is seen
             pair = query.ComputeSignedDistancePairClosestPoints(self.head_id, target)
             pairs.append((pair.distance + HEAD_RADIUS, len(pairs), pair, target))
         best = self.cfg.max_range
@@ -251,6 +254,19 @@ class AreaScanner(GeometrySensor):
             if len(visible):
                 best = min(best, float(np.linalg.norm(visible[0] - self.position)))
         return best
+
+    def _may_meet_band(self, query, target) -> bool:
+        """Whether some point of ``target`` may lie within the heights the beams sweep (a shape whose heights are not
+        known, a mesh: it may)."""
+        if self._reaches is None:
+            inspector = query.inspector()
+            self._reaches = {g: vertical_reach(inspector.GetShape(g)) for g in self.targets}
+        reach = self._reaches[target]
+        if reach is None:
+            return True
+        u0, u1, u2, z = query.GetPoseInWorld(target).GetAsMatrix34()[2].tolist()
+        height = reach(u0, u1, u2)
+        return z - height <= self.band[1] and z + height >= self.band[0]
 
     def sample_is_valid(self, sample) -> bool:
         """A field's code, and a distance the scanner can measure: 0 to its max_range (within ``SAMPLE_ROUNDING``)."""
