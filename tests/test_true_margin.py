@@ -35,6 +35,7 @@ def by_every_pair(ssm, context, reaction: float) -> tuple[float, float, float]:
     measured pair by pair with the plant's own velocity shift."""
     kin, sp = ssm.kinematics, ssm.parameters.true_protective_distance
     kin.plant.SetPositionsAndVelocities(kin.context, ssm.robot_state_port.Eval(context))
+    tool = float(np.linalg.norm(kin.tool.CalcSpatialVelocityInWorld(kin.context).translational()))
     query = ssm.query_port.Eval(context)
     every, nearest_region, nearest = [], [], None
     for arm in ssm.pairs.a.ids:
@@ -47,7 +48,7 @@ def by_every_pair(ssm, context, reaction: float) -> tuple[float, float, float]:
                 p_W - body.EvalPoseInWorld(kin.context).translation()).translational()
             towards = pair.nhat_BA_W if arm == pair.id_B else -pair.nhat_BA_W
             speed = max(float(velocity @ towards) if pair.distance > 0 else float(np.linalg.norm(velocity)), 0.0)
-            measured.append((pair.distance, min(pair.distance, 10.0) - sp(speed, reaction)))
+            measured.append((pair.distance, min(pair.distance, 10.0) - sp(speed, reaction, tool)))
         every += [margin for _, margin in measured]
         nearest_region.append(min(measured)[1])
         if nearest is None or min(measured)[0] < nearest[0]:
@@ -148,10 +149,41 @@ def test_the_protective_distance_of_many_speeds_is_each_ones():
                       sensor_uncertainty=0.05, robot_uncertainty=0.02)
     speeds = np.array([[-1.0, 0.0, 0.3], [0.9, 1.5, 4.0]])
     for reaction in (0.1, 0.04, 0.0):
-        many = p.true_protective_distances(speeds, reaction)
-        assert many.shape == speeds.shape
-        for v, s in zip(speeds.ravel(), many.ravel()):
-            assert s == pytest.approx(p.true_protective_distance(v, reaction), abs=1e-12)
+        for stopping in (0.0, 1.2):
+            many = p.true_protective_distances(speeds, reaction, stopping)
+            assert many.shape == speeds.shape
+            for v, s in zip(speeds.ravel(), many.ravel()):
+                assert s == pytest.approx(p.true_protective_distance(v, reaction, stopping), abs=1e-12)
+
+
+def test_the_robot_s_stopping_time_is_its_tool_s_not_the_point_s_towards_the_person():
+    """A review found a part moving sideways past a person (no speed towards them) judged as if the arm stopped at
+    once: the person's approach while the robot brakes (v_h T_s) was left out, and the margin read the same as with
+    the arm still. The robot brakes its whole path at once: every point stops when the tool does, T_s = tool speed /
+    a. By hand: S_p = v_h (T_r + T_s) + v_r T_r + v_r T_s / 2, with T_s = max(v_r, v_tool) / a."""
+    from cellsim.kinds.ssm.system import SsmParameters
+
+    p = SsmParameters(human_speed=1.6, reaction_time=0.1, deceleration=2.0)
+    assert p.true_protective_distance(0.0, 0.1, 1.0) == pytest.approx(1.6 * (0.1 + 0.5))
+    assert p.true_protective_distance(0.4, 0.1, 1.0) == pytest.approx(1.6 * 0.6 + 0.4 * 0.1 + 0.4 * 0.5 / 2)
+    # a point faster than the tool: at least its own stopping time (the formula as published)
+    assert p.true_protective_distance(1.0, 0.1, 0.5) == pytest.approx(1.6 * 0.6 + 0.1 + 1.0 / (2 * 2.0))
+
+    built = build_cell(load_scenario(TENDING), seed=0, duration=1.0, record=False)
+    context = Simulator(built.diagram).get_mutable_context()
+    built.set_initial_state(context)
+    ssm, plant, robot = built.modules["ssm"], built.plant, built.robots["robot"]
+    built.modules["operator"].set_pose(context, [0.0, -0.8, 1.57, 0, 0, 0, 0])
+    own = ssm.GetMyContextFromRoot(context)
+    still = ssm.true_margin(own, 0.1)
+    plant.SetVelocities(plant.GetMyMutableContextFromRoot(context), robot, [0.6, 0, 0, 0, 0, 0])  # the base turning
+    kin = ssm.kinematics
+    kin.plant.SetPositionsAndVelocities(kin.context, ssm.robot_state_port.Eval(own))
+    tool = float(np.linalg.norm(kin.tool.CalcSpatialVelocityInWorld(kin.context).translational()))
+    assert tool > 0.3
+    turning = ssm.true_margin(own, 0.1)
+    # the person's approach while the arm brakes, at least: v_h T_s
+    assert turning <= still - ssm.parameters.human_speed * tool / ssm.parameters.deceleration + 1e-9
 
 
 def test_periods_the_truth_cannot_be_judged_on_are_one_error_line_naming_the_key(tmp_path):

@@ -195,4 +195,5 @@ class SsmAbstraction(ModuleAbstraction):
         sp = self.system.parameters.true_protective_distance
         if group.rate is None:
             return sp(0.0) if u == 0.0 else math.inf
-        return sp(group.rate * (u + TRACKING_TOLERANCE if u > 0.0 else 0.0))
+        tool = u + TRACKING_TOLERANCE if u > 0.0 else 0.0  # the tool's speed: the robot's stopping time is its
+        return sp(group.rate * tool, stopping_speed=tool)

@@ -95,16 +95,27 @@ class SsmParameters:
         stopping_time = v_r / a
         return v_h * (t_r + stopping_time) + v_r * t_r + v_r * v_r / (2.0 * a) + self.allowances
 
-    def true_protective_distances(self, robot_speeds: np.ndarray, reaction: float) -> np.ndarray:
+    def true_protective_distances(self, robot_speeds: np.ndarray, reaction: float,
+                                  stopping_speed: float = 0.0) -> np.ndarray:
         """:meth:`true_protective_distance` of many speeds at once (m/s, an array; ``reaction`` s still to come)."""
         v_h, a = self.human_speed, self.deceleration
         v_r = np.maximum(robot_speeds, 0.0)
-        return v_h * (reaction + v_r / a) + v_r * reaction + v_r * v_r / (2.0 * a)
+        stopping_time = np.maximum(v_r, stopping_speed) / a
+        return v_h * (reaction + stopping_time) + v_r * reaction + v_r * stopping_time / 2.0
 
-    def true_protective_distance(self, robot_speed: float, reaction: float | None = None) -> float:
-        """S_p (m) on the truth: the true speed towards the person and no allowances (C, Z_d and Z_r are for what
-        a sensor cannot know); the person's speed is still v_h, which they may take at any instant."""
-        return self.protective_distance(robot_speed, reaction) - self.allowances
+    def true_protective_distance(self, robot_speed: float, reaction: float | None = None,
+                                 stopping_speed: float = 0.0) -> float:
+        """S_p (m) on the truth: the true speed towards the person v_r and no allowances (C, Z_d and Z_r are for
+        what a sensor cannot know); the person's speed is still v_h, which they may take at any instant.
+
+        The robot brakes its whole path at once, so every point of the arm stops when its tool does: the stopping
+        time T_s is the robot's, ``stopping_speed`` (m/s, the tool's whole speed) over a, not the point's speed
+        towards the person over a (a part moving sideways would have none while the arm is still moving); at least
+        v_r / a. The point's speed falls to 0 over T_s: it travels v_r T_s / 2 while braking."""
+        t_r = self.reaction_time if reaction is None else reaction
+        v_r = max(robot_speed, 0.0)
+        stopping_time = max(v_r, stopping_speed) / self.deceleration
+        return self.human_speed * (t_r + stopping_time) + v_r * t_r + v_r * stopping_time / 2.0
 
     def separation_for(self, limit: float) -> float:
         """The separation d (m) whose speed limit is ``limit`` (m/s): :meth:`speed_limit`'s inverse (at 0, the
@@ -322,7 +333,8 @@ class SpeedSeparationMonitor(CellSystem):
 
     def true_margin(self, context, reaction: float) -> float:
         """The least, over every pair of an arm's shape and a body region, of their true separation less S_p (no
-        allowances, ``reaction`` s of reaction still to come) of the shape's true speed towards that region; read up
+        allowances, ``reaction`` s of reaction still to come, the robot's stopping time from its tool's speed: see
+        :meth:`SsmParameters.true_protective_distance`) of the shape's true speed towards that region; read up
         to FAR_AWAY. Pairs are measured in order of a lower bound (their bounding spheres' distance less S_p of the
         shape's fastest point: its sphere centre's speed and the sphere's radius turning), until none can be lower
         than the least found."""
@@ -331,6 +343,7 @@ class SpeedSeparationMonitor(CellSystem):
         if not self.pairs:
             return least
         kin.plant.SetPositionsAndVelocities(kin.context, self.robot_state_port.Eval(context))
+        stopping = float(np.linalg.norm(kin.tool.CalcSpatialVelocityInWorld(kin.context).translational()))
         query = self.query_port.Eval(context)
         centres, regions = self.pairs.a.centres(query), self.pairs.b.centres(query)
         bounds = self.pairs.bounds_from(centres, regions)
@@ -358,7 +371,7 @@ class SpeedSeparationMonitor(CellSystem):
         skew = 2.0 * np.sin(0.5 * np.arcsin(np.minimum(spread, 1.0)))
         towards = np.where(separate, np.maximum(along + speed[:, None] * skew, 0.0) + turning[:, None], fastest)
         towards = np.minimum(towards, fastest)
-        protective = self.parameters.true_protective_distances(towards, reaction)  # each pair's at its bound speed
+        protective = self.parameters.true_protective_distances(towards, reaction, stopping)  # at its bound speed
         lower = bounds - protective
         lower[bounds > FAR_AWAY] = np.inf  # beyond FAR_AWAY a pair reads as nobody near
         lower[np.isnan(lower)] = -np.inf  # a shape no sphere holds: measured first
@@ -372,7 +385,7 @@ class SpeedSeparationMonitor(CellSystem):
             pair = query.ComputeSignedDistancePairClosestPoints(ids_a[i], ids_b[j])
             if pair.distance > FAR_AWAY:
                 continue
-            bound = protective[i, j] if pair.distance > 0.0 else sp(fastest[i, 0], reaction)
+            bound = protective[i, j] if pair.distance > 0.0 else sp(fastest[i, 0], reaction, stopping)
             if pair.distance - bound < least:  # its exact distance, its speed bounded: worth its witness's speed
                 on_a = pair.id_A == ids_a[i]
                 X_WA = shape_poses.get(i)
@@ -380,7 +393,7 @@ class SpeedSeparationMonitor(CellSystem):
                     X_WA = shape_poses[i] = query.GetPoseInWorld(ids_a[i]).GetAsMatrix34()
                 p_W = X_WA[:, :3] @ (pair.p_ACa if on_a else pair.p_BCb) + X_WA[:, 3]
                 speed = _speed_towards(pair, on_a, p_W, centres[i], centre_v[i], motion[i][:3])
-                least = min(least, pair.distance - sp(speed, reaction))
+                least = min(least, pair.distance - sp(speed, reaction, stopping))
         return least
 
     def _reaction(self, context, t: float, since: float) -> float:
