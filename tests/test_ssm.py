@@ -155,6 +155,23 @@ def test_a_separation_sensor_must_be_a_distance(tmp_path):
     assert "behaviours.loader_ssm.separation: 'scanner.field' is not a distance in m" in done.stderr
 
 
+def test_a_reaction_time_shorter_than_the_monitor_and_robot_periods_is_refused_naming_the_key(tmp_path):
+    """A review found T_r = 0 accepted: the arm takes a new limit only at its update after the monitor's, so the
+    formula, the speed limit and the true margin credited 40 ms of reaction the arm does not have. One error line
+    naming the file, line and key; exit 2; the periods' sum itself is accepted."""
+    path = tmp_path / "bench.yaml"
+    path.write_text(f"base: {ASSEMBLY_BENCH}\nbehaviours:\n  loader_ssm:\n    reaction_time: 0.03\n")
+    done = subprocess.run([sys.executable, "-m", "cellsim", "scenario", "check", str(path)], capture_output=True,
+                          text=True, timeout=120, cwd=ROOT)
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert "bench.yaml:4: behaviours.loader_ssm.reaction_time: 0.03 s is shorter than the periods of this monitor " \
+           "and of robot 'loader' together (0.04 s)" in done.stderr, done.stderr
+    path.write_text(f"base: {ASSEMBLY_BENCH}\nbehaviours:\n  loader_ssm:\n    reaction_time: 0.04\n")
+    done = subprocess.run([sys.executable, "-m", "cellsim", "scenario", "check", str(path)], capture_output=True,
+                          text=True, timeout=120, cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+
+
 def test_a_robot_monitored_twice_is_refused_naming_both(tmp_path):
     path = tmp_path / "bench.yaml"
     path.write_text(f"base: {ASSEMBLY_BENCH}\nbehaviours:\n  again:\n    kind: ssm\n    robot: loader\n")

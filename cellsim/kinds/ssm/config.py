@@ -29,7 +29,7 @@ class SsmConfig:
     """v_h: the speed a person may approach at (m/s); 1.6 m/s after ISO 13855."""
     reaction_time: Annotated[float, Range(0.0, 5.0, unit="s")] = 0.1
     """T_r: from the person's measured position to the robot starting to brake (s): the sensor's
-    response, this module's period and the robot controller's."""
+    response, this module's period and the robot controller's (at least those two periods: refused below)."""
     deceleration: Annotated[float, Range(0.0, 100.0, lo_open=True, unit="m/s^2")] | None = None
     """a: the robot's guaranteed braking deceleration at the tool (m/s^2); null: what it delivers on a segment its normal
     cap limits, (speed_limits.normal - 0.04) / (1.05 braking_time) (its planned full speed to standstill in

@@ -107,11 +107,19 @@ def build_ssm(cell, name: str, cfg: SsmConfig) -> SpeedSeparationMonitor:
 
 
 def _check(sf, name: str, cfg: SsmConfig) -> None:
-    """The robot exists and is monitored once; a sensor's separation is a channel in m."""
+    """The robot exists and is monitored once; the reaction time covers this monitor's and the robot's periods; a
+    sensor's separation is a channel in m."""
     key = f"behaviours.{name}"
     robots = sf.scenario.modules_of_kind("robot")
     if cfg.robot not in robots:
         raise sf.error(f"{key}.robot", f"no robot entity named '{cfg.robot}' ({', '.join(robots) or 'none'})")
+    latency = cfg.period + robots[cfg.robot].period
+    if cfg.reaction_time < latency - 1e-9:
+        # the arm takes a new limit at its next update after this monitor's: a shorter T_r credits the formula, the
+        # speed limit and the true margin with reaction time the arm does not have
+        raise sf.error(f"{key}.reaction_time", f"{cfg.reaction_time:g} s is shorter than the periods of this monitor "
+                       f"and of robot '{cfg.robot}' together ({latency:g} s): the arm acts on a limit that late at the "
+                       "earliest; T_r must cover them (and the sensor's response)")
     for other, other_cfg in sf.scenario.modules_of_kind("ssm").items():
         if other == name:
             break
