@@ -187,13 +187,49 @@ def test_the_robot_s_stopping_time_is_its_tool_s_not_the_point_s_towards_the_per
 
 
 def test_periods_the_truth_cannot_be_judged_on_are_one_error_line_naming_the_key(tmp_path):
-    """A person every 9.998 s and the monitor every 9.994 s share no multiple within 2,000 s: one line naming the
-    monitor's period, exit 2, nothing written."""
+    """A person every 0.998 s, the monitor every 0.994 s and the robot every 0.02 s share no multiple within
+    2,000 s: one line naming the monitor's period, exit 2, nothing written (its reaction time covering its period)."""
     out = tmp_path / "run"
     done = subprocess.run([sys.executable, "-m", "cellsim", "simulate", str(TENDING), "--out", str(out), "--duration", "1",
-                           "--set", "operator.period=9.998", "--set", "ssm.period=9.994"],
+                           "--set", "operator.period=0.998", "--set", "ssm.period=0.994", "--set", "ssm.reaction_time=1.1"],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "behaviours.ssm.period" in lines[0] and "no common multiple" in lines[0]
     assert not out.exists()
+
+
+def test_a_fall_ending_at_a_persons_update_is_judged_when_the_person_stood_still():
+    """A review found every interval ending one step after a person's update taken as a jump of the margin (a
+    person's move), whether the person moved or not: half the intervals of the machine-tending cell's 20-step round
+    were never checked for how fast the margin fell. The arm alone moving between the judgement at step 11 and the
+    next round's step 1 (a person's), the person standing still: the fall is measured; the person moved: it is not
+    (a jump)."""
+    from cellsim.kinds.ssm.system import _SSMON
+
+    def judged(person_moves: bool) -> float:
+        built = build_cell(load_scenario(TENDING), seed=0, duration=1.0, record=False)
+        context = Simulator(built.diagram).get_mutable_context()
+        built.set_initial_state(context)
+        ssm, plant, robot = built.modules["ssm"], built.plant, built.robots["robot"]
+        arm = built.modules["robot"]
+        arm.GetMyMutableContextFromRoot(context).get_mutable_discrete_state(arm.group("safety_mode")).SetAtIndex(
+            0, _SSMON)
+        person = built.modules["operator"]
+        person.set_pose(context, [0.0, -1.9, 1.57, 0, 0, 0, 0])
+        own = ssm.GetMyMutableContextFromRoot(context)
+        q = plant.GetPositions(plant.GetMyContextFromRoot(context), robot)
+        for t, turn, y in ((0.022, 0.0, -1.9), (0.042, -0.4, -1.85 if person_moves else -1.9)):
+            context.SetTime(t)
+            plant.SetPositions(plant.GetMyMutableContextFromRoot(context), robot, q + [turn, 0, 0, 0, 0, 0])
+            person.set_pose(context, [0.0, y, 1.57, 0, 0, 0, 0])
+            xd = ssm.AllocateDiscreteVariables()
+            xd.SetFrom(own.get_discrete_state())
+            ssm._judge_truth(own, xd)
+            own.SetDiscreteState(xd)
+        return own.get_discrete_state(ssm.group("unwatched_margin_fall")).GetAtIndex(0)
+
+    rounds, looks = build_cell(load_scenario(TENDING), seed=0, duration=1.0, record=False).modules["ssm"]._truth_looks
+    assert looks[round(0.022 / 0.002) % rounds] == 2 and looks[round(0.042 / 0.002) % rounds] == 1
+    assert judged(person_moves=False) > 0.0
+    assert judged(person_moves=True) == 0.0

@@ -257,6 +257,10 @@ class SpeedSeparationMonitor(CellSystem):
         self._truth_periods = (list(people), robot, max_fall)
         self._close = self.declare_state("truth_close", [0.0])  # 1: judged at every step
         self._judged = self.declare_state("truth_judged", [math.nan, math.nan, math.nan])  # (s, m, stop order): last
+        # where the people's body regions were at the last judgement (their bounding spheres' centres, m): a margin
+        # that changed with them jumped, one that changed without them fell with the robot alone
+        regions = len(self.pairs.b.ids) if self.pairs is not None else 0
+        self._people_at = self.declare_state("truth_people", np.full(max(1, 3 * regions), math.nan))
         self._fall = self.declare_channel(
             "unwatched_margin_fall", number_type("m/s"), 0.0,
             description="Fastest the true margin fell between two judgements in ssmon not watched at every step")
@@ -416,7 +420,11 @@ class SpeedSeparationMonitor(CellSystem):
         in_ssmon = self.robot_mode_port.Eval(context)[0] == _SSMON
         now_close = margin < self._watch_below and in_ssmon
         then, before, since_then = context.get_discrete_state(self._judged).get_value()
-        jumped = look == 1 or not (since == since_then or (math.isnan(since) and math.isnan(since_then)))
+        people = self._people_now(context)
+        moved = not np.array_equal(people, context.get_discrete_state(self._people_at).get_value(), equal_nan=True)
+        if moved:
+            xd.get_mutable_vector(self._people_at).SetFromVector(people)
+        jumped = moved or not (since == since_then or (math.isnan(since) and math.isnan(since_then)))
         if in_ssmon and not close and t > then and not jumped:
             # an interval watched only at its ends, the robot alone moving (a person's move, or a stop order given or
             # lifted, is a jump of the margin judged a step after it, not a fall): how fast did it fall?
@@ -427,6 +435,12 @@ class SpeedSeparationMonitor(CellSystem):
         write_scalar(xd, self._true_margin, margin)
         write_scalar(xd, self._close, 1.0 if now_close else 0.0)
         return None
+
+    def _people_now(self, context) -> np.ndarray:
+        """Where the people's body regions are now: their bounding spheres' centres (m), flat (``truth_people``)."""
+        if self.pairs is None or not self.pairs.b.ids:
+            return np.full(1, math.nan)
+        return self.pairs.b.centres(self.query_port.Eval(context)).ravel()
 
     def update(self, context, xd):
         t = context.get_time()
