@@ -22,7 +22,34 @@ def welding():
     return load_scenario(WELDING)
 
 
+def test_a_finer_grid_measures_a_new_point_only_where_the_coarser_grids_readings_around_it_differ():
+    """A new point of the 0.05 m grid between points of the 0.1 m grid measured before: where they all read the same
+    (every signal, at its heading and reach) it reads as they do, unmeasured; where one differs, or one was not
+    measured (a reach's heading is its own), it is measured; a point of the coarser grid not measured is too."""
+    from cellsim.verify.floor import _inherit
+    from cellsim.verify.model import Pose, PersonRole
+
+    person = PersonRole("op", [], Pose(0.0, 0.0, 0.0), lambda context, pose: None, step=0.05, refines=0.1)
+    signals = ["op.zone", "scanner.field"]
+    known = {}
+    for x, y in ((0.0, 0.0), (0.1, 0.0), (0.0, 0.1), (0.1, 0.1), (0.2, 0.0), (0.2, 0.1)):
+        for s in signals:
+            known[("op", s, Pose(x, y, 0.0))] = "free" if x < 0.2 or s == "op.zone" else "protective"
+    middle = Pose(0.05, 0.05, 0.0)  # four corners, all alike
+    edge = Pose(0.05, 0.0, 0.0)  # two corners, alike
+    border = Pose(0.15, 0.05, 0.0)  # its corners at x = 0.2 read the protective field
+    turned = Pose(0.05, 0.05, 1.0)  # no corner measured at this heading
+    reaching = Pose(0.05, 0.0, 0.0, (1.0, 1.0, 1.0))
+    corner = Pose(0.3, 0.0, 0.0)  # a point of the coarser grid itself
+    left = _inherit(person, [middle, edge, border, turned, reaching, corner], signals, known)
+    assert left == [border, turned, reaching, corner]
+    assert known[("op", "scanner.field", middle)] == known[("op", "scanner.field", edge)] == "free"
+    assert ("op", "scanner.field", border) not in known
+
+
 def test_a_refined_round_measures_only_the_poses_no_earlier_round_did_and_builds_the_same_model(welding):
+    """A pace measures nothing again; the finer grid measures its new points only where the coarser grid's readings
+    around them differ, and its model is the one measuring every point gives (the welding cell's)."""
     measured: dict = {}
     first = abstract_model(welding, measured=measured)
     assert first.cell.places.poses_measured > 0 and measured

@@ -98,6 +98,8 @@ def cut_floor(cell: AbstractCell, measured: dict | None = None) -> Places:
         poses = list(dict.fromkeys([person.start, *([person.end] if person.end else []), *person.poses]))
         known = {} if measured is None else measured
         todo = [pose for pose in poses if any((person.module, s, pose) not in known for s in signals)]
+        if person.refines:
+            todo = _inherit(person, todo, signals, known)
         parts = cores() if len(todo) >= SIDE_BY_SIDE_FROM else 1
         size = max(1, -(-len(todo) // parts))
         works = [_measuring(context, person, todo[i:i + size], signals, own, sensed)
@@ -109,6 +111,48 @@ def cut_floor(cell: AbstractCell, measured: dict | None = None) -> Places:
         count += len(todo)
         people.append(_places(cell, person, poses, readings, signals))
     return Places(people, count)
+
+
+def _inherit(person: PersonRole, todo: list[Pose], signals: list[str], known: dict) -> list[Pose]:
+    """Of the poses ``todo`` of a grid that halves a coarser one measured before (``person.refines``, m), those still
+    to measure: a pose between points of the coarser grid (its corners there, at its heading and reach) that all read
+    the same, every signal, reads as they do and is entered in ``known``; the others (where the coarser grid's
+    readings change, or a corner was not measured: a reach's heading is its own) are returned. The finer grid is so
+    measured where places meet, whose borders it finds more closely, and reads as the coarser one elsewhere: a
+    feature thinner than the coarser step there may fall between its points, as it could before."""
+    coarse, module = person.refines, person.module
+    half = coarse / 2.0
+    corners: dict = {}  # (x, y, yaw, reach) of a coarser grid's point -> its readings (None: not all measured)
+
+    def reading(x: float, y: float, yaw: float, reach) -> tuple | None:
+        key = (x, y, yaw, reach)
+        if key not in corners:
+            corner = Pose(x, y, yaw, reach)
+            values = tuple(known.get((module, s, corner), _UNKNOWN) for s in signals)
+            corners[key] = None if _UNKNOWN in values else values
+        return corners[key]
+
+    def around(v: float) -> tuple[float, ...]:
+        i = round(v / half)  # the finer grid's index: even on a line of the coarser grid
+        return (v,) if i % 2 == 0 else (round((i - 1) * half, 6), round((i + 1) * half, 6))
+
+    left = []
+    for pose in todo:
+        xs, ys = around(pose.x), around(pose.y)
+        if len(xs) == len(ys) == 1:  # a point of the coarser grid not measured: its own reading
+            left.append(pose)
+            continue
+        found = {reading(x, y, pose.yaw, pose.reach) for x in xs for y in ys}
+        (values,) = found if len(found) == 1 else (None,)
+        if values is None:
+            left.append(pose)
+        else:
+            known.update(((module, s, pose), value) for s, value in zip(signals, values))
+    return left
+
+
+_UNKNOWN = object()
+"""A reading not measured (:func:`_inherit`)."""
 
 
 def _coded(cell: AbstractCell, codes: dict, signal: str, value) -> int:
@@ -361,8 +405,16 @@ def build_floor(cell: AbstractCell, places: Places) -> None:
             readings.setdefault(signal.split(".", 1)[0], []).append((signal, expr))
     for sensor, signals in readings.items():
         _sampled(cell, sensor, signals)
-    cell.assume(f"the floor is sampled on a grid ({', '.join(f'{p.role.module}: {p.role.step:g} m, {len(p.places)} places' for p in places.people)}); "
+    cell.assume(f"the floor is sampled on a grid ({', '.join(_grid_words(p) for p in places.people)}); "
                 "a feature thinner than a step may fall between its points")
+
+
+def _grid_words(person: PersonPlaces) -> str:
+    """How a person's grid is sampled, in words (the floor's assumption)."""
+    role = person.role
+    grid = f"{role.step:g} m" if not role.refines else (f"{role.step:g} m where the {role.refines:g} m grid's readings "
+                                                        f"change, elsewhere read as its points around")
+    return f"{role.module}: {grid}, {len(person.places)} places"
 
 
 def _walks(cell: AbstractCell, person: PersonPlaces, paced, presses: dict[str, str]) -> list[Command]:

@@ -106,6 +106,10 @@ class PersonRole:
     at its slowest pace: a ``Final`` condition (``F G p``) is judged where every person stands there."""
     ends: str = ""
     """Where and by when it gets to ``end`` (words for the assumption), or why there is no ``end``."""
+    refines: float | None = None
+    """The step (m) of a coarser grid this one halves, measured before it (a refinement's round): a new point whose
+    neighbours on that grid, at its heading and reach, all read the same reads as they do, unmeasured
+    (:func:`cellsim.verify.floor.cut_floor`); None: every pose is measured."""
 
 
 @dataclass

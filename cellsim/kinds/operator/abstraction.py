@@ -56,7 +56,8 @@ class PersonAbstraction(ModuleAbstraction):
                 buttons[f"press_{w.press.replace('.', '_')}"] = tuple(w.position)
         paced = f"{self.name}:pace" in cell.refinements
         end, ends = self._end(start, cell.sf.scenario.duration)
-        cell.add_person(PersonRole(self.name, poses, start, self._stand, own, self.step, buttons, travel=self.travel,
+        cell.add_person(PersonRole(self.name, poses, start, self._stand, own, self.step, buttons,
+                                   refines=GRID if self.step < GRID else None, travel=self.travel,
                                    walk=self.walk, max_speed=self.max_speed if paced else None,
                                    top_speed=self.max_speed, end=end, ends=ends))
         pace = f"no faster than {self.max_speed:.3g} m/s (its walking speed and jitter)" if paced else "at any pace"
