@@ -113,3 +113,27 @@ def test_a_paced_person_held_where_they_start_builds_as_decision_diagrams(weldin
     sparse, _ = to_sparse(symbolic, program.variables())
     assert sparse.nr_states == stats.states > 0
     assert "operator_place_from" not in program.text()
+
+
+def test_a_refined_round_builds_a_group_state_by_state_where_its_monitors_grew_it_little_before(welding):
+    """The welding cell's detection monitors could multiply its states 27 times (their ages' ranges): its paced
+    model (19,458 states) times that is past what is surely small, so its witness's model was sized as decision
+    diagrams first, then built again state by state. Its first round saw them add 3 %: told so, the refined round
+    builds it state by state at once, the same model and the same witness."""
+    from cellsim.verify.run import verify
+
+    first = verify(welding)
+    (key,) = [k for k in first.growth if k == ("HRW:detected",)]
+    assert 1.0 <= first.growth[key] < 1.1
+
+    def stages(growth):
+        said = []
+        result = verify(welding, refinements=PACE, on_stage=said.append, growth_seen=growth)
+        return [s for s in said if "state space for HRW:detected" in s], result
+
+    probed, coarse = stages(None)
+    direct, told = stages(first.growth)
+    assert [s.rsplit(", ", 1)[1] for s in probed] == ["as decision diagrams", "state by state"]
+    assert [s.rsplit(", ", 1)[1] for s in direct] == ["state by state"]
+    witness = {r.prop.name: r.witness for r in coarse.results}["HRW:detected"]
+    assert witness and {r.prop.name: r.witness for r in told.results}["HRW:detected"] == witness

@@ -62,6 +62,7 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
     once: dict = {}  # liveness conditions' stronger responses (no witness run, nothing to refine): checked in round 1
     grown_from = None  # the states of the largest model checked so far (a refined round's tables are sized on it)
     measured: dict = {}  # what the rounds' models read on the floor, pose by pose: each round measures only new poses
+    growth: dict = {}  # each group's growth by its monitors, as the rounds so far built it (Verification.growth)
     while True:
         keys = frozenset(r.key for r in done)
         # a witness a module faults settles the round: the others wait for the refined model (while one may come)
@@ -71,7 +72,8 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
         # build), unless the model is exported, which keeps every monitor
         before = {**once, **({} if export is not None else {name: c for name, (c, _) in confirmed.items()})}
         result = verify(sf, export=export, timed=timed, refinements=keys, on_stage=on_stage, checked_before=before,
-                        model=built, enough=enough, grown_from=grown_from, measured=measured)
+                        model=built, enough=enough, grown_from=grown_from, measured=measured, growth_seen=growth)
+        growth.update(result.growth)
         once = once or {r.prop.name: r for r in result.results if r.prop.within is not None}
         grown_from = max(grown_from or 0, (result.largest or result.stats).states)
         open_ = _witnessed(result, done, confirmed)
@@ -107,7 +109,7 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
             not_refined = result.not_refined
             result = verify(sf, export=export, timed=timed, refinements=keys, on_stage=on_stage,
                             checked_before={r.prop.name: r for r in result.results if not r.deferred},
-                            grown_from=grown_from, measured=measured)
+                            grown_from=grown_from, measured=measured, growth_seen=growth)
             result.not_refined = not_refined
             open_ = _witnessed(result, done, confirmed)
         # the witnesses the refinement takes up are not run: the refined model checks their properties again
@@ -125,7 +127,7 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
             def rebuild(keys, names):  # the deferred properties' witnesses, in the model of the round they waited in
                 others = {r.prop.name: r for r in result.results if r.prop.name not in names}
                 return verify(sf, timed=timed, refinements=keys, on_stage=on_stage, checked_before=others,
-                              grown_from=grown_from, measured=measured)
+                              grown_from=grown_from, measured=measured, growth_seen=growth)
 
             _run_skipped(result, skipped, waited, confirmed, rebuild, on_stage)
             refuted = any(not result.replays[name].confirmed for name in to_run)

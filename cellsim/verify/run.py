@@ -86,6 +86,11 @@ SMALL_DD_MEMORY = 128
 """MB for the decision diagrams of a model whose variables allow at most ``SIZE_ANYWAY`` states. The shipped cells
 of that size need at most 32 MB (the assembly bench's 1.25 million states; it fills 16 MB), so this is four times
 that; a larger cap costs start-up (0.5 s more at 512 MB: the welding cell's whole build 1.1 s against 0.6 s)."""
+SEEN_MARGIN = 4
+"""How many times the growth a group's monitors showed in an earlier round (its model's states over the whole cell's)
+a refined round expects at most, in deciding to build that group state by state; the product of the monitors' ranges
+is the bound otherwise (the welding cell's detections: 27 times, where they added 3 %). A wrong guess costs time, never
+an answer: the model built is the same either way."""
 STATE_BY_STATE = 500_000
 """Every property is checked on the whole cell's decision diagrams (every monitor in it), and only a group with a
 violated property is built again, with only its own monitor, for its witness (or whether its response can always
@@ -152,6 +157,9 @@ class Verification:
     """Whether the witnesses were replayed on the twin (a witness nobody tried leaves its property undecided)."""
     refinements: list = field(default_factory=list)
     """The refinements switched on, in order (:class:`cellsim.verify.refine.Refinement`)."""
+    growth: dict = field(default_factory=dict)
+    """Group of properties (their names, sorted) -> how many times the whole cell's states its own model (with its
+    monitors) had, where it was built: what a refined round expects of the same group (:data:`SEEN_MARGIN`)."""
     not_refined: str = ""
     """Why the refinement that was next was not tried (the model it makes could be too large), if it was not."""
     earlier: dict = field(default_factory=dict)
@@ -341,7 +349,8 @@ def _safe(name: str) -> str:
 
 def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: frozenset = frozenset(),
            on_stage=None, checked_before: dict | None = None, model: AbstractModel | None = None,
-           enough=None, grown_from: int | None = None, measured: dict | None = None) -> Verification:
+           enough=None, grown_from: int | None = None, measured: dict | None = None,
+           growth_seen: dict | None = None) -> Verification:
     """Build and check the abstract model; ``export``: also write it there (and its .props beside it);
     ``refinements``: the modules' refinements to switch on (:class:`cellsim.verify.model.AbstractCell`);
     ``checked_before``: property name -> its result from an earlier round, taken as it is (a refinement round's
@@ -352,7 +361,8 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
     once one does, the properties whose witnesses are still to be built (not a liveness condition's, whose answer
     under fairness is kept for good) are left violated without one, ``deferred``; ``grown_from``: the states of the
     largest model an earlier round checked (a refinement's round), which sizes the decision diagrams' tables
-    (:func:`dd_memory`); ``measured``: as :func:`abstract_model` says."""
+    (:func:`dd_memory`); ``measured``: as :func:`abstract_model` says; ``growth_seen``: an earlier round's
+    ``Verification.growth``, which decides how a group's own model is built (:data:`SEEN_MARGIN`)."""
     leave_out = frozenset(checked_before or ())
     say = on_stage or (lambda text: None)
     say("building the abstract model")
@@ -376,33 +386,37 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
     # the scratch folder is this process's: a Storm process stopped (Ctrl-C kills it) leaves nothing behind
     with tempfile.TemporaryDirectory(prefix="cellsim-verify-") as scratch:
         try:
-            storm = in_own_process(lambda tell: _storm(model, memory, tell, enough, Path(scratch)), say)
+            storm = in_own_process(lambda tell: _storm(model, memory, tell, enough, Path(scratch), growth_seen), say)
         except ProcessStopped as stopped:
             if memory >= DD_MEMORY:
                 raise VerifyError(_stopped(stopped, memory)) from None
             say(f"Storm stopped ({stopped.how}): its decision diagrams may have outgrown {memory} MB; "
                 f"building again with {DD_MEMORY} MB")
             try:
-                storm = in_own_process(lambda tell: _storm(model, DD_MEMORY, tell, enough, Path(scratch)), say)
+                storm = in_own_process(
+                    lambda tell: _storm(model, DD_MEMORY, tell, enough, Path(scratch), growth_seen), say)
             except ProcessStopped as again:
                 raise VerifyError(_stopped(again, DD_MEMORY)) from None
-    results, storm_times, stats, largest, refinable = storm
+    results, storm_times, stats, largest, refinable, growth = storm
     times.update(storm_times)
     results.update(checked_before or {})
     model.properties = [p for p in every if p.name in results]
     ordered = [results[p.name] for p in model.properties]
     if any(r.fair for r in ordered):
         model.cell.assume(FAIRNESS)
-    return Verification(model, stats, ordered, times, largest, refinable=refinable)
+    return Verification(model, stats, ordered, times, largest, refinable=refinable, growth=growth)
 
 
-def _storm(model: AbstractModel, memory: int, say, enough=None, scratch: Path | None = None):
+def _storm(model: AbstractModel, memory: int, say, enough=None, scratch: Path | None = None,
+           growth_seen: dict | None = None):
     """Build and check ``model`` with Storm (Sylvan's tables capped at ``memory`` MB); returns (property name ->
     Checked, the Storm stages' seconds, the stats of the model the size was judged on, of the largest model built,
-    of the largest one with a liveness condition). ``enough``: as :func:`verify` says; ``scratch``: a folder for the
+    of the largest one with a liveness condition, each group's growth seen: ``Verification.growth``). ``enough`` and
+    ``growth_seen``: as :func:`verify` says; ``scratch``: a folder for the
     programs Storm reads (its caller's, who removes it; else one of its own). Run in a process of its own
     (:func:`verify`)."""
     results, stats, largest, refinable = {}, None, None, None
+    seen: dict = {}  # each group built: its states over the whole cell's (``Verification.growth``)
     settled = False  # a witness was taken up (``enough``): the other witnesses wait for the refined model
     times = {"storm_parse": 0.0, "storm_build": 0.0, "storm_check": 0.0}
     still = tuple(person.variable for person in model.cell.places.people)
@@ -459,6 +473,9 @@ def _storm(model: AbstractModel, memory: int, say, enough=None, scratch: Path | 
             # (their ages' values) is; else its size is found as decision diagrams first, and the model made
             # sparse from them (or, small after all, built state by state; too large, sought with people held)
             growth = _monitors_growth(group, model.cell.monitors) if nested else 1
+            key = tuple(sorted(p.name for p in props))
+            if key in (growth_seen or {}):
+                growth = min(growth, SEEN_MARGIN * growth_seen[key])
             by_state = (whole_stats.states * growth <= STATE_BY_STATE
                         and whole_stats.transitions * growth <= EXPLICIT_LIMIT)
             if not by_state:
@@ -498,6 +515,7 @@ def _storm(model: AbstractModel, memory: int, say, enough=None, scratch: Path | 
                 refinable = group_stats
             if group_stats.states > largest.states:  # (a group carries its monitors, which the whole cell did not)
                 largest = group_stats
+            seen[tuple(sorted(p.name for p in props))] = group_stats.states / max(whole_stats.states, 1)
             checked(program, built, again, valuations, dropped)
             settled = settled or enough is not None and any(
                 p.within is None and results[p.name].witness is not None and enough(model, results[p.name])
@@ -505,7 +523,7 @@ def _storm(model: AbstractModel, memory: int, say, enough=None, scratch: Path | 
         # (symbolic: some witness came from the decision diagrams alone, with people held, or none)
         stats = replace(whole_stats, symbolic="held" in engines, made_sparse="sparse" in engines,
                         by_state="state" in engines)
-    return results, times, stats, largest, refinable
+    return results, times, stats, largest, refinable, seen
 
 
 def _probabilistic(program: Program) -> bool:
