@@ -66,21 +66,29 @@ class Slow:
         return ("robot:timed", "moves too fast", 5) if path and path[0].get("fast") else None
 
 
-def scripted(monkeypatch, rounds: dict, confirms: set[tuple[int, str]], could=10.0, parts=None):
+def scripted(monkeypatch, rounds: dict, confirms: set[tuple[int, str]], could=10.0, parts=None, exact=True,
+             states=None):
     """``rounds``: the refinements switched on (frozenset) -> {property: its witness ("fast", "slow") or None (holds)};
     ``confirms``: (round, property) pairs whose replay the twin confirms (the round the witness is of); a witness
     ``"none"``: violated without one; ``could``: the states a refinement could reach (a number, or a function of the
-    refinements' keys); ``parts``: the modules' abstractions (default: one that refines the pace). Returns the log of
-    replays and of the verifier's calls (round, the properties whose witnesses it built)."""
+    refinements' keys); ``parts``: the modules' abstractions (default: one that refines the pace); ``exact``: whether
+    ``could`` is the states the refined cell reaches (else a quick bound, measured by building the round);
+    ``states``: the states of a round's whole cell (a function of its refinements; default 100). Returns the log of
+    replays and of the verifier's calls (round, the properties whose witnesses it built; ("sized", round): a round
+    stopped once built, too large to check before the replays)."""
     replays: list[tuple[int, str]] = []
     current = {"round": 0}
 
-    def fake_verify(sf, *, refinements, enough=None, checked_before=None, **kwargs):
+    def fake_verify(sf, *, refinements, enough=None, checked_before=None, costly_above=None, **kwargs):
         """As :func:`cellsim.verify.run.verify`: witnesses built in order until ``enough`` says one settles it."""
         current["round"] = len(refinements)
         model = Model(cell=SimpleNamespace(refinements=frozenset(refinements)), round=len(refinements))
         if parts is not None:
             model.parts = parts
+        stats = Stats(states(frozenset(refinements)) if states else 100)
+        if costly_above is not None and stats.states > costly_above:
+            replays.append(("sized", len(refinements)))
+            return run.Verification(model, stats, [], {}, costly=True)
         results, settled, built = [], False, []
         for name, w in rounds[frozenset(refinements)].items():
             if checked_before and name in checked_before:
@@ -96,7 +104,7 @@ def scripted(monkeypatch, rounds: dict, confirms: set[tuple[int, str]], could=10
                 built.append(name)
                 settled = enough is not None and enough(model, results[-1])
         replays.append(("verify", len(refinements), tuple(built)))
-        return run.Verification(model, Stats(), results, {})
+        return run.Verification(model, stats, results, {})
 
     def fake_replay(model, checked, where, on_stage=None):
         """Logs (the round running, the property) and, for a witness of an earlier round (a skipped one run at the
@@ -109,7 +117,7 @@ def scripted(monkeypatch, rounds: dict, confirms: set[tuple[int, str]], could=10
     monkeypatch.setattr(witness, "replay", fake_replay)
     monkeypatch.setattr(refine, "_could_reach",
                         lambda sf, result, timed, keys, measured=None: (
-                            could(keys) if callable(could) else could, None, True))
+                            could(keys) if callable(could) else could, None, exact))
     return replays
 
 
@@ -270,3 +278,28 @@ def test_a_witness_run_before_a_costly_refinement_is_not_run_again_at_the_end(mo
     assert final.ending is Ending.UNDECIDED
     assert "the witness of the model before any refinement was run too, and the twin refutes it" in final.reason
 
+
+
+def test_a_refinement_sized_by_building_its_round_is_checked_in_that_build_unless_it_is_costly(monkeypatch, tmp_path):
+    """A quick bound far over the largest model checked is measured by building the refined round itself (the welding
+    cell's pace: about 4 million states bounded, 19,458 reached): small after all, that round is checked there and
+    taken as the next round, not built a second time; costly, it stops once built, the witnesses it would take up
+    run on the twin first, and it is built again only if the twin refutes one."""
+    rounds = {frozenset(): {"A": "fast"}, PACE: {"A": None}}
+    replays = scripted(monkeypatch, rounds, confirms=set(), could=10.0 ** 6, exact=False)
+    result = refine.verify_with_twin(None, tmp_path, budget=3)
+    assert [r.key for r in result.refinements] == ["operator:pace"]
+    assert replays == [("verify", 0, ("A",)), ("verify", 1, ())]  # the refined round built once
+    assert {f.name: f.ending for f in result.endings()} == {"A": Ending.HOLDS}
+    # costly: stopped once built, the witness runs first; the twin confirming it, nothing is refined
+    replays = scripted(monkeypatch, rounds, confirms={(0, "A")}, could=10.0 ** 6, exact=False,
+                       states=lambda keys: 10_000 if keys else 100)
+    result = refine.verify_with_twin(None, tmp_path, budget=3)
+    # (the witness of round 0, run once round 1 was sized)
+    assert result.refinements == [] and replays == [("verify", 0, ("A",)), ("sized", 1), (1, "A", 0)]
+    # refuted: refined after all, the round built again
+    replays = scripted(monkeypatch, rounds, confirms=set(), could=10.0 ** 6, exact=False,
+                       states=lambda keys: 10_000 if keys else 100)
+    result = refine.verify_with_twin(None, tmp_path, budget=3)
+    assert [r.key for r in result.refinements] == ["operator:pace"]
+    assert replays == [("verify", 0, ("A",)), ("sized", 1), (1, "A", 0), ("verify", 1, ())]

@@ -63,16 +63,26 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
     grown_from = None  # the states of the largest model checked so far (a refined round's tables are sized on it)
     measured: dict = {}  # what the rounds' models read on the floor, pose by pose: each round measures only new poses
     growth: dict = {}  # each group's growth by its monitors, as the rounds so far built it (Verification.growth)
-    while True:
-        keys = frozenset(r.key for r in done)
+    ahead = None  # (its refinements, the properties confirmed when it was built, the round): built to size it
+
+    def terms(refined: int) -> tuple:
+        """(``enough``, ``checked_before``) of the round after ``refined`` refinements."""
         # a witness a module faults settles the round: the others wait for the refined model (while one may come)
-        enough = None if len(done) >= budget else (
+        enough = None if refined >= budget else (
             lambda model, checked: checked.prop.name not in confirmed and _faults(model, checked.witness))
         # a violation the twin confirmed stands for good: its monitor leaves the refined model (a smaller one to
         # build), unless the model is exported, which keeps every monitor
-        before = {**once, **({} if export is not None else {name: c for name, (c, _) in confirmed.items()})}
-        result = verify(sf, export=export, timed=timed, refinements=keys, on_stage=on_stage, checked_before=before,
-                        model=built, enough=enough, grown_from=grown_from, measured=measured, growth_seen=growth)
+        return enough, {**once, **({} if export is not None else {name: c for name, (c, _) in confirmed.items()})}
+
+    while True:
+        keys = frozenset(r.key for r in done)
+        if ahead is not None and ahead[:2] == (keys, frozenset(confirmed)):
+            result = ahead[2]  # built to size its refinement, and checked: nothing has changed since
+        else:
+            enough, before = terms(len(done))
+            result = verify(sf, export=export, timed=timed, refinements=keys, on_stage=on_stage, checked_before=before,
+                            model=built, enough=enough, grown_from=grown_from, measured=measured, growth_seen=growth)
+        ahead = None
         growth.update(result.growth)
         once = once or {r.prop.name: r for r in result.results if r.prop.within is not None}
         grown_from = max(grown_from or 0, (result.largest or result.stats).states)
@@ -90,7 +100,16 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
             result.not_refined = "; ".join(filter(None, (result.not_refined, too_large)))
             say(f"refinement {candidate.step}: {too_large}")
         if found is not None and could > COSTLY_GROWTH * grown_from and not exact:
-            could = _reached(built, grown_from)  # the quick bound can be hundreds of times too high: measure it
+            # the quick bound can be hundreds of times too high: the refined round is built to measure it, and checked
+            # where it is not costly after all (the next round, then built once), else left for after the replays
+            say(f"refinement {found.step}: building the model with {found.key} to size it")
+            enough, before = terms(len(done) + 1)
+            sized = verify(sf, export=export, timed=timed, refinements=keys | {found.key}, on_stage=on_stage,
+                           checked_before=before, model=built, enough=enough, grown_from=grown_from, measured=measured,
+                           growth_seen=growth, costly_above=COSTLY_GROWTH * grown_from)
+            could = sized.stats.states
+            if not sized.costly:
+                ahead = (keys | {found.key}, frozenset(confirmed), sized)
         tried_first: dict = {}  # property -> the replay of its witness, run before a costly refinement
         if found is not None and could > COSTLY_GROWTH * grown_from:
             # a refinement that grows the model this much costs more than running the witnesses it would take up on

@@ -157,6 +157,9 @@ class Verification:
     """Whether the witnesses were replayed on the twin (a witness nobody tried leaves its property undecided)."""
     refinements: list = field(default_factory=list)
     """The refinements switched on, in order (:class:`cellsim.verify.refine.Refinement`)."""
+    costly: bool = False
+    """Stopped once the whole cell was built, nothing checked: more states than asked for (``verify``'s
+    ``costly_above``)."""
     growth: dict = field(default_factory=dict)
     """Group of properties (their names, sorted) -> how many times the whole cell's states its own model (with its
     monitors) had, where it was built: what a refined round expects of the same group (:data:`SEEN_MARGIN`)."""
@@ -350,7 +353,7 @@ def _safe(name: str) -> str:
 def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: frozenset = frozenset(),
            on_stage=None, checked_before: dict | None = None, model: AbstractModel | None = None,
            enough=None, grown_from: int | None = None, measured: dict | None = None,
-           growth_seen: dict | None = None) -> Verification:
+           growth_seen: dict | None = None, costly_above: float | None = None) -> Verification:
     """Build and check the abstract model; ``export``: also write it there (and its .props beside it);
     ``refinements``: the modules' refinements to switch on (:class:`cellsim.verify.model.AbstractCell`);
     ``checked_before``: property name -> its result from an earlier round, taken as it is (a refinement round's
@@ -362,7 +365,10 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
     under fairness is kept for good) are left violated without one, ``deferred``; ``grown_from``: the states of the
     largest model an earlier round checked (a refinement's round), which sizes the decision diagrams' tables
     (:func:`dd_memory`); ``measured``: as :func:`abstract_model` says; ``growth_seen``: an earlier round's
-    ``Verification.growth``, which decides how a group's own model is built (:data:`SEEN_MARGIN`)."""
+    ``Verification.growth``, which decides how a group's own model is built (:data:`SEEN_MARGIN`); ``costly_above``:
+    stop once the whole cell is built if it has more states than this, nothing checked (``Verification.costly``: a
+    refinement sized by building its round, :func:`cellsim.verify.refine.verify_with_twin`); the model stays as it
+    was given, to be checked by a later call."""
     leave_out = frozenset(checked_before or ())
     say = on_stage or (lambda text: None)
     say("building the abstract model")
@@ -386,7 +392,8 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
     # the scratch folder is this process's: a Storm process stopped (Ctrl-C kills it) leaves nothing behind
     with tempfile.TemporaryDirectory(prefix="cellsim-verify-") as scratch:
         try:
-            storm = in_own_process(lambda tell: _storm(model, memory, tell, enough, Path(scratch), growth_seen), say)
+            storm = in_own_process(lambda tell: _storm(model, memory, tell, enough, Path(scratch), growth_seen,
+                                                                costly_above), say)
         except ProcessStopped as stopped:
             if memory >= DD_MEMORY:
                 raise VerifyError(_stopped(stopped, memory)) from None
@@ -394,11 +401,15 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
                 f"building again with {DD_MEMORY} MB")
             try:
                 storm = in_own_process(
-                    lambda tell: _storm(model, DD_MEMORY, tell, enough, Path(scratch), growth_seen), say)
+                    lambda tell: _storm(model, DD_MEMORY, tell, enough, Path(scratch), growth_seen, costly_above),
+                    say)
             except ProcessStopped as again:
                 raise VerifyError(_stopped(again, DD_MEMORY)) from None
     results, storm_times, stats, largest, refinable, growth = storm
     times.update(storm_times)
+    if results is None:  # stopped at the whole cell: too large to check now (``costly_above``)
+        model.properties = every
+        return Verification(model, stats, [], times, stats, costly=True)
     results.update(checked_before or {})
     model.properties = [p for p in every if p.name in results]
     ordered = [results[p.name] for p in model.properties]
@@ -408,11 +419,12 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
 
 
 def _storm(model: AbstractModel, memory: int, say, enough=None, scratch: Path | None = None,
-           growth_seen: dict | None = None):
+           growth_seen: dict | None = None, costly_above: float | None = None):
     """Build and check ``model`` with Storm (Sylvan's tables capped at ``memory`` MB); returns (property name ->
     Checked, the Storm stages' seconds, the stats of the model the size was judged on, of the largest model built,
-    of the largest one with a liveness condition, each group's growth seen: ``Verification.growth``). ``enough`` and
-    ``growth_seen``: as :func:`verify` says; ``scratch``: a folder for the
+    of the largest one with a liveness condition, each group's growth seen: ``Verification.growth``; no results
+    (None) where the whole cell has more states than ``costly_above``). ``enough``, ``growth_seen`` and
+    ``costly_above``: as :func:`verify` says; ``scratch``: a folder for the
     programs Storm reads (its caller's, who removes it; else one of its own). Run in a process of its own
     (:func:`verify`)."""
     results, stats, largest, refinable = {}, None, None, None
@@ -451,6 +463,8 @@ def _storm(model: AbstractModel, memory: int, say, enough=None, scratch: Path | 
         program, symbolic, whole_stats = build_symbolic(whole, memory)
         count(whole_stats)
         say(f"Storm: {whole_stats.states:,} states, {whole_stats.transitions:,} transitions, as decision diagrams")
+        if costly_above is not None and whole_stats.states > costly_above:
+            return None, times, whole_stats, whole_stats, None, seen
         checked(program, symbolic, model.properties, monitored=not nested)
         del symbolic
         # only a group with a violated property is built again, with its own monitors: for its witness, or whether
