@@ -92,8 +92,9 @@ def _ending(checked, replay, replayed: bool, symbolic: bool, refinements) -> Fin
     source = f" (from {source}: a path of the whole cell's model too)" if source else ""
     if replay.confirmed:
         return Final(name, Ending.VIOLATED, f"the twin confirms the witness{source}: {replay.runs[-1]}")
+    slower = f" ({replay.lag})" if getattr(replay, "lag", "") else ""
     return Final(name, Ending.UNDECIDED, f"the twin refutes the witness{source} in {len(replay.runs)} runs: the "
-                                         f"abstraction allows a behaviour the cell does not show{tried}")
+                                         f"abstraction allows a behaviour the cell does not show{slower}{tried}")
 
 
 def exit_code(endings: list[Final]) -> int:

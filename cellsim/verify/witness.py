@@ -46,6 +46,9 @@ class Replay:
     """The shift (s) of the run that confirmed it."""
     violated: list[str] = field(default_factory=list)
     """The conditions the confirming (else the last) run violated."""
+    lag: str = ""
+    """How much longer the twin takes to walk the witness than the witness itself does, and where most of it comes
+    from (:func:`lag`), in words; empty where it keeps the witness's time."""
 
 
 class _Replace(dict):
@@ -70,6 +73,57 @@ def walks(model, checked: Checked, shift: float) -> tuple[dict, float]:
     speed. The witness's clock is stretched to fit: step k happens at ``clock[k]``, at least a
     period after step k - 1 and, when a person enters a new place there, at least its walk from
     the last stop later. So every person's stops keep their order against everyone else's."""
+    people, clock, _ = _timed(model, checked, shift)
+    period, path = model.cell.period, checked.witness
+    end = clock[-1] + period
+    entities = {}
+    for person, runs in people:
+        role = person.role
+        buttons = {port: press_variable(role.module, port) for port in role.buttons}
+        stops, presses = [], {}
+        for i, (place, first, last, pose) in enumerate(runs):
+            if i == 0 and place == person.start and pose == role.start:
+                continue  # where it starts (unless the run ends in its starting place, at its last stop)
+            pressed = [port for port, var in buttons.items() if any(path[s].get(var) for s in range(first, last + 1))]
+            if pressed:
+                presses[len(stops)] = pressed[0]
+            stops.append((pose, clock[first], clock[last] + period))
+        if not stops:
+            stops = [(role.start, 0.0, 0.0)]
+        stops[-1] = (stops[-1][0], stops[-1][1], end + SETTLE)
+        entities[role.module] = role.walk(role.start, stops, presses)
+    return entities, end + SETTLE
+
+
+LAG = 0.1
+"""Seconds by which the twin's walk of a witness may outlast the witness before :func:`lag` says so."""
+
+
+def lag(model, checked: Checked) -> str:
+    """In words, how much longer the twin takes to walk ``checked``'s witness than the witness takes (its clock
+    stretched so each person walks from stop to stop at their speed, :func:`walks`), and the leg that adds the most;
+    empty where that is under :data:`LAG`. The model bounds a person's pace place by place (the least distance across
+    each place it crosses), and the replay walks from a pose inside each place to one inside the next: where those
+    are farther apart than the witness's steps allow, the twin meets the robot's cycle at other moments than the
+    witness did, which may be why it does not show the violation."""
+    _, clock, legs = _timed(model, checked, 0.0)
+    period = model.cell.period
+    witness_time = (len(checked.witness) - 1) * period
+    extra = clock[-1] - witness_time
+    if extra < LAG or not legs:
+        return ""
+    module, a, b, took, step = max(legs, key=lambda leg: leg[3])
+    return (f"the twin takes {clock[-1]:.3g} s to walk the witness's {witness_time:.3g} s: {module} walks from "
+            f"({a.x:.2f}, {a.y:.2f}) to ({b.x:.2f}, {b.y:.2f}) in {took:.3g} s, one {period:g} s step in the witness "
+            f"(at {step * period:g} s), so the twin meets the rest of the cell at other moments than the witness did "
+            "(the model bounds a person's pace place by place, and the replay walks from a pose inside each place to "
+            "one inside the next)")
+
+
+def _timed(model, checked: Checked, shift: float) -> tuple[list, list[float], list]:
+    """(each person with its runs of places [place, first step, last step, pose]; the clock of the witness's steps,
+    stretched so each person walks from stop to stop at their speed, from ``shift``; each leg that stretched it:
+    (person, from pose, to pose, seconds its walk takes, the step it ends at))."""
     places = model.cell.places
     period = model.cell.period
     path = checked.witness
@@ -89,32 +143,18 @@ def walks(model, checked: Checked, shift: float) -> tuple[dict, float]:
         if checked.prop.final and person.end is not None and runs[-1][0] == person.end:
             runs[-1][3] = person.role.end  # a run that ends as the person's script does: at its very last stop
         people.append((person, runs))
-    clock = [shift]
+    clock, legs = [shift], []
     for step in range(1, len(path)):
         at = clock[-1] + period
         for person, runs in people:
             for previous, run in zip(runs, runs[1:]):
                 if run[1] == step:
-                    at = max(at, clock[-1] + person.role.travel(previous[3], run[3]))
+                    took = person.role.travel(previous[3], run[3])
+                    if took > period:
+                        legs.append((person.role.module, previous[3], run[3], took, step))
+                    at = max(at, clock[-1] + took)
         clock.append(at)
-    end = clock[-1] + period
-    entities = {}
-    for person, runs in people:
-        role = person.role
-        buttons = {port: press_variable(role.module, port) for port in role.buttons}
-        stops, presses = [], {}
-        for i, (place, first, last, pose) in enumerate(runs):
-            if i == 0 and place == person.start and pose == role.start:
-                continue  # where it starts (unless the run ends in its starting place, at its last stop)
-            pressed = [port for port, var in buttons.items() if any(path[s].get(var) for s in range(first, last + 1))]
-            if pressed:
-                presses[len(stops)] = pressed[0]
-            stops.append((pose, clock[first], clock[last] + period))
-        if not stops:
-            stops = [(role.start, 0.0, 0.0)]
-        stops[-1] = (stops[-1][0], stops[-1][1], end + SETTLE)
-        entities[role.module] = role.walk(role.start, stops, presses)
-    return entities, end + SETTLE
+    return people, clock, legs
 
 
 def _stand_in(person, place: int, here):
@@ -200,7 +240,7 @@ def replay(model, checked: Checked, out: Path, on_stage=None, at_once: int | Non
     from cellsim.verify.isolated import cores, side_by_side
 
     say = on_stage or (lambda text: None)
-    outcome = Replay(False)
+    outcome = Replay(False, lag=lag(model, checked))
     at_once = at_once or cores()
     for first in range(0, len(SHIFTS), at_once):
         batch = []
