@@ -59,6 +59,8 @@ from cellsim.systems import UNCHANGED, CellSystem, read_scalar, write_scalar
 from cellsim.vocabulary import PhysicalLink, SafetyMode
 
 _SSMON = float(SafetyMode.SPEED_SEPARATION.code)
+_NOBODY = np.full(1, math.nan)
+"""``truth_people`` where no body is measured."""
 _TRUSTED_LINKS = frozenset({float(PhysicalLink.UNUSED.code), float(PhysicalLink.OK.code)})
 """The physical links a digital body can be trusted through: none used (a digital model), or ok."""
 _JUDGED = ("true_margin", "unwatched_margin_fall")
@@ -335,7 +337,7 @@ class SpeedSeparationMonitor(CellSystem):
         return _speed_towards(pair, arm == pair.id_A, witness_on(query, pair, arm),
                               body.EvalPoseInWorld(kin.context).translation(), w_v[3:], w_v[:3])
 
-    def true_margin(self, context, reaction: float) -> float:
+    def true_margin(self, context, reaction: float, regions: np.ndarray | None = None) -> float:
         """The least, over every pair of an arm's shape and a body region, of their true separation less S_p (no
         allowances, ``reaction`` s of reaction still to come, the robot's stopping time from its tool's speed: see
         :meth:`SsmParameters.true_protective_distance`) of the shape's true speed towards that region; read up
@@ -349,7 +351,9 @@ class SpeedSeparationMonitor(CellSystem):
         kin.plant.SetPositionsAndVelocities(kin.context, self.robot_state_port.Eval(context))
         stopping = float(np.linalg.norm(kin.tool.CalcSpatialVelocityInWorld(kin.context).translational()))
         query = self.query_port.Eval(context)
-        centres, regions = self.pairs.a.centres(query), self.pairs.b.centres(query)
+        centres = self.pairs.a.centres(query)
+        if regions is None:  # (the body regions' sphere centres: the caller's, where it has them)
+            regions = self.pairs.b.centres(query)
         bounds = self.pairs.bounds_from(centres, regions)
         ids_a, ids_b = self.pairs.a.ids, self.pairs.b.ids
         motion = [self.bodies[g].EvalSpatialVelocityInWorld(kin.context).get_coeffs() for g in ids_a]
@@ -416,11 +420,12 @@ class SpeedSeparationMonitor(CellSystem):
             return UNCHANGED
         since = read_scalar(context, self._stop_ordered)
         reaction = self._reaction(context, t, since)
-        margin = self.true_margin(context, reaction)
+        regions = self._regions_now(context)
+        margin = self.true_margin(context, reaction, regions)
         in_ssmon = self.robot_mode_port.Eval(context)[0] == _SSMON
         now_close = margin < self._watch_below and in_ssmon
         then, before, since_then = context.get_discrete_state(self._judged).get_value()
-        people = self._people_now(context)
+        people = _NOBODY if regions is None else regions.ravel()
         moved = not np.array_equal(people, context.get_discrete_state(self._people_at).get_value(), equal_nan=True)
         if moved:
             xd.get_mutable_vector(self._people_at).SetFromVector(people)
@@ -436,11 +441,12 @@ class SpeedSeparationMonitor(CellSystem):
         write_scalar(xd, self._close, 1.0 if now_close else 0.0)
         return None
 
-    def _people_now(self, context) -> np.ndarray:
-        """Where the people's body regions are now: their bounding spheres' centres (m), flat (``truth_people``)."""
+    def _regions_now(self, context) -> np.ndarray | None:
+        """Where the people's body regions are now: their bounding spheres' centres (m, one row each); None: nobody's
+        bodies are measured (``truth_people`` keeps them flat)."""
         if self.pairs is None or not self.pairs.b.ids:
-            return np.full(1, math.nan)
-        return self.pairs.b.centres(self.query_port.Eval(context)).ravel()
+            return None
+        return self.pairs.b.centres(self.query_port.Eval(context))
 
     def update(self, context, xd):
         t = context.get_time()
