@@ -333,7 +333,7 @@ def test_the_seeded_fault_violates_separation_only_in_its_zone_and_only_in_the_f
 
 def test_cmaes_searches_a_space_of_one_configuration_point_and_finds_a_default_condition(tmp_path):
     """The cma library needs two dimensions: one configuration point is searched beside an idle coordinate. The
-    standoff cell's narrow zone (1 of 200 of its campaign's runs) violates TrueSSM, a default condition nobody
+    standoff cell's zone nearest the bench (y above about -1.86 m) violates TrueSSM, a default condition nobody
     wrote in the scenario, and the search climbs the true margin to it."""
     done = _cellsim("falsify", ROOT / "scenarios" / "machine_tending_standoff.yaml", "--condition", "TrueSSM",
                     "--method", "cmaes", "--budget", "40", "--seed", "1", "--jobs", "2", "--out", tmp_path / "f")
@@ -343,7 +343,7 @@ def test_cmaes_searches_a_space_of_one_configuration_point_and_finds_a_default_c
     assert found is not None and found <= 40
     violating = [r for r in results["runs"] if "TrueSSM" in r.get("violations", ())]
     standoff = "operator.waypoints.bench_south.position.1"
-    assert violating and all(r["configuration"][standoff] > -1.7 for r in violating)
+    assert violating and all(r["configuration"][standoff] > -1.9 for r in violating)
 
 
 def test_a_search_replacing_another_gives_it_back_whole_when_it_does_not_finish(tmp_path):
