@@ -85,10 +85,10 @@ def lowest_point_z(shape, X_WG) -> float | None:
     return None if span is None else span[0]
 
 
-def height_span(shape, X_WG) -> tuple[float, float] | None:
+def height_span(shape, X_WG, reach=None) -> tuple[float, float] | None:
     """(lowest, highest) heights (m, world z) of the points of ``shape`` posed at ``X_WG``; None for a shape this does
-    not know (a mesh)."""
-    reach = vertical_reach(shape)
+    not know (a mesh). ``reach``: the shape's :func:`vertical_reach`, where the caller keeps it (else found now)."""
+    reach = vertical_reach(shape) if reach is None else reach
     if reach is None:
         return None
     u0, u1, u2, z = X_WG.GetAsMatrix34()[2].tolist()

@@ -40,7 +40,7 @@ from cellsim.kinds.area_scanner.config import AreaScannerConfig
 from cellsim.kinds.sensing import HEAD_RADIUS, SAMPLE_ROUNDING, GeometrySensor
 from cellsim.entity import valid_code
 from cellsim.floorplan import Box3, SightLines
-from cellsim.proximity import vertical_reach, witness_on
+from cellsim.proximity import height_span, vertical_reach, witness_on
 from cellsim.systems import write_changed
 from cellsim.vocabulary import TwinMode, value_set
 
@@ -82,7 +82,7 @@ class AreaScanner(GeometrySensor):
         self.field_ids: list[list] = []
         self.cfg_fields = list(cfg.fields.values())
         self._limbs: dict | None = None  # each target that is a capsule (a limb) -> its shape (sight_points)
-        self._reaches: dict | None = None  # each target -> its vertical_reach (nearest_seen: which can meet the beams)
+        self._reaches: dict | None = None  # each target -> (its shape, its vertical_reach): which can meet the beams
         self._sight: dict = {}  # (target, its pose) -> its sight points
         self.field_of: dict = {}
         """Each field piece's GeometryId -> the field's index (0: innermost)."""
@@ -260,13 +260,12 @@ class AreaScanner(GeometrySensor):
         known, a mesh: it may)."""
         if self._reaches is None:
             inspector = query.inspector()
-            self._reaches = {g: vertical_reach(inspector.GetShape(g)) for g in self.targets}
-        reach = self._reaches[target]
+            self._reaches = {g: (inspector.GetShape(g), vertical_reach(inspector.GetShape(g))) for g in self.targets}
+        shape, reach = self._reaches[target]
         if reach is None:
             return True
-        u0, u1, u2, z = query.GetPoseInWorld(target).GetAsMatrix34()[2].tolist()
-        height = reach(u0, u1, u2)
-        return z - height <= self.band[1] and z + height >= self.band[0]
+        low, high = height_span(shape, query.GetPoseInWorld(target), reach)
+        return low <= self.band[1] and high >= self.band[0]
 
     def sample_is_valid(self, sample) -> bool:
         """A field's code, and a distance the scanner can measure: 0 to its max_range (within ``SAMPLE_ROUNDING``)."""
