@@ -367,8 +367,8 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
     (:func:`dd_memory`); ``measured``: as :func:`abstract_model` says; ``growth_seen``: an earlier round's
     ``Verification.growth``, which decides how a group's own model is built (:data:`SEEN_MARGIN`); ``costly_above``:
     stop once the whole cell is built if it has more states than this, nothing checked (``Verification.costly``: a
-    refinement sized by building its round, :func:`cellsim.verify.refine.verify_with_twin`); the model stays as it
-    was given, to be checked by a later call."""
+    refinement sized by building its round, :func:`cellsim.verify.refine.verify_with_twin`); the model keeps its
+    properties, to be checked by a later call (whose ``checked_before`` holds at least these)."""
     leave_out = frozenset(checked_before or ())
     say = on_stage or (lambda text: None)
     say("building the abstract model")
@@ -529,7 +529,7 @@ def _storm(model: AbstractModel, memory: int, say, enough=None, scratch: Path | 
                 refinable = group_stats
             if group_stats.states > largest.states:  # (a group carries its monitors, which the whole cell did not)
                 largest = group_stats
-            seen[tuple(sorted(p.name for p in props))] = group_stats.states / max(whole_stats.states, 1)
+            seen[key] = group_stats.states / max(whole_stats.states, 1)
             checked(program, built, again, valuations, dropped)
             settled = settled or enough is not None and any(
                 p.within is None and results[p.name].witness is not None and enough(model, results[p.name])
