@@ -1,7 +1,8 @@
 """MDPs in the PRISM language: modules of bounded variables and guarded commands, formulas, labels.
 
 A small writer, not a parser: the program is built in Python and written as text,
-so Storm (``stormpy.parse_prism_program``) or PRISM itself reads it. Enumerations
+so Storm (``stormpy.parse_prism_program``) or PRISM itself reads it (only a guard is read
+back, against a witness's state: :func:`holds`). Enumerations
 are integer variables; ``Enum`` keeps the names of their values, so a state read
 back from Storm speaks the cell's words again.
 
@@ -12,6 +13,7 @@ the period (PRISM's synchronous semantics), as the cell's discrete updates do.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 STEP = "step"
@@ -110,3 +112,89 @@ class Program:
 
 PERIODS = "periods"
 """The reward structure counting steps (periods)."""
+
+
+_TOKEN = re.compile(r"\s*(?:(\d+)|([A-Za-z_]\w*)|(<=|>=|!=|[=<>!&|()+\-]))")
+
+
+def holds(expr: str, state: dict) -> bool:
+    """Whether a PRISM guard ``expr`` (variables, integers, true/false, ``! & | = != < <= > >= + -`` and brackets)
+    holds in a witness's ``state`` (variable -> value): for an abstraction asking which of its guards a witness ends
+    in. A variable the state does not hold (outside the property's cone) is an error."""
+    tokens = []
+    at = 0
+    while at < len(expr):
+        match = _TOKEN.match(expr, at)
+        if match is None or match.end() == at:
+            if expr[at:].strip() == "":
+                break
+            raise ValueError(f"cannot read the guard {expr!r} at {expr[at:]!r}")
+        tokens.append(match.group(1) or match.group(2) or match.group(3))
+        at = match.end()
+    position = 0
+
+    def peek():
+        return tokens[position] if position < len(tokens) else None
+
+    def take():
+        nonlocal position
+        position += 1
+        return tokens[position - 1]
+
+    def disjunction():
+        value = conjunction()
+        while peek() == "|":
+            take()
+            value = conjunction() or value
+        return value
+
+    def conjunction():
+        value = negation()
+        while peek() == "&":
+            take()
+            value = negation() and value
+        return value
+
+    def negation():
+        if peek() == "!":
+            take()
+            return not negation()
+        return comparison()
+
+    def comparison():
+        left = sum_()
+        op = peek()
+        if op in ("=", "!=", "<", "<=", ">", ">="):
+            take()
+            right = sum_()
+            return {"=": left == right, "!=": left != right, "<": left < right, "<=": left <= right,
+                    ">": left > right, ">=": left >= right}[op]
+        return left
+
+    def sum_():
+        value = atom()
+        while peek() in ("+", "-"):
+            value = value + atom() if take() == "+" else value - atom()
+        return value
+
+    def atom():
+        token = take()
+        if token == "(":
+            value = disjunction()
+            if take() != ")":
+                raise ValueError(f"unbalanced brackets in the guard {expr!r}")
+            return value
+        if token == "-":
+            return -atom()
+        if token.isdigit():
+            return int(token)
+        if token in ("true", "false"):
+            return token == "true"
+        if token not in state:
+            raise KeyError(token)
+        return state[token]
+
+    value = disjunction()
+    if position != len(tokens):
+        raise ValueError(f"cannot read the guard {expr!r} past {tokens[position]!r}")
+    return bool(value)
