@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from cellsim import registry
-from cellsim.verify.cone import within_cone
+from cellsim.verify.cone import cone, within_cone
 from cellsim.verify.expressions import VerifyError
 from cellsim.verify.floor import build_floor, cut_floor
 from cellsim.verify.isolated import ProcessStopped, in_own_process
@@ -49,9 +49,22 @@ class AbstractModel:
         plain = [p for p in self.properties if p.name not in cell.monitors]
         groups = []
         if plain:
-            theirs = {k for p in self.properties if p.name in cell.monitors for k in self._labels_of(p)}
-            labels = {k: v for k, v in cell.labels.items() if k not in theirs}
-            groups.append((plain, *within_cone(cell.program(self.header, [], labels))))
+            # the properties whose labels have the same cone share one model (a property reading the arms, as the harm
+            # conditions do, does not bring them into the mishaps' model); labels of no property's stay with the first
+            theirs = {k for p in self.properties if p.name in self.labels for k in self._labels_of(p)}
+            spare = {k: v for k, v in cell.labels.items() if k not in theirs}
+            by_cone: dict = {}
+            for prop in plain:
+                if prop.name not in self.labels:  # (a user's own PCTL: with every label no property has)
+                    by_cone.setdefault(None, []).append(prop)
+                    continue
+                mine = {k: cell.labels[k] for k in self._labels_of(prop)}
+                by_cone.setdefault(frozenset(cone(cell.program(self.header, [], mine))), []).append(prop)
+            for i, props in enumerate(by_cone.values()):
+                labels = {k: cell.labels[k] for p in props if p.name in self.labels for k in self._labels_of(p)}
+                if i == 0 or None in by_cone and props is by_cone[None]:
+                    labels.update(spare)
+                groups.append((props, *within_cone(cell.program(self.header, [], labels))))
         responses = [p for p in self.properties if p.name in cell.monitors and p.within is not None]
         if responses:  # short windows, each pending a few periods: one model for them all costs less than one each
             labels = {k: cell.labels[k] for p in responses for k in self._labels_of(p)}
@@ -376,11 +389,13 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
         model = abstract_model(sf, timed=timed, refinements=refinements, measured=measured)
     if export is not None and model.properties:  # every property (this round's model), before any is left out
         write_export(model, export)
+    taken: list = []  # what leaving them out took from the model (put back where it keeps every property)
     for prop in [p for p in model.properties if p.name in leave_out]:  # its monitor and labels go with it
-        model.cell.monitors.pop(prop.name, None)
+        monitor = model.cell.monitors.pop(prop.name, None)
         label = model.labels.pop(prop.name, None)
-        for key in labels_of(prop, label) if label else ():
-            model.cell.labels.pop(key, None)
+        cell_labels = {key: model.cell.labels.pop(key) for key in (labels_of(prop, label) if label else ())
+                       if key in model.cell.labels}
+        taken.append((prop.name, monitor, label, cell_labels))
     every = list(model.properties)
     model.properties = [p for p in model.properties if p.name not in leave_out]
     if not model.properties:
@@ -407,6 +422,13 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
                 raise VerifyError(_stopped(again, DD_MEMORY)) from None
     results, storm_times, stats, largest, refinable, growth = storm
     times.update(storm_times)
+    # the model is kept whole, for a later call (a refinement sized by building it, an export) to leave out what it will
+    for name, monitor, label, cell_labels in taken:
+        if monitor is not None:
+            model.cell.monitors[name] = monitor
+        if label is not None:
+            model.labels[name] = label
+        model.cell.labels.update(cell_labels)
     if results is None:  # stopped at the whole cell: too large to check now (``costly_above``)
         model.properties = every
         return Verification(model, stats, [], times, stats, costly=True)
