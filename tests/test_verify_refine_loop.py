@@ -106,7 +106,7 @@ def scripted(monkeypatch, rounds: dict, confirms: set[tuple[int, str]], could=10
         replays.append(("verify", len(refinements), tuple(built)))
         return run.Verification(model, stats, results, {})
 
-    def fake_replay(model, checked, where, on_stage=None):
+    def fake_replay(model, checked, where, on_stage=None, same=None):
         """Logs (the round running, the property) and, for a witness of an earlier round (a skipped one run at the
         end), which round's model it came from as a third item."""
         entry = (current["round"], checked.prop.name) + (() if model.round == current["round"] else (model.round,))

@@ -59,7 +59,18 @@ def test_a_refined_round_measures_only_the_poses_no_earlier_round_did_and_builds
     fresh = abstract_model(welding, refinements=FINE)
     assert 0 < fine.cell.places.poses_measured < fresh.cell.places.poses_measured  # the finer grid's new poses only
     for reused, anew in ((paced, abstract_model(welding, refinements=PACE)), (fine, fresh)):
-        assert reused.cell.program(reused.header).text() == anew.cell.program(anew.header).text()
+        assert _cut(reused) == _cut(anew)
+        # a contact's bound, which cuts nothing, a finer pose reads from the coarser ones around it less its distance
+        # to them, never more than measuring it gives (tests/test_verify_harm.py): each place's least, no higher
+        for ours, theirs in zip(reused.cell.places.people[0].places, anew.cell.places.people[0].places):
+            assert ours.least.keys() == theirs.least.keys() and ours.least
+            assert all(ours.least[s][1] <= theirs.least[s][1] + 1e-9 for s in ours.least)
+
+
+def _cut(model) -> str:
+    """The model's program but the formulas of the harm service's contact bounds (which cut no place)."""
+    return "\n".join(line for line in model.cell.program(model.header).text().splitlines()
+                     if not line.startswith("formula harm__contact"))
 
 
 def test_a_pace_counts_no_further_than_a_step_from_where_the_person_stands_asks_and_every_answer_is_the_same(

@@ -214,9 +214,20 @@ class Clearance:
             self._stretches.append((cKDTree(fine), most, np.array(sorted(cuts), float)))
         margin = within + max((most for _, most, cuts in self._stretches if cuts is not None), default=0.0) + 0.5
         self._grid = _Grid(points, margin) if points else None
+        # each stretch's bounding sphere (its points' and their spheres'): a body farther than ``within`` from every one
+        # is answered at once (most of a floor is)
+        holding = [(s.centres.min(axis=0) + s.centres.max(axis=0)) / 2.0 for s in stretches]
+        self._around = np.array(holding, float).reshape(-1, 3)
+        self._around_radius = np.array([float((np.linalg.norm(s.centres - c, axis=1) + s.radii).max())
+                                        for s, c in zip(stretches, holding)])
 
     def of(self, body: Spheres) -> list[float]:
         """Each stretch's distance (m) from the body's spheres, bounded from below; ``within`` where it is farther."""
+        if len(self._around) and len(body.centres):
+            low, high = body.centres.min(axis=0), body.centres.max(axis=0)  # the body's sphere about its box
+            apart = np.linalg.norm(self._around - (low + high) / 2.0, axis=1) - float(np.linalg.norm(high - low)) / 2.0
+            if (apart - self._around_radius - float(body.radii.max()) >= self.within).all():
+                return [self.within] * len(self._stretches)
         out = []
         grid = self._grid
         roughs = iter(grid.distances(body.centres) if grid else ())  # inf outside the grid: farther than within

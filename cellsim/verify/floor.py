@@ -39,6 +39,9 @@ class Place:
     reading: tuple
     """The read signals' codes here (own signals, then sensed), in ``Places.signals`` order."""
     poses: list[Pose]
+    least: dict = field(default_factory=dict)
+    """Each signal that cuts nothing (``SensedSignal.cuts``) -> (the pose of the place where it reads least, that
+    value): the place's reading is that pose's."""
 
 
 @dataclass
@@ -99,30 +102,56 @@ def cut_floor(cell: AbstractCell, measured: dict | None = None) -> Places:
         known = {} if measured is None else measured
         todo = [pose for pose in poses if any((person.module, s, pose) not in known for s in signals)]
         if person.refines:
-            todo = _inherit(person, todo, signals, known)
+            todo = _inherit(person, todo, signals, known,
+                            frozenset(s for s in signals if s in sensed and not sensed[s][1].cuts))
         parts = cores() if len(todo) >= SIDE_BY_SIDE_FROM else 1
         size = max(1, -(-len(todo) // parts))
         works = [_measuring(context, person, todo[i:i + size], signals, own, sensed)
                  for i in range(0, len(todo), size)]
         for pose, values in zip(todo, (values for part in side_by_side(works) for values in part)):
             known.update(((person.module, s, pose), value) for s, value in zip(signals, values))
-        readings = [tuple(_coded(cell, codes, s, known[(person.module, s, pose)]) for s in signals) for pose in poses]
+        cutting = [s for s in signals if s not in sensed or sensed[s][1].cuts]
+        readings = [tuple(_coded(cell, codes, s, known[(person.module, s, pose)]) for s in cutting) for pose in poses]
         person.stand(context, None)
         count += len(todo)
-        people.append(_places(cell, person, poses, readings, signals))
+        places = _places(cell, person, poses, readings, cutting)
+        _least(cell, codes, places, [s for s in signals if s not in cutting], known)
+        people.append(places)
     return Places(people, count)
 
 
-def _inherit(person: PersonRole, todo: list[Pose], signals: list[str], known: dict) -> list[Pose]:
+def _least(cell: AbstractCell, codes: dict, person: PersonPlaces, signals: list[str], known: dict) -> None:
+    """Each place of ``person`` reads, for each signal that cuts nothing, the least of its poses' values (the first
+    pose reading it, in the place's order, is ``Place.least``'s), after the signals that cut it."""
+    module = person.role.module
+    for place in person.places:
+        extra = []
+        for s in signals:
+            values = [known[(module, s, q)] for q in place.poses]
+            at = min(range(len(values)), key=values.__getitem__)
+            place.least[s] = (place.poses[at], values[at])
+            extra.append(_coded(cell, codes, s, values[at]))
+        place.reading = (*place.reading, *extra)
+    person.signals = [*person.signals, *signals]
+
+
+def _inherit(person: PersonRole, todo: list[Pose], signals: list[str], known: dict,
+             loose: frozenset = frozenset()) -> list[Pose]:
     """Of the poses ``todo`` of a grid that halves a coarser one measured before (``person.refines``, m), those still
     to measure: a pose between points of the coarser grid (its corners there, at its heading and reach) that all read
     the same, every signal, reads as they do and is entered in ``known``; the others (where the coarser grid's
     readings change, or a corner was not measured: a reach's heading is its own) are returned. The finer grid is so
     measured where places meet, whose borders it finds more closely, and reads as the coarser one elsewhere: a
-    feature thinner than the coarser step there may fall between its points, as it could before."""
+    feature thinner than the coarser step there may fall between its points, as it could before.
+
+    ``loose``: the signals that cut nothing (``SensedSignal.cuts``: a lower bound of a distance, m), which decide
+    nothing here. A pose not reaching out, whose body the corners' bodies translate, reads the most any corner's value
+    less its distance to that corner allows (a distance moves no more than the body does: still a lower bound); a
+    reaching pose (whose arm turns towards its point as it moves) is measured."""
     coarse, module = person.refines, person.module
     half = coarse / 2.0
     corners: dict = {}  # (x, y, yaw, reach) of a coarser grid's point -> its readings (None: not all measured)
+    kept = [i for i, s in enumerate(signals) if s not in loose]
 
     def reading(x: float, y: float, yaw: float, reach) -> tuple | None:
         key = (x, y, yaw, reach)
@@ -139,15 +168,18 @@ def _inherit(person: PersonRole, todo: list[Pose], signals: list[str], known: di
     left = []
     for pose in todo:
         xs, ys = around(pose.x), around(pose.y)
-        if len(xs) == len(ys) == 1:  # a point of the coarser grid not measured: its own reading
+        if len(xs) == len(ys) == 1 or (loose and pose.reach is not None):
+            left.append(pose)  # a point of the coarser grid not measured (its own reading), or a reach to measure
+            continue
+        points = [(x, y) for x in xs for y in ys]
+        readings = [reading(x, y, pose.yaw, pose.reach) for x, y in points]
+        if None in readings or len({tuple(values[i] for i in kept) for values in readings}) != 1:
             left.append(pose)
             continue
-        found = {reading(x, y, pose.yaw, pose.reach) for x in xs for y in ys}
-        (values,) = found if len(found) == 1 else (None,)
-        if values is None:
-            left.append(pose)
-        else:
-            known.update(((module, s, pose), value) for s, value in zip(signals, values))
+        apart = [math.hypot(pose.x - x, pose.y - y) for x, y in points]
+        values = [max(r[i] - d for r, d in zip(readings, apart)) if s in loose else readings[0][i]
+                  for i, s in enumerate(signals)]
+        known.update(((module, s, pose), value) for s, value in zip(signals, values))
     return left
 
 
@@ -377,7 +409,7 @@ def build_floor(cell: AbstractCell, places: Places) -> None:
             near = [p.index for p in person.places if any(math.hypot(q.x - spot[0], q.y - spot[1]) <= role.step for q in p.poses)]
             if not near:
                 raise VerifyError(f"{role.module}: no place of the floor holds the spot {list(spot)} where it presses {port}")
-            presses[press_var] = set_of(var, near)
+            presses[press_var] = set_of(var, near) if n > 1 else "true"
             variables.append(Var(press_var, boolean=True))
             cell.define(f"{role.module}.{port}", f"({press_var} ? 1 : 0)", Enum(("0", "1")))
         commands = _walks(cell, person, _paced(cell, person, variables), presses)
@@ -388,7 +420,10 @@ def build_floor(cell: AbstractCell, places: Places) -> None:
         for k, signal in enumerate(person.signals):
             table = {place.index: place.reading[k] for place in person.places}
             encoding = cell.encoding(signal)
-            expr = lookup(var, table, -1) if encoding is not bool else set_of(var, [i for i, v in table.items() if v])
+            if n == 1:  # (Storm folds a variable of one value into a constant, then knows it nowhere: read none)
+                expr = str(table[0]) if encoding is not bool else ("true" if table[0] else "false")
+            else:
+                expr = lookup(var, table, -1) if encoding is not bool else set_of(var, [i for i, v in table.items() if v])
             if signal in sensed:
                 name = f"{signal}.of_{role.module}"
                 per_signal.setdefault(signal, []).append(cell.define(name, expr, encoding))

@@ -122,6 +122,11 @@ class SensedSignal:
     """The reading of several people from each one's alone (nearest, any...), on values in the channel's words
     (a number: in its unit); None: a measurement of each person alone, never combined (only its
     ``<signal>.of_<person>`` formulas are defined, for the module that asked for it)."""
+    cuts: bool = True
+    """Whether the floor is cut where it changes (a sensor's reading: each place reads one value). False: a lower bound
+    of a distance (m) from the person's body, which moves no more than the body does, that cuts nothing; each place
+    reads the least of its poses' values (``Place.least``: where), an over-approximation that adds no state (a
+    contact's clearance)."""
 
 
 @dataclass

@@ -49,6 +49,8 @@ class Replay:
     lag: str = ""
     """How much longer the twin takes to walk the witness than the witness itself does, and where most of it comes
     from (:func:`lag`), in words; empty where it keeps the witness's time."""
+    seen: list = field(default_factory=list, repr=False, compare=False)
+    """Every run made, in order: (shift, scenario, run folder, the conditions it violated)."""
 
 
 class _Replace(dict):
@@ -142,6 +144,8 @@ def _timed(model, checked: Checked, shift: float) -> tuple[list, list[float], li
                 runs.append([place, step, step, pose])
         if checked.prop.final and person.end is not None and runs[-1][0] == person.end:
             runs[-1][3] = person.role.end  # a run that ends as the person's script does: at its very last stop
+        elif path:
+            runs[-1][3] = _last_stop(model, checked, person, runs[-1][0], path[-1]) or runs[-1][3]
         people.append((person, runs))
     clock, legs = [shift], []
     for step in range(1, len(path)):
@@ -155,6 +159,17 @@ def _timed(model, checked: Checked, shift: float) -> tuple[list, list[float], li
                     at = max(at, clock[-1] + took)
         clock.append(at)
     return people, clock, legs
+
+
+def _last_stop(model, checked: Checked, person, place: int, state: dict):
+    """Where a module's abstraction would have the person stand at the witness's last place, for the witness's
+    last ``state`` (its ``witness_pose``: where a contact's bound is least), else None."""
+    for part in getattr(model, "parts", ()):
+        choose = getattr(part, "witness_pose", None)
+        pose = choose(model.cell, checked.prop, person, place, state) if choose is not None else None
+        if pose is not None:
+            return pose
+    return None
 
 
 def _stand_in(person, place: int, here):
@@ -232,24 +247,39 @@ def _merge_missing(document: dict, extra: dict) -> None:
             _merge_missing(mine, value)
 
 
-def replay(model, checked: Checked, out: Path, on_stage=None, at_once: int | None = None) -> Replay:
+def replay(model, checked: Checked, out: Path, on_stage=None, at_once: int | None = None,
+           same: Replay | None = None) -> Replay:
     """Write, simulate and check the witness (then later starts of it) until the twin shows the violation: the
     starts in ``SHIFTS`` order, ``at_once`` of them side by side (default: one per core), the first in that order
     that shows it confirming the witness (a later one run beside it is not counted; its run stays in its
-    folder)."""
+    folder). ``same``: the replay of another condition's witness, the very same path: its runs are judged for this
+    condition too, not run again, and only the starts it did not run are run."""
     from cellsim.verify.isolated import cores, side_by_side
 
     say = on_stage or (lambda text: None)
     outcome = Replay(False, lag=lag(model, checked))
+    done = set()
+    if same is not None and checked.prop.condition is not None:
+        for shift, scenario, run, violated in same.seen:
+            outcome.seen.append((shift, scenario, run, violated))
+            outcome.scenarios.append(scenario)
+            outcome.runs.append(run)
+            outcome.violated = violated
+            done.add(shift)
+            if checked.prop.condition in violated:
+                outcome.confirmed, outcome.shift = True, shift
+                return outcome
     at_once = at_once or cores()
-    for first in range(0, len(SHIFTS), at_once):
+    left = [shift for shift in SHIFTS if shift not in done]
+    for first in range(0, len(left), at_once):
         batch = []
-        for shift in SHIFTS[first:first + at_once]:
+        for shift in left[first:first + at_once]:
             scenario = write_scenario(model, checked, out, shift)
             say(f"twin: simulating {scenario.name}")
             batch.append((shift, scenario, out / "runs" / scenario.stem))
         seen = side_by_side([_twin_run(checked, scenario, run) for _, scenario, run in batch], at_once)
         for (shift, scenario, run), (violated, shows) in zip(batch, seen):
+            outcome.seen.append((shift, scenario, run, violated))
             outcome.scenarios.append(scenario)
             outcome.runs.append(run)
             outcome.violated = violated

@@ -56,17 +56,11 @@ class HarmKind(ModuleKind):
         return harm_findings(name, blackbox, cfg.max_part_speed)
 
     def abstraction(self, abstract, name, cfg):
-        """It only watches: nothing of it enters the abstract cell, and a condition on its channels says why."""
-        from cellsim.verify.model import Observer
+        """Contact, where a condition reads the severity or the clamping: possible wherever an arm's bound distance to a
+        body may be at most 0 (:mod:`cellsim.kinds.harm.abstraction`); nothing else of it."""
+        from cellsim.kinds.harm.abstraction import HarmAbstraction
 
-        class Unmodelled(Observer):
-            def declare(self, cell) -> None:
-                for signal in cell.types:
-                    if signal.startswith(f"{name}."):
-                        cell.unmodelled[signal] = (f"contact is not in the model ({name} only watches); the twin "
-                                                   "judges it in every run (cellsim check, the campaign)")
-
-        return Unmodelled()
+        return HarmAbstraction(abstract, name, cfg)
 
 
 def _limits(sf, name: str, cfg: HarmConfig):
