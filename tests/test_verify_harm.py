@@ -9,12 +9,17 @@ paper's misuse MU) is hit by the arm, and the twin confirms it (tests/test_verif
 
 from __future__ import annotations
 
+import math
+from types import SimpleNamespace
+
 
 import pytest
 
 from cellsim.kinds.harm.abstraction import HarmAbstraction
 from cellsim.scenario import load_scenario
+from cellsim.logic.syntax import NumberDomain, parse, signed_comparisons
 from cellsim.verify.prism import holds
+from cellsim.verify.witness import walk_key
 from cellsim.verify.run import abstract_model
 from conftest import ROOT, WELDING_CELL
 
@@ -70,7 +75,10 @@ def test_a_place_reads_the_least_bound_of_its_poses_and_keeps_where(modelled):
     def measured(pose) -> float:
         inner.set_pose(context, [pose.x, pose.y, pose.yaw, 0.0, 0.0, 0.0, 0.0] if pose.reach is None
                        else [pose.x, pose.y, pose.yaw, 1.0, *pose.reach])
-        return harm.clearance.of(harm.bodies.at(system.query_port.Eval(system.GetMyContextFromRoot(context))))[k]
+        bound = harm.clearance.of(harm.bodies.at(system.query_port.Eval(system.GetMyContextFromRoot(context))))[k]
+        return bound - harm.slack  # (read less half the grid's diagonal: a person between grid points)
+
+    assert harm.slack == pytest.approx(0.1 * math.sqrt(2.0) / 2.0)
 
     for place in person.places:
         pose, least = place.least[signal]
@@ -115,3 +123,38 @@ def test_the_harm_conditions_share_a_model_of_their_own_cone_not_the_mishaps():
     for names, dropped in groups.items():
         if any(n.endswith(":mishap") for n in names):
             assert {"loader_motion", "assembler_motion"} <= set(dropped), names
+
+
+def test_a_comparison_s_polarity_counts_negations_and_implications():
+    voc = {"a": NumberDomain(), "b": NumberDomain()}
+    signs = lambda text: [(c.var, c.op, positive) for c, positive in signed_comparisons(parse(text, voc))]
+    assert signs("G(a <= 1)") == [("a", "<=", True)]
+    assert signs("G(not (a <= 1))") == [("a", "<=", False)]
+    assert signs("G(a > 0.5 -> b <= 1)") == [("a", ">", False), ("b", "<=", True)]
+    assert signs("G(not (a > 0.5 -> b > 1))") == [("a", ">", True), ("b", ">", False)]
+
+
+def test_a_condition_asking_for_a_high_severity_leaves_it_out_of_the_model(tmp_path):
+    """A contact reads as the worst, above every number: sound only where a higher severity makes a condition the
+    likelier to fail. A condition that asks for a high one would hold in the model where the twin's milder contact
+    fails it: the signal is then left out, saying why (NoHarm with it)."""
+    path = tmp_path / "high.yaml"
+    path.write_text(f"base: {WELDING_CELL}\nvalidation:\n  conditions:\n"
+                    "    Hard: 'G(harm.clamping > 0.5 -> harm.severity > 1)'\n")
+    model = abstract_model(load_scenario(path))
+    assert "harm.severity" not in model.cell.signals and "harm.clamping" in model.cell.signals
+    skipped = {s.name: s.reason for s in model.skipped}
+    assert {"Hard", "NoHarm"} <= set(skipped) and "NoClamping" not in skipped
+    assert "ask it to stay below them" in skipped["NoHarm"]
+
+
+def test_two_witnesses_are_replayed_as_one_only_where_they_are_written_as_one(modelled):
+    harm = next(part for part in modelled.parts if isinstance(part, HarmAbstraction))
+    path = [{"tick": 0}, {"tick": 1}]
+    no_harm = next(p for p in modelled.properties if p.name == "NoHarm")
+    no_clamping = next(p for p in modelled.properties if p.name == "NoClamping")
+    final = next(p for p in modelled.properties if p.final)
+    mishap = next(p for p in modelled.properties if p.name == "HRW:mishap")
+    key = lambda prop: walk_key(modelled, SimpleNamespace(prop=prop, witness=path))
+    assert key(no_harm) == key(no_clamping) and harm.chooses_pose_for(no_harm)
+    assert key(no_harm) != key(mishap) != key(final)  # the harm's last stop; a Final's, the script's end

@@ -412,6 +412,25 @@ def numeric_comparisons(formula: Formula) -> Iterator[Compare]:
             yield node
 
 
+def signed_comparisons(formula: Formula, positive: bool = True) -> Iterator[tuple[Compare, bool]]:
+    """The comparisons of a variable with a number in ``formula``, each with its polarity: True where the formula
+    is the likelier to hold the likelier the comparison holds (under an even number of negations, counting the
+    left side of an implication as one), False where the reverse."""
+    if isinstance(formula, Compare):
+        if formula.threshold is not None:
+            yield formula, positive
+        return
+    if isinstance(formula, Not):
+        yield from signed_comparisons(formula.arg, not positive)
+        return
+    if isinstance(formula, Implies):
+        yield from signed_comparisons(formula.lhs, not positive)
+        yield from signed_comparisons(formula.rhs, positive)
+        return
+    for child in formula.children():
+        yield from signed_comparisons(child, positive)
+
+
 class Visitor:
     """A pass that does something different for each operator of the language.
 

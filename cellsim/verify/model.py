@@ -242,6 +242,9 @@ class AbstractCell:
         """Signal read -> who reads it (for errors)."""
         self.required: set[str] = set()
         self.thresholds: dict[str, set[float]] = {}
+        self.signed: dict[str, set[tuple[str, bool]]] = {}
+        """Signal -> how the conditions compare it with numbers: (operator, polarity: whether the condition is the
+        likelier to hold the likelier the comparison holds; ``cellsim.logic.syntax.signed_comparisons``)."""
         self.people: list[PersonRole] = []
         self.sensors: list[SensorRole] = []
         self.assumptions: list[str] = []

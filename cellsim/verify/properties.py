@@ -46,6 +46,7 @@ import re
 from dataclasses import dataclass
 
 from cellsim.logic.syntax import (Always, And, Const, Eventually, FormulaError, Implies, Until, is_temporal, numeric_comparisons,
+                                  signed_comparisons,
                                   parse, variables_of)
 from cellsim.verify.expressions import VerifyError, to_prism
 from cellsim.verify.model import AbstractCell, Property
@@ -132,6 +133,8 @@ class ConditionProperties:
             self.cell.read(channel, by, required=False)
         for node in numeric_comparisons(formula):
             self.cell.compares(self.channel(node.var), [node.value])
+        for node, positive in signed_comparisons(formula):
+            self.cell.signed.setdefault(self.channel(node.var), set()).add((node.op, positive))
 
     def build(self) -> None:
         cell = self.cell

@@ -50,7 +50,7 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
     up replayed on the twin under ``out`` (a refinement's round under ``out/refined-<n>``); the result's
     ``refinements`` lists what was switched on, in order."""
     from cellsim.verify.run import verify
-    from cellsim.verify.witness import replay
+    from cellsim.verify.witness import replay, walk_key
 
     say = on_stage or (lambda text: None)
     done: list[Refinement] = []
@@ -135,14 +135,15 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
         faulted = set() if found is None else {r.prop.name for r in open_ if _faults(result.model, r.witness)}
         to_run = {r.prop.name for r in open_} - faulted
         where = out if not done else out / f"refined-{len(done)}"
-        ran: list = []  # (witness, its replay) of this round: a condition with the very same witness reuses its runs
+        ran: list = []  # (walk, its replay) of this round: a condition whose witness walks the same reuses its runs
         for checked in result.results:
             if checked.prop.name in confirmed:
                 result.replays[checked.prop.name] = confirmed[checked.prop.name][1]
             elif checked.prop.name in to_run:
-                same = next((run for path, run in ran if path == checked.witness), None)
+                walked = walk_key(result.model, checked) if checked.witness else None
+                same = next((run for path, run in ran if walked is not None and path == walked), None)
                 result.replays[checked.prop.name] = replay(result.model, checked, where, on_stage=on_stage, same=same)
-                ran.append((checked.witness, result.replays[checked.prop.name]))
+                ran.append((walked, result.replays[checked.prop.name]))
                 if result.replays[checked.prop.name].confirmed:
                     confirmed[checked.prop.name] = (checked, result.replays[checked.prop.name])
         if found is None:

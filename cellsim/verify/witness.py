@@ -161,6 +161,15 @@ def _timed(model, checked: Checked, shift: float) -> tuple[list, list[float], li
     return people, clock, legs
 
 
+def walk_key(model, checked: Checked) -> tuple:
+    """What decides the walk a witness is replayed as, beyond its path: whether the property is a ``Final`` one (its
+    walk ends at the script's end) and which modules' abstractions choose where it stops (``witness_pose``). Two
+    witnesses with equal keys are written as the same scenario."""
+    choosers = tuple(i for i, part in enumerate(getattr(model, "parts", ()))
+                     if getattr(part, "chooses_pose_for", lambda prop: False)(checked.prop))
+    return checked.witness, bool(getattr(checked.prop, "final", False)), choosers
+
+
 def _last_stop(model, checked: Checked, person, place: int, state: dict):
     """Where a module's abstraction would have the person stand at the witness's last place, for the witness's
     last ``state`` (its ``witness_pose``: where a contact's bound is least), else None."""

@@ -21,6 +21,8 @@ the twin judges that contact itself, its region, kind and speed.
 
 from __future__ import annotations
 
+import math
+
 from cellsim.verify.clearance import BODY_TOLERANCE, TOLERANCE, ArmSweep, BodyCover, Clearance, arm_groups
 from cellsim.verify.expressions import Thresholds, VerifyError
 from cellsim.verify.model import AbstractCell, ModuleAbstraction, SensedSignal, SensorRole, context_of, prism_name
@@ -60,10 +62,15 @@ class HarmAbstraction(ModuleAbstraction):
         arm's groups of stretches' clearance at every pose of the floor (cutting nothing)."""
         read = [f"{self.name}.{s}" for s in JUDGED if f"{self.name}.{s}" in cell.reads]
         for signal in read:
-            if all(t > 0.0 for t in cell.thresholds.get(signal, set())):
+            # a contact reads above every number it is compared with: sound only where a higher value makes the
+            # conditions the likelier to fail (kept below a limit), never where one asks it to be high
+            worse = all((op in ("<", "<=") and positive) or (op in (">", ">=") and not positive)
+                        for op, positive in cell.signed.get(signal, set()))
+            if worse and all(t > 0.0 for t in cell.thresholds.get(signal, set())):
                 self.judged.append(signal)
             else:
-                cell.unmodelled[signal] = "only its comparisons with numbers above 0 are modelled (0: no contact)"
+                cell.unmodelled[signal] = ("only its comparisons with numbers above 0 that ask it to stay below them "
+                                           "are modelled (a contact reads as the worst)")
         if not self.judged:
             return
         from cellsim.kinds.robot.abstraction import RobotAbstraction
@@ -72,8 +79,8 @@ class HarmAbstraction(ModuleAbstraction):
         robots = cell.sf.scenario.modules_of_kind("robot")
         arms = {robot: [(plant.get_body(part.body).name(), inspector.GetShape(g), inspector.GetPoseInFrame(g))
                         for g, part in system.parts.items() if part.robot == robot] for robot in system.robots}
-        key = tuple((robot, repr(robots[robot]), tuple((body, repr(shape), pose.GetAsMatrix34().tobytes())
-                                                       for body, shape, pose in arms[robot])) for robot in arms)
+        key = (repr(cell.sf.scenario.layout), *((robot, repr(robots[robot]), tuple(
+            (body, repr(shape), pose.GetAsMatrix34().tobytes()) for body, shape, pose in arms[robot])) for robot in arms))
         built = _BUILT.get(key)
         if built is None:  # (the same in every round of a verify: its cell's arms do not change)
             groups = []
@@ -101,11 +108,14 @@ class HarmAbstraction(ModuleAbstraction):
         self.groups = groups
         self.clearance, self.bodies = clearance, bodies  # (kept for the tests that hold the bounds to SceneGraph's)
         of = context_of(system)
+        # a person between grid points stands up to half the grid's diagonal nearer than the nearest of them: the
+        # bound is read that much less (it moves no more than the body does), so a contact there is in the model too
+        self.slack = max(p.step for p in cell.people) * math.sqrt(2.0) / 2.0 if cell.people else 0.0
         signals = {}
         for k in range(len(clouds)):
             port = f"contact{k}"
             cell.internal[f"{self.name}.{port}"] = Thresholds((0.0,))
-            signals[port] = SensedSignal(lambda distances, k=k: distances[k], None, cuts=False)
+            signals[port] = SensedSignal(lambda distances, k=k: distances[k] - self.slack, None, cuts=False)
             cell.read(f"{self.name}.{port}", self.name, required=False)  # (its .of_<person> formulas are read)
         cell.add_sensor(SensorRole(self.name, signals, measure=lambda root: clearance.of(
             bodies.at(system.query_port.Eval(of(root))))))
@@ -138,20 +148,25 @@ class HarmAbstraction(ModuleAbstraction):
             cell.define(signal, f"(({contact}) ? {top} : 0)", encoding, firm=f"(({firm}) ? {top} : 0)")
         robots = ", ".join(robot for robot, _ in self.groups)
         cell.assume(
-            f"{self.name}: a part of {robots} may touch a person in a place if it may at one of the place's grid poses: "
-            f"the arm's shapes and each body region covered by spheres (reaching at most {TOLERANCE:g} m and "
-            f"{BODY_TOLERANCE:g} m beyond them), the arm anywhere between the samples of its moves, or anywhere within "
-            "its reach on a path not modelled (a person between two grid poses, or turned between two of its four "
-            "headings, or partly reached out, may stand nearer). Any such contact is taken as harm and as clamping: "
+            f"{self.name}: a part of {robots} may touch a person in a place if it may at one of the place's grid poses "
+            f"or within {self.slack:.3g} m of one (half the grid's diagonal): the arm's shapes and each body region "
+            f"covered by spheres (reaching at most {TOLERANCE:g} m and {BODY_TOLERANCE:g} m beyond them), the arm "
+            "anywhere between the samples of its moves, or anywhere within its reach on a path not modelled (a person "
+            "turned between two of its four headings, or partly reached out, may stand nearer). Any such contact is "
+            "taken as harm and as clamping: "
             "the model tells neither the region touched nor the speed along the push (a head's contact is harm at any "
             "speed; a person walking into a still arm exceeds every other region's permissible speed in the shipped "
             "table); the twin judges each witness's contact, the person standing where the bound is least")
+
+    def chooses_pose_for(self, prop) -> bool:
+        """Whether ``prop`` reads this service's contact (its witness's last stop is then :meth:`witness_pose`'s)."""
+        return self.groups is not None and any(prism_name(s) in (getattr(prop, "bad", "") or "") for s in self.judged)
 
     def witness_pose(self, cell: AbstractCell, prop, person, place: int, state: dict):
         """Where ``person`` (``PersonPlaces``) should stand in ``place``, the last of a witness of ``prop`` ending in
         ``state``: where the bound to a stretch the arm ends on is least, if that may touch and ``prop`` reads this
         service's contact; else None (the replay's own choice)."""
-        if self.groups is None or not any(prism_name(s) in (getattr(prop, "bad", "") or "") for s in self.judged):
+        if not self.chooses_pose_for(prop):
             return None
         there = person.at(place)
         best = None
@@ -161,7 +176,7 @@ class HarmAbstraction(ModuleAbstraction):
                 continue
             try:
                 on = holds(group.guard, state)
-            except KeyError:  # the arm outside the property's cone: it may be anywhere
+            except (KeyError, ValueError):  # the arm outside the property's cone (or a guard not read): anywhere
                 on = True
             if on and (best is None or found[1] < best[1]):
                 best = found
