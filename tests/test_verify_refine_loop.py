@@ -303,3 +303,27 @@ def test_a_refinement_sized_by_building_its_round_is_checked_in_that_build_unles
     result = refine.verify_with_twin(None, tmp_path, budget=3)
     assert [r.key for r in result.refinements] == ["operator:pace"]
     assert replays == [("verify", 0, ("A",)), ("sized", 1), (1, "A", 0), ("verify", 1, ())]
+
+
+class Unrefined:
+    """A module's abstraction saying no refinement helps the witnesses of property ``H`` (as the harm service's)."""
+
+    def leaves_unrefined(self, prop):
+        return "no refinement tightens H" if prop.name == "H" else None
+
+
+def test_a_witness_no_refinement_helps_is_run_as_it_is_and_its_ending_says_why(monkeypatch, tmp_path):
+    """A witness the pace faults, of a property a module says no refinement helps (the harm conditions': their bound's
+    looseness no refinement tightens): the loop refines nothing for it and runs it on the twin; refuted, its
+    ending names the module's reason. The same witness of another property is refined."""
+    replays = scripted(monkeypatch, {frozenset(): {"H": "fast"}, PACE: {"H": "fast"}}, confirms=set(),
+                       parts=[Pace(), Unrefined()])
+    said = []
+    result = refine.verify_with_twin(None, tmp_path, budget=3, on_stage=said.append)
+    assert result.refinements == [] and replays == [("verify", 0, ("H",)), (0, "H")]
+    (final,) = result.endings()
+    assert final.ending is Ending.UNDECIDED and "no refinement tightens H" in final.reason
+    assert "nothing refined: no refinement tightens H" in said
+    replays = scripted(monkeypatch, {frozenset(): {"A": "fast"}, PACE: {"A": None}}, confirms=set(),
+                       parts=[Pace(), Unrefined()])
+    assert [r.key for r in refine.verify_with_twin(None, tmp_path, budget=3).refinements] == ["operator:pace"]

@@ -527,6 +527,11 @@ class ModuleAbstraction:
         (nothing of this module's). ``witness``: the model's variables at each step."""
         return None
 
+    def leaves_unrefined(self, prop) -> str | None:
+        """Why a refuted witness of ``prop`` should refine nothing (no refinement of any module tightens what makes
+        this module's reading of it coarse), in words; None (the default): the loop refines as the modules offer."""
+        return None
+
     def timed(self, cell: AbstractCell) -> bool:
         """Whether this module's own durations (a move, a dwell, a cycle) are bounded below in the model: in every
         module (``--timed``), or in this one, refined (``<module>:timed``) where a witness was faster than it."""

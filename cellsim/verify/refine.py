@@ -87,8 +87,9 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
         once = once or {r.prop.name: r for r in result.results if r.prop.within is not None}
         grown_from = max(grown_from or 0, (result.largest or result.stats).states)
         open_ = _witnessed(result, done, confirmed)
+        refinable = _refinable(result.model, open_)
         found = None
-        for tried, candidate in enumerate(_refinements(result.model, open_, len(done) + 1) if len(done) < budget else ()):
+        for tried, candidate in enumerate(_refinements(result.model, refinable, len(done) + 1) if len(done) < budget else ()):
             if tried == TRIES:
                 break
             could, built, exact = _could_reach(sf, result, timed, [*(r.key for r in done), candidate.key], measured)
@@ -115,7 +116,7 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
             # a refinement that grows the model this much costs more than running the witnesses it would take up on
             # the twin: they run first, and the twin confirming every one leaves it nothing to do
             where = out if not done else out / f"refined-{len(done)}"
-            trial = [r for r in open_ if _faults(result.model, r.witness)]
+            trial = [r for r in refinable if _faults(result.model, r.witness)]
             tried_first = {r.prop.name: replay(result.model, r, where, on_stage=on_stage) for r in trial}
             if trial and all(run.confirmed for run in tried_first.values()):
                 confirmed.update((r.prop.name, (r, tried_first[r.prop.name])) for r in trial)
@@ -131,8 +132,9 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
                             grown_from=grown_from, measured=measured, growth_seen=growth)
             result.not_refined = not_refined
             open_ = _witnessed(result, done, confirmed)
+            refinable = _refinable(result.model, open_)
         # the witnesses the refinement takes up are not run: the refined model checks their properties again
-        faulted = set() if found is None else {r.prop.name for r in open_ if _faults(result.model, r.witness)}
+        faulted = set() if found is None else {r.prop.name for r in refinable if _faults(result.model, r.witness)}
         to_run = {r.prop.name for r in open_} - faulted
         where = out if not done else out / f"refined-{len(done)}"
         ran: list = []  # (walk, its replay) of this round: a condition whose witness walks the same reuses its runs
@@ -154,8 +156,15 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
 
             _run_skipped(result, skipped, waited, confirmed, rebuild, on_stage)
             refuted = any(not result.replays[name].confirmed for name in to_run)
-            if refuted and len(done) >= budget:
-                offered = next(iter(_refinements(result.model, open_, len(done) + 1)), None)
+            kept = {r.prop.name for r in refinable}
+            if refuted and not any(not result.replays[name].confirmed for name in to_run & kept):
+                # only witnesses no refinement helps were refuted: say why, in their reasons
+                why = {reason for r in open_ if r.prop.name in to_run - kept for part in result.model.parts
+                       if (reason := getattr(part, "leaves_unrefined", lambda prop: None)(r.prop))}
+                result.not_refined = "; ".join(filter(None, (result.not_refined, *sorted(why))))
+                say(f"nothing refined: {'; '.join(sorted(why))}")
+            elif refuted and len(done) >= budget:
+                offered = next(iter(_refinements(result.model, refinable, len(done) + 1)), None)
                 if offered is not None:  # what blocks the verdict is the budget: say what it would refine next
                     spent = f"the refinement budget (--refine {budget}) is spent: {offered.key} was next ({offered.why})"
                     result.not_refined = "; ".join(filter(None, (result.not_refined, spent)))
@@ -226,6 +235,13 @@ def _witnessed(result, done: list, confirmed: dict) -> list:
     result.results = [confirmed[r.prop.name][0] if r.prop.name in confirmed else r for r in result.results]
     return [r for r in result.results if r.prop.name not in confirmed and r.witness is not None
             and r.prop.within is None]
+
+
+def _refinable(model, witnessed: list) -> list:
+    """The witnessed properties a refinement may be asked for: not those a module says no refinement helps
+    (``ModuleAbstraction.leaves_unrefined``); their witnesses are run on the twin as they are."""
+    return [r for r in witnessed
+            if not any(getattr(part, "leaves_unrefined", lambda prop: None)(r.prop) for part in model.parts)]
 
 
 def _could_reach(sf, result, timed: bool, keys: list[str], measured: dict | None = None):
