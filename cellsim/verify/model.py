@@ -527,6 +527,17 @@ class ModuleAbstraction:
         (nothing of this module's). ``witness``: the model's variables at each step."""
         return None
 
+    def chooses_pose_for(self, prop) -> bool:
+        """Whether this module says where a witness of ``prop`` leaves its people (:meth:`witness_pose`): a replay
+        of another property's witness on the same path is then not this one's (``cellsim.verify.witness.walk_key``)."""
+        return False
+
+    def witness_pose(self, cell: "AbstractCell", prop, person, place: int, state: dict):
+        """Where ``person`` (``PersonPlaces``) should stand in ``place``, the last of a witness of ``prop`` ending in
+        the model's ``state``, for the twin to show what the model found there; None (the default): the replay's
+        own choice (the place's inner pose nearest the last stop)."""
+        return None
+
     def leaves_unrefined(self, prop) -> str | None:
         """Why a refuted witness of ``prop`` should refine nothing (no refinement of any module tightens what makes
         this module's reading of it coarse), in words; None (the default): the loop refines as the modules offer."""
