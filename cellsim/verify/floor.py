@@ -176,9 +176,12 @@ def _inherit(person: PersonRole, todo: list[Pose], signals: list[str], known: di
         if None in readings or len({tuple(values[i] for i in kept) for values in readings}) != 1:
             left.append(pose)
             continue
-        apart = [math.hypot(pose.x - x, pose.y - y) for x, y in points]
-        values = [max(r[i] - d for r, d in zip(readings, apart)) if s in loose else readings[0][i]
-                  for i, s in enumerate(signals)]
+        if loose:
+            apart = [math.hypot(pose.x - x, pose.y - y) for x, y in points]
+            values = [max(r[i] - d for r, d in zip(readings, apart)) if s in loose else readings[0][i]
+                      for i, s in enumerate(signals)]
+        else:
+            values = readings[0]
         known.update(((module, s, pose), value) for s, value in zip(signals, values))
     return left
 

@@ -104,7 +104,6 @@ class HarmAbstraction(ModuleAbstraction):
             bodies = BodyCover(inspector, list(system.bodies))
         except ValueError as e:
             raise VerifyError(f"{self.name}: contact cannot be bounded: {e}") from None
-        clouds = [group.spheres for _, found in groups for group in found]
         self.groups = groups
         self.clearance, self.bodies = clearance, bodies  # (kept for the tests that hold the bounds to SceneGraph's)
         of = context_of(system)
@@ -112,7 +111,7 @@ class HarmAbstraction(ModuleAbstraction):
         # bound is read that much less (it moves no more than the body does), so a contact there is in the model too
         self.slack = max(p.step for p in cell.people) * math.sqrt(2.0) / 2.0 if cell.people else 0.0
         signals = {}
-        for k in range(len(clouds)):
+        for k, _, _ in self._contacts():
             port = f"contact{k}"
             cell.internal[f"{self.name}.{port}"] = Thresholds((0.0,))
             signals[port] = SensedSignal(lambda distances, k=k: distances[k] - self.slack, None, cuts=False)
