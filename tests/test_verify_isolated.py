@@ -55,18 +55,27 @@ def test_side_by_side_gives_results_in_order_and_runs_them_at_once():
     os.close(write)
 
 
-def test_an_error_in_one_of_a_batch_is_raised_and_leaves_no_child_running():
+def test_an_error_in_one_of_a_batch_is_raised_and_leaves_no_child_running(tmp_path):
+    """The batch's error is raised as soon as the failing child has ended: the child still at work is stopped, not
+    waited out (it would have left its mark after a minute), and work not yet started is never started."""
+    finished, started = tmp_path / "finished", tmp_path / "started"
+
     def fails(say):
         raise RuntimeError("this replay failed")
 
     def sleeps(say):
         import time
         time.sleep(60)  # noqa - stands for a long simulation: it must be stopped, not waited for
+        finished.write_text("waited out")
+
+    def later(say):
+        started.write_text("started")
 
     before = _children()
     with pytest.raises(RuntimeError, match="this replay failed"):
-        side_by_side([fails, sleeps], at_once=2)
+        side_by_side([fails, sleeps, later], at_once=2)
     assert _children() == before
+    assert not finished.exists() and not started.exists()
 
 
 def _children() -> set[str]:

@@ -52,7 +52,9 @@ def in_own_process(work, say=None):
 
 def side_by_side(works: list, at_once: int | None = None) -> list:
     """Each ``work(say)`` of ``works`` in a forked child of its own, at most ``at_once`` at a time (default: the
-    cores this process may use); their results in order (the first error raised, once every child has ended)."""
+    cores this process may use); their results in order. The first error a child gives (in the order of ``works``)
+    is raised once that child has ended, the children still at work stopped (as an interrupt stops them), the work
+    not yet started never started: a batch that has failed is not waited out."""
     if not hasattr(os, "fork") or len(works) < 2:
         return [work(lambda text: None) for work in works]
     return _side_by_side(works, at_once or cores())
@@ -74,6 +76,8 @@ def _side_by_side(works: list, at_once: int, say=None) -> list:
                     unreaped.append(waiting[-1][0])
             while waiting:
                 outcomes.append(_collect(waiting.pop(0), say if not outcomes else None, unreaped))
+                if outcomes[-1][0] != "result":
+                    _result(outcomes[-1])  # raised now: the children still at work are stopped below, not waited for
         except BaseException:
             with _signals_held():  # the clean-up runs to its end (its wait alone can be cut short)
                 for _, readable in waiting:
