@@ -658,7 +658,7 @@ def runs_needed(probability: float, confidence: float | None = None) -> int:
 
 def verify_cell(scenario: ScenarioFile | str | os.PathLike, *, export: str | os.PathLike | None = None,
                 timed: bool = False, replay_in: str | os.PathLike | None = None, refine: int | None = None,
-                progress: Callable[[str], None] | None = None) -> "Verification":
+                progress: Callable[[str], None] | None = None, only: Sequence[str] = ()) -> "Verification":
     """Model-check the scenario's abstraction with Storm, as ``cellsim verify`` does: ``result.results`` holds
     each property's value, whether it holds in the abstraction, and a witness path where it does not;
     ``result.endings()`` each property's final verdict (holds; violated: a witness the twin confirms; undecided,
@@ -666,8 +666,10 @@ def verify_cell(scenario: ScenarioFile | str | os.PathLike, *, export: str | os.
     ``export``: also write the PRISM model to that file (and its properties beside it, with ``.props``). ``replay_in``: refine the abstraction where a
     witness does what a module cannot and check again, at most ``refine`` times (default 3;
     ``result.refinements`` lists them), and replay every other witness in the twin, writing its runs in that folder
-    (``result.replays[name]``). ``progress(stage)`` as each stage starts. Raises VerifyError for a
-    scenario the abstraction cannot take."""
+    (``result.replays[name]``). ``progress(stage)`` as each stage starts. ``only``: name patterns (shell-style,
+    ``"HS:*"``) of the properties to check, none: every one (the others are not modelled at all;
+    ``result.model.unasked`` names them). Raises VerifyError for a scenario the abstraction cannot take, or a
+    pattern that names none of its properties."""
     from cellsim.verify.refine import DEFAULT_BUDGET, verify_with_twin
     from cellsim.verify.run import export_paths, verify
 
@@ -675,13 +677,13 @@ def verify_cell(scenario: ScenarioFile | str | os.PathLike, *, export: str | os.
     if export is not None:
         export_paths(export, sf)  # refused before anything is built: over an input, or the model over its props
     if replay_in is None:
-        return verify(sf, export=export, timed=timed, on_stage=progress)
+        return verify(sf, export=export, timed=timed, on_stage=progress, only=tuple(only))
     if sf.built_in_code:
         raise ConfigError(sf.source, None, "", "a witness is replayed as a scenario over the verified one's file: "
                           "save it first (cellsim.save_scenario) and give that file")
     _refuse_edited(sf, "a witness is replayed as a scenario over its file")
     return verify_with_twin(sf, Path(replay_in), budget=DEFAULT_BUDGET if refine is None else refine, timed=timed,
-                            export=export, on_stage=progress)
+                            export=export, on_stage=progress, only=tuple(only))
 
 
 def __dir__() -> list[str]:

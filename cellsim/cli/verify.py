@@ -35,6 +35,10 @@ def add_parser(subparsers) -> None:
                         "a place faster than it walks...), refine the abstraction there and check again instead of "
                         "running that witness on the twin, at most N times (default 3, at most 20; 0: never). It "
                         "needs the replays: --no-replay refines nothing, and refuses a --refine above 0")
+    p.add_argument("--only", action="append", default=[], metavar="NAME",
+                   help="check only the properties named like NAME (shell-style: 'HS:*', 'NoHarm'; repeatable); the "
+                        "others are not modelled at all, so the model is built for these alone (a condition that "
+                        "names no property is an error listing them). The exit code then speaks for these only")
     p.add_argument("--json", action="store_true", help="print the results as JSON on standard output")
     _add_set(p)
     p.set_defaults(handler=run)
@@ -63,7 +67,7 @@ def run(args) -> int:
 
     try:
         result = api.verify_cell(sf, export=args.export, timed=args.timed, replay_in=out if args.replay else None,
-                                 refine=args.refine, progress=say)
+                                 refine=args.refine, progress=say, only=args.only)
     except api.VerifyError as e:
         raise InputError(f"{args.scenario}: {e}") from None
     replays = result.replays
@@ -107,6 +111,7 @@ def _json(result, replays) -> dict:
             for r in result.results
         ],
         "not_checked": [{"name": s.name, "reason": s.reason} for s in result.model.skipped],
+        "not_asked": list(result.model.unasked),
     }
 
 
@@ -155,6 +160,8 @@ def _print(result, replays, export) -> None:
             console.print(f"  undecided: {escape(f.name)}: {escape(f.reason)}")
     for s in model.skipped:
         console.print(f"  not checked: {escape(s.name)}: {escape(s.reason)}")
+    if model.unasked:
+        console.print(f"  not asked for (--only): {escape(', '.join(model.unasked))}")
     times = result.times
     how = [*(["built state by state"] if stats.by_state else []), *(["made sparse"] if stats.made_sparse else []),
            *(["sought with people held, its own model too large to make sparse"] if stats.symbolic else [])]

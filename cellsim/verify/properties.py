@@ -79,8 +79,11 @@ class Candidate:
 class ConditionProperties:
     """Round 1: read what the conditions read; round 2: their properties (or why not)."""
 
-    def __init__(self, cell: AbstractCell, case, validation):
+    def __init__(self, cell: AbstractCell, case, validation, asked=None):
         self.cell, self.case, self.validation = cell, case, validation
+        self.asked = asked or (lambda name: True)
+        """Whether a property of this name is asked for (``verify --only``); the others are not declared."""
+        self.unasked: list[str] = []
         self.aliases = dict(validation.variables)
         self.candidates: list[Candidate] = []
         self.skipped: list[Skipped] = []
@@ -95,6 +98,9 @@ class ConditionProperties:
         from cellsim.config.validation import description_of
 
         for name, formula in self.case.conditions.items():
+            if not self.asked(name):  # (what it reads is not read for it: no floor cut, no signal measured)
+                self.unasked.append(name)
+                continue
             description = description_of(self.validation.conditions[name])
             shape = _shape(formula)
             if isinstance(shape, str):
@@ -110,6 +116,9 @@ class ConditionProperties:
             self.candidates.append(Candidate(name, description or str(name), kind, parts, variables))
             self._reads(formula, variables, f"condition {name}")
         for name, entry in getattr(self.validation, "verify", {}).items():
+            if not self.asked(name):
+                self.unasked.append(name)
+                continue
             self.user.append((name, entry if isinstance(entry, str) else entry.formula,
                               "" if isinstance(entry, str) else entry.description))
 

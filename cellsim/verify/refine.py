@@ -45,10 +45,10 @@ class Refinement:
 
 
 def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool = False, export: Path | None = None,
-                     on_stage=None):
+                     on_stage=None, only: tuple[str, ...] = ()):
     """:func:`cellsim.verify.run.verify`, refined as the module docstring says and each witness no refinement takes
     up replayed on the twin under ``out`` (a refinement's round under ``out/refined-<n>``); the result's
-    ``refinements`` lists what was switched on, in order."""
+    ``refinements`` lists what was switched on, in order. ``only``: the properties asked for (every round's)."""
     from cellsim.verify.run import verify
     from cellsim.verify.witness import replay, walk_key
 
@@ -80,8 +80,9 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
             result = ahead[2]  # built to size its refinement, and checked: nothing has changed since
         else:
             enough, before = terms(len(done))
-            result = verify(sf, export=export, timed=timed, refinements=keys, on_stage=on_stage, checked_before=before,
-                            model=built, enough=enough, grown_from=grown_from, measured=measured, growth_seen=growth)
+            result = verify(sf, only=only, export=export, timed=timed, refinements=keys, on_stage=on_stage,
+                            checked_before=before, model=built, enough=enough, grown_from=grown_from, measured=measured,
+                            growth_seen=growth)
         ahead = None
         growth.update(result.growth)
         once = once or {r.prop.name: r for r in result.results if r.prop.within is not None}
@@ -92,7 +93,8 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
         for tried, candidate in enumerate(_refinements(result.model, refinable, len(done) + 1) if len(done) < budget else ()):
             if tried == TRIES:
                 break
-            could, built, exact = _could_reach(sf, result, timed, [*(r.key for r in done), candidate.key], measured)
+            could, built, exact = _could_reach(sf, result, timed, [*(r.key for r in done), candidate.key], measured,
+                                               only)
             if could <= STATE_BUDGET:
                 found = candidate
                 break
@@ -105,7 +107,7 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
             # where it is not costly after all (the next round, then built once), else left for after the replays
             say(f"refinement {found.step}: building the model with {found.key} to size it")
             enough, before = terms(len(done) + 1)
-            sized = verify(sf, export=export, timed=timed, refinements=keys | {found.key}, on_stage=on_stage,
+            sized = verify(sf, only=only, export=export, timed=timed, refinements=keys | {found.key}, on_stage=on_stage,
                            checked_before=before, model=built, enough=enough, grown_from=grown_from, measured=measured,
                            growth_seen=growth, costly_above=COSTLY_GROWTH * grown_from)
             could = sized.stats.states
@@ -127,7 +129,7 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
             result.not_refined = ""
         if found is None and any(r.deferred for r in result.results):  # the last round after all: build them
             not_refined = result.not_refined
-            result = verify(sf, export=export, timed=timed, refinements=keys, on_stage=on_stage,
+            result = verify(sf, only=only, export=export, timed=timed, refinements=keys, on_stage=on_stage,
                             checked_before={r.prop.name: r for r in result.results if not r.deferred},
                             grown_from=grown_from, measured=measured, growth_seen=growth)
             result.not_refined = not_refined
@@ -151,7 +153,7 @@ def verify_with_twin(sf, out: Path, *, budget: int = DEFAULT_BUDGET, timed: bool
         if found is None:
             def rebuild(keys, names):  # the deferred properties' witnesses, in the model of the round they waited in
                 others = {r.prop.name: r for r in result.results if r.prop.name not in names}
-                return verify(sf, timed=timed, refinements=keys, on_stage=on_stage, checked_before=others,
+                return verify(sf, only=only, timed=timed, refinements=keys, on_stage=on_stage, checked_before=others,
                               grown_from=grown_from, measured=measured, growth_seen=growth)
 
             _run_skipped(result, skipped, waited, confirmed, rebuild, on_stage)
@@ -244,14 +246,14 @@ def _refinable(model, witnessed: list) -> list:
             if not any(getattr(part, "leaves_unrefined", lambda prop: None)(r.prop) for part in model.parts)]
 
 
-def _could_reach(sf, result, timed: bool, keys: list[str], measured: dict | None = None):
+def _could_reach(sf, result, timed: bool, keys: list[str], measured: dict | None = None, only: tuple[str, ...] = ()):
     """(States the model with refinements ``keys`` could reach: the largest model checked so far, times how much the
     refinement widens its variables' ranges (the product of their numbers of values), a quick upper bound; where that
     is over the budget, the states the refined cell really reaches (:func:`_reached`); that model, to check next;
     whether the states are those it reaches, not the bound)."""
     from cellsim.verify.run import abstract_model
 
-    refined = abstract_model(sf, timed=timed, refinements=frozenset(keys), measured=measured)
+    refined = abstract_model(sf, timed=timed, refinements=frozenset(keys), measured=measured, only=only)
     largest = (result.refinable or result.largest or result.stats).states
     could = largest * refined.bound() / max(result.model.bound(), 1.0)
     if could <= STATE_BUDGET:

@@ -39,6 +39,8 @@ class AbstractModel:
     header: str = ""
     parts: list = field(default_factory=list)
     """Each module's abstraction (:class:`cellsim.verify.model.ModuleAbstraction`): who can refine what."""
+    unasked: list[str] = field(default_factory=list)
+    """The properties the cell has that ``only`` did not ask for (:func:`abstract_model`): neither built nor checked."""
 
     def groups(self) -> list[tuple[list[Property], Program, list[str]]]:
         """The properties by the model they are checked in, its program and the modules it leaves out: the cell with
@@ -231,9 +233,12 @@ def twin_mode_assumptions(configs: dict) -> list[str]:
 
 
 def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset = frozenset(),
-                   measured: dict | None = None) -> AbstractModel:
+                   measured: dict | None = None, only: tuple[str, ...] = ()) -> AbstractModel:
     """The abstract model of the scenario's cell (its diagram built once, without recording); ``measured``: what an
-    earlier model of it read on the floor, kept and added to (:func:`cellsim.verify.floor.cut_floor`)."""
+    earlier model of it read on the floor, kept and added to (:func:`cellsim.verify.floor.cut_floor`); ``only``:
+    name patterns (shell-style, ``HS:*``) of the properties to model and check, none: every one. A property not
+    asked for is not in the model at all (what only it reads is neither measured nor cut); a pattern that names no
+    property of the cell is a VerifyError naming the cell's properties."""
     from cellsim.diagrams.cell import build_cell
     from cellsim.validation.check import cell_safety_case
 
@@ -257,7 +262,9 @@ def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset
             raise VerifyError(f"kind '{kind.name}' (module '{name}') offers no abstraction: verify cannot model it")
         parts.append(part)
     case = cell_safety_case(sf, cell) if scenario.validation.conditions or scenario.validation.verify else None
-    conditions = ConditionProperties(abstract, case, case.validation) if case is not None else None  # with the default ones
+    asked = _asked(only)
+    conditions = (ConditionProperties(abstract, case, case.validation, asked) if case is not None
+                  else None)  # with the default ones
     for part in parts:
         part.declare(abstract)
     if conditions is not None:
@@ -284,6 +291,9 @@ def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset
         properties = list(abstract.properties)
         skipped = conditions.skipped
         properties += conditions.user_properties(*_vocabulary(sf, cell))
+    unasked = [p.name for p in properties if not asked(p.name)] + (conditions.unasked if conditions else [])
+    properties = [p for p in properties if asked(p.name)]
+    _every_pattern_names_one(only, [p.name for p in properties] + [s.name for s in skipped] + unasked)
     labels = {}
     for i, prop in enumerate(properties):
         if prop.bad:
@@ -304,7 +314,24 @@ def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset
               f"One step is one period of {period:g} s. Assumptions:\n" + "\n".join(f"- {a}" for a in abstract.assumptions))
     text = abstract.program(header).text()
     times["model"] = time.perf_counter() - mark
-    return AbstractModel(abstract, text, properties, skipped, labels, times, header, parts)
+    return AbstractModel(abstract, text, properties, skipped, labels, times, header, parts, unasked)
+
+
+def _asked(only: tuple[str, ...]):
+    """Whether a property's name is one ``only``'s patterns ask for (every name, where there are none)."""
+    from fnmatch import fnmatchcase
+
+    return lambda name: not only or any(fnmatchcase(name, pattern) for pattern in only)
+
+
+def _every_pattern_names_one(only: tuple[str, ...], names: list[str]) -> None:
+    """A VerifyError for the first pattern of ``only`` that names none of the cell's properties ``names``."""
+    from fnmatch import fnmatchcase
+
+    for pattern in only:
+        if not any(fnmatchcase(name, pattern) for name in names):
+            raise VerifyError(f"--only {pattern}: no property of this cell is named like it; its properties: "
+                              + ", ".join(names))
 
 
 AT_THE_END_WAYS = 64
@@ -366,7 +393,8 @@ def _safe(name: str) -> str:
 def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: frozenset = frozenset(),
            on_stage=None, checked_before: dict | None = None, model: AbstractModel | None = None,
            enough=None, grown_from: int | None = None, measured: dict | None = None,
-           growth_seen: dict | None = None, costly_above: float | None = None) -> Verification:
+           growth_seen: dict | None = None, costly_above: float | None = None,
+           only: tuple[str, ...] = ()) -> Verification:
     """Build and check the abstract model; ``export``: also write it there (and its .props beside it);
     ``refinements``: the modules' refinements to switch on (:class:`cellsim.verify.model.AbstractCell`);
     ``checked_before``: property name -> its result from an earlier round, taken as it is (a refinement round's
@@ -381,12 +409,13 @@ def verify(sf, *, export: Path | None = None, timed: bool = False, refinements: 
     ``Verification.growth``, which decides how a group's own model is built (:data:`SEEN_MARGIN`); ``costly_above``:
     stop once the whole cell is built if it has more states than this, nothing checked (``Verification.costly``: a
     refinement sized by building its round, :func:`cellsim.verify.refine.verify_with_twin`); the model keeps its
-    properties, to be checked by a later call (whose ``checked_before`` holds at least these)."""
+    properties, to be checked by a later call (whose ``checked_before`` holds at least these); ``only``: the
+    properties asked for, as :func:`abstract_model` says."""
     leave_out = frozenset(checked_before or ())
     say = on_stage or (lambda text: None)
     say("building the abstract model")
     if model is None or model.cell.refinements != frozenset(refinements) or model.cell.timed != timed:
-        model = abstract_model(sf, timed=timed, refinements=refinements, measured=measured)
+        model = abstract_model(sf, timed=timed, refinements=refinements, measured=measured, only=only)
     if export is not None and model.properties:  # every property (this round's model), before any is left out
         write_export(model, export)
     taken: list = []  # what leaving them out took from the model (put back where it keeps every property)
