@@ -336,7 +336,8 @@ def test_cmaes_searches_a_space_of_one_configuration_point_and_finds_a_default_c
     standoff cell's zone nearest the bench (y above about -1.86 m) violates TrueSSM, a default condition nobody
     wrote in the scenario, and the search climbs the true margin to it."""
     done = _cellsim("falsify", ROOT / "scenarios" / "machine_tending_standoff.yaml", "--condition", "TrueSSM",
-                    "--method", "cmaes", "--budget", "40", "--seed", "1", "--jobs", "2", "--out", tmp_path / "f")
+                    "--method", "cmaes", "--budget", "40", "--seed", "1", "--jobs", "2", "--duration", "10",
+                    "--out", tmp_path / "f")  # (the zone is reached at about 4.3 s)
     assert done.returncode == 1, done.stderr
     results = json.loads((tmp_path / "f" / "results.json").read_text())
     found = results["search"]["runs_to_first_violation"]

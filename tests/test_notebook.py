@@ -40,6 +40,6 @@ def test_the_notebook_runs_in_a_fresh_kernel_and_shows_its_findings(tmp_path):
     text = "\n".join(texts)
     assert "'NoHarm': 'holds'" in text  # the one run's verdicts
     assert "StopsWhenClose: violated at" in text and "robot.safety_mode stayed normal" in text
-    assert "50 runs," in text and "at 95 % confidence" in text
+    assert "20 runs," in text and "at 95 % confidence" in text
     # three figures (the run's trace, the sweep, the campaign's verdicts), each a real PNG
     assert len(images) == 3 and all(png.startswith(b"\x89PNG") and len(png) > 10_000 for png in images)
