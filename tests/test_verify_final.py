@@ -40,7 +40,7 @@ def test_a_final_condition_is_judged_where_the_people_s_scripts_leave_them(tmp_p
     scenario = _final_cell(tmp_path)
     export = tmp_path / "final.prism"
     done = _verify(str(scenario), "--json", "--no-replay", "--refine", "0", "--export", str(export),
-                   "--out", str(tmp_path / "out"))
+                   "--out", str(tmp_path / "out"), "--only", "Final:*")
     result = json.loads(done.stdout)
     by_name = {p["name"]: p for p in result["properties"]}
     assert not {s["name"] for s in result["not_checked"]} & set(CONDITIONS)
@@ -64,7 +64,7 @@ def test_a_final_condition_is_judged_where_the_people_s_scripts_leave_them(tmp_p
         assert value == by_name[name]["value"], name
 
     sf = load_scenario(scenario)
-    abstract = abstract_model(sf)
+    abstract = abstract_model(sf, only=("Final:*",))  # (the model verify exported: its labels)
     (person,) = abstract.cell.places.people
     end = abstract.cell.places.people[0].at(person.end)
     assert any(abs(p.x + 3.5) < 1e-9 and abs(p.y - 2.0) < 1e-9 for p in end.poses)
@@ -83,7 +83,8 @@ def test_a_final_condition_is_judged_where_the_people_s_scripts_leave_them(tmp_p
 def test_a_run_that_may_end_before_the_script_is_over_ends_anywhere_and_the_twin_shows_it(tmp_path):
     """8 s runs: the operator is still at the bench when the run ends. Both conditions are violated in the model, and
     the twin's run of each witness ends so."""
-    done = _verify(str(_final_cell(tmp_path, duration=8.0)), "--json", "--refine", "0", "--out", str(tmp_path / "out"))
+    done = _verify(str(_final_cell(tmp_path, duration=8.0)), "--json", "--refine", "0", "--out", str(tmp_path / "out"),
+                   "--only", "Final:*")
     assert done.returncode == 1, done.stderr
     result = json.loads(done.stdout)
     by_name = {p["name"]: p for p in result["properties"]}
@@ -103,7 +104,7 @@ def test_a_person_whose_last_stop_shares_its_starting_place_is_walked_there_by_t
     scenario = tmp_path / "end_in_cell.yaml"
     scenario.write_text(f"base: {WELDING_CELL}\nname: welding_cell_end_in_cell\nentities:\n  operator:\n"
                         "    waypoints:\n      exit: {position: [-1.0, -1.2], wait: 2.0}\n")
-    done = _verify(str(scenario), "--json", "--refine", "0", "--out", str(tmp_path / "out"))
+    done = _verify(str(scenario), "--json", "--refine", "0", "--out", str(tmp_path / "out"), "--only", "Final:Cell")
     assert done.returncode == 1, done.stderr
     final = {p["name"]: p for p in json.loads(done.stdout)["properties"]}["Final:Cell"]
     assert final["ending"] == "violated" and final["twin"]["confirmed"]
