@@ -185,6 +185,7 @@ class TmuxScreen:
 
         import tempfile
 
+        self.argv = [module, *args]
         self._folder = tempfile.mkdtemp(prefix="cellsim-tmux-")
         self.socket = str(Path(self._folder) / "tmux.sock")  # a server of its own, its socket removed at stop()
         exports = " ".join(f"{k}={shlex.quote(v)}" for k, v in (env or {}).items())
@@ -228,17 +229,22 @@ class TmuxScreen:
         return state != "Z"
 
     def stop(self) -> None:
+        """SIGTERM the program, which must end within 5 s (a review found the dashboard losing a SIGTERM that came
+        while it started, and this waiting 10 s before it killed it, unnoticed); then the terminal goes."""
+        lost = False
         if self.running():
             os.kill(self.pid, signal.SIGTERM)
-            deadline = time.monotonic() + 10
+            deadline = time.monotonic() + 5
             while self.running() and time.monotonic() < deadline:
                 threading.Event().wait(0.05)
             if self.running():
                 os.kill(self.pid, signal.SIGKILL)
+                lost = True
         subprocess.run(["tmux", "-S", self.socket, "kill-server"], capture_output=True, timeout=10)
         import shutil
 
         shutil.rmtree(self._folder, ignore_errors=True)
+        assert not lost, f"{self.argv}: still running 5 s after SIGTERM (killed)"
 
 
 def sim_time_reached(t: float):

@@ -45,7 +45,7 @@ def run(args) -> int:
             feed = ReplayFeed(args.replay, args.speed, args.start)
         except (CheckError, BlackBoxError) as e:
             raise InputError(str(e)) from None
-        Dashboard(feed).run()
+        _run(Dashboard(feed))
         return EXIT_OK
     from cellsim.cli.common import _network_security, warn_insecure
     from cellsim.live.session import session_config
@@ -63,7 +63,14 @@ def run(args) -> int:
 
     feed = LiveFeed(open_session, args.cell, may_switch=args.role == "engineer")  # waits for a twin to be reachable, saying so
     try:
-        Dashboard(feed).run()
+        _run(Dashboard(feed))
     finally:
         feed.close()
     return EXIT_OK
+
+
+def _run(app) -> None:
+    """Run the dashboard ``app``; ended by SIGTERM, the command ends as interrupted (exit 130), as Ctrl-C ends it."""
+    app.run()
+    if app.terminated:
+        raise KeyboardInterrupt

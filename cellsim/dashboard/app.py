@@ -181,6 +181,9 @@ class Dashboard(App):
         self.feed = feed
         self._logged = 0
         self._shown: dict[str, object] = {}
+        self.terminated = False
+        """Whether SIGTERM ended it (the command then ends as Ctrl-C does: exit 130)."""
+        self._before_term = None
 
     def _view(self, selector: str, kind):
         """A widget of the dashboard's own screen (the first on the stack, whatever choice is shown over it);
@@ -208,8 +211,36 @@ class Dashboard(App):
         yield Footer()
 
     def on_mount(self) -> None:
+        self._end_on_sigterm()
         self.refresh_views()
         self.set_interval(1.0 / REFRESH, self.refresh_views)
+
+    def _end_on_sigterm(self) -> None:
+        """SIGTERM ends the app from inside its own loop. A KeyboardInterrupt raised by a Python signal handler lands
+        in whatever the loop runs at that moment, and Textual lost it while it started (a review saw ``kill`` leave
+        the screen up in 2 of 4 tries): the loop's own handler asks the app to exit, as ``q`` does."""
+        import asyncio
+        import signal
+
+        def terminated():
+            self.terminated = True
+            self.exit()
+
+        try:
+            before = signal.getsignal(signal.SIGTERM)
+            asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, terminated)
+            self._before_term = before
+        except (NotImplementedError, RuntimeError, ValueError):  # no such handlers here (not the main thread)
+            pass
+
+    def on_unmount(self) -> None:
+        import asyncio
+        import signal
+
+        if self._before_term is not None:  # the handler the command had is back once the screen is down
+            asyncio.get_running_loop().remove_signal_handler(signal.SIGTERM)
+            signal.signal(signal.SIGTERM, self._before_term)
+            self._before_term = None
 
     def refresh_views(self) -> None:
         try:
