@@ -21,9 +21,9 @@ TWO_OPERATORS = ROOT / "scenarios" / "two_operators.yaml"
 ROW = ("index", "seed", "configuration", "status", "verdict", "verdicts", "violations", "undecided", "use_cases", "coverage")
 
 
-def _cellsim(*args, timeout=600):
+def _cellsim(*args, timeout=600, env=None):
     return subprocess.run([sys.executable, "-m", "cellsim", *map(str, args)], capture_output=True, text=True,
-                          timeout=timeout, cwd=ROOT, env={**os.environ, "COLUMNS": "200"})
+                          timeout=timeout, cwd=ROOT, env={**os.environ, "COLUMNS": "200", **(env or {})})
 
 
 @pytest.fixture(scope="module")
@@ -170,10 +170,11 @@ def test_an_unreachable_scheduler_is_one_line_and_exit_2_with_nothing_written(tm
 
 @pytest.mark.parametrize("command", [("campaign", "--runs", "2"), ("falsify", "--budget", "2")])
 @pytest.mark.parametrize("answer", [None, b"HTTP/1.1 200 OK\r\nContent-Length: 0\r\n\r\n"])
-def test_a_port_that_is_no_dask_scheduler_is_one_line_within_10_s_and_exit_2_with_nothing_written(tmp_path, command,
-                                                                                                    answer):
+def test_a_port_that_is_no_dask_scheduler_is_one_line_within_its_limit_and_exit_2_with_nothing_written(
+        tmp_path, command, answer):
     """A listener that accepts and stays silent (or answers HTTP) used to hold the campaign for ever, after it had
-    written campaign.json and inputs/. It is asked, in Dask's protocol, who it is; no scheduler answers."""
+    written campaign.json and inputs/. It is asked, in Dask's protocol, who it is; no scheduler answers within the
+    limit (CELLSIM_SCHEDULER_TIMEOUT, 2 s here: 10 s by default)."""
     import socket
     import threading
     import time
@@ -200,7 +201,7 @@ def test_a_port_that_is_no_dask_scheduler_is_one_line_within_10_s_and_exit_2_wit
     try:
         began = time.monotonic()
         done = _cellsim(*command[:1], WELDING_CELL, *command[1:], "--scheduler", f"tcp://127.0.0.1:{port}",
-                        "--out", tmp_path / "c", timeout=120)
+                        "--out", tmp_path / "c", timeout=120, env={"CELLSIM_SCHEDULER_TIMEOUT": "2"})
         took = time.monotonic() - began
     finally:
         stop.set()
@@ -210,7 +211,17 @@ def test_a_port_that_is_no_dask_scheduler_is_one_line_within_10_s_and_exit_2_wit
         server.close()
     assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
     assert f"127.0.0.1:{port}" in done.stderr and "Dask scheduler" in done.stderr
-    assert accepted and took < 10 + 15  # the 10 s limit, and a process's start
+    assert accepted and took < 2 + 15  # the 2 s limit, and a process's start
+    if answer is None:
+        assert "within 2 s" in done.stderr
+    assert not (tmp_path / "c").exists()
+
+
+def test_a_scheduler_timeout_that_is_no_positive_number_is_one_line_and_exit_2(tmp_path):
+    done = _cellsim("campaign", WELDING_CELL, "--runs", "2", "--scheduler", "tcp://127.0.0.1:1", "--out", tmp_path / "c",
+                    env={"CELLSIM_SCHEDULER_TIMEOUT": "soon"})
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert "CELLSIM_SCHEDULER_TIMEOUT=soon: expected seconds above 0" in done.stderr
     assert not (tmp_path / "c").exists()
 
 

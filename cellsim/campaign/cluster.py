@@ -31,6 +31,8 @@ from __future__ import annotations
 
 import concurrent.futures
 import hashlib
+import math
+import os
 import shutil
 import threading
 import uuid
@@ -41,14 +43,30 @@ from cellsim.atomic import write_text
 CACHE = "cellsim-inputs"
 SCRATCH = "cellsim-runs"
 CONNECT_TIMEOUT = 10.0
-"""Seconds to reach the scheduler before giving up."""
+"""Seconds to reach the scheduler before giving up, unless ``CELLSIM_SCHEDULER_TIMEOUT`` says otherwise
+(:func:`connect_timeout`)."""
+
+
+def connect_timeout() -> float:
+    """Seconds to reach the scheduler: ``CELLSIM_SCHEDULER_TIMEOUT`` (a slow link may need more, a test less), else
+    :data:`CONNECT_TIMEOUT`; a value that is no positive number is a ClusterError naming it."""
+    text = os.environ.get("CELLSIM_SCHEDULER_TIMEOUT")
+    if text is None:
+        return CONNECT_TIMEOUT
+    try:
+        seconds = float(text)
+    except ValueError:
+        seconds = float("nan")
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise ClusterError(f"CELLSIM_SCHEDULER_TIMEOUT={text}: expected seconds above 0")
+    return seconds
 
 
 class ClusterError(Exception):
     """The cluster cannot be used: unreachable, no workers, or workers of another cellsim."""
 
 
-def check_reachable(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
+def check_reachable(address: str, timeout: float | None = None) -> None:
     """Fail, before a campaign touches its folder, unless a Dask scheduler answers at ``address`` within
     ``timeout`` seconds: asked who it is over Dask's own protocol (a port that merely accepts connections,
     or answers in another protocol, is no scheduler; the connection alone has no limit on its handshake)."""
@@ -56,6 +74,8 @@ def check_reachable(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
     import socket
 
     from distributed.core import rpc
+
+    timeout = connect_timeout() if timeout is None else timeout
 
     host, _, port = address.split("://", 1)[-1].rpartition(":")
     try:  # nothing listening: said at once (Dask's own connect would retry until the timeout)
@@ -163,7 +183,7 @@ class ClusterPool:
         from cellsim.provenance import simulator_versions
 
         try:
-            self.client = Client(address, timeout=CONNECT_TIMEOUT, set_as_default=False)
+            self.client = Client(address, timeout=connect_timeout(), set_as_default=False)
         except (OSError, TimeoutError) as e:
             raise ClusterError(f"cannot reach the Dask scheduler at {address}: {e}") from None
         self.address = address
