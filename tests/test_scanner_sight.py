@@ -55,24 +55,31 @@ def reference(sf, scanner, query, legs):
 
     fields = list(scanner.cfg.fields.values())
     inspector = query.inspector()
-    best, nearest = 0, scanner.cfg.max_range
+    facing = []  # every point of the legs' surface facing the scanner, within its band: (distance, point)
+    angles = np.linspace(0.0, 2 * math.pi, 48, endpoint=False)
+    normals = np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=1)
     for leg in legs:
         X, capsule = query.GetPoseInWorld(leg), inspector.GetShape(leg)
         r, half = capsule.radius(), capsule.length() / 2
-        for z in np.linspace(-half, half, 25):
-            for angle in np.linspace(0.0, 2 * math.pi, 48, endpoint=False):
-                normal = np.array([math.cos(angle), math.sin(angle), 0.0])
-                p = X @ (np.array([0.0, 0.0, z]) + r * normal)
-                if (X.rotation() @ normal) @ (scanner.position - p) <= 0.0:
-                    continue  # the far side of the leg
-                if not scanner.band[0] <= p[2] <= scanner.band[1] or any(w.blocks(scanner.position, p) for w in walls):
-                    continue
-                if through_mount(p):
-                    continue
-                nearest = min(nearest, float(np.linalg.norm(p - scanner.position)))
-                for k, spec in enumerate(fields, 1):
-                    if spec.contains(p) and (best == 0 or k < best):
-                        best = k
+        local = np.array([[0.0, 0.0, z] + r * n for z in np.linspace(-half, half, 25) for n in normals])
+        world = (X.rotation().matrix() @ local.T).T + X.translation()
+        outward = (X.rotation().matrix() @ np.tile(normals, (25, 1)).T).T
+        toward = scanner.position - world
+        keep = (np.einsum("ij,ij->i", outward, toward) > 0.0) & (scanner.band[0] <= world[:, 2]) & (
+            world[:, 2] <= scanner.band[1])  # the near side of the leg, within the band
+        facing += [(float(d), p) for d, p in zip(np.linalg.norm(toward[keep], axis=1), world[keep])]
+    facing.sort(key=lambda found: found[0])
+    seen: dict[int, bool] = {}
+
+    def visible(i: int) -> bool:  # (the same answer as testing every point, asked only until one is found)
+        if i not in seen:
+            p = facing[i][1]
+            seen[i] = not any(w.blocks(scanner.position, p) for w in walls) and not through_mount(p)
+        return seen[i]
+
+    nearest = min(next((d for i, (d, _) in enumerate(facing) if visible(i)), math.inf), scanner.cfg.max_range)
+    best = next((k for k, spec in enumerate(fields, 1)
+                 if any(spec.contains(p) and visible(i) for i, (_, p) in enumerate(facing))), 0)
     return best, nearest
 
 
