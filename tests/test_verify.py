@@ -729,7 +729,7 @@ def test_a_verify_formula_storm_cannot_read_is_refused_before_any_build_quoting_
     scenario = tmp_path / "bad.yaml"
     scenario.write_text(f"base: {WELDING_CELL}\nvalidation:\n  verify:\n    broken: 'Pmax=? [ F \"oloc == inCell\" '\n")
     export = tmp_path / "m.prism"
-    done = _verify(str(scenario), "--no-replay", "--export", str(export), "--out", str(tmp_path / "out"))
+    done = _verify(str(scenario), "--no-replay", "--export", str(export), "--out", str(tmp_path / "out"), "--only", "broken")
     assert done.returncode == 2 and "Storm:" not in done.stderr, done.stderr
     assert "verify.broken: Storm cannot read 'Pmax=? [ F \"oloc == inCell\" ' as PCTL" in done.stderr
     assert not export.exists() and not export.with_suffix(".props").exists()
@@ -751,7 +751,7 @@ def test_a_verify_formula_whose_answer_would_not_carry_over_to_the_cell_is_refus
     Storm's refusals of some reaching the user as a traceback, exit 1, the code of a confirmed violation)."""
     scenario = tmp_path / "user.yaml"
     scenario.write_text(f"base: {WELDING_CELL}\nvalidation:\n  verify:\n    mine: '{formula}'\n")
-    done = _verify(str(scenario), "--no-replay", "--out", str(tmp_path / "out"))
+    done = _verify(str(scenario), "--no-replay", "--out", str(tmp_path / "out"), "--only", "mine")
     errors = [line for line in done.stderr.splitlines() if "error" in line]
     assert done.returncode == 2 and len(errors) == 1 and "Traceback" not in done.stderr, done.stderr
     assert f"verify.mine: {formula!r}" in errors[0] and said in errors[0], done.stderr
@@ -760,7 +760,7 @@ def test_a_verify_formula_whose_answer_would_not_carry_over_to_the_cell_is_refus
 def test_a_verify_formula_storm_cannot_check_is_one_error_naming_it_not_a_traceback(tmp_path):
     scenario = tmp_path / "user.yaml"
     scenario.write_text(f"base: {WELDING_CELL}\nvalidation:\n  verify:\n    mine: 'Pmax=? [ G F \"oloc == inCell\" ]'\n")
-    done = _verify(str(scenario), "--no-replay", "--refine", "0", "--out", str(tmp_path / "out"))
+    done = _verify(str(scenario), "--no-replay", "--refine", "0", "--out", str(tmp_path / "out"), "--only", "mine")
     assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
     assert "verify.mine: Storm cannot check" in done.stderr, done.stderr
 
