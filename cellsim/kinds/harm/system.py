@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject
+from pydrake.math import RigidTransform
 
 from cellsim.channels import enum_type, number_type
 from cellsim.kinds.harm.config import HarmConfig
@@ -171,6 +172,11 @@ class HarmMonitor(CellSystem):
         self._shapes = {g: inspector.GetShape(g) for g in self.bodies}  # for how near the floor each region is
         self.clamps = [*fixtures, *parts]  # what a region can be pinned against: fixtures, every arm's shapes
         self._blocker_shapes = {g: inspector.GetShape(g) for g in self.clamps}
+        # each region's and blocker's bounding sphere in its frame: a pair whose spheres lie farther apart than
+        # clamp_gap is not measured (no region can rest on it); within one look each pair is measured once
+        self._spheres = {g: bounding_sphere(inspector.GetShape(g), RigidTransform()) for g in [*self.bodies, *self.clamps]}
+        self._blocker_radii = np.array([self._spheres[g][1] for g in self.clamps])
+        self._looked: dict = {}
         self._pairs = NearestPair(inspector, list(self.parts), list(self.bodies))  # every robot part and body region
         # each touching pair's push, its normal while the overlap was last shallow (3 per pair, zero while it does
         # not touch), and how deep its overlap is still shallow (m): see measure()
@@ -408,6 +414,7 @@ class HarmMonitor(CellSystem):
         (an edge of a box turns the normal at once, however shallow). An arm drawing back out of deep within a region
         may so read as pushing (the normal of the instant points back the way it came): the reading errs on harm."""
         onset = context.get_discrete_state(self._onset).get_value()
+        self._looked = {}  # this look's pairs measured by _resting (the geometry moves between looks)
         onsets = {}
         separation = dict.fromkeys(self.robots, self.cfg.cutoff)
         nearest, nearest_distance = None, self.cfg.cutoff
@@ -479,8 +486,8 @@ class HarmMonitor(CellSystem):
                     behind.body == part.body or (part.rigid >= 0 and behind.rigid == part.rigid)):
                 continue  # the same link, or a shape welded to it (a tool on its flange): it moves with the push
             for region in regions:
-                pair = query.ComputeSignedDistancePairClosestPoints(region, other)
-                if pair.distance > self.cfg.clamp_gap:
+                pair = self._resting(query, region, other)
+                if pair is None:
                     continue
                 if self._behind(witness_on(query, pair, other) - p_W, push):
                     return True
@@ -493,6 +500,33 @@ class HarmMonitor(CellSystem):
                     np.array([0.0, 0.0, lowest - float(p_W[2])]), push):
                 return True
         return False
+
+    def _resting(self, query, region, other):
+        """The closest points of ``region`` and the blocker ``other`` where they lie within clamp_gap, else None;
+        measured once a look, and not at all where their bounding spheres lie farther apart than clamp_gap."""
+        key = (region, other)
+        if key not in self._looked:
+            pair = None
+            if other in self._near_blockers(query, region):
+                pair = query.ComputeSignedDistancePairClosestPoints(region, other)
+                if pair.distance > self.cfg.clamp_gap:
+                    pair = None
+            self._looked[key] = pair
+        return self._looked[key]
+
+    def _near_blockers(self, query, region) -> set:
+        """The blockers whose bounding spheres lie within clamp_gap of ``region``'s, this look (an unbounded sphere
+        counts as near: it is measured)."""
+        near = self._looked.get(region)
+        if near is None:
+            if "blockers" not in self._looked:  # where every blocker's sphere is, this look
+                self._looked["blockers"] = np.array([query.GetPoseInWorld(g) @ self._spheres[g][0]
+                                                     for g in self.clamps]).reshape(-1, 3)
+            centre, radius = self._spheres[region]
+            apart = (np.linalg.norm(self._looked["blockers"] - query.GetPoseInWorld(region) @ centre, axis=1)
+                     - self._blocker_radii - radius)
+            near = self._looked[region] = {g for g, gap in zip(self.clamps, apart) if not gap > self.cfg.clamp_gap}
+        return near
 
     def _beneath(self, query, blocker, region, p_W, push) -> bool:
         """Whether the ``blocker``'s point nearest the contact ``p_W`` itself lies behind it along the ``push``, no
