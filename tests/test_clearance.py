@@ -70,7 +70,7 @@ def test_covering_spheres_hold_the_shape_and_reach_little_beyond_it(shape):
 def tending():
     """The machine-tending cell's abstract model: TrueSSM modelled (its clearance measured at every pose)."""
     sf = load_scenario(TENDING)
-    model = abstract_model(sf)
+    model = abstract_model(sf, only=("TrueSSM",))
     ssm = next(part for part in model.parts if isinstance(part, SsmAbstraction))
     return model, ssm
 
