@@ -136,6 +136,7 @@ def test_a_rogue_twin_holding_the_observers_certificate_gets_no_session_and_the_
     declares itself alive as the twin and commands the welder to normal work. The daemon, the emulator and
     twin-mode refuse its certificate (it names no host and may not serve TLS): it hears nothing, and the
     daemon sends the welder its safe command within the watchdog and keeps to it."""
+    import os
     import signal
     import subprocess
     import sys
@@ -166,7 +167,13 @@ def test_a_rogue_twin_holding_the_observers_certificate_gets_no_session_and_the_
 
                 rogue_thread = threading.Thread(target=command_the_welder, daemon=True)
                 rogue_thread.start()
+                switch = None
                 try:
+                    # twin-mode (the engineer's certificate) tries the rogue for the twin while the daemon is watched
+                    switch = subprocess.Popen([sys.executable, "-m", "cellsim", "twin-mode", "light_barrier", "model",
+                                               "--connect", f"tls/127.0.0.1:{port}", "--timeout", "2"],
+                                              stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                              text=True, cwd=ROOT)
                     # every request the daemon sends after the watchdog is the safe one, for 6 s of the rogue
                     safe_from = killed + COMMAND_WATCHDOG + 0.04 + 0.1
                     seen = []
@@ -176,12 +183,13 @@ def test_a_rogue_twin_holding_the_observers_certificate_gets_no_session_and_the_
                     assert {name for name, _ in late} == {"SafetyModeRequestAuthenticated", "WelderCommandAuthenticated"}
                     assert all(values in ({"SafetyMode": "stopped"}, {"ActivityRequest": "off", "Weld": 0})
                                for _, values in late), seen
-                    # twin-mode (the engineer's certificate) does not take the rogue for the twin either
-                    switch = subprocess.run([sys.executable, "-m", "cellsim", "twin-mode", "light_barrier", "model",
-                                             "--connect", f"tls/127.0.0.1:{port}", "--timeout", "2"],
-                                            capture_output=True, text=True, timeout=60, cwd=ROOT)
-                    assert switch.returncode == 2 and "no running twin reachable" in switch.stderr, switch.stderr
+                    # and twin-mode did not take the rogue for the twin either
+                    _, err = switch.communicate(timeout=60)
+                    assert switch.returncode == 2 and "no running twin reachable" in err, err
                 finally:
+                    if switch is not None and switch.poll() is None:
+                        os.kill(switch.pid, signal.SIGKILL)  # stopped by its PID, whatever happened above
+                        switch.communicate()
                     stop.set()
                     rogue_thread.join(5)
                     token.undeclare()

@@ -321,13 +321,12 @@ def test_the_seeded_fault_violates_separation_only_in_its_zone_and_only_in_the_f
     model's (the shipped one holds the same run); 0.95 m deep, outside the zone, the faulty model holds too."""
     from cellsim.scenario import load_scenario
     from cellsim.simulation import simulate
+    from cellsim.validation.check import check
 
     for depth, expected in ((0.85, violates), (0.95, False)):
         sf = load_scenario(ROOT / "scenarios" / scenario, [f"operator.waypoints.press_front.position.1={depth}"])
         simulate(sf, tmp_path / f"{depth}", duration=40.0)
-        checked = subprocess.run([sys.executable, "-m", "cellsim", "check", str(tmp_path / f"{depth}"), "--json"],
-                                 capture_output=True, text=True, timeout=120, cwd=ROOT)
-        violations = json.loads(checked.stdout)["violations"]
+        violations = check(tmp_path / f"{depth}").result.violations  # what `cellsim check --json` lists
         assert any("Separation" in str(v) for v in violations) == expected, (scenario, depth, violations)
 
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
 import subprocess
 import sys
 
@@ -111,6 +113,23 @@ def test_the_live_twins_run_is_checked_as_any_run(shadow_run):
 def _twin_mode(endpoint: str, *args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "cellsim", "twin-mode", *args, "--connect", endpoint],
                           capture_output=True, text=True, timeout=60, cwd=ROOT)
+
+
+def _twin_mode_started(endpoint: str, *args: str) -> subprocess.Popen:
+    """``_twin_mode`` started, not waited for: collect it with ``_twin_mode_ended``."""
+    return subprocess.Popen([sys.executable, "-m", "cellsim", "twin-mode", *args, "--connect", endpoint],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+
+
+def _twin_mode_ended(process: subprocess.Popen, timeout: float = 60) -> subprocess.CompletedProcess:
+    """Its result, waiting at most ``timeout`` s; stopped by its PID if it has not ended by then."""
+    try:
+        out, err = process.communicate(timeout=timeout)
+    finally:
+        if process.poll() is None:
+            os.kill(process.pid, signal.SIGKILL)
+            process.communicate()
+    return subprocess.CompletedProcess(process.args, process.returncode, out, err)
 
 
 def test_twin_modes_switch_at_run_time_on_request_and_bad_requests_are_refused(tmp_path):
@@ -313,31 +332,41 @@ def test_only_the_roles_certificates_allow_may_publish_samples_or_switch_modes(t
             forged = observer_session.declare_publisher("cellsim/welding_cell/physical/light_barrier")
             publish_until(forged, lambda: sim_time[0] >= 3.0, 60)
             observer_phase_end = sim_time[0]
-            # nor does its mode request: no answer comes back
-            request = json.dumps({"entity": "robot", "mode": "shadow", "by": "observer"})
-            assert list(observer_session.get("cellsim/welding_cell/control/twin_mode", payload=request, timeout=2.0)) == []
-            # nor can it pass for the bridge: its liveliness token is seen by nobody
-            fake = observer_session.liveliness().declare_token("cellsim/welding_cell/alive/bridge")
-            engineer = session("engineer")
+            # the two twin-mode commands that must not connect wait out their timeouts while the checks below do
+            stranger = plain = None
             try:
-                wait_alive(engineer, "cellsim/welding_cell/alive/twin")  # the engineer does see the real ones
-                assert list(engineer.liveliness().get("cellsim/welding_cell/alive/bridge", timeout=2.0)) == []
+                # the same command with the engineer's certificate of another CA cannot connect at all
+                stranger = _twin_mode_started(endpoint, "robot", "shadow", "--keys", str(other_ca), "--timeout", "2")
+                # nor can a session without TLS
+                plain = _twin_mode_started(endpoint.replace("tls/", "tcp/"), "robot", "shadow", "--insecure", "--timeout", "2")
+                # nor does the observer's mode request: no answer comes back
+                request = json.dumps({"entity": "robot", "mode": "shadow", "by": "observer"})
+                assert list(observer_session.get("cellsim/welding_cell/control/twin_mode", payload=request, timeout=2.0)) == []
+                # nor can it pass for the bridge: its liveliness token is seen by nobody
+                fake = observer_session.liveliness().declare_token("cellsim/welding_cell/alive/bridge")
+                engineer = session("engineer")
+                try:
+                    wait_alive(engineer, "cellsim/welding_cell/alive/twin")  # the engineer does see the real ones
+                    assert list(engineer.liveliness().get("cellsim/welding_cell/alive/bridge", timeout=2.0)) == []
+                finally:
+                    engineer.close()
+                    fake.undeclare()
+                # nor TLS without a client certificate
+                anonymous = zenoh.Config()
+                for key, value in (("mode", "client"), ("scouting/multicast/enabled", False), ("listen/endpoints", []),
+                                   ("connect/endpoints", [endpoint]), ("connect/timeout_ms", {"client": 2000}),
+                                   ("transport/link/tls/root_ca_certificate", str(cell_keys / "ca.pem"))):
+                    anonymous.insert_json5(key, json.dumps(value))
+                with pytest.raises(zenoh.ZError):
+                    zenoh.open(anonymous).close()
             finally:
-                engineer.close()
-                fake.undeclare()
-            # the same command with the engineer's certificate of another CA cannot connect at all
-            stranger = _twin_mode(endpoint, "robot", "shadow", "--keys", str(other_ca), "--timeout", "2")
+                # each collected (and stopped by its PID if it has not ended) whatever happened above
+                try:
+                    stranger = stranger and _twin_mode_ended(stranger)
+                finally:
+                    plain = plain and _twin_mode_ended(plain)
             assert stranger.returncode == 2 and "no running twin reachable" in stranger.stderr, stranger.stderr
-            # nor can a session without TLS, or TLS without a client certificate
-            plain = _twin_mode(endpoint.replace("tls/", "tcp/"), "robot", "shadow", "--insecure", "--timeout", "2")
             assert plain.returncode == 2 and "no running twin reachable" in plain.stderr, plain.stderr
-            anonymous = zenoh.Config()
-            for key, value in (("mode", "client"), ("scouting/multicast/enabled", False), ("listen/endpoints", []),
-                               ("connect/endpoints", [endpoint]), ("connect/timeout_ms", {"client": 2000}),
-                               ("transport/link/tls/root_ca_certificate", str(cell_keys / "ca.pem"))):
-                anonymous.insert_json5(key, json.dumps(value))
-            with pytest.raises(zenoh.ZError):
-                zenoh.open(anonymous).close()
             # the engineer may switch modes; the bridge may feed samples
             accepted = _twin_mode(endpoint, "robot", "shadow")
             assert accepted.returncode == 0 and accepted.stdout.startswith("accepted"), accepted.stdout + accepted.stderr

@@ -72,7 +72,7 @@ def test_the_curtain_stays_tripped_until_the_operator_presses_reset(default_run)
 def test_a_small_campaign_gives_coverage_of_the_cells_own_domains(tmp_path):
     out = tmp_path / "campaign"
     proc = subprocess.run(
-        [sys.executable, "-m", "cellsim", "campaign", str(PALLETISING_CELL), "--runs", "4", "--jobs", "2", "--out", str(out), "--quiet"],
+        [sys.executable, "-m", "cellsim", "campaign", str(PALLETISING_CELL), "--runs", "4", "--jobs", "2", "--duration", "10", "--out", str(out), "--quiet"],
         capture_output=True, text=True, timeout=600,
     )
     assert proc.returncode in (0, 1), proc.stderr

@@ -111,7 +111,7 @@ def test_a_person_approaching_the_moving_arms_lowers_their_speed_limits_and_the_
 
 
 def test_the_summary_labels_each_robots_figures(tmp_path):
-    done = subprocess.run([sys.executable, "-m", "cellsim", "simulate", str(ASSEMBLY_BENCH), "--duration", "12",
+    done = subprocess.run([sys.executable, "-m", "cellsim", "simulate", str(ASSEMBLY_BENCH), "--duration", "2",
                            "--out", str(tmp_path / "run")], capture_output=True, text=True, timeout=300, cwd=ROOT,
                           env={**os.environ, "COLUMNS": "120"})
     assert done.returncode == 0, done.stderr
@@ -182,7 +182,7 @@ def test_a_robot_monitored_twice_is_refused_naming_both(tmp_path):
 
 def test_the_assembly_benchs_campaign_runs(tmp_path):
     done = subprocess.run([sys.executable, "-m", "cellsim", "campaign", str(ASSEMBLY_BENCH), "--runs", "3",
-                           "--jobs", "2", "--duration", "15", "--out", str(tmp_path / "c"), "--quiet"],
+                           "--jobs", "2", "--duration", "5", "--out", str(tmp_path / "c"), "--quiet"],
                           capture_output=True, text=True, timeout=600, cwd=ROOT)
     assert done.returncode in (0, 1), done.stderr
     results = json.loads((tmp_path / "c" / "results.json").read_text())
@@ -204,7 +204,7 @@ def test_the_margin_condition_catches_arms_that_ignore_their_limit(tmp_path):
                                                              "arm_mode: {values: [normal], default: normal}"))
     path = tmp_path / "bench.yaml"
     path.write_text(f"base: {ASSEMBLY_BENCH}\nbehaviours:\n  safety_controller:\n    risk_model: unmonitored.yaml\n")
-    simulate(load_scenario(path), tmp_path / "run")
+    simulate(load_scenario(path), tmp_path / "run", duration=20.0)  # both are violated well within 20 s
     verdicts = check(tmp_path / "run").result.verdicts
     assert not verdicts["AlwaysMonitored"].holds
     assert not (verdicts["LoaderMargin"].holds and verdicts["AssemblerMargin"].holds)
