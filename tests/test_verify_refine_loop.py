@@ -116,7 +116,7 @@ def scripted(monkeypatch, rounds: dict, confirms: set[tuple[int, str]], could=10
     monkeypatch.setattr(run, "verify", fake_verify)
     monkeypatch.setattr(witness, "replay", fake_replay)
     monkeypatch.setattr(refine, "_could_reach",
-                        lambda sf, result, timed, keys, measured=None: (
+                        lambda sf, result, timed, keys, measured=None, only=(): (
                             could(keys) if callable(could) else could, None, exact))
     return replays
 
