@@ -171,13 +171,15 @@ def test_two_operators_break_the_single_operator_assumption_and_the_twin_confirm
     violations end violated, their runs kept. (Without refinement: the operator's pace, which a witness asks for,
     is over the state budget here, a path the welding cell's test takes with the budget made small.)"""
     out = tmp_path / "witnesses"
+    # (the curtain's and the scanner's missed detections; the welder's, HC:detected, has a witness the twin refutes in
+    # eight later starts, which the refinement tests cover; the harm conditions: tests/test_verify_harm.py)
     done = _verify(str(ROOT / "scenarios" / "two_operators.yaml"), "--json", "--out", str(out), "--refine", "0",
-                   "--only", "*:mishap", "--only", "*:detected")  # (the harm conditions: tests/test_verify_harm.py)
+                   "--only", "*:mishap", "--only", "HRW:detected", "--only", "HS:detected")
     assert done.returncode == 1, done.stderr
     result = json.loads(done.stdout)
     assert all(p["holds"] for p in result["properties"] if p["name"].endswith(":mishap"))
     replayed = [p for p in result["properties"] if p["twin"]]
-    assert {p["name"] for p in replayed} - {"NoHarm", "NoClamping"} == {"HRW:detected", "HS:detected", "HC:detected"}
+    assert {p["name"] for p in replayed} == {"HRW:detected", "HS:detected"}
     replayed = [p for p in replayed if p["name"].endswith(":detected")]
     confirmed = [p for p in replayed if p["twin"]["confirmed"]]
     assert confirmed, [(p["name"], p["twin"]) for p in replayed]
