@@ -530,50 +530,51 @@ def _pop(mapping, *keys):
 WELDING_VARIABLES = "safmod, rloc, wact, ract, rngDet, lgtBar, notif, notif_leaveWrkb"
 
 
-@pytest.mark.parametrize("scenario, edit, key, line, problem", [
-    ("welding_cell.yaml", lambda c: _pop(c.monitors, "lgtBar"), "monitors", 139,
+@pytest.mark.parametrize("scenario, edit, key, problem", [
+    ("welding_cell.yaml", lambda c: _pop(c.monitors, "lgtBar"), "monitors",
      "the risk model monitors lgtBar: bind them to channels"),
-    ("welding_cell.yaml", lambda c: _pop(c.monitors, "lgtBar", "rloc"), "monitors", 139,
+    ("welding_cell.yaml", lambda c: _pop(c.monitors, "lgtBar", "rloc"), "monitors",
      "the risk model monitors lgtBar, rloc: bind them to channels"),
-    ("welding_cell.yaml", lambda c: c.monitors.update(speed="robot.tool_speed"), "monitors.speed", 139,
+    ("welding_cell.yaml", lambda c: c.monitors.update(speed="robot.tool_speed"), "monitors.speed",
      f"'speed' is not a monitored variable of the risk model ({WELDING_VARIABLES})"),
-    ("welding_cell.yaml", lambda c: c.commands.update(alarm=["operator.notification"]), "commands.alarm", 148,
+    ("welding_cell.yaml", lambda c: c.commands.update(alarm=["operator.notification"]), "commands.alarm",
      "'alarm' is not a controlled variable of the risk model (safmod, ract, wact, notif, notif_leaveWrkb)"),
-    ("welding_cell.yaml", lambda c: c.commands.update(wact=["welder.activity_requst"]), "commands.wact.0", 151,
+    ("welding_cell.yaml", lambda c: c.commands.update(wact=["welder.activity_requst"]), "commands.wact.0",
      "no command input 'welder.activity_requst'; did you mean 'welder.activity_request'? (inputs are written module.input)"),
-    ("welding_cell.yaml", lambda c: c.commands.update(wact=["weldr.activity_request"]), "commands.wact.0", 151,
+    ("welding_cell.yaml", lambda c: c.commands.update(wact=["weldr.activity_request"]), "commands.wact.0",
      "no command input 'weldr.activity_request'; did you mean 'welder.activity_request'? (inputs are written module.input)"),
-    ("welding_cell.yaml", lambda c: _pop(c.commands, "wact"), "commands", 148, "controlled variable 'wact' drives no command input"),
-    ("welding_cell.yaml", lambda c: c.monitors.update(notif="safety_controller.notiff"), "monitors.notif", 146,
+    ("welding_cell.yaml", lambda c: _pop(c.commands, "wact"), "commands", "controlled variable 'wact' drives no command input"),
+    ("welding_cell.yaml", lambda c: c.monitors.update(notif="safety_controller.notiff"), "monitors.notif",
      "'safety_controller.notiff' is not a command of safety_controller"),
-    ("welding_cell.yaml", lambda c: c.monitors.update(rngDet="range_detector.rang"), "monitors.rngDet", 144,
+    ("welding_cell.yaml", lambda c: c.monitors.update(rngDet="range_detector.rang"), "monitors.rngDet",
      "no channel 'range_detector.rang'; did you mean 'range_detector.range'?"),
-    ("welding_cell.yaml", lambda c: c.monitors.update(rngDet="range_detector.distance"), "monitors.rngDet", 144,
+    ("welding_cell.yaml", lambda c: c.monitors.update(rngDet="range_detector.distance"), "monitors.rngDet",
      "rngDet takes ['far', 'near', 'close'] but the channel carries number"),
-    ("welding_cell.yaml", lambda c: c.monitors.update(lgtBar="robot.safety_mode"), "monitors.lgtBar", 145,
+    ("welding_cell.yaml", lambda c: c.monitors.update(lgtBar="robot.safety_mode"), "monitors.lgtBar",
      "lgtBar takes [False, True] but the channel carries ['normal', 'hguid', 'ssmon', 'pflim', 'srmst', 'stopped', 'unknown']"),
     ("welding_cell.yaml", lambda c: c.commands.update(safmod=["robot.safety_mode_request", "process_controller.activity_request"]),
-     "commands.safmod.1", 149, "safmod takes ['normal', 'hguid', 'ssmon', 'pflim', 'srmst', 'stopped'] but the channel carries "
+     "commands.safmod.1", "safmod takes ['normal', 'hguid', 'ssmon', 'pflim', 'srmst', 'stopped'] but the channel carries "
                                "['idle', 'exchWrkp', 'welding', 'off', 'unknown']"),
-    ("palletising_cell.yaml", lambda c: c.monitors.update(dist="robot.tool_speed"), "monitors.dist", 171,
+    ("palletising_cell.yaml", lambda c: c.monitors.update(dist="robot.tool_speed"), "monitors.dist",
      "dist is in m but the channel is in m/s"),
-    ("palletising_cell.yaml", lambda c: c.monitors.update(dist="press_scanner.field"), "monitors.dist", 171,
+    ("palletising_cell.yaml", lambda c: c.monitors.update(dist="press_scanner.field"), "monitors.dist",
      "dist is a number but the channel carries ['free', 'protective', 'warning']"),
-    ("palletising_cell.yaml", lambda c: c.monitors.update(curtain="press_scanner.field"), "monitors.curtain", 169,
+    ("palletising_cell.yaml", lambda c: c.monitors.update(curtain="press_scanner.field"), "monitors.curtain",
      "curtain takes [False, True] but the channel carries ['free', 'protective', 'warning']"),
-    ("palletising_cell.yaml", lambda c: c.monitors.update(dist="press.cycles_completed"), "monitors.dist", 171,
+    ("palletising_cell.yaml", lambda c: c.monitors.update(dist="press.cycles_completed"), "monitors.dist",
      "dist is in m but the channel is in no unit"),
-    ("welding_cell.yaml", lambda c: c.commands.update(wact=["welder.physical_sample"]), "commands.wact.0", 151,
+    ("welding_cell.yaml", lambda c: c.commands.update(wact=["welder.physical_sample"]), "commands.wact.0",
      "'welder.physical_sample' is not a command input"),
     ("welding_cell.yaml", lambda c: c.commands.update(wact=["welder.activity_request", "process_controller.activity_request"]),
-     "commands.wact.1", 151, "'process_controller.activity_request' expects a different type than the other inputs of wact"),
+     "commands.wact.1", "'process_controller.activity_request' expects a different type than the other inputs of wact"),
     # an input the process already drives: one error at the key, where Drake's own check stopped the build in C++
     ("welding_cell.yaml", lambda c: c.commands.update(ract=["process_controller.activity_request", "robot.activity"]),
-     "commands.ract.1", 150, "'robot.activity' is already driven by another module of the cell: an input has one driver"),
+     "commands.ract.1", "'robot.activity' is already driven by another module of the cell: an input has one driver"),
 ])
-def test_a_risk_model_bound_to_the_wrong_channels_or_inputs_is_one_error_at_its_key(scenario, edit, key, line, problem):
+def test_a_risk_model_bound_to_the_wrong_channels_or_inputs_is_one_error_at_its_key(scenario, edit, key, problem):
     """The controller's binding of the risk model's variables to the cell's channels and command inputs, each
-    mismatch one error naming the scenario's key and line."""
+    mismatch one error naming the scenario's key and line (the line the key is written on, read from the file: a key
+    the edit added names the line of the mapping it went into)."""
     from cellsim.scenario import load_scenario
     from cellsim.diagrams.cell import build_cell
 
@@ -581,8 +582,33 @@ def test_a_risk_model_bound_to_the_wrong_channels_or_inputs_is_one_error_at_its_
     edit(sf.scenario.behaviours["safety_controller"])
     with pytest.raises(ConfigError) as e:
         build_cell(sf, seed=0, duration=1.0, record=False)
+    line = _line_of(ROOT / "scenarios" / scenario, ["behaviours", "safety_controller", *key.split(".")])
     assert (e.value.source, e.value.key, e.value.line, e.value.problem) == (
         str(ROOT / "scenarios" / scenario), f"behaviours.safety_controller.{key}", line, problem)
+
+
+def _line_of(path, keys: list[str]) -> int:
+    """The line (from 1) a key path is written on in the YAML file ``path``, found by its indentation: a list index
+    is its list's line (the shipped files write these lists inline), and a key the file does not have is the line
+    of the deepest one it has."""
+    lines = path.read_text().splitlines()
+    line, indent, start = 0, -1, 0
+    for key in (k for k in keys if not k.isdigit()):
+        child = None  # the indentation of the mapping's own keys
+        for i in range(start, len(lines)):
+            stripped = lines[i].lstrip()
+            depth = len(lines[i]) - len(stripped)
+            if not stripped or stripped.startswith("#"):
+                continue
+            if depth <= indent:
+                return line + 1  # out of the mapping: the key is not in the file
+            child = depth if child is None else child
+            if depth == child and stripped.startswith(f"{key}:"):
+                line, indent, start = i, depth, i + 1
+                break
+        else:
+            return line + 1
+    return line + 1
 
 
 TOGGLE = """
