@@ -674,16 +674,17 @@ def verify_cell(scenario: ScenarioFile | str | os.PathLike, *, export: str | os.
     from cellsim.verify.run import export_paths, verify
 
     sf, export = _checked(scenario), None if export is None else Path(export)
+    only = (only,) if isinstance(only, str) else tuple(only)  # one name, or several
     if export is not None:
         export_paths(export, sf)  # refused before anything is built: over an input, or the model over its props
     if replay_in is None:
-        return verify(sf, export=export, timed=timed, on_stage=progress, only=tuple(only))
+        return verify(sf, export=export, timed=timed, on_stage=progress, only=only)
     if sf.built_in_code:
         raise ConfigError(sf.source, None, "", "a witness is replayed as a scenario over the verified one's file: "
                           "save it first (cellsim.save_scenario) and give that file")
     _refuse_edited(sf, "a witness is replayed as a scenario over its file")
     return verify_with_twin(sf, Path(replay_in), budget=DEFAULT_BUDGET if refine is None else refine, timed=timed,
-                            export=export, on_stage=progress, only=tuple(only))
+                            export=export, on_stage=progress, only=only)
 
 
 def __dir__() -> list[str]:

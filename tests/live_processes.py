@@ -220,6 +220,16 @@ class TmuxScreen:
                 raise AssertionError(f"{what}: not within {timeout} s; the screen:\n{screen}")
             pause.wait(0.05)
 
+    def exit_status(self, timeout: float) -> int:
+        """The program's exit status once it has ended (tmux keeps its pane), waiting at most ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        while True:
+            if self._tmux("display-message", "-p", "-t", "main", "#{pane_dead}").strip() == "1":
+                return int(self._tmux("display-message", "-p", "-t", "main", "#{pane_dead_status}").strip())
+            if time.monotonic() > deadline:
+                raise AssertionError(f"{self.argv}: still running after {timeout} s")
+            threading.Event().wait(0.05)
+
     def running(self) -> bool:
         """Whether the program still runs (a zombie waiting for tmux to reap it does not)."""
         try:

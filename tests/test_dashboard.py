@@ -49,6 +49,21 @@ def welding_run(tmp_path_factory):
     return out
 
 
+def test_sigterm_ends_the_dashboard_at_once_as_an_interrupt(welding_run):
+    """kill (SIGTERM) ends the dashboard as Ctrl-C ends a command: at once, exit 130 (a review saw it lost while the
+    screen started, the screen left up)."""
+    import os
+    import signal
+
+    screen = TmuxScreen(["dashboard", "--replay", str(welding_run), "--start", "16"])
+    try:
+        screen.wait_for(lambda s: _row(s, "HS"), 30, "the hazards panel")
+        os.kill(screen.pid, signal.SIGTERM)
+        assert screen.exit_status(5.0) == 130
+    finally:
+        screen.stop()
+
+
 def _row(screen: str, first: str) -> list[str]:
     """The words of a table row that starts with the word ``first`` (panels stand side by side:
     the row is the rest of the line from that word on)."""

@@ -70,7 +70,18 @@ def run(args) -> int:
 
 
 def _run(app) -> None:
-    """Run the dashboard ``app``; ended by SIGTERM, the command ends as interrupted (exit 130), as Ctrl-C ends it."""
-    app.run()
+    """Run the dashboard ``app``; ended by SIGTERM, the command ends as interrupted (exit 130), as Ctrl-C ends it. A
+    SIGTERM before the screen is up is noted (raising then would land inside Textual starting, which lost it) and
+    ends the app once it is mounted; from then on the app's loop takes SIGTERM itself."""
+    import signal
+
+    def noted(*_):
+        app.terminated = True
+
+    before = signal.signal(signal.SIGTERM, noted)
+    try:
+        app.run()
+    finally:
+        signal.signal(signal.SIGTERM, before)
     if app.terminated:
         raise KeyboardInterrupt

@@ -37,8 +37,8 @@ def add_parser(subparsers) -> None:
                         "needs the replays: --no-replay refines nothing, and refuses a --refine above 0")
     p.add_argument("--only", action="append", default=[], metavar="NAME",
                    help="check only the properties named like NAME (shell-style: 'HS:*', 'NoHarm'; repeatable); the "
-                        "others are not modelled at all, so the model is built for these alone (a condition that "
-                        "names no property is an error listing them). The exit code then speaks for these only")
+                        "others are not modelled at all, so the model is built for these alone (a NAME that names no "
+                        "property is an error listing them). The exit code then speaks for these only")
     p.add_argument("--json", action="store_true", help="print the results as JSON on standard output")
     _add_set(p)
     p.set_defaults(handler=run)

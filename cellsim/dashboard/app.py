@@ -182,8 +182,10 @@ class Dashboard(App):
         self._logged = 0
         self._shown: dict[str, object] = {}
         self.terminated = False
-        """Whether SIGTERM ended it (the command then ends as Ctrl-C does: exit 130)."""
+        """Whether SIGTERM ended it (the command then ends as Ctrl-C does: exit 130); set by the command's own
+        handler for a SIGTERM that came before the screen was up, which then ends it as soon as it is."""
         self._before_term = None
+        self._term_installed = False
 
     def _view(self, selector: str, kind):
         """A widget of the dashboard's own screen (the first on the stack, whatever choice is shown over it);
@@ -212,6 +214,9 @@ class Dashboard(App):
 
     def on_mount(self) -> None:
         self._end_on_sigterm()
+        if self.terminated:  # SIGTERM came while it started
+            self.exit()
+            return
         self.refresh_views()
         self.set_interval(1.0 / REFRESH, self.refresh_views)
 
@@ -229,7 +234,7 @@ class Dashboard(App):
         try:
             before = signal.getsignal(signal.SIGTERM)
             asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, terminated)
-            self._before_term = before
+            self._before_term, self._term_installed = before, True
         except (NotImplementedError, RuntimeError, ValueError):  # no such handlers here (not the main thread)
             pass
 
@@ -237,10 +242,10 @@ class Dashboard(App):
         import asyncio
         import signal
 
-        if self._before_term is not None:  # the handler the command had is back once the screen is down
+        if self._term_installed:  # the handler the command had is back once the screen is down
             asyncio.get_running_loop().remove_signal_handler(signal.SIGTERM)
-            signal.signal(signal.SIGTERM, self._before_term)
-            self._before_term = None
+            signal.signal(signal.SIGTERM, self._before_term if self._before_term is not None else signal.SIG_DFL)
+            self._term_installed = False
 
     def refresh_views(self) -> None:
         try:

@@ -52,9 +52,10 @@ def in_own_process(work, say=None):
 
 def side_by_side(works: list, at_once: int | None = None) -> list:
     """Each ``work(say)`` of ``works`` in a forked child of its own, at most ``at_once`` at a time (default: the
-    cores this process may use); their results in order. The first error a child gives (in the order of ``works``)
-    is raised once that child has ended, the children still at work stopped (as an interrupt stops them), the work
-    not yet started never started: a batch that has failed is not waited out."""
+    cores this process may use); their results in order. The children are collected in the order of ``works``: the
+    first error found so is raised as soon as its child has ended, the children still at work stopped (as an
+    interrupt stops them) and the work not yet started never started, so a batch that has failed is not waited out
+    beyond the children before the failing one."""
     if not hasattr(os, "fork") or len(works) < 2:
         return [work(lambda text: None) for work in works]
     return _side_by_side(works, at_once or cores())

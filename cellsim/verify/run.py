@@ -310,7 +310,9 @@ def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset
                 prop.ends = len(ends)
                 for k, where in enumerate(ends):
                     abstract.labels[f"bad{i}_end{k}"] = where
-    header = (f"Abstract model of the cell '{scenario.name}', written by cellsim verify.\n"
+    asked = (f"Only the properties asked for (--only {' '.join(only)}) are in it; not modelled: {', '.join(unasked)}.\n"
+             if unasked else "")
+    header = (f"Abstract model of the cell '{scenario.name}', written by cellsim verify.\n{asked}"
               f"One step is one period of {period:g} s. Assumptions:\n" + "\n".join(f"- {a}" for a in abstract.assumptions))
     text = abstract.program(header).text()
     times["model"] = time.perf_counter() - mark
@@ -378,7 +380,7 @@ def _vocabulary(sf, cell):
 def properties_text(model: AbstractModel) -> str:
     """The properties file: one PCTL property per line, named as ``verify`` prints them with each character Storm
     does not take in a name (``:``) written ``_``, the printed name in the comment above it."""
-    lines = []
+    lines = [f"// not asked for (--only), not modelled: {', '.join(model.unasked)}"] if model.unasked else []
     for prop in model.properties:
         text = f'Pmax=? [ F "{model.labels[prop.name]}" ]' if prop.bad else prop.pctl
         lines.append(f"// {prop.name}: {prop.description}")
