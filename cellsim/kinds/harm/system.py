@@ -176,7 +176,9 @@ class HarmMonitor(CellSystem):
         # clamp_gap is not measured (no region can rest on it); within one look each pair is measured once
         self._spheres = {g: bounding_sphere(inspector.GetShape(g), RigidTransform()) for g in [*self.bodies, *self.clamps]}
         self._blocker_radii = np.array([self._spheres[g][1] for g in self.clamps])
-        self._looked: dict = {}
+        self._pairs_near: dict = {}  # this look's: (region, blocker) -> their closest points within clamp_gap, or None
+        self._blockers_near: dict = {}  # this look's: region -> the blockers whose spheres lie within clamp_gap of it
+        self._blocker_centres = None  # this look's: where each blocker's sphere is (m, world)
         self._pairs = NearestPair(inspector, list(self.parts), list(self.bodies))  # every robot part and body region
         # each touching pair's push, its normal while the overlap was last shallow (3 per pair, zero while it does
         # not touch), and how deep its overlap is still shallow (m): see measure()
@@ -414,7 +416,7 @@ class HarmMonitor(CellSystem):
         (an edge of a box turns the normal at once, however shallow). An arm drawing back out of deep within a region
         may so read as pushing (the normal of the instant points back the way it came): the reading errs on harm."""
         onset = context.get_discrete_state(self._onset).get_value()
-        self._looked = {}  # this look's pairs measured by _resting (the geometry moves between looks)
+        self._pairs_near, self._blockers_near, self._blocker_centres = {}, {}, None  # (the geometry has moved)
         onsets = {}
         separation = dict.fromkeys(self.robots, self.cfg.cutoff)
         nearest, nearest_distance = None, self.cfg.cutoff
@@ -505,27 +507,28 @@ class HarmMonitor(CellSystem):
         """The closest points of ``region`` and the blocker ``other`` where they lie within clamp_gap, else None;
         measured once a look, and not at all where their bounding spheres lie farther apart than clamp_gap."""
         key = (region, other)
-        if key not in self._looked:
+        if key not in self._pairs_near:
             pair = None
             if other in self._near_blockers(query, region):
                 pair = query.ComputeSignedDistancePairClosestPoints(region, other)
                 if pair.distance > self.cfg.clamp_gap:
                     pair = None
-            self._looked[key] = pair
-        return self._looked[key]
+            self._pairs_near[key] = pair
+        return self._pairs_near[key]
 
     def _near_blockers(self, query, region) -> set:
         """The blockers whose bounding spheres lie within clamp_gap of ``region``'s, this look (an unbounded sphere
         counts as near: it is measured)."""
-        near = self._looked.get(region)
+        near = self._blockers_near.get(region)
         if near is None:
-            if "blockers" not in self._looked:  # where every blocker's sphere is, this look
-                self._looked["blockers"] = np.array([query.GetPoseInWorld(g) @ self._spheres[g][0]
-                                                     for g in self.clamps]).reshape(-1, 3)
+            if self._blocker_centres is None:
+                self._blocker_centres = np.array([query.GetPoseInWorld(g) @ self._spheres[g][0]
+                                                  for g in self.clamps]).reshape(-1, 3)
             centre, radius = self._spheres[region]
-            apart = (np.linalg.norm(self._looked["blockers"] - query.GetPoseInWorld(region) @ centre, axis=1)
+            apart = (np.linalg.norm(self._blocker_centres - query.GetPoseInWorld(region) @ centre, axis=1)
                      - self._blocker_radii - radius)
-            near = self._looked[region] = {g for g, gap in zip(self.clamps, apart) if not gap > self.cfg.clamp_gap}
+            near = self._blockers_near[region] = {g for g, gap in zip(self.clamps, apart)
+                                                  if not gap > self.cfg.clamp_gap}
         return near
 
     def _beneath(self, query, blocker, region, p_W, push) -> bool:
