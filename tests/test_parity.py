@@ -22,7 +22,7 @@ from cellsim.scenario import load_scenario
 from cellsim.blackbox import BlackBox
 from cellsim.diagrams.cell import build_cell
 
-from conftest import ROOT, run
+from conftest import ONE_AT_A_TIME, ROOT, run
 from live_processes import ChannelWatch, can_server, free_port, observer, processes, wait_alive
 
 WELDING_CELL = ROOT / "scenarios" / "welding_cell.yaml"
@@ -111,6 +111,8 @@ def _after_silence(twin, done: threading.Event, link: ChannelWatch) -> None:
 
 
 @pytest.mark.slow
+@ONE_AT_A_TIME  # (its readings' freshness is judged by the twin's clock: beside a two-worker campaign, CAN frames
+# arrived late enough to read stale between readings, in 2 of 4 runs of the suite on two cores)
 def test_a_scripted_curtain_gives_the_twin_the_same_rows_over_zenoh_and_over_can_through_the_bridge(tmp_path, cell_keys):
     from cellsim.bridges.config import load_bridge
     from cellsim.bridges.e2e import protect
