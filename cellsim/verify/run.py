@@ -310,9 +310,9 @@ def abstract_model(sf, cell=None, *, timed: bool = False, refinements: frozenset
                 prop.ends = len(ends)
                 for k, where in enumerate(ends):
                     abstract.labels[f"bad{i}_end{k}"] = where
-    asked = (f"Only the properties asked for (--only {' '.join(only)}) are in it; not modelled: {', '.join(unasked)}.\n"
-             if unasked else "")
-    header = (f"Abstract model of the cell '{scenario.name}', written by cellsim verify.\n{asked}"
+    selection = (f"Only the properties asked for (--only {' '.join(only)}) are in it; not modelled: "
+                 f"{', '.join(unasked)}.\n" if unasked else "")
+    header = (f"Abstract model of the cell '{scenario.name}', written by cellsim verify.\n{selection}"
               f"One step is one period of {period:g} s. Assumptions:\n" + "\n".join(f"- {a}" for a in abstract.assumptions))
     text = abstract.program(header).text()
     times["model"] = time.perf_counter() - mark
